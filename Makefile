@@ -1,0 +1,30 @@
+# The two commands of the quickstart: `make demo` and `make test`.
+# Both bootstrap what they need (libLLVM >= 16, .venv, dependencies) first.
+VENV   := .venv
+PY     := $(VENV)/bin/python
+CLI    := $(VENV)/bin/nirc-bench
+DEMO_DIR ?= data/demo
+
+.PHONY: bootstrap demo test test-fast bench lint clean
+
+bootstrap:
+	@bash scripts/bootstrap.sh
+
+demo: bootstrap
+	$(CLI) render --scene cornell-box --method pt --res 64 --spp 1 --frames 4 --seeds 8 \
+		--ref-spp 4096 --out $(DEMO_DIR)
+
+test: bootstrap
+	$(PY) -m pytest -q
+
+test-fast: bootstrap
+	$(PY) -m pytest -q -m "not slow"
+
+bench: bootstrap
+	$(PY) -m benchmarks.bench_pt
+
+lint: bootstrap
+	$(VENV)/bin/ruff check .
+
+clean:
+	rm -rf $(VENV) .pytest_cache data/demo
