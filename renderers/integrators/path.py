@@ -1,0 +1,159 @@
+"""The shared path-tracing core: NEE + MIS for direct light, Russian roulette.
+
+Every method of nirc-bench is this loop plus its own terms: `pt` is the loop
+as written here; the radiance-caching methods add a cache term or a
+termination decision in their own marked sections of a subclass, never in a
+copy of the loop.
+
+The estimator is the standard unidirectional path tracer (Veach & Guibas 1995,
+"Optimally combining sampling techniques"; Mitsuba 3's ``path`` plugin): at
+each vertex x_k with throughput beta_k
+
+    L += beta_k * w_bsdf * L_e(x_k)                      (emission hit by BSDF sampling)
+    L += beta_k * f(x_k) * L_e / p_light * w_light       (next-event estimation)
+
+with the power heuristic w_a = p_a^2 / (p_a^2 + p_b^2). Its expectation is
+the rendering equation's solution up to ``max_depth`` segments, which the
+statistical test in ``tests/renderers/test_pt_agreement.py`` checks against
+Mitsuba's built-in ``path``.
+
+Russian roulette (Arvo & Kirk 1990) starts at depth ``rr_depth``:
+``rr_mode='fixed'`` survives with probability ``rr_survival`` (0.9 — the
+termination probability 0.1 of the NIRC paper, Sec. 6.2); ``rr_mode=
+'throughput'`` uses Mitsuba's rule q = min(max(beta) * eta^2, 0.95). Both are
+unbiased; they differ in path length and so in speed and variance.
+
+Left out on purpose: participating media, polarisation, hidden emitters.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+PLUGIN_NAME = "nirc_path"
+RR_MODES = ("fixed", "throughput")
+
+
+def mis_weight(pdf_a: mi.Float, pdf_b: mi.Float) -> mi.Float:
+    """Power heuristic (beta = 2) weight of technique a; 0 where p_a is 0."""
+    a2 = dr.square(pdf_a)
+    return dr.detach(dr.select(pdf_a > 0, a2 / dr.fma(pdf_b, pdf_b, a2), 0))
+
+
+class PathIntegrator(mi.SamplingIntegrator):
+    """Unidirectional path tracer with NEE + MIS and Russian roulette.
+
+    Parameters (Mitsuba properties):
+        max_depth    (int, default 8): longest path in segments; -1 = unbounded.
+                     1 shows only directly visible emitters, 2 adds direct light.
+        rr_depth     (int, default 5): first depth at which roulette may stop a path.
+        rr_mode      ('fixed' | 'throughput', default 'fixed').
+        rr_survival  (float, default 0.9): survival probability in 'fixed' mode.
+
+    The AOV ``depth`` holds the number of surface vertices each path visited,
+    from which the frame loop reports the average path length.
+    """
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self.max_depth = int(props.get("max_depth", 8))
+        self.rr_depth = int(props.get("rr_depth", 5))
+        self.rr_mode = str(props.get("rr_mode", "fixed"))
+        self.rr_survival = float(props.get("rr_survival", 0.9))
+        if self.max_depth < -1 or self.max_depth == 0:
+            raise ValueError("max_depth must be -1 (unbounded) or >= 1")
+        if self.rr_depth < 1:
+            raise ValueError("rr_depth must be >= 1")
+        if self.rr_mode not in RR_MODES:
+            raise ValueError(f"rr_mode must be one of {RR_MODES}")
+        if not 0.0 < self.rr_survival <= 1.0:
+            raise ValueError("rr_survival must be in (0, 1]")
+        # Mitsuba's convention: -1 means unbounded; the loop compares unsigned.
+        self.max_depth_u32 = 0xFFFFFFFF if self.max_depth == -1 else self.max_depth
+
+    def aov_names(self) -> list[str]:
+        return ["depth"]
+
+    def russian_roulette(
+        self, sampler: mi.Sampler, depth: mi.UInt32, beta: mi.Spectrum, eta: mi.Float,
+        active: mi.Bool,
+    ) -> tuple[mi.Spectrum, mi.Bool]:
+        """Return (beta / q where roulette ran, mask of paths that survive)."""
+        if self.rr_mode == "fixed":
+            q = mi.Float(self.rr_survival)
+        else:
+            q = dr.minimum(dr.max(beta) * dr.square(eta), 0.95)
+        rr_active = depth >= self.rr_depth
+        rr_continue = sampler.next_1d(active) < q
+        beta = dr.select(rr_active, beta * dr.rcp(q), beta)
+        return beta, ~rr_active | rr_continue
+
+    @dr.syntax
+    def sample(
+        self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.RayDifferential3f,
+        medium: mi.Medium = None, active: mi.Bool = True,
+    ) -> tuple[mi.Spectrum, mi.Bool, list[mi.Float]]:
+        bsdf_ctx = mi.BSDFContext()
+
+        # --------------------- Loop state ---------------------
+        ray = mi.Ray3f(ray)
+        L = mi.Spectrum(0)                    # radiance accumulator
+        beta = mi.Spectrum(1)                 # path throughput weight
+        eta = mi.Float(1)                     # product of relative IORs (for roulette)
+        depth = mi.UInt32(0)                  # surface vertices visited so far
+        active = mi.Bool(active)              # active SIMD lanes
+        valid_ray = mi.Bool(scene.environment() is not None)  # did the ray hit anything?
+        prev_si = dr.zeros(mi.SurfaceInteraction3f)  # previous vertex (for the emitter pdf)
+        prev_bsdf_pdf = mi.Float(1.0)         # solid-angle pdf of the last BSDF sample
+        prev_bsdf_delta = mi.Bool(True)       # last BSDF sample was a delta lobe (or camera)
+
+        while dr.hint(active, max_iterations=-1, label="nirc path tracer"):
+            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All,
+                                     coherent=(depth == 0), active=active)
+
+            # ---- Direct emission (BSDF sampling hit an emitter; MIS weight vs NEE) ----
+            ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+            pdf_light = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_bsdf_delta)
+            w_bsdf = mis_weight(prev_bsdf_pdf, pdf_light)
+            Le = ds.emitter.eval(si, active & (prev_bsdf_pdf > 0))
+            L = dr.fma(beta, Le * w_bsdf, L)
+
+            active_next = (depth + 1 < self.max_depth_u32) & si.is_valid() & active
+            valid_ray |= active & si.is_valid()
+            bsdf = si.bsdf(ray)
+
+            # ---- Emitter sampling (next-event estimation; MIS weight vs BSDF) ----
+            active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            ds_em, em_weight = scene.sample_emitter_direction(
+                si, sampler.next_2d(active_em), True, active_em)
+            active_em &= ds_em.pdf != 0
+            wo_em = si.to_local(ds_em.d)
+
+            # ---- BSDF evaluation at the light direction and BSDF sampling ----
+            u1 = sampler.next_1d(active_next)
+            u2 = sampler.next_2d(active_next)
+            bsdf_val, bsdf_pdf, bsdf_sample, bsdf_weight = bsdf.eval_pdf_sample(
+                bsdf_ctx, si, wo_em, u1, u2, active_next)
+            w_light = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf))
+            L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_light, L)
+
+            # ---- Update loop variables (continue along the BSDF sample) ----
+            ray = si.spawn_ray(si.to_world(bsdf_sample.wo))
+            beta *= bsdf_weight
+            eta *= bsdf_sample.eta
+            prev_si = dr.detach(si, True)
+            prev_bsdf_pdf = bsdf_sample.pdf
+            prev_bsdf_delta = mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
+            depth[si.is_valid() & active] += 1
+
+            # ---- Stopping criterion (Russian roulette; zero throughput) ----
+            beta, survive = self.russian_roulette(sampler, depth, beta, eta, active_next)
+            active = active_next & survive & (dr.max(beta) != 0)
+
+        return L, valid_ray, [mi.Float(depth)]
+
+
+def register() -> None:
+    """Register the plugin under ``PLUGIN_NAME`` (idempotent)."""
+    mi.register_integrator(PLUGIN_NAME, lambda props: PathIntegrator(props))

@@ -1,0 +1,57 @@
+"""`pt`: the unbiased path-tracing baseline (the shared core with no cache)."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field, model_validator
+
+from renderers.methods.base import MethodParams, RenderOutput, run_frames
+from renderers.timing import StageTimer
+
+DEFAULT_MAX_DEPTH = 8
+
+
+class PTParams(MethodParams):
+    """Parameters of the path-tracing core (see renderers.integrators.path)."""
+
+    max_depth: int = Field(DEFAULT_MAX_DEPTH, ge=-1, le=1024,
+                           description="longest path in segments; -1 = unbounded")
+    rr_depth: int = Field(5, ge=1, le=1024, description="first depth of Russian roulette")
+    rr_mode: Literal["fixed", "throughput"] = "fixed"
+    rr_survival: float = Field(0.9, gt=0.0, le=1.0,
+                               description="survival probability in rr_mode 'fixed'")
+
+    @model_validator(mode="after")
+    def _depth_not_zero(self) -> PTParams:
+        if self.max_depth == 0:
+            raise ValueError("max_depth must be -1 (unbounded) or >= 1")
+        return self
+
+
+def path_integrator(params: PTParams) -> Any:
+    """A loaded instance of the shared path-tracing core with ``params``."""
+    import mitsuba as mi
+
+    from renderers.integrators import path
+
+    path.register()
+    return mi.load_dict({"type": path.PLUGIN_NAME, **params.model_dump()})
+
+
+def render(
+    scene: Any, params: PTParams, *, seed_parts: tuple[Any, ...], spp: int, frames: int,
+    keep_frames: bool = False, progress=None,
+) -> RenderOutput:
+    """Render ``frames`` frames of ``spp`` samples per pixel with the PT core."""
+    import mitsuba as mi
+
+    integrator = path_integrator(params)
+
+    def render_frame(_index: int, seed: int, timer: StageTimer):
+        with timer.stage("render", lambda: (image,)):
+            image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
+        return image
+
+    return run_frames(render_frame, seed_parts=seed_parts, frames=frames,
+                      keep_frames=keep_frames, progress=progress)
