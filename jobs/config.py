@@ -1,0 +1,59 @@
+"""Settings of the job store: where the data folder and the database live.
+
+Read from environment variables with the prefix ``NIRC_BENCH_`` (e.g.
+``NIRC_BENCH_DATA_DIR``, ``NIRC_BENCH_DATABASE_URL``), in the style of the
+FastAPI full-stack template's ``core/config.py``. The embedded default keeps
+everything in ``./data`` under the working directory: a SQLite database plus
+the artifact and reference folders beside it.
+"""
+
+from pathlib import Path
+
+from pydantic import Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+DATABASE_FILENAME = "nirc-bench.db"
+
+
+class Settings(BaseSettings):
+    """Store settings; ``database_url`` is always a string after validation."""
+
+    model_config = SettingsConfigDict(env_prefix="NIRC_BENCH_", extra="ignore")
+
+    # Resolved at construction (not import) time so that a test or a CLI call
+    # that changes directory or environment sees its own working directory.
+    data_dir: Path = Field(default_factory=lambda: Path.cwd() / "data")
+    # None means "the embedded SQLite database inside data_dir".
+    database_url: str | None = None
+
+    @field_validator("data_dir")
+    @classmethod
+    def _absolute_data_dir(cls, value: Path) -> Path:
+        # An absolute path keeps the SQLite URL and the artifact paths valid if
+        # the process later changes directory (workers, test fixtures).
+        return value.expanduser().absolute()
+
+    @model_validator(mode="after")
+    def _default_database_url(self) -> "Settings":
+        if not self.database_url:
+            self.database_url = f"sqlite:///{(self.data_dir / DATABASE_FILENAME).as_posix()}"
+        return self
+
+    @property
+    def artifacts_dir(self) -> Path:
+        """Root of the content-addressed artifact files (EXR, PNG, error maps)."""
+        return self.data_dir / "artifacts"
+
+    @property
+    def references_dir(self) -> Path:
+        """Folder for converged reference images and their variance images."""
+        return self.data_dir / "references"
+
+
+def get_settings() -> Settings:
+    """Fresh settings from the current environment.
+
+    Deliberately not cached: constructing settings is cheap, and a cache would
+    hide environment changes made by tests or by the CLI's ``--data-dir``.
+    """
+    return Settings()

@@ -1,0 +1,126 @@
+"""Engine creation, schema migration at start, and ``open_store``.
+
+SQLite (the embedded default) is tuned for several processes sharing one file
+(the CLI, local-cluster workers, the service): WAL so readers never block the
+writer, ``busy_timeout`` so writers wait for each other instead of failing,
+foreign keys on (SQLite leaves them off per connection), and transactions begun
+by SQLAlchemy rather than the sqlite3 driver so that DDL is transactional and
+a migration is never half-applied. PostgreSQL URLs need none of this.
+
+Migrations run programmatically on every ``open_store``: the Alembic
+environment in ``jobs/migrations`` is configured in code, so no alembic.ini is
+needed at run time.
+"""
+
+from pathlib import Path
+from typing import Any
+
+from alembic import command
+from alembic.config import Config
+from alembic.migration import MigrationContext
+from alembic.script import ScriptDirectory
+from sqlalchemy import Connection, Engine, create_engine, event, text
+from sqlalchemy.engine import URL, make_url
+
+from jobs.config import Settings, get_settings
+from jobs.store import BEGIN_IMMEDIATE_OPTION, Store
+
+MIGRATIONS_DIR = Path(__file__).resolve().with_name("migrations")
+SQLITE_BUSY_TIMEOUT_MS = 30_000
+# Arbitrary constant ("nirc") naming the PostgreSQL advisory lock that serializes
+# migrations when several machines start at once.
+_PG_MIGRATION_LOCK = 0x6E697263
+
+
+class SchemaVersionError(RuntimeError):
+    """The database was migrated by a newer nirc-bench than the one running."""
+
+
+def make_engine(url: str | URL) -> Engine:
+    """An engine for ``url``; SQLite files get their folder, WAL and busy_timeout."""
+    url = make_url(url)
+    if url.get_backend_name() != "sqlite":
+        # Long-lived workers outlive server-side idle timeouts; re-check on checkout.
+        return create_engine(url, pool_pre_ping=True)
+    database = url.database
+    if database and database != ":memory:" and not url.query.get("uri"):
+        Path(database).expanduser().parent.mkdir(parents=True, exist_ok=True)
+    engine = create_engine(url)
+    event.listen(engine, "connect", _sqlite_on_connect)
+    event.listen(engine, "begin", _sqlite_on_begin)
+    return engine
+
+
+def _sqlite_on_connect(dbapi_connection: Any, connection_record: Any) -> None:
+    # Take transaction control away from the sqlite3 driver, whose legacy mode
+    # runs DDL and SELECTs outside any transaction; _sqlite_on_begin emits BEGIN.
+    dbapi_connection.isolation_level = None
+    cursor = dbapi_connection.cursor()
+    try:
+        # busy_timeout first: switching to WAL needs a lock another process may hold.
+        cursor.execute(f"PRAGMA busy_timeout = {SQLITE_BUSY_TIMEOUT_MS}")
+        cursor.execute("PRAGMA journal_mode = WAL")
+        cursor.execute("PRAGMA foreign_keys = ON")
+    finally:
+        cursor.close()
+
+
+def _sqlite_on_begin(connection: Connection) -> None:
+    # Writers ask for IMMEDIATE to queue on busy_timeout for the write lock; a
+    # deferred transaction that reads first would instead fail at once with
+    # "database is locked" if another writer committed in between.
+    immediate = connection.get_execution_options().get(BEGIN_IMMEDIATE_OPTION, False)
+    connection.exec_driver_sql("BEGIN IMMEDIATE" if immediate else "BEGIN")
+
+
+def alembic_config() -> Config:
+    """The Alembic configuration of the job store, built in code."""
+    config = Config()
+    # ConfigParser interpolates '%', which may occur in an install path.
+    config.set_main_option("script_location", str(MIGRATIONS_DIR).replace("%", "%%"))
+    return config
+
+
+def migrate(engine: Engine) -> None:
+    """Upgrade the database to the newest schema; a no-op when it is current.
+
+    Safe when several processes start at once: the check and the upgrade run in
+    one transaction holding SQLite's write lock (or a PostgreSQL advisory lock),
+    so the later process waits and then finds nothing to do.
+    """
+    config = alembic_config()
+    script = ScriptDirectory.from_config(config)
+    heads = set(script.get_heads())
+    known = {revision.revision for revision in script.walk_revisions()}
+    with engine.execution_options(**{BEGIN_IMMEDIATE_OPTION: True}).begin() as connection:
+        if connection.dialect.name == "postgresql":
+            connection.execute(
+                text("SELECT pg_advisory_xact_lock(:key)"), {"key": _PG_MIGRATION_LOCK}
+            )
+        current = set(MigrationContext.configure(connection).get_current_heads())
+        if current - known:
+            raise SchemaVersionError(
+                f"the database at {engine.url.render_as_string(hide_password=True)} has "
+                f"schema revision {', '.join(sorted(current - known))}, which this "
+                "version of nirc-bench does not know: it was created by a newer "
+                "nirc-bench. Upgrade nirc-bench or point NIRC_BENCH_DATABASE_URL / "
+                "NIRC_BENCH_DATA_DIR at another database."
+            )
+        if current == heads:
+            return
+        # env.py runs the migrations on this connection, inside this transaction.
+        config.attributes["connection"] = connection
+        command.upgrade(config, "head")
+
+
+def open_store(settings: Settings | None = None) -> Store:
+    """Connect to the configured database, migrate it to head, and return a Store."""
+    settings = settings or get_settings()
+    assert settings.database_url is not None  # filled in by Settings validation
+    engine = make_engine(settings.database_url)
+    try:
+        migrate(engine)
+    except BaseException:
+        engine.dispose()
+        raise
+    return Store(engine)

@@ -1,0 +1,201 @@
+"""The executor: the one place that joins rendering, metrics and storage.
+
+The CLI (embedded) and the service workers (distributed) both run a job by
+calling :func:`execute`. A job renders its method K times with independent
+seeds, compares each accumulated image with the converged reference, reduces
+the K results to rBias^2 / rVar / MRSE with a confidence interval, writes the
+artifacts, and stores the run with its provenance in one transaction.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jobs.artifacts import ArtifactStore
+from jobs.config import Settings
+from jobs.provenance import git_commit, library_versions
+from jobs.references import LoadedReference, get_or_render_reference
+from jobs.spec import RenderSpec
+from jobs.store import Store
+from metrics.errors import bias_variance, efficiency, image_metrics, relative_squared_error_map
+from metrics.imageio import write_exr, write_png
+from metrics.preview import error_map_preview, tonemap_preview
+from renderers.backend import device_info, init_backend
+from renderers.methods import get_method, parse_params
+from renderers.scenes import load_scene
+
+#: progress(stage, done, total): stage is 'reference' or 'seed k/K'.
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass
+class RunSummary:
+    """What a finished job reports (also stored in the database)."""
+
+    run_id: int
+    spec: RenderSpec
+    scene_fingerprint: str
+    reference: dict[str, Any]
+    metrics: dict[str, Any]
+    per_seed: list[dict[str, Any]]
+    timings: dict[str, Any]
+    path_stats: dict[str, Any]
+    device: dict[str, Any]
+    quality: dict[str, Any]
+    files: dict[str, str] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["spec"] = self.spec.model_dump(mode="json")
+        return data
+
+
+def _artifact(store: ArtifactStore, data: bytes, kind: str, suffix: str, media_type: str,
+              seed: int | None = None) -> dict[str, Any]:
+    sha256, relpath = store.put_bytes(data, suffix)
+    return {"kind": kind, "media_type": media_type, "sha256": sha256, "path": relpath,
+            "bytes": len(data), "seed": seed}
+
+
+def _encode(writer: Callable[[Path, np.ndarray], None], image: np.ndarray, tmp: Path) -> bytes:
+    """Bytes of ``image`` encoded by ``writer`` (EXR or PNG) through a scratch file."""
+    writer(tmp, image)
+    data = tmp.read_bytes()
+    tmp.unlink()
+    return data
+
+
+def _seed_artifacts(store: ArtifactStore, scratch: Path, seed: int, image: np.ndarray,
+                    reference: LoadedReference, eps: float, previews: bool) -> list[dict]:
+    artifacts = [_artifact(store, _encode(write_exr, image, scratch / "img.exr"), "image",
+                           ".exr", "image/x-exr", seed)]
+    if previews:
+        error_map = relative_squared_error_map(image, reference.mean, eps)
+        artifacts += [
+            _artifact(store, _encode(write_png, tonemap_preview(image), scratch / "p.png"),
+                      "preview", ".png", "image/png", seed),
+            _artifact(store, _encode(write_png, error_map_preview(error_map), scratch / "e.png"),
+                      "error_map", ".png", "image/png", seed),
+        ]
+    return artifacts
+
+
+def _export(out_dir: Path, summary: RunSummary, reference: LoadedReference,
+            store: ArtifactStore, artifacts: list[dict[str, Any]]) -> dict[str, str]:
+    """Copy the run's files under readable names into ``out_dir`` (plus summary.json)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {"reference": out_dir / "reference.exr"}
+    shutil.copyfile(reference.image_path, files["reference"])
+    for artifact in artifacts:
+        suffix = Path(artifact["path"]).suffix
+        name = f"{artifact['kind']}_seed{artifact['seed']}{suffix}"
+        files[name] = out_dir / name
+        shutil.copyfile(store.path_of(artifact["path"]), files[name])
+    files["summary"] = out_dir / "summary.json"
+    files["summary"].write_text(json.dumps(summary.to_json(), indent=2, default=str))
+    return {name: str(path) for name, path in files.items()}
+
+
+def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray], reference: np.ndarray,
+              eps: float, frame_seconds: float) -> dict[str, Any]:
+    """Reduce K per-seed results: rBias^2/rVar over seeds, mean MRSE with its CI, FLIP."""
+    metrics: dict[str, Any] = {"k": len(images), "eps": eps}
+    if len(images) >= 2:
+        metrics.update(bias_variance(np.stack(images), reference, eps))
+    else:
+        metrics["mrse_mean"] = per_seed[0]["mrse"]
+    for name in ("mse", "flip_hdr", "flip_ldr"):
+        metrics[f"{name}_mean"] = float(np.mean([s[name] for s in per_seed]))
+    metrics["seconds_per_frame"] = frame_seconds
+    metrics["efficiency"] = efficiency(metrics["mrse_mean"], frame_seconds)
+    return metrics
+
+
+def execute(
+    spec: RenderSpec,
+    store: Store,
+    settings: Settings,
+    progress: Progress | None = None,
+    out_dir: Path | None = None,
+) -> RunSummary:
+    """Run ``spec`` to completion and store the result; see the module docstring."""
+    init_backend()
+    params = parse_params(spec.method, spec.params)
+    scene = load_scene(spec.scene, spec.resolution)
+    method = get_method(spec.method)
+    device = device_info()
+    started = datetime.now(UTC)
+
+    reference = get_or_render_reference(
+        store, settings.references_dir, scene, spec.reference.settings(spec.max_depth()),
+        progress=(lambda done, total: progress("reference", done, total)) if progress else None)
+
+    artifacts_store = ArtifactStore(settings.artifacts_dir)
+    scratch = settings.data_dir / "tmp"
+    scratch.mkdir(parents=True, exist_ok=True)
+    param_json = params.model_dump(mode="json")
+    per_seed, images, artifacts, seed_timings = [], [], [], []
+    nonfinite = 0
+    for seed in range(spec.seeds):
+        label = f"seed {seed + 1}/{spec.seeds}"
+        output = method.render(
+            scene, params, seed_parts=(scene.fingerprint, spec.method, param_json, spec.spp, seed),
+            spp=spec.spp, frames=spec.frames, keep_frames=spec.keep_frames,
+            progress=(lambda done, total, label=label: progress(label, done, total))
+            if progress else None)
+        values = image_metrics(output.accumulated, reference.mean, eps=spec.eps,
+                               flip_exposures=reference.flip_exposures)
+        nonfinite += values["nonfinite_pixels"]
+        values["seconds_per_frame"] = output.timings["frame_median_s"]
+        per_seed.append({"seed": seed, **values, "path_stats": output.path_stats})
+        seed_timings.append(output.timings)
+        images.append(output.accumulated)
+        artifacts += _seed_artifacts(artifacts_store, scratch, seed, output.accumulated,
+                                     reference, spec.eps, previews=seed == 0)
+
+    frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
+    metrics = aggregate(per_seed, images, reference.mean, spec.eps, frame_seconds)
+    timings = {
+        "protocol": seed_timings[0]["protocol"],
+        "seconds_per_frame": frame_seconds,
+        "warmup_s": seed_timings[0]["warmup_s"],
+        "compile_s_estimate": seed_timings[0]["compile_s_estimate"],
+        "stages": seed_timings[0]["stages"],
+    }
+    path_stats = {"avg_path_vertices": float(np.mean(
+        [s["path_stats"]["avg_path_vertices"] for s in per_seed]))}
+    quality = {"finite": nonfinite == 0, "nonfinite_pixels": nonfinite}
+    reference_info = {"id": reference.id, "key": reference.key, "spp": reference.spp,
+                      "split_half": reference.split_half, "path": str(reference.image_path),
+                      "rendered_now": reference.rendered_now}
+
+    run = store.add_run(
+        {
+            "created_at": started, "finished_at": datetime.now(UTC), "status": "succeeded",
+            "scene_name": scene.name, "scene_fingerprint": scene.fingerprint,
+            "method": spec.method, "params": {**param_json, "spec": spec.model_dump(mode="json")},
+            "width": scene.resolution[0], "height": scene.resolution[1], "spp": spec.spp,
+            "frames": spec.frames, "seeds": spec.seeds, "reference_id": reference.id,
+            "metrics": metrics, "timings": timings, "path_stats": path_stats,
+            "device": device, "device_key": device["device_key"],
+            "versions": library_versions(), "git_commit": git_commit(), "quality": quality,
+        },
+        [{"seed": s["seed"], "metrics": {k: v for k, v in s.items() if k != "path_stats"},
+          "timings": t} for s, t in zip(per_seed, seed_timings, strict=True)],
+        artifacts,
+    )
+    summary = RunSummary(
+        run_id=run.id, spec=spec, scene_fingerprint=scene.fingerprint, reference=reference_info,
+        metrics=metrics, per_seed=per_seed, timings=timings, path_stats=path_stats,
+        device=device, quality=quality)
+    if out_dir is not None:
+        summary.files = _export(out_dir, summary, reference, artifacts_store, artifacts)
+    return summary

@@ -1,0 +1,254 @@
+"""Database models of the job store: references, runs, per-seed results, artifacts.
+
+The SQL database is the durable record of every result (DESIGN.md, "Jobs,
+sweeps, storage"); images live outside it, content-addressed, and are referenced
+here by ``Artifact`` rows. Schema changes go through an Alembic revision in
+``jobs/migrations/versions`` (a test checks that the models and the migrations
+agree).
+
+Relationships are ``lazy="raise"``: rows are used after their session closes
+(``Store`` returns detached objects), so an attribute that was not loaded must
+fail loudly instead of issuing a query on a closed session. ``Store`` loads what
+each of its functions documents.
+"""
+
+from datetime import UTC, datetime
+from enum import StrEnum
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    CheckConstraint,
+    DateTime,
+    Dialect,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Text,
+    TypeDecorator,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+# Explicit constraint names: Alembic needs them to alter or drop constraints
+# later (SQLite batch mode recreates tables and matches constraints by name).
+NAMING_CONVENTION = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+
+def utcnow() -> datetime:
+    """The current time as an aware UTC datetime (the only kind stored)."""
+    return datetime.now(UTC)
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """A timestamp that is stored in UTC and always read back timezone-aware.
+
+    SQLite has no timezone type and SQLAlchemy drops ``tzinfo`` when writing to
+    it, so an aware non-UTC value would be silently shifted; converting to UTC
+    first (and refusing naive values, whose zone is unknown) makes SQLite and
+    PostgreSQL return the same instants.
+    """
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None:
+            raise ValueError(
+                f"naive datetime {value!r}: pass a timezone-aware time, e.g. datetime.now(UTC)"
+            )
+        value = value.astimezone(UTC)
+        return value if dialect.name == "postgresql" else value.replace(tzinfo=None)
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+    type_annotation_map = {
+        datetime: UTCDateTime(),
+        dict[str, Any]: JSON(),
+        list[Any]: JSON(),
+    }
+
+
+class RunStatus(StrEnum):
+    """Final state of a run; a run row is written once, when it has finished."""
+
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+
+
+class Reference(Base):
+    """A converged reference render, content-addressed by ``key`` and reused.
+
+    ``key`` hashes everything that determines the image (scene fingerprint,
+    resolution, reference integrator, max depth, reference settings), so a job
+    looks it up before rendering and never renders an existing one twice.
+    """
+
+    __tablename__ = "reference_renders"  # "references" is an SQL keyword
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    key: Mapped[str] = mapped_column(String, unique=True)       # content address
+    scene_name: Mapped[str] = mapped_column(String)
+    scene_fingerprint: Mapped[str] = mapped_column(String)
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    integrator: Mapped[str] = mapped_column(String)             # 'path' or 'pt'
+    max_depth: Mapped[int] = mapped_column(Integer)
+    settings: Mapped[dict[str, Any]] = mapped_column(default=dict)  # ReferenceSettings.to_json()
+    spp: Mapped[int] = mapped_column(Integer)                   # samples actually taken
+    passes: Mapped[int] = mapped_column(Integer)
+    rel_stderr: Mapped[float]                                   # reached, not targeted
+    image_path: Mapped[str] = mapped_column(String)             # EXR mean
+    variance_path: Mapped[str] = mapped_column(String)          # EXR variance of the mean
+    split_half: Mapped[dict[str, Any]] = mapped_column(default=dict)  # half-vs-half: the floor
+    flip_exposures: Mapped[list[Any]]                           # [start, stop], fixed per reference
+    render_seconds: Mapped[float]
+    device: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    versions: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+    artifacts: Mapped[list["Artifact"]] = relationship(
+        back_populates="reference",
+        lazy="raise",
+        order_by="Artifact.id",
+        passive_deletes=True,
+    )
+
+
+class Run(Base):
+    """One finished render job: a method on a scene, K seeds, aggregated metrics.
+
+    Timings are only comparable between runs with equal ``device_key``.
+    """
+
+    __tablename__ = "runs"
+    __table_args__ = (
+        Index("ix_runs_scene_fingerprint_method", "scene_fingerprint", "method"),
+        CheckConstraint(
+            "status IN ('succeeded', 'failed')",
+            name="status",
+        ),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
+    finished_at: Mapped[datetime | None]
+    status: Mapped[str] = mapped_column(String)                 # a RunStatus value
+    scene_name: Mapped[str] = mapped_column(String)
+    scene_fingerprint: Mapped[str] = mapped_column(String)
+    method: Mapped[str] = mapped_column(String)
+    params: Mapped[dict[str, Any]] = mapped_column(default=dict)  # method config, stored whole
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    spp: Mapped[int] = mapped_column(Integer)
+    frames: Mapped[int] = mapped_column(Integer)
+    seeds: Mapped[int] = mapped_column(Integer)                 # K independent renders
+    # SET NULL: a reference whose files were lost may be deleted and rendered
+    # again; the runs measured against it stay, without the link.
+    reference_id: Mapped[int | None] = mapped_column(
+        ForeignKey("reference_renders.id", ondelete="SET NULL"), index=True
+    )
+    metrics: Mapped[dict[str, Any]] = mapped_column(default=dict)     # aggregated over seeds
+    timings: Mapped[dict[str, Any]] = mapped_column(default=dict)     # stages, warm-up, protocol
+    path_stats: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    device: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    device_key: Mapped[str] = mapped_column(String, index=True)
+    versions: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    git_commit: Mapped[str | None] = mapped_column(String)
+    quality: Mapped[dict[str, Any]] = mapped_column(default=dict)     # finite?, nonfinite_pixels
+    error: Mapped[str | None] = mapped_column(Text)
+    idempotency_key: Mapped[str | None] = mapped_column(String, unique=True)
+
+    reference: Mapped[Reference | None] = relationship(lazy="raise")
+    seed_results: Mapped[list["SeedResult"]] = relationship(
+        back_populates="run",
+        lazy="raise",
+        order_by="SeedResult.seed",
+        cascade="all, delete-orphan",
+        passive_deletes=True,
+    )
+    # Every artifact of the run, including those that also belong to a seed.
+    artifacts: Mapped[list["Artifact"]] = relationship(
+        back_populates="run",
+        lazy="raise",
+        order_by="Artifact.id",
+        cascade="all, delete-orphan",
+        passive_deletes=True,
+    )
+
+
+class SeedResult(Base):
+    """The metrics and timings of one of a run's K independent renders."""
+
+    __tablename__ = "seed_results"
+    __table_args__ = (UniqueConstraint("run_id", "seed"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    seed: Mapped[int] = mapped_column(Integer)
+    metrics: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    timings: Mapped[dict[str, Any]] = mapped_column(default=dict)     # per frame / stage
+
+    run: Mapped[Run] = relationship(back_populates="seed_results", lazy="raise")
+    artifacts: Mapped[list["Artifact"]] = relationship(
+        back_populates="seed_result",
+        lazy="raise",
+        order_by="Artifact.id",
+        passive_deletes=True,
+    )
+
+
+class Artifact(Base):
+    """A file kept outside the database by content hash (see ``jobs.artifacts``).
+
+    ``path`` is relative to ``Settings.artifacts_dir``. An artifact belongs to a
+    run, a seed result of a run, or a reference (at least one of them).
+    """
+
+    __tablename__ = "artifacts"
+    __table_args__ = (
+        CheckConstraint(
+            "run_id IS NOT NULL OR seed_result_id IS NOT NULL OR reference_id IS NOT NULL",
+            name="has_owner",
+        ),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("runs.id", ondelete="CASCADE"), index=True
+    )
+    seed_result_id: Mapped[int | None] = mapped_column(
+        ForeignKey("seed_results.id", ondelete="CASCADE"), index=True
+    )
+    reference_id: Mapped[int | None] = mapped_column(
+        ForeignKey("reference_renders.id", ondelete="CASCADE"), index=True
+    )
+    kind: Mapped[str] = mapped_column(String)        # image, error_map, preview, variance, flip_map
+    media_type: Mapped[str] = mapped_column(String)  # e.g. image/x-exr, image/png
+    sha256: Mapped[str] = mapped_column(String, index=True)
+    path: Mapped[str] = mapped_column(String)
+    bytes: Mapped[int] = mapped_column(BigInteger)   # EXRs can pass 2 GiB at high resolution
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+    run: Mapped[Run | None] = relationship(back_populates="artifacts", lazy="raise")
+    seed_result: Mapped[SeedResult | None] = relationship(
+        back_populates="artifacts", lazy="raise"
+    )
+    reference: Mapped[Reference | None] = relationship(back_populates="artifacts", lazy="raise")

@@ -1,0 +1,208 @@
+"""The job store's repository: the few reads and writes the executor and service need.
+
+Every function runs in its own short transaction and returns *detached* model
+objects (``expire_on_commit=False``) that stay usable after the session closes.
+What each function loads is stated in its docstring; relationships that were
+not loaded raise on access (``lazy="raise"`` in ``jobs.models``) rather than
+querying a closed session.
+
+Writes start with ``BEGIN IMMEDIATE`` on SQLite (see ``jobs.db``): the write
+lock is taken up front, so concurrent writers queue on ``busy_timeout`` instead
+of failing with "database is locked" when a read transaction tries to upgrade.
+"""
+
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+from sqlalchemy import Engine, delete, select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session, selectinload, sessionmaker
+
+from jobs.models import Artifact, Reference, Run, SeedResult
+
+# Execution option read by the SQLite "begin" hook in jobs.db; ignored elsewhere.
+BEGIN_IMMEDIATE_OPTION = "nirc_bench_begin_immediate"
+
+# Everything get_run() promises to load.
+_RUN_DETAILS = (
+    selectinload(Run.reference).selectinload(Reference.artifacts),
+    selectinload(Run.seed_results).selectinload(SeedResult.artifacts),
+    selectinload(Run.artifacts),
+)
+
+
+class DuplicateKeyError(ValueError):
+    """A row with the same unique key already exists; ``existing`` is that row."""
+
+    def __init__(self, message: str, existing: Reference | Run) -> None:
+        super().__init__(message)
+        self.existing = existing
+
+
+class Store:
+    """Repository over one engine (SQLite or PostgreSQL); see ``jobs.db.open_store``."""
+
+    def __init__(self, engine: Engine) -> None:
+        self.engine = engine
+        self._read_sessions = sessionmaker(engine, expire_on_commit=False)
+        self._write_sessions = sessionmaker(
+            engine.execution_options(**{BEGIN_IMMEDIATE_OPTION: True}),
+            expire_on_commit=False,
+        )
+
+    @contextmanager
+    def session(self, *, write: bool = False) -> Iterator[Session]:
+        """A session in one transaction: committed on exit, rolled back on error.
+
+        Pass ``write=True`` when the session will write, so that SQLite takes the
+        write lock at BEGIN (waiting up to busy_timeout) instead of mid-transaction.
+        """
+        factory = self._write_sessions if write else self._read_sessions
+        with factory.begin() as session:
+            yield session
+
+    def close(self) -> None:
+        """Release pooled connections (the engine stays usable; it reconnects)."""
+        self.engine.dispose()
+
+    # ---- References ----
+
+    def find_reference(self, key: str) -> Reference | None:
+        """The reference with this content key, with its artifacts loaded."""
+        with self.session() as session:
+            return session.scalars(
+                select(Reference).where(Reference.key == key).options(
+                    selectinload(Reference.artifacts)
+                )
+            ).one_or_none()
+
+    def add_reference(
+        self, *, artifacts: Sequence[Mapping[str, Any]] = (), **fields: Any
+    ) -> Reference:
+        """Insert a reference (``fields`` are ``Reference`` columns) and its artifacts.
+
+        Raises ``DuplicateKeyError`` carrying the stored reference when one with
+        the same ``key`` exists, e.g. when two sweep jobs rendered it at once:
+        the caller can keep ``err.existing`` and drop its own copy.
+        """
+        reference = Reference(**fields)
+        reference.artifacts = [Artifact(**a) for a in artifacts]
+        try:
+            with self.session(write=True) as session:
+                session.add(reference)
+        except IntegrityError as err:
+            existing = self.find_reference(reference.key) if reference.key else None
+            if existing is None:
+                raise
+            raise DuplicateKeyError(
+                f"a reference with key {reference.key!r} already exists (id {existing.id})",
+                existing,
+            ) from err
+        return reference
+
+    def delete_reference(self, reference_id: int) -> bool:
+        """Delete a reference row (e.g. its files were lost); False if it did not exist.
+
+        The database cascades: its artifact rows go, and runs measured against
+        it keep their results with ``reference_id`` set to NULL. Files on disk
+        are left alone (other rows may share content-addressed files).
+        """
+        with self.session(write=True) as session:
+            result = session.execute(delete(Reference).where(Reference.id == reference_id))
+            return bool(result.rowcount)
+
+    # ---- Runs ----
+
+    def add_run(
+        self,
+        run_fields: Mapping[str, Any],
+        seed_results: Sequence[Mapping[str, Any]] = (),
+        artifacts: Sequence[Mapping[str, Any]] = (),
+    ) -> Run:
+        """Insert a finished run with its seed results and artifacts in ONE transaction.
+
+        ``run_fields`` are ``Run`` columns, each of ``seed_results`` holds
+        ``SeedResult`` columns (``seed``, ``metrics``, ``timings``), and each of
+        ``artifacts`` holds ``Artifact`` columns plus an optional ``seed``: an
+        artifact naming a seed belongs to that seed's result as well as to the
+        run. Either everything is stored or nothing is.
+
+        Returns the run as ``get_run`` does. Raises ``DuplicateKeyError``
+        carrying the stored run when its ``idempotency_key`` is taken (a retried
+        job), and ``ValueError`` for an artifact naming an unknown seed.
+        """
+        run = Run(**run_fields)
+        by_seed: dict[int, SeedResult] = {}
+        for fields in seed_results:
+            result = SeedResult(**fields)
+            if result.seed in by_seed:
+                raise ValueError(f"seed {result.seed} appears twice in the seed results")
+            by_seed[result.seed] = result
+        run.seed_results = list(by_seed.values())
+        run.artifacts = []
+        for fields in artifacts:
+            fields = dict(fields)
+            seed = fields.pop("seed", None)
+            artifact = Artifact(**fields)
+            run.artifacts.append(artifact)
+            if seed is not None:
+                if seed not in by_seed:
+                    raise ValueError(
+                        f"artifact {artifact.kind!r} names seed {seed}, which has no seed result"
+                    )
+                by_seed[seed].artifacts.append(artifact)
+        try:
+            with self.session(write=True) as session:
+                session.add(run)
+        except IntegrityError as err:
+            key = run.idempotency_key
+            existing = self.find_run_by_idempotency_key(key) if key is not None else None
+            if existing is None:
+                raise
+            raise DuplicateKeyError(
+                f"a run with idempotency key {key!r} already exists (id {existing.id})",
+                existing,
+            ) from err
+        # Re-read so the result has exactly the shape get_run() documents.
+        stored = self.get_run(run.id)
+        assert stored is not None  # just committed
+        return stored
+
+    def get_run(self, run_id: int) -> Run | None:
+        """A run with its reference, seed results (by seed) and all artifacts loaded."""
+        with self.session() as session:
+            return session.scalars(
+                select(Run).where(Run.id == run_id).options(*_RUN_DETAILS)
+            ).one_or_none()
+
+    def find_run_by_idempotency_key(self, key: str) -> Run | None:
+        """The run stored under this idempotency key, loaded as by ``get_run``."""
+        with self.session() as session:
+            return session.scalars(
+                select(Run).where(Run.idempotency_key == key).options(*_RUN_DETAILS)
+            ).one_or_none()
+
+    def list_runs(
+        self,
+        scene: str | None = None,
+        method: str | None = None,
+        device_key: str | None = None,
+        *,
+        limit: int | None = None,
+    ) -> list[Run]:
+        """Runs matching the given filters, newest first, without relationships.
+
+        ``scene`` matches the scene name. Use ``get_run`` for seeds and artifacts.
+        """
+        query = select(Run).order_by(Run.created_at.desc(), Run.id.desc())
+        if scene is not None:
+            query = query.where(Run.scene_name == scene)
+        if method is not None:
+            query = query.where(Run.method == method)
+        if device_key is not None:
+            query = query.where(Run.device_key == device_key)
+        if limit is not None:
+            query = query.limit(limit)
+        with self.session() as session:
+            return list(session.scalars(query))

@@ -1,0 +1,113 @@
+"""Engine setup and migrations: SQLite pragmas, idempotent and concurrent upgrades,
+and the migration history agreeing with the models."""
+
+import logging.config
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+from alembic import command
+from alembic.autogenerate import compare_metadata
+from alembic.config import Config
+from alembic.migration import MigrationContext
+from sqlalchemy import inspect, text
+
+from jobs.config import Settings
+from jobs.db import (
+    MIGRATIONS_DIR,
+    SQLITE_BUSY_TIMEOUT_MS,
+    SchemaVersionError,
+    make_engine,
+    migrate,
+)
+from jobs.models import Base
+from jobs.store import Store
+
+TABLES = {"reference_renders", "runs", "seed_results", "artifacts"}
+
+
+def test_sqlite_pragmas(store: Store) -> None:
+    with store.engine.connect() as conn:
+        assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
+        assert conn.exec_driver_sql("PRAGMA busy_timeout").scalar() == SQLITE_BUSY_TIMEOUT_MS
+        assert conn.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
+
+
+def test_make_engine_creates_parent_folder(tmp_path: Path) -> None:
+    engine = make_engine(f"sqlite:///{tmp_path / 'a' / 'b' / 'x.db'}")
+    with engine.connect() as conn:
+        conn.execute(text("SELECT 1"))
+    engine.dispose()
+    assert (tmp_path / "a" / "b" / "x.db").is_file()
+
+
+def test_fresh_database_gets_all_tables(store: Store) -> None:
+    tables = set(inspect(store.engine).get_table_names())
+    assert tables == TABLES | {"alembic_version"}
+    indexes = {ix["name"] for ix in inspect(store.engine).get_indexes("runs")}
+    assert {"ix_runs_scene_fingerprint_method", "ix_runs_device_key"} <= indexes
+
+
+def test_migrating_twice_is_a_no_op(store: Store) -> None:
+    with store.engine.connect() as conn:
+        before = conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all()
+    migrate(store.engine)
+    migrate(store.engine)
+    with store.engine.connect() as conn:
+        after = conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all()
+    assert before == after == ["0001"]
+
+
+def test_migrations_match_models(store: Store) -> None:
+    with store.engine.connect() as conn:
+        context = MigrationContext.configure(conn, opts={"compare_type": True})
+        assert compare_metadata(context, Base.metadata) == []
+
+
+def test_concurrent_migrations_on_a_fresh_database(tmp_path: Path) -> None:
+    # Several workers starting at once must not race on CREATE TABLE.
+    url = f"sqlite:///{tmp_path / 'shared.db'}"
+
+    def start() -> None:
+        engine = make_engine(url)
+        try:
+            migrate(engine)
+        finally:
+            engine.dispose()
+
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        for future in [pool.submit(start) for _ in range(4)]:
+            future.result()
+    engine = make_engine(url)
+    assert TABLES <= set(inspect(engine).get_table_names())
+    engine.dispose()
+
+
+def test_newer_schema_is_explained(store: Store) -> None:
+    with store.engine.begin() as conn:
+        conn.execute(text("UPDATE alembic_version SET version_num = '9999'"))
+    with pytest.raises(SchemaVersionError, match="newer nirc-bench"):
+        migrate(store.engine)
+
+
+def test_downgrade_and_upgrade_again(store: Store) -> None:
+    from jobs.db import alembic_config
+
+    config = alembic_config()
+    with store.engine.begin() as conn:
+        config.attributes["connection"] = conn
+        command.downgrade(config, "base")
+    assert set(inspect(store.engine).get_table_names()) == {"alembic_version"}
+    migrate(store.engine)
+    assert TABLES <= set(inspect(store.engine).get_table_names())
+
+
+def test_command_line_configuration(settings: Settings, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The alembic.ini used to write new revisions reaches the configured database.
+    monkeypatch.setenv("NIRC_BENCH_DATA_DIR", str(settings.data_dir))
+    # Keep the ini's logging setup out of the test process.
+    monkeypatch.setattr(logging.config, "fileConfig", lambda *args, **kwargs: None)
+    command.upgrade(Config(str(MIGRATIONS_DIR / "alembic.ini")), "head")
+    engine = make_engine(f"sqlite:///{settings.data_dir / 'nirc-bench.db'}")
+    assert TABLES <= set(inspect(engine).get_table_names())
+    engine.dispose()
