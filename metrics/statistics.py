@@ -1,0 +1,386 @@
+"""Statistical tools for Monte Carlo tests and converged references.
+
+- :class:`PassAccumulator`: per-pixel running mean and variance over independent
+  render passes (Welford's update inside two half accumulators, merged with
+  Chan et al.'s pairwise formula), with the even/odd split halves that measure a
+  reference's own residual error.
+- :func:`z_test`: the per-pixel two-sample z-test of Mitsuba 3's render tests
+  (``src/render/tests/test_renders.py``), with a Šidák correction over all
+  tested pixel-channels.
+- :func:`mean_confidence_interval`: Student-t interval of a mean over seeds.
+
+Only numpy and the standard library are used. SciPy is deliberately not used:
+it is not a dependency of the project, and when it is missing ``colour-science``
+(imported for previews) installs a ``MagicMock`` as ``sys.modules["scipy"]``,
+so ``import scipy.stats`` would "succeed" and return mocks. The Student-t
+quantile is therefore computed here from the regularized incomplete beta
+function.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from metrics.checks import MetricError
+
+# ---------------------------------------------------------------------------
+# Student t distribution (for confidence intervals over a few seeds)
+# ---------------------------------------------------------------------------
+
+_BETACF_MAX_ITERATIONS = 500
+_BETACF_TOLERANCE = 1e-15
+_TINY = 1e-300  # keeps Lentz's continued-fraction denominators away from 0
+
+
+def _beta_continued_fraction(a: float, b: float, x: float) -> float:
+    """Continued fraction of I_x(a, b) (modified Lentz), converging for x < (a+1)/(a+b+2)."""
+    c = 1.0
+    d = 1.0 - (a + b) * x / (a + 1.0)
+    d = 1.0 / (d if abs(d) > _TINY else _TINY)
+    h = d
+    for m in range(1, _BETACF_MAX_ITERATIONS + 1):
+        # Even and odd terms of the fraction alternate; each updates c, d and h.
+        for numerator in (
+            m * (b - m) * x / ((a + 2 * m - 1.0) * (a + 2 * m)),
+            -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1.0)),
+        ):
+            d = 1.0 + numerator * d
+            d = 1.0 / (d if abs(d) > _TINY else _TINY)
+            c = 1.0 + numerator / c
+            c = c if abs(c) > _TINY else _TINY
+            step = c * d
+            h *= step
+        if abs(step - 1.0) < _BETACF_TOLERANCE:
+            return h
+    return h
+
+
+def _regularized_beta(a: float, b: float, x: float, one_minus_x: float) -> float:
+    """I_x(a, b); ``one_minus_x`` is passed separately to avoid cancellation near x = 1."""
+    if x <= 0.0:
+        return 0.0
+    if one_minus_x <= 0.0:
+        return 1.0
+    log_front = (math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
+                 + a * math.log(x) + b * math.log(one_minus_x))
+    front = math.exp(log_front)
+    # The fraction converges fast only on one side of the mean; use the symmetry
+    # I_x(a, b) = 1 - I_{1-x}(b, a) on the other.
+    if x < (a + 1.0) / (a + b + 2.0):
+        return front * _beta_continued_fraction(a, b, x) / a
+    return 1.0 - front * _beta_continued_fraction(b, a, one_minus_x) / b
+
+
+def student_t_cdf(t: float, df: float) -> float:
+    """P(T <= t) for Student's t with ``df`` > 0 degrees of freedom."""
+    if df <= 0:
+        raise MetricError(f"degrees of freedom must be > 0, got {df}")
+    t2 = t * t
+    # P(|T| > |t|) = I_{df/(df+t^2)}(df/2, 1/2)
+    two_sided_tail = _regularized_beta(0.5 * df, 0.5, df / (df + t2), t2 / (df + t2))
+    return 1.0 - 0.5 * two_sided_tail if t >= 0 else 0.5 * two_sided_tail
+
+
+def student_t_quantile(q: float, df: float) -> float:
+    """The ``q`` quantile of Student's t with ``df`` degrees of freedom (bisection on the CDF)."""
+    if not 0.0 < q < 1.0:
+        raise MetricError(f"quantile level must be in (0, 1), got {q}")
+    if q < 0.5:
+        return -student_t_quantile(1.0 - q, df)
+    if q == 0.5:
+        return 0.0
+    lo, hi = 0.0, 1.0
+    while student_t_cdf(hi, df) < q:
+        lo, hi = hi, 2.0 * hi
+    # The CDF is monotone, so bisection cannot fail; 200 halvings reach float precision.
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if student_t_cdf(mid, df) < q:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-13 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def mean_confidence_interval(values: np.ndarray | list[float],
+                             level: float = 0.95) -> tuple[float, float, float]:
+    """(mean, lo, hi): the Student-t confidence interval of the mean of ``values``.
+
+    ``values`` are independent samples (e.g. one MRSE per seed); the interval
+    is mean +- t_{(1+level)/2, n-1} * s / sqrt(n) with the sample standard
+    deviation s. Needs n >= 2 finite values.
+    """
+    arr = np.asarray(values, dtype=np.float64).ravel()
+    if arr.size < 2:
+        raise MetricError(f"a confidence interval needs at least 2 values, got {arr.size}")
+    if not np.isfinite(arr).all():
+        raise MetricError("cannot build a confidence interval from non-finite values")
+    if not 0.0 < level < 1.0:
+        raise MetricError(f"confidence level must be in (0, 1), got {level}")
+    mean = float(arr.mean())
+    half_width = (student_t_quantile(0.5 * (1.0 + level), arr.size - 1)
+                  * float(arr.std(ddof=1)) / math.sqrt(arr.size))
+    return mean, mean - half_width, mean + half_width
+
+
+# ---------------------------------------------------------------------------
+# Progressive per-pixel mean and variance over independent passes
+# ---------------------------------------------------------------------------
+
+
+class _Moments:
+    """Welford running mean and sum of squared deviations of a stream of images."""
+
+    __slots__ = ("count", "mean", "m2")
+
+    def __init__(self) -> None:
+        self.count = 0                      # images seen
+        self.mean: np.ndarray | None = None  # running per-pixel mean (float64)
+        self.m2: np.ndarray | None = None    # running sum of squared deviations
+
+    def add(self, x: np.ndarray) -> None:
+        if self.mean is None or self.m2 is None:
+            self.count, self.mean, self.m2 = 1, x.copy(), np.zeros_like(x)
+            return
+        self.count += 1
+        delta = x - self.mean
+        self.mean += delta / self.count
+        # Welford: (x - old mean) * (x - new mean) keeps m2 exact without
+        # subtracting two large sums of squares.
+        self.m2 += delta * (x - self.mean)
+
+    @staticmethod
+    def merged(a: _Moments, b: _Moments) -> _Moments:
+        """Moments of the union of two disjoint streams (Chan, Golub & LeVeque)."""
+        if b.count == 0:
+            return a
+        if a.count == 0:
+            return b
+        assert a.mean is not None and a.m2 is not None and b.mean is not None and b.m2 is not None
+        out = _Moments()
+        out.count = a.count + b.count
+        delta = b.mean - a.mean
+        out.mean = a.mean + delta * (b.count / out.count)
+        out.m2 = a.m2 + b.m2 + delta * delta * (a.count * b.count / out.count)
+        return out
+
+
+@dataclass(frozen=True)
+class MeanEstimate:
+    """A per-pixel Monte Carlo mean with the variance *of that mean*."""
+
+    mean: np.ndarray              # per-pixel mean of the passes
+    variance_of_mean: np.ndarray  # unbiased pass variance / count
+    count: int                    # passes averaged
+
+
+class PassAccumulator:
+    """Progressive per-pixel mean and variance over independent, identically distributed passes.
+
+    Each ``add`` takes one pass image (e.g. the mean of 64 spp rendered with its
+    own seed). Passes alternate between two half accumulators (even passes to
+    half A, odd to half B), each updated with Welford's algorithm in float64;
+    the full statistics are the Chan et al. merge of the halves, so the halves
+    cost no extra memory and are always available for a reference-vs-reference
+    check (:meth:`split_halves`).
+
+    Passes must have equal sample counts: the variance is that of pass values.
+    A pass with a non-finite pixel is rejected with MetricError rather than
+    averaged, since one NaN would poison every later mean.
+    """
+
+    def __init__(self) -> None:
+        self._halves = (_Moments(), _Moments())  # even passes, odd passes
+        self._total: _Moments | None = None      # merged halves, cached until the next add
+
+    def add(self, pass_image: np.ndarray) -> None:
+        x = np.asarray(pass_image, dtype=np.float64)
+        first = self._halves[0].mean
+        if first is not None and x.shape != first.shape:
+            raise MetricError(f"pass image shape {x.shape} does not match the "
+                              f"accumulated shape {first.shape}")
+        bad = int(np.count_nonzero(~np.isfinite(x)))
+        if bad:
+            raise MetricError(f"pass {self.count} has {bad} non-finite values; "
+                              "refusing to average them into the accumulator")
+        self._halves[self.count % 2].add(x)
+        self._total = None
+
+    @property
+    def count(self) -> int:
+        """Number of passes added."""
+        return self._halves[0].count + self._halves[1].count
+
+    def _merged(self) -> _Moments:
+        if self._total is None:
+            self._total = _Moments.merged(*self._halves)
+        return self._total
+
+    def _require(self, passes: int, what: str) -> None:
+        if self.count < passes:
+            raise MetricError(f"{what} needs at least {passes} passes, have {self.count}")
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Per-pixel mean of all passes (float64 copy)."""
+        self._require(1, "the mean")
+        return self._merged().mean.copy()
+
+    @property
+    def variance(self) -> np.ndarray:
+        """Per-pixel unbiased sample variance of the pass values (float64)."""
+        self._require(2, "the variance")
+        total = self._merged()
+        return total.m2 / (total.count - 1)
+
+    @property
+    def variance_of_mean(self) -> np.ndarray:
+        """Per-pixel variance of :attr:`mean` itself: variance / count."""
+        return self.variance / self.count
+
+    def estimate(self) -> MeanEstimate:
+        """The mean with its variance, ready for :func:`z_test`."""
+        return MeanEstimate(self.mean, self.variance_of_mean, self.count)
+
+    def relative_stderr(self, eps: float = 0.01) -> float:
+        """Root-mean-square relative standard error of the mean, regularised like MRSE.
+
+        sqrt(mean over pixels and channels of variance_of_mean / (mean^2 + eps)).
+        Its square is the expected MRSE of this mean against the true image
+        (with the mean standing in for the truth in the denominator), so a
+        target of e.g. 0.01 means "this reference is ~1e-4 MRSE from converged".
+        ``eps`` (as in MRSE) keeps near-black pixels from dominating.
+        """
+        mean = self._merged().mean
+        return float(np.sqrt(np.mean(self.variance_of_mean / (mean * mean + eps))))
+
+    def split_halves(self) -> tuple[np.ndarray, np.ndarray]:
+        """(mean of the even passes, mean of the odd passes): two independent half estimates."""
+        self._require(2, "split halves")
+        return self._halves[0].mean.copy(), self._halves[1].mean.copy()
+
+    def half_estimates(self) -> tuple[MeanEstimate, MeanEstimate]:
+        """Both halves with their own variance of the mean (each needs >= 2 passes)."""
+        self._require(4, "split-half variances")
+        return tuple(  # type: ignore[return-value]
+            MeanEstimate(h.mean.copy(), h.m2 / (h.count - 1) / h.count, h.count)
+            for h in self._halves
+        )
+
+
+# ---------------------------------------------------------------------------
+# Two-sample z-test with Šidák correction (as in Mitsuba 3's render tests)
+# ---------------------------------------------------------------------------
+
+_erfc = np.frompyfunc(math.erfc, 1, 1)
+
+
+def sidak_alpha(alpha: float, n_tests: int) -> float:
+    """Per-test level so that n independent tests have family-wise level ``alpha``.
+
+    1 - (1 - alpha)^(1/n), computed with log1p/expm1 because for n ~ 1e5 the
+    direct form loses most digits to cancellation.
+    """
+    if not 0.0 < alpha < 1.0:
+        raise MetricError(f"significance level must be in (0, 1), got {alpha}")
+    if n_tests < 1:
+        raise MetricError(f"need at least one test, got {n_tests}")
+    return -math.expm1(math.log1p(-alpha) / n_tests)
+
+
+@dataclass(frozen=True)
+class ZTestResult:
+    """Outcome of :func:`z_test` over all pixel-channels."""
+
+    p_values: np.ndarray          # two-sided p-value per pixel-channel (0 where non-finite)
+    alpha: float                  # family-wise significance level requested
+    alpha_corrected: float        # Šidák per-pixel-channel level
+    n_tested: int                 # pixel-channels tested
+    n_failed: int                 # pixel-channels with p <= alpha_corrected
+    n_nonfinite: int              # pixel-channels with a non-finite input (counted as failed)
+    min_p_value: float
+    worst_index: tuple[int, ...]  # index of the smallest p-value
+    passed: bool                  # no pixel-channel rejected the null hypothesis
+
+    def summary(self) -> str:
+        verdict = "passed" if self.passed else "FAILED"
+        text = (f"z-test {verdict}: {self.n_failed} of {self.n_tested} pixel-channels below "
+                f"the Šidák level {self.alpha_corrected:.3g} (family-wise alpha {self.alpha:g}); "
+                f"min p-value {self.min_p_value:.3g} at index {self.worst_index}")
+        if self.n_nonfinite:
+            text += f"; {self.n_nonfinite} pixel-channels had non-finite inputs"
+        return text
+
+
+def _two_sided_p_values(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
+                        var_b: np.ndarray) -> np.ndarray:
+    """p = P(|Z| >= |z|) with z = (a - b) / sqrt(var_a + var_b); degenerate cases handled."""
+    diff = mean_a - mean_b
+    var = var_a + var_b
+    p = np.zeros(diff.shape, dtype=np.float64)
+    positive = var > 0
+    z = np.abs(diff[positive]) / np.sqrt(var[positive])
+    # erfc(|z|/sqrt 2) keeps the tiny p-values that a Šidák level (~1e-7) needs;
+    # 1 - cdf would round them to 0.
+    p[positive] = _erfc(z / math.sqrt(2.0)).astype(np.float64)
+    # Zero variance on both sides: the means are exact, so they agree or they don't.
+    p[(var == 0) & (diff == 0)] = 1.0
+    return p
+
+
+def z_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray, var_b: np.ndarray,
+           alpha: float = 0.01) -> ZTestResult:
+    """Per-pixel-channel two-sample z-test of "both means estimate the same image".
+
+    ``var_a`` and ``var_b`` are variances *of the means* (the pass variance
+    already divided by the pass count, e.g. :attr:`PassAccumulator.variance_of_mean`);
+    they broadcast against the means. z = (a - b) / sqrt(var_a + var_b) and the
+    two-sided p-value is erfc(|z| / sqrt 2).
+
+    Mitsuba 3's ``test_renders.py`` tests a render against a reference this way
+    (one-sided on the reference's variance, clamped at 1e-4) and corrects for
+    the N simultaneous tests with Šidák: the per-test level is
+    1 - (1 - alpha)^(1/N). We do the same over the N = ``n_tested``
+    pixel-channels, and pass only if *no* pixel-channel falls at or below it
+    (Mitsuba additionally tolerates 0.25 % failing pixels; with Šidák the
+    family-wise false-failure rate is already ``alpha``, so we do not).
+
+    Elements where both variances are 0 pass when the means are equal and fail
+    otherwise; elements with a non-finite input fail (p = 0). The z statistic
+    assumes the variance estimates are accurate: use many passes per side
+    (hundreds), or the heavier tails of estimated variances cause false failures.
+    """
+    if np.shape(mean_a) != np.shape(mean_b):
+        raise MetricError(f"mean shapes differ: {np.shape(mean_a)} vs {np.shape(mean_b)}")
+    try:
+        a, va, b, vb = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
+                                             for x in (mean_a, var_a, mean_b, var_b)))
+    except ValueError:
+        raise MetricError(f"variance shapes {np.shape(var_a)}, {np.shape(var_b)} do not "
+                          f"broadcast to the mean shape {np.shape(mean_a)}") from None
+    finite = np.isfinite(a) & np.isfinite(b) & np.isfinite(va) & np.isfinite(vb)
+    if np.any((va < 0) | (vb < 0)):
+        raise MetricError("variances must be >= 0")
+    n_tested = int(a.size)
+    alpha_corrected = sidak_alpha(alpha, n_tested)
+
+    p_values = np.zeros(a.shape, dtype=np.float64)
+    p_values[finite] = _two_sided_p_values(a[finite], va[finite], b[finite], vb[finite])
+    n_failed = int(np.count_nonzero(p_values <= alpha_corrected))
+    worst = np.unravel_index(int(np.argmin(p_values)), p_values.shape)
+    return ZTestResult(
+        p_values=p_values,
+        alpha=float(alpha),
+        alpha_corrected=alpha_corrected,
+        n_tested=n_tested,
+        n_failed=n_failed,
+        n_nonfinite=int(np.count_nonzero(~finite)),
+        min_p_value=float(p_values[worst]),
+        worst_index=tuple(int(i) for i in worst),
+        passed=n_failed == 0,
+    )

@@ -1,0 +1,210 @@
+"""The ``nirc-bench`` command line (Typer).
+
+Embedded by default: the SQLite database and artifacts live in the data folder
+(``./data``, or ``NIRC_BENCH_DATA_DIR`` / ``--data-dir``), and jobs run in this
+process through the same executor the service workers use.
+
+Errors a user can cause (unknown scene, malformed XML, bad numbers, a corrupt
+EXR, no usable libLLVM, ...) print one line and exit with status 2; anything
+else prints one line and exits 1 (``NIRC_BENCH_DEBUG=1`` shows the traceback).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+
+from service.errors import USER_ERRORS, describe_user_error
+from service.progress import progress_reporter
+from service.tables import metrics_table, reference_table, scenes_table
+
+app = typer.Typer(
+    name="nirc-bench",
+    help="Evaluate and benchmark radiance-caching renderers against converged references.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+console = Console()
+err_console = Console(stderr=True)
+
+DataDir = Annotated[
+    Path | None,
+    typer.Option("--data-dir", help="data folder (database, references, artifacts)",
+                 envvar="NIRC_BENCH_DATA_DIR"),
+]
+Scene = Annotated[str, typer.Option("--scene", "-s", help="built-in scene name or XML path")]
+Res = Annotated[int, typer.Option("--res", help="image width and height", min=1, max=8192)]
+MaxDepth = Annotated[int, typer.Option("--max-depth", help="longest path in segments (-1 = unbounded)",
+                                       min=-1, max=1024)]
+JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a table")]
+
+
+def _settings(data_dir: Path | None):
+    from jobs.config import Settings
+
+    return Settings(data_dir=data_dir) if data_dir else Settings()
+
+
+def _store(settings):
+    from jobs.db import open_store
+
+    return open_store(settings)
+
+
+def _print_json(value: Any) -> None:
+    console.print_json(json.dumps(value, default=str))
+
+
+@app.command()
+def scenes(
+    as_json: JsonOut = False,
+    res: Annotated[int, typer.Option("--res", min=1, max=8192)] = 64,
+) -> None:
+    """List the built-in scenes with their fingerprints and features."""
+    from renderers.backend import init_backend
+    from renderers.scenes import builtin_names, load_scene
+
+    init_backend()
+    loaded = [load_scene(name, res) for name in builtin_names()]
+    if as_json:
+        _print_json([scene.to_json() for scene in loaded])
+    else:
+        console.print(scenes_table(loaded))
+
+
+@app.command()
+def reference(
+    scene: Scene,
+    res: Res = 64,
+    spp: Annotated[int, typer.Option("--spp", min=8, max=1 << 24, help="target spp")] = 4096,
+    max_depth: MaxDepth = 8,
+    integrator: Annotated[str, typer.Option("--integrator", help="'path' (Mitsuba) or 'pt'")] = "path",
+    rel_stderr: Annotated[float | None, typer.Option(
+        "--rel-stderr", min=0.0, help="stop early below this relative standard error")] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="copy the reference EXR here")] = None,
+    as_json: JsonOut = False,
+    data_dir: DataDir = None,
+) -> None:
+    """Render (or reuse) the converged reference of a scene."""
+    from jobs.references import get_or_render_reference
+    from jobs.spec import ReferenceSpec
+    from renderers.backend import init_backend
+    from renderers.scenes import load_scene
+
+    spec = ReferenceSpec(integrator=integrator, spp=spp, rel_stderr=rel_stderr)
+    settings = _settings(data_dir)
+    init_backend()
+    loaded = load_scene(scene, res)
+    store = _store(settings)
+    with progress_reporter(console, quiet=as_json) as report:
+        ref = get_or_render_reference(
+            store, settings.references_dir, loaded, spec.settings(max_depth),
+            progress=lambda done, total: report("reference", done, total))
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ref.image_path, out)
+        shutil.copyfile(ref.image_path.with_suffix(".variance.exr"),
+                        out.with_name(out.stem + ".variance.exr"))
+    info = {"scene": loaded.name, "fingerprint": loaded.fingerprint, "key": ref.key,
+            "spp": ref.spp, "split_half": ref.split_half, "reused": not ref.rendered_now,
+            "path": str(out or ref.image_path)}
+    if as_json:
+        _print_json(info)
+    else:
+        console.print(reference_table(info))
+
+
+def _parse_param(text: str) -> tuple[str, Any]:
+    if "=" not in text:
+        raise typer.BadParameter(f"expected NAME=VALUE, got '{text}'", param_hint="--param")
+    name, value = text.split("=", 1)
+    try:
+        return name.strip(), json.loads(value)
+    except json.JSONDecodeError:
+        return name.strip(), value
+
+
+@app.command()
+def render(
+    scene: Scene,
+    method: Annotated[str, typer.Option("--method", "-m")] = "pt",
+    res: Res = 64,
+    spp: Annotated[int, typer.Option("--spp", min=1, max=1 << 16, help="spp per frame")] = 1,
+    frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 1,
+    seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000, help="K independent renders")] = 4,
+    max_depth: MaxDepth = 8,
+    param: Annotated[list[str] | None, typer.Option(
+        "--param", "-p", help="method parameter NAME=VALUE (repeatable)")] = None,
+    ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
+    eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0, help="MRSE epsilon")] = 0.01,
+    out: Annotated[Path | None, typer.Option("--out", help="write images and summary.json here")] = None,
+    as_json: JsonOut = False,
+    data_dir: DataDir = None,
+) -> None:
+    """Render a method over K seeds, compare with the reference, store the run."""
+    from jobs.executor import execute
+    from jobs.spec import ReferenceSpec, RenderSpec
+
+    params = dict(_parse_param(p) for p in param or [])
+    params.setdefault("max_depth", max_depth)
+    spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
+                      frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp))
+    settings = _settings(data_dir)
+    store = _store(settings)
+    with progress_reporter(console, quiet=as_json) as report:
+        summary = execute(spec, store, settings, progress=report, out_dir=out)
+    if as_json:
+        _print_json(summary.to_json())
+        return
+    console.print(metrics_table(summary))
+    if out is not None:
+        console.print(f"images and summary.json written to {out}")
+
+
+@app.command()
+def evaluate(
+    reference_path: Annotated[Path, typer.Option("--reference", "-r", help="reference EXR")],
+    image: Annotated[Path, typer.Option("--image", "-i", help="test EXR")],
+    eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0)] = 0.01,
+    as_json: JsonOut = False,
+) -> None:
+    """Compute MSE, MRSE, FLIP and non-finite counts of an image against a reference."""
+    from metrics.errors import image_metrics
+    from metrics.flip import hdr_exposures
+    from metrics.imageio import read_exr
+
+    ref = read_exr(reference_path)
+    test = read_exr(image)
+    values = image_metrics(test, ref, eps=eps, flip_exposures=hdr_exposures(ref))
+    values.update(reference=str(reference_path), image=str(image), eps=eps)
+    if as_json:
+        _print_json(values)
+    else:
+        from service.tables import key_value_table
+
+        console.print(key_value_table("metrics", values))
+
+
+def main() -> None:
+    """Console-script entry point: run the app, turning errors into one-line messages."""
+    try:
+        app()
+    except USER_ERRORS as err:
+        err_console.print(f"nirc-bench: error: {describe_user_error(err)}", markup=False,
+                          highlight=False)
+        sys.exit(2)
+    except Exception as err:  # noqa: BLE001 - the last line of defence: one line, no traceback
+        if os.environ.get("NIRC_BENCH_DEBUG"):
+            raise
+        err_console.print(
+            f"nirc-bench: internal error ({type(err).__name__}): {err} "
+            "(set NIRC_BENCH_DEBUG=1 for the traceback)", markup=False, highlight=False)
+        sys.exit(1)

@@ -1,0 +1,25 @@
+"""Errors a user can cause, and how they are described in one line."""
+
+from __future__ import annotations
+
+from pydantic import ValidationError
+
+from jobs.db import SchemaVersionError
+from metrics.errors import MetricError
+from metrics.imageio import ImageReadError
+from renderers.backend import BackendError
+from renderers.methods import MethodError, format_validation_error
+from renderers.scenes import SceneError
+
+USER_ERRORS: tuple[type[BaseException], ...] = (
+    BackendError, SceneError, MethodError, ImageReadError, MetricError, SchemaVersionError,
+    ValidationError, FileNotFoundError,
+)
+
+
+def describe_user_error(err: BaseException) -> str:
+    if isinstance(err, ValidationError):
+        return f"invalid {err.title}: {format_validation_error(err)}"
+    if isinstance(err, FileNotFoundError):
+        return f"file not found: {err.filename or err}"
+    return str(err)

@@ -1,0 +1,89 @@
+"""Rich tables printed by the CLI."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.console import Group
+from rich.table import Table
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, list | tuple) and all(isinstance(v, float) for v in value):
+        return "[" + ", ".join(f"{v:.4g}" for v in value) + "]"
+    return str(value)
+
+
+def key_value_table(title: str, values: dict[str, Any]) -> Table:
+    table = Table(title=title, show_header=False)
+    table.add_column("name", style="bold")
+    table.add_column("value")
+    for name, value in values.items():
+        table.add_row(name, _fmt(value))
+    return table
+
+
+def scenes_table(scenes: list[Any]) -> Table:
+    table = Table(title="built-in scenes")
+    for column in ("name", "fingerprint", "emitters", "env map", "glossy", "delta", "description"):
+        table.add_column(column)
+    for scene in scenes:
+        f = scene.features
+        table.add_row(scene.name, scene.fingerprint, str(f.emitter_count), _yes(f.has_envmap),
+                      _yes(f.has_glossy), _yes(f.has_delta), scene.description)
+    return table
+
+
+def _yes(flag: bool) -> str:
+    return "yes" if flag else "-"
+
+
+def reference_table(info: dict[str, Any]) -> Table:
+    floor = info.get("split_half", {})
+    return key_value_table("reference", {
+        "scene": info["scene"], "fingerprint": info["fingerprint"], "key": info["key"],
+        "spp": info["spp"], "reused": info["reused"],
+        "floor: half-vs-half MRSE": floor.get("half_vs_half_mrse"),
+        "floor: reference MRSE (est.)": floor.get("reference_mrse_estimate"),
+        "file": info["path"],
+    })
+
+
+def metrics_table(summary: Any) -> Group:
+    """The method-vs-reference table of a run, then one row per seed."""
+    spec, m, t = summary.spec, summary.metrics, summary.timings
+    ci = m.get("mrse_ci95")
+    head = {
+        "run": summary.run_id,
+        "scene / method": f"{spec.scene} / {spec.method}",
+        "resolution": f"{spec.resolution}x{spec.resolution}",
+        "spp x frames": f"{spec.spp} x {spec.frames}",
+        "seeds (K)": spec.seeds,
+        "reference": f"{summary.reference['spp']} spp"
+                     + (" (reused)" if not summary.reference["rendered_now"] else " (rendered)"),
+        "reference floor MRSE (est.)": summary.reference["split_half"].get("reference_mrse_estimate"),
+        "MRSE (mean over seeds)": m["mrse_mean"],
+        "MRSE 95% CI": f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "n/a (K = 1)",
+        "rBias2 (noise-corrected)": m.get("rbias2", "n/a (K = 1)"),
+        "rBias2 (raw)": m.get("rbias2_raw", "n/a (K = 1)"),
+        "rVar": m.get("rvar", "n/a (K = 1)"),
+        "MSE": m["mse_mean"],
+        "FLIP (HDR)": m["flip_hdr_mean"],
+        "FLIP (LDR)": m["flip_ldr_mean"],
+        "ms per frame": 1e3 * t["seconds_per_frame"],
+        "warm-up / compile (s)": f"{t['warmup_s']:.3g} / {t['compile_s_estimate']:.3g}",
+        "efficiency 1/(MRSE*s)": m["efficiency"],
+        "avg path vertices": summary.path_stats["avg_path_vertices"],
+        "non-finite pixels": summary.quality["nonfinite_pixels"],
+        "device": summary.device["device_key"],
+    }
+    seeds = Table(title="per seed")
+    for column in ("seed", "MRSE", "MSE", "FLIP HDR", "FLIP LDR", "ms/frame", "non-finite"):
+        seeds.add_column(column, justify="right")
+    for s in summary.per_seed:
+        seeds.add_row(str(s["seed"]), _fmt(s["mrse"]), _fmt(s["mse"]), _fmt(s["flip_hdr"]),
+                      _fmt(s["flip_ldr"]), _fmt(1e3 * s["seconds_per_frame"]),
+                      str(s["nonfinite_pixels"]))
+    return Group(key_value_table(f"{spec.method} vs reference", head), seeds)

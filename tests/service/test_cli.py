@@ -1,0 +1,118 @@
+"""The CLI end to end, in subprocesses: what a user types and what they see."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+def run_cli(*args: str, data_dir: Path, env: dict[str, str] | None = None,
+            timeout: float = 600) -> subprocess.CompletedProcess:
+    full_env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(data_dir), **(env or {})}
+    full_env.pop("NIRC_BENCH_DEBUG", None)
+    return subprocess.run([sys.executable, "-m", "service", *args], capture_output=True,
+                          text=True, env=full_env, timeout=timeout)
+
+
+def assert_clean_error(proc: subprocess.CompletedProcess, *fragments: str) -> None:
+    """Non-zero exit, no traceback, and a message that says what is wrong."""
+    assert proc.returncode != 0, proc.stdout
+    assert "Traceback" not in proc.stderr + proc.stdout
+    text = (proc.stderr + proc.stdout).lower()
+    for fragment in fragments:
+        assert fragment.lower() in text, proc.stderr
+
+
+def test_scenes_json_lists_every_builtin(tmp_path):
+    proc = run_cli("scenes", "--json", "--res", "16", data_dir=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    scenes = {s["name"]: s for s in json.loads(proc.stdout)}
+    assert set(scenes) == {"cornell-box", "cornell-glossy", "door", "corridor", "sky",
+                           "many-lights", "white-room"}
+    assert scenes["sky"]["features"]["has_envmap"]
+    assert len({s["fingerprint"] for s in scenes.values()}) == len(scenes)
+
+
+def test_unknown_scene_is_a_clear_error(tmp_path):
+    proc = run_cli("render", "--scene", "no-such-scene", data_dir=tmp_path)
+    assert_clean_error(proc, "no-such-scene", "cornell-box")
+
+
+def test_malformed_xml_is_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<scene version='3.0.0'><shape type='sphere'></scene>")
+    proc = run_cli("render", "--scene", str(bad), "--res", "8", data_dir=tmp_path)
+    assert_clean_error(proc, "bad.xml")
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (("--res", "0"), "--res"),
+    (("--spp", "-3"), "--spp"),
+    (("--seeds", "0"), "--seeds"),
+    (("--param", "max_depth=0"), "max_depth"),
+    (("--param", "rr_survival=1.5"), "rr_survival"),
+    (("--method", "magic"), "unknown method"),
+])
+def test_out_of_range_numbers_are_clear_errors(tmp_path, args, fragment):
+    proc = run_cli("render", "--scene", "cornell-box", *args, data_dir=tmp_path)
+    assert_clean_error(proc, fragment)
+
+
+def test_missing_libllvm_is_a_clear_error(tmp_path):
+    env = {"NIRC_BENCH_LLVM_SEARCH": str(tmp_path / "nowhere"), "DRJIT_LIBLLVM_PATH": ""}
+    proc = run_cli("scenes", data_dir=tmp_path, env=env)
+    assert_clean_error(proc, "libllvm", "libllvm19")
+
+
+def test_corrupt_and_mismatched_exr_are_clear_errors(tmp_path):
+    from metrics.imageio import write_exr
+
+    corrupt = tmp_path / "corrupt.exr"
+    corrupt.write_bytes(b"\x76\x2f\x31\x01" + os.urandom(200))
+    small, large = tmp_path / "small.exr", tmp_path / "large.exr"
+    write_exr(small, np.ones((4, 4, 3), np.float32))
+    write_exr(large, np.ones((8, 8, 3), np.float32))
+    assert_clean_error(run_cli("evaluate", "-r", str(small), "-i", str(corrupt), data_dir=tmp_path),
+                       "corrupt.exr")
+    assert_clean_error(run_cli("evaluate", "-r", str(small), "-i", str(large), data_dir=tmp_path),
+                       "shape")
+    assert_clean_error(run_cli("evaluate", "-r", str(small), "-i", str(tmp_path / "none.exr"),
+                               data_dir=tmp_path), "none.exr")
+
+
+@pytest.mark.slow
+def test_render_reference_evaluate_round_trip(tmp_path):
+    out = tmp_path / "out"
+    args = ("render", "--scene", "cornell-box", "--res", "16", "--spp", "1", "--frames", "2",
+            "--seeds", "3", "--ref-spp", "256", "--json")
+    first = run_cli(*args, "--out", str(out), data_dir=tmp_path)
+    assert first.returncode == 0, first.stderr
+    summary = json.loads(first.stdout)
+    assert summary["reference"]["rendered_now"] is True
+    metrics = summary["metrics"]
+    assert metrics["k"] == 3 and metrics["mrse_mean"] > 0
+    assert metrics["mrse_ci95"][0] <= metrics["mrse_mean"] <= metrics["mrse_ci95"][1]
+    assert summary["quality"]["finite"] is True
+    assert (out / "summary.json").is_file() and (out / "reference.exr").is_file()
+    assert (out / "image_seed0.exr").is_file() and (out / "preview_seed0.png").is_file()
+
+    second = run_cli(*args, data_dir=tmp_path)
+    assert second.returncode == 0, second.stderr
+    assert json.loads(second.stdout)["reference"]["rendered_now"] is False
+
+    ref = run_cli("reference", "--scene", "cornell-box", "--res", "16", "--spp", "256",
+                  "--out", str(tmp_path / "ref.exr"), "--json", data_dir=tmp_path)
+    assert ref.returncode == 0, ref.stderr
+    assert json.loads(ref.stdout)["reused"] is True
+
+    evaluated = run_cli("evaluate", "-r", str(tmp_path / "ref.exr"),
+                        "-i", str(out / "image_seed0.exr"), "--json", data_dir=tmp_path)
+    assert evaluated.returncode == 0, evaluated.stderr
+    values = json.loads(evaluated.stdout)
+    assert values["mrse"] == pytest.approx(summary["per_seed"][0]["mrse"], rel=1e-5)
