@@ -40,7 +40,7 @@ def bench_scene(mi, name: str, res: int, spp: int, repeats: int, max_depth: int)
         "pt (rr throughput)": path_integrator(PTParams(max_depth=max_depth, rr_mode="throughput")),
     }
     times: dict[str, list[float]] = {label: [] for label in integrators}
-    for label, integrator in integrators.items():  # warm-up: compile every kernel
+    for integrator in integrators.values():  # warm-up: compile every kernel
         _time_render(mi, scene, integrator, spp, seed=12345)
     for repeat in range(repeats):
         for label, integrator in integrators.items():

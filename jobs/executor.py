@@ -92,8 +92,10 @@ def _export(out_dir: Path, summary: RunSummary, reference: LoadedReference,
             store: ArtifactStore, artifacts: list[dict[str, Any]]) -> dict[str, str]:
     """Copy the run's files under readable names into ``out_dir`` (plus summary.json)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    files = {"reference": out_dir / "reference.exr"}
+    files = {"reference": out_dir / "reference.exr",
+             "reference_preview": out_dir / "reference_preview.png"}
     shutil.copyfile(reference.image_path, files["reference"])
+    write_png(files["reference_preview"], tonemap_preview(reference.mean))
     for artifact in artifacts:
         suffix = Path(artifact["path"]).suffix
         name = f"{artifact['kind']}_seed{artifact['seed']}{suffix}"
@@ -106,16 +108,23 @@ def _export(out_dir: Path, summary: RunSummary, reference: LoadedReference,
 
 def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray], reference: np.ndarray,
               eps: float, frame_seconds: float) -> dict[str, Any]:
-    """Reduce K per-seed results: rBias^2/rVar over seeds, mean MRSE with its CI, FLIP."""
+    """Reduce K per-seed results: rBias^2/rVar over seeds, mean MRSE with its CI, FLIP.
+
+    A per-seed value is None when that image had no finite pixel at all; such
+    seeds are left out of the means (the quality flag already reports them).
+    """
     metrics: dict[str, Any] = {"k": len(images), "eps": eps}
     if len(images) >= 2:
         metrics.update(bias_variance(np.stack(images), reference, eps))
     else:
         metrics["mrse_mean"] = per_seed[0]["mrse"]
     for name in ("mse", "flip_hdr", "flip_ldr"):
-        metrics[f"{name}_mean"] = float(np.mean([s[name] for s in per_seed]))
+        values = [s[name] for s in per_seed if s[name] is not None]
+        metrics[f"{name}_mean"] = float(np.mean(values)) if values else None
     metrics["seconds_per_frame"] = frame_seconds
-    metrics["efficiency"] = efficiency(metrics["mrse_mean"], frame_seconds)
+    mrse_mean = metrics["mrse_mean"]
+    usable = mrse_mean is not None and np.isfinite(mrse_mean) and mrse_mean > 0
+    metrics["efficiency"] = efficiency(mrse_mean, frame_seconds) if usable else None
     return metrics
 
 

@@ -1,0 +1,80 @@
+"""The executor end to end on a tiny render: storage, reuse, provenance, quality flag."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from jobs.config import Settings
+from jobs.db import open_store
+from jobs.executor import execute
+from jobs.spec import ReferenceSpec, RenderSpec
+from renderers import methods
+
+SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=3,
+                  reference=ReferenceSpec(spp=64, spp_per_pass=8))
+
+
+@pytest.fixture
+def env(mi, data_dir):
+    settings = Settings()
+    return settings, open_store(settings)
+
+
+def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
+    settings, store = env
+    summary = execute(SPEC, store, settings)
+
+    run = store.get_run(summary.run_id)
+    assert run.status == "succeeded" and run.method == "pt" and run.seeds == 3
+    assert [s.seed for s in run.seed_results] == [0, 1, 2]
+    assert run.metrics["k"] == 3 and run.metrics["mrse_mean"] > 0
+    lo, hi = run.metrics["mrse_ci95"]
+    assert lo <= run.metrics["mrse_mean"] <= hi
+    assert run.metrics["rbias2"] == pytest.approx(
+        run.metrics["rbias2_raw"] - run.metrics["noise_floor"])
+    assert run.device_key == summary.device["device_key"]
+    assert run.git_commit and run.versions["mitsuba"]
+    assert "sync" in run.timings["protocol"] and run.timings["warmup_s"] > 0
+    assert run.quality == {"finite": True, "nonfinite_pixels": 0}
+    kinds = sorted(a.kind for a in run.artifacts)
+    assert kinds.count("image") == 3 and "preview" in kinds and "error_map" in kinds
+    for artifact in run.artifacts:
+        assert (settings.artifacts_dir / artifact.path).is_file()
+
+
+def test_the_reference_is_rendered_once_and_reused(env):
+    settings, store = env
+    first = execute(SPEC, store, settings)
+    second = execute(SPEC.model_copy(update={"seeds": 2}), store, settings)
+    assert first.reference["rendered_now"] and not second.reference["rendered_now"]
+    assert first.reference["key"] == second.reference["key"]
+    assert len(list(settings.references_dir.glob("*.variance.exr"))) == 1
+
+
+def test_a_damaged_reference_file_is_rendered_again(env):
+    settings, store = env
+    first = execute(SPEC, store, settings)
+    (settings.references_dir / f"{first.reference['key']}.exr").write_bytes(b"not an exr")
+    again = execute(SPEC, store, settings)
+    assert again.reference["rendered_now"]
+
+
+def test_nonfinite_pixels_are_counted_and_fail_the_quality_flag(env, monkeypatch):
+    settings, store = env
+    original = methods.METHODS["pt"]
+
+    def render_with_a_nan(*args, **kwargs):
+        output = original.render(*args, **kwargs)
+        output.accumulated[0, 0, 1] = np.nan
+        return output
+
+    monkeypatch.setitem(methods.METHODS, "pt",
+                        dataclasses.replace(original, render=render_with_a_nan))
+    summary = execute(SPEC, store, settings)
+    assert summary.quality == {"finite": False, "nonfinite_pixels": 3}
+    assert all(s["nonfinite_pixels"] == 1 for s in summary.per_seed)
+    assert np.isfinite(summary.metrics["mrse_mean"])
+    assert store.get_run(summary.run_id).quality["finite"] is False
