@@ -1,9 +1,9 @@
 """The shared path-tracing core: NEE + MIS for direct light, Russian roulette.
 
 Every method of nirc-bench is this loop plus its own terms: `pt` is the loop
-as written here; the radiance-caching methods add a cache term or a
-termination decision in their own marked sections of a subclass, never in a
-copy of the loop.
+as written here; the radiance-caching methods add a cache term, a residual or
+a termination decision by overriding the hooks of :class:`PathIntegrator`
+(``vertex_terms``, ``after_emission``), never in a copy of the loop.
 
 The estimator is the standard unidirectional path tracer (Veach & Guibas 1995,
 "Optimally combining sampling techniques"; Mitsuba 3's ``path`` plugin): at
@@ -28,6 +28,9 @@ Left out on purpose: participating media, polarisation, hidden emitters.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import drjit as dr
 import mitsuba as mi
 
@@ -39,6 +42,41 @@ def mis_weight(pdf_a: mi.Float, pdf_b: mi.Float) -> mi.Float:
     """Power heuristic (beta = 2) weight of technique a; 0 where p_a is 0."""
     a2 = dr.square(pdf_a)
     return dr.detach(dr.select(pdf_a > 0, a2 / dr.fma(pdf_b, pdf_b, a2), 0))
+
+
+@dataclass
+class Vertex:
+    """What the hooks see of the current path vertex (built per loop iteration)."""
+
+    scene: mi.Scene
+    sampler: mi.Sampler
+    ray: mi.Ray3f                 # the ray that found this vertex
+    si: mi.SurfaceInteraction3f   # the vertex
+    bsdf: mi.BSDF
+    beta: mi.Spectrum             # throughput up to (and including arrival at) this vertex
+    L: mi.Spectrum                # radiance accumulated so far (this vertex's emission included)
+    depth: mi.UInt32              # index of this vertex: 0 = first surface hit
+    active: mi.Bool               # lanes whose path reached this vertex
+    active_next: mi.Bool          # lanes that may extend the path beyond this vertex
+    bsdf_sample: Any = None       # mi.BSDFSample3f of the continuation direction
+    bsdf_weight: Any = None       # f cos / pdf of the continuation direction
+
+
+@dataclass
+class VertexTerms:
+    """A method's contribution at a vertex (all masks per lane).
+
+    ``L_add`` is added with the path throughput; ``stop`` ends the path after
+    this vertex; where ``nee_unweighted`` is set, next-event estimation is not
+    MIS-weighted (the path will not continue to collect the BSDF-sampled part of
+    direct light); where ``skip_nee`` is set no NEE is done (the method's term
+    already contains direct light).
+    """
+
+    L_add: mi.Spectrum
+    stop: mi.Bool
+    nee_unweighted: mi.Bool
+    skip_nee: mi.Bool
 
 
 class PathIntegrator(mi.SamplingIntegrator):
@@ -53,6 +91,12 @@ class PathIntegrator(mi.SamplingIntegrator):
 
     The AOV ``depth`` holds the number of surface vertices each path visited,
     from which the frame loop reports the average path length.
+
+    Hooks for methods (default: nothing, so `pt` traces exactly this loop):
+        ``init_state(ray)``: a PyTree of extra per-path loop state, or None.
+        ``after_emission(vertex, state)``: called after a vertex's emission term.
+        ``vertex_terms(vertex, state)``: after BSDF sampling, before NEE is added;
+            returns (VertexTerms or None, state).
     """
 
     def __init__(self, props: mi.Properties) -> None:
@@ -75,6 +119,19 @@ class PathIntegrator(mi.SamplingIntegrator):
     def aov_names(self) -> list[str]:
         return ["depth"]
 
+    # ---- Hooks (overridden by the caching methods) ----
+
+    def init_state(self, ray: mi.Ray3f) -> Any:
+        return None
+
+    def after_emission(self, vertex: Vertex, state: Any) -> Any:
+        return state
+
+    def vertex_terms(self, vertex: Vertex, state: Any) -> tuple[VertexTerms | None, Any]:
+        return None, state
+
+    # ---- The estimator ----
+
     def russian_roulette(
         self, sampler: mi.Sampler, depth: mi.UInt32, beta: mi.Spectrum, eta: mi.Float,
         active: mi.Bool,
@@ -89,11 +146,18 @@ class PathIntegrator(mi.SamplingIntegrator):
         beta = dr.select(rr_active, beta * dr.rcp(q), beta)
         return beta, ~rr_active | rr_continue
 
-    @dr.syntax
     def sample(
         self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.RayDifferential3f,
         medium: mi.Medium = None, active: mi.Bool = True,
     ) -> tuple[mi.Spectrum, mi.Bool, list[mi.Float]]:
+        L, valid_ray, depth, _ = self.trace(scene, sampler, ray, active)
+        return L, valid_ray, [mi.Float(depth)]
+
+    @dr.syntax
+    def trace(
+        self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.Ray3f, active: mi.Bool = True,
+    ) -> tuple[mi.Spectrum, mi.Bool, mi.UInt32, Any]:
+        """Trace one path per lane; returns (L, valid_ray, vertex count, hook state)."""
         bsdf_ctx = mi.BSDFContext()
 
         # --------------------- Loop state ---------------------
@@ -107,6 +171,7 @@ class PathIntegrator(mi.SamplingIntegrator):
         prev_si = dr.zeros(mi.SurfaceInteraction3f)  # previous vertex (for the emitter pdf)
         prev_bsdf_pdf = mi.Float(1.0)         # solid-angle pdf of the last BSDF sample
         prev_bsdf_delta = mi.Bool(True)       # last BSDF sample was a delta lobe (or camera)
+        state = self.init_state(ray)          # the method's own per-path state (or None)
 
         while dr.hint(active, max_iterations=-1, label="nirc path tracer"):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All,
@@ -122,6 +187,8 @@ class PathIntegrator(mi.SamplingIntegrator):
             active_next = (depth + 1 < self.max_depth_u32) & si.is_valid() & active
             valid_ray |= active & si.is_valid()
             bsdf = si.bsdf(ray)
+            vertex = Vertex(scene, sampler, ray, si, bsdf, beta, L, depth, active, active_next)
+            state = self.after_emission(vertex, state)
 
             # ---- Emitter sampling (next-event estimation; MIS weight vs BSDF) ----
             active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
@@ -136,6 +203,16 @@ class PathIntegrator(mi.SamplingIntegrator):
             bsdf_val, bsdf_pdf, bsdf_sample, bsdf_weight = bsdf.eval_pdf_sample(
                 bsdf_ctx, si, wo_em, u1, u2, active_next)
             w_light = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf))
+
+            # ---- The method's terms at this vertex (cache term, residual, termination) ----
+            vertex.bsdf_sample, vertex.bsdf_weight = bsdf_sample, bsdf_weight
+            terms, state = self.vertex_terms(vertex, state)
+            if terms is not None:
+                w_light = dr.select(terms.nee_unweighted, 1.0, w_light)
+                active_em &= ~terms.skip_nee
+                L = dr.fma(beta, terms.L_add, L)
+                active_next &= ~terms.stop
+
             L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_light, L)
 
             # ---- Update loop variables (continue along the BSDF sample) ----
@@ -151,9 +228,9 @@ class PathIntegrator(mi.SamplingIntegrator):
             beta, survive = self.russian_roulette(sampler, depth, beta, eta, active_next)
             active = active_next & survive & (dr.max(beta) != 0)
 
-        return L, valid_ray, [mi.Float(depth)]
+        return L, valid_ray, depth, state
 
 
-def register() -> None:
-    """Register the plugin under ``PLUGIN_NAME`` (idempotent)."""
-    mi.register_integrator(PLUGIN_NAME, lambda props: PathIntegrator(props))
+def register(name: str = PLUGIN_NAME, cls: type = PathIntegrator) -> None:
+    """Register an integrator class as a Mitsuba plugin (idempotent)."""
+    mi.register_integrator(name, lambda props: cls(props))
