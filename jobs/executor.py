@@ -106,6 +106,18 @@ def _export(out_dir: Path, summary: RunSummary, reference: LoadedReference,
     return {name: str(path) for name, path in files.items()}
 
 
+def mean_over_seeds(stats: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean of every numeric statistic (and of nested per-key statistics) over seeds."""
+    result: dict[str, Any] = {}
+    for key, first in stats[0].items():
+        values = [s.get(key) for s in stats]
+        if isinstance(first, dict):
+            result[key] = mean_over_seeds([v or {} for v in values])
+        elif isinstance(first, int | float):
+            result[key] = float(np.mean([v for v in values if v is not None]))
+    return result
+
+
 def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray], reference: np.ndarray,
               eps: float, frame_seconds: float) -> dict[str, Any]:
     """Reduce K per-seed results: rBias^2/rVar over seeds, mean MRSE with its CI, FLIP.
@@ -164,7 +176,8 @@ def execute(
                                flip_exposures=reference.flip_exposures)
         nonfinite += values["nonfinite_pixels"]
         values["seconds_per_frame"] = output.timings["frame_median_s"]
-        per_seed.append({"seed": seed, **values, "path_stats": output.path_stats})
+        per_seed.append({"seed": seed, **values, "path_stats": output.path_stats,
+                         "method_stats": output.method_stats})
         seed_timings.append(output.timings)
         images.append(output.accumulated)
         artifacts += _seed_artifacts(artifacts_store, scratch, seed, output.accumulated,
@@ -179,8 +192,7 @@ def execute(
         "compile_s_estimate": seed_timings[0]["compile_s_estimate"],
         "stages": seed_timings[0]["stages"],
     }
-    path_stats = {"avg_path_vertices": float(np.mean(
-        [s["path_stats"]["avg_path_vertices"] for s in per_seed]))}
+    path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
     quality = {"finite": nonfinite == 0, "nonfinite_pixels": nonfinite}
     reference_info = {"id": reference.id, "key": reference.key, "spp": reference.spp,
                       "split_half": reference.split_half, "path": str(reference.image_path),
@@ -197,8 +209,8 @@ def execute(
             "device": device, "device_key": device["device_key"],
             "versions": library_versions(), "git_commit": git_commit(), "quality": quality,
         },
-        [{"seed": s["seed"], "metrics": {k: v for k, v in s.items() if k != "path_stats"},
-          "timings": t} for s, t in zip(per_seed, seed_timings, strict=True)],
+        [{"seed": s["seed"], "metrics": s, "timings": t}
+         for s, t in zip(per_seed, seed_timings, strict=True)],
         artifacts,
     )
     summary = RunSummary(

@@ -132,6 +132,14 @@ def _parse_param(text: str) -> tuple[str, Any]:
         return name.strip(), value
 
 
+def _parse_nc(text: str) -> list[int]:
+    try:
+        return [int(part) for part in text.split(",")]
+    except ValueError:
+        raise typer.BadParameter(f"expected integers like '4' or '3,1,1', got '{text}'",
+                                 param_hint="--nc") from None
+
+
 @app.command()
 def render(
     scene: Scene,
@@ -143,6 +151,14 @@ def render(
     max_depth: MaxDepth = 8,
     param: Annotated[list[str] | None, typer.Option(
         "--param", "-p", help="method parameter NAME=VALUE (repeatable)")] = None,
+    estimator: Annotated[str | None, typer.Option(
+        "--estimator", help="nirc: 'biased' or 'unbiased'")] = None,
+    termination: Annotated[str | None, typer.Option(
+        "--termination", help="nirc biased: 'bth' or 'sph'")] = None,
+    nc: Annotated[str | None, typer.Option(
+        "--nc", help="N_c: '4' (biased) or per vertex '3,1,1' (unbiased)")] = None,
+    pretrain: Annotated[int | None, typer.Option(
+        "--pretrain", min=0, max=100_000, help="cache training frames before timing")] = None,
     ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
     eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0, help="MRSE epsilon")] = 0.01,
     out: Annotated[Path | None, typer.Option("--out", help="write images and summary.json here")] = None,
@@ -155,6 +171,9 @@ def render(
 
     params = dict(_parse_param(p) for p in param or [])
     params.setdefault("max_depth", max_depth)
+    shortcuts = {"estimator": estimator, "termination": termination,
+                 "nc": _parse_nc(nc) if nc is not None else None, "pretrain_frames": pretrain}
+    params.update({name: value for name, value in shortcuts.items() if value is not None})
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp))
     settings = _settings(data_dir)

@@ -58,6 +58,7 @@ class Vertex:
     depth: mi.UInt32              # index of this vertex: 0 = first surface hit
     active: mi.Bool               # lanes whose path reached this vertex
     active_next: mi.Bool          # lanes that may extend the path beyond this vertex
+    prev_bsdf_pdf: mi.Float       # pdf of the BSDF sample that led to this vertex
     bsdf_sample: Any = None       # mi.BSDFSample3f of the continuation direction
     bsdf_weight: Any = None       # f cos / pdf of the continuation direction
 
@@ -187,7 +188,8 @@ class PathIntegrator(mi.SamplingIntegrator):
             active_next = (depth + 1 < self.max_depth_u32) & si.is_valid() & active
             valid_ray |= active & si.is_valid()
             bsdf = si.bsdf(ray)
-            vertex = Vertex(scene, sampler, ray, si, bsdf, beta, L, depth, active, active_next)
+            vertex = Vertex(scene, sampler, ray, si, bsdf, beta, L, depth, active, active_next,
+                            prev_bsdf_pdf)
             state = self.after_emission(vertex, state)
 
             # ---- Emitter sampling (next-event estimation; MIS weight vs BSDF) ----

@@ -12,7 +12,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from renderers.methods import pt
+from renderers.methods import nirc, pt
 from renderers.methods.base import MethodParams, RenderOutput
 
 
@@ -31,6 +31,8 @@ class Method:
 METHODS: dict[str, Method] = {
     "pt": Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", pt.PTParams,
                  pt.render),
+    "nirc": Method("nirc", "Neural Incident Radiance Cache: biased (BTH/SPH termination) or "
+                   "unbiased two-level Monte Carlo", nirc.NIRCParams, nirc.render),
 }
 
 

@@ -34,6 +34,7 @@ class RenderOutput:
     frames: list[np.ndarray] | None         # per-frame images when requested
     timings: dict[str, Any]                 # see renderers.timing.summarize
     path_stats: dict[str, Any] = field(default_factory=dict)
+    method_stats: dict[str, Any] = field(default_factory=dict)  # e.g. loss curve, cache config
 
 
 #: Renders frame ``index`` with ``seed``, timing its stages with ``timer``;
@@ -41,11 +42,48 @@ class RenderOutput:
 FrameFn = Callable[[int, int, StageTimer], Any]
 
 
+#: Per-path AOVs of the integrators and the statistic their frame mean is reported as.
+AOV_STATS = {
+    "depth": "avg_path_vertices",          # surface vertices per path
+    "cache_depth": "avg_cache_depth",      # 1 + vertex index of termination into the cache (0: none)
+    "cache_vertices": "avg_cache_vertices",  # vertices at which a cache term was added
+}
+
+
+class PathStats:
+    """Frame means of the per-path AOVs, and (at 1 spp, where a pixel is one path)
+    the fraction of paths per value of ``cache_depth``: how often each vertex used the cache."""
+
+    def __init__(self, aov_names: tuple[str, ...]) -> None:
+        self.aov_names = aov_names
+        self.sums = dict.fromkeys(aov_names, 0.0)
+        self.histogram: dict[int, float] = {}
+        self.frames = 0
+
+    def add(self, aovs: np.ndarray, spp: int) -> None:
+        self.frames += 1
+        for index, name in enumerate(self.aov_names):
+            self.sums[name] += float(np.nanmean(aovs[..., index]))
+        if spp == 1 and "cache_depth" in self.aov_names:
+            values = np.rint(aovs[..., self.aov_names.index("cache_depth")]).astype(int).ravel()
+            for value, count in zip(*np.unique(values, return_counts=True), strict=True):
+                self.histogram[int(value)] = self.histogram.get(int(value), 0.0) + count / values.size
+
+    def result(self) -> dict[str, Any]:
+        stats: dict[str, Any] = {AOV_STATS.get(n, n): s / self.frames for n, s in self.sums.items()}
+        if self.histogram:
+            stats["cache_depth_fractions"] = {
+                str(k): v / self.frames for k, v in sorted(self.histogram.items())}
+        return stats
+
+
 def run_frames(
     render_frame: FrameFn,
     *,
     seed_parts: tuple[Any, ...],
     frames: int,
+    spp: int,
+    aov_names: tuple[str, ...] = ("depth",),
     keep_frames: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> RenderOutput:
@@ -60,7 +98,7 @@ def run_frames(
     warmup_s = sum(warmup.seconds.values())
 
     accumulated: np.ndarray | None = None
-    depth_sum = 0.0
+    path_stats = PathStats(aov_names)
     kept: list[np.ndarray] = []
     frame_timings: list[dict[str, float]] = []
     for index in range(frames):
@@ -70,8 +108,7 @@ def run_frames(
         rgb = film[..., :3].astype(np.float32)
         # Running mean keeps memory constant however many frames run.
         accumulated = rgb.copy() if accumulated is None else accumulated + (rgb - accumulated) / (index + 1)
-        if film.shape[-1] > 3:
-            depth_sum += float(np.nanmean(film[..., 3]))
+        path_stats.add(film[..., 3:], spp)
         if keep_frames:
             kept.append(rgb)
         if progress:
@@ -82,5 +119,5 @@ def run_frames(
         accumulated=accumulated,
         frames=kept if keep_frames else None,
         timings=summarize(frame_timings, warmup_s),
-        path_stats={"avg_path_vertices": depth_sum / frames},
+        path_stats=path_stats.result(),
     )

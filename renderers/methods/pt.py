@@ -53,5 +53,5 @@ def render(
             image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
         return image
 
-    return run_frames(render_frame, seed_parts=seed_parts, frames=frames,
+    return run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
                       keep_frames=keep_frames, progress=progress)

@@ -1,0 +1,199 @@
+"""`nirc`: the Neural Incident Radiance Cache in the shared path-tracing core.
+
+The cache n(x, w_i) approximates the *indirect* incident radiance L_ind(x, w_i)
+(NIRC paper Eq. 8-9): radiance reflected at the next vertex y toward x, without
+y's own emission, which next-event estimation and MIS already account for.
+With N_c directions w_i sampled from the BSDF at x, the cache term is
+
+    L_c = 1/N_c sum_i n(x, w_i) f(x, w_i, w_o) cos / p(w_i)            (Eq. 12)
+
+Two estimators use it:
+
+* biased (Eq. 13): at the vertex where the path terminates, L_e + L_nee + L_c;
+  termination by the Balanced Termination Heuristic (Eq. 22-23: continue with
+  P_s = p(w) / (p(w) + N_c / pi), and for vertices after the first also stop
+  when the spread heuristic says so) or by the spread heuristic alone. Delta
+  lobes always continue. Because the path does not continue, NEE at that vertex
+  is not MIS-weighted (nothing collects the BSDF-sampled part of direct light).
+* unbiased (Eq. 10-11, two-level Monte Carlo): at the first three non-specular
+  vertices add L_c and the residual with the path's own continuation direction
+  w, -n(x, w) f cos / p(w), then continue as PT: the path's continuation is the
+  one-sample estimate of L_ind(x, w), so the residual term has expectation
+  E[L_ind - n] and the whole estimator has exactly PT's expectation, whatever
+  the cache has learned.
+
+The position encoding is computed once per shading point and shared by its N_c
+directions (Sec. 4.5), through ``NeuralCache.surface_features``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+
+from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
+from renderers.integrators.spread import (
+    SPREAD_C,
+    primary_footprint,
+    spread_exceeded,
+    spread_increment,
+)
+
+NIRC_PLUGIN = "nirc_nirc"
+UNBIASED_VERTICES = 3
+
+
+def cache_inputs(si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
+    """Per-surface cache inputs: position, shading normal, roughness, diffuse albedo.
+
+    Roughness is the BSDF's ``alpha`` where it has one; purely diffuse surfaces
+    count as fully rough (1) — the cache encodes 1 - exp(-r) (NRC's mapping).
+    """
+    flags = bsdf.flags()
+    diffuse_only = (mi.has_flag(flags, mi.BSDFFlags.Diffuse)
+                    & ~mi.has_flag(flags, mi.BSDFFlags.Glossy))
+    alpha = bsdf.eval_attribute_1("alpha", si)
+    return {
+        "position": si.p,
+        "normal": si.sh_frame.n,
+        "roughness": dr.select(diffuse_only, 1.0, alpha),
+        "albedo": bsdf.eval_diffuse_reflectance(si),
+    }
+
+
+class NIRCState:
+    """Per-path loop state of the NIRC estimators."""
+
+    DRJIT_STRUCT = {
+        "spread_sum": mi.Float,      # sum of sqrt spread terms (SPH, see spread.py)
+        "a0": mi.Float,              # primary-vertex footprint a_0
+        "cache_vertices": mi.UInt32, # vertices at which the cache term was added
+        "cache_depth": mi.UInt32,    # 1 + index of the vertex the path terminated into (0: none)
+    }
+
+    def __init__(self, spread_sum=None, a0=None, cache_vertices=None, cache_depth=None):
+        self.spread_sum = spread_sum
+        self.a0 = a0
+        self.cache_vertices = cache_vertices
+        self.cache_depth = cache_depth
+
+
+class NIRCIntegrator(PathIntegrator):
+    """PT core + NIRC cache terms. Properties (besides PathIntegrator's):
+
+        estimator    'biased' | 'unbiased' (default 'biased')
+        termination  'bth' | 'sph' (biased only; default 'bth')
+        nc           N_c per vertex as text, e.g. '4' (biased) or '3,1,1' (unbiased:
+                     one entry per non-specular vertex, at most three)
+        sph_c        c of the spread heuristic (default 0.01)
+
+    The cache is attached after construction: ``integrator.cache = NeuralCache``.
+    AOVs: ``depth`` (vertices per path), ``cache_depth`` (1 + vertex index the
+    biased estimator terminated at, 0 for none) and ``cache_vertices``.
+    """
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self.estimator = str(props.get("estimator", "biased"))
+        self.termination = str(props.get("termination", "bth"))
+        self.nc = [int(n) for n in str(props.get("nc", "4")).split(",")]
+        self.sph_c = float(props.get("sph_c", SPREAD_C))
+        self.cache: Any = None
+        if self.estimator not in ("biased", "unbiased"):
+            raise ValueError("estimator must be 'biased' or 'unbiased'")
+        if self.termination not in ("bth", "sph"):
+            raise ValueError("termination must be 'bth' or 'sph'")
+        if not self.nc or min(self.nc) < 1:
+            raise ValueError("nc must list positive sample counts")
+        if self.estimator == "unbiased" and len(self.nc) > UNBIASED_VERTICES:
+            raise ValueError(f"the unbiased estimator uses at most {UNBIASED_VERTICES} vertices")
+        if self.estimator == "biased" and len(self.nc) != 1:
+            raise ValueError("the biased estimator takes one N_c")
+
+    def aov_names(self) -> list[str]:
+        return ["depth", "cache_depth", "cache_vertices"]
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
+        return L, valid_ray, [mi.Float(depth), mi.Float(state.cache_depth),
+                              mi.Float(state.cache_vertices)]
+
+    def init_state(self, ray: mi.Ray3f) -> NIRCState:
+        return NIRCState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0))
+
+    # ---- Spread of the path so far (SPH, spread.py) ----
+    def after_emission(self, vertex: Vertex, state: NIRCState) -> NIRCState:
+        si = vertex.si
+        distance_sq = dr.square(si.t)
+        cos_theta = dr.dot(si.sh_frame.n, -vertex.ray.d)
+        first = vertex.depth == 0
+        state.a0 = dr.select(first & vertex.active, primary_footprint(distance_sq, cos_theta),
+                             state.a0)
+        increment = spread_increment(distance_sq, vertex.prev_bsdf_pdf, cos_theta)
+        grow = ~first & vertex.active & si.is_valid() & dr.isfinite(increment)
+        state.spread_sum = dr.select(grow, state.spread_sum + increment, state.spread_sum)
+        return state
+
+    # ---- Cache term L_c (Eq. 12) with the per-surface encoding shared by N_c directions ----
+    def cache_term(self, vertex: Vertex, surface: list, nc_lane: mi.UInt32, max_nc: int,
+                   active: mi.Bool) -> mi.Spectrum:
+        si, bsdf = vertex.si, vertex.bsdf
+        ctx = mi.BSDFContext()
+        total = mi.Spectrum(0)
+        for slot in range(max_nc):
+            use = active & (slot < nc_lane)
+            bs, weight = bsdf.sample(ctx, si, vertex.sampler.next_1d(use),
+                                     vertex.sampler.next_2d(use), use)
+            n_i = self.cache.query(surface, si.to_world(bs.wo))
+            total += dr.select(use & (bs.pdf > 0), n_i * weight, 0)
+        return total / mi.Float(dr.maximum(nc_lane, 1))
+
+    def vertex_terms(self, vertex: Vertex, state: NIRCState) -> tuple[VertexTerms, NIRCState]:
+        smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
+        usable = vertex.active_next & smooth
+        if self.estimator == "unbiased":
+            return self._unbiased_terms(vertex, state, usable)
+        return self._biased_terms(vertex, state, usable)
+
+    def _unbiased_terms(self, vertex, state, usable):
+        # ---- Two-level MC (Eq. 10-11): L_c plus the residual along the continuation ----
+        use = usable & (state.cache_vertices < len(self.nc))
+        nc_lane = mi.UInt32(self.nc[-1])
+        for index in reversed(range(len(self.nc) - 1)):
+            nc_lane = dr.select(state.cache_vertices == index, self.nc[index], nc_lane)
+        surface = self.cache.surface_features(**cache_inputs(vertex.si, vertex.bsdf))
+        L_c = self.cache_term(vertex, surface, nc_lane, max(self.nc), use)
+        # The continuation sample was drawn independently of the N_c cache samples.
+        wo = vertex.si.to_world(vertex.bsdf_sample.wo)
+        n_cont = self.cache.query(surface, wo)
+        continues = use & (vertex.bsdf_sample.pdf > 0)
+        residual_cache = dr.select(continues, n_cont * vertex.bsdf_weight, 0)
+        state.cache_vertices = dr.select(use, state.cache_vertices + 1, state.cache_vertices)
+        terms = VertexTerms(L_add=dr.select(use, L_c - residual_cache, 0), stop=mi.Bool(False),
+                            nee_unweighted=mi.Bool(False), skip_nee=mi.Bool(False))
+        return terms, state
+
+    def _biased_terms(self, vertex, state, usable):
+        # ---- Termination (BTH Eq. 22-23, or SPH Eq. 19-21); delta lobes continue ----
+        nc = self.nc[0]
+        delta = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
+        spread_stop = (vertex.depth > 0) & spread_exceeded(state.spread_sum, state.a0, self.sph_c)
+        if self.termination == "bth":
+            pdf = vertex.bsdf_sample.pdf
+            p_continue = pdf / (pdf + nc / math.pi)
+            xi = vertex.sampler.next_1d(usable)
+            stop = (xi > p_continue) | spread_stop
+        else:
+            stop = spread_stop
+        stop &= usable & ~delta
+        # ---- Shade the terminal vertex: L_e (done) + L_nee (unweighted) + L_c (Eq. 13) ----
+        surface = self.cache.surface_features(**cache_inputs(vertex.si, vertex.bsdf))
+        L_c = self.cache_term(vertex, surface, mi.UInt32(nc), nc, stop)
+        state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
+        state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
+        terms = VertexTerms(L_add=dr.select(stop, L_c, 0), stop=stop, nee_unweighted=stop,
+                            skip_nee=mi.Bool(False))
+        return terms, state

@@ -1,0 +1,95 @@
+"""Training paths: the PT core with recording hooks, producing cache training records.
+
+Training paths are traced by a separate launch from the render paths (NIRC
+paper Sec. 4.5: a few % of the pixel count, unbounded length with Russian
+roulette), starting at uniformly random pixels. At each of the first ``D``
+vertices x_j of a path we record the cache inputs at x_j and the direction w_j
+the path continued in; when the path arrives at x_{j+1} we record the radiance
+accumulated so far *including* x_{j+1}'s MIS-weighted emission, L_j, and the
+throughput at arrival, beta_{j+1}. Everything the path collects after that is
+light reflected at x_{j+1} toward x_j, so after the path ends
+
+    target_j = (L_final - L_j) / beta_{j+1}
+
+is a one-sample, unbiased estimate of the indirect incident radiance
+L_ind(x_j, w_j) (Eq. 8: NEE at x_{j+1} plus everything further; not x_{j+1}'s
+own emission). A direction that escapes the scene has target 0 (light from the
+environment is direct light). Records whose path stopped before reaching
+x_{j+1} (roulette, depth limit, absorbed sample) are invalid.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+
+from renderers.integrators.nirc import cache_inputs
+from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
+
+RECORD_FIELDS = {
+    "position": mi.Point3f, "normal": mi.Vector3f, "roughness": mi.Float,
+    "albedo": mi.Color3f, "direction": mi.Vector3f,
+    "L_before": mi.Color3f, "beta_arrival": mi.Color3f, "valid": mi.Bool,
+}
+
+
+class TrainingPathIntegrator(PathIntegrator):
+    """Records (inputs, direction, radiance prefix) at the first ``record_depth`` vertices."""
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self.record_depth = int(props.get("record_depth", 3))
+        self.buffers: dict[str, Any] = {}
+        self.n_paths = 0
+
+    def _slot(self, depth: mi.UInt32) -> mi.UInt32:
+        return dr.arange(mi.UInt32, self.n_paths) * self.record_depth + depth
+
+    def after_emission(self, vertex: Vertex, state: Any) -> Any:
+        # Arrival at x_{j+1}: the prefix of radiance and the throughput for record j.
+        j = vertex.depth - 1
+        ok = vertex.active & (vertex.depth >= 1) & (j < self.record_depth)
+        slot = self._slot(j)
+        dr.scatter(self.buffers["L_before"], mi.Color3f(vertex.L), slot, ok)
+        dr.scatter(self.buffers["beta_arrival"], mi.Color3f(vertex.beta), slot, ok)
+        dr.scatter(self.buffers["valid"], True, slot, ok)
+        return state
+
+    def vertex_terms(self, vertex: Vertex, state: Any) -> tuple[VertexTerms | None, Any]:
+        # Departure from x_j: the cache inputs and the sampled direction of record j.
+        ok = vertex.active_next & (vertex.depth < self.record_depth) & (vertex.bsdf_sample.pdf > 0)
+        slot = self._slot(vertex.depth)
+        inputs = cache_inputs(vertex.si, vertex.bsdf)
+        inputs["direction"] = vertex.si.to_world(vertex.bsdf_sample.wo)
+        for name, value in inputs.items():
+            dr.scatter(self.buffers[name], RECORD_FIELDS[name](value), slot, ok)
+        return None, state
+
+    def trace_records(self, scene: mi.Scene, n_paths: int, seed: int) -> dict[str, Any]:
+        """Trace ``n_paths`` training paths from random pixels; return the record arrays."""
+        sensor = scene.sensors()[0]
+        size = n_paths * self.record_depth
+        self.n_paths = n_paths
+        self.buffers = {name: dr.zeros(kind, size) for name, kind in RECORD_FIELDS.items()}
+        dr.eval(self.buffers)
+
+        sampler = sensor.sampler().clone()
+        sampler.seed(seed, n_paths)
+        # A uniformly random film position per path (not a pixel grid): every
+        # surface seen by the camera can be trained on.
+        ray, ray_weight = sensor.sample_ray(
+            time=0.0, sample1=sampler.next_1d(), sample2=sampler.next_2d(),
+            sample3=sampler.next_2d())
+        L, _, _, _ = self.trace(scene, sampler, ray)
+
+        records = dict(self.buffers)
+        path = dr.arange(mi.UInt32, size) // self.record_depth
+        L_final = dr.gather(mi.Color3f, mi.Color3f(L), path)
+        beta = records.pop("beta_arrival")
+        target = (L_final - records.pop("L_before")) / beta
+        records["valid"] &= dr.all(beta > 0)
+        records["target"] = dr.select(records["valid"], target, 0)
+        dr.eval(records)
+        return records
