@@ -29,70 +29,25 @@ directions (Sec. 4.5), through ``NeuralCache.surface_features``.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import drjit as dr
 import mitsuba as mi
 
-from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
-from renderers.integrators.spread import (
-    SPREAD_C,
-    primary_footprint,
-    spread_exceeded,
-    spread_increment,
-)
+from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs
+from renderers.integrators.path import Vertex, VertexTerms
+from renderers.integrators.spread import spread_exceeded
 
 NIRC_PLUGIN = "nirc_nirc"
 UNBIASED_VERTICES = 3
 
 
-def cache_inputs(si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
-    """Per-surface cache inputs: position, shading normal, roughness, diffuse albedo.
-
-    Roughness is the BSDF's ``alpha`` where it has one; purely diffuse surfaces
-    count as fully rough (1) — the cache encodes 1 - exp(-r) (NRC's mapping).
-    """
-    flags = bsdf.flags()
-    diffuse_only = (mi.has_flag(flags, mi.BSDFFlags.Diffuse)
-                    & ~mi.has_flag(flags, mi.BSDFFlags.Glossy))
-    alpha = bsdf.eval_attribute_1("alpha", si)
-    return {
-        "position": si.p,
-        "normal": si.sh_frame.n,
-        "roughness": dr.select(diffuse_only, 1.0, alpha),
-        "albedo": bsdf.eval_diffuse_reflectance(si),
-    }
-
-
-class NIRCState:
-    """Per-path loop state of the NIRC estimators."""
-
-    DRJIT_STRUCT = {
-        "spread_sum": mi.Float,      # sum of sqrt spread terms (SPH, see spread.py)
-        "a0": mi.Float,              # primary-vertex footprint a_0
-        "cache_vertices": mi.UInt32, # vertices at which the cache term was added
-        "cache_depth": mi.UInt32,    # 1 + index of the vertex the path terminated into (0: none)
-    }
-
-    def __init__(self, spread_sum=None, a0=None, cache_vertices=None, cache_depth=None):
-        self.spread_sum = spread_sum
-        self.a0 = a0
-        self.cache_vertices = cache_vertices
-        self.cache_depth = cache_depth
-
-
-class NIRCIntegrator(PathIntegrator):
-    """PT core + NIRC cache terms. Properties (besides PathIntegrator's):
+class NIRCIntegrator(CachedPathIntegrator):
+    """PT core + NIRC cache terms. Properties (besides CachedPathIntegrator's):
 
         estimator    'biased' | 'unbiased' (default 'biased')
         termination  'bth' | 'sph' (biased only; default 'bth')
         nc           N_c per vertex as text, e.g. '4' (biased) or '3,1,1' (unbiased:
                      one entry per non-specular vertex, at most three)
-        sph_c        c of the spread heuristic (default 0.01)
-
-    The cache is attached after construction: ``integrator.cache = NeuralCache``.
-    AOVs: ``depth`` (vertices per path), ``cache_depth`` (1 + vertex index the
-    biased estimator terminated at, 0 for none) and ``cache_vertices``.
     """
 
     def __init__(self, props: mi.Properties) -> None:
@@ -100,8 +55,6 @@ class NIRCIntegrator(PathIntegrator):
         self.estimator = str(props.get("estimator", "biased"))
         self.termination = str(props.get("termination", "bth"))
         self.nc = [int(n) for n in str(props.get("nc", "4")).split(",")]
-        self.sph_c = float(props.get("sph_c", SPREAD_C))
-        self.cache: Any = None
         if self.estimator not in ("biased", "unbiased"):
             raise ValueError("estimator must be 'biased' or 'unbiased'")
         if self.termination not in ("bth", "sph"):
@@ -112,30 +65,6 @@ class NIRCIntegrator(PathIntegrator):
             raise ValueError(f"the unbiased estimator uses at most {UNBIASED_VERTICES} vertices")
         if self.estimator == "biased" and len(self.nc) != 1:
             raise ValueError("the biased estimator takes one N_c")
-
-    def aov_names(self) -> list[str]:
-        return ["depth", "cache_depth", "cache_vertices"]
-
-    def sample(self, scene, sampler, ray, medium=None, active=True):
-        L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
-        return L, valid_ray, [mi.Float(depth), mi.Float(state.cache_depth),
-                              mi.Float(state.cache_vertices)]
-
-    def init_state(self, ray: mi.Ray3f) -> NIRCState:
-        return NIRCState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0))
-
-    # ---- Spread of the path so far (SPH, spread.py) ----
-    def after_emission(self, vertex: Vertex, state: NIRCState) -> NIRCState:
-        si = vertex.si
-        distance_sq = dr.square(si.t)
-        cos_theta = dr.dot(si.sh_frame.n, -vertex.ray.d)
-        first = vertex.depth == 0
-        state.a0 = dr.select(first & vertex.active, primary_footprint(distance_sq, cos_theta),
-                             state.a0)
-        increment = spread_increment(distance_sq, vertex.prev_bsdf_pdf, cos_theta)
-        grow = ~first & vertex.active & si.is_valid() & dr.isfinite(increment)
-        state.spread_sum = dr.select(grow, state.spread_sum + increment, state.spread_sum)
-        return state
 
     # ---- Cache term L_c (Eq. 12) with the per-surface encoding shared by N_c directions ----
     def cache_term(self, vertex: Vertex, surface: list, nc_lane: mi.UInt32, max_nc: int,
@@ -151,7 +80,7 @@ class NIRCIntegrator(PathIntegrator):
             total += dr.select(use & (bs.pdf > 0), n_i * weight, 0)
         return total / mi.Float(dr.maximum(nc_lane, 1))
 
-    def vertex_terms(self, vertex: Vertex, state: NIRCState) -> tuple[VertexTerms, NIRCState]:
+    def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
         smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
         usable = vertex.active_next & smooth
         if self.estimator == "unbiased":

@@ -16,6 +16,12 @@ L_ind(x_j, w_j) (Eq. 8: NEE at x_{j+1} plus everything further; not x_{j+1}'s
 own emission). A direction that escapes the scene has target 0 (light from the
 environment is direct light). Records whose path stopped before reaching
 x_{j+1} (roulette, depth limit, absorbed sample) are invalid.
+
+The same quantity is the radiance *reflected at x_{j+1} toward x_j*, which is
+what NRC caches: with ``key_vertex='arrival'`` the record's inputs are those
+of x_{j+1} with direction w_o = -w_j, and the target is divided by NRC's albedo
+demodulation factor at x_{j+1} (misses are then invalid: there is no surface).
+NIRC records use ``key_vertex='departure'`` (inputs of x_j, direction w_j).
 """
 
 from __future__ import annotations
@@ -25,22 +31,30 @@ from typing import Any
 import drjit as dr
 import mitsuba as mi
 
-from renderers.integrators.nirc import cache_inputs
+from renderers.integrators.cached import cache_inputs, demodulation
 from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
 
 RECORD_FIELDS = {
     "position": mi.Point3f, "normal": mi.Vector3f, "roughness": mi.Float,
-    "albedo": mi.Color3f, "direction": mi.Vector3f,
-    "L_before": mi.Color3f, "beta_arrival": mi.Color3f, "valid": mi.Bool,
+    "albedo": mi.Color3f, "albedo_spec": mi.Color3f, "direction": mi.Vector3f,
+    "L_before": mi.Color3f, "beta_arrival": mi.Color3f, "demodulation": mi.Color3f,
+    "valid": mi.Bool,
 }
 
 
 class TrainingPathIntegrator(PathIntegrator):
-    """Records (inputs, direction, radiance prefix) at the first ``record_depth`` vertices."""
+    """Records (inputs, direction, radiance prefix) at the first ``record_depth`` vertices.
+
+    Properties: ``record_depth`` (default 3), ``key_vertex`` ('departure' for
+    NIRC, 'arrival' for NRC; see the module docstring).
+    """
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.record_depth = int(props.get("record_depth", 3))
+        self.key_vertex = str(props.get("key_vertex", "departure"))
+        if self.key_vertex not in ("departure", "arrival"):
+            raise ValueError("key_vertex must be 'departure' or 'arrival'")
         self.buffers: dict[str, Any] = {}
         self.n_paths = 0
 
@@ -52,20 +66,29 @@ class TrainingPathIntegrator(PathIntegrator):
         j = vertex.depth - 1
         ok = vertex.active & (vertex.depth >= 1) & (j < self.record_depth)
         slot = self._slot(j)
-        dr.scatter(self.buffers["L_before"], mi.Color3f(vertex.L), slot, ok)
-        dr.scatter(self.buffers["beta_arrival"], mi.Color3f(vertex.beta), slot, ok)
-        dr.scatter(self.buffers["valid"], True, slot, ok)
+        if self.key_vertex == "arrival":
+            ok &= vertex.si.is_valid()
+            inputs = cache_inputs(vertex.si, vertex.bsdf, specular=True)
+            inputs["demodulation"] = demodulation(inputs)
+            inputs["direction"] = -vertex.ray.d
+            self._scatter(inputs, slot, ok)
+        self._scatter({"L_before": vertex.L, "beta_arrival": vertex.beta, "valid": True},
+                      slot, ok)
         return state
 
     def vertex_terms(self, vertex: Vertex, state: Any) -> tuple[VertexTerms | None, Any]:
         # Departure from x_j: the cache inputs and the sampled direction of record j.
-        ok = vertex.active_next & (vertex.depth < self.record_depth) & (vertex.bsdf_sample.pdf > 0)
-        slot = self._slot(vertex.depth)
-        inputs = cache_inputs(vertex.si, vertex.bsdf)
-        inputs["direction"] = vertex.si.to_world(vertex.bsdf_sample.wo)
-        for name, value in inputs.items():
-            dr.scatter(self.buffers[name], RECORD_FIELDS[name](value), slot, ok)
+        if self.key_vertex == "departure":
+            ok = (vertex.active_next & (vertex.depth < self.record_depth)
+                  & (vertex.bsdf_sample.pdf > 0))
+            inputs = cache_inputs(vertex.si, vertex.bsdf)
+            inputs["direction"] = vertex.si.to_world(vertex.bsdf_sample.wo)
+            self._scatter(inputs, self._slot(vertex.depth), ok)
         return None, state
+
+    def _scatter(self, values: dict[str, Any], slot: mi.UInt32, active: mi.Bool) -> None:
+        for name, value in values.items():
+            dr.scatter(self.buffers[name], RECORD_FIELDS[name](value), slot, active)
 
     def trace_records(self, scene: mi.Scene, n_paths: int, seed: int) -> dict[str, Any]:
         """Trace ``n_paths`` training paths from random pixels; return the record arrays."""
@@ -73,6 +96,8 @@ class TrainingPathIntegrator(PathIntegrator):
         size = n_paths * self.record_depth
         self.n_paths = n_paths
         self.buffers = {name: dr.zeros(kind, size) for name, kind in RECORD_FIELDS.items()}
+        # Departure records are never demodulated.
+        self.buffers["demodulation"] = dr.full(mi.Color3f, 1.0, size)
         dr.eval(self.buffers)
 
         sampler = sensor.sampler().clone()
@@ -88,8 +113,10 @@ class TrainingPathIntegrator(PathIntegrator):
         path = dr.arange(mi.UInt32, size) // self.record_depth
         L_final = dr.gather(mi.Color3f, mi.Color3f(L), path)
         beta = records.pop("beta_arrival")
-        target = (L_final - records.pop("L_before")) / beta
+        target = (L_final - records.pop("L_before")) / (beta * records.pop("demodulation"))
         records["valid"] &= dr.all(beta > 0)
         records["target"] = dr.select(records["valid"], target, 0)
+        if self.key_vertex == "departure":
+            del records["albedo_spec"]
         dr.eval(records)
         return records

@@ -12,7 +12,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from renderers.methods import nirc, pt
+from renderers.methods import nirc, nrc, pt
 from renderers.methods.base import MethodParams, RenderOutput
 
 
@@ -33,6 +33,8 @@ METHODS: dict[str, Method] = {
                  pt.render),
     "nirc": Method("nirc", "Neural Incident Radiance Cache: biased (BTH/SPH termination) or "
                    "unbiased two-level Monte Carlo", nirc.NIRCParams, nirc.render),
+    "nrc": Method("nrc", "Neural Radiance Cache, spread-angle termination", nrc.NRCParams,
+                  nrc.render),
 }
 
 

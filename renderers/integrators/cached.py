@@ -1,0 +1,104 @@
+"""What the caching integrators share: cache inputs and the spread-tracking state.
+
+`nirc` and `nrc` are the PT core plus cache terms; both need the per-surface
+cache inputs of a vertex and the spread of the path so far (the SPH test,
+spread.py), which this base keeps in the loop state.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+
+from renderers.integrators.path import PathIntegrator, Vertex
+from renderers.integrators.spread import SPREAD_C, primary_footprint, spread_increment
+
+#: Floor of NRC's albedo demodulation factor: black surfaces would divide by 0.
+MIN_DEMODULATION = 0.01
+
+
+def cache_inputs(si: mi.SurfaceInteraction3f, bsdf: mi.BSDF,
+                 specular: bool = False) -> dict[str, Any]:
+    """Per-surface cache inputs: position, shading normal, roughness, diffuse albedo.
+
+    Roughness is the BSDF's ``alpha`` where it has one; purely diffuse surfaces
+    count as fully rough (1) — the cache encodes 1 - exp(-r) (NRC's mapping).
+    With ``specular``, also the BSDF's ``specular_reflectance`` (0 where it has
+    none) as ``albedo_spec`` (NRC's inputs).
+    """
+    flags = bsdf.flags()
+    diffuse_only = (mi.has_flag(flags, mi.BSDFFlags.Diffuse)
+                    & ~mi.has_flag(flags, mi.BSDFFlags.Glossy))
+    alpha = bsdf.eval_attribute_1("alpha", si)
+    inputs = {
+        "position": si.p,
+        "normal": si.sh_frame.n,
+        "roughness": dr.select(diffuse_only, 1.0, alpha),
+        "albedo": bsdf.eval_diffuse_reflectance(si),
+    }
+    if specular:
+        inputs["albedo_spec"] = bsdf.eval_attribute_3("specular_reflectance", si)
+    return inputs
+
+
+def demodulation(inputs: dict[str, Any]) -> mi.Color3f:
+    """NRC's albedo demodulation factor: diffuse + specular albedo (floored)."""
+    return dr.maximum(inputs["albedo"] + inputs["albedo_spec"], MIN_DEMODULATION)
+
+
+class CacheState:
+    """Per-path loop state of the caching estimators."""
+
+    DRJIT_STRUCT = {
+        "spread_sum": mi.Float,      # sum of sqrt spread terms (SPH, see spread.py)
+        "a0": mi.Float,              # primary-vertex footprint a_0
+        "cache_vertices": mi.UInt32, # vertices at which a cache term was added
+        "cache_depth": mi.UInt32,    # 1 + index of the vertex the path terminated into (0: none)
+    }
+
+    def __init__(self, spread_sum=None, a0=None, cache_vertices=None, cache_depth=None):
+        self.spread_sum = spread_sum
+        self.a0 = a0
+        self.cache_vertices = cache_vertices
+        self.cache_depth = cache_depth
+
+
+class CachedPathIntegrator(PathIntegrator):
+    """PT core that tracks the path spread and reports cache usage as AOVs.
+
+    Properties: ``sph_c`` (c of the spread heuristic, default 0.01). The cache
+    is attached after construction: ``integrator.cache = NeuralCache(...)``.
+    AOVs: ``depth``, ``cache_depth`` (1 + index of the vertex a path terminated
+    into the cache, 0 for none) and ``cache_vertices``.
+    """
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self.sph_c = float(props.get("sph_c", SPREAD_C))
+        self.cache: Any = None
+
+    def aov_names(self) -> list[str]:
+        return ["depth", "cache_depth", "cache_vertices"]
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
+        return L, valid_ray, [mi.Float(depth), mi.Float(state.cache_depth),
+                              mi.Float(state.cache_vertices)]
+
+    def init_state(self, ray: mi.Ray3f) -> CacheState:
+        return CacheState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0))
+
+    # ---- Spread of the path so far (SPH, spread.py) ----
+    def after_emission(self, vertex: Vertex, state: CacheState) -> CacheState:
+        si = vertex.si
+        distance_sq = dr.square(si.t)
+        cos_theta = dr.dot(si.sh_frame.n, -vertex.ray.d)
+        first = vertex.depth == 0
+        state.a0 = dr.select(first & vertex.active, primary_footprint(distance_sq, cos_theta),
+                             state.a0)
+        increment = spread_increment(distance_sq, vertex.prev_bsdf_pdf, cos_theta)
+        grow = ~first & vertex.active & si.is_valid() & dr.isfinite(increment)
+        state.spread_sum = dr.select(grow, state.spread_sum + increment, state.spread_sum)
+        return state

@@ -1,0 +1,126 @@
+"""The frame loop of the caching methods: online training every frame, then render.
+
+Real-time semantics (DESIGN.md): every frame first traces training paths (a few
+% of the pixel count, at least ``min_train_paths``; unbounded length with
+Russian roulette) and takes the cache's training steps on their records, then
+renders the frame with the updated cache — frame f uses a cache trained on
+frames 0..f. Static scenes may pre-train for ``pretrain_frames`` frames before
+the first timed frame. Stages timed per frame: ``training_paths``,
+``training``, ``render`` (path tracing and cache inference run in one fused
+kernel and are timed together). The warm-up frame trains too.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+from pydantic import Field, model_validator
+
+from renderers.methods.base import RenderOutput, run_frames
+from renderers.methods.pt import PTParams
+from renderers.seeding import derive_seed
+from renderers.timing import StageTimer
+
+CACHE_AOVS = ("depth", "cache_depth", "cache_vertices")
+TRAINING_PLUGIN = "nirc_training"
+
+
+class CacheTrainingParams(PTParams):
+    """PT core parameters plus how the cache is trained online."""
+
+    sph_c: float = Field(0.01, gt=0.0, le=1e6, description="c of the spread heuristic")
+    train_fraction: float = Field(0.03, gt=0.0, le=1.0, description="training paths / pixels")
+    min_train_paths: int = Field(4096, ge=1, le=1 << 22)
+    record_depth: int = Field(3, ge=1, le=16, description="vertices recorded per training path")
+    train_max_depth: int = Field(-1, ge=-1, le=1024, description="-1: unbounded with roulette")
+    pretrain_frames: int = Field(0, ge=0, le=100_000)
+    cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
+
+    @model_validator(mode="after")
+    def _check_train_depth(self) -> CacheTrainingParams:
+        if self.train_max_depth == 0:
+            raise ValueError("train_max_depth must be -1 (unbounded) or >= 1")
+        return self
+
+    def core(self) -> dict[str, Any]:
+        """The PT core's plugin properties."""
+        return {"max_depth": self.max_depth, "rr_depth": self.rr_depth,
+                "rr_mode": self.rr_mode, "rr_survival": self.rr_survival}
+
+
+def load_integrators(plugin: str, cls: type, params: CacheTrainingParams, key_vertex: str,
+                     **properties: Any) -> tuple[Any, Any]:
+    """The render integrator (``cls`` as ``plugin``) and its training-path integrator."""
+    import mitsuba as mi
+
+    from renderers.integrators import path, training
+
+    path.register(plugin, cls)
+    path.register(TRAINING_PLUGIN, training.TrainingPathIntegrator)
+    integrator = mi.load_dict({"type": plugin, **params.core(), "sph_c": params.sph_c,
+                               **properties})
+    trainer = mi.load_dict({"type": TRAINING_PLUGIN,
+                            **{**params.core(), "max_depth": params.train_max_depth},
+                            "record_depth": params.record_depth, "key_vertex": key_vertex})
+    return integrator, trainer
+
+
+def make_cache(scene: Any, config_fn: Callable[..., Any], params: CacheTrainingParams,
+               seed: int) -> Any:
+    """A cache over the scene's bounding box, configured by a preset plus overrides."""
+    from renderers.caches import NeuralCache
+
+    bbox = scene.scene.bbox()
+    return NeuralCache(config_fn(**params.cache), list(bbox.min), list(bbox.max), seed=seed)
+
+
+def train_once(cache: Any, trainer: Any, scene: Any, n_paths: int, seed: int,
+               timer: StageTimer) -> None:
+    """One frame of online training: trace training paths, take the cache's steps."""
+    from renderers.caches import TrainingRecords
+
+    with timer.stage("training_paths"):
+        records = trainer.trace_records(scene.scene, n_paths, seed)
+    with timer.stage("training"):
+        cache.train(TrainingRecords(**records))
+
+
+def render_with_cache(
+    scene: Any, params: CacheTrainingParams, integrator: Any, trainer: Any, cache: Any, *,
+    seed_parts: tuple[Any, ...], spp: int, frames: int, keep_frames: bool = False,
+    progress=None,
+) -> RenderOutput:
+    """Pre-train, then run the frame loop with training before every frame."""
+    import mitsuba as mi
+
+    integrator.cache = cache
+    width, height = scene.resolution
+    n_train = max(params.min_train_paths, math.ceil(params.train_fraction * width * height))
+
+    pretrain_start = time.perf_counter()
+    for index in range(params.pretrain_frames):
+        train_once(cache, trainer, scene, n_train, derive_seed(*seed_parts, "pretrain", index),
+                   StageTimer())
+    pretrain_s = time.perf_counter() - pretrain_start
+
+    def render_frame(_index: int, seed: int, timer: StageTimer):
+        train_once(cache, trainer, scene, n_train, derive_seed(seed, "train"), timer)
+        # The lambda reads ``image`` when the stage ends, after it is assigned.
+        with timer.stage("render", lambda: (image,)):
+            image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
+        return image
+
+    output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
+                        aov_names=CACHE_AOVS, keep_frames=keep_frames, progress=progress)
+    output.method_stats = {
+        "train_paths_per_frame": n_train,
+        "pretrain_frames": params.pretrain_frames,
+        "pretrain_s": pretrain_s,
+        "loss_history": list(cache.loss_history),
+        "cache_stats": dict(cache.stats),
+        "cache_config": cache.config.model_dump(mode="json"),
+    }
+    return output
