@@ -212,6 +212,36 @@ def evaluate(
         console.print(key_value_table("metrics", values))
 
 
+@app.command()
+def report(
+    scene: Scene,
+    res: Res = 64,
+    frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 16,
+    seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000)] = 2,
+    pretrain: Annotated[int, typer.Option("--pretrain", min=0, max=100_000)] = 100,
+    max_depth: MaxDepth = 8,
+    ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
+    as_json: JsonOut = False,
+    data_dir: DataDir = None,
+) -> None:
+    """Compare PT, NRC and NIRC on a scene (NIRC paper Fig. 7): equal spp and equal time."""
+    from dataclasses import asdict
+
+    from jobs.report import comparison_report
+    from service.tables import comparison_tables
+
+    settings = _settings(data_dir)
+    store = _store(settings)
+    with progress_reporter(console, quiet=as_json) as progress:
+        result = comparison_report(scene, store, settings, resolution=res, frames=frames,
+                                   seeds=seeds, pretrain_frames=pretrain, max_depth=max_depth,
+                                   ref_spp=ref_spp, progress=progress)
+    if as_json:
+        _print_json(asdict(result))
+    else:
+        console.print(comparison_tables(result))
+
+
 def main() -> None:
     """Console-script entry point: run the app, turning errors into one-line messages."""
     try:

@@ -87,3 +87,28 @@ def metrics_table(summary: Any) -> Group:
                       _fmt(s["flip_ldr"]), _fmt(1e3 * s["seconds_per_frame"]),
                       str(s["nonfinite_pixels"]))
     return Group(key_value_table(f"{spec.method} vs reference", head), seeds)
+
+
+def comparison_tables(report: Any) -> Group:
+    """The Fig. 7 comparison: one table at equal spp, one at equal time."""
+    def table(title: str, rows: list[Any]) -> Table:
+        t = Table(title=title)
+        for column in ("method", "run", "spp", "MRSE", "MRSE 95% CI", "FLIP", "rBias2",
+                       "ms/frame", "ms render", "note"):
+            t.add_column(column, justify="left" if column in ("method", "note") else "right")
+        for r in rows:
+            ci = f"[{r.mrse_ci95[0]:.3g}, {r.mrse_ci95[1]:.3g}]" if r.mrse_ci95 else "-"
+            t.add_row(r.label, str(r.run_id), str(r.spp), _fmt(r.mrse), ci, _fmt(r.flip),
+                      _fmt(r.rbias2) if r.rbias2 is not None else "-", _fmt(r.ms_frame),
+                      _fmt(r.ms_render), r.note)
+        return t
+
+    cal = report.calibration
+    calibration = key_value_table("N_c calibration (NIRC biased)", {
+        "budget": f"{cal['budget']} = {1e3 * cal['budget_s']:.3g} ms",
+        "frame ms per N_c": ", ".join(f"{nc}: {1e3 * s:.3g}" for nc, s in cal["nc_frame_s"].items()),
+        "chosen N_c": cal["chosen_nc"] if cal["fits"] else f"{cal['chosen_nc']} (none fits)",
+    })
+    return Group(table(f"{report.scene}: equal spp ({report.device})", report.equal_spp),
+                 table(f"{report.scene}: equal time ({report.device})", report.equal_time),
+                 calibration)

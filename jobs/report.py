@@ -1,0 +1,124 @@
+"""The method comparison of the NIRC paper's Fig. 7, at equal spp and at equal time.
+
+Rows: PT 1 spp, PT 2 spp, NRC (biased), NIRC biased, NIRC unbiased — each run
+through the executor (so every row is a stored run against the same reference)
+and reported with MRSE, FLIP and milliseconds per frame (total, and the render
+stage alone; the caches' totals include their online training).
+
+Equal time on this device: the papers' GPU ordering (a neural sample costs a few
+% of a path) need not hold on a CPU, so we do not assume it. For NIRC biased we
+calibrate N_c: the largest of 1, 2, 4, ..., 32 whose frame time fits the PT
+2 spp budget (none fitting is reported as such); and for every cached method PT
+gets the spp that fits that method's frame time ("PT at equal time").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from jobs.config import Settings
+from jobs.executor import RunSummary, execute
+from jobs.spec import ReferenceSpec, RenderSpec
+from jobs.store import Store
+
+NC_CANDIDATES = (1, 2, 4, 8, 16, 32)
+
+
+@dataclass
+class ReportRow:
+    label: str
+    run_id: int
+    method: str
+    params: dict[str, Any]
+    spp: int
+    mrse: float
+    mrse_ci95: tuple[float, float] | None
+    flip: float
+    ms_frame: float
+    ms_render: float
+    rbias2: float | None
+    note: str = ""
+
+
+@dataclass
+class Report:
+    scene: str
+    device: str
+    equal_spp: list[ReportRow] = field(default_factory=list)
+    equal_time: list[ReportRow] = field(default_factory=list)
+    calibration: dict[str, Any] = field(default_factory=dict)
+
+
+def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
+    m, t = summary.metrics, summary.timings
+    render = t["stages"].get("render", {}).get("median_s", t["seconds_per_frame"])
+    ci = m.get("mrse_ci95")
+    return ReportRow(label=label, run_id=summary.run_id, method=summary.spec.method,
+                     params=summary.spec.params, spp=summary.spec.spp, mrse=m["mrse_mean"],
+                     mrse_ci95=tuple(ci) if ci else None, flip=m["flip_hdr_mean"],
+                     ms_frame=1e3 * t["seconds_per_frame"], ms_render=1e3 * render,
+                     rbias2=m.get("rbias2"), note=note)
+
+
+def comparison_report(
+    scene: str, store: Store, settings: Settings, *, resolution: int = 64, frames: int = 16,
+    seeds: int = 2, pretrain_frames: int = 100, max_depth: int = 8, ref_spp: int = 4096,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> Report:
+    """Run the Fig. 7 comparison on ``scene`` (see the module docstring)."""
+    base = RenderSpec(scene=scene, resolution=resolution, frames=frames, seeds=seeds,
+                      reference=ReferenceSpec(spp=ref_spp))
+    cache_params = {"max_depth": max_depth, "pretrain_frames": pretrain_frames}
+
+    def run(label: str, method: str, params: dict[str, Any], spp: int = 1,
+            seeds_override: int | None = None) -> RunSummary:
+        spec = base.model_copy(update={"method": method, "params": params, "spp": spp,
+                                       "seeds": seeds_override or seeds})
+        step = (lambda stage, done, total: progress(f"{label}: {stage}", done, total)) \
+            if progress else None
+        return execute(spec, store, settings, progress=step)
+
+    pt1 = run("PT 1 spp", "pt", {"max_depth": max_depth})
+    pt2 = run("PT 2 spp", "pt", {"max_depth": max_depth}, spp=2)
+    nrc = run("NRC", "nrc", cache_params)
+    nirc_b = run("NIRC biased", "nirc", {**cache_params, "estimator": "biased", "nc": [4]})
+    nirc_u = run("NIRC unbiased", "nirc", {**cache_params, "estimator": "unbiased",
+                                           "nc": [3, 1, 1]})
+    report = Report(scene=scene, device=pt1.device["device_key"])
+    report.equal_spp = [_row("PT 1 spp", pt1), _row("PT 2 spp", pt2), _row("NRC biased", nrc),
+                        _row("NIRC biased (N_c 4)", nirc_b),
+                        _row("NIRC unbiased (N_c 3,1,1)", nirc_u)]
+
+    # ---- Equal time: N_c of NIRC biased calibrated to the PT 2 spp frame time ----
+    budget = pt2.timings["seconds_per_frame"]
+    timings: dict[int, float] = {}
+    for nc in NC_CANDIDATES:
+        probe = run(f"calibrate N_c={nc}", "nirc",
+                    {**cache_params, "estimator": "biased", "nc": [nc]}, seeds_override=1)
+        timings[nc] = probe.timings["seconds_per_frame"]
+        if timings[nc] > budget:
+            break
+    fitting = [nc for nc, seconds in timings.items() if seconds <= budget]
+    chosen = max(fitting) if fitting else 1
+    report.calibration = {"budget_s": budget, "budget": "PT 2 spp frame time",
+                          "nc_frame_s": timings, "chosen_nc": chosen,
+                          "fits": bool(fitting)}
+    nirc_eq = nirc_b if chosen == 4 else run(
+        f"NIRC biased N_c={chosen}", "nirc", {**cache_params, "estimator": "biased",
+                                              "nc": [chosen]})
+    report.equal_time = [
+        _row("PT 2 spp (budget)", pt2),
+        _row(f"NIRC biased (N_c {chosen})", nirc_eq,
+             "" if fitting else "over budget even at N_c = 1"),
+    ]
+
+    # ---- Equal time: PT with the spp that fits each cached method's frame time ----
+    pt_frame = pt1.timings["seconds_per_frame"]
+    for label, summary in (("NRC", nrc), ("NIRC unbiased", nirc_u)):
+        spp = max(1, round(summary.timings["seconds_per_frame"] / pt_frame))
+        pt_eq = {1: pt1, 2: pt2}.get(spp) or run(f"PT {spp} spp", "pt",
+                                                 {"max_depth": max_depth}, spp=spp)
+        report.equal_time += [_row(label, summary), _row(f"PT {spp} spp (= {label} time)", pt_eq)]
+    return report
