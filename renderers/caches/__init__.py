@@ -1,0 +1,43 @@
+"""Neural caches: one implementation (NeuralCache) configured per method.
+
+NRC, NIRC and the neural visibility caches are presets of
+:class:`CacheConfig` (:func:`nrc_config`, :func:`nirc_config`,
+:func:`visibility_config`) over :class:`NeuralCache`; see DESIGN.md
+("Methods") and the NIRC paper, Sec. 4.1 (loss), 4.4 (architecture) and 4.5
+(shared per-surface encoding).
+
+Import after ``renderers.backend.init_backend()`` has selected the variant.
+"""
+
+from renderers.caches.cache import NeuralCache, build_mlp
+from renderers.caches.config import (
+    CacheConfig,
+    DirectionEncodingConfig,
+    HashGridConfig,
+    LossConfig,
+    MLPConfig,
+    OptimizerConfig,
+    OutputConfig,
+    ScalarEncodingConfig,
+    nirc_config,
+    nrc_config,
+    visibility_config,
+)
+from renderers.caches.records import TrainingRecords
+
+__all__ = [
+    "CacheConfig",
+    "DirectionEncodingConfig",
+    "HashGridConfig",
+    "LossConfig",
+    "MLPConfig",
+    "NeuralCache",
+    "OptimizerConfig",
+    "OutputConfig",
+    "ScalarEncodingConfig",
+    "TrainingRecords",
+    "build_mlp",
+    "nirc_config",
+    "nrc_config",
+    "visibility_config",
+]

@@ -1,0 +1,480 @@
+"""One neural cache for every method: NRC, NIRC and the visibility caches.
+
+A :class:`NeuralCache` is an input encoder (hash grid + per-surface inputs +
+direction, :mod:`renderers.caches.encodings`) followed by an MLP, trained
+online with Adam on :class:`TrainingRecords` and queried by the renderer. The
+methods differ only by their :class:`~renderers.caches.config.CacheConfig`.
+
+Two copies of the MLP exist, for the two jobs (DESIGN.md, "Neural-network
+practice on this stack"):
+
+- training, in tensor mode: an unpacked ``nn.Sequential`` of ``nn.Linear``
+  over a ``TensorXf`` of shape (features, batch), ~4x faster on the CPU than
+  backpropagating through a packed CoopVec network. Adam owns the MLP weights
+  and the hash-grid table; the network and the grid are rebound to Adam's
+  values before every step.
+- inference, with cooperative vectors: after each :meth:`NeuralCache.train`
+  the (EMA) weights are packed with ``nn.pack(..., layout='inference')`` and
+  evaluated on ``nn.CoopVec`` inputs (:class:`~renderers.caches.inference.PackedMLP`),
+  which runs on evaluated arrays and inside the symbolic ``@dr.syntax``
+  loops of Mitsuba integrators.
+
+Sharing (NIRC paper Sec. 4.5): :meth:`NeuralCache.surface_features` encodes
+what does not depend on the direction (hash grid, normal, roughness, albedo)
+once per shading point and, by default, also pushes it through the surface
+columns of the first layer; :meth:`NeuralCache.query` then costs one direction
+encoding + the rest of the MLP per direction. On the 2-core CPU the MLP, not
+the hash grid (~0.1-0.16 us), dominates a query, so the first-layer split is
+what makes N_c samples much cheaper than N_c single queries.
+
+Reproducibility: the MLP init, the hash-grid init and the batch selection are
+all derived from ``seed`` (and, for batches, the optimizer step counter).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+from drjit import nn
+from drjit.opt import Adam
+
+from renderers.caches.config import CacheConfig
+from renderers.caches.encodings import InputEncoder, PositionEncoding, Vec3, to_tensor
+from renderers.caches.inference import PackedMLP
+from renderers.caches.losses import cache_loss
+from renderers.caches.records import TrainingRecords
+from renderers.seeding import derive_seed
+
+#: Optimizer key of the hash-grid table (the MLP keys are 'mlp.layers.<i>.*').
+GRID_KEY = "position.hashgrid"
+
+
+def build_mlp(config: CacheConfig) -> nn.Sequential:
+    """The (unallocated) MLP a config describes; hidden layers + linear output."""
+    layers: list[nn.Module] = []
+    for _ in range(config.mlp.hidden_layers):
+        layers.append(nn.Linear(-1, config.mlp.width))
+        if config.mlp.activation == "relu":
+            layers.append(nn.ReLU())
+        else:
+            layers.append(nn.LeakyReLU(config.mlp.leaky_slope))
+    layers.append(nn.Linear(-1, config.output.n_outputs))
+    return nn.Sequential(*layers, prefix="mlp")
+
+
+def mlp_forward_tensor(net: nn.Sequential, x: mi.TensorXf) -> mi.TensorXf:
+    """Tensor-mode forward pass of an unpacked MLP, with reproducible gradients.
+
+    Same as ``net(x)`` except for the bias: ``nn.Linear`` broadcasts it over
+    the batch, whose reverse-mode derivative is a float atomic scatter-add
+    (run-dependent summation order on a multi-core CPU). Adding it as
+    ``b @ ones(1, N)`` turns that derivative into a matrix product, which
+    sums in a fixed order.
+    """
+    ones = dr.ones(mi.TensorXf, (1, x.shape[1]))
+    for layer in net.layers:
+        if isinstance(layer, nn.Linear):
+            y = layer.weights @ x
+            if layer.bias is not None:
+                y = y + dr.reshape(mi.TensorXf, layer.bias, (layer.bias.shape[0], 1)) @ ones
+            x = y
+        else:
+            x = layer(x)
+    return x
+
+
+def sigmoid(x: Any) -> Any:
+    """Logistic function; works on Floats and tensors alike."""
+    return dr.rcp(1.0 + dr.exp(-x))
+
+
+def _scaled(value: Any, factor: mi.Float) -> Any:
+    """``value * factor`` for a Float or a tensor, ``factor`` a width-1 Float."""
+    if dr.is_tensor_v(value):
+        return type(value)(value.array * factor, value.shape)
+    return value * factor
+
+
+class NeuralCache:
+    """A neural radiance / visibility cache (see module docstring).
+
+    Args:
+        config: the network, its inputs and its training (stored with runs).
+        bbox_min, bbox_max: the scene's bounding box (e.g.
+            ``scene.bbox().min``); positions are normalised by it.
+        seed: determines the weight init, hash-grid init and batch selection.
+        split_first_layer: share the surface part of the first layer across
+            directions (default; see :mod:`renderers.caches.inference`).
+            False concatenates the inputs instead (benchmark comparison).
+            Outputs agree up to float summation order. The split costs ~10 %
+            for a single direction (NRC, N_c = 1) and saves 1.2-1.7x from
+            N_c = 2 on (measured, benchmarks/bench_cache.py).
+        deterministic: bit-reproducible hash-grid gradients (default;
+            :mod:`renderers.caches.grid_grad`; cost within run-to-run noise,
+            0-17 % of a training step measured); False uses Dr.Jit's float
+            atomics, whose summation order varies between runs on a
+            multi-core CPU.
+
+    Attributes:
+        loss_history: loss of every optimizer step taken, in order.
+        stats: counters — ``records_seen`` (usable records given to
+            :meth:`train`), ``dropped_invalid`` (``valid`` False),
+            ``dropped_nonfinite_targets``, ``dropped_nonfinite_inputs``,
+            ``steps`` (steps taken), ``skipped_steps`` (steps whose loss or
+            gradients were non-finite: weights left unchanged).
+    """
+
+    def __init__(self, config: CacheConfig, bbox_min: Vec3, bbox_max: Vec3,
+                 seed: int = 0, split_first_layer: bool = True,
+                 deterministic: bool = True) -> None:
+        self.config = config
+        self.seed = int(seed)
+        self.split_first_layer = bool(split_first_layer)
+        self.deterministic = bool(deterministic)
+        self.bbox_min = [float(v) for v in bbox_min]
+        self.bbox_max = [float(v) for v in bbox_max]
+
+        # ---- Inputs and network, initialised from the seed ----
+        self.encoder = InputEncoder(config, self.bbox_min, self.bbox_max,
+                                    dr.rng(derive_seed(self.seed, "hashgrid")))
+        self.encoder.position.deterministic_grad = self.deterministic
+        arch = build_mlp(config)
+        self._net = arch.alloc(mi.TensorXf, config.n_inputs,
+                               rng=dr.rng(derive_seed(self.seed, "mlp")))
+        # Unpacked holder of the inference weights: packed after each train()
+        # and used directly for tensor-mode inference (benchmarks, tests).
+        self._infer_src = arch.alloc(mi.TensorXf, config.n_inputs, rng=dr.rng(0))
+        self._mlp_keys = list(self._net.keys())
+
+        # ---- Optimizer: owns the MLP weights and the hash-grid table ----
+        o = config.optimizer
+        self._opt = Adam(lr=o.lr, beta_1=o.beta1, beta_2=o.beta2, epsilon=o.eps)
+        for key in self._mlp_keys:
+            self._opt[key] = self._net[key]
+        self._opt[GRID_KEY] = self.encoder.position.grid.data
+        self._keys = [*self._mlp_keys, GRID_KEY]
+
+        # ---- Exponential moving average of the weights (inference) ----
+        self._ema: dict[str, Any] | None = None
+        if config.ema_decay is not None:
+            self._ema = {k: dr.zeros(type(v), v.shape) for k, v in self._params().items()}
+        self._ema_steps = 0
+
+        self._attempted_steps = 0     # steps tried, also seeds the batch draws
+        self.loss_history: list[float] = []
+        self.stats: dict[str, int] = {
+            "records_seen": 0,
+            "dropped_invalid": 0,
+            "dropped_nonfinite_targets": 0,
+            "dropped_nonfinite_inputs": 0,
+            "steps": 0,
+            "skipped_steps": 0,
+        }
+        self._refresh_inference()
+
+    # ------------------------------------------------------------------
+    # Sizes and description
+    # ------------------------------------------------------------------
+    @property
+    def n_outputs(self) -> int:
+        return self.config.output.n_outputs
+
+    @property
+    def n_inputs(self) -> int:
+        return self.config.n_inputs
+
+    def describe(self) -> dict[str, Any]:
+        """What is stored with a run besides the config: sizes and progress."""
+        layers = [list(layer.config[:2]) for layer in self._net.layers
+                  if isinstance(layer, nn.Linear)]
+        mlp_params = sum(i * o + o for i, o in layers)
+        grid_params = self.encoder.position.n_params
+        return {
+            "seed": self.seed,
+            "bbox_min": self.bbox_min,
+            "bbox_max": self.bbox_max,
+            "n_inputs": self.n_inputs,
+            "n_surface_features": self.config.n_surface_features,
+            "n_direction_features": self.config.direction.n_features,
+            "n_outputs": self.n_outputs,
+            "mlp_layers": layers,
+            "mlp_params": mlp_params,
+            "hashgrid_params": grid_params,
+            "hashgrid_resolutions": self.encoder.position.resolutions(),
+            "total_params": mlp_params + grid_params,
+            "split_first_layer": self.split_first_layer,
+            "deterministic": self.deterministic,
+            "optimizer_steps": self.stats["steps"],
+            "ema_steps": self._ema_steps,
+            "stats": dict(self.stats),
+            "config": self.config.model_dump(mode="json"),
+        }
+
+    # ------------------------------------------------------------------
+    # Inference
+    # ------------------------------------------------------------------
+    @property
+    def inference_network(self) -> PackedMLP:
+        """The packed network :meth:`query` evaluates (refreshed by :meth:`train`)."""
+        return self._infer
+
+    @property
+    def tensor_network(self) -> nn.Sequential:
+        """The inference weights as an unpacked tensor-mode network."""
+        return self._infer_src
+
+    @property
+    def n_surface_values(self) -> int:
+        """Length of the list :meth:`surface_features` returns."""
+        if self.split_first_layer:
+            return self.config.mlp.width
+        return self.config.n_surface_features
+
+    def surface_features(self, position: Vec3, normal: Vec3 | None = None,
+                         roughness: mi.Float | None = None, albedo: Vec3 | None = None,
+                         albedo_spec: Vec3 | None = None) -> list[mi.Float]:
+        """Everything about a shading point that does not depend on the direction.
+
+        Computed once per shading point and shared by all directions queried
+        there (NIRC paper Sec. 4.5): the input encodings (hash grid, normal,
+        roughness, albedos) and, with ``split_first_layer``, their product
+        with the first layer's surface columns plus its bias. Treat the list
+        (``n_surface_values`` Floats) as opaque: pass it to :meth:`query`.
+        Inputs the config does not use may be None.
+        """
+        rows = self.encoder.surface(position, normal, roughness, albedo, albedo_spec,
+                                    position_encoding=self._infer_position)
+        return self._infer.surface(rows)
+
+    def query_outputs(self, surface: Sequence[mi.Float],
+                      direction: Vec3 | None = None) -> list[mi.Float]:
+        """Network outputs for ``surface`` (from :meth:`surface_features`) and
+        one direction, as a list of ``n_outputs`` Floats.
+
+        Output activation applied: clamped at >= 0 (``clamped_linear``) or
+        sigmoid. Works on evaluated arrays and inside symbolic loops.
+        """
+        if len(surface) != self.n_surface_values:
+            raise ValueError(f"surface has {len(surface)} values, expected "
+                             f"{self.n_surface_values}: pass what surface_features() returned")
+        out = self._infer.finish(list(surface), self.encoder.direction(direction))
+        if self.config.output.activation == "sigmoid":
+            return [sigmoid(o) for o in out]
+        return [dr.maximum(o, 0.0) for o in out]
+
+    def query(self, surface: Sequence[mi.Float],
+              direction: Vec3 | None = None) -> mi.Color3f | list[mi.Float]:
+        """Cached value for ``surface`` and ``direction``.
+
+        Returns ``mi.Color3f`` when the cache has 3 outputs (radiance caches),
+        otherwise the list of ``n_outputs`` Floats (e.g. per-light visibility).
+        """
+        out = self.query_outputs(surface, direction)
+        return mi.Color3f(*out) if len(out) == 3 else out
+
+    def query_unshared(self, position: Vec3, normal: Vec3 | None = None,
+                       roughness: mi.Float | None = None, albedo: Vec3 | None = None,
+                       direction: Vec3 | None = None,
+                       albedo_spec: Vec3 | None = None) -> mi.Color3f | list[mi.Float]:
+        """:meth:`query` with the surface features recomputed for this call.
+
+        The naive pipeline the NIRC paper's Fig. 5 compares against; kept for
+        the benchmark that measures what sharing saves.
+        """
+        surface = self.surface_features(position, normal, roughness, albedo, albedo_spec)
+        return self.query(surface, direction)
+
+    def predict_tensor(self, records: TrainingRecords) -> mi.TensorXf:
+        """Tensor-mode inference with the inference weights: (n_outputs, N).
+
+        Same numbers as :meth:`query_outputs` up to float summation order;
+        used to compare CoopVec and tensor evaluation.
+        """
+        rows = self._input_rows(records, self._infer_position)
+        y = self._infer_src(to_tensor(rows))
+        if self.config.output.activation == "sigmoid":
+            return sigmoid(y)
+        return dr.maximum(y, 0.0)
+
+    # ------------------------------------------------------------------
+    # Parameters (for storage and tests)
+    # ------------------------------------------------------------------
+    def parameters(self) -> dict[str, np.ndarray]:
+        """The latest (optimizer) parameters, flattened, as NumPy arrays."""
+        return {k: np.asarray(_flat(v)) for k, v in self._params().items()}
+
+    def inference_parameters(self) -> dict[str, np.ndarray]:
+        """The parameters inference uses (EMA when enabled), as NumPy arrays."""
+        return {k: np.asarray(_flat(v)) for k, v in self._inference_params().items()}
+
+    # ------------------------------------------------------------------
+    # Training
+    # ------------------------------------------------------------------
+    def train(self, records: TrainingRecords, steps: int | None = None,
+              batch_size: int | None = None) -> list[float]:
+        """Take ``steps`` Adam steps (default ``config.steps_per_frame``) on ``records``.
+
+        Invalid records and records with non-finite targets or inputs are
+        dropped and counted. Batches of ``batch_size`` (default
+        ``config.batch_size``, at most the number of usable records) are
+        consecutive slices of seeded random permutations of the usable
+        records, so one frame's records are each used once before any repeats
+        (as NRC does). A step whose loss or gradients are not finite is
+        skipped and counted. Afterwards the inference network is refreshed.
+        Returns the losses of the steps taken.
+        """
+        steps = self.config.steps_per_frame if steps is None else int(steps)
+        batch_size = self.config.batch_size if batch_size is None else int(batch_size)
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        self._check_records(records)
+
+        usable = self._usable_indices(records)
+        n = dr.width(usable)
+        losses: list[float] = []
+        if n == 0 or steps <= 0:
+            return losses
+        batch = min(batch_size, n)
+        draws = self._batch_indices(n, batch, steps)
+        for s in range(steps):
+            index = dr.gather(mi.UInt32, usable, mi.UInt32(draws[s]))
+            loss = self._step(records.gather(index))
+            if loss is not None:
+                losses.append(loss)
+        self.loss_history += losses
+        self._refresh_inference()
+        return losses
+
+    def evaluate_loss(self, records: TrainingRecords) -> float:
+        """The configured loss of the inference network on ``records`` (no update)."""
+        self._check_records(records)
+        usable = self._usable_indices(records, count=False)
+        recs = records.gather(usable)
+        rows = self._input_rows(recs, self._infer_position)
+        y = self._infer_src(to_tensor(rows))
+        if self.config.output.activation == "sigmoid":
+            y = sigmoid(y)
+        loss = cache_loss(self.config.loss, y, to_tensor(recs.target_rows()))
+        return float(loss.array[0])
+
+    # ---- internals ----
+    def _params(self) -> dict[str, Any]:
+        return {k: dr.detach(self._opt[k]) for k in self._keys}
+
+    def _inference_params(self) -> dict[str, Any]:
+        if self._ema is None or self._ema_steps == 0:
+            return self._params()
+        # Debias like Adam's moments: the accumulator starts at 0.
+        decay = self.config.ema_decay
+        # Opaque so that a changing factor does not recompile the kernel.
+        factor = dr.opaque(mi.Float, 1.0 / (1.0 - decay**self._ema_steps))
+        return {k: _scaled(v, factor) for k, v in self._ema.items()}
+
+    def _refresh_inference(self) -> None:
+        """Pack the inference weights and point the inference grid at its table."""
+        params = self._inference_params()
+        for key in self._mlp_keys:
+            self._infer_src[key] = params[key]
+        dr.eval(self._infer_src)
+        self._infer = PackedMLP(self._infer_src, self.config.n_surface_features,
+                                self.split_first_layer)
+        grid_data = params[GRID_KEY]
+        dr.eval(grid_data)
+        self._infer_position: PositionEncoding = self.encoder.position.with_data(grid_data)
+
+    def _input_rows(self, records: TrainingRecords,
+                    position: PositionEncoding) -> list[mi.Float]:
+        surface = self.encoder.surface(records.position, records.normal, records.roughness,
+                                       records.albedo, records.albedo_spec,
+                                       position_encoding=position)
+        return [*surface, *self.encoder.direction(records.direction)]
+
+    def _check_records(self, records: TrainingRecords) -> None:
+        records.check_widths()
+        n_targets = len(records.target_rows())
+        if n_targets != self.n_outputs:
+            raise ValueError(f"training targets have {n_targets} channels but the cache has "
+                             f"{self.n_outputs} outputs")
+
+    def _usable_indices(self, records: TrainingRecords, count: bool = True) -> mi.UInt32:
+        """Indices of records that are valid with finite inputs and targets."""
+        n = len(records)
+        valid = mi.Bool(True) if records.valid is None else mi.Bool(records.valid)
+        valid = valid & dr.full(mi.Bool, True, n)
+        finite_target = records.finite_targets()
+        finite_input = records.finite_inputs()
+        keep = valid & finite_target & finite_input
+        if count:
+            counts = [dr.count(~valid), dr.count(valid & ~finite_target),
+                      dr.count(valid & finite_target & ~finite_input), dr.count(keep)]
+            dr.eval(*counts)
+            invalid, bad_target, bad_input, kept = (int(c[0]) for c in counts)
+            self.stats["dropped_invalid"] += invalid
+            self.stats["dropped_nonfinite_targets"] += bad_target
+            self.stats["dropped_nonfinite_inputs"] += bad_input
+            self.stats["records_seen"] += kept
+        return dr.compress(keep)
+
+    def _batch_indices(self, n: int, batch: int, steps: int) -> list[np.ndarray]:
+        """``steps`` batches of indices into ``n`` records, from the seed and step count."""
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, self._attempted_steps]))
+        needed = steps * batch
+        perms = [rng.permutation(n) for _ in range(-(-needed // n))]
+        flat = np.concatenate(perms)[:needed].astype(np.uint32)
+        return [flat[s * batch:(s + 1) * batch] for s in range(steps)]
+
+    def _step(self, batch: TrainingRecords) -> float | None:
+        """One Adam step on ``batch``; None if it was skipped (non-finite)."""
+        self._attempted_steps += 1
+
+        # ---- Bind the optimizer's parameters (Adam owns them) ----
+        for key in self._mlp_keys:
+            self._net[key] = self._opt[key]
+        position = self.encoder.position.with_data(self._opt[GRID_KEY])
+
+        # ---- Forward (tensor mode) and loss (Eq. 18 or L2) ----
+        x = to_tensor(self._input_rows(batch, position))
+        y = mlp_forward_tensor(self._net, x)
+        if self.config.output.activation == "sigmoid":
+            y = sigmoid(y)
+        # clamped_linear stays linear here: a clamp would stop the gradient of
+        # negative predictions, which then could never recover.
+        loss = cache_loss(self.config.loss, y, to_tensor(batch.target_rows()))
+        dr.backward(loss)
+
+        # ---- Guard: skip the step if anything is non-finite ----
+        bad = dr.count(~dr.isfinite(loss.array))
+        for key in self._keys:
+            bad += dr.count(~dr.isfinite(_flat(dr.grad(self._opt[key]))))
+        dr.eval(loss, bad)
+        loss_value = float(loss.array[0])
+        if int(bad[0]) != 0:
+            # Re-registering a value with the same shape drops its gradient
+            # and keeps Adam's moments: the weights are unchanged.
+            for key in self._keys:
+                self._opt[key] = self._opt[key]
+            self.stats["skipped_steps"] += 1
+            return None
+
+        # ---- Adam step (+ EMA of the weights), one kernel launch ----
+        self._opt.set_learning_rate(self.config.optimizer.learning_rate(self.stats["steps"]))
+        self._opt.step(eval=False)
+        if self._ema is not None:
+            decay = self.config.ema_decay
+            for key in self._keys:
+                acc = dr.fma(self._ema[key], decay, dr.detach(self._opt[key]) * (1.0 - decay))
+                dr.schedule(acc)
+                self._ema[key] = acc
+            self._ema_steps += 1
+        dr.eval()
+        self.stats["steps"] += 1
+        return loss_value
+
+
+def _flat(value: Any) -> mi.Float:
+    """The flat Float storage of a Float or a tensor."""
+    return value.array if dr.is_tensor_v(value) else value

@@ -1,0 +1,89 @@
+"""The inference network: packed weights evaluated on cooperative vectors.
+
+``nn.pack(..., layout='inference')`` turns the trained tensor-mode weights
+into the layout ``nn.matvec`` evaluates fastest; evaluation runs on evaluated
+arrays and inside symbolic ``@dr.syntax`` loops alike.
+
+The first layer is split by input group. Its pre-activation is
+
+    h_1 = W_s s + b_1 + W_d e(w),
+
+where s are the per-surface features and e(w) the direction encoding. The
+term z = W_s s + b_1 does not depend on the direction, so it is computed once
+per shading point together with s and shared by the N_c directions — NIRC
+paper Sec. 4.5 extends sharing "to other shared input parameters and their
+corresponding encoding outputs"; this carries it one matrix further. Per
+direction only W_d e(w) and the remaining layers are evaluated. On the 2-core
+CPU this made a cache sample in an N_c loop 1.5-1.7x cheaper than
+concatenating s and e(w) (see benchmarks/bench_cache.py); results equal the
+unsplit network up to float summation order.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+from drjit import nn
+
+
+class PackedMLP:
+    """Inference form of an allocated tensor-mode ``nn.Sequential`` MLP.
+
+    Args:
+        net: the MLP (``nn.Linear`` layers with bias, activation modules).
+        n_surface: number of leading inputs that are per-surface features;
+            the rest are direction features.
+        split_first_layer: True for the split evaluation described in the
+            module docstring; False packs the whole network and evaluates the
+            concatenated input (for comparison).
+    """
+
+    def __init__(self, net: nn.Sequential, n_surface: int, split_first_layer: bool = True):
+        self.split = split_first_layer
+        self.n_surface = n_surface
+        if not split_first_layer:
+            self.full = nn.pack(net, layout="inference")
+            dr.eval(self.full)
+            return
+        first, *rest = net.layers
+        if not isinstance(first, nn.Linear) or first.bias is None:
+            raise TypeError("the MLP must start with a biased nn.Linear layer")
+        w1 = first.weights
+        n_in = w1.shape[1]
+        self.n_direction = n_in - n_surface
+        tensors: list[Any] = [w1[:, :n_surface], first.bias]
+        if self.n_direction > 0:
+            tensors.append(w1[:, n_surface:])
+        plan: list[Any] = []  # remaining layers: ('linear', i) or an activation module
+        for layer in rest:
+            if isinstance(layer, nn.Linear):
+                plan.append(("linear", len(tensors)))
+                tensors += [layer.weights, layer.bias]
+            else:
+                plan.append(layer)
+        self.views = nn.pack(*tensors, layout="inference")
+        dr.eval(self.views)
+        self.plan = plan
+
+    def surface(self, rows: list[mi.Float]) -> list[mi.Float]:
+        """Per-surface part: W_s s + b_1 (or the rows themselves if not split)."""
+        if not self.split:
+            return list(rows)
+        return list(nn.matvec(self.views[0], nn.CoopVec(*rows), self.views[1]))
+
+    def finish(self, surface: list[mi.Float], direction_rows: list[mi.Float]) -> list[mi.Float]:
+        """Network outputs (pre output-activation) for one direction."""
+        if not self.split:
+            return list(self.full(nn.CoopVec(*surface, *direction_rows)))
+        h = nn.CoopVec(*surface)
+        if self.n_direction > 0:
+            h = h + nn.matvec(self.views[2], nn.CoopVec(*direction_rows))
+        for step in self.plan:
+            if isinstance(step, tuple):
+                i = step[1]
+                h = nn.matvec(self.views[i], h, self.views[i + 1])
+            else:
+                h = step(h)
+        return list(h)
