@@ -323,7 +323,7 @@ class NeuralCache:
         ``config.batch_size``, at most the number of usable records) are
         consecutive slices of seeded random permutations of the usable
         records, so one frame's records are each used once before any repeats
-        (as NRC does). A step whose loss or gradients are not finite is
+        (as NRC does); a frame with fewer records than a batch repeats them. A step whose loss or gradients are not finite is
         skipped and counted. Afterwards the inference network is refreshed.
         Returns the losses of the steps taken.
         """
@@ -338,8 +338,10 @@ class NeuralCache:
         losses: list[float] = []
         if n == 0 or steps <= 0:
             return losses
-        batch = min(batch_size, n)
-        draws = self._batch_indices(n, batch, steps)
+        # Always the configured batch size, repeating records when a frame has
+        # fewer: the tensor-mode kernels bake the batch size into their IR, and
+        # a new size per frame meant a JIT compilation (~1 s) per training step.
+        draws = self._batch_indices(n, batch_size, steps)
         for s in range(steps):
             index = dr.gather(mi.UInt32, usable, mi.UInt32(draws[s]))
             loss = self._step(records.gather(index))
