@@ -22,6 +22,8 @@ test-fast: bootstrap
 
 bench: bootstrap
 	$(PY) -m benchmarks.bench_pt
+	$(PY) -m benchmarks.bench_cache
+	$(PY) -m benchmarks.bench_nirc
 
 lint: bootstrap
 	$(VENV)/bin/ruff check .
