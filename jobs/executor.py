@@ -182,6 +182,11 @@ def execute(
         images.append(output.accumulated)
         artifacts += _seed_artifacts(artifacts_store, scratch, seed, output.accumulated,
                                      reference, spec.eps, previews=seed == 0)
+        # Per-frame images (``keep_frames``), named frame_<seed>_<index> when exported.
+        for index, frame in enumerate(output.frames or []):
+            artifacts.append({**_artifact(artifacts_store,
+                                          _encode(write_exr, frame, scratch / "f.exr"),
+                                          f"frame{index:05d}", ".exr", "image/x-exr", seed)})
 
     frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
     metrics = aggregate(per_seed, images, reference.mean, spec.eps, frame_seconds)

@@ -78,3 +78,11 @@ def test_nonfinite_pixels_are_counted_and_fail_the_quality_flag(env, monkeypatch
     assert all(s["nonfinite_pixels"] == 1 for s in summary.per_seed)
     assert np.isfinite(summary.metrics["mrse_mean"])
     assert store.get_run(summary.run_id).quality["finite"] is False
+
+
+def test_kept_frames_are_stored_per_seed(env):
+    settings, store = env
+    summary = execute(SPEC.model_copy(update={"keep_frames": True, "seeds": 2}), store, settings)
+    run = store.get_run(summary.run_id)
+    frames = sorted((a.seed_result_id, a.kind) for a in run.artifacts if a.kind.startswith("frame"))
+    assert len(frames) == 2 * SPEC.frames
