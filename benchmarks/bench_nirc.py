@@ -24,12 +24,12 @@ def main() -> None:
     args = parser.parse_args()
 
     mi = init_backend()
-    from renderers.methods import parse_params
     from renderers.methods import nirc as nirc_method
+    from renderers.methods import parse_params
     from renderers.methods.cached import train_once
     from renderers.methods.pt import path_integrator
     from renderers.scenes import load_scene
-    from renderers.timing import StageTimer
+    from renderers.timing import StageTimer, synchronize
 
     scene = load_scene(args.scene, args.res)
 
@@ -37,8 +37,9 @@ def main() -> None:
         times = []
         for repeat in range(args.repeats + 1):
             timer = StageTimer()
-            with timer.stage("render", lambda: (image,)):
+            with timer.stage("render"):
                 image = mi.render(scene.scene, integrator=integrator, spp=1, seed=repeat)
+                synchronize(image)
             if repeat:  # the first render compiles
                 times.append(timer.seconds["render"])
         return median(times)

@@ -11,7 +11,7 @@ frame that is excluded from the timings and reported separately.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from statistics import median
 from typing import Any
@@ -39,12 +39,13 @@ class StageTimer:
         self.seconds: dict[str, float] = {}
 
     @contextmanager
-    def stage(self, name: str, outputs: Callable[[], tuple] | None = None) -> Iterator[None]:
-        """Time a block; ``outputs`` returns the values to evaluate before stopping."""
+    def stage(self, name: str) -> Iterator[None]:
+        """Time a block. The block must ``synchronize(outputs)`` its lazy results
+        before it ends; the device is synchronised again before the clock is read."""
         synchronize()
         start = time.perf_counter()
         yield
-        synchronize(*(outputs() if outputs else ()))
+        synchronize()
         self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
 
 

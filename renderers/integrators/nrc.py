@@ -17,7 +17,12 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs, demodulation
+from renderers.integrators.cached import (
+    CachedPathIntegrator,
+    CacheState,
+    cache_inputs,
+    demodulation,
+)
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import spread_exceeded
 

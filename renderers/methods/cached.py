@@ -22,7 +22,7 @@ from pydantic import Field, model_validator
 from renderers.methods.base import RenderOutput, run_frames
 from renderers.methods.pt import PTParams
 from renderers.seeding import derive_seed
-from renderers.timing import StageTimer
+from renderers.timing import StageTimer, synchronize
 
 CACHE_AOVS = ("depth", "cache_depth", "cache_vertices")
 TRAINING_PLUGIN = "nirc_training"
@@ -108,9 +108,9 @@ def render_with_cache(
 
     def render_frame(_index: int, seed: int, timer: StageTimer):
         train_once(cache, trainer, scene, n_train, derive_seed(seed, "train"), timer)
-        # The lambda reads ``image`` when the stage ends, after it is assigned.
-        with timer.stage("render", lambda: (image,)):
+        with timer.stage("render"):
             image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
+            synchronize(image)
         return image
 
     output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
@@ -124,3 +124,19 @@ def render_with_cache(
         "cache_config": cache.config.model_dump(mode="json"),
     }
     return output
+
+
+def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Callable[..., RenderOutput]:
+    """The render function of a caching method whose integrators and cache ``build`` makes.
+
+    ``build(scene, params, seed)`` returns (render integrator, training integrator, cache).
+    """
+
+    def render(scene: Any, params: CacheTrainingParams, *, seed_parts: tuple[Any, ...],
+               spp: int, frames: int, keep_frames: bool = False, progress=None) -> RenderOutput:
+        integrator, trainer, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
+        return render_with_cache(scene, params, integrator, trainer, cache,
+                                 seed_parts=seed_parts, spp=spp, frames=frames,
+                                 keep_frames=keep_frames, progress=progress)
+
+    return render

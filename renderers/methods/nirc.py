@@ -10,14 +10,12 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from renderers.methods.base import RenderOutput
 from renderers.methods.cached import (
     CacheTrainingParams,
+    cached_render,
     load_integrators,
     make_cache,
-    render_with_cache,
 )
-from renderers.seeding import derive_seed
 
 
 class NIRCParams(CacheTrainingParams):
@@ -57,8 +55,4 @@ def build(scene: Any, params: NIRCParams, seed: int) -> tuple[Any, Any, Any]:
     return integrator, trainer, make_cache(scene, nirc_config, params, seed)
 
 
-def render(scene: Any, params: NIRCParams, *, seed_parts: tuple[Any, ...], spp: int,
-           frames: int, keep_frames: bool = False, progress=None) -> RenderOutput:
-    integrator, trainer, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
-    return render_with_cache(scene, params, integrator, trainer, cache, seed_parts=seed_parts,
-                             spp=spp, frames=frames, keep_frames=keep_frames, progress=progress)
+render = cached_render(build)

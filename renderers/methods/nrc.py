@@ -11,14 +11,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from renderers.methods.base import RenderOutput
 from renderers.methods.cached import (
     CacheTrainingParams,
+    cached_render,
     load_integrators,
     make_cache,
-    render_with_cache,
 )
-from renderers.seeding import derive_seed
 
 
 class NRCParams(CacheTrainingParams):
@@ -35,8 +33,4 @@ def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
     return integrator, trainer, make_cache(scene, nrc_config, params, seed)
 
 
-def render(scene: Any, params: NRCParams, *, seed_parts: tuple[Any, ...], spp: int,
-           frames: int, keep_frames: bool = False, progress=None) -> RenderOutput:
-    integrator, trainer, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
-    return render_with_cache(scene, params, integrator, trainer, cache, seed_parts=seed_parts,
-                             spp=spp, frames=frames, keep_frames=keep_frames, progress=progress)
+render = cached_render(build)

@@ -7,7 +7,7 @@ from typing import Any, Literal
 from pydantic import Field, model_validator
 
 from renderers.methods.base import MethodParams, RenderOutput, run_frames
-from renderers.timing import StageTimer
+from renderers.timing import StageTimer, synchronize
 
 DEFAULT_MAX_DEPTH = 8
 
@@ -49,8 +49,9 @@ def render(
     integrator = path_integrator(params)
 
     def render_frame(_index: int, seed: int, timer: StageTimer):
-        with timer.stage("render", lambda: (image,)):
+        with timer.stage("render"):
             image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
+            synchronize(image)
         return image
 
     return run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
