@@ -88,17 +88,29 @@ class CachedPathIntegrator(PathIntegrator):
                               mi.Float(state.cache_vertices)]
 
     def init_state(self, ray: mi.Ray3f) -> CacheState:
-        return CacheState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0))
+        return new_cache_state()
 
-    # ---- Spread of the path so far (SPH, spread.py) ----
     def after_emission(self, vertex: Vertex, state: CacheState) -> CacheState:
-        si = vertex.si
-        distance_sq = dr.square(si.t)
-        cos_theta = dr.dot(si.sh_frame.n, -vertex.ray.d)
-        first = vertex.depth == 0
-        state.a0 = dr.select(first & vertex.active, primary_footprint(distance_sq, cos_theta),
-                             state.a0)
-        increment = spread_increment(distance_sq, vertex.prev_bsdf_pdf, cos_theta)
-        grow = ~first & vertex.active & si.is_valid() & dr.isfinite(increment)
-        state.spread_sum = dr.select(grow, state.spread_sum + increment, state.spread_sum)
-        return state
+        return update_spread(vertex, state)
+
+
+# Functions rather than methods: Mitsuba's (nanobind) integrator classes cannot
+# be combined by multiple inheritance, so e.g. NRC's self-training paths (a
+# training integrator) reuse these by calling them.
+
+def new_cache_state() -> CacheState:
+    return CacheState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0))
+
+
+def update_spread(vertex: Vertex, state: CacheState) -> CacheState:
+    """Add the vertex to the path's spread (SPH, spread.py); a_0 at the first vertex."""
+    si = vertex.si
+    distance_sq = dr.square(si.t)
+    cos_theta = dr.dot(si.sh_frame.n, -vertex.ray.d)
+    first = vertex.depth == 0
+    state.a0 = dr.select(first & vertex.active, primary_footprint(distance_sq, cos_theta),
+                         state.a0)
+    increment = spread_increment(distance_sq, vertex.prev_bsdf_pdf, cos_theta)
+    grow = ~first & vertex.active & si.is_valid() & dr.isfinite(increment)
+    state.spread_sum = dr.select(grow, state.spread_sum + increment, state.spread_sum)
+    return state

@@ -9,10 +9,13 @@ A path terminates into the cache at the first vertex where the spread heuristic
 fires (NIRC paper Eq. 19-21 in NRC's original form, spread.py); there it adds
 beta * cache(x, w_o) and, since the cache already contains direct light, does
 no next-event estimation. Delta lobes continue. One cache query per path, as
-in the NIRC paper's NRC baseline (Sec. 6.2).
+in the NIRC paper's NRC baseline (Sec. 6.2). Training uses NRC's self-training
+(``NRCSelfTrainingIntegrator``) by default.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import drjit as dr
 import mitsuba as mi
@@ -22,28 +25,74 @@ from renderers.integrators.cached import (
     CacheState,
     cache_inputs,
     demodulation,
+    new_cache_state,
+    update_spread,
 )
 from renderers.integrators.path import Vertex, VertexTerms
-from renderers.integrators.spread import spread_exceeded
+from renderers.integrators.spread import SPREAD_C, spread_exceeded
+from renderers.integrators.training import TrainingPathIntegrator
 
 NRC_PLUGIN = "nirc_nrc"
+
+
+def nrc_terms(cache: Any, sph_c: float, vertex: Vertex, state: CacheState,
+              may_terminate: mi.Bool | bool = True) -> tuple[VertexTerms, CacheState]:
+    """Terminate by the spread heuristic into the outgoing-radiance cache (see module doc)."""
+    smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
+    delta = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
+    # ---- Termination by the spread heuristic (Eq. 21); never at the first vertex ----
+    stop = (vertex.active_next & smooth & ~delta & (vertex.depth > 0) & may_terminate
+            & spread_exceeded(state.spread_sum, state.a0, sph_c))
+    # ---- Shade the terminal vertex with the cache: L_e (done) + L_r(x, w_o) ----
+    inputs = cache_inputs(vertex.si, vertex.bsdf, specular=True)
+    surface = cache.surface_features(**inputs)
+    L_r = cache.query(surface, -vertex.ray.d) * demodulation(inputs)
+    state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
+    state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
+    terms = VertexTerms(L_add=dr.select(stop, L_r, 0), stop=stop,
+                        nee_unweighted=mi.Bool(False), skip_nee=stop)
+    return terms, state
 
 
 class NRCIntegrator(CachedPathIntegrator):
     """PT core + termination into an outgoing-radiance cache by the spread heuristic."""
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
-        smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
-        delta = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
-        # ---- Termination by the spread heuristic (Eq. 21); never at the first vertex ----
-        stop = (vertex.active_next & smooth & ~delta & (vertex.depth > 0)
-                & spread_exceeded(state.spread_sum, state.a0, self.sph_c))
-        # ---- Shade the terminal vertex with the cache: L_e (done) + L_r(x, w_o) ----
-        inputs = cache_inputs(vertex.si, vertex.bsdf, specular=True)
-        surface = self.cache.surface_features(**inputs)
-        L_r = self.cache.query(surface, -vertex.ray.d) * demodulation(inputs)
-        state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
-        state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
-        terms = VertexTerms(L_add=dr.select(stop, L_r, 0), stop=stop,
-                            nee_unweighted=mi.Bool(False), skip_nee=stop)
+        return nrc_terms(self.cache, self.sph_c, vertex, state)
+
+
+class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
+    """NRC's self-training paths [MRNK21]: training paths that terminate into the cache.
+
+    Training paths are terminated by the same spread heuristic as render paths
+    and end with the cache's own prediction, so targets are cheap and
+    low-variance but biased toward the cache; a fraction ``1/unbiased_every``
+    of them (1/16 in NRC) never terminates and keeps the cache anchored to
+    path-traced radiance. A record *at* a terminal vertex would have the cache's
+    own output as its target, so it is invalidated. Records are keyed at the
+    arrival vertex (``key_vertex='arrival'``), as NRC caches outgoing radiance.
+    """
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self.unbiased_every = int(props.get("unbiased_every", 16))
+        self.sph_c = float(props.get("sph_c", SPREAD_C))
+        self.cache: Any = None
+        if self.key_vertex != "arrival":
+            raise ValueError("NRC self-training records at the arrival vertex")
+        if self.unbiased_every < 1:
+            raise ValueError("unbiased_every must be >= 1")
+
+    def init_state(self, ray: mi.Ray3f) -> CacheState:
+        return new_cache_state()
+
+    def after_emission(self, vertex: Vertex, state: CacheState) -> CacheState:
+        return update_spread(vertex, super().after_emission(vertex, state))
+
+    def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
+        _, state = super().vertex_terms(vertex, state)
+        may_terminate = self.path_index() % self.unbiased_every != 0
+        terms, state = nrc_terms(self.cache, self.sph_c, vertex, state, may_terminate)
+        own_prediction = terms.stop & (vertex.depth < self.record_depth)
+        dr.scatter(self.buffers["valid"], False, self._slot(vertex.depth), own_prediction)
         return terms, state

@@ -18,9 +18,10 @@ environment is direct light). Records whose path stopped before reaching
 x_{j+1} (roulette, depth limit, absorbed sample) are invalid.
 
 The same quantity is the radiance *reflected at x_{j+1} toward x_j*, which is
-what NRC caches: with ``key_vertex='arrival'`` the record's inputs are those
-of x_{j+1} with direction w_o = -w_j, and the target is divided by NRC's albedo
-demodulation factor at x_{j+1} (misses are then invalid: there is no surface).
+what NRC caches: with ``key_vertex='arrival'`` record j holds the inputs of
+x_j itself (from the primary hit x_0 on) with direction w_o = -w_{j-1}, and
+the target is divided by NRC's albedo demodulation factor at x_j (misses are
+invalid: there is no surface).
 NIRC records use ``key_vertex='departure'`` (inputs of x_j, direction w_j).
 """
 
@@ -58,13 +59,20 @@ class TrainingPathIntegrator(PathIntegrator):
         self.buffers: dict[str, Any] = {}
         self.n_paths = 0
 
-    def _slot(self, depth: mi.UInt32) -> mi.UInt32:
-        return dr.arange(mi.UInt32, self.n_paths) * self.record_depth + depth
+    def _slot(self, record: mi.UInt32) -> mi.UInt32:
+        return self.path_index() * self.record_depth + record
+
+    def arrival_slot(self, depth: mi.UInt32) -> mi.UInt32:
+        """Record index of the vertex the path just arrived at (see the module docstring):
+        departure records j are completed at x_{j+1}; arrival records j are x_j itself."""
+        return depth - 1 if self.key_vertex == "departure" else depth
 
     def after_emission(self, vertex: Vertex, state: Any) -> Any:
-        # Arrival at x_{j+1}: the prefix of radiance and the throughput for record j.
-        j = vertex.depth - 1
-        ok = vertex.active & (vertex.depth >= 1) & (j < self.record_depth)
+        # Arrival: the prefix of radiance and the throughput (and, keyed at the
+        # arrival vertex, its cache inputs) of the record this vertex completes.
+        j = self.arrival_slot(vertex.depth)
+        first = 1 if self.key_vertex == "departure" else 0
+        ok = vertex.active & (vertex.depth >= first) & (j < self.record_depth)
         slot = self._slot(j)
         if self.key_vertex == "arrival":
             ok &= vertex.si.is_valid()
@@ -74,7 +82,8 @@ class TrainingPathIntegrator(PathIntegrator):
             self._scatter(inputs, slot, ok)
         self._scatter({"L_before": vertex.L, "beta_arrival": vertex.beta, "valid": True},
                       slot, ok)
-        return state
+        # Cooperative: a subclass mixing in a caching integrator keeps its own state.
+        return super().after_emission(vertex, state)
 
     def vertex_terms(self, vertex: Vertex, state: Any) -> tuple[VertexTerms | None, Any]:
         # Departure from x_j: the cache inputs and the sampled direction of record j.
@@ -84,7 +93,10 @@ class TrainingPathIntegrator(PathIntegrator):
             inputs = cache_inputs(vertex.si, vertex.bsdf)
             inputs["direction"] = vertex.si.to_world(vertex.bsdf_sample.wo)
             self._scatter(inputs, self._slot(vertex.depth), ok)
-        return None, state
+        return super().vertex_terms(vertex, state)
+
+    def path_index(self) -> mi.UInt32:
+        return dr.arange(mi.UInt32, self.n_paths)
 
     def _scatter(self, values: dict[str, Any], slot: mi.UInt32, active: mi.Bool) -> None:
         for name, value in values.items():

@@ -52,19 +52,24 @@ class CacheTrainingParams(PTParams):
 
 
 def load_integrators(plugin: str, cls: type, params: CacheTrainingParams, key_vertex: str,
+                     trainer_cls: type | None = None, trainer_properties: dict | None = None,
                      **properties: Any) -> tuple[Any, Any]:
-    """The render integrator (``cls`` as ``plugin``) and its training-path integrator."""
+    """The render integrator (``cls`` as ``plugin``) and its training-path integrator
+    (``trainer_cls``, by default plain PT training paths)."""
     import mitsuba as mi
 
     from renderers.integrators import path, training
 
+    trainer_cls = trainer_cls or training.TrainingPathIntegrator
+    trainer_plugin = f"{TRAINING_PLUGIN}_{trainer_cls.__name__.lower()}"
     path.register(plugin, cls)
-    path.register(TRAINING_PLUGIN, training.TrainingPathIntegrator)
+    path.register(trainer_plugin, trainer_cls)
     integrator = mi.load_dict({"type": plugin, **params.core(), "sph_c": params.sph_c,
                                **properties})
-    trainer = mi.load_dict({"type": TRAINING_PLUGIN,
+    trainer = mi.load_dict({"type": trainer_plugin,
                             **{**params.core(), "max_depth": params.train_max_depth},
-                            "record_depth": params.record_depth, "key_vertex": key_vertex})
+                            "record_depth": params.record_depth,
+                            "key_vertex": key_vertex, **(trainer_properties or {})})
     return integrator, trainer
 
 
@@ -96,7 +101,8 @@ def render_with_cache(
     """Pre-train, then run the frame loop with training before every frame."""
     import mitsuba as mi
 
-    integrator.cache = cache
+    # Self-training paths query the cache too.
+    integrator.cache = trainer.cache = cache
     width, height = scene.resolution
     n_train = max(params.min_train_paths, math.ceil(params.train_fraction * width * height))
 
