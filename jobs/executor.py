@@ -25,11 +25,18 @@ from jobs.provenance import git_commit, library_versions
 from jobs.references import LoadedReference, get_or_render_reference
 from jobs.spec import RenderSpec
 from jobs.store import Store
-from metrics.errors import bias_variance, efficiency, image_metrics, relative_squared_error_map
+from metrics.errors import (
+    bias_variance,
+    efficiency,
+    image_metrics,
+    mrse,
+    relative_squared_error_map,
+)
 from metrics.imageio import write_exr, write_png
 from metrics.preview import error_map_preview, tonemap_preview
 from renderers.backend import device_info, init_backend
 from renderers.methods import get_method, parse_params
+from renderers.methods.base import FrameHooks, RenderOutput
 from renderers.scenes import load_scene
 
 #: progress(stage, done, total): stage is 'reference' or 'seed k/K'.
@@ -140,56 +147,90 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray], referenc
     return metrics
 
 
-def execute(
-    spec: RenderSpec,
-    store: Store,
-    settings: Settings,
-    progress: Progress | None = None,
-    out_dir: Path | None = None,
-) -> RunSummary:
-    """Run ``spec`` to completion and store the result; see the module docstring."""
-    init_backend()
-    params = parse_params(spec.method, spec.params)
-    scene = load_scene(spec.scene, spec.resolution)
-    method = get_method(spec.method)
-    device = device_info()
-    started = datetime.now(UTC)
+class ConvergenceTracker:
+    """Error of every frame and of the running mean against the reference (Fig. 10 of
+    the NIRC paper: how the error falls as the cache trains), as a FrameHooks.on_frame.
 
+    Non-finite MRSE values (a frame with NaN/Inf pixels) are stored as None.
+    """
+
+    def __init__(self, reference: np.ndarray, eps: float) -> None:
+        self.reference = reference
+        self.eps = eps
+        self.frame_mrse: list[float | None] = []
+        self.accumulated_mrse: list[float | None] = []
+
+    def __call__(self, _index: int, frame: np.ndarray, accumulated: np.ndarray) -> None:
+        self.frame_mrse.append(_finite_or_none(mrse(frame, self.reference, self.eps)))
+        self.accumulated_mrse.append(_finite_or_none(mrse(accumulated, self.reference, self.eps)))
+
+    def result(self) -> dict[str, list[float | None]]:
+        return {"frame_mrse": self.frame_mrse, "accumulated_mrse": self.accumulated_mrse}
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
+@dataclass
+class Prepared:
+    """What every job of a scene needs before rendering: backend, scene, reference."""
+
+    scene: Any
+    reference: LoadedReference
+    device: dict[str, Any]
+    started: datetime
+
+
+def prepare(spec: RenderSpec, store: Store, settings: Settings,
+            progress: Progress | None = None) -> Prepared:
+    """Initialise the backend, load the scene and get (or render) its reference."""
+    init_backend()
+    scene = load_scene(spec.scene, spec.resolution)
+    started = datetime.now(UTC)
     reference = get_or_render_reference(
         store, settings.references_dir, scene, spec.reference.settings(spec.max_depth()),
         progress=(lambda done, total: progress("reference", done, total)) if progress else None)
+    return Prepared(scene=scene, reference=reference, device=device_info(), started=started)
 
+
+def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
+              convergence: list[dict[str, Any]], store: Store, settings: Settings, *,
+              idempotency_key: str | None = None, extra: dict[str, Any] | None = None,
+              out_dir: Path | None = None) -> RunSummary:
+    """Evaluate K seeds' renders against the reference and store them as one run.
+
+    ``extra`` is merged into the run's metrics (e.g. a calibration record, or a
+    sweep point's threshold and mask coverage) and stored with its parameters.
+    """
+    scene, reference, device = prepared.scene, prepared.reference, prepared.device
+    params = parse_params(spec.method, spec.params)
+    param_json = params.model_dump(mode="json")
     artifacts_store = ArtifactStore(settings.artifacts_dir)
     scratch = settings.data_dir / "tmp"
     scratch.mkdir(parents=True, exist_ok=True)
-    param_json = params.model_dump(mode="json")
-    per_seed, images, artifacts, seed_timings = [], [], [], []
+    per_seed, artifacts = [], []
     nonfinite = 0
-    for seed in range(spec.seeds):
-        label = f"seed {seed + 1}/{spec.seeds}"
-        output = method.render(
-            scene, params, seed_parts=(scene.fingerprint, spec.method, param_json, spec.spp, seed),
-            spp=spec.spp, frames=spec.frames, keep_frames=spec.keep_frames,
-            progress=(lambda done, total, label=label: progress(label, done, total))
-            if progress else None)
+    for seed, (output, curve) in enumerate(zip(outputs, convergence, strict=True)):
         values = image_metrics(output.accumulated, reference.mean, eps=spec.eps,
                                flip_exposures=reference.flip_exposures)
         nonfinite += values["nonfinite_pixels"]
         values["seconds_per_frame"] = output.timings["frame_median_s"]
         per_seed.append({"seed": seed, **values, "path_stats": output.path_stats,
-                         "method_stats": output.method_stats})
-        seed_timings.append(output.timings)
-        images.append(output.accumulated)
+                         "method_stats": output.method_stats, "convergence": curve})
         artifacts += _seed_artifacts(artifacts_store, scratch, seed, output.accumulated,
                                      reference, spec.eps, previews=seed == 0)
         # Per-frame images (``keep_frames``), named frame_<seed>_<index> when exported.
         for index, frame in enumerate(output.frames or []):
-            artifacts.append({**_artifact(artifacts_store,
-                                          _encode(write_exr, frame, scratch / "f.exr"),
-                                          f"frame{index:05d}", ".exr", "image/x-exr", seed)})
+            artifacts.append(_artifact(artifacts_store,
+                                       _encode(write_exr, frame, scratch / "f.exr"),
+                                       f"frame{index:05d}", ".exr", "image/x-exr", seed))
 
+    seed_timings = [output.timings for output in outputs]
     frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
-    metrics = aggregate(per_seed, images, reference.mean, spec.eps, frame_seconds)
+    metrics = aggregate(per_seed, [o.accumulated for o in outputs], reference.mean, spec.eps,
+                        frame_seconds)
+    metrics.update(extra or {})
     timings = {
         "protocol": seed_timings[0]["protocol"],
         "seconds_per_frame": frame_seconds,
@@ -205,14 +246,16 @@ def execute(
 
     run = store.add_run(
         {
-            "created_at": started, "finished_at": datetime.now(UTC), "status": "succeeded",
-            "scene_name": scene.name, "scene_fingerprint": scene.fingerprint,
-            "method": spec.method, "params": {**param_json, "spec": spec.model_dump(mode="json")},
+            "created_at": prepared.started, "finished_at": datetime.now(UTC),
+            "status": "succeeded", "scene_name": scene.name,
+            "scene_fingerprint": scene.fingerprint, "method": spec.method,
+            "params": {**param_json, "spec": spec.model_dump(mode="json"), **(extra or {})},
             "width": scene.resolution[0], "height": scene.resolution[1], "spp": spec.spp,
-            "frames": spec.frames, "seeds": spec.seeds, "reference_id": reference.id,
+            "frames": spec.frames, "seeds": len(outputs), "reference_id": reference.id,
             "metrics": metrics, "timings": timings, "path_stats": path_stats,
             "device": device, "device_key": device["device_key"],
             "versions": library_versions(), "git_commit": git_commit(), "quality": quality,
+            "idempotency_key": idempotency_key,
         },
         [{"seed": s["seed"], "metrics": s, "timings": t}
          for s, t in zip(per_seed, seed_timings, strict=True)],
@@ -225,3 +268,31 @@ def execute(
     if out_dir is not None:
         summary.files = _export(out_dir, summary, reference, artifacts_store, artifacts)
     return summary
+
+
+def execute(
+    spec: RenderSpec,
+    store: Store,
+    settings: Settings,
+    progress: Progress | None = None,
+    out_dir: Path | None = None,
+) -> RunSummary:
+    """Run ``spec`` to completion and store the result; see the module docstring."""
+    method = get_method(spec.method)
+    params = parse_params(spec.method, spec.params)
+    prepared = prepare(spec, store, settings, progress)
+    param_json = params.model_dump(mode="json")
+    outputs, curves = [], []
+    for seed in range(spec.seeds):
+        label = f"seed {seed + 1}/{spec.seeds}"
+        tracker = ConvergenceTracker(prepared.reference.mean, spec.eps)
+        hooks = FrameHooks(
+            keep_frames=spec.keep_frames, on_frame=tracker,
+            progress=(lambda done, total, label=label: progress(label, done, total))
+            if progress else None)
+        outputs.append(method.render(
+            prepared.scene, params,
+            seed_parts=(prepared.scene.fingerprint, spec.method, param_json, spec.spp, seed),
+            spp=spec.spp, frames=spec.frames, hooks=hooks))
+        curves.append(tracker.result())
+    return store_run(spec, prepared, outputs, curves, store, settings, out_dir=out_dir)

@@ -1,4 +1,5 @@
-"""Database models of the job store: references, runs, per-seed results, artifacts.
+"""Database models of the job store: references, runs, per-seed results, cache
+snapshots, sweeps, artifacts.
 
 The SQL database is the durable record of every result (DESIGN.md, "Jobs,
 sweeps, storage"); images live outside it, content-addressed, and are referenced
@@ -215,17 +216,90 @@ class SeedResult(Base):
     )
 
 
+class CacheSnapshot(Base):
+    """A trained cache and its converged cache-at-v1 image (one method, scene, seed).
+
+    The adaptive equal-bias sweep (NIRC paper Sec. 6.3) needs, per seed, a
+    converged cache and the converged image of terminating into it at the first
+    vertex; both are computed once per (scene, resolution, method parameters,
+    training, seed) — ``key`` — and reused by every eps and every later sweep.
+    Artifacts: the weights (.npz, with the v1 termination fraction per pixel)
+    and the v1 image (.exr). ``stats`` holds the training loss, the convergence
+    curve while training and the stage times.
+    """
+
+    __tablename__ = "cache_snapshots"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    key: Mapped[str] = mapped_column(String, unique=True)
+    scene_name: Mapped[str] = mapped_column(String)
+    scene_fingerprint: Mapped[str] = mapped_column(String)
+    method: Mapped[str] = mapped_column(String)
+    params: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    seed: Mapped[int] = mapped_column(Integer)
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    train_frames: Mapped[int] = mapped_column(Integer)
+    v1_spp: Mapped[int] = mapped_column(Integer)
+    reference_id: Mapped[int | None] = mapped_column(
+        ForeignKey("reference_renders.id", ondelete="SET NULL")
+    )
+    stats: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    device: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    device_key: Mapped[str] = mapped_column(String)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+    artifacts: Mapped[list["Artifact"]] = relationship(
+        back_populates="snapshot", lazy="raise", cascade="all, delete-orphan",
+        passive_deletes=True,
+    )
+
+
+class Sweep(Base):
+    """A sweep (e.g. the adaptive equal-bias protocol over eps): its spec and result.
+
+    ``key`` addresses the spec on one device; re-running an identical sweep
+    updates this row (its points are runs found by their idempotency keys).
+    ``result`` holds the table rows (with run ids), calibrations and skipped
+    methods; the plots are artifacts of the sweep.
+    """
+
+    __tablename__ = "sweeps"
+    __table_args__ = (
+        CheckConstraint("status IN ('running', 'succeeded', 'failed')", name="status"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    key: Mapped[str] = mapped_column(String, unique=True)
+    kind: Mapped[str] = mapped_column(String)                   # 'eps' or 'nc'
+    scene_name: Mapped[str] = mapped_column(String)
+    scene_fingerprint: Mapped[str] = mapped_column(String)
+    spec: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    status: Mapped[str] = mapped_column(String)
+    result: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    device_key: Mapped[str] = mapped_column(String, index=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
+    finished_at: Mapped[datetime | None]
+
+    artifacts: Mapped[list["Artifact"]] = relationship(
+        back_populates="sweep", lazy="raise", cascade="all, delete-orphan",
+        passive_deletes=True,
+    )
+
+
 class Artifact(Base):
     """A file kept outside the database by content hash (see ``jobs.artifacts``).
 
     ``path`` is relative to ``Settings.artifacts_dir``. An artifact belongs to a
-    run, a seed result of a run, or a reference (at least one of them).
+    run, a seed result of a run, a reference, a cache snapshot or a sweep (at
+    least one of them).
     """
 
     __tablename__ = "artifacts"
     __table_args__ = (
         CheckConstraint(
-            "run_id IS NOT NULL OR seed_result_id IS NOT NULL OR reference_id IS NOT NULL",
+            "run_id IS NOT NULL OR seed_result_id IS NOT NULL OR reference_id IS NOT NULL"
+            " OR snapshot_id IS NOT NULL OR sweep_id IS NOT NULL",
             name="has_owner",
         ),
     )
@@ -240,6 +314,12 @@ class Artifact(Base):
     reference_id: Mapped[int | None] = mapped_column(
         ForeignKey("reference_renders.id", ondelete="CASCADE"), index=True
     )
+    snapshot_id: Mapped[int | None] = mapped_column(
+        ForeignKey("cache_snapshots.id", ondelete="CASCADE"), index=True
+    )
+    sweep_id: Mapped[int | None] = mapped_column(
+        ForeignKey("sweeps.id", ondelete="CASCADE"), index=True
+    )
     kind: Mapped[str] = mapped_column(String)        # image, error_map, preview, variance, flip_map
     media_type: Mapped[str] = mapped_column(String)  # e.g. image/x-exr, image/png
     sha256: Mapped[str] = mapped_column(String, index=True)
@@ -252,3 +332,6 @@ class Artifact(Base):
         back_populates="artifacts", lazy="raise"
     )
     reference: Mapped[Reference | None] = relationship(back_populates="artifacts", lazy="raise")
+    snapshot: Mapped[CacheSnapshot | None] = relationship(back_populates="artifacts",
+                                                          lazy="raise")
+    sweep: Mapped[Sweep | None] = relationship(back_populates="artifacts", lazy="raise")

@@ -19,7 +19,7 @@ from sqlalchemy import Engine, delete, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload, sessionmaker
 
-from jobs.models import Artifact, Reference, Run, SeedResult
+from jobs.models import Artifact, CacheSnapshot, Reference, Run, SeedResult, Sweep
 
 # Execution option read by the SQLite "begin" hook in jobs.db; ignored elsewhere.
 BEGIN_IMMEDIATE_OPTION = "nirc_bench_begin_immediate"
@@ -35,7 +35,7 @@ _RUN_DETAILS = (
 class DuplicateKeyError(ValueError):
     """A row with the same unique key already exists; ``existing`` is that row."""
 
-    def __init__(self, message: str, existing: Reference | Run) -> None:
+    def __init__(self, message: str, existing: Reference | Run | CacheSnapshot) -> None:
         super().__init__(message)
         self.existing = existing
 
@@ -206,3 +206,75 @@ class Store:
             query = query.limit(limit)
         with self.session() as session:
             return list(session.scalars(query))
+
+    # ---- Cache snapshots (the sweep's trained caches and cache-at-v1 images) ----
+
+    def find_snapshot(self, key: str) -> CacheSnapshot | None:
+        """The cache snapshot with this content key, with its artifacts loaded."""
+        with self.session() as session:
+            return session.scalars(
+                select(CacheSnapshot).where(CacheSnapshot.key == key).options(
+                    selectinload(CacheSnapshot.artifacts))
+            ).one_or_none()
+
+    def add_snapshot(self, *, artifacts: Sequence[Mapping[str, Any]] = (),
+                     **fields: Any) -> CacheSnapshot:
+        """Insert a snapshot (``CacheSnapshot`` columns) and its artifacts in one
+        transaction; ``DuplicateKeyError`` carries the stored one if the key exists."""
+        snapshot = CacheSnapshot(**fields)
+        snapshot.artifacts = [Artifact(**a) for a in artifacts]
+        try:
+            with self.session(write=True) as session:
+                session.add(snapshot)
+        except IntegrityError as err:
+            existing = self.find_snapshot(snapshot.key)
+            if existing is None:
+                raise
+            raise DuplicateKeyError(
+                f"a cache snapshot with key {snapshot.key!r} already exists (id {existing.id})",
+                existing) from err
+        return snapshot
+
+    # ---- Sweeps ----
+
+    def find_sweep(self, key: str) -> Sweep | None:
+        """The sweep with this key, with its artifacts loaded."""
+        with self.session() as session:
+            return session.scalars(
+                select(Sweep).where(Sweep.key == key).options(selectinload(Sweep.artifacts))
+            ).one_or_none()
+
+    def get_sweep(self, sweep_id: int) -> Sweep | None:
+        """A sweep by id, with its artifacts loaded."""
+        with self.session() as session:
+            return session.scalars(
+                select(Sweep).where(Sweep.id == sweep_id).options(selectinload(Sweep.artifacts))
+            ).one_or_none()
+
+    def start_sweep(self, **fields: Any) -> Sweep:
+        """The sweep row of ``fields['key']``, created or (re-run) set back to running."""
+        with self.session(write=True) as session:
+            sweep = session.scalars(
+                select(Sweep).where(Sweep.key == fields["key"])).one_or_none()
+            if sweep is None:
+                sweep = Sweep(**fields, status="running")
+                session.add(sweep)
+            else:
+                sweep.status, sweep.finished_at = "running", None
+            session.flush()
+            return sweep
+
+    def finish_sweep(self, sweep_id: int, *, status: str, result: dict[str, Any],
+                     finished_at: Any, artifacts: Sequence[Mapping[str, Any]] = ()) -> Sweep:
+        """Store a sweep's outcome; its artifacts (plots) replace the previous ones."""
+        with self.session(write=True) as session:
+            sweep = session.get(Sweep, sweep_id)
+            if sweep is None:
+                raise ValueError(f"no sweep with id {sweep_id}")
+            sweep.status, sweep.result, sweep.finished_at = status, result, finished_at
+            session.execute(delete(Artifact).where(Artifact.sweep_id == sweep_id))
+            for fields in artifacts:
+                session.add(Artifact(**fields, sweep_id=sweep_id))
+        stored = self.get_sweep(sweep_id)
+        assert stored is not None
+        return stored

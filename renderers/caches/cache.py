@@ -311,6 +311,30 @@ class NeuralCache:
         """The parameters inference uses (EMA when enabled), as NumPy arrays."""
         return {k: np.asarray(_flat(v)) for k, v in self._inference_params().items()}
 
+    def load_inference_parameters(self, params: dict[str, np.ndarray]) -> None:
+        """Make ``params`` (as returned by :meth:`inference_parameters`) the weights.
+
+        For stored, converged caches (the sweep's snapshots): afterwards
+        :meth:`query` reproduces the cache they were saved from exactly.
+        Training may continue from them, with fresh Adam moments and EMA.
+        """
+        current = self._params()
+        if set(params) != set(current):
+            raise ValueError(f"parameter names differ: expected {sorted(current)}, "
+                             f"got {sorted(params)}")
+        for key, value in current.items():
+            flat = np.asarray(params[key], dtype=np.float32).ravel()
+            if flat.size != dr.width(_flat(value)):
+                raise ValueError(f"{key}: expected {dr.width(_flat(value))} values, "
+                                 f"got {flat.size}")
+            loaded = (type(value)(mi.Float(flat), value.shape) if dr.is_tensor_v(value)
+                      else type(value)(flat))
+            self._opt[key] = loaded
+        if self._ema is not None:
+            self._ema = {k: dr.zeros(type(v), v.shape) for k, v in self._params().items()}
+        self._ema_steps = 0
+        self._refresh_inference()
+
     # ------------------------------------------------------------------
     # Training
     # ------------------------------------------------------------------

@@ -3,6 +3,13 @@
 `nirc` and `nrc` are the PT core plus cache terms; both need the per-surface
 cache inputs of a vertex and the spread of the path so far (the SPH test,
 spread.py), which this base keeps in the loop state.
+
+Adaptive termination (NIRC paper Sec. 6.3): a per-pixel mask says where a
+path may terminate into the cache at its first vertex v1. Mitsuba gives an
+integrator no pixel coordinates, but its wavefront is laid out pixel-major
+(the spp samples of a pixel are consecutive lanes, pixels in row-major order;
+``tests/renderers/test_adaptive.py`` checks this layout), so the pixel of a
+lane is ``lane // spp``.
 """
 
 from __future__ import annotations
@@ -11,6 +18,7 @@ from typing import Any
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from renderers.integrators.path import PathIntegrator, Vertex
 from renderers.integrators.spread import SPREAD_C, primary_footprint, spread_increment
@@ -56,28 +64,49 @@ class CacheState:
         "a0": mi.Float,              # primary-vertex footprint a_0
         "cache_vertices": mi.UInt32, # vertices at which a cache term was added
         "cache_depth": mi.UInt32,    # 1 + index of the vertex the path terminated into (0: none)
+        "v1_allowed": mi.Bool,       # adaptive termination: this pixel may use the cache at v1
     }
 
-    def __init__(self, spread_sum=None, a0=None, cache_vertices=None, cache_depth=None):
+    def __init__(self, spread_sum=None, a0=None, cache_vertices=None, cache_depth=None,
+                 v1_allowed=None):
         self.spread_sum = spread_sum
         self.a0 = a0
         self.cache_vertices = cache_vertices
         self.cache_depth = cache_depth
+        self.v1_allowed = v1_allowed
 
 
 class CachedPathIntegrator(PathIntegrator):
     """PT core that tracks the path spread and reports cache usage as AOVs.
 
     Properties: ``sph_c`` (c of the spread heuristic, default 0.01). The cache
-    is attached after construction: ``integrator.cache = NeuralCache(...)``.
-    AOVs: ``depth``, ``cache_depth`` (1 + index of the vertex a path terminated
-    into the cache, 0 for none) and ``cache_vertices``.
+    is attached after construction: ``integrator.cache = NeuralCache(...)``;
+    the per-pixel v1 mask of adaptive termination by :meth:`set_v1_mask`
+    (default: every pixel may use the cache at v1). AOVs: ``depth``,
+    ``cache_depth`` (1 + index of the vertex a path terminated into the cache,
+    0 for none) and ``cache_vertices``.
     """
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.sph_c = float(props.get("sph_c", SPREAD_C))
         self.cache: Any = None
+        self.v1_mask: mi.Bool | None = None
+
+    def set_v1_mask(self, mask: np.ndarray | None) -> None:
+        """Per-pixel (H, W) booleans: where paths may terminate into the cache at v1.
+
+        The mask is a memory-backed array, so changing it does not recompile
+        the render kernel. None allows every pixel.
+        """
+        if mask is None:
+            self.v1_mask = None
+            return
+        mask = np.asarray(mask, dtype=bool)
+        if mask.ndim != 2:
+            raise ValueError(f"the v1 mask must be (height, width), got shape {mask.shape}")
+        self.v1_mask = mi.Bool(mask.ravel())
+        dr.eval(self.v1_mask)
 
     def aov_names(self) -> list[str]:
         return ["depth", "cache_depth", "cache_vertices"]
@@ -87,8 +116,15 @@ class CachedPathIntegrator(PathIntegrator):
         return L, valid_ray, [mi.Float(depth), mi.Float(state.cache_depth),
                               mi.Float(state.cache_vertices)]
 
-    def init_state(self, ray: mi.Ray3f) -> CacheState:
-        return new_cache_state()
+    def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> CacheState:
+        state = new_cache_state()
+        if self.v1_mask is not None:
+            pixel = pixel_index(ray, sampler)
+            if dr.width(pixel) != dr.width(self.v1_mask) * sampler.sample_count():
+                raise ValueError(f"v1 mask has {dr.width(self.v1_mask)} pixels; the film has "
+                                 f"{dr.width(pixel) // sampler.sample_count()}")
+            state.v1_allowed = dr.gather(mi.Bool, self.v1_mask, pixel)
+        return state
 
     def after_emission(self, vertex: Vertex, state: CacheState) -> CacheState:
         return update_spread(vertex, state)
@@ -99,7 +135,12 @@ class CachedPathIntegrator(PathIntegrator):
 # training integrator) reuse these by calling them.
 
 def new_cache_state() -> CacheState:
-    return CacheState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0))
+    return CacheState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0), mi.Bool(True))
+
+
+def pixel_index(ray: mi.Ray3f, sampler: mi.Sampler) -> mi.UInt32:
+    """Row-major film pixel of each lane of a Mitsuba render wavefront (module doc)."""
+    return dr.arange(mi.UInt32, dr.width(ray.d.x)) // sampler.sample_count()
 
 
 def update_spread(vertex: Vertex, state: CacheState) -> CacheState:

@@ -15,6 +15,12 @@ Two estimators use it:
   when the spread heuristic says so) or by the spread heuristic alone. Delta
   lobes always continue. Because the path does not continue, NEE at that vertex
   is not MIS-weighted (nothing collects the BSDF-sampled part of direct light).
+  ``termination='adaptive'`` is the per-pixel policy of Sec. 6.3: at the first
+  vertex v1 a path terminates where the pixel's v1 mask allows (the mask comes
+  from the relative bias of the converged cache-at-v1 image, jobs/sweep.py),
+  at later vertices by the spread heuristic; N_c may differ at v1 and later
+  (``nc='8,1'``: 8 neural samples at v1, 1 afterwards — the paper's "NIRC
+  equal time" series varies the first).
 * unbiased (Eq. 10-11, two-level Monte Carlo): at the first three non-specular
   vertices add L_c and the residual with the path's own continuation direction
   w, -n(x, w) f cos / p(w), then continue as PT: the path's continuation is the
@@ -39,15 +45,17 @@ from renderers.integrators.spread import spread_exceeded
 
 NIRC_PLUGIN = "nirc_nirc"
 UNBIASED_VERTICES = 3
+TERMINATIONS = ("bth", "sph", "adaptive")
 
 
 class NIRCIntegrator(CachedPathIntegrator):
     """PT core + NIRC cache terms. Properties (besides CachedPathIntegrator's):
 
         estimator    'biased' | 'unbiased' (default 'biased')
-        termination  'bth' | 'sph' (biased only; default 'bth')
-        nc           N_c per vertex as text, e.g. '4' (biased) or '3,1,1' (unbiased:
-                     one entry per non-specular vertex, at most three)
+        termination  'bth' | 'sph' | 'adaptive' (biased only; default 'bth')
+        nc           N_c per vertex as text, e.g. '4' (biased), '8,1' (adaptive: at v1,
+                     then later vertices) or '3,1,1' (unbiased: one entry per
+                     non-specular vertex, at most three)
     """
 
     def __init__(self, props: mi.Properties) -> None:
@@ -57,14 +65,14 @@ class NIRCIntegrator(CachedPathIntegrator):
         self.nc = [int(n) for n in str(props.get("nc", "4")).split(",")]
         if self.estimator not in ("biased", "unbiased"):
             raise ValueError("estimator must be 'biased' or 'unbiased'")
-        if self.termination not in ("bth", "sph"):
-            raise ValueError("termination must be 'bth' or 'sph'")
+        if self.termination not in TERMINATIONS:
+            raise ValueError(f"termination must be one of {TERMINATIONS}")
         if not self.nc or min(self.nc) < 1:
             raise ValueError("nc must list positive sample counts")
         if self.estimator == "unbiased" and len(self.nc) > UNBIASED_VERTICES:
             raise ValueError(f"the unbiased estimator uses at most {UNBIASED_VERTICES} vertices")
-        if self.estimator == "biased" and len(self.nc) != 1:
-            raise ValueError("the biased estimator takes one N_c")
+        if self.estimator == "biased" and len(self.nc) > (2 if self.termination == "adaptive" else 1):
+            raise ValueError("the biased estimator takes one N_c (adaptive: N_c at v1 and later)")
 
     # ---- Cache term L_c (Eq. 12) with the per-surface encoding shared by N_c directions ----
     def cache_term(self, vertex: Vertex, surface: list, nc_lane: mi.UInt32, max_nc: int,
@@ -106,8 +114,10 @@ class NIRCIntegrator(CachedPathIntegrator):
         return terms, state
 
     def _biased_terms(self, vertex, state, usable):
-        # ---- Termination (BTH Eq. 22-23, or SPH Eq. 19-21); delta lobes continue ----
+        # ---- Termination (BTH Eq. 22-23, SPH Eq. 19-21, or adaptive Sec. 6.3);
+        #      delta lobes continue (the paper excludes delta scattering at v1) ----
         nc = self.nc[0]
+        nc_later = self.nc[-1] if self.termination == "adaptive" else nc
         delta = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
         spread_stop = (vertex.depth > 0) & spread_exceeded(state.spread_sum, state.a0, self.sph_c)
         if self.termination == "bth":
@@ -115,12 +125,15 @@ class NIRCIntegrator(CachedPathIntegrator):
             p_continue = pdf / (pdf + nc / math.pi)
             xi = vertex.sampler.next_1d(usable)
             stop = (xi > p_continue) | spread_stop
+        elif self.termination == "adaptive":
+            stop = dr.select(vertex.depth == 0, state.v1_allowed, spread_stop)
         else:
             stop = spread_stop
         stop &= usable & ~delta
         # ---- Shade the terminal vertex: L_e (done) + L_nee (unweighted) + L_c (Eq. 13) ----
+        nc_lane = dr.select(vertex.depth == 0, mi.UInt32(nc), mi.UInt32(nc_later))
         surface = self.cache.surface_features(**cache_inputs(vertex.si, vertex.bsdf))
-        L_c = self.cache_term(vertex, surface, mi.UInt32(nc), nc, stop)
+        L_c = self.cache_term(vertex, surface, nc_lane, max(nc, nc_later), stop)
         state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
         state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
         terms = VertexTerms(L_add=dr.select(stop, L_c, 0), stop=stop, nee_unweighted=stop,

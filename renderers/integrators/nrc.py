@@ -33,18 +33,27 @@ from renderers.integrators.spread import SPREAD_C, spread_exceeded
 from renderers.integrators.training import TrainingPathIntegrator
 
 NRC_PLUGIN = "nirc_nrc"
+#: NRC is not used at v1 on surfaces glossier than this (NIRC paper Sec. 6.3).
+MIN_V1_ROUGHNESS = 0.0625
 
 
 def nrc_terms(cache: Any, sph_c: float, vertex: Vertex, state: CacheState,
-              may_terminate: mi.Bool | bool = True) -> tuple[VertexTerms, CacheState]:
-    """Terminate by the spread heuristic into the outgoing-radiance cache (see module doc)."""
+              may_terminate: mi.Bool | bool = True,
+              adaptive: bool = False) -> tuple[VertexTerms, CacheState]:
+    """Terminate into the outgoing-radiance cache (see module doc): by the spread
+    heuristic, never at the first vertex; with ``adaptive`` (NIRC paper Sec. 6.3)
+    also at v1 where the pixel's v1 mask allows and the surface is not too
+    glossy (roughness >= ``MIN_V1_ROUGHNESS``)."""
     smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
     delta = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
-    # ---- Termination by the spread heuristic (Eq. 21); never at the first vertex ----
-    stop = (vertex.active_next & smooth & ~delta & (vertex.depth > 0) & may_terminate
-            & spread_exceeded(state.spread_sum, state.a0, sph_c))
-    # ---- Shade the terminal vertex with the cache: L_e (done) + L_r(x, w_o) ----
     inputs = cache_inputs(vertex.si, vertex.bsdf, specular=True)
+    # ---- Termination by the spread heuristic (Eq. 21) ----
+    stop = (vertex.depth > 0) & spread_exceeded(state.spread_sum, state.a0, sph_c)
+    if adaptive:
+        at_v1 = state.v1_allowed & (inputs["roughness"] >= MIN_V1_ROUGHNESS)
+        stop = dr.select(vertex.depth == 0, at_v1, stop)
+    stop &= vertex.active_next & smooth & ~delta & may_terminate
+    # ---- Shade the terminal vertex with the cache: L_e (done) + L_r(x, w_o) ----
     surface = cache.surface_features(**inputs)
     L_r = cache.query(surface, -vertex.ray.d) * demodulation(inputs)
     state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
@@ -55,10 +64,21 @@ def nrc_terms(cache: Any, sph_c: float, vertex: Vertex, state: CacheState,
 
 
 class NRCIntegrator(CachedPathIntegrator):
-    """PT core + termination into an outgoing-radiance cache by the spread heuristic."""
+    """PT core + termination into an outgoing-radiance cache.
+
+    Property ``termination``: 'sph' (spread heuristic, default) or 'adaptive'
+    (the per-pixel v1 mask at the first vertex, then the spread heuristic).
+    """
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self.termination = str(props.get("termination", "sph"))
+        if self.termination not in ("sph", "adaptive"):
+            raise ValueError("termination must be 'sph' or 'adaptive'")
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
-        return nrc_terms(self.cache, self.sph_c, vertex, state)
+        return nrc_terms(self.cache, self.sph_c, vertex, state,
+                         adaptive=self.termination == "adaptive")
 
 
 class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
@@ -83,7 +103,7 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
         if self.unbiased_every < 1:
             raise ValueError("unbiased_every must be >= 1")
 
-    def init_state(self, ray: mi.Ray3f) -> CacheState:
+    def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> CacheState:
         return new_cache_state()
 
     def after_emission(self, vertex: Vertex, state: CacheState) -> CacheState:

@@ -94,7 +94,7 @@ class PathIntegrator(mi.SamplingIntegrator):
     from which the frame loop reports the average path length.
 
     Hooks for methods (default: nothing, so `pt` traces exactly this loop):
-        ``init_state(ray)``: a PyTree of extra per-path loop state, or None.
+        ``init_state(ray, sampler)``: a PyTree of extra per-path loop state, or None.
         ``after_emission(vertex, state)``: called after a vertex's emission term.
         ``vertex_terms(vertex, state)``: after BSDF sampling, before NEE is added;
             returns (VertexTerms or None, state).
@@ -122,7 +122,7 @@ class PathIntegrator(mi.SamplingIntegrator):
 
     # ---- Hooks (overridden by the caching methods) ----
 
-    def init_state(self, ray: mi.Ray3f) -> Any:
+    def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> Any:
         return None
 
     def after_emission(self, vertex: Vertex, state: Any) -> Any:
@@ -172,7 +172,7 @@ class PathIntegrator(mi.SamplingIntegrator):
         prev_si = dr.zeros(mi.SurfaceInteraction3f)  # previous vertex (for the emitter pdf)
         prev_bsdf_pdf = mi.Float(1.0)         # solid-angle pdf of the last BSDF sample
         prev_bsdf_delta = mi.Bool(True)       # last BSDF sample was a delta lobe (or camera)
-        state = self.init_state(ray)          # the method's own per-path state (or None)
+        state = self.init_state(ray, sampler) # the method's own per-path state (or None)
 
         while dr.hint(active, max_iterations=-1, label="nirc path tracer"):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All,

@@ -17,7 +17,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from renderers.seeding import derive_seed
-from renderers.timing import StageTimer, summarize
+from renderers.timing import StageTimer, summarize, synchronize
 
 
 class MethodParams(BaseModel):
@@ -40,6 +40,39 @@ class RenderOutput:
 #: Renders frame ``index`` with ``seed``, timing its stages with ``timer``;
 #: returns the frame's film tensor (RGB first, then the method's AOVs).
 FrameFn = Callable[[int, int, StageTimer], Any]
+
+#: Called after frame ``index`` (untimed) with that frame's RGB and the running mean.
+OnFrame = Callable[[int, np.ndarray, np.ndarray], None]
+
+
+@dataclass(frozen=True)
+class FrameHooks:
+    """What a caller wants from the frame loop besides the accumulated image.
+
+    ``keep_frames``: return every frame's RGB; ``progress(done, total)`` after
+    each frame; ``on_frame`` after each frame (e.g. the executor's per-frame
+    error against the reference: the convergence curve); ``warmup``: render
+    the untimed warm-up frame first (a caller that renders several series
+    with one already-compiled integrator warms up once and passes False).
+    """
+
+    keep_frames: bool = False
+    progress: Callable[[int, int], None] | None = None
+    on_frame: OnFrame | None = None
+    warmup: bool = True
+
+
+def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:
+    """A frame that is one ``mi.render`` of ``scene`` with ``integrator``, timed as 'render'."""
+    import mitsuba as mi
+
+    def render_frame(_index: int, seed: int, timer: StageTimer):
+        with timer.stage("render"):
+            image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
+            synchronize(image)
+        return image
+
+    return render_frame
 
 
 #: Per-path AOVs of the integrators and the statistic their frame mean is reported as.
@@ -84,8 +117,7 @@ def run_frames(
     frames: int,
     spp: int,
     aov_names: tuple[str, ...] = ("depth",),
-    keep_frames: bool = False,
-    progress: Callable[[int, int], None] | None = None,
+    hooks: FrameHooks = FrameHooks(),
 ) -> RenderOutput:
     """The shared frame loop: warm-up, F timed frames, running mean, path statistics.
 
@@ -93,9 +125,11 @@ def run_frames(
     index); frame f renders with ``derive_seed(*seed_parts, f)`` and the warm-up
     frame with a seed of its own, so it never correlates with a timed frame.
     """
-    warmup = StageTimer()
-    render_frame(-1, derive_seed(*seed_parts, "warmup"), warmup)
-    warmup_s = sum(warmup.seconds.values())
+    warmup_s = 0.0
+    if hooks.warmup:
+        warmup = StageTimer()
+        render_frame(-1, derive_seed(*seed_parts, "warmup"), warmup)
+        warmup_s = sum(warmup.seconds.values())
 
     accumulated: np.ndarray | None = None
     path_stats = PathStats(aov_names)
@@ -109,15 +143,17 @@ def run_frames(
         # Running mean keeps memory constant however many frames run.
         accumulated = rgb.copy() if accumulated is None else accumulated + (rgb - accumulated) / (index + 1)
         path_stats.add(film[..., 3:], spp)
-        if keep_frames:
+        if hooks.keep_frames:
             kept.append(rgb)
-        if progress:
-            progress(index + 1, frames)
+        if hooks.on_frame:
+            hooks.on_frame(index, rgb, accumulated)
+        if hooks.progress:
+            hooks.progress(index + 1, frames)
 
     assert accumulated is not None
     return RenderOutput(
         accumulated=accumulated,
-        frames=kept if keep_frames else None,
+        frames=kept if hooks.keep_frames else None,
         timings=summarize(frame_timings, warmup_s),
         path_stats=path_stats.result(),
     )

@@ -19,10 +19,10 @@ from typing import Any
 
 from pydantic import Field, model_validator
 
-from renderers.methods.base import RenderOutput, run_frames
+from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
 from renderers.methods.pt import PTParams
 from renderers.seeding import derive_seed
-from renderers.timing import StageTimer, synchronize
+from renderers.timing import StageTimer
 
 CACHE_AOVS = ("depth", "cache_depth", "cache_vertices")
 TRAINING_PLUGIN = "nirc_training"
@@ -95,16 +95,12 @@ def train_once(cache: Any, trainer: Any, scene: Any, n_paths: int, seed: int,
 
 def render_with_cache(
     scene: Any, params: CacheTrainingParams, integrator: Any, trainer: Any, cache: Any, *,
-    seed_parts: tuple[Any, ...], spp: int, frames: int, keep_frames: bool = False,
-    progress=None,
+    seed_parts: tuple[Any, ...], spp: int, frames: int, hooks: FrameHooks = FrameHooks(),
 ) -> RenderOutput:
     """Pre-train, then run the frame loop with training before every frame."""
-    import mitsuba as mi
-
     # Self-training paths query the cache too.
     integrator.cache = trainer.cache = cache
-    width, height = scene.resolution
-    n_train = max(params.min_train_paths, math.ceil(params.train_fraction * width * height))
+    n_train = training_paths_per_frame(scene, params)
 
     pretrain_start = time.perf_counter()
     for index in range(params.pretrain_frames):
@@ -112,15 +108,14 @@ def render_with_cache(
                    StageTimer())
     pretrain_s = time.perf_counter() - pretrain_start
 
-    def render_frame(_index: int, seed: int, timer: StageTimer):
+    render = render_stage(scene, integrator, spp)
+
+    def render_frame(index: int, seed: int, timer: StageTimer):
         train_once(cache, trainer, scene, n_train, derive_seed(seed, "train"), timer)
-        with timer.stage("render"):
-            image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
-            synchronize(image)
-        return image
+        return render(index, seed, timer)
 
     output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
-                        aov_names=CACHE_AOVS, keep_frames=keep_frames, progress=progress)
+                        aov_names=CACHE_AOVS, hooks=hooks)
     output.method_stats = {
         "train_paths_per_frame": n_train,
         "pretrain_frames": params.pretrain_frames,
@@ -132,6 +127,12 @@ def render_with_cache(
     return output
 
 
+def training_paths_per_frame(scene: Any, params: CacheTrainingParams) -> int:
+    """Training paths traced per frame: a fraction of the pixels, at least a minimum."""
+    width, height = scene.resolution
+    return max(params.min_train_paths, math.ceil(params.train_fraction * width * height))
+
+
 def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Callable[..., RenderOutput]:
     """The render function of a caching method whose integrators and cache ``build`` makes.
 
@@ -139,10 +140,9 @@ def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Cal
     """
 
     def render(scene: Any, params: CacheTrainingParams, *, seed_parts: tuple[Any, ...],
-               spp: int, frames: int, keep_frames: bool = False, progress=None) -> RenderOutput:
+               spp: int, frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
         integrator, trainer, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
         return render_with_cache(scene, params, integrator, trainer, cache,
-                                 seed_parts=seed_parts, spp=spp, frames=frames,
-                                 keep_frames=keep_frames, progress=progress)
+                                 seed_parts=seed_parts, spp=spp, frames=frames, hooks=hooks)
 
     return render

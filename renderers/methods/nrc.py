@@ -10,7 +10,7 @@ same unbiased data NIRC trains on.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field
 
@@ -25,6 +25,8 @@ from renderers.methods.cached import (
 class NRCParams(CacheTrainingParams):
     """Parameters of the `nrc` method (PT core and training parameters included)."""
 
+    termination: Literal["sph", "adaptive"] = Field(
+        "sph", description="spread heuristic, or adaptive (v1 mask, then SPH; Sec. 6.3)")
     self_training: bool = True
     unbiased_every: int = Field(16, ge=1, le=1 << 16,
                                 description="every n-th training path is not terminated")
@@ -40,6 +42,7 @@ def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
                                             "sph_c": params.sph_c}}
     integrator, trainer = load_integrators(nrc.NRC_PLUGIN, nrc.NRCIntegrator, params,
                                            key_vertex="arrival",
+                                           termination=params.termination,
                                            **(self_training if params.self_training else {}))
     return integrator, trainer, make_cache(scene, nrc_config, params, seed)
 

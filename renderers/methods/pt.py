@@ -6,8 +6,13 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from renderers.methods.base import MethodParams, RenderOutput, run_frames
-from renderers.timing import StageTimer, synchronize
+from renderers.methods.base import (
+    FrameHooks,
+    MethodParams,
+    RenderOutput,
+    render_stage,
+    run_frames,
+)
 
 DEFAULT_MAX_DEPTH = 8
 
@@ -39,20 +44,8 @@ def path_integrator(params: PTParams) -> Any:
     return mi.load_dict({"type": path.PLUGIN_NAME, **params.model_dump()})
 
 
-def render(
-    scene: Any, params: PTParams, *, seed_parts: tuple[Any, ...], spp: int, frames: int,
-    keep_frames: bool = False, progress=None,
-) -> RenderOutput:
+def render(scene: Any, params: PTParams, *, seed_parts: tuple[Any, ...], spp: int, frames: int,
+           hooks: FrameHooks = FrameHooks()) -> RenderOutput:
     """Render ``frames`` frames of ``spp`` samples per pixel with the PT core."""
-    import mitsuba as mi
-
-    integrator = path_integrator(params)
-
-    def render_frame(_index: int, seed: int, timer: StageTimer):
-        with timer.stage("render"):
-            image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
-            synchronize(image)
-        return image
-
-    return run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
-                      keep_frames=keep_frames, progress=progress)
+    return run_frames(render_stage(scene, path_integrator(params), spp), seed_parts=seed_parts,
+                      frames=frames, spp=spp, hooks=hooks)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from renderers.methods import MethodError, get_method, parse_params
+from renderers.methods.base import FrameHooks
 from renderers.timing import summarize
 
 
@@ -20,7 +21,7 @@ def _render(scene, seed_index, frames=2, **params):
     method = get_method("pt")
     p = parse_params("pt", params)
     return method.render(scene, p, seed_parts=(scene.fingerprint, "pt", p.model_dump(), seed_index),
-                         spp=1, frames=frames, keep_frames=True)
+                         spp=1, frames=frames, hooks=FrameHooks(keep_frames=True))
 
 
 def test_render_is_reproducible_from_its_seed(scene):

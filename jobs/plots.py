@@ -1,0 +1,232 @@
+"""PNG plots of benchmark results, in the style of the NIRC paper.
+
+The figures follow "Neural Two-Level Monte Carlo Real-Time Rendering" (the NIRC
+paper):
+
+* ``plot_sweep`` is the adaptive equal-bias sweep of Figure 13: MRSE, FLIP,
+  relative squared bias (rBias²) and relative variance (rVar) against the
+  percentage of bounces that use indirect radiance, one line per method.
+* ``plot_convergence`` is the error-over-frames plot of Figure 10: MRSE of each
+  single frame and, optionally, of the running mean of the frames so far.
+
+Plotting is headless: figures are ``matplotlib.figure.Figure`` objects drawn by
+the Agg canvas, never registered with pyplot, so no display is needed, no global
+figure state accumulates and a figure is freed once it goes out of scope. PNGs
+are written atomically: a crash never leaves a half-written file at ``path``.
+"""
+
+import contextlib
+import math
+import os
+import tempfile
+from collections.abc import Iterable
+from itertools import cycle
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import to_hex
+from matplotlib.figure import Figure
+
+DPI = 110
+
+# Method colours of the paper's figures; other series take the default colour cycle.
+_PAPER_COLOURS = {"NIRC": "tab:red", "NIRC equal time": "tab:brown", "NRC": "tab:blue"}
+
+# Sweep panels (Figure 13): row key, axis label, log y axis.
+_SWEEP_PANELS = (
+    ("mrse", "MRSE", True),
+    ("flip", "FLIP", False),
+    ("rbias2", "rBias²", True),
+    ("rvar", "rVar", True),
+)
+
+
+def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
+    """Plot an adaptive equal-bias sweep (NIRC paper, Figure 13) to a PNG at ``path``.
+
+    Each row is one sweep point of one series, with keys ``series``, ``eps``,
+    ``ir_bounces_pct``, ``mrse``, ``mrse_ci95`` ([lo, hi] or None), ``flip``,
+    ``rbias2``, ``rvar`` and ``ms_frame``. Points with a missing or non-finite
+    value are left out of that metric's panel; on log panels, points <= 0 are
+    left out too and counted in a note on the panel.
+    """
+    series = list(dict.fromkeys(str(row["series"]) for row in rows))
+    colours = _series_colours(series)
+    figure, axes = _new_figure(2, 2, title, figsize=(9.0, 7.0))
+    for ax, (key, label, log) in zip(axes, _SWEEP_PANELS, strict=True):
+        plotted, hidden = False, 0
+        for name in series:
+            members = [row for row in rows if str(row["series"]) == name]
+            pairs = ((row.get("ir_bounces_pct"), row.get(key)) for row in members)
+            xs, ys, dropped = _plottable(pairs, log=log)
+            hidden += dropped
+            if xs:
+                ax.plot(xs, ys, "o-", color=colours[name], label=name, markersize=4)
+                plotted = True
+            if key == "mrse":
+                _draw_mrse_ci(ax, members, colours[name])
+        ax.set_title(label)
+        ax.set_xlabel("% indirect-radiance bounces")
+        ax.set_ylabel(label)
+        ax.set_xlim(-3.0, 103.0)
+        ax.set_xticks(range(0, 101, 25))
+        if log:
+            ax.set_yscale("log")
+        ax.grid(True, which="major", alpha=0.3)
+        _annotate(ax, plotted, hidden)
+
+    handles = {}
+    for ax in axes:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
+    if handles:
+        figure.legend(
+            handles.values(), handles.keys(), loc="outside lower center", ncols=min(len(handles), 4)
+        )
+    return _save_png(figure, path)
+
+
+def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
+    """Plot MRSE over frames (NIRC paper, Figure 10) to a PNG at ``path``.
+
+    ``curves[label]`` holds ``frame`` (frame indices), ``frame_mrse`` (MRSE of
+    each single frame) and optionally ``accumulated_mrse`` (MRSE of the running
+    mean up to that frame), lists of equal length. Per-frame error is drawn
+    solid, accumulated error dashed, in one colour per label; non-finite and
+    non-positive values are left out (the y axis is logarithmic).
+    """
+    colours = _series_colours(list(curves))
+    figure, (ax,) = _new_figure(1, 1, title, figsize=(7.0, 4.5))
+    plotted, hidden = False, 0
+    for label, curve in curves.items():
+        for key, style, kind in (
+            ("frame_mrse", "-", "per frame"),
+            ("accumulated_mrse", "--", "accumulated"),
+        ):
+            if curve.get(key) is None:
+                continue
+            xs, ys, dropped = _plottable(zip(curve["frame"], curve[key], strict=True), log=True)
+            hidden += dropped
+            if xs:
+                ax.plot(xs, ys, style, color=colours[label], label=f"{label} ({kind})")
+                plotted = True
+    ax.set_xlabel("frame")
+    ax.set_ylabel("MRSE")
+    ax.set_yscale("log")
+    ax.grid(True, which="major", alpha=0.3)
+    if plotted:
+        ax.legend(fontsize="small")
+    _annotate(ax, plotted, hidden)
+    return _save_png(figure, path)
+
+
+def _finite(value: Any) -> float | None:
+    """``value`` as a float, or None if it is None, NaN or infinite."""
+    if value is None:
+        return None
+    number = float(value)
+    return number if math.isfinite(number) else None
+
+
+def _plottable(
+    pairs: Iterable[tuple[Any, Any]], *, log: bool
+) -> tuple[list[float], list[float], int]:
+    """The (x, y) pairs that can be drawn, as x-sorted coordinate lists.
+
+    Pairs with a missing or non-finite coordinate are dropped. On a log axis
+    (``log``) finite y <= 0 are dropped too, and their number is returned third
+    so the plot can say that some points are not shown.
+    """
+    points, hidden = [], 0
+    for raw_x, raw_y in pairs:
+        x, y = _finite(raw_x), _finite(raw_y)
+        if x is None or y is None:
+            continue
+        if log and y <= 0:
+            hidden += 1
+            continue
+        points.append((x, y))
+    points.sort()
+    return [x for x, _ in points], [y for _, y in points], hidden
+
+
+def _draw_mrse_ci(ax: Axes, rows: list[dict[str, Any]], colour: str) -> None:
+    """Error bars for the rows' ``mrse_ci95`` intervals that fit on the log MRSE axis."""
+    xs, ys, below, above = [], [], [], []
+    for row in rows:
+        x, y, interval = (
+            _finite(row.get("ir_bounces_pct")),
+            _finite(row.get("mrse")),
+            row.get("mrse_ci95"),
+        )
+        if x is None or y is None or y <= 0 or interval is None:
+            continue
+        lo, hi = (_finite(bound) for bound in interval)
+        if lo is None or hi is None or lo <= 0 or hi < lo:
+            continue
+        xs.append(x)
+        ys.append(y)
+        # A bootstrap interval need not contain its point estimate; clamp to it.
+        below.append(max(y - lo, 0.0))
+        above.append(max(hi - y, 0.0))
+    if xs:
+        ax.errorbar(xs, ys, yerr=[below, above], fmt="none", ecolor=colour, capsize=3, alpha=0.7)
+
+
+def _series_colours(names: list[str]) -> dict[str, str]:
+    """Paper colours for known methods, the default cycle (minus those) for the rest."""
+    palette = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
+    reserved = {to_hex(colour) for colour in _PAPER_COLOURS.values()}
+    others = cycle([colour for colour in palette if to_hex(colour) not in reserved] or palette)
+    return {name: _PAPER_COLOURS.get(name) or next(others) for name in names}
+
+
+def _new_figure(
+    nrows: int, ncols: int, title: str, figsize: tuple[float, float]
+) -> tuple[Figure, list[Axes]]:
+    """A pyplot-free figure on an Agg canvas, its axes in row-major order, titled ``title``."""
+    figure = Figure(figsize=figsize, dpi=DPI, layout="constrained")
+    FigureCanvasAgg(figure)
+    figure.suptitle(title)
+    return figure, list(figure.subplots(nrows, ncols, squeeze=False).ravel())
+
+
+def _annotate(ax: Axes, plotted: bool, hidden: int) -> None:
+    """Say on the panel when it is empty or when points <= 0 were left off its log axis."""
+    lines = [] if plotted else ["no data"]
+    if hidden:
+        lines.append(f"{hidden} point{'s' if hidden != 1 else ''} <= 0 not shown")
+    if lines:
+        ax.text(
+            0.98,
+            0.02,
+            "\n".join(lines),
+            transform=ax.transAxes,
+            ha="right",
+            va="bottom",
+            fontsize="small",
+            color="dimgray",
+        )
+
+
+def _save_png(figure: Figure, path: Path) -> Path:
+    """Write ``figure`` as a PNG to ``path`` atomically (temp file, then ``os.replace``)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as out:
+            figure.savefig(out, format="png", dpi=DPI)
+            out.flush()
+            os.fsync(out.fileno())
+        # mkstemp creates 0600; plots are read by other processes (report, service).
+        os.chmod(temp_name, 0o644)
+        os.replace(temp_name, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temp_name)
+        raise
+    return path

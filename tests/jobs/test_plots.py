@@ -1,0 +1,209 @@
+"""PNG plots of sweeps and convergence: valid files, robust to bad values, atomic writes."""
+
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+from matplotlib.colors import to_hex
+from matplotlib.figure import Figure
+from PIL import Image
+
+from jobs import plots
+from jobs.plots import plot_convergence, plot_sweep
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def sweep_row(series: str, pct: float | None, **metrics: Any) -> dict[str, Any]:
+    row = {
+        "series": series,
+        "eps": 0.1,
+        "ir_bounces_pct": pct,
+        "mrse": 0.02,
+        "mrse_ci95": [0.015, 0.025],
+        "flip": 0.1,
+        "rbias2": 1e-3,
+        "rvar": 1e-2,
+        "ms_frame": 8.0,
+    }
+    return row | metrics
+
+
+def assert_png(path: Path, min_size: tuple[int, int] = (400, 300)) -> None:
+    assert path.read_bytes()[:8] == PNG_SIGNATURE
+    with Image.open(path) as image:
+        image.verify()
+    with Image.open(path) as image:
+        assert image.format == "PNG"
+        assert image.width >= min_size[0] and image.height >= min_size[1]
+
+
+def assert_no_temp_files(folder: Path) -> None:
+    assert [p.name for p in folder.iterdir() if p.name.startswith(".")] == []
+
+
+@pytest.fixture
+def figures(monkeypatch: pytest.MonkeyPatch) -> list[Figure]:
+    """The figures the plot functions save, for checking what was drawn."""
+    saved: list[Figure] = []
+    save = plots._save_png
+
+    def recording_save(figure: Figure, path: Path) -> Path:
+        saved.append(figure)
+        return save(figure, path)
+
+    monkeypatch.setattr(plots, "_save_png", recording_save)
+    return saved
+
+
+def panel_texts(figure: Figure) -> list[str]:
+    return [text.get_text() for ax in figure.axes for text in ax.texts]
+
+
+def test_sweep_writes_png(tmp_path: Path, figures: list[Figure]) -> None:
+    rows = [
+        sweep_row(series, pct)
+        for series in ("NIRC", "NRC", "NIRC equal time", "ours")
+        for pct in (80.0, 0.0, 40.0)
+    ]
+    path = tmp_path / "nested" / "dir" / "sweep.png"
+    assert plot_sweep(rows, path, "Equal-bias sweep") == path
+    assert_png(path, min_size=(900, 700))
+    assert_no_temp_files(path.parent)
+
+    (figure,) = figures
+    assert figure.get_suptitle() == "Equal-bias sweep"
+    mrse, flip, rbias2, rvar = figure.axes
+    assert [ax.get_yscale() for ax in (mrse, flip, rbias2, rvar)] == ["log", "linear", "log", "log"]
+    assert mrse.get_xlabel() == "% indirect-radiance bounces"
+    lines = {line.get_label(): line for line in mrse.get_lines()}
+    assert list(lines["NIRC"].get_xdata()) == [0.0, 40.0, 80.0]  # sorted by x
+    assert to_hex(lines["NIRC"].get_color()) == to_hex("tab:red")
+    assert to_hex(lines["NRC"].get_color()) == to_hex("tab:blue")
+    assert to_hex(lines["NIRC equal time"].get_color()) == to_hex("tab:brown")
+    assert to_hex(lines["ours"].get_color()) not in {
+        to_hex(c) for c in ("tab:red", "tab:blue", "tab:brown")
+    }
+    assert len(mrse.collections) == 4  # one set of CI error bars per series
+    assert panel_texts(figure) == []
+    assert len(figure.legends) == 1
+
+
+def test_sweep_skips_missing_and_non_positive_values(tmp_path: Path, figures: list[Figure]) -> None:
+    rows = [
+        sweep_row("NIRC", 0.0, rbias2=-1e-4, mrse_ci95=None),
+        sweep_row("NIRC", 25.0, rbias2=0.0, mrse=math.nan, flip=None),
+        sweep_row("NIRC", 50.0, rbias2=math.inf, rvar=None, mrse_ci95=[math.nan, 0.1]),
+        sweep_row("NIRC", 75.0, rbias2=2e-4, mrse_ci95=[0.03, 0.01]),  # inverted interval
+        sweep_row("NIRC", None),  # no x: not plotted anywhere
+        sweep_row(
+            "NRC", 10.0, mrse=None, flip=math.nan, rbias2=-1.0, rvar=math.inf, mrse_ci95=None
+        ),
+    ]
+    path = plot_sweep(rows, tmp_path / "sweep.png", "bad values")
+    assert_png(path)
+
+    mrse, flip, rbias2, rvar = figures[0].axes
+    assert [list(line.get_xdata()) for line in mrse.get_lines()] == [[0.0, 50.0, 75.0]]
+    assert len(mrse.collections) == 0  # no valid CI left to draw
+    assert [list(line.get_xdata()) for line in flip.get_lines()] == [[0.0, 50.0, 75.0]]
+    assert [list(line.get_ydata()) for line in rbias2.get_lines()] == [[2e-4]]
+    assert [text.get_text() for text in rbias2.texts] == ["3 points <= 0 not shown"]
+    assert [list(line.get_xdata()) for line in rvar.get_lines()] == [[0.0, 25.0, 75.0]]
+    assert [label.get_text() for label in figures[0].legends[0].get_texts()] == ["NIRC"]
+
+
+def test_sweep_single_point_and_unplottable_series(tmp_path: Path, figures: list[Figure]) -> None:
+    rows = [
+        sweep_row("NIRC", 30.0, rbias2=-1e-4),
+        sweep_row("NRC", None, mrse=None, flip=None, rbias2=None, rvar=None),
+    ]
+    assert_png(plot_sweep(rows, tmp_path / "sweep.png", "one point"))
+    rbias2 = figures[0].axes[2]
+    assert rbias2.texts[0].get_text() == "no data\n1 point <= 0 not shown"
+
+
+def test_sweep_without_rows(tmp_path: Path, figures: list[Figure]) -> None:
+    assert_png(plot_sweep([], tmp_path / "sweep.png", "empty"))
+    assert panel_texts(figures[0]) == ["no data"] * 4
+    assert figures[0].legends == []
+
+
+def test_convergence_writes_png(tmp_path: Path, figures: list[Figure]) -> None:
+    frames = list(range(1, 65))
+    curves = {
+        "NIRC": {
+            "frame": frames,
+            "frame_mrse": [0.05 for _ in frames],
+            "accumulated_mrse": [0.05 / f for f in frames],
+        },
+        "NRC": {"frame": frames, "frame_mrse": [0.08 for _ in frames]},
+    }
+    path = tmp_path / "out" / "convergence.png"
+    assert plot_convergence(curves, path, "Error over frames") == path
+    assert_png(path, min_size=(700, 450))
+    assert_no_temp_files(path.parent)
+
+    (ax,) = figures[0].axes
+    assert ax.get_yscale() == "log"
+    styles = {
+        line.get_label(): (line.get_linestyle(), to_hex(line.get_color()))
+        for line in ax.get_lines()
+    }
+    assert styles == {
+        "NIRC (per frame)": ("-", to_hex("tab:red")),
+        "NIRC (accumulated)": ("--", to_hex("tab:red")),
+        "NRC (per frame)": ("-", to_hex("tab:blue")),
+    }
+
+
+def test_convergence_skips_bad_values(tmp_path: Path, figures: list[Figure]) -> None:
+    curves = {
+        "a": {
+            "frame": [0, 1, 2, 3],
+            "frame_mrse": [math.nan, 0.0, -1.0, 0.1],
+            "accumulated_mrse": [math.inf, None, 0.2, 0.1],
+        },
+        "single": {"frame": [0], "frame_mrse": [0.3]},
+        "nothing": {"frame": [], "frame_mrse": []},
+    }
+    assert_png(plot_convergence(curves, tmp_path / "c.png", "bad values"))
+    (ax,) = figures[0].axes
+    points = {line.get_label(): list(line.get_xdata()) for line in ax.get_lines()}
+    assert points == {
+        "a (per frame)": [3.0],
+        "a (accumulated)": [2.0, 3.0],
+        "single (per frame)": [0.0],
+    }
+    assert [text.get_text() for text in ax.texts] == ["2 points <= 0 not shown"]
+
+
+def test_convergence_without_curves(tmp_path: Path, figures: list[Figure]) -> None:
+    assert_png(plot_convergence({}, tmp_path / "c.png", "empty"))
+    assert panel_texts(figures[0]) == ["no data"]
+
+
+def test_failed_write_keeps_old_file_and_leaves_no_temp(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "c.png"
+    path.write_bytes(b"previous plot")
+
+    def broken_savefig(self: Figure, out: Any, **kwargs: Any) -> None:
+        out.write(PNG_SIGNATURE)  # a partial file, then a crash
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(Figure, "savefig", broken_savefig)
+    with pytest.raises(RuntimeError, match="disk full"):
+        plot_convergence({}, path, "crash")
+    assert path.read_bytes() == b"previous plot"
+    assert [p.name for p in tmp_path.iterdir()] == ["c.png"]
+
+
+def test_overwrites_existing_plot(tmp_path: Path) -> None:
+    path = tmp_path / "c.png"
+    path.write_bytes(b"stale")
+    plot_convergence({"x": {"frame": [1, 2], "frame_mrse": [0.1, 0.05]}}, path, "again")
+    assert_png(path)
+    assert [p.name for p in tmp_path.iterdir()] == ["c.png"]
