@@ -15,7 +15,9 @@ import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
-from typing import BinaryIO, NamedTuple
+from typing import Any, BinaryIO, NamedTuple
+
+import numpy as np
 
 _CHUNK = 1 << 20            # bytes read at a time when hashing or copying files
 _TEMP_PREFIX = ".tmp-"      # temporary files; never a valid content-addressed name
@@ -112,3 +114,20 @@ def _normalize_suffix(suffix: str) -> str:
     if "/" in suffix or "\\" in suffix or suffix in (".", ".."):
         raise ValueError(f"{suffix!r} is not a file suffix (e.g. '.exr')")
     return suffix
+
+
+def artifact_record(store: ArtifactStore, data: bytes, kind: str, suffix: str, media_type: str,
+                    seed: int | None = None) -> dict[str, Any]:
+    """Store ``data`` and return the ``Artifact`` columns that reference it."""
+    sha256, relpath = store.put_bytes(data, suffix)
+    return {"kind": kind, "media_type": media_type, "sha256": sha256, "path": relpath,
+            "bytes": len(data), "seed": seed}
+
+
+def encode_image(writer: Callable[[Path, np.ndarray], None], image: np.ndarray,
+                 scratch: Path) -> bytes:
+    """Bytes of ``image`` encoded by ``writer`` (e.g. EXR or PNG) through a scratch file."""
+    writer(scratch, image)
+    data = scratch.read_bytes()
+    scratch.unlink()
+    return data

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from jobs.artifacts import ArtifactStore
+from jobs.artifacts import ArtifactStore, artifact_record, encode_image
 from jobs.config import Settings
 from jobs.provenance import git_commit, library_versions
 from jobs.references import LoadedReference, get_or_render_reference
@@ -65,31 +65,16 @@ class RunSummary:
         return data
 
 
-def _artifact(store: ArtifactStore, data: bytes, kind: str, suffix: str, media_type: str,
-              seed: int | None = None) -> dict[str, Any]:
-    sha256, relpath = store.put_bytes(data, suffix)
-    return {"kind": kind, "media_type": media_type, "sha256": sha256, "path": relpath,
-            "bytes": len(data), "seed": seed}
-
-
-def _encode(writer: Callable[[Path, np.ndarray], None], image: np.ndarray, tmp: Path) -> bytes:
-    """Bytes of ``image`` encoded by ``writer`` (EXR or PNG) through a scratch file."""
-    writer(tmp, image)
-    data = tmp.read_bytes()
-    tmp.unlink()
-    return data
-
-
 def _seed_artifacts(store: ArtifactStore, scratch: Path, seed: int, image: np.ndarray,
                     reference: LoadedReference, eps: float, previews: bool) -> list[dict]:
-    artifacts = [_artifact(store, _encode(write_exr, image, scratch / "img.exr"), "image",
+    artifacts = [artifact_record(store, encode_image(write_exr, image, scratch / "img.exr"), "image",
                            ".exr", "image/x-exr", seed)]
     if previews:
         error_map = relative_squared_error_map(image, reference.mean, eps)
         artifacts += [
-            _artifact(store, _encode(write_png, tonemap_preview(image), scratch / "p.png"),
+            artifact_record(store, encode_image(write_png, tonemap_preview(image), scratch / "p.png"),
                       "preview", ".png", "image/png", seed),
-            _artifact(store, _encode(write_png, error_map_preview(error_map), scratch / "e.png"),
+            artifact_record(store, encode_image(write_png, error_map_preview(error_map), scratch / "e.png"),
                       "error_map", ".png", "image/png", seed),
         ]
     return artifacts
@@ -222,8 +207,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
                                      reference, spec.eps, previews=seed == 0)
         # Per-frame images (``keep_frames``), named frame_<seed>_<index> when exported.
         for index, frame in enumerate(output.frames or []):
-            artifacts.append(_artifact(artifacts_store,
-                                       _encode(write_exr, frame, scratch / "f.exr"),
+            artifacts.append(artifact_record(artifacts_store,
+                                       encode_image(write_exr, frame, scratch / "f.exr"),
                                        f"frame{index:05d}", ".exr", "image/x-exr", seed))
 
     seed_timings = [output.timings for output in outputs]
@@ -276,8 +261,13 @@ def execute(
     settings: Settings,
     progress: Progress | None = None,
     out_dir: Path | None = None,
+    idempotency_key: str | None = None,
 ) -> RunSummary:
-    """Run ``spec`` to completion and store the result; see the module docstring."""
+    """Run ``spec`` to completion and store the result; see the module docstring.
+
+    ``idempotency_key`` (e.g. a sweep point's key) is stored with the run; a
+    second run under the same key raises ``DuplicateKeyError``.
+    """
     method = get_method(spec.method)
     params = parse_params(spec.method, spec.params)
     prepared = prepare(spec, store, settings, progress)
@@ -295,4 +285,5 @@ def execute(
             seed_parts=(prepared.scene.fingerprint, spec.method, param_json, spec.spp, seed),
             spp=spec.spp, frames=spec.frames, hooks=hooks))
         curves.append(tracker.result())
-    return store_run(spec, prepared, outputs, curves, store, settings, out_dir=out_dir)
+    return store_run(spec, prepared, outputs, curves, store, settings, out_dir=out_dir,
+                     idempotency_key=idempotency_key)

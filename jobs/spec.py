@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from renderers.methods.pt import DEFAULT_MAX_DEPTH
 from renderers.reference import ReferenceSettings
@@ -54,3 +54,91 @@ class RenderSpec(BaseModel):
     def key(self) -> str:
         """Content address of the spec (equal specs give equal keys)."""
         return digest("render-spec", self.model_dump(mode="json"))
+
+
+SWEEP_METHODS = ("nirc", "nrc")
+DEFAULT_NC_CANDIDATES = [1, 2, 4, 8, 16, 32]
+
+
+class SweepSpec(BaseModel):
+    """A sweep: the adaptive equal-bias protocol over eps (NIRC paper Sec. 6.3), or a
+    sweep over N_c of biased NIRC. Expanded by ``jobs.sweep`` into render jobs that
+    share the reference and the trained caches."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    scene: str = Field(min_length=1, description="built-in scene name or path to a Mitsuba XML")
+    eps: list[float] | None = Field(
+        None, description="relative-bias thresholds: use the cache at v1 where the per-pixel "
+                          "relative bias of the converged cache-at-v1 image is below eps")
+    nc: list[int] | None = Field(
+        None, description="without eps: the N_c values of a biased-NIRC sweep; with eps: the "
+                          "N_c candidates of the 'NIRC equal time' series")
+    methods: list[Literal["nirc", "nrc"]] = Field(default_factory=lambda: list(SWEEP_METHODS))
+    resolution: int = Field(64, ge=1, le=8192, description="image width and height in pixels")
+    seeds: int = Field(4, ge=2, le=1000, description="K independent caches and renders")
+    frames: int = Field(1, ge=1, le=100_000, description="1-spp frames per sweep point")
+    train_frames: int = Field(100, ge=1, le=100_000,
+                              description="online-training frames of each cache")
+    v1_spp: int = Field(256, ge=1, le=1 << 20, description="spp of the converged cache-at-v1 image")
+    max_depth: int = Field(8, ge=1, le=1024)
+    equal_time: bool = Field(True, description="add the 'NIRC equal time' series (needs both "
+                                               "methods)")
+    probe_frames: int = Field(5, ge=1, le=1000, description="timed frames per calibration probe")
+    time_tolerance_ms: float = Field(1.0, ge=0.0, le=1e6,
+                                     description="equal time means within this many ms")
+    termination: Literal["bth", "sph"] = Field("bth", description="N_c sweep: NIRC termination")
+    metric_eps: float = Field(0.01, gt=0.0, le=1.0, description="epsilon of MRSE / rBias2")
+    params: dict[str, Any] = Field(default_factory=dict,
+                                   description="extra parameters for every method")
+    reference: ReferenceSpec = Field(default_factory=ReferenceSpec)
+
+    @field_validator("eps")
+    @classmethod
+    def _check_eps(cls, values: list[float] | None) -> list[float] | None:
+        if values is None:
+            return None
+        if not values or any(not 0.0 < v <= 100.0 for v in values):
+            raise ValueError("eps values must be in (0, 100]")
+        return sorted(set(values))
+
+    @field_validator("nc")
+    @classmethod
+    def _check_nc(cls, values: list[int] | None) -> list[int] | None:
+        if values is None:
+            return None
+        if not values or any(not 1 <= v <= 256 for v in values):
+            raise ValueError("nc values must be in 1..256")
+        return sorted(set(values))
+
+    @field_validator("methods")
+    @classmethod
+    def _check_methods(cls, values: list[str]) -> list[str]:
+        if not values:
+            raise ValueError("name at least one method")
+        return list(dict.fromkeys(values))
+
+    @model_validator(mode="after")
+    def _check_axes(self) -> SweepSpec:
+        if self.eps is None and self.nc is None:
+            raise ValueError("a sweep needs eps values (adaptive equal-bias) or nc values")
+        if "max_depth" in self.params:
+            raise ValueError("set max_depth on the sweep, not in params")
+        return self
+
+    @property
+    def kind(self) -> str:
+        return "eps" if self.eps is not None else "nc"
+
+    def nc_candidates(self) -> list[int]:
+        return self.nc if self.nc is not None else list(DEFAULT_NC_CANDIDATES)
+
+    def base_render_spec(self) -> RenderSpec:
+        """The render job every point of the sweep specialises (scene, reference, depth)."""
+        return RenderSpec(scene=self.scene, method="pt", params={"max_depth": self.max_depth},
+                          resolution=self.resolution, spp=1, frames=self.frames,
+                          seeds=self.seeds, eps=self.metric_eps, reference=self.reference)
+
+    def key(self, device_key: str) -> str:
+        """Content address of the sweep on one device (timings are per device)."""
+        return digest("sweep-spec", self.model_dump(mode="json"), device_key)

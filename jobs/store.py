@@ -278,3 +278,31 @@ class Store:
         stored = self.get_sweep(sweep_id)
         assert stored is not None
         return stored
+
+    def delete_snapshot(self, snapshot_id: int) -> bool:
+        """Delete a snapshot row and its artifact rows (e.g. its files were lost)."""
+        with self.session(write=True) as session:
+            result = session.execute(delete(CacheSnapshot).where(CacheSnapshot.id == snapshot_id))
+            return bool(result.rowcount)
+
+    def clone_run(self, run_id: int, *, idempotency_key: str,
+                  metrics_update: Mapping[str, Any]) -> Run:
+        """A new run with the results of ``run_id`` (seed results, artifacts) plus
+        ``metrics_update``: e.g. a calibration that chose exactly the settings of
+        an existing run, recorded as a point of its own without rendering again."""
+        source = self.get_run(run_id)
+        if source is None:
+            raise ValueError(f"no run with id {run_id}")
+        columns = {c.key: getattr(source, c.key) for c in Run.__table__.columns
+                   if c.key not in ("id", "idempotency_key")}
+        columns["metrics"] = {**source.metrics, **metrics_update}
+        columns["params"] = {**source.params, **metrics_update}
+        seeds = {result.id: result.seed for result in source.seed_results}
+        artifact_columns = ("kind", "media_type", "sha256", "path", "bytes")
+        return self.add_run(
+            {**columns, "idempotency_key": idempotency_key},
+            [{"seed": r.seed, "metrics": r.metrics, "timings": r.timings}
+             for r in source.seed_results],
+            [{**{c: getattr(a, c) for c in artifact_columns},
+              "seed": seeds.get(a.seed_result_id)} for a in source.artifacts],
+        )

@@ -1,0 +1,462 @@
+"""Sweeps: the adaptive equal-bias protocol (NIRC paper Sec. 6.3, Fig. 13) and N_c sweeps.
+
+Adaptive equal-bias sweep, per caching method (NIRC, NRC) and seed k:
+
+1. train a cache and render the converged image V of terminating every path
+   into it at the first vertex v1 (a *snapshot*, jobs/snapshots.py: computed
+   once per scene/settings/seed, reused by every eps and every later sweep);
+2. the per-pixel relative bias of V against the reference R,
+   b_p = sqrt(mean_c (V - R)^2 / (R^2 + e)), e the metric epsilon — the root of
+   the pixel's relative squared error in the definition of MRSE;
+3. for every eps, the mask "use the cache at v1 where b_p < eps" (masks grow
+   with eps); elsewhere, and at later vertices, the spread heuristic decides.
+   NIRC is not used at v1 for delta lobes and NRC where the roughness is below
+   0.0625, as in the paper (the integrators exclude those lanes);
+4. K = ``seeds`` independent renders of ``frames`` 1-spp frames with the
+   frozen cache give MRSE (mean over seeds, with its CI), FLIP, rBias^2, rVar,
+   ms per frame, the average path length and the % indirect-radiance bounces.
+
+Every eps of one seed renders with the same frame seeds (common random
+numbers): points differ only where their masks differ. The warm-up frame runs
+once per integrator, not per eps. Timings are those of the render stage with
+a frozen, converged cache (the paper trains for 2000 frames first); the
+training time is reported with the snapshots.
+
+% IR bounces (the paper's Fig. 13 x axis): the average over paths that
+invoked the cache of (index of the invoking vertex - 1), in percent, from the
+per-path ``cache_depth`` AOV (exact at 1 spp, where a pixel is one path).
+
+"NIRC equal time": for each eps, the NRC point with the closest rBias^2 gives
+a frame-time budget, and N_c at v1 of NIRC is calibrated to the largest
+candidate whose frame time fits it (within ``time_tolerance_ms``), measured on
+this device with seed 0's cache; the calibration is stored with the point.
+
+Every point is a stored run whose idempotency key addresses what determines
+it (scene, settings, snapshots, eps, device): an identical point is never
+rendered twice, so re-running a sweep renders nothing new.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jobs.artifacts import ArtifactStore, artifact_record
+from jobs.calibration import calibrate
+from jobs.config import Settings
+from jobs.executor import ConvergenceTracker, Prepared, Progress, execute, prepare, store_run
+from jobs.plots import plot_convergence, plot_sweep
+from jobs.snapshots import Snapshot, get_or_make_snapshot
+from jobs.spec import RenderSpec, SweepSpec
+from jobs.store import Store
+from metrics.errors import relative_squared_error_map
+from renderers.methods import get_method, parse_params
+from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
+from renderers.methods.cached import CACHE_AOVS
+from renderers.seeding import digest
+
+SERIES_LABELS = {"nirc": "NIRC", "nrc": "NRC", "nirc-equal-time": "NIRC equal time"}
+
+
+@dataclass
+class SweepResult:
+    """What a finished sweep reports (also stored as the sweep row's result)."""
+
+    sweep_id: int
+    key: str
+    kind: str
+    scene: str
+    device_key: str
+    rows: list[dict[str, Any]]
+    skipped: list[dict[str, str]]
+    work: dict[str, int]
+    snapshots: list[dict[str, Any]] = field(default_factory=list)
+    files: dict[str, str] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# ---------------------------------------------------------------------------
+# Masks and path statistics
+# ---------------------------------------------------------------------------
+
+def relative_bias_map(v1_image: np.ndarray, reference: np.ndarray, eps: float) -> np.ndarray:
+    """Per-pixel relative bias b_p of the converged cache-at-v1 image (module doc, 2.);
+    non-finite where either image is non-finite."""
+    return np.sqrt(relative_squared_error_map(v1_image, reference, eps))
+
+
+def v1_mask(bias: np.ndarray, threshold: float) -> np.ndarray:
+    """Pixels that may use the cache at v1: relative bias below ``threshold``."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(bias) & (bias < threshold)
+
+
+def ir_bounces_pct(cache_depth_fractions: dict[str, float] | None) -> float | None:
+    """% indirect-radiance bounces from the fractions of paths per ``cache_depth``
+    (1 + index of the invoking vertex; 0: no cache): mean (index - 1) over invoking paths."""
+    if not cache_depth_fractions:
+        return None
+    invoking = {int(k): v for k, v in cache_depth_fractions.items() if int(k) >= 1}
+    total = sum(invoking.values())
+    if total <= 0:
+        return None
+    return 100.0 * sum((k - 1) * v for k, v in invoking.items()) / total
+
+
+def v1_fraction(cache_depth_fractions: dict[str, float] | None) -> float:
+    """Fraction of all paths that terminated into the cache at v1."""
+    return float((cache_depth_fractions or {}).get("1", 0.0))
+
+
+# ---------------------------------------------------------------------------
+# The sweep
+# ---------------------------------------------------------------------------
+
+class _Sweep:
+    """The state of one sweep run (see the module docstring for the protocol)."""
+
+    def __init__(self, spec: SweepSpec, store: Store, settings: Settings,
+                 progress: Progress | None) -> None:
+        self.spec, self.store, self.settings = spec, store, settings
+        self.report = progress or (lambda stage, done, total: None)
+        self.base = spec.base_render_spec()
+        self.prepared: Prepared = prepare(self.base, store, settings, progress)
+        self.device_key = self.prepared.device["device_key"]
+        self.work = {"reference_rendered": int(self.prepared.reference.rendered_now),
+                     "snapshots_trained": 0, "snapshots_reused": 0, "points_rendered": 0,
+                     "points_reused": 0, "calibrations": 0}
+        self.snapshots: dict[tuple[str, int], Snapshot] = {}
+        self.skipped: list[dict[str, str]] = []
+        self._probes: dict[int, Any] = {}     # calibration integrators by N_c at v1
+
+    # ---- parameters and keys ----
+
+    def params(self, method: str, nc_v1: int | None = None) -> Any:
+        """Validated parameters of a sweep point: adaptive termination, N_c 1 (or nc_v1) at v1."""
+        values: dict[str, Any] = {**self.spec.params, "max_depth": self.spec.max_depth,
+                                  "pretrain_frames": 0, "termination": "adaptive"}
+        if method == "nirc":
+            values.update(estimator="biased", nc=[nc_v1 or 1, 1])
+        return parse_params(method, values)
+
+    def point_key(self, series: str, eps: float, params: Any, extra: Any = None) -> str:
+        return digest("sweep-point", series, self.prepared.scene.fingerprint,
+                      self.base.model_dump(mode="json"), params.model_dump(mode="json"),
+                      self.spec.train_frames, self.spec.v1_spp, float(eps),
+                      self.prepared.reference.key, self.device_key, extra, length=32)
+
+    def point_spec(self, method: str, params: Any) -> RenderSpec:
+        return self.base.model_copy(update={"method": method,
+                                            "params": params.model_dump(mode="json")})
+
+    # ---- snapshots and frozen integrators ----
+
+    def snapshot(self, method: str, seed: int) -> Snapshot:
+        if (method, seed) not in self.snapshots:
+            label = f"{method} cache {seed + 1}/{self.spec.seeds}"
+            snap = get_or_make_snapshot(
+                self.store, self.settings, self.prepared, method,
+                _builder(method), self.params(method), seed,
+                train_frames=self.spec.train_frames, v1_spp=self.spec.v1_spp,
+                eps=self.spec.metric_eps,
+                progress=lambda done, total: self.report(label, done, total))
+            self.work["snapshots_trained" if snap.created_now else "snapshots_reused"] += 1
+            self.snapshots[(method, seed)] = snap
+        return self.snapshots[(method, seed)]
+
+    def frozen_integrator(self, method: str, params: Any, snap: Snapshot) -> Any:
+        """The render integrator of ``params`` with the snapshot's cache loaded (frozen)."""
+        integrator, _trainer, cache = _builder(method)(self.prepared.scene, params, 0)
+        cache.load_inference_parameters(snap.weights)
+        integrator.cache = cache
+        return integrator
+
+    def bias(self, snap: Snapshot) -> np.ndarray:
+        return relative_bias_map(snap.v1_image, self.prepared.reference.mean,
+                                 self.spec.metric_eps)
+
+    def skip_reason(self, method: str) -> str | None:
+        """Why ``method`` cannot be swept on this scene (None: it can)."""
+        snap = self.snapshot(method, 0)
+        if v1_fraction(snap.stats["path_stats"].get("cache_depth_fractions")) == 0.0:
+            return ("no path can terminate into the cache at its first vertex on this scene "
+                    "(every first hit is a delta lobe, too glossy, or misses the scene)")
+        return None
+
+    # ---- rendering points ----
+
+    def render_points(self, method: str, series: str, points: list[tuple[float, Any, str]],
+                      extras: dict[float, dict[str, Any]] | None = None) -> dict[float, int]:
+        """Render and store the points (eps, params, key); all share one params value.
+
+        Returns run ids by eps. One warm-up per seed; eps vary in the inner loop.
+        """
+        params = points[0][1]
+        outputs: dict[float, list[RenderOutput]] = {eps: [] for eps, _, _ in points}
+        curves: dict[float, list[dict[str, Any]]] = {eps: [] for eps, _, _ in points}
+        masks: dict[float, list[float]] = {eps: [] for eps, _, _ in points}
+        stage = f"{SERIES_LABELS[series]} points"
+        total, done = self.spec.seeds * len(points), 0
+        for seed in range(self.spec.seeds):
+            snap = self.snapshot(method, seed)
+            integrator = self.frozen_integrator(method, params, snap)
+            bias = self.bias(snap)
+            for index, (eps, _, _) in enumerate(points):
+                mask = v1_mask(bias, eps)
+                integrator.set_v1_mask(mask)
+                tracker = ConvergenceTracker(self.prepared.reference.mean, self.spec.metric_eps)
+                output = run_frames(
+                    render_stage(self.prepared.scene, integrator, 1),
+                    seed_parts=(self.prepared.scene.fingerprint, method,
+                                params.model_dump(mode="json"), "sweep", seed),
+                    frames=self.spec.frames, spp=1, aov_names=CACHE_AOVS,
+                    hooks=FrameHooks(warmup=index == 0, on_frame=tracker))
+                output.method_stats = {"snapshot": snap.key, "mask_fraction": float(mask.mean())}
+                outputs[eps].append(output)
+                curves[eps].append(tracker.result())
+                masks[eps].append(float(mask.mean()))
+                done += 1
+                self.report(stage, done, total)
+        run_ids = {}
+        for eps, _, key in points:
+            extra = {"sweep": {"series": series, "eps": eps,
+                               "mask_fraction": float(np.mean(masks[eps])),
+                               "snapshots": [self.snapshot(method, s).key
+                                             for s in range(self.spec.seeds)],
+                               **((extras or {}).get(eps, {}))}}
+            summary = store_run(self.point_spec(method, params), self.prepared, outputs[eps],
+                                curves[eps], self.store, self.settings, idempotency_key=key,
+                                extra=extra)
+            run_ids[eps] = summary.run_id
+            self.work["points_rendered"] += 1
+        return run_ids
+
+    def series(self, method: str) -> dict[float, Any] | None:
+        """The stored runs of ``method`` at every eps, rendering the missing ones."""
+        params = self.params(method)
+        keys = {eps: self.point_key(method, eps, params) for eps in self.spec.eps}
+        runs = {eps: self.store.find_run_by_idempotency_key(key) for eps, key in keys.items()}
+        pending = [(eps, params, keys[eps]) for eps, run in runs.items() if run is None]
+        self.work["points_reused"] += len(keys) - len(pending)
+        if pending:
+            reason = self.skip_reason(method)
+            if reason:
+                self.skipped.append({"method": method, "reason": reason})
+                return None
+            for eps, run_id in self.render_points(method, method, pending).items():
+                runs[eps] = self.store.get_run(run_id)
+        return runs
+
+    def equal_time_series(self, nirc: dict[float, Any], nrc: dict[float, Any]) -> dict[float, Any]:
+        """NIRC with the most N_c at v1 that fits the frame time of the NRC point with the
+        closest rBias^2 (module docstring)."""
+        candidates = self.spec.nc_candidates()
+        nrc_points = [(run.metrics.get("rbias2"), run) for run in nrc.values()
+                      if run.metrics.get("rbias2") is not None]
+        runs: dict[float, Any] = {}
+        plan: dict[int, list[tuple[float, Any, str]]] = {}
+        extras: dict[int, dict[float, dict[str, Any]]] = {}
+        for eps, run in nirc.items():
+            rbias2 = run.metrics.get("rbias2")
+            if rbias2 is None or not nrc_points:
+                continue
+            _, match = min(nrc_points, key=lambda item: abs(item[0] - rbias2))
+            key = self.point_key("nirc-equal-time", eps, self.params("nirc"),
+                                 extra=[candidates, match.idempotency_key,
+                                        self.spec.probe_frames, self.spec.time_tolerance_ms])
+            stored = self.store.find_run_by_idempotency_key(key)
+            if stored is not None:
+                runs[eps] = stored
+                self.work["points_reused"] += 1
+                continue
+            budget = match.timings["seconds_per_frame"]
+            record = calibrate(
+                "nc", candidates, lambda nc, eps=eps: self.probe(nc, eps), budget,
+                budget_source=f"NRC frame time at eps {match.params['sweep']['eps']} "
+                              f"(rBias2 {match.metrics['rbias2']:.3g}, run {match.id})",
+                tolerance_s=self.spec.time_tolerance_ms / 1e3, device_key=self.device_key)
+            self.work["calibrations"] += 1
+            plan.setdefault(record.chosen, []).append(
+                (eps, self.params("nirc", record.chosen), key))
+            extras.setdefault(record.chosen, {})[eps] = {
+                "calibration": record.to_json(), "nc_v1": record.chosen,
+                "matched_nrc_run": match.id}
+        for nc, points in plan.items():
+            if nc == self.params("nirc").nc[0]:
+                # The NIRC point itself (same parameters, same seeds): record, don't render.
+                for eps, _, key in points:
+                    runs[eps] = self.store.clone_run(
+                        nirc[eps].id, idempotency_key=key,
+                        metrics_update={"sweep": {**nirc[eps].metrics["sweep"],
+                                                  "series": "nirc-equal-time",
+                                                  **extras[nc][eps]}})
+                continue
+            rendered = self.render_points("nirc", "nirc-equal-time", points, extras[nc])
+            runs.update({eps: self.store.get_run(run_id) for eps, run_id in rendered.items()})
+        return runs
+
+    def probe(self, nc: int, eps: float) -> float:
+        """Seconds per 1-spp frame of NIRC with ``nc`` samples at v1 and the mask of ``eps``
+        (seed 0's cache; its own warm-up excluded)."""
+        snap = self.snapshot("nirc", 0)
+        if nc not in self._probes:
+            self._probes[nc] = self.frozen_integrator("nirc", self.params("nirc", nc), snap)
+        integrator = self._probes[nc]
+        integrator.set_v1_mask(v1_mask(self.bias(snap), eps))
+        output = run_frames(render_stage(self.prepared.scene, integrator, 1),
+                            seed_parts=("probe", nc, eps), frames=self.spec.probe_frames,
+                            spp=1, aov_names=CACHE_AOVS)
+        self.report("calibration", self.work["calibrations"] + 1, len(self.spec.eps))
+        return output.timings["frame_median_s"]
+
+
+def _builder(method: str) -> Callable[[Any, Any, int], tuple[Any, Any, Any]]:
+    from renderers.methods import nirc, nrc
+
+    return {"nirc": nirc.build, "nrc": nrc.build}[method]
+
+
+# ---------------------------------------------------------------------------
+# Rows, plots, storage
+# ---------------------------------------------------------------------------
+
+def point_row(series: str, eps: float | None, run: Any) -> dict[str, Any]:
+    """One line of the sweep table from a stored run."""
+    m, stats = run.metrics, run.path_stats
+    sweep = m.get("sweep", {})
+    fractions = stats.get("cache_depth_fractions")
+    ci = m.get("mrse_ci95")
+    return {
+        "series": SERIES_LABELS.get(series, series), "eps": eps, "run_id": run.id,
+        "nc": (run.params.get("nc") or [None])[0],
+        "mrse": m.get("mrse_mean"), "mrse_ci95": list(ci) if ci else None,
+        "flip": m.get("flip_hdr_mean"), "ms_frame": 1e3 * run.timings["seconds_per_frame"],
+        "rbias2": m.get("rbias2"), "rbias2_raw": m.get("rbias2_raw"), "rvar": m.get("rvar"),
+        "avg_path_length": stats.get("avg_path_vertices"),
+        "ir_bounces_pct": ir_bounces_pct(fractions),
+        "cache_at_v1_pct": 100.0 * v1_fraction(fractions) if fractions else None,
+        "mask_pct": 100.0 * sweep["mask_fraction"] if "mask_fraction" in sweep else None,
+        "calibration": sweep.get("calibration"),
+        "finite": run.quality.get("finite", True),
+    }
+
+
+def _convergence_curves(sweep: _Sweep) -> dict[str, dict[str, Any]]:
+    """Mean over seeds of each method's training convergence (cache at v1, 1 spp)."""
+    curves: dict[str, dict[str, Any]] = {}
+    for method in sweep.spec.methods:
+        snaps = [snap for (m, _), snap in sorted(sweep.snapshots.items()) if m == method]
+        if not snaps:
+            continue
+        entry: dict[str, Any] = {}
+        for name in ("frame_mrse", "accumulated_mrse"):
+            values = np.array([[np.nan if v is None else v for v in s.stats["convergence"][name]]
+                               for s in snaps], dtype=float)
+            with warnings.catch_warnings():  # an all-NaN frame stays NaN (not plotted)
+                warnings.simplefilter("ignore", RuntimeWarning)
+                entry[name] = [float(v) for v in np.nanmean(values, axis=0)]
+        entry["frame"] = list(range(len(entry["frame_mrse"])))
+        curves[f"{SERIES_LABELS[method]} (cache at v1, training)"] = entry
+    return curves
+
+
+def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[dict[str, Any]]:
+    """Plots + result.json into ``out_dir``; returns the plots' artifact records."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    title = f"{sweep.prepared.scene.name} ({sweep.device_key})"
+    files: dict[str, Path] = {}
+    if result.kind == "eps":
+        files["fig13"] = plot_sweep(result.rows, out_dir / "sweep_fig13.png",
+                                    f"Adaptive equal-bias sweep: {title}")
+        files["fig10"] = plot_convergence(_convergence_curves(sweep),
+                                          out_dir / "convergence_fig10.png",
+                                          f"Error over training frames: {title}")
+    artifacts = ArtifactStore(sweep.settings.artifacts_dir)
+    records = []
+    for kind, path in files.items():
+        record = artifact_record(artifacts, path.read_bytes(), kind, ".png", "image/png")
+        record.pop("seed")
+        records.append(record)
+    result.files = {name: str(path) for name, path in files.items()}
+    result.files["result"] = str(out_dir / "result.json")
+    (out_dir / "result.json").write_text(json.dumps(result.to_json(), indent=2, default=str))
+    return records
+
+
+def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
+              progress: Progress | None = None, out_dir: Path | None = None) -> SweepResult:
+    """Run (or resume, or re-assemble) a sweep; see the module docstring."""
+    for method in spec.methods:
+        get_method(method)
+    sweep = _Sweep(spec, store, settings, progress)
+    key = spec.key(sweep.device_key)
+    row = store.start_sweep(key=key, kind=spec.kind, scene_name=sweep.prepared.scene.name,
+                            scene_fingerprint=sweep.prepared.scene.fingerprint,
+                            spec=spec.model_dump(mode="json"), result={},
+                            device_key=sweep.device_key)
+    try:
+        rows = _eps_rows(sweep) if spec.kind == "eps" else _nc_rows(sweep)
+        result = SweepResult(
+            sweep_id=row.id, key=key, kind=spec.kind, scene=sweep.prepared.scene.name,
+            device_key=sweep.device_key, rows=rows, skipped=sweep.skipped, work=sweep.work,
+            snapshots=[{"method": m, "seed": s, "key": snap.key, "id": snap.id,
+                        "train_s_per_frame": snap.stats["train_seconds_per_frame"],
+                        "v1_render_s": snap.stats["v1_render_s"]}
+                       for (m, s), snap in sorted(sweep.snapshots.items())])
+        target = out_dir or settings.data_dir / "sweeps" / f"sweep-{row.id}"
+        plots = _write_outputs(sweep, result, target)
+    except BaseException as err:
+        store.finish_sweep(row.id, status="failed", result={"error": str(err)},
+                           finished_at=datetime.now(UTC))
+        raise
+    store.finish_sweep(row.id, status="succeeded", result=result.to_json(),
+                       finished_at=datetime.now(UTC), artifacts=plots)
+    return result
+
+
+def _eps_rows(sweep: _Sweep) -> list[dict[str, Any]]:
+    series = {method: sweep.series(method) for method in sweep.spec.methods}
+    rows = [point_row(method, eps, run) for method, runs in series.items() if runs
+            for eps, run in sorted(runs.items())]
+    if sweep.spec.equal_time and series.get("nirc") and series.get("nrc"):
+        equal_time = sweep.equal_time_series(series["nirc"], series["nrc"])
+        rows += [point_row("nirc-equal-time", eps, run) for eps, run in sorted(equal_time.items())]
+    elif sweep.spec.equal_time and len(sweep.spec.methods) > 1:
+        sweep.skipped.append({"method": "nirc-equal-time",
+                              "reason": "needs both the NIRC and the NRC series"})
+    return rows
+
+
+def _nc_rows(sweep: _Sweep) -> list[dict[str, Any]]:
+    """A sweep over N_c of biased NIRC (online training, ``train_frames`` pre-training)."""
+    rows = []
+    values = sweep.spec.nc or []
+    for index, nc in enumerate(values):
+        params = parse_params("nirc", {**sweep.spec.params, "max_depth": sweep.spec.max_depth,
+                                       "estimator": "biased",
+                                       "termination": sweep.spec.termination, "nc": [nc],
+                                       "pretrain_frames": sweep.spec.train_frames})
+        spec = sweep.point_spec("nirc", params)
+        key = digest("sweep-nc-point", spec.model_dump(mode="json"), sweep.device_key,
+                     sweep.prepared.reference.key, length=32)
+        run = sweep.store.find_run_by_idempotency_key(key)
+        if run is None:
+            summary = execute(spec, sweep.store, sweep.settings, idempotency_key=key,
+                              progress=sweep.report)
+            run = sweep.store.get_run(summary.run_id)
+            sweep.work["points_rendered"] += 1
+        else:
+            sweep.work["points_reused"] += 1
+        rows.append(point_row(f"NIRC biased {sweep.spec.termination.upper()}", None, run))
+        sweep.report("N_c points", index + 1, len(values))
+    return rows
+
