@@ -64,7 +64,11 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
             xs, ys, dropped = _plottable(pairs, log=log)
             hidden += dropped
             if xs:
-                ax.plot(xs, ys, "o-", color=colours[name], label=name, markersize=4)
+                # Dashed with open markers: an equal-time series often coincides
+                # with its base series (same N_c), which must stay visible.
+                dashed = "equal time" in name
+                ax.plot(xs, ys, "s--" if dashed else "o-", color=colours[name], label=name,
+                        markersize=6 if dashed else 4, fillstyle="none" if dashed else "full")
                 plotted = True
             if key == "mrse":
                 _draw_mrse_ci(ax, members, colours[name])

@@ -137,6 +137,16 @@ class _Sweep:
         self.snapshots: dict[tuple[str, int], Snapshot] = {}
         self.skipped: list[dict[str, str]] = []
         self._probes: dict[int, Any] = {}     # calibration integrators by N_c at v1
+        # One bar across the whole sweep: caches, then points (reused ones count too).
+        n_points = len(spec.eps or spec.nc or [])
+        self.units_total = (len(spec.methods) * (spec.seeds + n_points)
+                            + (n_points if spec.equal_time and len(spec.methods) > 1 else 0)
+                            if spec.kind == "eps" else n_points)
+        self.units_done = 0
+
+    def advance(self, units: int = 1) -> None:
+        self.units_done = min(self.units_total, self.units_done + units)
+        self.report("sweep", self.units_done, self.units_total)
 
     # ---- parameters and keys ----
 
@@ -171,6 +181,7 @@ class _Sweep:
                 progress=lambda done, total: self.report(label, done, total))
             self.work["snapshots_trained" if snap.created_now else "snapshots_reused"] += 1
             self.snapshots[(method, seed)] = snap
+            self.advance()
         return self.snapshots[(method, seed)]
 
     def frozen_integrator(self, method: str, params: Any, snap: Snapshot) -> Any:
@@ -238,6 +249,7 @@ class _Sweep:
                                 extra=extra)
             run_ids[eps] = summary.run_id
             self.work["points_rendered"] += 1
+            self.advance()
         return run_ids
 
     def series(self, method: str) -> dict[float, Any] | None:
@@ -247,6 +259,7 @@ class _Sweep:
         runs = {eps: self.store.find_run_by_idempotency_key(key) for eps, key in keys.items()}
         pending = [(eps, params, keys[eps]) for eps, run in runs.items() if run is None]
         self.work["points_reused"] += len(keys) - len(pending)
+        self.advance(len(keys) - len(pending) + (0 if pending else self.spec.seeds))
         if pending:
             reason = self.skip_reason(method)
             if reason:
@@ -277,6 +290,7 @@ class _Sweep:
             if stored is not None:
                 runs[eps] = stored
                 self.work["points_reused"] += 1
+                self.advance()
                 continue
             budget = match.timings["seconds_per_frame"]
             record = calibrate(
@@ -294,6 +308,7 @@ class _Sweep:
             if nc == self.params("nirc").nc[0]:
                 # The NIRC point itself (same parameters, same seeds): record, don't render.
                 for eps, _, key in points:
+                    self.advance()
                     runs[eps] = self.store.clone_run(
                         nirc[eps].id, idempotency_key=key,
                         metrics_update={"sweep": {**nirc[eps].metrics["sweep"],
@@ -440,7 +455,7 @@ def _nc_rows(sweep: _Sweep) -> list[dict[str, Any]]:
     """A sweep over N_c of biased NIRC (online training, ``train_frames`` pre-training)."""
     rows = []
     values = sweep.spec.nc or []
-    for index, nc in enumerate(values):
+    for nc in values:
         params = parse_params("nirc", {**sweep.spec.params, "max_depth": sweep.spec.max_depth,
                                        "estimator": "biased",
                                        "termination": sweep.spec.termination, "nc": [nc],
@@ -456,7 +471,7 @@ def _nc_rows(sweep: _Sweep) -> list[dict[str, Any]]:
             sweep.work["points_rendered"] += 1
         else:
             sweep.work["points_reused"] += 1
+        sweep.advance()
         rows.append(point_row(f"NIRC biased {sweep.spec.termination.upper()}", None, run))
-        sweep.report("N_c points", index + 1, len(values))
     return rows
 

@@ -243,6 +243,70 @@ def report(
         console.print(comparison_tables(result))
 
 
+@app.command()
+def sweep(
+    scene: Scene,
+    eps: Annotated[str | None, typer.Option(
+        "--eps", help="relative-bias thresholds of the adaptive equal-bias protocol: "
+                      "'0.05:1.0' (step = start, inclusive), 'a:b:step' or 'a,b,c'")] = None,
+    nc: Annotated[str | None, typer.Option(
+        "--nc", help="N_c values ('1:32', '1,2,4'): a biased-NIRC sweep, or with --eps the "
+                     "candidates of the 'NIRC equal time' series (default 1,2,4,8,16,32)")] = None,
+    methods: Annotated[str, typer.Option("--methods", help="comma list of nirc, nrc")] = "nirc,nrc",
+    res: Res = 64,
+    seeds: Annotated[int, typer.Option("--seeds", min=2, max=1000,
+                                       help="K independent caches and renders")] = 4,
+    frames: Annotated[int, typer.Option("--frames", min=1, max=100_000,
+                                        help="1-spp frames per point")] = 1,
+    train_frames: Annotated[int, typer.Option("--train-frames", min=1, max=100_000,
+                                              help="online-training frames per cache")] = 100,
+    v1_spp: Annotated[int, typer.Option("--v1-spp", min=1, max=1 << 20,
+                                        help="spp of the converged cache-at-v1 images")] = 256,
+    max_depth: Annotated[int, typer.Option("--max-depth", min=1, max=1024)] = 8,
+    termination: Annotated[str, typer.Option(
+        "--termination", help="N_c sweep: 'bth' or 'sph'")] = "bth",
+    equal_time: Annotated[bool, typer.Option(
+        "--equal-time/--no-equal-time", help="add the 'NIRC equal time' series")] = True,
+    tolerance_ms: Annotated[float, typer.Option("--tolerance-ms", min=0.0, max=1e6,
+                                                help="equal time within this many ms")] = 1.0,
+    param: Annotated[list[str] | None, typer.Option(
+        "--param", "-p", help="parameter for every method NAME=VALUE (repeatable)")] = None,
+    ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
+    out: Annotated[Path | None, typer.Option(
+        "--out", help="write plots and result.json here (default: data/sweeps/sweep-<id>)")] = None,
+    as_json: JsonOut = False,
+    data_dir: DataDir = None,
+) -> None:
+    """Run the adaptive equal-bias sweep (NIRC paper Sec. 6.3, Fig. 13) or an N_c sweep.
+
+    References, trained caches and converged cache-at-v1 images are computed once
+    and reused; points already stored are not rendered again.
+    """
+    from jobs.ranges import RangeError, parse_range
+    from jobs.spec import ReferenceSpec, SweepSpec
+    from jobs.sweep import run_sweep
+    from service.tables import sweep_table
+
+    if eps is None and nc is None:
+        raise RangeError("give --eps (adaptive equal-bias sweep) and/or --nc (N_c sweep)")
+    spec = SweepSpec(
+        scene=scene, eps=parse_range(eps) if eps is not None else None,
+        nc=parse_range(nc, integer=True) if nc is not None else None,
+        methods=[m.strip() for m in methods.split(",") if m.strip()], resolution=res,
+        seeds=seeds, frames=frames, train_frames=train_frames, v1_spp=v1_spp,
+        max_depth=max_depth, termination=termination, equal_time=equal_time,
+        time_tolerance_ms=tolerance_ms, params=dict(_parse_param(p) for p in param or []),
+        reference=ReferenceSpec(spp=ref_spp))
+    settings = _settings(data_dir)
+    store = _store(settings)
+    with progress_reporter(console, quiet=as_json) as report:
+        result = run_sweep(spec, store, settings, progress=report, out_dir=out)
+    if as_json:
+        _print_json(result.to_json())
+    else:
+        console.print(sweep_table(result))
+
+
 def main() -> None:
     """Console-script entry point: run the app, turning errors into one-line messages."""
     try:

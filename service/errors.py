@@ -5,6 +5,7 @@ from __future__ import annotations
 from pydantic import ValidationError
 
 from jobs.db import SchemaVersionError
+from jobs.ranges import RangeError
 from metrics.errors import MetricError
 from metrics.imageio import ImageReadError
 from renderers.backend import BackendError
@@ -13,7 +14,7 @@ from renderers.scenes import SceneError
 
 USER_ERRORS: tuple[type[BaseException], ...] = (
     BackendError, SceneError, MethodError, ImageReadError, MetricError, SchemaVersionError,
-    ValidationError, FileNotFoundError,
+    ValidationError, FileNotFoundError, RangeError,
 )
 
 

@@ -112,3 +112,39 @@ def comparison_tables(report: Any) -> Group:
     return Group(table(f"{report.scene}: equal spp ({report.device})", report.equal_spp),
                  table(f"{report.scene}: equal time ({report.device})", report.equal_time),
                  calibration)
+
+
+SWEEP_COLUMNS = (
+    ("series", "series"), ("eps", "eps"), ("nc", "N_c v1"), ("mrse", "MRSE"),
+    ("flip", "FLIP"), ("ms_frame", "ms/frame"), ("rbias2", "rBias²"), ("rvar", "rVar"),
+    ("avg_path_length", "path len"), ("ir_bounces_pct", "% IR"),
+    ("cache_at_v1_pct", "% v1 cache"), ("run_id", "run"),
+)
+
+
+def sweep_table(result: Any) -> Group:
+    """The sweep's points (one row per series and eps / N_c), skipped methods, work done."""
+    table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
+    for _, header in SWEEP_COLUMNS:
+        table.add_column(header, justify="left" if header == "series" else "right")
+    for row in result.rows:
+        cells = []
+        for key, _ in SWEEP_COLUMNS:
+            value = row.get(key)
+            if key == "mrse" and row.get("mrse_ci95"):
+                lo, hi = row["mrse_ci95"]
+                cells.append(f"{_fmt(value)} [{_fmt(lo)}, {_fmt(hi)}]")
+            else:
+                cells.append("-" if value is None else _fmt(value))
+        if not row.get("finite", True):
+            cells[0] += " (non-finite pixels!)"
+        table.add_row(*cells)
+    lines: list[Any] = [table]
+    lines += [f"skipped {s['method']}: {s['reason']}" for s in result.skipped]
+    work = result.work
+    lines.append(
+        f"rendered: reference {work['reference_rendered']}, caches {work['snapshots_trained']} "
+        f"(reused {work['snapshots_reused']}), points {work['points_rendered']} "
+        f"(reused {work['points_reused']}), calibrations {work['calibrations']}")
+    lines += [f"{name}: {path}" for name, path in result.files.items()]
+    return Group(*lines)
