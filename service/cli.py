@@ -289,9 +289,15 @@ def sweep(
 
     if eps is None and nc is None:
         raise RangeError("give --eps (adaptive equal-bias sweep) and/or --nc (N_c sweep)")
+
+    def parsed(text: str | None, option: str, integer: bool = False) -> list | None:
+        try:
+            return parse_range(text, integer=integer) if text is not None else None
+        except RangeError as err:
+            raise RangeError(f"{option}: {err}") from None
+
     spec = SweepSpec(
-        scene=scene, eps=parse_range(eps) if eps is not None else None,
-        nc=parse_range(nc, integer=True) if nc is not None else None,
+        scene=scene, eps=parsed(eps, "--eps"), nc=parsed(nc, "--nc", integer=True),
         methods=[m.strip() for m in methods.split(",") if m.strip()], resolution=res,
         seeds=seeds, frames=frames, train_frames=train_frames, v1_spp=v1_spp,
         max_depth=max_depth, termination=termination, equal_time=equal_time,

@@ -507,3 +507,20 @@ def test_first_layer_split_matches_the_concatenated_network():
     with pytest.raises(ValueError, match="pass what surface_features"):
         split.query(split.encoder.surface(rec.position, rec.normal, rec.roughness, rec.albedo),
                     rec.direction)
+
+
+def test_loaded_weights_reproduce_the_trained_cache(trained):
+    cache, records, _ = trained
+    copy = caches.NeuralCache(small_config(), [0, 0, 0], [1, 1, 1], seed=123)
+    before = as_numpy(query_records(copy, records))
+    copy.load_inference_parameters(cache.inference_parameters())
+    after = as_numpy(query_records(copy, records))
+    expected = as_numpy(query_records(cache, records))
+    assert np.abs(expected).mean() > 0.01  # a trained, non-trivial cache
+    assert not np.array_equal(before, expected)
+    np.testing.assert_array_equal(after, expected)
+    with pytest.raises(ValueError, match="values"):
+        bad = {k: v[:-1] for k, v in cache.inference_parameters().items()}
+        copy.load_inference_parameters(bad)
+    with pytest.raises(ValueError, match="names"):
+        copy.load_inference_parameters({"nonsense": np.zeros(3)})

@@ -116,3 +116,37 @@ def test_render_reference_evaluate_round_trip(tmp_path):
     assert evaluated.returncode == 0, evaluated.stderr
     values = json.loads(evaluated.stdout)
     assert values["mrse"] == pytest.approx(summary["per_seed"][0]["mrse"], rel=1e-5)
+
+
+SWEEP_SMALL = ("--scene", "cornell-box", "--res", "8", "--seeds", "2", "--train-frames", "2",
+               "--v1-spp", "4", "--ref-spp", "64", "-p", 'cache={"batch_size": 1024}',
+               "-p", "min_train_paths=1024")
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (("--eps", "0.05:1.0:0"), "step"),
+    (("--eps", "1.0:0.05"), "eps"),
+    (("--eps", "a:b"), "not a number"),
+    (("--eps", "0.5", "--methods", "nirc,pt"), "methods"),
+    (("--nc", "0:4"), "nc"),
+    ((), "--eps"),
+])
+def test_bad_sweep_arguments_are_clear_errors(tmp_path, args, fragment):
+    proc = run_cli("sweep", "--scene", "cornell-box", *args, data_dir=tmp_path)
+    assert_clean_error(proc, fragment)
+    assert proc.returncode == 2
+
+
+def test_sweep_prints_the_table_writes_plots_and_reuses_everything(tmp_path):
+    out = tmp_path / "out"
+    proc = run_cli("sweep", *SWEEP_SMALL, "--eps", "0.5:1.0", "--nc", "1,2", "--out", str(out),
+                   data_dir=tmp_path / "data")
+    assert proc.returncode == 0, proc.stderr
+    assert "NIRC equal time" in proc.stdout and "% IR" in proc.stdout
+    assert (out / "sweep_fig13.png").is_file() and (out / "convergence_fig10.png").is_file()
+    again = run_cli("sweep", *SWEEP_SMALL, "--eps", "0.5:1.0", "--nc", "1,2", "--json",
+                    data_dir=tmp_path / "data")
+    assert again.returncode == 0, again.stderr
+    result = json.loads(again.stdout)
+    assert result["work"]["points_rendered"] == 0 and result["work"]["snapshots_trained"] == 0
+    assert len(result["rows"]) == 6

@@ -1,0 +1,225 @@
+"""The adaptive equal-bias sweep (NIRC paper Sec. 6.3): masks, statistics, reuse, plots.
+
+One small sweep (16x16, K = 2, 3 thresholds, a few training frames) is run once per
+module; the tests read its stored result. What they check does not depend on how
+well the tiny caches are trained: masks grow with eps, % IR bounces falls, the
+metrics identity holds, and nothing is rendered twice.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from jobs.calibration import calibrate
+from jobs.config import Settings
+from jobs.db import open_store
+from jobs.spec import ReferenceSpec, SweepSpec
+from jobs.sweep import ir_bounces_pct, relative_bias_map, run_sweep, v1_mask
+
+SMALL = {"cache": {"batch_size": 1024}, "min_train_paths": 1024}
+
+
+def small_spec(**overrides) -> SweepSpec:
+    values = dict(scene="cornell-box", resolution=16, seeds=2, train_frames=4, v1_spp=32,
+                  eps=[0.1, 0.3, 1.0], nc=[1, 2], params=SMALL,
+                  reference=ReferenceSpec(spp=256))
+    return SweepSpec(**{**values, **overrides})
+
+
+# ---- Pure functions -------------------------------------------------------------
+
+@settings(max_examples=50, deadline=None)
+@given(bias=arrays(np.float64, (6, 5), elements=st.floats(0, 3) | st.just(np.nan)),
+       thresholds=st.lists(st.floats(0.01, 3), min_size=2, max_size=6))
+def test_masks_are_monotone_in_eps(bias, thresholds):
+    masks = [v1_mask(bias, eps) for eps in sorted(thresholds)]
+    for smaller, larger in zip(masks, masks[1:], strict=False):
+        assert not np.any(smaller & ~larger)   # a larger eps never drops a pixel
+    assert not np.any(masks[-1] & np.isnan(bias))
+
+
+def test_relative_bias_is_the_root_of_the_pixel_relative_squared_error():
+    ref = np.full((2, 2, 3), 2.0, np.float32)
+    test = ref.copy()
+    test[0, 0] = [3.0, 2.0, 2.0]            # one channel off by 1
+    bias = relative_bias_map(test, ref, eps=0.01)
+    assert bias[0, 0] == pytest.approx(np.sqrt((1 / (4 + 0.01)) / 3), rel=1e-5)
+    assert np.all(bias.ravel()[1:] == 0)
+
+
+def test_ir_bounces_from_cache_depth_fractions():
+    assert ir_bounces_pct({"0": 0.5, "1": 0.5}) == 0.0
+    assert ir_bounces_pct({"1": 0.25, "2": 0.75}) == pytest.approx(75.0)
+    assert ir_bounces_pct({"1": 0.5, "3": 0.5}) == pytest.approx(100.0)  # v3: 2 bounces
+    assert ir_bounces_pct({"0": 1.0}) is None and ir_bounces_pct(None) is None
+
+
+def test_calibration_chooses_the_largest_fitting_candidate():
+    measured = []
+
+    def measure(nc):
+        measured.append(nc)
+        return 0.010 + 0.002 * nc
+
+    record = calibrate("nc", [8, 1, 2, 4, 16], measure, 0.018, budget_source="test",
+                       tolerance_s=0.0005)
+    assert record.chosen == 4 and record.fits
+    assert measured == [1, 2, 4, 8]        # stops at the first candidate over budget
+    none = calibrate("nc", [1, 2], lambda nc: 1.0, 0.5, budget_source="test")
+    assert none.chosen == 1 and not none.fits
+    assert record.to_json()["measured_s"]["8"] == pytest.approx(0.026)
+    with pytest.raises(ValueError):
+        calibrate("nc", [], measure, 1.0, budget_source="test")
+
+
+@pytest.mark.parametrize("values, fragment", [
+    ({"eps": None, "nc": None}, "eps values"),
+    ({"eps": [0.0, 0.5]}, "(0, 100]"),
+    ({"nc": [0]}, "1..256"),
+    ({"methods": []}, "at least one method"),
+    ({"methods": ["pt"]}, "nirc"),
+    ({"seeds": 1}, "greater than or equal to 2"),
+])
+def test_bad_sweep_specs_are_explained(values, fragment):
+    with pytest.raises(ValueError, match=fragment.replace("(", r"\(").replace("]", r"\]")
+                       .replace("[", r"\[").replace(".", r"\.")):
+        small_spec(**values)
+
+
+# ---- A real (small) sweep ---------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def sweep_env(tmp_path_factory, mi):
+    settings_ = Settings(data_dir=Path(tmp_path_factory.mktemp("sweep")) / "data")
+    store = open_store(settings_)
+    first = run_sweep(small_spec(), store, settings_)
+    yield settings_, store, first
+    store.close()
+
+
+def _series(result, name):
+    return [row for row in result.rows if row["series"] == name]
+
+
+def test_sweep_reports_every_series_and_point(sweep_env):
+    _, _, result = sweep_env
+    assert result.skipped == []
+    for name in ("NIRC", "NRC", "NIRC equal time"):
+        rows = _series(result, name)
+        assert [row["eps"] for row in rows] == [0.1, 0.3, 1.0]
+        for row in rows:
+            assert row["finite"]
+            for key in ("mrse", "flip", "ms_frame", "rbias2", "rvar", "avg_path_length",
+                        "ir_bounces_pct"):
+                assert row[key] is not None and np.isfinite(row[key]), (name, key)
+    for row in _series(result, "NIRC equal time"):
+        calibration = row["calibration"]
+        assert calibration["knob"] == "nc" and calibration["chosen"] == row["nc"]
+        assert calibration["measured_s"]
+    work = result.work
+    assert work["reference_rendered"] == 1 and work["snapshots_trained"] == 4
+    assert work["points_rendered"] >= 6 and work["calibrations"] == 3
+
+
+def test_masks_grow_and_ir_bounces_fall_with_eps(sweep_env):
+    _, _, result = sweep_env
+    for name in ("NIRC", "NRC"):
+        rows = _series(result, name)
+        masks = [row["mask_pct"] for row in rows]
+        v1 = [row["cache_at_v1_pct"] for row in rows]
+        ir = [row["ir_bounces_pct"] for row in rows]
+        assert masks == sorted(masks) and v1 == sorted(v1), name
+        # Every eps renders with the same random numbers, so paths differ only where a
+        # larger mask lets them stop at v1: the % IR bounces cannot rise.
+        assert all(b <= a + 1e-9 for a, b in zip(ir, ir[1:], strict=False)), (name, ir)
+        assert ir[0] > ir[-1], (name, ir)
+
+
+def test_rbias2_plus_rvar_matches_the_mean_mrse(sweep_env):
+    _, store, result = sweep_env
+    for row in result.rows:
+        run = store.get_run(row["run_id"])
+        lo, hi = run.metrics["mrse_ci95"]
+        total = run.metrics["rbias2"] + run.metrics["rvar"]
+        assert lo <= total <= hi
+        # With the noise-corrected rBias^2 the identity is exact (DESIGN.md, Metrics).
+        assert total == pytest.approx(run.metrics["mrse_mean"], rel=1e-6)
+
+
+def test_points_are_stored_with_seeds_snapshots_and_convergence(sweep_env):
+    _, store, result = sweep_env
+    run = store.get_run(_series(result, "NRC")[0]["run_id"])
+    assert run.params["termination"] == "adaptive" and run.seeds == 2
+    assert len(run.seed_results) == 2
+    assert len(run.metrics["sweep"]["snapshots"]) == 2
+    curve = run.seed_results[0].metrics["convergence"]
+    assert len(curve["frame_mrse"]) == run.frames == 1
+    snapshot = store.find_snapshot(run.metrics["sweep"]["snapshots"][0])
+    assert {a.kind for a in snapshot.artifacts} == {"cache_weights", "v1_image"}
+    assert len(snapshot.stats["convergence"]["frame_mrse"]) == 4
+
+
+def test_plots_are_written_and_referenced_from_the_database(sweep_env):
+    _, store, result = sweep_env
+    for name in ("fig13", "fig10", "result"):
+        assert Path(result.files[name]).stat().st_size > 0
+    row = store.get_sweep(result.sweep_id)
+    assert row.status == "succeeded" and row.result["rows"] == result.to_json()["rows"]
+    assert {a.kind for a in row.artifacts} == {"fig13", "fig10"}
+
+
+def test_a_second_identical_sweep_renders_nothing(sweep_env):
+    settings_, store, first = sweep_env
+    second = run_sweep(small_spec(), store, settings_)
+    assert second.sweep_id == first.sweep_id
+    assert second.work == {"reference_rendered": 0, "snapshots_trained": 0,
+                           "snapshots_reused": 0, "points_rendered": 0, "points_reused": 9,
+                           "calibrations": 0}
+    assert [r["run_id"] for r in second.rows] == [r["run_id"] for r in first.rows]
+
+
+def test_a_new_eps_reuses_the_caches(sweep_env):
+    settings_, store, _ = sweep_env
+    result = run_sweep(small_spec(eps=[0.1, 0.3, 0.5, 1.0], equal_time=False), store,
+                       settings_)
+    assert result.work["snapshots_trained"] == 0 and result.work["snapshots_reused"] == 4
+    assert result.work["points_rendered"] == 2 and result.work["points_reused"] == 6
+
+
+MIRROR_XML = """\
+<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="30"/>
+        <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>
+        </transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+            <rfilter type="box"/></film>
+    </sensor>
+    <emitter type="constant"/>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="4"/></transform>
+        <bsdf type="conductor"/>
+    </shape>
+</scene>
+"""
+
+
+def test_a_scene_without_usable_first_vertices_is_skipped_with_a_reason(tmp_path, mi):
+    """A camera that sees only a perfect mirror: no path can use a cache at v1."""
+    scene = tmp_path / "mirror.xml"
+    scene.write_text(MIRROR_XML)
+    settings_ = Settings(data_dir=tmp_path / "data")
+    store = open_store(settings_)
+    result = run_sweep(small_spec(scene=str(scene), resolution=8, train_frames=2, v1_spp=4,
+                                  eps=[0.5]), store, settings_)
+    assert result.rows == []
+    reasons = {s["method"]: s["reason"] for s in result.skipped}
+    assert set(reasons) == {"nirc", "nrc", "nirc-equal-time"}
+    assert "first vertex" in reasons["nirc"]
+    store.close()
