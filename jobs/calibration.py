@@ -63,3 +63,58 @@ def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], flo
     record.fits = bool(fitting)
     record.chosen = max(fitting) if fitting else values[0]
     return record
+
+
+#: The knob each method is calibrated by, and its default candidates.
+KNOBS = {"pt": ("spp", [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384,
+                        512]),
+         "nirc": ("nc", [1, 2, 4, 8, 16, 32])}
+
+
+def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibration]:
+    """Calibrate ``spec``'s knob to its ``time_budget`` on this device.
+
+    Returns the spec with the chosen spp (pt) or N_c (biased nirc) and no
+    budget, and the calibration record. Probes render one seed for
+    ``probe_frames`` frames (caches without pre-training: the per-frame cost,
+    online training included, does not depend on how trained the cache is).
+    """
+    from renderers.methods import MethodError, get_method, parse_params
+
+    budget = spec.time_budget
+    if spec.method not in KNOBS or (spec.method == "nirc"
+                                    and spec.params.get("estimator", "biased") != "biased"):
+        raise MethodError(f"no equal-time knob for method '{spec.method}' with these "
+                          "parameters: time budgets calibrate pt (spp) and biased nirc (N_c)")
+    knob, default_candidates = KNOBS[spec.method]
+
+    def frame_seconds(method: str, params: dict[str, Any], spp: int) -> float:
+        values = parse_params(method, params)
+        if "pretrain_frames" in type(values).model_fields:
+            values = values.model_copy(update={"pretrain_frames": 0})
+        output = get_method(method).render(
+            scene, values, seed_parts=("calibration", method, values.model_dump(mode="json")),
+            spp=spp, frames=budget.probe_frames)
+        return output.timings["frame_median_s"]
+
+    if budget.ms is not None:
+        budget_s, source = budget.ms / 1e3, f"{budget.ms} ms per frame"
+    else:
+        pt_params = {"max_depth": spec.max_depth()}
+        budget_s = frame_seconds("pt", pt_params, budget.pt_spp)
+        source = f"PT {budget.pt_spp} spp frame time (measured)"
+
+    def measure(value: int) -> float:
+        if knob == "spp":
+            return frame_seconds(spec.method, spec.params, value)
+        return frame_seconds(spec.method, {**spec.params, "nc": [value]}, spec.spp)
+
+    record = calibrate(knob, budget.candidates or default_candidates, measure, budget_s,
+                       budget_source=source, tolerance_s=budget.tolerance_ms / 1e3,
+                       device_key=device_key)
+    update: dict[str, Any] = {"time_budget": None}
+    if knob == "spp":
+        update["spp"] = record.chosen
+    else:
+        update["params"] = {**spec.params, "nc": [record.chosen]}
+    return spec.model_copy(update=update), record

@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 
 from jobs.artifacts import ArtifactStore, artifact_record, encode_image
+from jobs.calibration import calibrate_job
 from jobs.config import Settings
+from jobs.plots import plot_convergence
 from jobs.provenance import git_commit, library_versions
 from jobs.references import LoadedReference, get_or_render_reference
 from jobs.spec import RenderSpec
@@ -93,6 +95,13 @@ def _export(out_dir: Path, summary: RunSummary, reference: LoadedReference,
         name = f"{artifact['kind']}_seed{artifact['seed']}{suffix}"
         files[name] = out_dir / name
         shutil.copyfile(store.path_of(artifact["path"]), files[name])
+    if summary.spec.frames > 1:  # error over frames (the NIRC paper's Fig. 10)
+        curves = {f"seed {s['seed']}": {**s["convergence"],
+                                        "frame": list(range(len(s["convergence"]["frame_mrse"])))}
+                  for s in summary.per_seed}
+        files["convergence"] = plot_convergence(
+            curves, out_dir / "convergence.png",
+            f"{summary.spec.method} on {summary.spec.scene}: MRSE over frames")
     files["summary"] = out_dir / "summary.json"
     files["summary"].write_text(json.dumps(summary.to_json(), indent=2, default=str))
     return {name: str(path) for name, path in files.items()}
@@ -265,12 +274,25 @@ def execute(
 ) -> RunSummary:
     """Run ``spec`` to completion and store the result; see the module docstring.
 
+    With a ``time_budget`` the spp (pt) or N_c (biased nirc) is first calibrated
+    to it on this device (jobs.calibration); the run stores the calibrated spec
+    and the calibration record (metrics['calibration']).
+
     ``idempotency_key`` (e.g. a sweep point's key) is stored with the run; a
     second run under the same key raises ``DuplicateKeyError``.
     """
     method = get_method(spec.method)
-    params = parse_params(spec.method, spec.params)
+    parse_params(spec.method, spec.params)
     prepared = prepare(spec, store, settings, progress)
+    extra: dict[str, Any] = {}
+    if spec.time_budget is not None:
+        if progress:
+            progress("calibration", 0, 1)
+        spec, calibration = calibrate_job(spec, prepared.scene, prepared.device["device_key"])
+        extra["calibration"] = calibration.to_json()
+        if progress:
+            progress("calibration", 1, 1)
+    params = parse_params(spec.method, spec.params)
     param_json = params.model_dump(mode="json")
     outputs, curves = [], []
     for seed in range(spec.seeds):
@@ -286,4 +308,4 @@ def execute(
             spp=spec.spp, frames=spec.frames, hooks=hooks))
         curves.append(tracker.result())
     return store_run(spec, prepared, outputs, curves, store, settings, out_dir=out_dir,
-                     idempotency_key=idempotency_key)
+                     idempotency_key=idempotency_key, extra=extra)

@@ -7,9 +7,10 @@ stage alone; the caches' totals include their online training).
 
 Equal time on this device: the papers' GPU ordering (a neural sample costs a few
 % of a path) need not hold on a CPU, so we do not assume it. For NIRC biased we
-calibrate N_c: the largest of 1, 2, 4, ..., 32 whose frame time fits the PT
-2 spp budget (none fitting is reported as such); and for every cached method PT
-gets the spp that fits that method's frame time ("PT at equal time").
+calibrate N_c (jobs.calibration, a job time budget): the largest of 1, 2, 4,
+..., 32 whose frame time fits the PT 2 spp budget (none fitting is reported as
+such); and for every cached method PT gets the largest spp that fits that
+method's frame time ("PT at equal time"). Each calibration is stored with its run.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Any
 
 from jobs.config import Settings
 from jobs.executor import RunSummary, execute
-from jobs.spec import ReferenceSpec, RenderSpec
+from jobs.spec import ReferenceSpec, RenderSpec, TimeBudget
 from jobs.store import Store
 
 NC_CANDIDATES = (1, 2, 4, 8, 16, 32)
@@ -73,9 +74,9 @@ def comparison_report(
     cache_params = {"max_depth": max_depth, "pretrain_frames": pretrain_frames}
 
     def run(label: str, method: str, params: dict[str, Any], spp: int = 1,
-            seeds_override: int | None = None) -> RunSummary:
+            budget: TimeBudget | None = None) -> RunSummary:
         spec = base.model_copy(update={"method": method, "params": params, "spp": spp,
-                                       "seeds": seeds_override or seeds})
+                                       "time_budget": budget})
         step = (lambda stage, done, total: progress(f"{label}: {stage}", done, total)) \
             if progress else None
         return execute(spec, store, settings, progress=step)
@@ -92,33 +93,22 @@ def comparison_report(
                         _row("NIRC unbiased (N_c 3,1,1)", nirc_u)]
 
     # ---- Equal time: N_c of NIRC biased calibrated to the PT 2 spp frame time ----
-    budget = pt2.timings["seconds_per_frame"]
-    timings: dict[int, float] = {}
-    for nc in NC_CANDIDATES:
-        probe = run(f"calibrate N_c={nc}", "nirc",
-                    {**cache_params, "estimator": "biased", "nc": [nc]}, seeds_override=1)
-        timings[nc] = probe.timings["seconds_per_frame"]
-        if timings[nc] > budget:
-            break
-    fitting = [nc for nc, seconds in timings.items() if seconds <= budget]
-    chosen = max(fitting) if fitting else 1
-    report.calibration = {"budget_s": budget, "budget": "PT 2 spp frame time",
-                          "nc_frame_s": timings, "chosen_nc": chosen,
-                          "fits": bool(fitting)}
-    nirc_eq = nirc_b if chosen == 4 else run(
-        f"NIRC biased N_c={chosen}", "nirc", {**cache_params, "estimator": "biased",
-                                              "nc": [chosen]})
+    nirc_eq = run("NIRC biased (equal time)", "nirc",
+                  {**cache_params, "estimator": "biased"},
+                  budget=TimeBudget(pt_spp=2, candidates=list(NC_CANDIDATES)))
+    calibration = nirc_eq.metrics["calibration"]
+    report.calibration = calibration
+    chosen = calibration["chosen"]
     report.equal_time = [
         _row("PT 2 spp (budget)", pt2),
         _row(f"NIRC biased (N_c {chosen})", nirc_eq,
-             "" if fitting else "over budget even at N_c = 1"),
+             "" if calibration["fits"] else "over budget even at N_c = 1"),
     ]
 
     # ---- Equal time: PT with the spp that fits each cached method's frame time ----
-    pt_frame = pt1.timings["seconds_per_frame"]
     for label, summary in (("NRC", nrc), ("NIRC unbiased", nirc_u)):
-        spp = max(1, round(summary.timings["seconds_per_frame"] / pt_frame))
-        pt_eq = {1: pt1, 2: pt2}.get(spp) or run(f"PT {spp} spp", "pt",
-                                                 {"max_depth": max_depth}, spp=spp)
-        report.equal_time += [_row(label, summary), _row(f"PT {spp} spp (= {label} time)", pt_eq)]
+        pt_eq = run(f"PT (= {label} time)", "pt", {"max_depth": max_depth},
+                    budget=TimeBudget(ms=1e3 * summary.timings["seconds_per_frame"]))
+        report.equal_time += [_row(label, summary),
+                              _row(f"PT {pt_eq.spec.spp} spp (= {label} time)", pt_eq)]
     return report

@@ -31,6 +31,33 @@ class ReferenceSpec(BaseModel):
                                  spp_per_pass=self.spp_per_pass, rel_stderr=self.rel_stderr)
 
 
+class TimeBudget(BaseModel):
+    """Equal time: the frame-time budget a job's knob (PT spp, NIRC N_c) is calibrated to.
+
+    Either ``ms`` per frame, or ``pt_spp``: the frame time of PT at that spp on
+    this device, measured now. The largest candidate that fits (within
+    ``tolerance_ms``) is used; the calibration is stored with the run.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    ms: float | None = Field(None, gt=0.0, le=1e7, description="milliseconds per frame")
+    pt_spp: int | None = Field(None, ge=1, le=1 << 16, description="as PT at this spp")
+    candidates: list[int] | None = Field(
+        None, description="knob values to try (default: 1, 2, 4, ... per method)")
+    probe_frames: int = Field(3, ge=1, le=1000, description="timed frames per probe")
+    tolerance_ms: float = Field(0.0, ge=0.0, le=1e6)
+
+    @model_validator(mode="after")
+    def _one_budget(self) -> TimeBudget:
+        if (self.ms is None) == (self.pt_spp is None):
+            raise ValueError("give exactly one of ms and pt_spp")
+        if self.candidates is not None and (
+                not self.candidates or min(self.candidates) < 1 or max(self.candidates) > 1 << 16):
+            raise ValueError("candidates must be positive integers")
+        return self
+
+
 class RenderSpec(BaseModel):
     """One render job: a method on a scene, K seeds, compared with a reference."""
 
@@ -46,6 +73,8 @@ class RenderSpec(BaseModel):
     eps: float = Field(0.01, gt=0.0, le=1.0, description="relative-error epsilon of MRSE")
     reference: ReferenceSpec = Field(default_factory=ReferenceSpec)
     keep_frames: bool = False
+    time_budget: TimeBudget | None = Field(
+        None, description="calibrate spp (pt) or N_c (nirc biased) to this frame time")
 
     def max_depth(self) -> int:
         """The method's path depth, which its reference must share."""

@@ -162,21 +162,30 @@ def render(
         "--pretrain", min=0, max=100_000, help="cache training frames before timing")] = None,
     ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
     eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0, help="MRSE epsilon")] = 0.01,
+    budget_ms: Annotated[float | None, typer.Option(
+        "--budget-ms", min=1e-6, max=1e7,
+        help="equal time: calibrate spp (pt) or N_c (nirc biased) to this ms per frame")] = None,
+    budget_pt_spp: Annotated[int | None, typer.Option(
+        "--budget-pt-spp", min=1, max=1 << 16,
+        help="equal time: calibrate to the frame time of PT at this spp")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="write images and summary.json here")] = None,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
 ) -> None:
     """Render a method over K seeds, compare with the reference, store the run."""
     from jobs.executor import execute
-    from jobs.spec import ReferenceSpec, RenderSpec
+    from jobs.spec import ReferenceSpec, RenderSpec, TimeBudget
 
     params = dict(_parse_param(p) for p in param or [])
     params.setdefault("max_depth", max_depth)
     shortcuts = {"estimator": estimator, "termination": termination,
                  "nc": _parse_nc(nc) if nc is not None else None, "pretrain_frames": pretrain}
     params.update({name: value for name, value in shortcuts.items() if value is not None})
+    budget = (TimeBudget(ms=budget_ms, pt_spp=budget_pt_spp)
+              if budget_ms is not None or budget_pt_spp is not None else None)
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
-                      frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp))
+                      frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
+                      time_budget=budget)
     settings = _settings(data_dir)
     store = _store(settings)
     with progress_reporter(console, quiet=as_json) as report:

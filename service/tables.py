@@ -86,7 +86,10 @@ def metrics_table(summary: Any) -> Group:
         seeds.add_row(str(s["seed"]), _fmt(s["mrse"]), _fmt(s["mse"]), _fmt(s["flip_hdr"]),
                       _fmt(s["flip_ldr"]), _fmt(1e3 * s["seconds_per_frame"]),
                       str(s["nonfinite_pixels"]))
-    return Group(key_value_table(f"{spec.method} vs reference", head), seeds)
+    parts: list[Any] = [key_value_table(f"{spec.method} vs reference", head), seeds]
+    if m.get("calibration"):
+        parts.append(calibration_table("equal-time calibration", m["calibration"]))
+    return Group(*parts)
 
 
 def comparison_tables(report: Any) -> Group:
@@ -103,15 +106,21 @@ def comparison_tables(report: Any) -> Group:
                       _fmt(r.ms_render), r.note)
         return t
 
-    cal = report.calibration
-    calibration = key_value_table("N_c calibration (NIRC biased)", {
-        "budget": f"{cal['budget']} = {1e3 * cal['budget_s']:.3g} ms",
-        "frame ms per N_c": ", ".join(f"{nc}: {1e3 * s:.3g}" for nc, s in cal["nc_frame_s"].items()),
-        "chosen N_c": cal["chosen_nc"] if cal["fits"] else f"{cal['chosen_nc']} (none fits)",
-    })
     return Group(table(f"{report.scene}: equal spp ({report.device})", report.equal_spp),
                  table(f"{report.scene}: equal time ({report.device})", report.equal_time),
-                 calibration)
+                 calibration_table("N_c calibration (NIRC biased)", report.calibration))
+
+
+def calibration_table(title: str, cal: dict[str, Any]) -> Table:
+    """An equal-time calibration record (jobs.calibration.Calibration.to_json())."""
+    chosen = cal["chosen"] if cal["fits"] else f"{cal['chosen']} (none fits: over budget)"
+    return key_value_table(title, {
+        "budget": f"{cal['budget_source']} = {1e3 * cal['budget_s']:.3g} ms",
+        f"frame ms per {cal['knob']}": ", ".join(
+            f"{k}: {1e3 * s:.3g}" for k, s in cal["measured_s"].items()),
+        f"chosen {cal['knob']}": chosen,
+        "device": cal["device_key"],
+    })
 
 
 SWEEP_COLUMNS = (

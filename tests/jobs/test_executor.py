@@ -86,3 +86,49 @@ def test_kept_frames_are_stored_per_seed(env):
     run = store.get_run(summary.run_id)
     frames = sorted((a.seed_result_id, a.kind) for a in run.artifacts if a.kind.startswith("frame"))
     assert len(frames) == 2 * SPEC.frames
+
+
+def test_convergence_over_frames_is_stored_per_seed(env):
+    settings, store = env
+    summary = execute(SPEC.model_copy(update={"frames": 4, "seeds": 2}), store, settings)
+    run = store.get_run(summary.run_id)
+    for seed in run.seed_results:
+        curve = seed.metrics["convergence"]
+        assert len(curve["frame_mrse"]) == len(curve["accumulated_mrse"]) == 4
+        assert curve["frame_mrse"][0] == pytest.approx(curve["accumulated_mrse"][0])
+        # The last accumulated error is the run's error of the accumulated image.
+        assert curve["accumulated_mrse"][-1] == pytest.approx(seed.metrics["mrse"], rel=1e-5)
+        # Averaging 4 independent 1-spp frames lowers the error (PT is unbiased).
+        assert curve["accumulated_mrse"][-1] < np.mean(curve["frame_mrse"])
+
+
+def test_a_time_budget_calibrates_spp_and_is_recorded(env):
+    from jobs.spec import TimeBudget
+
+    settings, store = env
+    budget = TimeBudget(pt_spp=2, candidates=[1, 2, 4, 8], probe_frames=2, tolerance_ms=1e6)
+    summary = execute(SPEC.model_copy(update={"time_budget": budget, "seeds": 2}), store,
+                      settings)
+    calibration = summary.metrics["calibration"]
+    assert calibration["knob"] == "spp" and calibration["fits"]
+    # A huge tolerance: every candidate fits, so the largest is chosen and the run uses it.
+    assert calibration["chosen"] == 8 and summary.spec.spp == 8
+    assert set(calibration["measured_s"]) == {"1", "2", "4", "8"}
+    assert calibration["budget_source"].startswith("PT 2 spp")
+    assert store.get_run(summary.run_id).spp == 8
+
+    tiny = TimeBudget(ms=1e-6, candidates=[1, 2], probe_frames=1)
+    over = execute(SPEC.model_copy(update={"time_budget": tiny, "seeds": 2}), store, settings)
+    assert over.metrics["calibration"]["fits"] is False and over.spec.spp == 1
+    assert list(over.metrics["calibration"]["measured_s"]) == ["1"]
+
+
+def test_a_time_budget_needs_a_knob(env):
+    from jobs.spec import TimeBudget
+
+    settings, store = env
+    spec = SPEC.model_copy(update={"method": "nrc", "time_budget": TimeBudget(ms=10)})
+    with pytest.raises(methods.MethodError, match="no equal-time knob"):
+        execute(spec, store, settings)
+    with pytest.raises(ValueError, match="exactly one"):
+        TimeBudget(ms=1, pt_spp=2)

@@ -101,6 +101,7 @@ def test_render_reference_evaluate_round_trip(tmp_path):
     assert summary["quality"]["finite"] is True
     assert (out / "summary.json").is_file() and (out / "reference.exr").is_file()
     assert (out / "image_seed0.exr").is_file() and (out / "preview_seed0.png").is_file()
+    assert (out / "convergence.png").is_file()  # frames > 1: error over frames (Fig. 10)
 
     second = run_cli(*args, data_dir=tmp_path)
     assert second.returncode == 0, second.stderr
