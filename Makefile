@@ -24,6 +24,7 @@ bench: bootstrap
 	$(PY) -m benchmarks.bench_pt
 	$(PY) -m benchmarks.bench_cache
 	$(PY) -m benchmarks.bench_nirc
+	$(PY) -m benchmarks.bench_sweep
 
 lint: bootstrap
 	$(VENV)/bin/ruff check .

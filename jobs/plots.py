@@ -88,7 +88,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
             handles.setdefault(name, handle)
     if handles:
         figure.legend(
-            handles.values(), handles.keys(), loc="outside lower center", ncols=min(len(handles), 4)
+            handles.values(), handles.keys(), loc="lower center", ncols=min(len(handles), 4)
         )
     return _save_png(figure, path)
 
@@ -192,7 +192,9 @@ def _new_figure(
     nrows: int, ncols: int, title: str, figsize: tuple[float, float]
 ) -> tuple[Figure, list[Axes]]:
     """A pyplot-free figure on an Agg canvas, its axes in row-major order, titled ``title``."""
-    figure = Figure(figsize=figsize, dpi=DPI, layout="constrained")
+    # Fixed margins: matplotlib's constrained layout cost ~0.8 s per figure here.
+    figure = Figure(figsize=figsize, dpi=DPI)
+    figure.subplots_adjust(left=0.1, right=0.97, top=0.9, bottom=0.15, hspace=0.4, wspace=0.3)
     FigureCanvasAgg(figure)
     figure.suptitle(title)
     return figure, list(figure.subplots(nrows, ncols, squeeze=False).ravel())

@@ -95,6 +95,7 @@ def get_or_make_snapshot(
     stats = {
         "convergence": tracker.result(),
         "train_seconds_per_frame": training.timings["frame_median_s"],
+        "train_frames_s": sum(sum(f.values()) for f in training.timings["per_frame"]),
         "train_stages": training.timings["stages"],
         "warmup_s": training.timings["warmup_s"],
         "v1_render_s": v1_seconds,
