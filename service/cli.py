@@ -15,6 +15,7 @@ import json
 import os
 import shutil
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -62,6 +63,21 @@ def _store(settings):
 
 def _print_json(value: Any) -> None:
     console.print_json(json.dumps(value, default=str))
+
+
+def _run_embedded(job: Callable[[Any, Any, Any], Any], data_dir: Path | None, as_json: bool,
+                  to_json: Callable[[Any], Any], table: Callable[[Any], Any]) -> Any:
+    """Run ``job(store, settings, progress)`` in this process and print its result
+    (JSON, or the table; progress bars unless JSON)."""
+    settings = _settings(data_dir)
+    store = _store(settings)
+    with progress_reporter(console, quiet=as_json) as report:
+        result = job(store, settings, report)
+    if as_json:
+        _print_json(to_json(result))
+    else:
+        console.print(table(result))
+    return result
 
 
 @app.command()
@@ -186,15 +202,11 @@ def render(
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
                       time_budget=budget)
-    settings = _settings(data_dir)
-    store = _store(settings)
-    with progress_reporter(console, quiet=as_json) as report:
-        summary = execute(spec, store, settings, progress=report, out_dir=out)
-    if as_json:
-        _print_json(summary.to_json())
-        return
-    console.print(metrics_table(summary))
-    if out is not None:
+    _run_embedded(
+        lambda store, settings, report: execute(spec, store, settings, progress=report,
+                                                out_dir=out),
+        data_dir, as_json, lambda s: s.to_json(), metrics_table)
+    if out is not None and not as_json:
         console.print(f"images and summary.json written to {out}")
 
 
@@ -240,16 +252,11 @@ def report(
     from jobs.report import comparison_report
     from service.tables import comparison_tables
 
-    settings = _settings(data_dir)
-    store = _store(settings)
-    with progress_reporter(console, quiet=as_json) as progress:
-        result = comparison_report(scene, store, settings, resolution=res, frames=frames,
-                                   seeds=seeds, pretrain_frames=pretrain, max_depth=max_depth,
-                                   ref_spp=ref_spp, progress=progress)
-    if as_json:
-        _print_json(asdict(result))
-    else:
-        console.print(comparison_tables(result))
+    _run_embedded(
+        lambda store, settings, report: comparison_report(
+            scene, store, settings, resolution=res, frames=frames, seeds=seeds,
+            pretrain_frames=pretrain, max_depth=max_depth, ref_spp=ref_spp, progress=report),
+        data_dir, as_json, asdict, comparison_tables)
 
 
 @app.command()
@@ -312,14 +319,10 @@ def sweep(
         max_depth=max_depth, termination=termination, equal_time=equal_time,
         time_tolerance_ms=tolerance_ms, params=dict(_parse_param(p) for p in param or []),
         reference=ReferenceSpec(spp=ref_spp))
-    settings = _settings(data_dir)
-    store = _store(settings)
-    with progress_reporter(console, quiet=as_json) as report:
-        result = run_sweep(spec, store, settings, progress=report, out_dir=out)
-    if as_json:
-        _print_json(result.to_json())
-    else:
-        console.print(sweep_table(result))
+    _run_embedded(
+        lambda store, settings, report: run_sweep(spec, store, settings, progress=report,
+                                                  out_dir=out),
+        data_dir, as_json, lambda r: r.to_json(), sweep_table)
 
 
 def main() -> None:
