@@ -1,5 +1,5 @@
 """Database models of the job store: references, runs, per-seed results, cache
-snapshots, sweeps, artifacts.
+snapshots, sweeps, artifacts, queued jobs and API keys.
 
 The SQL database is the durable record of every result (DESIGN.md, "Jobs,
 sweeps, storage"); images live outside it, content-addressed, and are referenced
@@ -335,3 +335,76 @@ class Artifact(Base):
     snapshot: Mapped[CacheSnapshot | None] = relationship(back_populates="artifacts",
                                                           lazy="raise")
     sweep: Mapped[Sweep | None] = relationship(back_populates="artifacts", lazy="raise")
+
+
+class JobStatus(StrEnum):
+    """Life cycle of a submitted job: queued -> running -> one of the final states.
+
+    A running job whose worker died goes back to queued (another attempt) until
+    its attempts are used up.
+    """
+
+    QUEUED = "queued"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    CANCELED = "canceled"
+
+
+FINAL_JOB_STATES = (JobStatus.SUCCEEDED, JobStatus.FAILED, JobStatus.CANCELED)
+
+
+class Job(Base):
+    """A submitted job (a render or a sweep), written before it is executed.
+
+    The database is the queue's durable record: on start the service resubmits
+    what is still queued or running. ``spec_key`` addresses the spec (equal
+    specs dedupe to one live job); ``idempotency_key`` is the client's
+    ``Idempotency-Key``. The result is ``run_id`` (render) or ``sweep_id``.
+    """
+
+    __tablename__ = "jobs"
+    __table_args__ = (
+        CheckConstraint(
+            "status IN ('queued', 'running', 'succeeded', 'failed', 'canceled')", name="status"
+        ),
+        CheckConstraint("kind IN ('render', 'sweep')", name="kind"),
+        Index("ix_jobs_status_created_at", "status", "created_at"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    kind: Mapped[str] = mapped_column(String)
+    spec: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    spec_key: Mapped[str] = mapped_column(String, index=True)
+    idempotency_key: Mapped[str | None] = mapped_column(String, unique=True)
+    device_class: Mapped[str] = mapped_column(String, default="cpu")   # 'cpu' or 'gpu'
+    status: Mapped[str] = mapped_column(String, default=JobStatus.QUEUED.value)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    max_attempts: Mapped[int] = mapped_column(Integer, default=3)
+    worker: Mapped[str | None] = mapped_column(String)
+    error: Mapped[str | None] = mapped_column(Text)
+    progress: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    cancel_requested: Mapped[bool] = mapped_column(default=False)
+    run_id: Mapped[int | None] = mapped_column(ForeignKey("runs.id", ondelete="SET NULL"))
+    sweep_id: Mapped[int | None] = mapped_column(ForeignKey("sweeps.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    started_at: Mapped[datetime | None]
+    finished_at: Mapped[datetime | None]
+    updated_at: Mapped[datetime] = mapped_column(default=utcnow, onupdate=utcnow)
+
+
+class ApiKey(Base):
+    """An API key for the service's write endpoints, stored as a SHA-256 digest only.
+
+    The key's first characters (``prefix``) find the row; the digest is then
+    compared in constant time (``hmac.compare_digest``).
+    """
+
+    __tablename__ = "api_keys"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String)
+    prefix: Mapped[str] = mapped_column(String, unique=True)
+    digest: Mapped[str] = mapped_column(String)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    revoked_at: Mapped[datetime | None]

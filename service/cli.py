@@ -22,7 +22,7 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
-from service.errors import USER_ERRORS, describe_user_error
+from service.errors import USER_ERRORS, UsageError, describe_user_error
 from service.progress import progress_reporter
 from service.tables import metrics_table, reference_table, scenes_table
 
@@ -47,6 +47,11 @@ Res = Annotated[int, typer.Option("--res", help="image width and height", min=1,
 MaxDepth = Annotated[int, typer.Option("--max-depth", help="longest path in segments (-1 = unbounded)",
                                        min=-1, max=1024)]
 JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a table")]
+Server = Annotated[str | None, typer.Option(
+    "--server", envvar="NIRC_BENCH_SERVER",
+    help="submit to a running service (e.g. http://host:8000) instead of running here")]
+ApiKeyOpt = Annotated[str | None, typer.Option(
+    "--api-key", envvar="NIRC_BENCH_API_KEY", help="API key for --server")]
 
 
 def _settings(data_dir: Path | None):
@@ -63,6 +68,33 @@ def _store(settings):
 
 def _print_json(value: Any) -> None:
     console.print_json(json.dumps(value, default=str))
+
+
+def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json: bool) -> None:
+    """Submit ``spec`` to the service at ``server``, follow its progress, print the result."""
+    from service.client import ServiceClient
+
+    client = ServiceClient(server, api_key)
+    job = client.submit(kind, spec.model_dump(mode="json"))
+    if not as_json:
+        console.print(f"job {job['id']} submitted to {server} ({job['status']})")
+    with progress_reporter(console, quiet=as_json) as report:
+        job = client.wait(job["id"], progress=report)
+    if job["status"] != "succeeded":
+        from service.client import RemoteError
+
+        raise RemoteError(f"job {job['id']} {job['status']}: {job['error']}")
+    if kind == "sweep":
+        result = client.get(f"/api/v1/sweeps/{job['sweep_id']}")
+    else:
+        result = client.get(f"/api/v1/runs/{job['run_id']}")
+    if as_json:
+        _print_json(result)
+        return
+    from service.tables import key_value_table
+
+    shown = {k: v for k, v in result.items() if not isinstance(v, dict | list)}
+    console.print(key_value_table(f"{kind} result (job {job['id']})", shown))
 
 
 def _run_embedded(job: Callable[[Any, Any, Any], Any], data_dir: Path | None, as_json: bool,
@@ -187,6 +219,8 @@ def render(
     out: Annotated[Path | None, typer.Option("--out", help="write images and summary.json here")] = None,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
+    server: Server = None,
+    api_key: ApiKeyOpt = None,
 ) -> None:
     """Render a method over K seeds, compare with the reference, store the run."""
     from jobs.executor import execute
@@ -202,6 +236,9 @@ def render(
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
                       time_budget=budget)
+    if server:
+        _run_remote(server, api_key, "render", spec, as_json)
+        return
     _run_embedded(
         lambda store, settings, report: execute(spec, store, settings, progress=report,
                                                 out_dir=out),
@@ -292,6 +329,8 @@ def sweep(
         "--out", help="write plots and result.json here (default: data/sweeps/sweep-<id>)")] = None,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
+    server: Server = None,
+    api_key: ApiKeyOpt = None,
 ) -> None:
     """Run the adaptive equal-bias sweep (NIRC paper Sec. 6.3, Fig. 13) or an N_c sweep.
 
@@ -319,10 +358,79 @@ def sweep(
         max_depth=max_depth, termination=termination, equal_time=equal_time,
         time_tolerance_ms=tolerance_ms, params=dict(_parse_param(p) for p in param or []),
         reference=ReferenceSpec(spp=ref_spp))
+    if server:
+        _run_remote(server, api_key, "sweep", spec, as_json)
+        return
     _run_embedded(
         lambda store, settings, report: run_sweep(spec, store, settings, progress=report,
                                                   out_dir=out),
         data_dir, as_json, lambda r: r.to_json(), sweep_table)
+
+
+@app.command()
+def serve(
+    host: Annotated[str, typer.Option("--host")] = "127.0.0.1",
+    port: Annotated[int, typer.Option("--port", min=1, max=65535)] = 8000,
+    scheduler: Annotated[str | None, typer.Option(
+        "--scheduler", help="Dask scheduler address (default: an embedded LocalCluster)")] = None,
+    job_timeout: Annotated[float | None, typer.Option(
+        "--job-timeout", min=1.0, help="seconds before an attempt is killed")] = None,
+    data_dir: DataDir = None,
+) -> None:
+    """Run the service: REST API (OpenAPI at /docs) + job queue on Dask."""
+    import uvicorn
+
+    from jobs.dispatch import Dispatcher
+    from service.api.main import create_app
+
+    settings = _settings(data_dir)
+    dispatcher = Dispatcher(settings, scheduler, timeout_s=job_timeout)
+    try:
+        uvicorn.run(create_app(settings, dispatcher), host=host, port=port)
+    finally:
+        dispatcher.close()
+
+
+@app.command()
+def worker(
+    scheduler: Annotated[str, typer.Option("--scheduler", help="tcp://HOST:8786")],
+    gpus: Annotated[int, typer.Option("--gpus", min=0, max=64,
+                                      help="one worker per GPU, each with resource GPU=1")] = 0,
+) -> None:
+    """Run Dask worker(s) for a service started with --scheduler (same data folder)."""
+    args = [sys.executable, "-m", "distributed.cli.dask_worker", scheduler, "--nthreads", "1",
+            "--no-dashboard"]
+    if gpus:
+        args += ["--nworkers", str(gpus), "--resources", "GPU=1"]
+    os.execv(sys.executable, args)
+
+
+apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True)
+app.add_typer(apikey_app, name="apikey")
+
+
+@apikey_app.command("create")
+def apikey_create(
+    name: Annotated[str, typer.Option("--name", help="who or what uses the key")] = "default",
+    data_dir: DataDir = None,
+) -> None:
+    """Create a key; it is printed once and stored only as a digest."""
+    from jobs.apikeys import create_api_key
+
+    row, key = create_api_key(_store(_settings(data_dir)), name)
+    console.print(key, markup=False, highlight=False)
+    err_console.print(f"API key '{name}' created (prefix {row.prefix}); it is not shown again.")
+
+
+@apikey_app.command("revoke")
+def apikey_revoke(prefix: Annotated[str, typer.Argument(help="the key's prefix")],
+                  data_dir: DataDir = None) -> None:
+    """Revoke a key by its prefix (the part after 'nb_')."""
+    from jobs.apikeys import revoke_api_key
+
+    if not revoke_api_key(_store(_settings(data_dir)), prefix):
+        raise UsageError(f"no active API key with prefix '{prefix}'")
+    console.print(f"revoked {prefix}")
 
 
 def main() -> None:

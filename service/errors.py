@@ -11,10 +11,16 @@ from metrics.imageio import ImageReadError
 from renderers.backend import BackendError
 from renderers.methods import MethodError, format_validation_error
 from renderers.scenes import SceneError
+from service.client import RemoteError
+
+
+class UsageError(ValueError):
+    """A command was used wrongly in a way its options cannot check."""
+
 
 USER_ERRORS: tuple[type[BaseException], ...] = (
     BackendError, SceneError, MethodError, ImageReadError, MetricError, SchemaVersionError,
-    ValidationError, FileNotFoundError, RangeError,
+    ValidationError, FileNotFoundError, RangeError, RemoteError, UsageError,
 )
 
 

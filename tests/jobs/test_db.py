@@ -23,7 +23,8 @@ from jobs.db import (
 from jobs.models import Base
 from jobs.store import Store
 
-TABLES = {"reference_renders", "runs", "seed_results", "artifacts", "cache_snapshots", "sweeps"}
+TABLES = {"reference_renders", "runs", "seed_results", "artifacts", "cache_snapshots", "sweeps",
+          "jobs", "api_keys"}
 
 
 def test_sqlite_pragmas(store: Store) -> None:
@@ -55,7 +56,7 @@ def test_migrating_twice_is_a_no_op(store: Store) -> None:
     migrate(store.engine)
     with store.engine.connect() as conn:
         after = conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all()
-    assert before == after == ["0002"]
+    assert before == after == ["0003"]
 
 
 def test_migrations_match_models(store: Store) -> None:

@@ -1,0 +1,164 @@
+"""The durable job queue: every job is a database row before anything runs it.
+
+State machine (``jobs.models.JobStatus``)::
+
+    queued --claim--> running --succeed--> succeeded
+       ^                 |  \\--fail (user error, or attempts used up)--> failed
+       |                 |   \\--cancel--> canceled
+       +--- retry -------+   (the attempt crashed, was killed or timed out)
+
+Every transition is one conditional UPDATE (``WHERE status = ...``), so two
+workers cannot both claim a job, and a retried or duplicated task finds the job
+already taken or finished and does nothing. On start the service calls
+:meth:`JobQueue.recover`: jobs left running by a dead service or worker go
+back to queued, and everything queued is handed to the dispatcher again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import select, update
+from sqlalchemy.exc import IntegrityError
+
+from jobs.models import FINAL_JOB_STATES, Job, JobStatus
+from jobs.store import Store
+
+#: Live states: a new identical submission returns the existing job instead.
+_DEDUPE_STATES = (JobStatus.QUEUED.value, JobStatus.RUNNING.value, JobStatus.SUCCEEDED.value)
+
+
+def _now() -> datetime:
+    return datetime.now(UTC)
+
+
+class JobQueue:
+    """Job rows and their transitions, over a :class:`~jobs.store.Store`."""
+
+    def __init__(self, store: Store) -> None:
+        self.store = store
+
+    # ---- submission and reads ----
+
+    def submit(self, kind: str, spec: dict[str, Any], spec_key: str, *,
+               idempotency_key: str | None = None, device_class: str = "cpu",
+               max_attempts: int = 3) -> tuple[Job, bool]:
+        """Store a new queued job, or return the existing one: the job submitted
+        under ``idempotency_key``, else a live or succeeded job with the same spec.
+        Returns (job, created)."""
+        existing = self._existing(spec_key, idempotency_key)
+        if existing is not None:
+            return existing, False
+        job = Job(kind=kind, spec=spec, spec_key=spec_key, idempotency_key=idempotency_key,
+                  device_class=device_class, status=JobStatus.QUEUED.value, attempts=0,
+                  max_attempts=max_attempts, progress={}, cancel_requested=False)
+        try:
+            with self.store.session(write=True) as session:
+                session.add(job)
+        except IntegrityError:  # the same Idempotency-Key submitted concurrently
+            existing = self._existing(spec_key, idempotency_key)
+            if existing is None:
+                raise
+            return existing, False
+        return job, True
+
+    def _existing(self, spec_key: str, idempotency_key: str | None) -> Job | None:
+        with self.store.session() as session:
+            if idempotency_key is not None:
+                job = session.scalars(
+                    select(Job).where(Job.idempotency_key == idempotency_key)).one_or_none()
+                if job is not None:
+                    return job
+            return session.scalars(
+                select(Job).where(Job.spec_key == spec_key, Job.status.in_(_DEDUPE_STATES))
+                .order_by(Job.id.desc()).limit(1)).one_or_none()
+
+    def get(self, job_id: int) -> Job | None:
+        with self.store.session() as session:
+            return session.get(Job, job_id)
+
+    def list(self, status: str | None = None, *, limit: int = 100) -> list[Job]:
+        """Newest first."""
+        query = select(Job).order_by(Job.id.desc()).limit(limit)
+        if status is not None:
+            query = query.where(Job.status == status)
+        with self.store.session() as session:
+            return list(session.scalars(query))
+
+    # ---- transitions ----
+
+    def _transition(self, job_id: int, where: Sequence[Any], **values: Any) -> bool:
+        with self.store.session(write=True) as session:
+            result = session.execute(
+                update(Job).where(Job.id == job_id, *where)
+                .values(updated_at=_now(), **values))
+            return result.rowcount == 1
+
+    def claim(self, job_id: int, worker: str) -> Job | None:
+        """queued -> running for ``worker`` (one more attempt); None if not claimable."""
+        claimed = self._transition(
+            job_id,
+            [Job.status == JobStatus.QUEUED.value, Job.attempts < Job.max_attempts,
+             Job.cancel_requested.is_(False)],
+            status=JobStatus.RUNNING.value, attempts=Job.attempts + 1, worker=worker,
+            started_at=_now(), error=None)
+        return self.get(job_id) if claimed else None
+
+    def set_progress(self, job_id: int, stage: str, done: int, total: int) -> None:
+        self._transition(job_id, [Job.status == JobStatus.RUNNING.value],
+                         progress={"stage": stage, "done": done, "total": total})
+
+    def succeed(self, job_id: int, *, run_id: int | None = None,
+                sweep_id: int | None = None) -> bool:
+        return self._transition(job_id, [Job.status == JobStatus.RUNNING.value],
+                                status=JobStatus.SUCCEEDED.value, run_id=run_id,
+                                sweep_id=sweep_id, finished_at=_now())
+
+    def fail(self, job_id: int, error: str, *, retry: bool) -> str:
+        """End a running attempt with ``error``: back to queued when ``retry`` and
+        attempts remain, else failed. Returns the new status."""
+        job = self.get(job_id)
+        if job is None or job.status != JobStatus.RUNNING.value:
+            return job.status if job else JobStatus.FAILED.value
+        if retry and job.attempts < job.max_attempts and not job.cancel_requested:
+            self._transition(job_id, [Job.status == JobStatus.RUNNING.value],
+                             status=JobStatus.QUEUED.value, error=error, worker=None)
+            return JobStatus.QUEUED.value
+        final = JobStatus.CANCELED if job.cancel_requested else JobStatus.FAILED
+        self._transition(job_id, [Job.status == JobStatus.RUNNING.value],
+                         status=final.value, error=error, finished_at=_now())
+        return final.value
+
+    def cancel(self, job_id: int) -> Job | None:
+        """Cancel a queued job now; ask a running one to stop (its runner kills it)."""
+        job = self.get(job_id)
+        if job is None or job.status in [s.value for s in FINAL_JOB_STATES]:
+            return job
+        self._transition(job_id, [Job.status == JobStatus.QUEUED.value],
+                         status=JobStatus.CANCELED.value, cancel_requested=True,
+                         finished_at=_now())
+        self._transition(job_id, [Job.status == JobStatus.RUNNING.value],
+                         cancel_requested=True)
+        return self.get(job_id)
+
+    def cancel_requested(self, job_id: int) -> bool:
+        job = self.get(job_id)
+        return bool(job and job.cancel_requested)
+
+    def recover(self) -> list[int]:
+        """After a restart: running jobs (their runner is gone) go back to queued or,
+        with no attempt left, to failed. Returns the ids of all queued jobs, oldest first."""
+        with self.store.session(write=True) as session:
+            session.execute(
+                update(Job).where(Job.status == JobStatus.RUNNING.value,
+                                  Job.attempts < Job.max_attempts)
+                .values(status=JobStatus.QUEUED.value, worker=None, updated_at=_now(),
+                        error="the service or worker stopped during this attempt"))
+            session.execute(
+                update(Job).where(Job.status == JobStatus.RUNNING.value)
+                .values(status=JobStatus.FAILED.value, finished_at=_now(), updated_at=_now(),
+                        error="the service or worker stopped during the last attempt"))
+            return list(session.scalars(
+                select(Job.id).where(Job.status == JobStatus.QUEUED.value).order_by(Job.id)))

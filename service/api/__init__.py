@@ -1,0 +1,1 @@
+"""The REST API (FastAPI): submit jobs and sweeps, poll them, read results."""

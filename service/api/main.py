@@ -1,0 +1,46 @@
+"""The FastAPI application: REST API (OpenAPI at /docs) over the job store and queue.
+
+``create_app(settings, dispatcher)`` builds the app; the service (``nirc-bench
+serve``) passes a :class:`jobs.dispatch.Dispatcher`, tests may pass None (jobs
+stay queued) or a stand-in. On start the queue is recovered: jobs a previous
+process left running go back to queued, and every queued job is dispatched.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI
+
+from jobs.config import Settings
+from jobs.db import open_store
+from jobs.queue import JobQueue
+from service.api.routes import jobs, results
+
+
+def create_app(settings: Settings | None = None, dispatcher: Any = None) -> FastAPI:
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        store = open_store(settings)
+        queue = JobQueue(store)
+        app.state.settings, app.state.store, app.state.queue = settings, store, queue
+        app.state.dispatcher = dispatcher
+        if dispatcher is not None:
+            for job_id in queue.recover():
+                dispatcher.submit(queue.get(job_id))
+        try:
+            yield
+        finally:
+            store.close()
+
+    app = FastAPI(title="nirc-bench", version="1",
+                  description="Evaluate and benchmark radiance-caching renderers: submit "
+                              "render jobs and sweeps, poll them, read results.",
+                  lifespan=lifespan)
+    app.include_router(jobs.router)
+    app.include_router(results.router)
+    return app

@@ -1,0 +1,99 @@
+"""Submitting, polling and canceling jobs and sweeps."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Header, HTTPException, Query, Response, status
+
+from jobs.spec import RenderSpec, SweepSpec
+from renderers.methods import MethodError, parse_params
+from renderers.scenes import builtin_names
+from renderers.seeding import digest
+from service.api.deps import DispatcherDep, QueueDep, WriteAccess
+from service.api.schemas import JobOut
+
+router = APIRouter(prefix="/api/v1", tags=["jobs"])
+
+IdempotencyKey = Annotated[str | None, Header(max_length=200,
+                                              description="return the job of an earlier "
+                                                          "submission with this key")]
+DeviceClass = Annotated[Literal["cpu", "gpu"], Query(description="worker class to run on")]
+
+
+def _unprocessable(field: str, message: str) -> HTTPException:
+    return HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                         [{"loc": ["body", field], "msg": message, "type": "value_error"}])
+
+
+def _check_scene(scene: str) -> None:
+    if scene not in builtin_names() and not Path(scene).is_file():
+        raise _unprocessable("scene", f"unknown scene '{scene}'; built-ins: "
+                                      f"{', '.join(builtin_names())}, or a Mitsuba XML path "
+                                      "on the service's machine")
+
+
+def _check_render(spec: RenderSpec) -> None:
+    _check_scene(spec.scene)
+    try:
+        parse_params(spec.method, spec.params)
+    except MethodError as err:
+        raise _unprocessable("params", str(err)) from None
+
+
+def _enqueue(kind: str, spec_json: dict, queue, dispatcher, response: Response,
+             idempotency_key: str | None, device_class: str) -> JobOut:
+    job, created = queue.submit(kind, spec_json, digest(kind, spec_json, device_class),
+                                idempotency_key=idempotency_key, device_class=device_class)
+    if created and dispatcher is not None:
+        dispatcher.submit(job)
+    response.headers["Location"] = f"/api/v1/jobs/{job.id}"
+    return JobOut.of(job)
+
+
+@router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut,
+             dependencies=[WriteAccess])
+def submit_job(spec: RenderSpec, response: Response, queue: QueueDep,
+               dispatcher: DispatcherDep, idempotency_key: IdempotencyKey = None,
+               device_class: DeviceClass = "cpu") -> JobOut:
+    """Queue a render job (K seeds of a method on a scene, against its reference)."""
+    _check_render(spec)
+    return _enqueue("render", spec.model_dump(mode="json"), queue, dispatcher, response,
+                    idempotency_key, device_class)
+
+
+@router.post("/sweeps", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut,
+             dependencies=[WriteAccess])
+def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
+                 dispatcher: DispatcherDep, idempotency_key: IdempotencyKey = None,
+                 device_class: DeviceClass = "cpu") -> JobOut:
+    """Queue a sweep (adaptive equal-bias over eps, or over N_c); poll it as a job."""
+    _check_scene(spec.scene)
+    return _enqueue("sweep", spec.model_dump(mode="json"), queue, dispatcher, response,
+                    idempotency_key, device_class)
+
+
+@router.get("/jobs", response_model=list[JobOut])
+def list_jobs(queue: QueueDep,
+              status_: Annotated[Literal["queued", "running", "succeeded", "failed",
+                                         "canceled"] | None, Query(alias="status")] = None,
+              limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[JobOut]:
+    return [JobOut.of(job) for job in queue.list(status_, limit=limit)]
+
+
+@router.get("/jobs/{job_id}", response_model=JobOut)
+def get_job(job_id: int, queue: QueueDep) -> JobOut:
+    job = queue.get(job_id)
+    if job is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no job {job_id}")
+    return JobOut.of(job)
+
+
+@router.post("/jobs/{job_id}/cancel", response_model=JobOut, dependencies=[WriteAccess])
+def cancel_job(job_id: int, queue: QueueDep) -> JobOut:
+    """Cancel a queued job now; a running job is stopped by its runner."""
+    job = queue.cancel(job_id)
+    if job is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no job {job_id}")
+    return JobOut.of(job)

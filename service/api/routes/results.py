@@ -1,0 +1,84 @@
+"""Results: runs, comparisons, sweeps, artifacts, scenes."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, status
+from fastapi.responses import FileResponse
+
+from jobs.artifacts import ArtifactStore
+from jobs.models import Artifact
+from renderers.scenes import builtin_names, describe
+from service.api.deps import SettingsDep, StoreDep
+from service.api.schemas import Comparison, RunDetail, RunOut, SceneOut, SweepOut
+
+router = APIRouter(prefix="/api/v1", tags=["results"])
+
+
+def _not_found(what: str) -> HTTPException:
+    return HTTPException(status.HTTP_404_NOT_FOUND, f"no {what}")
+
+
+@router.get("/results", response_model=list[RunOut])
+def list_results(store: StoreDep, scene: str | None = None, method: str | None = None,
+                 device: str | None = None,
+                 limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[RunOut]:
+    """Stored runs, newest first, filtered by scene name, method and device key."""
+    return [RunOut.of(run) for run in store.list_runs(scene, method, device, limit=limit)]
+
+
+@router.get("/runs/{run_id}", response_model=RunDetail)
+def get_run(run_id: int, store: StoreDep) -> RunDetail:
+    """A run's metrics per seed and aggregated, timings, provenance and artifacts."""
+    run = store.get_run(run_id)
+    if run is None:
+        raise _not_found(f"run {run_id}")
+    return RunDetail.of(run)
+
+
+@router.get("/compare", response_model=Comparison)
+def compare(store: StoreDep,
+            runs: Annotated[str, Query(pattern=r"^\d{1,12}(,\d{1,12}){1,19}$",
+                                       description="2 to 20 run ids, e.g. 3,7")]) -> Comparison:
+    """Runs side by side; timings compare only when the device is the same."""
+    rows = []
+    for run_id in dict.fromkeys(int(part) for part in runs.split(",")):
+        run = store.get_run(run_id)
+        if run is None:
+            raise _not_found(f"run {run_id}")
+        rows.append(RunOut.of(run))
+    same_device = len({r.device_key for r in rows}) == 1
+    same_scene = len({(r.scene_fingerprint, tuple(r.resolution)) for r in rows}) == 1
+    note = ("timings comparable (same device)" if same_device else
+            "different devices: compare errors only, not timings")
+    return Comparison(runs=rows, same_device=same_device, same_reference_scene=same_scene,
+                      note=note)
+
+
+@router.get("/sweeps/{sweep_id}", response_model=SweepOut)
+def get_sweep(sweep_id: int, store: StoreDep) -> SweepOut:
+    sweep = store.get_sweep(sweep_id)
+    if sweep is None:
+        raise _not_found(f"sweep {sweep_id}")
+    return SweepOut.of(sweep)
+
+
+@router.get("/artifacts/{artifact_id}", response_class=FileResponse)
+def get_artifact(artifact_id: int, store: StoreDep, settings: SettingsDep) -> FileResponse:
+    """An artifact's file (EXR, PNG, NPZ) with its media type."""
+    with store.session() as session:
+        artifact = session.get(Artifact, artifact_id)
+    if artifact is None:
+        raise _not_found(f"artifact {artifact_id}")
+    path = ArtifactStore(settings.artifacts_dir).path_of(artifact.path)
+    if not path.is_file():
+        raise _not_found(f"file for artifact {artifact_id} (it was deleted from disk)")
+    return FileResponse(path, media_type=artifact.media_type,
+                        filename=f"{artifact.kind}-{artifact.id}{path.suffix}")
+
+
+@router.get("/scenes", response_model=list[SceneOut])
+def list_scenes() -> list[SceneOut]:
+    """The built-in scenes (XML scenes are given by path in a spec)."""
+    return [SceneOut(name=name, description=describe(name)) for name in builtin_names()]

@@ -1,0 +1,141 @@
+"""Response bodies of the REST API (request bodies are the job specs themselves)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from pydantic import BaseModel
+
+
+class JobOut(BaseModel):
+    id: int
+    kind: str
+    status: str
+    progress: dict[str, Any]
+    attempts: int
+    max_attempts: int
+    worker: str | None
+    error: str | None
+    device_class: str
+    run_id: int | None
+    sweep_id: int | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    spec: dict[str, Any]
+
+    @classmethod
+    def of(cls, job: Any) -> JobOut:
+        return cls.model_validate(job, from_attributes=True)
+
+
+class ArtifactOut(BaseModel):
+    id: int
+    kind: str
+    media_type: str
+    sha256: str
+    bytes: int
+    url: str
+
+    @classmethod
+    def of(cls, artifact: Any) -> ArtifactOut:
+        return cls(id=artifact.id, kind=artifact.kind, media_type=artifact.media_type,
+                   sha256=artifact.sha256, bytes=artifact.bytes,
+                   url=f"/api/v1/artifacts/{artifact.id}")
+
+
+class RunOut(BaseModel):
+    """A result row: what a results list or a comparison shows of a run."""
+
+    id: int
+    created_at: datetime
+    scene: str
+    scene_fingerprint: str
+    method: str
+    params: dict[str, Any]
+    resolution: list[int]
+    spp: int
+    frames: int
+    seeds: int
+    mrse: float | None
+    mrse_ci95: list[float] | None
+    rbias2: float | None
+    rvar: float | None
+    flip: float | None
+    seconds_per_frame: float | None
+    device_key: str
+    quality: dict[str, Any]
+
+    @classmethod
+    def of(cls, run: Any) -> RunOut:
+        m = run.metrics
+        ci = m.get("mrse_ci95")
+        return cls(id=run.id, created_at=run.created_at, scene=run.scene_name,
+                   scene_fingerprint=run.scene_fingerprint, method=run.method,
+                   params={k: v for k, v in run.params.items() if k != "spec"},
+                   resolution=[run.width, run.height], spp=run.spp, frames=run.frames,
+                   seeds=run.seeds, mrse=m.get("mrse_mean"), mrse_ci95=list(ci) if ci else None,
+                   rbias2=m.get("rbias2"), rvar=m.get("rvar"), flip=m.get("flip_hdr_mean"),
+                   seconds_per_frame=run.timings.get("seconds_per_frame"),
+                   device_key=run.device_key, quality=run.quality)
+
+
+class SeedOut(BaseModel):
+    seed: int
+    metrics: dict[str, Any]
+    timings: dict[str, Any]
+
+
+class RunDetail(RunOut):
+    metrics: dict[str, Any]
+    timings: dict[str, Any]
+    path_stats: dict[str, Any]
+    device: dict[str, Any]
+    versions: dict[str, Any]
+    git_commit: str | None
+    reference_id: int | None
+    per_seed: list[SeedOut]
+    artifacts: list[ArtifactOut]
+
+    @classmethod
+    def of(cls, run: Any) -> RunDetail:
+        base = RunOut.of(run).model_dump()
+        return cls(**base, metrics=run.metrics, timings=run.timings, path_stats=run.path_stats,
+                   device=run.device, versions=run.versions, git_commit=run.git_commit,
+                   reference_id=run.reference_id,
+                   per_seed=[SeedOut(seed=s.seed, metrics=s.metrics, timings=s.timings)
+                             for s in run.seed_results],
+                   artifacts=[ArtifactOut.of(a) for a in run.artifacts])
+
+
+class Comparison(BaseModel):
+    runs: list[RunOut]
+    same_device: bool
+    same_reference_scene: bool
+    note: str
+
+
+class SweepOut(BaseModel):
+    id: int
+    kind: str
+    scene: str
+    status: str
+    spec: dict[str, Any]
+    result: dict[str, Any]
+    device_key: str
+    created_at: datetime
+    finished_at: datetime | None
+    artifacts: list[ArtifactOut]
+
+    @classmethod
+    def of(cls, sweep: Any) -> SweepOut:
+        return cls(id=sweep.id, kind=sweep.kind, scene=sweep.scene_name, status=sweep.status,
+                   spec=sweep.spec, result=sweep.result, device_key=sweep.device_key,
+                   created_at=sweep.created_at, finished_at=sweep.finished_at,
+                   artifacts=[ArtifactOut.of(a) for a in sweep.artifacts])
+
+
+class SceneOut(BaseModel):
+    name: str
+    description: str

@@ -1,0 +1,58 @@
+"""Submitting to a running service (``--server URL``) instead of running embedded."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import httpx
+
+FINAL = ("succeeded", "failed", "canceled")
+
+
+class RemoteError(RuntimeError):
+    """The service refused a request or could not be reached (message says why)."""
+
+
+def _detail(response: httpx.Response) -> str:
+    try:
+        detail = response.json().get("detail")
+    except ValueError:
+        detail = response.text
+    return f"{response.status_code}: {detail}"
+
+
+class ServiceClient:
+    def __init__(self, server: str, api_key: str | None, timeout_s: float = 30.0) -> None:
+        headers = {"X-API-Key": api_key} if api_key else {}
+        self.http = httpx.Client(base_url=server.rstrip("/"), headers=headers,
+                                 timeout=timeout_s)
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+        try:
+            response = self.http.request(method, path, **kwargs)
+        except httpx.HTTPError as err:
+            raise RemoteError(f"cannot reach the service at {self.http.base_url}: {err}") from None
+        if response.status_code >= 400:
+            raise RemoteError(f"the service refused {method} {path}: {_detail(response)}")
+        return response.json()
+
+    def submit(self, kind: str, spec: dict[str, Any]) -> dict[str, Any]:
+        return self._request("POST", f"/api/v1/{'sweeps' if kind == 'sweep' else 'jobs'}",
+                             json=spec)
+
+    def get(self, path: str) -> Any:
+        return self._request("GET", path)
+
+    def wait(self, job_id: int, progress: Callable[[str, int, int], None] | None = None,
+             poll_s: float = 1.0) -> dict[str, Any]:
+        """Poll the job until it is final, reporting its progress."""
+        while True:
+            job = self.get(f"/api/v1/jobs/{job_id}")
+            if progress and job["progress"]:
+                p = job["progress"]
+                progress(p["stage"], p["done"], p["total"])
+            if job["status"] in FINAL:
+                return job
+            time.sleep(poll_s)

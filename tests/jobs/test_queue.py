@@ -1,0 +1,73 @@
+"""The durable job queue: dedupe, idempotency keys, exclusive claims, retries, recovery."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+from jobs.queue import JobQueue
+
+SPEC = {"scene": "cornell-box", "method": "pt"}
+
+
+def test_identical_specs_and_idempotency_keys_return_the_existing_job(store):
+    queue = JobQueue(store)
+    first, created = queue.submit("render", SPEC, "key-a")
+    again, created_again = queue.submit("render", SPEC, "key-a")
+    assert created and not created_again and again.id == first.id
+    keyed, created_keyed = queue.submit("render", SPEC, "key-b", idempotency_key="client-1")
+    retried, created_retried = queue.submit("render", {"other": 1}, "key-c",
+                                            idempotency_key="client-1")
+    assert created_keyed and not created_retried and retried.id == keyed.id
+    # A failed job does not block a new submission of the same spec.
+    queue.claim(first.id, "w")
+    queue.fail(first.id, "bad", retry=False)
+    fresh, created_fresh = queue.submit("render", SPEC, "key-a")
+    assert created_fresh and fresh.id != first.id
+
+
+def test_a_job_is_claimed_by_exactly_one_worker(store):
+    queue = JobQueue(store)
+    job, _ = queue.submit("render", SPEC, "k")
+    with ThreadPoolExecutor(8) as pool:
+        claims = list(pool.map(lambda i: queue.claim(job.id, f"w{i}"), range(8)))
+    winners = [c for c in claims if c is not None]
+    assert len(winners) == 1 and winners[0].attempts == 1
+    assert queue.get(job.id).status == "running"
+
+
+def test_failed_attempts_retry_until_max_attempts(store):
+    queue = JobQueue(store)
+    job, _ = queue.submit("render", SPEC, "k", max_attempts=2)
+    queue.claim(job.id, "w")
+    assert queue.fail(job.id, "crashed", retry=True) == "queued"
+    assert queue.claim(job.id, "w").attempts == 2
+    assert queue.fail(job.id, "crashed again", retry=True) == "failed"
+    final = queue.get(job.id)
+    assert final.status == "failed" and final.error == "crashed again"
+    assert queue.claim(job.id, "w") is None
+
+
+def test_cancel_and_progress(store):
+    queue = JobQueue(store)
+    queued, _ = queue.submit("render", SPEC, "q")
+    assert queue.cancel(queued.id).status == "canceled"
+    assert queue.claim(queued.id, "w") is None
+    running, _ = queue.submit("render", SPEC, "r")
+    queue.claim(running.id, "w")
+    queue.set_progress(running.id, "seed 1/4", 3, 8)
+    assert queue.get(running.id).progress == {"stage": "seed 1/4", "done": 3, "total": 8}
+    assert queue.cancel(running.id).status == "running" and queue.cancel_requested(running.id)
+    assert queue.fail(running.id, "canceled while running", retry=True) == "canceled"
+    assert queue.cancel(999) is None
+
+
+def test_recover_requeues_running_jobs_and_lists_queued(store):
+    queue = JobQueue(store)
+    a, _ = queue.submit("render", SPEC, "a")
+    b, _ = queue.submit("render", SPEC, "b", max_attempts=1)
+    c, _ = queue.submit("render", SPEC, "c")
+    queue.claim(a.id, "dead worker")
+    queue.claim(b.id, "dead worker")
+    assert queue.recover() == [a.id, c.id]
+    assert queue.get(a.id).status == "queued" and "stopped" in queue.get(a.id).error
+    assert queue.get(b.id).status == "failed"   # its only attempt was lost

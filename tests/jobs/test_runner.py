@@ -1,0 +1,93 @@
+"""Jobs run in an isolated child process: results stored once, crashes retried, bad
+input failed for good, timeouts and cancels kill the child, the parent survives."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import psutil
+import pytest
+
+from jobs.queue import JobQueue
+from jobs.runner import run_job
+from jobs.spec import ReferenceSpec, RenderSpec
+
+SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
+                  reference=ReferenceSpec(spp=64, spp_per_pass=8))
+
+
+def _submit(queue: JobQueue, spec: dict, key: str, **kwargs):
+    job, _ = queue.submit("render", spec, key, **kwargs)
+    return job
+
+
+def test_a_job_runs_in_a_child_and_stores_its_run(store, settings):
+    queue = JobQueue(store)
+    job = _submit(queue, SPEC.model_dump(mode="json"), "ok")
+    assert run_job(job.id, settings, worker="test") == "succeeded"
+    done = queue.get(job.id)
+    assert done.attempts == 1 and done.run_id is not None
+    run = store.get_run(done.run_id)
+    assert run.idempotency_key == f"job-{job.id}" and run.seeds == 2
+    assert done.progress["done"] == done.progress["total"]
+
+
+def test_bad_input_fails_once_with_the_message(store, settings):
+    queue = JobQueue(store)
+    job = _submit(queue, {**SPEC.model_dump(mode="json"), "scene": "no-such-scene"}, "bad")
+    assert run_job(job.id, settings, worker="test") == "failed"
+    failed = queue.get(job.id)
+    assert failed.attempts == 1 and "no-such-scene" in failed.error
+
+
+def test_a_killed_child_is_retried_and_the_job_completes_once(store, settings):
+    """Kill the render process mid-job (as an LLVM abort would): the attempt fails, the
+    next attempt completes, and exactly one run is stored."""
+    queue = JobQueue(store)
+    spec = SPEC.model_copy(update={"frames": 200, "resolution": 16})
+    job = _submit(queue, spec.model_dump(mode="json"), "crash")
+    killed = threading.Event()
+
+    def kill_first_child() -> None:
+        me = psutil.Process()
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            children = me.children(recursive=True)
+            if children and queue.get(job.id).progress.get("stage", "").startswith("seed"):
+                children[0].kill()
+                killed.set()
+                return
+            time.sleep(0.05)
+
+    killer = threading.Thread(target=kill_first_child)
+    killer.start()
+    status = run_job(job.id, settings, worker="test")
+    killer.join()
+    assert killed.is_set() and status == "succeeded"
+    done = queue.get(job.id)
+    assert done.attempts == 2
+    assert len([r for r in store.list_runs() if r.idempotency_key == f"job-{job.id}"]) == 1
+
+
+def test_a_timeout_kills_the_attempt_and_gives_up_after_max_attempts(store, settings):
+    queue = JobQueue(store)
+    job = _submit(queue, SPEC.model_dump(mode="json"), "slow", max_attempts=2)
+    assert run_job(job.id, settings, worker="test", timeout_s=0.2) == "failed"
+    failed = queue.get(job.id)
+    assert failed.attempts == 2 and "timed out" in failed.error
+
+
+@pytest.mark.parametrize("when", ["queued", "running"])
+def test_cancel(store, settings, when):
+    queue = JobQueue(store)
+    spec = SPEC.model_copy(update={"frames": 500, "resolution": 16})
+    job = _submit(queue, spec.model_dump(mode="json"), f"cancel-{when}")
+    if when == "queued":
+        queue.cancel(job.id)
+        assert run_job(job.id, settings, worker="test") == "canceled"
+        return
+    timer = threading.Timer(3.0, lambda: queue.cancel(job.id))
+    timer.start()
+    assert run_job(job.id, settings, worker="test") == "canceled"
+    assert queue.get(job.id).run_id is None

@@ -1,0 +1,131 @@
+"""The REST API in-process: auth, validation (422 naming the field), idempotency, 404s,
+and a job submitted over REST run to completion by a (thread) dispatcher."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+from fastapi.testclient import TestClient
+
+from jobs.apikeys import create_api_key, revoke_api_key
+from jobs.config import Settings
+from jobs.db import open_store
+from jobs.runner import run_job
+from service.api.main import create_app
+
+SPEC = {"scene": "cornell-box", "method": "pt", "resolution": 8, "spp": 1, "frames": 2,
+        "seeds": 2, "reference": {"spp": 64, "spp_per_pass": 8}}
+
+
+class ThreadDispatcher:
+    """Runs each submitted job in a thread (the service uses Dask; same runner)."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.threads: list[threading.Thread] = []
+
+    def submit(self, job) -> None:
+        thread = threading.Thread(target=run_job, args=(job.id, self.settings),
+                                  kwargs={"worker": "thread"})
+        thread.start()
+        self.threads.append(thread)
+
+
+@pytest.fixture
+def api(tmp_path, monkeypatch):
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    settings = Settings(data_dir=tmp_path / "data")
+    store = open_store(settings)
+    _, key = create_api_key(store, "tests")
+    dispatcher = ThreadDispatcher(settings)
+    with TestClient(create_app(settings, dispatcher)) as client:
+        client.headers["X-API-Key"] = key
+        yield client, store, dispatcher, key
+    for thread in dispatcher.threads:
+        thread.join()
+    store.close()
+
+
+def _wait(client: TestClient, job_id: int, timeout: float = 300) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = client.get(f"/api/v1/jobs/{job_id}").json()
+        if job["status"] in ("succeeded", "failed", "canceled"):
+            return job
+        time.sleep(0.2)
+    raise AssertionError(f"job {job_id} did not finish: {job}")
+
+
+def test_write_endpoints_need_a_valid_key(api):
+    client, store, _, key = api
+    assert client.post("/api/v1/jobs", json=SPEC, headers={"X-API-Key": ""}).status_code == 401
+    wrong = key[:-4] + "AAAA"
+    assert client.post("/api/v1/jobs", json=SPEC, headers={"X-API-Key": wrong}).status_code == 403
+    assert client.post("/api/v1/jobs", json=SPEC, headers={"X-API-Key": "junk"}).status_code == 403
+    revoke_api_key(store, key.split("_")[1])
+    assert client.post("/api/v1/jobs", json=SPEC).status_code == 403
+    assert client.get("/api/v1/jobs").status_code == 200   # reads stay open
+
+
+@pytest.mark.parametrize("change, field", [
+    ({"resolution": 0}, "resolution"),
+    ({"scene": "no-such-scene"}, "scene"),
+    ({"params": {"max_depth": 0}}, "params"),
+    ({"method": "nope"}, "params"),
+    ({"seeds": "many"}, "seeds"),
+    ({"unknown_field": 1}, "unknown_field"),
+])
+def test_invalid_specs_are_422_naming_the_field(api, change, field):
+    client = api[0]
+    response = client.post("/api/v1/jobs", json={**SPEC, **change})
+    assert response.status_code == 422, response.text
+    assert field in str(response.json()["detail"])
+
+
+def test_unknown_ids_are_404(api):
+    client = api[0]
+    for path in ("/api/v1/jobs/999", "/api/v1/runs/999", "/api/v1/artifacts/999",
+                 "/api/v1/sweeps/999", "/api/v1/compare?runs=998,999"):
+        assert client.get(path).status_code == 404, path
+    assert client.post("/api/v1/jobs/999/cancel").status_code == 404
+
+
+def test_a_job_runs_and_its_results_are_served(api):
+    client, _, _, _ = api
+    response = client.post("/api/v1/jobs", json=SPEC, headers={"Idempotency-Key": "one"})
+    assert response.status_code == 202
+    assert response.headers["Location"] == f"/api/v1/jobs/{response.json()['id']}"
+    job_id = response.json()["id"]
+    again = client.post("/api/v1/jobs", json={**SPEC, "seeds": 3},
+                        headers={"Idempotency-Key": "one"})
+    assert again.json()["id"] == job_id
+    same_spec = client.post("/api/v1/jobs", json=SPEC)
+    assert same_spec.json()["id"] == job_id
+
+    job = _wait(client, job_id)
+    assert job["status"] == "succeeded" and job["attempts"] == 1, job
+    run = client.get(f"/api/v1/runs/{job['run_id']}").json()
+    assert len(run["per_seed"]) == 2 and run["mrse"] > 0 and run["device"]["device_key"]
+    assert run["timings"]["protocol"] and run["versions"]["mitsuba"]
+    image = next(a for a in run["artifacts"] if a["kind"] == "image")
+    data = client.get(image["url"])
+    assert data.status_code == 200 and data.content[:4] == b"\x76\x2f\x31\x01"  # EXR magic
+    listed = client.get("/api/v1/results", params={"scene": "cornell-box"}).json()
+    assert [r["id"] for r in listed] == [run["id"]]
+    assert client.get("/api/v1/results", params={"method": "nrc"}).json() == []
+
+    other = _wait(client, client.post("/api/v1/jobs", json={**SPEC, "spp": 2}).json()["id"])
+    comparison = client.get("/api/v1/compare",
+                            params={"runs": f"{run['id']},{other['run_id']}"}).json()
+    assert comparison["same_device"] and len(comparison["runs"]) == 2
+
+
+def test_scenes_and_openapi(api):
+    client = api[0]
+    names = {scene["name"] for scene in client.get("/api/v1/scenes").json()}
+    assert "door" in names and "cornell-box" in names
+    schema = client.get("/openapi.json").json()
+    assert "/api/v1/jobs" in schema["paths"] and "/api/v1/sweeps" in schema["paths"]
+    assert client.get("/docs").status_code == 200
