@@ -14,11 +14,12 @@ demo: bootstrap
 	$(CLI) render --scene cornell-box --method pt --res 64 --spp 1 --frames 4 --seeds 8 \
 		--ref-spp 4096 --out $(DEMO_DIR)
 
+# The store/queue tests also run on a throw-away PostgreSQL server on loopback.
 test: bootstrap
-	$(PY) -m pytest -q
+	NIRC_BENCH_TEST_PG_URL=$$(bash scripts/test_postgres.sh) $(PY) -m pytest -q
 
 test-fast: bootstrap
-	$(PY) -m pytest -q -m "not slow"
+	NIRC_BENCH_TEST_PG_URL=$$(bash scripts/test_postgres.sh) $(PY) -m pytest -q -m "not slow"
 
 bench: bootstrap
 	$(PY) -m benchmarks.bench_pt

@@ -25,6 +25,9 @@ class Settings(BaseSettings):
     data_dir: Path = Field(default_factory=lambda: Path.cwd() / "data")
     # None means "the embedded SQLite database inside data_dir".
     database_url: str | None = None
+    # A running job whose runner has not renewed its heartbeat for this long is
+    # taken over by another runner (its worker or the service died).
+    job_lease_s: float = Field(30.0, gt=0.0)
 
     @field_validator("data_dir")
     @classmethod

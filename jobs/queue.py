@@ -8,19 +8,23 @@ State machine (``jobs.models.JobStatus``)::
        +--- retry -------+   (the attempt crashed, was killed or timed out)
 
 Every transition is one conditional UPDATE (``WHERE status = ...``), so two
-workers cannot both claim a job, and a retried or duplicated task finds the job
-already taken or finished and does nothing. On start the service calls
-:meth:`JobQueue.recover`: jobs left running by a dead service or worker go
-back to queued, and everything queued is handed to the dispatcher again.
+workers cannot both claim a job, and a duplicated task finds the job taken or
+finished. A running job's runner renews a heartbeat (``updated_at``) while it
+watches its child; when the heartbeat is older than the lease, the runner is
+presumed dead (its worker or the whole service was killed) and another runner
+may take the job over (one more attempt). On start the service dispatches
+every job that is not final again (:meth:`JobQueue.unfinished`): queued ones
+start, running ones are taken over once their lease expires — or simply
+reported done if their runner is alive and finishes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import select, update
+from sqlalchemy import and_, or_, select, update
 from sqlalchemy.exc import IntegrityError
 
 from jobs.models import FINAL_JOB_STATES, Job, JobStatus
@@ -96,15 +100,32 @@ class JobQueue:
                 .values(updated_at=_now(), **values))
             return result.rowcount == 1
 
-    def claim(self, job_id: int, worker: str) -> Job | None:
-        """queued -> running for ``worker`` (one more attempt); None if not claimable."""
+    def claim(self, job_id: int, worker: str, lease_s: float | None = None) -> Job | None:
+        """queued -> running for ``worker`` (one more attempt), or take over a running
+        job whose heartbeat is older than ``lease_s``; None if not claimable."""
+        claimable = Job.status == JobStatus.QUEUED.value
+        if lease_s is not None:
+            stale = _now() - timedelta(seconds=lease_s)
+            claimable = or_(claimable, and_(Job.status == JobStatus.RUNNING.value,
+                                            Job.updated_at < stale))
         claimed = self._transition(
-            job_id,
-            [Job.status == JobStatus.QUEUED.value, Job.attempts < Job.max_attempts,
-             Job.cancel_requested.is_(False)],
+            job_id, [claimable, Job.attempts < Job.max_attempts, Job.cancel_requested.is_(False)],
             status=JobStatus.RUNNING.value, attempts=Job.attempts + 1, worker=worker,
             started_at=_now(), error=None)
         return self.get(job_id) if claimed else None
+
+    def heartbeat(self, job_id: int) -> None:
+        """The runner of a running job is alive (renews its lease)."""
+        self._transition(job_id, [Job.status == JobStatus.RUNNING.value])
+
+    def expire(self, job_id: int, lease_s: float) -> bool:
+        """A running job whose runner died on its last attempt: failed."""
+        stale = _now() - timedelta(seconds=lease_s)
+        return self._transition(
+            job_id, [Job.status == JobStatus.RUNNING.value, Job.updated_at < stale,
+                     or_(Job.attempts >= Job.max_attempts, Job.cancel_requested.is_(True))],
+            status=JobStatus.FAILED.value, finished_at=_now(),
+            error="the runner of the last attempt stopped (worker or service killed)")
 
     def set_progress(self, job_id: int, stage: str, done: int, total: int) -> None:
         self._transition(job_id, [Job.status == JobStatus.RUNNING.value],
@@ -147,18 +168,10 @@ class JobQueue:
         job = self.get(job_id)
         return bool(job and job.cancel_requested)
 
-    def recover(self) -> list[int]:
-        """After a restart: running jobs (their runner is gone) go back to queued or,
-        with no attempt left, to failed. Returns the ids of all queued jobs, oldest first."""
-        with self.store.session(write=True) as session:
-            session.execute(
-                update(Job).where(Job.status == JobStatus.RUNNING.value,
-                                  Job.attempts < Job.max_attempts)
-                .values(status=JobStatus.QUEUED.value, worker=None, updated_at=_now(),
-                        error="the service or worker stopped during this attempt"))
-            session.execute(
-                update(Job).where(Job.status == JobStatus.RUNNING.value)
-                .values(status=JobStatus.FAILED.value, finished_at=_now(), updated_at=_now(),
-                        error="the service or worker stopped during the last attempt"))
+    def unfinished(self) -> list[int]:
+        """Ids of jobs that are queued or running, oldest first (dispatched again on start)."""
+        with self.store.session() as session:
             return list(session.scalars(
-                select(Job.id).where(Job.status == JobStatus.QUEUED.value).order_by(Job.id)))
+                select(Job.id).where(Job.status.in_([JobStatus.QUEUED.value,
+                                                     JobStatus.RUNNING.value]))
+                .order_by(Job.id)))

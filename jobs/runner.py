@@ -23,6 +23,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from typing import Any
 
@@ -45,11 +46,18 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
     """
     store = open_store(settings)
     queue = JobQueue(store)
+    lease_s = settings.job_lease_s
     try:
         while True:
-            if queue.claim(job_id, worker) is None:
+            if queue.claim(job_id, worker, lease_s=lease_s) is None:
                 job = queue.get(job_id)
-                return job.status if job else "missing"
+                if job is None or job.status != JobStatus.RUNNING.value:
+                    return job.status if job else "missing"
+                # Another runner has it: wait until it finishes or its lease expires.
+                if queue.expire(job_id, lease_s):
+                    continue
+                time.sleep(poll_s)
+                continue
             exitcode, reason = _attempt(job_id, settings, queue, timeout_s, poll_s)
             if exitcode in (0, EXIT_JOB_FAILED):
                 return queue.get(job_id).status
@@ -64,24 +72,38 @@ def _attempt(job_id: int, settings: Settings, queue: JobQueue, timeout_s: float 
     """Run one attempt in a child; returns (exit status, reason if it failed)."""
     env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(settings.data_dir),
            "NIRC_BENCH_DATABASE_URL": str(settings.database_url)}
-    child = subprocess.Popen([sys.executable, "-m", "jobs.runner", str(job_id)], env=env,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    started = time.monotonic()
-    while True:
-        try:
-            exitcode = child.wait(timeout=poll_s)
-            break
-        except subprocess.TimeoutExpired:
-            if timeout_s is not None and time.monotonic() - started > timeout_s:
-                _kill(child)
-                return -1, f"timed out after {timeout_s:g} s (attempt killed)"
-            if queue.cancel_requested(job_id):
-                _kill(child)
-                return -1, "canceled while running"
-    stderr = (child.stderr.read() if child.stderr else "").strip()
-    if exitcode in (0, EXIT_JOB_FAILED):
-        return exitcode, ""
-    return exitcode, _describe_exit(exitcode, stderr)
+    # stderr goes to a file, not a pipe: a chatty child must never block on a full pipe.
+    with tempfile.TemporaryFile("w+") as stderr:
+        child = subprocess.Popen([sys.executable, "-m", "jobs.runner", str(job_id)], env=env,
+                                 stdout=subprocess.DEVNULL, stderr=stderr,
+                                 preexec_fn=_die_with_parent)
+        started = time.monotonic()
+        while True:
+            try:
+                exitcode = child.wait(timeout=poll_s)
+                break
+            except subprocess.TimeoutExpired:
+                queue.heartbeat(job_id)
+                if timeout_s is not None and time.monotonic() - started > timeout_s:
+                    _kill(child)
+                    return -1, f"timed out after {timeout_s:g} s (attempt killed)"
+                if queue.cancel_requested(job_id):
+                    _kill(child)
+                    return -1, "canceled while running"
+        if exitcode in (0, EXIT_JOB_FAILED):
+            return exitcode, ""
+        stderr.seek(0)
+        return exitcode, _describe_exit(exitcode, stderr.read().strip())
+
+
+def _die_with_parent() -> None:
+    """In the child, before exec: be killed when the runner dies (Linux
+    PR_SET_PDEATHSIG), so a killed worker or service leaves no render behind."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        PR_SET_PDEATHSIG = 1
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 def _kill(child: subprocess.Popen) -> None:

@@ -2,8 +2,9 @@
 
 ``create_app(settings, dispatcher)`` builds the app; the service (``nirc-bench
 serve``) passes a :class:`jobs.dispatch.Dispatcher`, tests may pass None (jobs
-stay queued) or a stand-in. On start the queue is recovered: jobs a previous
-process left running go back to queued, and every queued job is dispatched.
+stay queued) or a stand-in. On start every unfinished job is dispatched again:
+queued ones run, and running ones left by a killed process are taken over when
+their heartbeat lease expires (jobs.queue).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
         app.state.settings, app.state.store, app.state.queue = settings, store, queue
         app.state.dispatcher = dispatcher
         if dispatcher is not None:
-            for job_id in queue.recover():
+            for job_id in queue.unfinished():
                 dispatcher.submit(queue.get(job_id))
         try:
             yield

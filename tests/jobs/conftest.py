@@ -1,4 +1,11 @@
-"""Fixtures for the job-store tests: a migrated SQLite store in a temporary folder."""
+"""Fixtures for the job-store tests: a migrated store, on SQLite and on PostgreSQL.
+
+``settings`` / ``store`` run every test that uses them twice: on a SQLite file in a
+temporary folder, and on a fresh database of the PostgreSQL test server
+(``scripts/test_postgres.sh``, started by ``make test``; its URL comes in
+``NIRC_BENCH_TEST_PG_URL``). Without that variable the PostgreSQL case is skipped
+with the reason, never silently passed.
+"""
 
 from collections.abc import Iterator
 from pathlib import Path
@@ -8,17 +15,30 @@ import pytest
 from jobs.config import Settings
 from jobs.db import open_store
 from jobs.store import Store
+from tests.pg import postgres_database
 
 
-@pytest.fixture
-def settings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Settings:
+@pytest.fixture(params=["sqlite", "postgresql"])
+def settings(request, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Settings]:
     # A database URL in the developer's environment must not redirect the tests.
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
-    return Settings(data_dir=tmp_path / "data")
+    if request.param == "sqlite":
+        yield Settings(data_dir=tmp_path / "data")
+        return
+    with postgres_database() as url:
+        yield Settings(data_dir=tmp_path / "data", database_url=url)
 
 
 @pytest.fixture
 def store(settings: Settings) -> Iterator[Store]:
     store = open_store(settings)
+    yield store
+    store.close()
+
+
+@pytest.fixture
+def sqlite_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Store]:
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    store = open_store(Settings(data_dir=tmp_path / "data"))
     yield store
     store.close()

@@ -27,7 +27,8 @@ TABLES = {"reference_renders", "runs", "seed_results", "artifacts", "cache_snaps
           "jobs", "api_keys"}
 
 
-def test_sqlite_pragmas(store: Store) -> None:
+def test_sqlite_pragmas(sqlite_store: Store) -> None:
+    store = sqlite_store
     with store.engine.connect() as conn:
         assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
         assert conn.exec_driver_sql("PRAGMA busy_timeout").scalar() == SQLITE_BUSY_TIMEOUT_MS

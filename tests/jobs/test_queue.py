@@ -61,13 +61,19 @@ def test_cancel_and_progress(store):
     assert queue.cancel(999) is None
 
 
-def test_recover_requeues_running_jobs_and_lists_queued(store):
+def test_unfinished_jobs_and_lease_takeover(store):
     queue = JobQueue(store)
     a, _ = queue.submit("render", SPEC, "a")
     b, _ = queue.submit("render", SPEC, "b", max_attempts=1)
     c, _ = queue.submit("render", SPEC, "c")
     queue.claim(a.id, "dead worker")
     queue.claim(b.id, "dead worker")
-    assert queue.recover() == [a.id, c.id]
-    assert queue.get(a.id).status == "queued" and "stopped" in queue.get(a.id).error
-    assert queue.get(b.id).status == "failed"   # its only attempt was lost
+    assert queue.unfinished() == [a.id, b.id, c.id]
+    # A fresh heartbeat keeps the job with its runner; a stale one lets another take over.
+    assert queue.claim(a.id, "new worker", lease_s=60) is None
+    taken = queue.claim(a.id, "new worker", lease_s=0)
+    assert taken.worker == "new worker" and taken.attempts == 2
+    # No attempt left: a dead runner's job fails instead.
+    assert queue.claim(b.id, "new worker", lease_s=0) is None
+    assert not queue.expire(b.id, lease_s=60) and queue.expire(b.id, lease_s=0)
+    assert queue.get(b.id).status == "failed" and "stopped" in queue.get(b.id).error

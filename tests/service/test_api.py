@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
+from contextlib import ExitStack
 
 import pytest
 from fastapi.testclient import TestClient
@@ -14,6 +15,7 @@ from jobs.config import Settings
 from jobs.db import open_store
 from jobs.runner import run_job
 from service.api.main import create_app
+from tests.pg import postgres_database
 
 SPEC = {"scene": "cornell-box", "method": "pt", "resolution": 8, "spp": 1, "frames": 2,
         "seeds": 2, "reference": {"spp": 64, "spp_per_pass": 8}}
@@ -33,10 +35,15 @@ class ThreadDispatcher:
         self.threads.append(thread)
 
 
-@pytest.fixture
-def api(tmp_path, monkeypatch):
+@pytest.fixture(params=["sqlite", "postgresql"])
+def api(request, tmp_path, monkeypatch):
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
-    settings = Settings(data_dir=tmp_path / "data")
+    with ExitStack() as stack:
+        url = stack.enter_context(postgres_database()) if request.param == "postgresql" else None
+        yield from _api(Settings(data_dir=tmp_path / "data", database_url=url))
+
+
+def _api(settings: Settings):
     store = open_store(settings)
     _, key = create_api_key(store, "tests")
     dispatcher = ThreadDispatcher(settings)

@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Start a throw-away PostgreSQL server on loopback for the test suite and print its
+# SQLAlchemy URL. Installs Debian's postgresql when it is missing (as root with apt),
+# like the bootstrap does for libLLVM. Idempotent: a running server is reused.
+#
+#   NIRC_BENCH_TEST_PG_URL=$(bash scripts/test_postgres.sh)
+set -euo pipefail
+
+PORT="${NIRC_BENCH_TEST_PG_PORT:-55432}"
+BASE="${NIRC_BENCH_TEST_PG_DIR:-/tmp/nirc-bench-pg-$PORT}"
+
+bindir() { ls -d /usr/lib/postgresql/*/bin 2>/dev/null | sort -V | tail -1; }
+
+if [ -z "$(bindir)" ]; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+        echo "installing postgresql (Debian) for the tests..." >&2
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -q postgresql >&2 \
+            || { apt-get update -q >&2 && DEBIAN_FRONTEND=noninteractive apt-get install -y -q postgresql >&2; }
+    else
+        echo "PostgreSQL is not installed: sudo apt-get install postgresql" >&2
+        exit 1
+    fi
+fi
+BIN="$(bindir)"
+
+# initdb and postgres refuse to run as root: run them as an unprivileged user.
+as_owner() {
+    if [ "$(id -u)" = 0 ]; then
+        id postgres >/dev/null 2>&1 || useradd --system --no-create-home postgres
+        runuser -u postgres -- "$@"
+    else
+        "$@"
+    fi
+}
+
+if ! as_owner "$BIN/pg_ctl" -D "$BASE/data" status >/dev/null 2>&1; then
+    mkdir -p "$BASE"
+    [ "$(id -u)" = 0 ] && chown postgres "$BASE"
+    if [ ! -f "$BASE/data/PG_VERSION" ]; then
+        as_owner "$BIN/initdb" -D "$BASE/data" --auth=trust -U postgres -E UTF8 >/dev/null
+    fi
+    as_owner "$BIN/pg_ctl" -D "$BASE/data" -l "$BASE/server.log" -w \
+        -o "-p $PORT -k $BASE -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=200" \
+        start >/dev/null
+fi
+echo "postgresql+psycopg://postgres@127.0.0.1:$PORT/postgres"
