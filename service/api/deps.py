@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import Depends, Header, HTTPException, Request, status
+from fastapi import Depends, Header, HTTPException, Path, Request, status
 
 from jobs.apikeys import verify_api_key
 from jobs.config import Settings
@@ -43,3 +43,6 @@ QueueDep = Annotated[JobQueue, Depends(get_queue)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 DispatcherDep = Annotated[Any, Depends(get_dispatcher)]
 WriteAccess = Depends(require_api_key)
+
+#: A row id in a path: database integers are 32-bit on PostgreSQL.
+RowId = Annotated[int, Path(ge=1, le=2**31 - 1)]

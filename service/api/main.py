@@ -23,13 +23,11 @@ from service.api.routes import jobs, results
 
 def create_app(settings: Settings | None = None, dispatcher: Any = None) -> FastAPI:
     settings = settings or Settings()
+    store = open_store(settings)     # migrates the database before the first request
+    queue = JobQueue(store)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        store = open_store(settings)
-        queue = JobQueue(store)
-        app.state.settings, app.state.store, app.state.queue = settings, store, queue
-        app.state.dispatcher = dispatcher
         if dispatcher is not None:
             for job_id in queue.unfinished():
                 dispatcher.submit(queue.get(job_id))
@@ -42,6 +40,8 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
                   description="Evaluate and benchmark radiance-caching renderers: submit "
                               "render jobs and sweeps, poll them, read results.",
                   lifespan=lifespan)
+    app.state.settings, app.state.store, app.state.queue = settings, store, queue
+    app.state.dispatcher = dispatcher
     app.include_router(jobs.router)
     app.include_router(results.router)
     return app

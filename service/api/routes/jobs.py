@@ -11,7 +11,7 @@ from jobs.spec import RenderSpec, SweepSpec
 from renderers.methods import MethodError, parse_params
 from renderers.scenes import builtin_names
 from renderers.seeding import digest
-from service.api.deps import DispatcherDep, QueueDep, WriteAccess
+from service.api.deps import DispatcherDep, QueueDep, RowId, WriteAccess
 from service.api.schemas import JobOut
 
 router = APIRouter(prefix="/api/v1", tags=["jobs"])
@@ -83,7 +83,7 @@ def list_jobs(queue: QueueDep,
 
 
 @router.get("/jobs/{job_id}", response_model=JobOut)
-def get_job(job_id: int, queue: QueueDep) -> JobOut:
+def get_job(job_id: RowId, queue: QueueDep) -> JobOut:
     job = queue.get(job_id)
     if job is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no job {job_id}")
@@ -91,7 +91,7 @@ def get_job(job_id: int, queue: QueueDep) -> JobOut:
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut, dependencies=[WriteAccess])
-def cancel_job(job_id: int, queue: QueueDep) -> JobOut:
+def cancel_job(job_id: RowId, queue: QueueDep) -> JobOut:
     """Cancel a queued job now; a running job is stopped by its runner."""
     job = queue.cancel(job_id)
     if job is None:

@@ -10,10 +10,13 @@ from fastapi.responses import FileResponse
 from jobs.artifacts import ArtifactStore
 from jobs.models import Artifact
 from renderers.scenes import builtin_names, describe
-from service.api.deps import SettingsDep, StoreDep
+from service.api.deps import RowId, SettingsDep, StoreDep
 from service.api.schemas import Comparison, RunDetail, RunOut, SceneOut, SweepOut
 
 router = APIRouter(prefix="/api/v1", tags=["results"])
+
+#: A text filter; no NUL characters (PostgreSQL rejects them in strings).
+Filter = Annotated[str | None, Query(max_length=500, pattern=r"^[^\x00]*$")]
 
 
 def _not_found(what: str) -> HTTPException:
@@ -21,15 +24,15 @@ def _not_found(what: str) -> HTTPException:
 
 
 @router.get("/results", response_model=list[RunOut])
-def list_results(store: StoreDep, scene: str | None = None, method: str | None = None,
-                 device: str | None = None,
+def list_results(store: StoreDep, scene: Filter = None, method: Filter = None,
+                 device: Filter = None,
                  limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[RunOut]:
     """Stored runs, newest first, filtered by scene name, method and device key."""
     return [RunOut.of(run) for run in store.list_runs(scene, method, device, limit=limit)]
 
 
 @router.get("/runs/{run_id}", response_model=RunDetail)
-def get_run(run_id: int, store: StoreDep) -> RunDetail:
+def get_run(run_id: RowId, store: StoreDep) -> RunDetail:
     """A run's metrics per seed and aggregated, timings, provenance and artifacts."""
     run = store.get_run(run_id)
     if run is None:
@@ -39,7 +42,7 @@ def get_run(run_id: int, store: StoreDep) -> RunDetail:
 
 @router.get("/compare", response_model=Comparison)
 def compare(store: StoreDep,
-            runs: Annotated[str, Query(pattern=r"^\d{1,12}(,\d{1,12}){1,19}$",
+            runs: Annotated[str, Query(pattern=r"^[1-9]\d{0,8}(,[1-9]\d{0,8}){1,19}$",
                                        description="2 to 20 run ids, e.g. 3,7")]) -> Comparison:
     """Runs side by side; timings compare only when the device is the same."""
     rows = []
@@ -57,7 +60,7 @@ def compare(store: StoreDep,
 
 
 @router.get("/sweeps/{sweep_id}", response_model=SweepOut)
-def get_sweep(sweep_id: int, store: StoreDep) -> SweepOut:
+def get_sweep(sweep_id: RowId, store: StoreDep) -> SweepOut:
     sweep = store.get_sweep(sweep_id)
     if sweep is None:
         raise _not_found(f"sweep {sweep_id}")
@@ -65,7 +68,7 @@ def get_sweep(sweep_id: int, store: StoreDep) -> SweepOut:
 
 
 @router.get("/artifacts/{artifact_id}", response_class=FileResponse)
-def get_artifact(artifact_id: int, store: StoreDep, settings: SettingsDep) -> FileResponse:
+def get_artifact(artifact_id: RowId, store: StoreDep, settings: SettingsDep) -> FileResponse:
     """An artifact's file (EXR, PNG, NPZ) with its media type."""
     with store.session() as session:
         artifact = session.get(Artifact, artifact_id)
