@@ -126,8 +126,16 @@ def artifact_record(store: ArtifactStore, data: bytes, kind: str, suffix: str, m
 
 def encode_image(writer: Callable[[Path, np.ndarray], None], image: np.ndarray,
                  scratch: Path) -> bytes:
-    """Bytes of ``image`` encoded by ``writer`` (e.g. EXR or PNG) through a scratch file."""
-    writer(scratch, image)
-    data = scratch.read_bytes()
-    scratch.unlink()
-    return data
+    """Bytes of ``image`` encoded by ``writer`` (e.g. EXR or PNG) through a scratch file.
+
+    The file is a unique temporary next to ``scratch`` (with its suffix): several
+    processes encode into one data folder at once.
+    """
+    fd, name = tempfile.mkstemp(prefix=_TEMP_PREFIX, suffix=scratch.suffix, dir=scratch.parent)
+    os.close(fd)
+    path = Path(name)
+    try:
+        writer(path, image)
+        return path.read_bytes()
+    finally:
+        path.unlink(missing_ok=True)

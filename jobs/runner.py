@@ -1,30 +1,39 @@
 """Run a queued job in an isolated child process, with retries, timeout and cancel.
 
 A render can take the process down with it (a Dr.Jit/LLVM abort, a leak), so
-each attempt runs in a fresh child process — a new interpreter started with
-``python -m jobs.runner JOB_ID`` (spawned, not forked: nothing of the parent's
-JIT state is inherited). The parent — a Dask task in the service, or the
-test — only claims the job, starts the child, and watches it:
+jobs never run in the worker itself but in a child process — a new interpreter
+(``python -m jobs.runner --serve``; spawned, not forked: nothing of the parent's
+JIT state is inherited) that reads job ids on stdin and answers each with a
+status line. Starting Python + Mitsuba + the JIT costs seconds, so a healthy
+child serves further jobs (at most ``MAX_JOBS_PER_CHILD``, then it is
+replaced, so a slow leak cannot grow without bound); any failure retires it.
+The parent — a Dask task in the service, or a test — claims the job, hands it
+to the child and watches:
 
-* exit 0: the child stored the result and marked the job succeeded;
-* exit 3: the job's input is wrong (unknown scene, bad parameters): the child
+* status 0: the child stored the result and marked the job succeeded;
+* status 3: the job's input is wrong (unknown scene, bad parameters): the child
   marked it failed with the message; retrying would fail the same way;
-* anything else (an abort, a signal, a timeout, an out-of-memory kill): the
-  attempt failed; the job goes back to the queue until ``max_attempts``.
+* the child dies (an abort, a signal, an out-of-memory kill), or the attempt
+  times out or is canceled (the parent kills the child): the attempt failed;
+  the job goes back to the queue until ``max_attempts``.
 
 The child stores the run under the idempotency key ``job-<id>``, so an
 attempt that died after storing its result does not store it twice: the next
-attempt finds it and only marks the job done.
+attempt finds it and only marks the job done. Children are killed with their
+parent (Linux ``PR_SET_PDEATHSIG``), so a killed worker leaves no render behind.
 """
 
 from __future__ import annotations
 
 import os
+import select
 import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+import traceback
 from typing import Any
 
 from jobs.config import Settings
@@ -32,10 +41,12 @@ from jobs.db import open_store
 from jobs.models import JobStatus
 from jobs.queue import JobQueue
 
-#: Exit status of a child whose job failed for good (bad input).
+#: Status of a job that failed for good (bad input).
 EXIT_JOB_FAILED = 3
 #: Seconds between progress writes to the database.
 PROGRESS_INTERVAL_S = 0.5
+#: Jobs a child serves before it is replaced by a fresh one.
+MAX_JOBS_PER_CHILD = 100
 
 
 def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | None = None,
@@ -58,8 +69,8 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
                     continue
                 time.sleep(poll_s)
                 continue
-            exitcode, reason = _attempt(job_id, settings, queue, timeout_s, poll_s)
-            if exitcode in (0, EXIT_JOB_FAILED):
+            status, reason = _child_for(settings).run(job_id, queue, timeout_s, poll_s)
+            if status in (0, EXIT_JOB_FAILED):
                 return queue.get(job_id).status
             if queue.fail(job_id, reason, retry=True) != JobStatus.QUEUED.value:
                 return queue.get(job_id).status
@@ -67,33 +78,84 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
         store.close()
 
 
-def _attempt(job_id: int, settings: Settings, queue: JobQueue, timeout_s: float | None,
-             poll_s: float) -> tuple[int, str]:
-    """Run one attempt in a child; returns (exit status, reason if it failed)."""
-    env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(settings.data_dir),
-           "NIRC_BENCH_DATABASE_URL": str(settings.database_url)}
-    # stderr goes to a file, not a pipe: a chatty child must never block on a full pipe.
-    with tempfile.TemporaryFile("w+") as stderr:
-        child = subprocess.Popen([sys.executable, "-m", "jobs.runner", str(job_id)], env=env,
-                                 stdout=subprocess.DEVNULL, stderr=stderr,
-                                 preexec_fn=_die_with_parent)
+class _Child:
+    """One render process serving jobs over a line protocol (see the module doc)."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.jobs = 0
+        env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(settings.data_dir),
+               "NIRC_BENCH_DATABASE_URL": str(settings.database_url)}
+        # stderr goes to a file, not a pipe: a chatty child must never block on it.
+        self.stderr = tempfile.TemporaryFile("w+")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "jobs.runner", "--serve"], env=env, text=True,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
+            preexec_fn=_die_with_parent)
+
+    def usable(self, settings: Settings) -> bool:
+        return (self.proc.poll() is None and self.jobs < MAX_JOBS_PER_CHILD
+                and (settings.data_dir, settings.database_url)
+                == (self.settings.data_dir, self.settings.database_url))
+
+    def run(self, job_id: int, queue: JobQueue, timeout_s: float | None,
+            poll_s: float) -> tuple[int, str]:
+        """Run one attempt; returns (status, reason if the attempt failed)."""
+        self.jobs += 1
+        try:
+            self.proc.stdin.write(f"{job_id}\n")
+            self.proc.stdin.flush()
+        except BrokenPipeError:
+            return -1, self.close("the render process was gone before the job started")
         started = time.monotonic()
         while True:
-            try:
-                exitcode = child.wait(timeout=poll_s)
-                break
-            except subprocess.TimeoutExpired:
-                queue.heartbeat(job_id)
-                if timeout_s is not None and time.monotonic() - started > timeout_s:
-                    _kill(child)
-                    return -1, f"timed out after {timeout_s:g} s (attempt killed)"
-                if queue.cancel_requested(job_id):
-                    _kill(child)
-                    return -1, "canceled while running"
-        if exitcode in (0, EXIT_JOB_FAILED):
-            return exitcode, ""
-        stderr.seek(0)
-        return exitcode, _describe_exit(exitcode, stderr.read().strip())
+            ready, _, _ = select.select([self.proc.stdout], [], [], poll_s)
+            if ready:
+                line = self.proc.stdout.readline()
+                if line:
+                    status = int(line)
+                    if status != 0:
+                        self.close()
+                    return status, ""
+                return -1, self.close()          # EOF: the child died mid-job
+            queue.heartbeat(job_id)
+            if timeout_s is not None and time.monotonic() - started > timeout_s:
+                return -1, self.close(f"timed out after {timeout_s:g} s (attempt killed)")
+            if queue.cancel_requested(job_id):
+                return -1, self.close("canceled while running")
+
+    def close(self, reason: str | None = None) -> str:
+        """Retire the child (killing it if needed); returns why the attempt failed."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+        exitcode = self.proc.wait()
+        tail: list[str] = []
+        if not self.stderr.closed:
+            self.stderr.seek(0)
+            tail = self.stderr.read().strip().splitlines()
+            self.stderr.close()
+        if reason is not None:
+            return reason
+        if exitcode < 0:
+            name = (signal.Signals(-exitcode).name
+                    if -exitcode in signal.Signals._value2member_map_ else str(-exitcode))
+            what = f"the render process was killed by {name}"
+        else:
+            what = f"the render process exited with status {exitcode}"
+        return f"{what}: {tail[-1]}" if tail else what
+
+
+_children = threading.local()
+
+
+def _child_for(settings: Settings) -> _Child:
+    """This thread's render process, replaced when it is dead, used up or elsewhere."""
+    child: _Child | None = getattr(_children, "child", None)
+    if child is None or not child.usable(settings):
+        if child is not None:
+            child.close()
+        child = _children.child = _Child(settings)
+    return child
 
 
 def _die_with_parent() -> None:
@@ -104,22 +166,6 @@ def _die_with_parent() -> None:
 
         PR_SET_PDEATHSIG = 1
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-
-
-def _kill(child: subprocess.Popen) -> None:
-    child.kill()
-    child.wait()
-
-
-def _describe_exit(exitcode: int, stderr: str) -> str:
-    if exitcode < 0:
-        name = signal.Signals(-exitcode).name if -exitcode in signal.Signals._value2member_map_ \
-            else str(-exitcode)
-        what = f"the render process was killed by {name}"
-    else:
-        what = f"the render process exited with status {exitcode}"
-    tail = stderr.splitlines()[-1] if stderr else ""
-    return f"{what}{': ' + tail if tail else ''}"
 
 
 # ---------------------------------------------------------------------------
@@ -156,10 +202,8 @@ def _throttled(queue: JobQueue, job_id: int):
     return report
 
 
-def main(job_id: int) -> int:
-    """Child entry point: run the job, store the result, mark it; see the module doc."""
-    settings = Settings()
-    store = open_store(settings)
+def run_one(job_id: int, store: Any, settings: Settings) -> int:
+    """Run a claimed job, store the result, mark it; returns its status code."""
     queue = JobQueue(store)
     job = queue.get(job_id)
     if job is None or job.status != JobStatus.RUNNING.value:
@@ -173,5 +217,26 @@ def main(job_id: int) -> int:
     return 0
 
 
+def serve() -> int:
+    """Child entry point: run the job ids read from stdin, one status line each.
+
+    An unexpected exception ends the process (its state may be damaged): the
+    parent sees the pipe close and fails the attempt with the last stderr line.
+    """
+    settings = Settings()
+    store = open_store(settings)
+    for line in sys.stdin:
+        try:
+            status = run_one(int(line), store, settings)
+        except Exception:  # noqa: BLE001 - reported through stderr, then exit
+            traceback.print_exc()
+            return 1
+        sys.stdout.write(f"{status}\n")
+        sys.stdout.flush()
+    return 0
+
+
 if __name__ == "__main__":
-    sys.exit(main(int(sys.argv[1])))
+    if sys.argv[1:] != ["--serve"]:
+        sys.exit("usage: python -m jobs.runner --serve  (started by the job runner)")
+    sys.exit(serve())
