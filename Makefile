@@ -26,6 +26,7 @@ bench: bootstrap
 	$(PY) -m benchmarks.bench_cache
 	$(PY) -m benchmarks.bench_nirc
 	$(PY) -m benchmarks.bench_sweep
+	$(PY) -m benchmarks.bench_service
 
 lint: bootstrap
 	$(VENV)/bin/ruff check .

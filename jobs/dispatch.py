@@ -1,8 +1,9 @@
 """Hand queued jobs to Dask distributed workers.
 
-Embedded default: a ``LocalCluster`` the service starts, one worker process
+Embedded default: a ``LocalCluster`` inside the service process, one worker
 with one thread on a CPU machine (a render uses every core; two at once would
-only slow each other and spoil their timings). Scale-out: ``nirc-bench serve
+only slow each other and spoil their timings). The worker itself only claims
+jobs and watches their render processes, so it needs no process of its own. Scale-out: ``nirc-bench serve
 --scheduler tcp://HOST:8786`` connects to a running scheduler, and each GPU
 machine runs ``nirc-bench worker --scheduler ... --gpus N``, whose workers
 advertise the resource ``GPU=1``; GPU jobs ask for it. On SLURM, dask-jobqueue's
@@ -40,15 +41,21 @@ class Dispatcher:
 
     def __init__(self, settings: Settings, scheduler: str | None = None,
                  timeout_s: float | None = None) -> None:
+        import dask
         from distributed import Client, LocalCluster
 
         self.settings = settings
         self.timeout_s = timeout_s
         self.cluster = None
+        # Dask's statistical profiler samples every worker thread 100 times a second:
+        # on a 2-core machine that steals measurable time from the render process.
+        dask.config.set({"distributed.worker.profile.enabled": False})
         if scheduler:
             self.client = Client(scheduler)
         else:
-            self.cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+            # The worker runs in this process: it only claims jobs and watches their
+            # render processes, which provide the isolation (jobs.runner).
+            self.cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                         dashboard_address=None)
             self.client = Client(self.cluster)
 

@@ -44,13 +44,17 @@ from jobs.queue import JobQueue
 #: Status of a job that failed for good (bad input).
 EXIT_JOB_FAILED = 3
 #: Seconds between progress writes to the database.
-PROGRESS_INTERVAL_S = 0.5
+PROGRESS_INTERVAL_S = 1.0
 #: Jobs a child serves before it is replaced by a fresh one.
 MAX_JOBS_PER_CHILD = 100
+#: Set by Dask's nanny for its worker processes (1 thread, aggressive malloc trimming);
+#: a render process uses every core and the allocator's defaults.
+_SINGLE_THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                            "MALLOC_TRIM_THRESHOLD_")
 
 
 def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | None = None,
-            poll_s: float = 0.5) -> str:
+            poll_s: float = 1.0) -> str:
     """Claim and run ``job_id`` until it succeeds, fails for good or is canceled.
 
     Returns the job's final status (or its current one if another worker has it).
@@ -84,8 +88,10 @@ class _Child:
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self.jobs = 0
-        env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(settings.data_dir),
-               "NIRC_BENCH_DATABASE_URL": str(settings.database_url)}
+        env = {key: value for key, value in os.environ.items()
+               if key not in _SINGLE_THREAD_VARIABLES}
+        env.update(NIRC_BENCH_DATA_DIR=str(settings.data_dir),
+                   NIRC_BENCH_DATABASE_URL=str(settings.database_url))
         # stderr goes to a file, not a pipe: a chatty child must never block on it.
         self.stderr = tempfile.TemporaryFile("w+")
         self.proc = subprocess.Popen(
