@@ -20,6 +20,7 @@ from renderers.scenes.errors import SceneError
 from renderers.scenes.features import SceneFeatures
 from renderers.scenes.library import LIBRARY_VERSION, builtin_names, describe
 from renderers.scenes.loader import LoadedScene, load_scene
+from renderers.scenes.xml_scene import is_scene_file
 
 __all__ = [
     "LIBRARY_VERSION",
@@ -28,5 +29,6 @@ __all__ = [
     "SceneFeatures",
     "builtin_names",
     "describe",
+    "is_scene_file",
     "load_scene",
 ]

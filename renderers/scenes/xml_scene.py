@@ -180,12 +180,24 @@ def _parse(path: Path, data: bytes) -> ET.Element:
     return root
 
 
+def is_scene_file(name: str) -> bool:
+    """True when ``name`` is the path of an existing file (False, not an error, for a
+    name no file can have: too long, or with a NUL character)."""
+    try:
+        return Path(name).expanduser().is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def load_xml_scene(name: str, resolution: Resolution | None) -> XmlScene:
     """Load the XML scene at ``name``, optionally at ``resolution`` (width, height)."""
+    if not is_scene_file(name):
+        try:
+            what = "is a directory, not a scene file" if Path(name).is_dir() else "not found"
+        except (OSError, ValueError) as err:  # e.g. a name too long for any file
+            what = f"not a usable path ({err})"
+        raise SceneError(f"scene file {name[:200]!r}: {what}")
     path = Path(name).expanduser().resolve()
-    if not path.is_file():
-        what = "is a directory, not a scene file" if path.is_dir() else "not found"
-        raise SceneError(f"scene file {path}: {what}")
     try:
         data = path.read_bytes()
     except OSError as err:

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 
 from jobs.spec import RenderSpec, SweepSpec
 from renderers.methods import MethodError, parse_params
-from renderers.scenes import builtin_names
+from renderers.scenes import builtin_names, is_scene_file
 from renderers.seeding import digest
 from service.api.deps import DispatcherDep, QueueDep, RowId, WriteAccess
 from service.api.schemas import JobOut
@@ -28,7 +27,7 @@ def _unprocessable(field: str, message: str) -> HTTPException:
 
 
 def _check_scene(scene: str) -> None:
-    if scene not in builtin_names() and not Path(scene).is_file():
+    if scene not in builtin_names() and not is_scene_file(scene):
         raise _unprocessable("scene", f"unknown scene '{scene}'; built-ins: "
                                       f"{', '.join(builtin_names())}, or a Mitsuba XML path "
                                       "on the service's machine")
