@@ -306,3 +306,16 @@ class Store:
             [{**{c: getattr(a, c) for c in artifact_columns},
               "seed": seeds.get(a.seed_result_id)} for a in source.artifacts],
         )
+
+    def list_sweeps(self, scene: str | None = None, *, limit: int = 50) -> list[Sweep]:
+        """Sweeps, newest first, with their artifacts loaded."""
+        query = (select(Sweep).order_by(Sweep.id.desc()).limit(limit)
+                 .options(selectinload(Sweep.artifacts)))
+        if scene is not None:
+            query = query.where(Sweep.scene_name == scene)
+        with self.session() as session:
+            return list(session.scalars(query))
+
+    def get_reference(self, reference_id: int) -> Reference | None:
+        with self.session() as session:
+            return session.get(Reference, reference_id)

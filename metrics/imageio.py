@@ -19,6 +19,7 @@ process's stdout.
 
 from __future__ import annotations
 
+import io
 import os
 import uuid
 from collections.abc import Iterator, Sequence
@@ -132,12 +133,24 @@ def read_exr(path: PathLike, layer: str | None = None) -> np.ndarray:
 # ---- PNG --------------------------------------------------------------------
 
 
-def write_png(path: PathLike, rgb_uint8: np.ndarray) -> None:
-    """Write an 8-bit (H, W, 3) RGB (or (H, W) grey, (H, W, 4) RGBA) image as PNG, atomically."""
+def _png_image(rgb_uint8: np.ndarray) -> Image.Image:
     arr = np.asarray(rgb_uint8)
     if arr.dtype != np.uint8:
         raise ValueError(f"PNG previews must be uint8, got {arr.dtype}")
     if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] in (3, 4))):
         raise ValueError(f"PNG images must be (H, W), (H, W, 3) or (H, W, 4), got {arr.shape}")
+    return Image.fromarray(np.ascontiguousarray(arr))
+
+
+def write_png(path: PathLike, rgb_uint8: np.ndarray) -> None:
+    """Write an 8-bit (H, W, 3) RGB (or (H, W) grey, (H, W, 4) RGBA) image as PNG, atomically."""
+    image = _png_image(rgb_uint8)
     with _atomic_target(path) as tmp:
-        Image.fromarray(np.ascontiguousarray(arr)).save(tmp, format="PNG")
+        image.save(tmp, format="PNG")
+
+
+def png_bytes(rgb_uint8: np.ndarray) -> bytes:
+    """The PNG encoding of an 8-bit image (as for ``write_png``), in memory."""
+    buffer = io.BytesIO()
+    _png_image(rgb_uint8).save(buffer, format="PNG")
+    return buffer.getvalue()

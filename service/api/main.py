@@ -11,14 +11,21 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI
+from fastapi.responses import FileResponse
+from fastapi.staticfiles import StaticFiles
 
 from jobs.config import Settings
 from jobs.db import open_store
 from jobs.queue import JobQueue
 from service.api.routes import jobs, results
+
+#: The dashboard's files (HTML, CSS, JavaScript with its own SVG plots): served from
+#: here, never from a CDN.
+DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
 
 
 def create_app(settings: Settings | None = None, dispatcher: Any = None) -> FastAPI:
@@ -44,4 +51,10 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.state.dispatcher = dispatcher
     app.include_router(jobs.router)
     app.include_router(results.router)
+    app.mount("/static", StaticFiles(directory=DASHBOARD_DIR), name="static")
+
+    @app.get("/", include_in_schema=False)
+    def dashboard() -> FileResponse:
+        return FileResponse(DASHBOARD_DIR / "index.html", media_type="text/html")
+
     return app

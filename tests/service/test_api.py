@@ -116,6 +116,8 @@ def test_a_job_runs_and_its_results_are_served(api):
     run = client.get(f"/api/v1/runs/{job['run_id']}").json()
     assert len(run["per_seed"]) == 2 and run["mrse"] > 0 and run["device"]["device_key"]
     assert run["timings"]["protocol"] and run["versions"]["mitsuba"]
+    preview = client.get(f"/api/v1/references/{run['reference_id']}/preview.png")
+    assert preview.status_code == 200 and preview.content[:4] == b"\x89PNG"
     image = next(a for a in run["artifacts"] if a["kind"] == "image")
     data = client.get(image["url"])
     assert data.status_code == 200 and data.content[:4] == b"\x76\x2f\x31\x01"  # EXR magic
@@ -136,3 +138,17 @@ def test_scenes_and_openapi(api):
     schema = client.get("/openapi.json").json()
     assert "/api/v1/jobs" in schema["paths"] and "/api/v1/sweeps" in schema["paths"]
     assert client.get("/docs").status_code == 200
+
+
+def test_the_dashboard_is_served_without_external_assets(api):
+    client = api[0]
+    page = client.get("/")
+    assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+    for asset in ("/static/app.js", "/static/plot.js", "/static/style.css"):
+        response = client.get(asset)
+        assert response.status_code == 200, asset
+        text = response.text.replace("http://www.w3.org/2000/svg", "")
+        assert "http://" not in text and "https://" not in text, asset   # no CDN
+    assert "https://" not in page.text and "http://" not in page.text
+    assert client.get("/api/v1/sweeps").json() == []
+    assert client.get("/api/v1/references/999/preview.png").status_code == 404

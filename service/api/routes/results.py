@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Query, status
+from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
 
 from jobs.artifacts import ArtifactStore
 from jobs.models import Artifact
+from metrics.imageio import ImageReadError, png_bytes, read_exr
+from metrics.preview import tonemap_preview
 from renderers.scenes import builtin_names, describe
 from service.api.deps import RowId, SettingsDep, StoreDep
 from service.api.schemas import Comparison, RunDetail, RunOut, SceneOut, SweepOut
@@ -57,6 +59,27 @@ def compare(store: StoreDep,
             "different devices: compare errors only, not timings")
     return Comparison(runs=rows, same_device=same_device, same_reference_scene=same_scene,
                       note=note)
+
+
+@router.get("/sweeps", response_model=list[SweepOut])
+def list_sweeps(store: StoreDep, scene: Filter = None,
+                limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[SweepOut]:
+    """Sweeps, newest first, optionally of one scene."""
+    return [SweepOut.of(sweep) for sweep in store.list_sweeps(scene, limit=limit)]
+
+
+@router.get("/references/{reference_id}/preview.png", response_class=Response)
+def reference_preview(reference_id: RowId, store: StoreDep, settings: SettingsDep) -> Response:
+    """The tone-mapped preview of a converged reference (PNG, rendered on request)."""
+    reference = store.get_reference(reference_id)
+    if reference is None:
+        raise _not_found(f"reference {reference_id}")
+    try:
+        image = read_exr(settings.references_dir / reference.image_path)
+    except ImageReadError:
+        raise _not_found(f"image of reference {reference_id} (its file is damaged or gone)") \
+            from None
+    return Response(png_bytes(tonemap_preview(image)), media_type="image/png")
 
 
 @router.get("/sweeps/{sweep_id}", response_model=SweepOut)

@@ -1,0 +1,149 @@
+// The nirc-bench dashboard: results overview, per-scene plots and images, live jobs.
+// Plain JavaScript against the REST API (/api/v1); plots by plot.js (bundled here).
+"use strict";
+
+const api = (path) => fetch(`/api/v1${path}`).then((r) => {
+  if (!r.ok) throw new Error(`${path}: ${r.status}`);
+  return r.json();
+});
+const view = () => document.getElementById("view");
+const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
+const num = (v, d = 3) => (v === null || v === undefined ? "–" : Number(v).toPrecision(d));
+const DEVICE_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b"];
+const SERIES_COLORS = { "NIRC": "#d62728", "NRC": "#1f77b4", "NIRC equal time": "#8c564b" };
+let timer = null;
+
+function label(run) {
+  const p = run.params || {};
+  const extra = [p.estimator, p.termination, p.nc ? `Nc ${p.nc}` : null].filter(Boolean).join(" ");
+  return `${run.method}${extra ? ` (${extra})` : ""} ${run.spp} spp`;
+}
+
+async function overview() {
+  const runs = await api("/results?limit=1000");
+  const latest = new Map();
+  for (const run of runs) {  // newest first: keep the first per (scene, method label, device)
+    const key = `${run.scene}|${label(run)}|${run.device_key}`;
+    if (!latest.has(key)) latest.set(key, run);
+  }
+  const scenes = [...new Set([...latest.values()].map((r) => r.scene))].sort();
+  let html = "<h2>Latest results</h2>";
+  if (!scenes.length) html += "<p class='muted'>No results yet: submit a job (POST /api/v1/jobs) or run <code>nirc-bench render</code>.</p>";
+  for (const scene of scenes) {
+    html += `<h3><a href="#/scene/${encodeURIComponent(scene)}">${esc(scene)}</a></h3><table><tr>
+      <th class="text">method</th><th class="text">device</th><th>MRSE</th><th>95% CI</th><th>rBias²</th>
+      <th>FLIP</th><th>ms/frame</th><th>run</th></tr>`;
+    for (const r of [...latest.values()].filter((r) => r.scene === scene)) {
+      const ci = r.mrse_ci95 ? `[${num(r.mrse_ci95[0])}, ${num(r.mrse_ci95[1])}]` : "–";
+      html += `<tr><td class="text">${esc(label(r))}</td><td class="text">${esc(r.device_key)}</td>
+        <td>${num(r.mrse)}</td><td>${ci}</td><td>${num(r.rbias2)}</td><td>${num(r.flip)}</td>
+        <td>${num(r.seconds_per_frame * 1e3)}</td><td><a href="#/scene/${encodeURIComponent(scene)}/${r.id}">${r.id}</a></td></tr>`;
+    }
+    html += "</table>";
+  }
+  view().innerHTML = html;
+}
+
+function paretoFront(points) {
+  const sorted = [...points].sort((a, b) => a[0] - b[0]);
+  const front = [];
+  for (const p of sorted) if (!front.length || p[1] < front[front.length - 1][1]) front.push(p);
+  return front;
+}
+
+async function scenePage(scene, runId) {
+  const runs = await api(`/results?scene=${encodeURIComponent(scene)}&limit=1000`);
+  const sweeps = await api(`/sweeps?scene=${encodeURIComponent(scene)}&limit=1`);
+  const v = view();
+  v.innerHTML = `<h2>${esc(scene)}</h2><h3>Error vs time (per device)</h3><div class="plots" id="pareto"></div>
+    <h3>Adaptive equal-bias sweep</h3><div class="plots" id="sweep"></div>
+    <h3>Run</h3><p><select id="run"></select></p>
+    <h3>Convergence over frames</h3><div class="plots" id="convergence"></div>
+    <h3>Images (click to crop)</h3><div class="images" id="images"></div>`;
+  const devices = [...new Set(runs.map((r) => r.device_key))];
+  const series = [];
+  devices.forEach((d, i) => {
+    const pts = runs.filter((r) => r.device_key === d && r.mrse > 0)
+      .map((r) => [r.seconds_per_frame * 1e3, r.mrse]);
+    series.push({ name: d, color: DEVICE_COLORS[i % 5], points: pts, scatter: true });
+    series.push({ name: `${d} Pareto front`, color: DEVICE_COLORS[i % 5], points: paretoFront(pts), dashed: true });
+  });
+  linePlot(document.getElementById("pareto"), { title: "MRSE vs ms per frame", xlabel: "ms per frame",
+    ylabel: "MRSE", logx: true, logy: true, series, width: 560, height: 320 });
+
+  const sweepEl = document.getElementById("sweep");
+  if (!sweeps.length) sweepEl.innerHTML = "<p class='muted'>No sweep of this scene yet (<code>nirc-bench sweep --scene NAME --eps 0.05:1.0</code>).</p>";
+  else {
+    const rows = sweeps[0].result.rows || [];
+    const names = [...new Set(rows.map((r) => r.series))];
+    for (const [key, title, log] of [["mrse", "MRSE", true], ["flip", "FLIP", false], ["rbias2", "rBias²", true], ["rvar", "rVar", true]]) {
+      linePlot(sweepEl, { title: `${title} (sweep ${sweeps[0].id})`, xlabel: "% indirect-radiance bounces", ylabel: title,
+        logy: log, series: names.map((n) => ({ name: n, color: SERIES_COLORS[n], dashed: n.includes("equal time"),
+          points: rows.filter((r) => r.series === n).map((r) => [r.ir_bounces_pct, r[key]]) })) });
+    }
+  }
+
+  const select = document.getElementById("run");
+  select.innerHTML = runs.map((r) => `<option value="${r.id}">${r.id}: ${esc(label(r))} — ${esc(r.device_key)}</option>`).join("");
+  if (runId) select.value = runId;
+  select.onchange = () => { location.hash = `#/scene/${encodeURIComponent(scene)}/${select.value}`; };
+  if (runs.length) await runDetail(select.value || runs[0].id);
+}
+
+async function runDetail(runId) {
+  const run = await api(`/runs/${runId}`);
+  const conv = document.getElementById("convergence");
+  const seeds = run.per_seed.filter((s) => s.metrics.convergence);
+  linePlot(conv, { title: `run ${run.id}: MRSE over frames`, xlabel: "frame", ylabel: "MRSE", logy: true, width: 560,
+    series: seeds.flatMap((s, i) => [
+      { name: `seed ${s.seed}`, color: DEVICE_COLORS[i % 5], points: s.metrics.convergence.frame_mrse.map((y, x) => [x, y]) },
+      { name: `seed ${s.seed} accumulated`, color: DEVICE_COLORS[i % 5], dashed: true,
+        points: s.metrics.convergence.accumulated_mrse.map((y, x) => [x, y]) }]) });
+  const art = (kind) => run.artifacts.find((a) => a.kind === kind);
+  const images = [["reference", run.reference_id ? `/api/v1/references/${run.reference_id}/preview.png` : null],
+    [label(run), art("preview")?.url], ["error map", art("error_map")?.url]];
+  const box = document.getElementById("images");
+  box.innerHTML = images.map(([name, src]) => `<figure><div class="crop">${src ? `<img src="${src}" alt="${esc(name)}">` : ""}</div>
+    <figcaption>${esc(name)}</figcaption></figure>`).join("");
+  const imgs = [...box.querySelectorAll("img")];
+  const fit = () => imgs.forEach((img) => { img.style.width = "256px"; img.style.transform = "none"; });
+  fit();
+  box.querySelectorAll(".crop").forEach((crop) => crop.addEventListener("click", (ev) => {
+    const rect = crop.getBoundingClientRect();
+    const fx = (ev.clientX - rect.left) / rect.width, fy = (ev.clientY - rect.top) / rect.height;
+    const zoom = imgs[0] && imgs[0].style.transform.includes("scale") ? 1 : 4;
+    if (zoom === 1) return fit();
+    imgs.forEach((img) => {
+      img.style.transform = `translate(${-(fx * 256 * 4 - 128)}px, ${-(fy * 256 * 4 - 128)}px) scale(4)`;
+    });
+  }));
+}
+
+async function jobsPage() {
+  const jobs = await api("/jobs?limit=100");
+  let html = `<h2>Jobs</h2><table><tr><th>id</th><th class="text">kind</th><th class="text">status</th>
+    <th class="text">progress</th><th>attempts</th><th class="text">worker</th><th class="text">error</th><th>result</th></tr>`;
+  for (const j of jobs) {
+    const p = j.progress && j.progress.total ? `${esc(j.progress.stage)} ${j.progress.done}/${j.progress.total}` : "";
+    const result = j.run_id ? `run ${j.run_id}` : j.sweep_id ? `sweep ${j.sweep_id}` : "";
+    html += `<tr><td>${j.id}</td><td class="text">${j.kind}</td><td class="text status-${j.status}">${j.status}</td>
+      <td class="text">${p}</td><td>${j.attempts}/${j.max_attempts}</td><td class="text">${esc(j.worker)}</td>
+      <td class="text">${esc(j.error)}</td><td>${result}</td></tr>`;
+  }
+  view().innerHTML = html + "</table><p class='muted'>refreshes every 2 s</p>";
+}
+
+async function route() {
+  clearTimeout(timer);
+  const parts = location.hash.replace(/^#\/?/, "").split("/").map(decodeURIComponent);
+  try {
+    if (parts[0] === "jobs") { await jobsPage(); timer = setTimeout(route, 2000); }
+    else if (parts[0] === "scene" && parts[1]) await scenePage(parts[1], parts[2]);
+    else await overview();
+  } catch (err) {
+    view().innerHTML = `<p class="status-failed">${esc(err.message)}</p>`;
+  }
+}
+
+window.addEventListener("hashchange", route);
+route();
