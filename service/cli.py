@@ -97,6 +97,20 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
     console.print(key_value_table(f"{kind} result (job {job['id']})", shown))
 
 
+def _run(server: str | None, api_key: str | None, kind: str, spec: Any, as_json: bool,
+         data_dir: Path | None, job: Callable[[Any, Any, Any], Any],
+         to_json: Callable[[Any], Any], table: Callable[[Any], Any],
+         out: Path | None = None) -> None:
+    """Submit ``spec`` to ``server`` if given, else run ``job`` here (see below)."""
+    if server and out is not None:
+        raise UsageError("--out writes local files: it cannot be used with --server "
+                         "(fetch results from the service's /api/v1 instead)")
+    if server:
+        _run_remote(server, api_key, kind, spec, as_json)
+    else:
+        _run_embedded(job, data_dir, as_json, to_json, table)
+
+
 def _run_embedded(job: Callable[[Any, Any, Any], Any], data_dir: Path | None, as_json: bool,
                   to_json: Callable[[Any], Any], table: Callable[[Any], Any]) -> Any:
     """Run ``job(store, settings, progress)`` in this process and print its result
@@ -236,13 +250,10 @@ def render(
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
                       time_budget=budget)
-    if server:
-        _run_remote(server, api_key, "render", spec, as_json)
-        return
-    _run_embedded(
-        lambda store, settings, report: execute(spec, store, settings, progress=report,
-                                                out_dir=out),
-        data_dir, as_json, lambda s: s.to_json(), metrics_table)
+    _run(server, api_key, "render", spec, as_json, data_dir,
+         lambda store, settings, report: execute(spec, store, settings, progress=report,
+                                                 out_dir=out),
+         lambda s: s.to_json(), metrics_table, out)
     if out is not None and not as_json:
         console.print(f"images and summary.json written to {out}")
 
@@ -358,13 +369,10 @@ def sweep(
         max_depth=max_depth, termination=termination, equal_time=equal_time,
         time_tolerance_ms=tolerance_ms, params=dict(_parse_param(p) for p in param or []),
         reference=ReferenceSpec(spp=ref_spp))
-    if server:
-        _run_remote(server, api_key, "sweep", spec, as_json)
-        return
-    _run_embedded(
-        lambda store, settings, report: run_sweep(spec, store, settings, progress=report,
-                                                  out_dir=out),
-        data_dir, as_json, lambda r: r.to_json(), sweep_table)
+    _run(server, api_key, "sweep", spec, as_json, data_dir,
+         lambda store, settings, report: run_sweep(spec, store, settings, progress=report,
+                                                   out_dir=out),
+         lambda r: r.to_json(), sweep_table, out)
 
 
 @app.command()

@@ -151,3 +151,13 @@ def test_sweep_prints_the_table_writes_plots_and_reuses_everything(tmp_path):
     result = json.loads(again.stdout)
     assert result["work"]["points_rendered"] == 0 and result["work"]["snapshots_trained"] == 0
     assert len(result["rows"]) == 6
+
+
+def test_server_errors_are_clear(tmp_path):
+    unreachable = run_cli("render", "--scene", "cornell-box", "--server", "http://127.0.0.1:9",
+                          data_dir=tmp_path)
+    assert_clean_error(unreachable, "cannot reach the service")
+    assert unreachable.returncode == 2
+    with_out = run_cli("sweep", "--scene", "cornell-box", "--eps", "0.5", "--server",
+                       "http://127.0.0.1:9", "--out", str(tmp_path / "x"), data_dir=tmp_path)
+    assert_clean_error(with_out, "--out")

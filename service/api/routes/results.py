@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
@@ -25,6 +25,13 @@ def _not_found(what: str) -> HTTPException:
     return HTTPException(status.HTTP_404_NOT_FOUND, f"no {what}")
 
 
+def _found(row: Any, what: str) -> Any:
+    """``row``, or a 404 naming ``what`` when it is None."""
+    if row is None:
+        raise _not_found(what)
+    return row
+
+
 @router.get("/results", response_model=list[RunOut])
 def list_results(store: StoreDep, scene: Filter = None, method: Filter = None,
                  device: Filter = None,
@@ -36,10 +43,7 @@ def list_results(store: StoreDep, scene: Filter = None, method: Filter = None,
 @router.get("/runs/{run_id}", response_model=RunDetail)
 def get_run(run_id: RowId, store: StoreDep) -> RunDetail:
     """A run's metrics per seed and aggregated, timings, provenance and artifacts."""
-    run = store.get_run(run_id)
-    if run is None:
-        raise _not_found(f"run {run_id}")
-    return RunDetail.of(run)
+    return RunDetail.of(_found(store.get_run(run_id), f"run {run_id}"))
 
 
 @router.get("/compare", response_model=Comparison)
@@ -49,10 +53,7 @@ def compare(store: StoreDep,
     """Runs side by side; timings compare only when the device is the same."""
     rows = []
     for run_id in dict.fromkeys(int(part) for part in runs.split(",")):
-        run = store.get_run(run_id)
-        if run is None:
-            raise _not_found(f"run {run_id}")
-        rows.append(RunOut.of(run))
+        rows.append(RunOut.of(_found(store.get_run(run_id), f"run {run_id}")))
     same_device = len({r.device_key for r in rows}) == 1
     same_scene = len({(r.scene_fingerprint, tuple(r.resolution)) for r in rows}) == 1
     note = ("timings comparable (same device)" if same_device else
@@ -71,9 +72,7 @@ def list_sweeps(store: StoreDep, scene: Filter = None,
 @router.get("/references/{reference_id}/preview.png", response_class=Response)
 def reference_preview(reference_id: RowId, store: StoreDep, settings: SettingsDep) -> Response:
     """The tone-mapped preview of a converged reference (PNG, rendered on request)."""
-    reference = store.get_reference(reference_id)
-    if reference is None:
-        raise _not_found(f"reference {reference_id}")
+    reference = _found(store.get_reference(reference_id), f"reference {reference_id}")
     try:
         image = read_exr(settings.references_dir / reference.image_path)
     except ImageReadError:
@@ -84,10 +83,7 @@ def reference_preview(reference_id: RowId, store: StoreDep, settings: SettingsDe
 
 @router.get("/sweeps/{sweep_id}", response_model=SweepOut)
 def get_sweep(sweep_id: RowId, store: StoreDep) -> SweepOut:
-    sweep = store.get_sweep(sweep_id)
-    if sweep is None:
-        raise _not_found(f"sweep {sweep_id}")
-    return SweepOut.of(sweep)
+    return SweepOut.of(_found(store.get_sweep(sweep_id), f"sweep {sweep_id}"))
 
 
 @router.get("/artifacts/{artifact_id}", response_class=FileResponse)
