@@ -14,12 +14,16 @@ demo: bootstrap
 	$(CLI) render --scene cornell-box --method pt --res 64 --spp 1 --frames 4 --seeds 8 \
 		--ref-spp 4096 --out $(DEMO_DIR)
 
-# The store/queue tests also run on a throw-away PostgreSQL server on loopback.
+# The store/queue tests also run on a throw-away PostgreSQL server on loopback, and
+# the dashboard tests in a headless Chromium (both installed from Debian if missing).
+TEST_ENV := NIRC_BENCH_TEST_PG_URL=$$(bash scripts/test_postgres.sh) \
+	NIRC_BENCH_TEST_CHROMIUM=$$(bash scripts/test_browser.sh)
+
 test: bootstrap
-	NIRC_BENCH_TEST_PG_URL=$$(bash scripts/test_postgres.sh) $(PY) -m pytest -q
+	$(TEST_ENV) $(PY) -m pytest -q
 
 test-fast: bootstrap
-	NIRC_BENCH_TEST_PG_URL=$$(bash scripts/test_postgres.sh) $(PY) -m pytest -q -m "not slow"
+	$(TEST_ENV) $(PY) -m pytest -q -m "not slow"
 
 bench: bootstrap
 	$(PY) -m benchmarks.bench_pt

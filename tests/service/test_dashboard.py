@@ -1,0 +1,116 @@
+"""The dashboard in a real headless Chromium (Debian's, driven by Playwright): the
+overview, a scene page and the job list render their tables, plots and images with
+no console errors; screenshots are kept in test-artifacts/."""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import uvicorn
+
+from jobs.config import Settings
+from jobs.db import open_store
+from jobs.executor import execute
+from jobs.queue import JobQueue
+from jobs.spec import ReferenceSpec, RenderSpec
+from service.api.main import create_app
+
+ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
+CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update",
+                  "--disable-sync"]
+SWEEP_ROWS = [{"series": series, "eps": eps, "ir_bounces_pct": 100 * (1 - eps),
+               "mrse": 0.1 * scale * (1 + eps), "mrse_ci95": None, "flip": 0.3 + eps / 10,
+               "rbias2": 0.01 * scale * eps, "rvar": 0.05 * scale, "ms_frame": 20.0}
+              for series, scale in (("NIRC", 1.0), ("NRC", 2.0), ("NIRC equal time", 0.8))
+              for eps in (0.25, 0.5, 1.0)]
+
+
+@pytest.fixture(scope="module")
+def chromium():
+    path = os.environ.get("NIRC_BENCH_TEST_CHROMIUM")
+    if not path:
+        pytest.skip("no Chromium (NIRC_BENCH_TEST_CHROMIUM unset; `make test` installs "
+                    "Debian's chromium with scripts/test_browser.sh)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=path, args=CHROMIUM_FLAGS)
+        yield browser
+        browser.close()
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory, mi):
+    """A service on loopback with two runs (one with 4 frames), a sweep and a job."""
+    settings = Settings(data_dir=tmp_path_factory.mktemp("dash") / "data")
+    store = open_store(settings)
+    spec = RenderSpec(scene="cornell-box", resolution=16, spp=1, frames=4, seeds=2,
+                      reference=ReferenceSpec(spp=64, spp_per_pass=8))
+    execute(spec, store, settings)
+    execute(spec.model_copy(update={"spp": 2}), store, settings)
+    sweep = store.start_sweep(key="k", kind="eps", scene_name="cornell-box",
+                              scene_fingerprint="f", spec={}, result={}, device_key="test")
+    store.finish_sweep(sweep.id, status="succeeded", result={"rows": SWEEP_ROWS},
+                       finished_at=None)
+    JobQueue(store).submit("render", spec.model_dump(mode="json"), "queued-job")
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port,
+                                           log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    while not server.started:
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}"
+    server.should_exit = True
+    thread.join(timeout=10)
+    store.close()
+
+
+def _open(chromium, url: str):
+    page = chromium.new_page(viewport={"width": 1300, "height": 1800})
+    errors: list[str] = []
+    page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
+    page.on("pageerror", lambda err: errors.append(str(err)))
+    page.goto(url)
+    return page, errors
+
+
+def test_overview_lists_the_latest_results(chromium, site):
+    page, errors = _open(chromium, f"{site}/#/")
+    page.wait_for_selector("table td")
+    assert "cornell-box" in page.inner_text("main")
+    assert page.locator("table tr").count() >= 3   # header + pt 1 spp + pt 2 spp
+    ARTIFACTS.mkdir(exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / "dashboard-overview.png"))
+    assert errors == []
+
+
+def test_scene_page_draws_plots_and_images(chromium, site):
+    page, errors = _open(chromium, f"{site}/#/scene/cornell-box")
+    page.wait_for_function("document.querySelectorAll('svg.plot').length >= 6")
+    plots = page.locator("svg.plot")
+    # Pareto, 4 sweep panels, convergence: each has drawn points, not "no data".
+    for i in range(plots.count()):
+        assert plots.nth(i).locator("circle").count() > 0, plots.nth(i).inner_text()
+    page.wait_for_function(
+        "[...document.querySelectorAll('#images img')].every(i => i.complete && i.naturalWidth > 0)")
+    assert page.locator("#images img").count() == 3      # reference, method, error map
+    page.locator(".crop").first.click()                 # crop: all images zoom together
+    assert "scale(4)" in page.locator("#images img").first.get_attribute("style")
+    page.screenshot(path=str(ARTIFACTS / "dashboard-scene.png"), full_page=True)
+    assert errors == []
+
+
+def test_job_list_shows_live_status(chromium, site):
+    page, errors = _open(chromium, f"{site}/#/jobs")
+    page.wait_for_selector("td.status-queued")
+    page.screenshot(path=str(ARTIFACTS / "dashboard-jobs.png"))
+    assert errors == []
