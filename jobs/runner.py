@@ -49,7 +49,7 @@ PROGRESS_INTERVAL_S = 1.0
 MAX_JOBS_PER_CHILD = 100
 #: Set by Dask's nanny for its worker processes (1 thread, aggressive malloc trimming);
 #: a render process uses every core and the allocator's defaults.
-_SINGLE_THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+_DASK_WORKER_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                             "MALLOC_TRIM_THRESHOLD_")
 
 
@@ -89,7 +89,7 @@ class _Child:
         self.settings = settings
         self.jobs = 0
         env = {key: value for key, value in os.environ.items()
-               if key not in _SINGLE_THREAD_VARIABLES}
+               if key not in _DASK_WORKER_VARIABLES}
         env.update(NIRC_BENCH_DATA_DIR=str(settings.data_dir),
                    NIRC_BENCH_DATABASE_URL=str(settings.database_url))
         # stderr goes to a file, not a pipe: a chatty child must never block on it.

@@ -137,6 +137,7 @@ class _Sweep:
         self.snapshots: dict[tuple[str, int], Snapshot] = {}
         self.skipped: list[dict[str, str]] = []
         self._probes: dict[int, Any] = {}     # calibration integrators by N_c at v1
+        self._bias: dict[str, np.ndarray] = {}  # relative-bias maps by snapshot key
         # One bar across the whole sweep: caches, then points (reused ones count too).
         n_points = len(spec.eps or spec.nc or [])
         self.units_total = (len(spec.methods) * (spec.seeds + n_points)
@@ -192,8 +193,11 @@ class _Sweep:
         return integrator
 
     def bias(self, snap: Snapshot) -> np.ndarray:
-        return relative_bias_map(snap.v1_image, self.prepared.reference.mean,
-                                 self.spec.metric_eps)
+        """The snapshot's relative-bias map (computed once; every eps and probe reuses it)."""
+        if snap.key not in self._bias:
+            self._bias[snap.key] = relative_bias_map(snap.v1_image, self.prepared.reference.mean,
+                                                     self.spec.metric_eps)
+        return self._bias[snap.key]
 
     def skip_reason(self, method: str) -> str | None:
         """Why ``method`` cannot be swept on this scene (None: it can)."""

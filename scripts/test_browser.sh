@@ -3,14 +3,6 @@
 # `chromium` when it is missing (as root with apt), like the bootstrap does for libLLVM.
 #   NIRC_BENCH_TEST_CHROMIUM=$(bash scripts/test_browser.sh)
 set -euo pipefail
-if ! command -v chromium >/dev/null; then
-    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-        echo "installing chromium (Debian) for the dashboard tests..." >&2
-        DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >&2 \
-            || { apt-get update -q >&2 && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >&2; }
-    else
-        echo "Chromium is not installed: sudo apt-get install chromium" >&2
-        exit 1
-    fi
-fi
+source "$(dirname "$0")/debian.sh"
+ensure_debian_package "command -v chromium >/dev/null" chromium "the dashboard tests"
 command -v chromium

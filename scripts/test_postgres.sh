@@ -11,16 +11,8 @@ BASE="${NIRC_BENCH_TEST_PG_DIR:-/tmp/nirc-bench-pg-$PORT}"
 
 bindir() { ls -d /usr/lib/postgresql/*/bin 2>/dev/null | sort -V | tail -1; }
 
-if [ -z "$(bindir)" ]; then
-    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-        echo "installing postgresql (Debian) for the tests..." >&2
-        DEBIAN_FRONTEND=noninteractive apt-get install -y -q postgresql >&2 \
-            || { apt-get update -q >&2 && DEBIAN_FRONTEND=noninteractive apt-get install -y -q postgresql >&2; }
-    else
-        echo "PostgreSQL is not installed: sudo apt-get install postgresql" >&2
-        exit 1
-    fi
-fi
+source "$(dirname "$0")/debian.sh"
+ensure_debian_package '[ -n "$(bindir)" ]' postgresql "the PostgreSQL tests"
 BIN="$(bindir)"
 
 # initdb and postgres refuse to run as root: run them as an unprivileged user.

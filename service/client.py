@@ -8,7 +8,9 @@ from typing import Any
 
 import httpx
 
-FINAL = ("succeeded", "failed", "canceled")
+from jobs.models import FINAL_JOB_STATES
+
+FINAL = tuple(state.value for state in FINAL_JOB_STATES)
 
 
 class RemoteError(RuntimeError):

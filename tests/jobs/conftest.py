@@ -2,9 +2,7 @@
 
 ``settings`` / ``store`` run every test that uses them twice: on a SQLite file in a
 temporary folder, and on a fresh database of the PostgreSQL test server
-(``scripts/test_postgres.sh``, started by ``make test``; its URL comes in
-``NIRC_BENCH_TEST_PG_URL``). Without that variable the PostgreSQL case is skipped
-with the reason, never silently passed.
+(``scripts/test_postgres.sh``, see ``tests/setup_services.py``).
 """
 
 from collections.abc import Iterator

@@ -4,7 +4,6 @@ no console errors; screenshots are kept in test-artifacts/."""
 
 from __future__ import annotations
 
-import os
 import socket
 import threading
 import time
@@ -19,6 +18,7 @@ from jobs.executor import execute
 from jobs.queue import JobQueue
 from jobs.spec import ReferenceSpec, RenderSpec
 from service.api.main import create_app
+from tests.setup_services import chromium_path
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -33,12 +33,9 @@ SWEEP_ROWS = [{"series": series, "eps": eps, "ir_bounces_pct": 100 * (1 - eps),
 
 @pytest.fixture(scope="module")
 def chromium():
-    path = os.environ.get("NIRC_BENCH_TEST_CHROMIUM")
-    if not path:
-        pytest.skip("no Chromium (NIRC_BENCH_TEST_CHROMIUM unset; `make test` installs "
-                    "Debian's chromium with scripts/test_browser.sh)")
     from playwright.sync_api import sync_playwright
 
+    path = chromium_path()
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=path, args=CHROMIUM_FLAGS)
         yield browser
