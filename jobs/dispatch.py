@@ -12,6 +12,11 @@ advertise the resource ``GPU=1``; GPU jobs ask for it. On SLURM, dask-jobqueue's
 A Dask task only calls :func:`jobs.runner.run_job`, which claims the job in
 the database, so a task that Dask runs twice (a worker lost mid-task) cannot
 run a job twice: the second claim finds it running or finished.
+
+A sweep is submitted as its task graph (jobs/graph.py): one task per stage job,
+each depending on the tasks of the stages it needs, and the sweep job's own
+task last. A task receives the final statuses of its upstream tasks; a failed
+stage fails everything downstream of it (jobs.runner.run_job).
 """
 
 from __future__ import annotations
@@ -20,11 +25,17 @@ import socket
 from typing import Any
 
 from jobs.config import Settings
+from jobs.db import open_store
+from jobs.graph import final_stages, sweep_stages
 from jobs.models import Job
+from jobs.queue import JobQueue
+from jobs.spec import SweepSpec
 
 
-def run_job_task(job_id: int, settings_json: dict[str, Any], timeout_s: float | None) -> str:
-    """The Dask task: run one job (in its own child process) and return its status."""
+def run_job_task(job_id: int, settings_json: dict[str, Any], timeout_s: float | None,
+                 *upstream: str) -> str:
+    """The Dask task: run one job (in its own child process) and return its status;
+    ``upstream``: the statuses of the tasks it depends on."""
     from distributed import get_worker
 
     from jobs.runner import run_job
@@ -33,7 +44,8 @@ def run_job_task(job_id: int, settings_json: dict[str, Any], timeout_s: float | 
         worker = get_worker().address
     except ValueError:  # run outside a worker (tests)
         worker = socket.gethostname()
-    return run_job(job_id, Settings(**settings_json), worker=worker, timeout_s=timeout_s)
+    return run_job(job_id, Settings(**settings_json), worker=worker, timeout_s=timeout_s,
+                   upstream=upstream)
 
 
 class Dispatcher:
@@ -46,6 +58,7 @@ class Dispatcher:
 
         self.settings = settings
         self.timeout_s = timeout_s
+        self.queue = JobQueue(open_store(settings))
         self.cluster = None
         # Dask's statistical profiler samples every worker thread 100 times a second:
         # on a 2-core machine that steals measurable time from the render process.
@@ -60,16 +73,30 @@ class Dispatcher:
             self.client = Client(self.cluster)
 
     def submit(self, job: Job) -> None:
-        """Run ``job`` on a worker (GPU jobs on a worker with the GPU resource)."""
+        """Run ``job`` on a worker (GPU jobs on a worker with the GPU resource); a sweep
+        as its task graph of stage jobs, the sweep job last."""
         from distributed import fire_and_forget
 
+        upstream = []
+        if job.kind == "sweep":
+            stages = sweep_stages(SweepSpec(**job.spec))
+            rows = self.queue.stage_jobs(job, stages)
+            futures: dict[str, Any] = {}
+            for stage in stages:
+                futures[stage.name] = self._submit(rows[stage.name],
+                                                   [futures[name] for name in stage.after])
+            upstream = [futures[stage.name] for stage in final_stages(stages)]
+        fire_and_forget(self._submit(job, upstream))
+
+    def _submit(self, job: Job, upstream: list[Any]) -> Any:
         resources = {"GPU": 1} if job.device_class == "gpu" else None
-        future = self.client.submit(
+        return self.client.submit(
             run_job_task, job.id, self.settings.model_dump(mode="json"), self.timeout_s,
-            key=f"nirc-job-{job.id}-{job.attempts}", pure=False, resources=resources)
-        fire_and_forget(future)
+            *upstream, key=f"nirc-job-{job.id}-{job.attempts}", pure=False,
+            resources=resources)
 
     def close(self) -> None:
+        self.queue.store.close()
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()

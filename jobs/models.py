@@ -361,6 +361,9 @@ class Job(Base):
     what is still queued or running. ``spec_key`` addresses the spec (equal
     specs dedupe to one live job); ``idempotency_key`` is the client's
     ``Idempotency-Key``. The result is ``run_id`` (render) or ``sweep_id``.
+    A sweep runs as a task graph of *stage* jobs (kind ``stage``, ``parent_id``
+    the sweep's job; jobs/graph.py), each queued, retried and isolated like
+    any job.
     """
 
     __tablename__ = "jobs"
@@ -368,12 +371,14 @@ class Job(Base):
         CheckConstraint(
             "status IN ('queued', 'running', 'succeeded', 'failed', 'canceled')", name="status"
         ),
-        CheckConstraint("kind IN ('render', 'sweep')", name="kind"),
+        CheckConstraint("kind IN ('render', 'sweep', 'stage')", name="kind"),
         Index("ix_jobs_status_created_at", "status", "created_at"),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
     kind: Mapped[str] = mapped_column(String)
+    parent_id: Mapped[int | None] = mapped_column(
+        ForeignKey("jobs.id", ondelete="CASCADE"), index=True)
     spec: Mapped[dict[str, Any]] = mapped_column(default=dict)
     spec_key: Mapped[str] = mapped_column(String, index=True)
     idempotency_key: Mapped[str | None] = mapped_column(String, unique=True)

@@ -16,6 +16,12 @@ may take the job over (one more attempt). On start the service dispatches
 every job that is not final again (:meth:`JobQueue.unfinished`): queued ones
 start, running ones are taken over once their lease expires — or simply
 reported done if their runner is alive and finishes.
+
+A sweep's stages (jobs/graph.py) are jobs too, children of the sweep's job:
+they are made once per sweep job (:meth:`JobQueue.stage_jobs`, idempotent),
+canceled with it, and re-dispatched through it, never on their own. A job
+whose upstream stage failed is *abandoned*: failed without running, with the
+stage's error.
 """
 
 from __future__ import annotations
@@ -48,7 +54,7 @@ class JobQueue:
 
     def submit(self, kind: str, spec: dict[str, Any], spec_key: str, *,
                idempotency_key: str | None = None, device_class: str = "cpu",
-               max_attempts: int = 3) -> tuple[Job, bool]:
+               max_attempts: int = 3, parent_id: int | None = None) -> tuple[Job, bool]:
         """Store a new queued job, or return the existing one: the job submitted
         under ``idempotency_key``, else a live or succeeded job with the same spec.
         Returns (job, created)."""
@@ -57,7 +63,8 @@ class JobQueue:
             return existing, False
         job = Job(kind=kind, spec=spec, spec_key=spec_key, idempotency_key=idempotency_key,
                   device_class=device_class, status=JobStatus.QUEUED.value, attempts=0,
-                  max_attempts=max_attempts, progress={}, cancel_requested=False)
+                  max_attempts=max_attempts, progress={}, cancel_requested=False,
+                  parent_id=parent_id)
         try:
             with self.store.session(write=True) as session:
                 session.add(job)
@@ -78,6 +85,25 @@ class JobQueue:
             return session.scalars(
                 select(Job).where(Job.spec_key == spec_key, Job.status.in_(_DEDUPE_STATES))
                 .order_by(Job.id.desc()).limit(1)).one_or_none()
+
+    def stage_jobs(self, parent: Job, stages: Sequence[Any]) -> dict[str, Job]:
+        """The stage jobs of the sweep job ``parent`` (jobs.graph.Stage), made on first
+        call and returned by name afterwards (their keys derive from the parent's id)."""
+        jobs = {}
+        for stage in stages:
+            spec = {"sweep": parent.spec, "name": stage.name, "task": stage.task}
+            jobs[stage.name], _ = self.submit(
+                "stage", spec, f"job-{parent.id}-stage-{stage.name}",
+                idempotency_key=f"job-{parent.id}-stage-{stage.name}",
+                device_class=parent.device_class, max_attempts=parent.max_attempts,
+                parent_id=parent.id)
+        return jobs
+
+    def children(self, parent_id: int) -> list[Job]:
+        """The stage jobs of a sweep job, in the order they were made."""
+        with self.store.session() as session:
+            return list(session.scalars(
+                select(Job).where(Job.parent_id == parent_id).order_by(Job.id)))
 
     def get(self, job_id: int) -> Job | None:
         with self.store.session() as session:
@@ -152,11 +178,33 @@ class JobQueue:
                          status=final.value, error=error, finished_at=_now())
         return final.value
 
+    def abandon(self, job_id: int, error: str) -> str:
+        """A queued job whose upstream stage did not succeed: failed (canceled if its
+        cancel was asked for) without running. Returns its status."""
+        for final, requested in ((JobStatus.CANCELED, True), (JobStatus.FAILED, False)):
+            self._transition(job_id, [Job.status == JobStatus.QUEUED.value,
+                                      Job.cancel_requested.is_(requested)],
+                             status=final.value, error=error, finished_at=_now())
+        job = self.get(job_id)
+        return job.status if job else JobStatus.FAILED.value
+
+    def upstream_error(self, job: Job) -> str:
+        """Why ``job``'s upstream stages did not all succeed: the first stage of its
+        sweep (its own stages, or its siblings) that failed or was canceled."""
+        family = self.children(job.parent_id if job.parent_id is not None else job.id)
+        for stage in family:
+            if stage.status in (JobStatus.FAILED.value, JobStatus.CANCELED.value):
+                return f"stage '{stage.spec.get('name')}' {stage.status}: {stage.error}"
+        return "an upstream stage did not succeed"
+
     def cancel(self, job_id: int) -> Job | None:
-        """Cancel a queued job now; ask a running one to stop (its runner kills it)."""
+        """Cancel a queued job now; ask a running one to stop (its runner kills it).
+        Canceling a sweep cancels its stages."""
         job = self.get(job_id)
         if job is None or job.status in [s.value for s in FINAL_JOB_STATES]:
             return job
+        for stage in self.children(job_id):
+            self.cancel(stage.id)
         self._transition(job_id, [Job.status == JobStatus.QUEUED.value],
                          status=JobStatus.CANCELED.value, cancel_requested=True,
                          finished_at=_now())
@@ -169,9 +217,11 @@ class JobQueue:
         return bool(job and job.cancel_requested)
 
     def unfinished(self) -> list[int]:
-        """Ids of jobs that are queued or running, oldest first (dispatched again on start)."""
+        """Ids of jobs that are queued or running, oldest first (dispatched again on
+        start; a sweep's stages go with their sweep)."""
         with self.store.session() as session:
             return list(session.scalars(
                 select(Job.id).where(Job.status.in_([JobStatus.QUEUED.value,
-                                                     JobStatus.RUNNING.value]))
+                                                     JobStatus.RUNNING.value]),
+                                     Job.parent_id.is_(None))
                 .order_by(Job.id)))

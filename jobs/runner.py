@@ -34,6 +34,7 @@ import tempfile
 import threading
 import time
 import traceback
+from collections.abc import Sequence
 from typing import Any
 
 from jobs.config import Settings
@@ -54,15 +55,20 @@ _DASK_WORKER_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_TH
 
 
 def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | None = None,
-            poll_s: float = 1.0) -> str:
+            poll_s: float = 1.0, upstream: Sequence[str] = ()) -> str:
     """Claim and run ``job_id`` until it succeeds, fails for good or is canceled.
 
+    ``upstream``: the final statuses of the stages this job needs (a sweep's task
+    graph); if one did not succeed, the job is abandoned without running.
     Returns the job's final status (or its current one if another worker has it).
     """
     store = open_store(settings)
     queue = JobQueue(store)
     lease_s = settings.job_lease_s
     try:
+        if any(status != JobStatus.SUCCEEDED.value for status in upstream):
+            job = queue.get(job_id)
+            return queue.abandon(job_id, queue.upstream_error(job)) if job else "missing"
         while True:
             if queue.claim(job_id, worker, lease_s=lease_s) is None:
                 job = queue.get(job_id)
@@ -182,8 +188,12 @@ def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict
     """Run a job's spec through the one executor; returns the result ids."""
     from jobs.executor import execute
     from jobs.spec import RenderSpec, SweepSpec
-    from jobs.sweep import run_sweep
+    from jobs.sweep import run_stage, run_sweep
 
+    if job.kind == "stage":
+        run_stage(SweepSpec(**job.spec["sweep"]), job.spec["task"], store, settings,
+                  progress=progress)
+        return {}
     if job.kind == "sweep":
         result = run_sweep(SweepSpec(**job.spec), store, settings, progress=progress)
         return {"sweep_id": result.sweep_id}

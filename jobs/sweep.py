@@ -337,6 +337,24 @@ class _Sweep:
         self.report("calibration", self.work["calibrations"] + 1, len(self.spec.eps))
         return output.timings["frame_median_s"]
 
+    def nc_point(self, nc: int) -> Any:
+        """The stored run of biased NIRC with ``nc`` (N_c sweep), rendering it if missing."""
+        params = parse_params("nirc", {**self.spec.params, "max_depth": self.spec.max_depth,
+                                       "estimator": "biased",
+                                       "termination": self.spec.termination, "nc": [nc],
+                                       "pretrain_frames": self.spec.train_frames})
+        spec = self.point_spec("nirc", params)
+        key = digest("sweep-nc-point", spec.model_dump(mode="json"), self.device_key,
+                     self.prepared.reference.key, length=32)
+        run = self.store.find_run_by_idempotency_key(key)
+        if run is not None:
+            self.work["points_reused"] += 1
+            return run
+        summary = execute(spec, self.store, self.settings, idempotency_key=key,
+                          progress=self.report)
+        self.work["points_rendered"] += 1
+        return self.store.get_run(summary.run_id)
+
 
 def _builder(method: str) -> Callable[[Any, Any, int], tuple[Any, Any, Any]]:
     from renderers.methods import nirc, nrc
@@ -444,6 +462,9 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
 
 def _eps_rows(sweep: _Sweep) -> list[dict[str, Any]]:
     series = {method: sweep.series(method) for method in sweep.spec.methods}
+    for method, runs in series.items():   # every cache's training curve goes into the plots
+        for seed in range(sweep.spec.seeds if runs else 0):
+            sweep.snapshot(method, seed)
     rows = [point_row(method, eps, run) for method, runs in series.items() if runs
             for eps, run in sorted(runs.items())]
     if sweep.spec.equal_time and series.get("nirc") and series.get("nrc"):
@@ -458,24 +479,26 @@ def _eps_rows(sweep: _Sweep) -> list[dict[str, Any]]:
 def _nc_rows(sweep: _Sweep) -> list[dict[str, Any]]:
     """A sweep over N_c of biased NIRC (online training, ``train_frames`` pre-training)."""
     rows = []
-    values = sweep.spec.nc or []
-    for nc in values:
-        params = parse_params("nirc", {**sweep.spec.params, "max_depth": sweep.spec.max_depth,
-                                       "estimator": "biased",
-                                       "termination": sweep.spec.termination, "nc": [nc],
-                                       "pretrain_frames": sweep.spec.train_frames})
-        spec = sweep.point_spec("nirc", params)
-        key = digest("sweep-nc-point", spec.model_dump(mode="json"), sweep.device_key,
-                     sweep.prepared.reference.key, length=32)
-        run = sweep.store.find_run_by_idempotency_key(key)
-        if run is None:
-            summary = execute(spec, sweep.store, sweep.settings, idempotency_key=key,
-                              progress=sweep.report)
-            run = sweep.store.get_run(summary.run_id)
-            sweep.work["points_rendered"] += 1
-        else:
-            sweep.work["points_reused"] += 1
+    for nc in sweep.spec.nc or []:
+        run = sweep.nc_point(nc)
         sweep.advance()
         rows.append(point_row(f"NIRC biased {sweep.spec.termination.upper()}", None, run))
     return rows
 
+
+def run_stage(spec: SweepSpec, task: dict[str, Any], store: Store, settings: Settings,
+              progress: Progress | None = None) -> None:
+    """Run one stage of ``spec``'s task graph (jobs/graph.py): store what the sweep
+    would otherwise make itself when it gets there."""
+    sweep = _Sweep(spec, store, settings, progress)   # prepares (renders) the reference
+    match task["stage"]:
+        case "reference":
+            pass
+        case "snapshot":
+            sweep.snapshot(task["method"], int(task["seed"]))
+        case "series":
+            sweep.series(task["method"])
+        case "nc-point":
+            sweep.nc_point(int(task["nc"]))
+        case other:
+            raise ValueError(f"unknown sweep stage {other!r}")

@@ -8,6 +8,17 @@ from typing import Any
 from pydantic import BaseModel
 
 
+class StageOut(BaseModel):
+    """One stage of a sweep's task graph (jobs/graph.py), itself a job."""
+
+    id: int
+    name: str
+    status: str
+    progress: dict[str, Any]
+    attempts: int
+    error: str | None
+
+
 class JobOut(BaseModel):
     id: int
     kind: str
@@ -20,14 +31,31 @@ class JobOut(BaseModel):
     device_class: str
     run_id: int | None
     sweep_id: int | None
+    parent_id: int | None
     created_at: datetime
     started_at: datetime | None
     finished_at: datetime | None
     spec: dict[str, Any]
+    stages: list[StageOut] | None = None
 
     @classmethod
-    def of(cls, job: Any) -> JobOut:
-        return cls.model_validate(job, from_attributes=True)
+    def of(cls, job: Any, stages: list[Any] | None = None) -> JobOut:
+        """``job`` as served; a sweep with ``stages`` shows them, and while its own task
+        waits for them, the progress of the stage running now."""
+        out = cls.model_validate(job, from_attributes=True)
+        if stages:
+            out.stages = [StageOut(id=stage.id, name=stage.spec.get("name", ""),
+                                   status=stage.status, progress=stage.progress,
+                                   attempts=stage.attempts, error=stage.error)
+                          for stage in stages]
+            running = [stage for stage in out.stages
+                       if stage.status == "running" and stage.progress]
+            if not out.progress and running:
+                done = sum(stage.status == "succeeded" for stage in out.stages)
+                out.progress = {**running[0].progress,
+                                "stage": f"[stage {done + 1}/{len(out.stages)}] "
+                                         f"{running[0].progress['stage']}"}
+        return out
 
 
 class ArtifactOut(BaseModel):

@@ -126,7 +126,8 @@ async function jobsPage() {
   for (const j of jobs) {
     const p = j.progress && j.progress.total ? `${esc(j.progress.stage)} ${j.progress.done}/${j.progress.total}` : "";
     const result = j.run_id ? `run ${j.run_id}` : j.sweep_id ? `sweep ${j.sweep_id}` : "";
-    html += `<tr><td>${j.id}</td><td class="text">${j.kind}</td><td class="text status-${j.status}">${j.status}</td>
+    const kind = j.kind === "stage" ? `stage of ${j.parent_id}: ${esc(j.spec.name)}` : j.kind;
+    html += `<tr><td>${j.id}</td><td class="text">${kind}</td><td class="text status-${j.status}">${j.status}</td>
       <td class="text">${p}</td><td>${j.attempts}/${j.max_attempts}</td><td class="text">${esc(j.worker)}</td>
       <td class="text">${esc(j.error)}</td><td>${result}</td></tr>`;
   }

@@ -77,3 +77,36 @@ def test_unfinished_jobs_and_lease_takeover(store):
     assert queue.claim(b.id, "new worker", lease_s=0) is None
     assert not queue.expire(b.id, lease_s=60) and queue.expire(b.id, lease_s=0)
     assert queue.get(b.id).status == "failed" and "stopped" in queue.get(b.id).error
+
+
+def test_a_sweeps_stages_are_made_once_and_go_with_their_sweep(store):
+    from jobs.graph import sweep_stages
+    from jobs.spec import SweepSpec
+
+    queue = JobQueue(store)
+    spec = SweepSpec(scene="cornell-box", seeds=2, eps=[0.5], methods=["nrc"])
+    sweep, _ = queue.submit("sweep", spec.model_dump(mode="json"), "sweep")
+    stages = sweep_stages(spec)
+    first = queue.stage_jobs(sweep, stages)
+    again = queue.stage_jobs(sweep, stages)        # re-dispatched after a restart
+    assert {n: j.id for n, j in first.items()} == {n: j.id for n, j in again.items()}
+    assert [job.spec["name"] for job in queue.children(sweep.id)] == [s.name for s in stages]
+    assert all(job.kind == "stage" and job.parent_id == sweep.id for job in first.values())
+    assert queue.unfinished() == [sweep.id]        # stages are dispatched with their sweep
+    # A stage fails for good: what needs it is abandoned with its error.
+    reference, cache = first["reference"], first["nrc cache 1/2"]
+    queue.claim(reference.id, "w")
+    queue.fail(reference.id, "FileNotFoundError: no scene", retry=False)
+    assert queue.abandon(cache.id, queue.upstream_error(cache)) == "failed"
+    assert queue.get(cache.id).error == "stage 'reference' failed: FileNotFoundError: no scene"
+    assert queue.abandon(sweep.id, queue.upstream_error(queue.get(sweep.id))) == "failed"
+    # Canceling a sweep cancels its stages (queued at once, running ones asked to stop).
+    other, _ = queue.submit("sweep", spec.model_dump(mode="json"), "other")
+    stages_of_other = queue.stage_jobs(other, stages)
+    running = stages_of_other["reference"]
+    queue.claim(running.id, "w")
+    queue.cancel(other.id)
+    assert queue.get(other.id).status == "canceled"
+    assert queue.cancel_requested(running.id) and queue.get(running.id).status == "running"
+    assert {queue.get(j.id).status for n, j in stages_of_other.items() if n != "reference"} \
+        == {"canceled"}

@@ -179,9 +179,10 @@ def test_a_second_identical_sweep_renders_nothing(sweep_env):
     second = run_sweep(small_spec(), store, settings_)
     assert second.sweep_id == first.sweep_id
     assert second.work == {"reference_rendered": 0, "snapshots_trained": 0,
-                           "snapshots_reused": 0, "points_rendered": 0, "points_reused": 9,
+                           "snapshots_reused": 4, "points_rendered": 0, "points_reused": 9,
                            "calibrations": 0}
     assert [r["run_id"] for r in second.rows] == [r["run_id"] for r in first.rows]
+    assert second.snapshots == first.snapshots   # the re-drawn plots show every cache
 
 
 def test_a_new_eps_reuses_the_caches(sweep_env):
@@ -223,3 +224,40 @@ def test_a_scene_without_usable_first_vertices_is_skipped_with_a_reason(tmp_path
     assert set(reasons) == {"nirc", "nrc", "nirc-equal-time"}
     assert "first vertex" in reasons["nirc"]
     store.close()
+
+
+# ---- The sweep as a task graph (jobs/graph.py) -------------------------------------
+
+def _run_staged(spec: SweepSpec, store, settings_):
+    """Every stage in graph order (as the Dask workers would), then the sweep job."""
+    from jobs.graph import sweep_stages
+    from jobs.sweep import run_stage
+
+    for stage in sweep_stages(spec):
+        run_stage(spec, stage.task, store, settings_)
+    return run_sweep(spec, store, settings_)
+
+
+def test_a_sweep_run_as_stages_gives_the_same_points(sweep_env, tmp_path):
+    _, _, direct = sweep_env
+    settings_ = Settings(data_dir=tmp_path / "data")
+    store = open_store(settings_)
+    staged = _run_staged(small_spec(), store, settings_)
+    store.close()
+    # The stages made the reference, every cache and every NIRC/NRC point; the sweep
+    # job only added the equal-time series.
+    assert staged.work["reference_rendered"] == 0 and staged.work["snapshots_trained"] == 0
+    assert staged.work["snapshots_reused"] == 4 and staged.work["points_reused"] == 6
+    assert len(staged.snapshots) == 4     # every cache's training curve is in the plot
+    for name in ("NIRC", "NRC"):
+        for a, b in zip(_series(direct, name), _series(staged, name), strict=True):
+            assert (a["eps"], a["mask_pct"]) == (b["eps"], b["mask_pct"])
+            assert b["mrse"] == pytest.approx(a["mrse"], rel=1e-4), name
+
+
+def test_an_nc_sweep_run_as_stages_renders_its_points_in_the_stages(sweep_env):
+    settings_, store, _ = sweep_env
+    spec = small_spec(eps=None, nc=[1, 2], seeds=2)
+    result = _run_staged(spec, store, settings_)
+    assert result.work["points_rendered"] == 0 and result.work["points_reused"] == 2
+    assert [row["nc"] for row in result.rows] == [1, 2]

@@ -7,7 +7,6 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from pathlib import Path
 
 import pytest
 import uvicorn
@@ -18,28 +17,13 @@ from jobs.executor import execute
 from jobs.queue import JobQueue
 from jobs.spec import ReferenceSpec, RenderSpec
 from service.api.main import create_app
-from tests.setup_services import chromium_path
+from tests.service.conftest import ARTIFACTS, open_page
 
-ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
-CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update",
-                  "--disable-sync"]
 SWEEP_ROWS = [{"series": series, "eps": eps, "ir_bounces_pct": 100 * (1 - eps),
                "mrse": 0.1 * scale * (1 + eps), "mrse_ci95": None, "flip": 0.3 + eps / 10,
                "rbias2": 0.01 * scale * eps, "rvar": 0.05 * scale, "ms_frame": 20.0}
               for series, scale in (("NIRC", 1.0), ("NRC", 2.0), ("NIRC equal time", 0.8))
               for eps in (0.25, 0.5, 1.0)]
-
-
-@pytest.fixture(scope="module")
-def chromium():
-    from playwright.sync_api import sync_playwright
-
-    path = chromium_path()
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=path, args=CHROMIUM_FLAGS)
-        yield browser
-        browser.close()
 
 
 @pytest.fixture(scope="module")
@@ -71,17 +55,8 @@ def site(tmp_path_factory, mi):
     store.close()
 
 
-def _open(chromium, url: str):
-    page = chromium.new_page(viewport={"width": 1300, "height": 1800})
-    errors: list[str] = []
-    page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
-    page.on("pageerror", lambda err: errors.append(str(err)))
-    page.goto(url)
-    return page, errors
-
-
 def test_overview_lists_the_latest_results(chromium, site):
-    page, errors = _open(chromium, f"{site}/#/")
+    page, errors = open_page(chromium, f"{site}/#/")
     page.wait_for_selector("table td")
     assert "cornell-box" in page.inner_text("main")
     assert page.locator("table tr").count() >= 3   # header + pt 1 spp + pt 2 spp
@@ -91,7 +66,7 @@ def test_overview_lists_the_latest_results(chromium, site):
 
 
 def test_scene_page_draws_plots_and_images(chromium, site):
-    page, errors = _open(chromium, f"{site}/#/scene/cornell-box")
+    page, errors = open_page(chromium, f"{site}/#/scene/cornell-box")
     page.wait_for_function("document.querySelectorAll('svg.plot').length >= 6")
     plots = page.locator("svg.plot")
     # Pareto, 4 sweep panels, convergence: each has drawn points, not "no data".
@@ -107,7 +82,7 @@ def test_scene_page_draws_plots_and_images(chromium, site):
 
 
 def test_job_list_shows_live_status(chromium, site):
-    page, errors = _open(chromium, f"{site}/#/jobs")
+    page, errors = open_page(chromium, f"{site}/#/jobs")
     page.wait_for_selector("td.status-queued")
     page.screenshot(path=str(ARTIFACTS / "dashboard-jobs.png"))
     assert errors == []

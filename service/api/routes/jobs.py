@@ -81,12 +81,14 @@ def list_jobs(queue: QueueDep,
     return [JobOut.of(job) for job in queue.list(status_, limit=limit)]
 
 
-@router.get("/jobs/{job_id}", response_model=JobOut)
+@router.get("/jobs/{job_id}", response_model=JobOut,
+            description="A job's status and progress; a sweep lists its stages (the task "
+                        "graph: reference, caches, points), each a job of its own.")
 def get_job(job_id: RowId, queue: QueueDep) -> JobOut:
     job = queue.get(job_id)
     if job is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no job {job_id}")
-    return JobOut.of(job)
+    return JobOut.of(job, queue.children(job_id) if job.kind == "sweep" else None)
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut, dependencies=[WriteAccess])

@@ -1,0 +1,138 @@
+"""Real processes for the service tests: `nirc-bench serve` on loopback, a Dask
+scheduler, `nirc-bench worker`s — each in its own process group, so a test can
+SIGKILL one of them (and everything it started) without touching the others."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+
+FINAL = ("succeeded", "failed", "canceled")
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def service_env(data_dir: Path) -> dict[str, str]:
+    """A short heartbeat lease, so a job whose runner was killed is taken over quickly."""
+    env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(data_dir), "NIRC_BENCH_JOB_LEASE_S": "3"}
+    env.pop("NIRC_BENCH_DATABASE_URL", None)
+    return env
+
+
+class Process:
+    """A command in its own session; ``kill`` SIGKILLs its whole process group."""
+
+    def __init__(self, args: list[str], env: dict[str, str]) -> None:
+        self.args, self.env = args, env
+        self.proc: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        self.proc = subprocess.Popen(self.args, env=self.env, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL, start_new_session=True)
+
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def kill(self) -> None:
+        os.killpg(self.proc.pid, signal.SIGKILL)
+        self.proc.wait()
+
+    def stop(self) -> None:
+        if self.alive():
+            os.killpg(self.proc.pid, signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.kill()
+
+
+def create_key(data_dir: Path) -> str:
+    created = subprocess.run([sys.executable, "-m", "service", "apikey", "create", "--name",
+                              "test"], env=service_env(data_dir), capture_output=True, text=True)
+    assert created.returncode == 0, created.stderr
+    return created.stdout.strip()
+
+
+class Service(Process):
+    """`nirc-bench serve` (embedded LocalCluster, or ``scheduler``) on a loopback port."""
+
+    def __init__(self, data_dir: Path, scheduler: str | None = None) -> None:
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        args = [sys.executable, "-m", "service", "serve", "--port", str(self.port)]
+        super().__init__(args + (["--scheduler", scheduler] if scheduler else []),
+                         service_env(data_dir))
+        self.key = create_key(data_dir)
+
+    def start(self) -> None:
+        super().start()
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(f"{self.url}/api/v1/scenes", timeout=2).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                time.sleep(0.3)
+        raise AssertionError("the service did not start")
+
+    def submit(self, spec: dict, kind: str = "jobs") -> dict:
+        response = httpx.post(f"{self.url}/api/v1/{kind}", json=spec,
+                              headers={"X-API-Key": self.key}, timeout=10)
+        assert response.status_code == 202, response.text
+        return response.json()
+
+    def get(self, path: str) -> dict | list:
+        response = httpx.get(f"{self.url}{path}", timeout=10)
+        assert response.status_code == 200, response.text
+        return response.json()
+
+    def wait(self, job_id: int, until: Callable[[dict], bool] = lambda j: j["status"] in FINAL,
+             timeout: float = 300) -> dict:
+        deadline = time.monotonic() + timeout
+        job: dict = {}
+        while time.monotonic() < deadline:
+            job = self.get(f"/api/v1/jobs/{job_id}")
+            if until(job):
+                return job
+            time.sleep(0.3)
+        raise AssertionError(f"job {job_id} timed out: {job}")
+
+
+class Scheduler(Process):
+    """A Dask scheduler on a loopback port (no dashboard)."""
+
+    def __init__(self) -> None:
+        port = free_port()
+        self.address = f"tcp://127.0.0.1:{port}"
+        super().__init__([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host",
+                          "127.0.0.1", "--port", str(port), "--no-dashboard"], dict(os.environ))
+
+    def start(self) -> None:
+        super().start()
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            with socket.socket() as sock:
+                if sock.connect_ex(("127.0.0.1", int(self.address.rsplit(":", 1)[1]))) == 0:
+                    return
+            time.sleep(0.2)
+        raise AssertionError("the Dask scheduler did not start")
+
+
+class Worker(Process):
+    """`nirc-bench worker --scheduler ...` (a Dask worker with its nanny)."""
+
+    def __init__(self, scheduler: Scheduler, data_dir: Path) -> None:
+        super().__init__([sys.executable, "-m", "service", "worker", "--scheduler",
+                          scheduler.address], service_env(data_dir))

@@ -1,0 +1,61 @@
+"""The service end to end, as a user meets it: on a fresh data folder `nirc-bench
+serve` (embedded defaults) runs a sweep submitted with `nirc-bench sweep --server`
+as its task graph (reference, then the caches, then the points, then the sweep),
+and the sweep's curves appear on the dashboard in a real Chromium."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from jobs.graph import sweep_stages
+from jobs.spec import SweepSpec
+from tests.service.conftest import ARTIFACTS, open_page
+from tests.service.live import Service
+
+SWEEP = ["--scene", "cornell-box", "--eps", "0.3,1.0", "--nc", "1,2", "--res", "12",
+         "--seeds", "2", "--train-frames", "3", "--v1-spp", "16", "--ref-spp", "64",
+         "-p", 'cache={"batch_size": 1024}', "-p", "min_train_paths=1024"]
+
+
+def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashboard(
+        tmp_path, chromium):
+    service = Service(tmp_path / "data")
+    service.start()
+    try:
+        cli = subprocess.run(
+            [sys.executable, "-m", "service", "sweep", *SWEEP, "--server", service.url,
+             "--api-key", service.key, "--json"],
+            capture_output=True, text=True, timeout=900)
+        assert cli.returncode == 0, cli.stderr
+        result = json.loads(cli.stdout)
+        assert {row["series"] for row in result["result"]["rows"]} \
+            == {"NIRC", "NRC", "NIRC equal time"}
+
+        jobs = service.get("/api/v1/jobs?limit=100")
+        (parent,) = [job for job in jobs if job["kind"] == "sweep"]
+        detail = service.get(f"/api/v1/jobs/{parent['id']}")
+        spec = SweepSpec(**parent["spec"])
+        assert [stage["name"] for stage in detail["stages"]] \
+            == [stage.name for stage in sweep_stages(spec)]
+        assert {stage["status"] for stage in detail["stages"]} == {"succeeded"}
+        stages = [job for job in jobs if job["parent_id"] == parent["id"]]
+        # The sweep job ran after every stage; every cache after the reference.
+        assert max(job["finished_at"] for job in stages) <= detail["started_at"]
+        by_name = {job["spec"]["name"]: job for job in stages}
+        assert all(by_name["reference"]["finished_at"] <= job["started_at"]
+                   for name, job in by_name.items() if name != "reference")
+        assert detail["sweep_id"] == result["id"]
+
+        page, errors = open_page(chromium, f"{service.url}/#/scene/cornell-box")
+        page.wait_for_function(
+            "document.querySelectorAll('#sweep svg.plot circle').length > 0")
+        assert f"(sweep {result['id']})" in page.inner_text("#sweep")
+        page.wait_for_function("[...document.querySelectorAll('#images img')]"
+                               ".every(i => i.complete && i.naturalWidth > 0)")
+        ARTIFACTS.mkdir(exist_ok=True)
+        page.screenshot(path=str(ARTIFACTS / "dashboard-e2e-sweep.png"), full_page=True)
+        assert errors == []
+    finally:
+        service.stop()
