@@ -6,7 +6,10 @@
    wall time from submission to the job's final status (polled every 100 ms).
    Both after a warm-up job with the same kernels (reference rendered, JIT
    compiled, the render process started): the warm-up's extra time is the
-   fixed start-up, reported separately. Goal (issue 5): ratio <= 1.05.
+   fixed start-up, reported separately. Direct and service runs alternate, so
+   a drift of this VM's speed hits both alike; the ratio is the median of the
+   paired ratios. CPU time per job is split into the render process and the
+   service process (API, queue, Dask). Goal (issue 5): ratio <= 1.05.
 2. Submission throughput: jobs per second accepted (202) by the API from 16
    concurrent clients.
 """
@@ -32,98 +35,132 @@ SPEC = {"scene": "cornell-box", "method": "pt", "resolution": 128, "spp": 1, "fr
         "seeds": 4, "reference": {"spp": 1024}}
 
 
-def _direct(data_dir: Path, repeats: int) -> tuple[float, list[float]]:
-    from jobs.config import Settings
-    from jobs.db import open_store
-    from jobs.executor import execute
-    from jobs.spec import RenderSpec
-
-    settings = Settings(data_dir=data_dir)
-    store = open_store(settings)
-    times = []
-    for i in range(repeats + 1):
-        start = time.perf_counter()
-        execute(RenderSpec(**{**SPEC, "eps": 0.01 + i * 1e-6}), store, settings)
-        times.append(time.perf_counter() - start)
-    return times[0], times[1:]
+def _cpu_s(process) -> float:
+    times = process.cpu_times()
+    return times.user + times.system
 
 
-def _service(data_dir: Path, repeats: int, n_submit: int) -> tuple[float, list[float], float]:
-    env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(data_dir)}
-    env.pop("NIRC_BENCH_DATABASE_URL", None)
-    key = subprocess.run([sys.executable, "-m", "service", "apikey", "create"], env=env,
-                         capture_output=True, text=True, check=True).stdout.strip()
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    url = f"http://127.0.0.1:{port}"
-    server = subprocess.Popen([sys.executable, "-m", "service", "serve", "--port", str(port)],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              start_new_session=True)
-    client = httpx.Client(base_url=url, headers={"X-API-Key": key}, timeout=30)
-    breakdown: list[tuple[float, float]] = []
-    try:
+class _Direct:
+    """The job called directly (``jobs.executor.execute`` in this process)."""
+
+    def __init__(self, data_dir: Path) -> None:
+        from jobs.config import Settings
+        from jobs.db import open_store
+
+        self.settings = Settings(data_dir=data_dir)
+        self.store = open_store(self.settings)
+
+    def run(self, spec: dict) -> tuple[float, float]:
+        """(wall s, CPU s of this process)."""
+        import psutil
+
+        from jobs.executor import execute
+        from jobs.spec import RenderSpec
+
+        me = psutil.Process()
+        cpu, start = _cpu_s(me), time.perf_counter()
+        execute(RenderSpec(**spec), self.store, self.settings)
+        return time.perf_counter() - start, _cpu_s(me) - cpu
+
+
+class _Service:
+    """``nirc-bench serve`` on loopback; a job is timed from its POST until a poll (every
+    100 ms) sees it final."""
+
+    def __init__(self, data_dir: Path) -> None:
+        import psutil
+
+        env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(data_dir)}
+        env.pop("NIRC_BENCH_DATABASE_URL", None)
+        key = subprocess.run([sys.executable, "-m", "service", "apikey", "create"], env=env,
+                             capture_output=True, text=True, check=True).stdout.strip()
+        with socket.socket() as sock:
+            sock.bind(("127.0.0.1", 0))
+            port = sock.getsockname()[1]
+        self.server = subprocess.Popen(
+            [sys.executable, "-m", "service", "serve", "--port", str(port)], env=env,
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        self.process = psutil.Process(self.server.pid)
+        self.client = httpx.Client(base_url=f"http://127.0.0.1:{port}",
+                                   headers={"X-API-Key": key}, timeout=30)
         while True:
             try:
-                client.get("/api/v1/scenes")
+                self.client.get("/api/v1/scenes")
                 break
             except httpx.HTTPError:
                 time.sleep(0.2)
+        self.breakdown: list[tuple[float, float]] = []
 
-        def run(spec: dict) -> float:
-            start = time.perf_counter()
-            job = client.post("/api/v1/jobs", json=spec).json()
-            while job["status"] not in ("succeeded", "failed", "canceled"):
-                time.sleep(0.1)
-                job = client.get(f"/api/v1/jobs/{job['id']}").json()
-            assert job["status"] == "succeeded", job
-            wall = time.perf_counter() - start
-            stamps = {k: datetime.fromisoformat(job[k]) for k in
-                      ("created_at", "started_at", "finished_at")}
-            breakdown.append(((stamps["started_at"] - stamps["created_at"]).total_seconds(),
-                              (stamps["finished_at"] - stamps["started_at"]).total_seconds()))
-            return wall
+    def run(self, spec: dict) -> tuple[float, float, float]:
+        """(wall s, CPU s of the service process, CPU s of its render processes)."""
+        children = self.process.children(recursive=True)
+        service_cpu = _cpu_s(self.process)
+        render_cpu = {child.pid: _cpu_s(child) for child in children}
+        start = time.perf_counter()
+        job = self.client.post("/api/v1/jobs", json=spec).json()
+        while job["status"] not in ("succeeded", "failed", "canceled"):
+            time.sleep(0.1)
+            job = self.client.get(f"/api/v1/jobs/{job['id']}").json()
+        wall = time.perf_counter() - start
+        assert job["status"] == "succeeded", job
+        stamps = {k: datetime.fromisoformat(job[k])
+                  for k in ("created_at", "started_at", "finished_at")}
+        self.breakdown.append(((stamps["started_at"] - stamps["created_at"]).total_seconds(),
+                               (stamps["finished_at"] - stamps["started_at"]).total_seconds()))
+        render = sum(_cpu_s(child) - render_cpu.get(child.pid, 0.0)
+                     for child in self.process.children(recursive=True))
+        return wall, _cpu_s(self.process) - service_cpu, render
 
-        times = [run({**SPEC, "eps": 0.01 + i * 1e-6}) for i in range(repeats + 1)]
+    def submission_rate(self, n_submit: int) -> float:
         tiny = {**SPEC, "resolution": 4, "frames": 1, "seeds": 1, "reference": {"spp": 8}}
         start = time.perf_counter()
         with ThreadPoolExecutor(16) as pool:
             codes = list(pool.map(
-                lambda i: client.post("/api/v1/jobs", json={**tiny, "eps": 0.02 + i * 1e-6})
+                lambda i: self.client.post("/api/v1/jobs", json={**tiny, "eps": 0.02 + i * 1e-6})
                 .status_code, range(n_submit)))
-        rate = n_submit / (time.perf_counter() - start)
         assert codes == [202] * n_submit
-        queued = median(b[0] for b in breakdown[1:])
-        running = median(b[1] for b in breakdown[1:])
-        print(f"  service job: submitted -> claimed {queued:.3f} s, claimed -> done {running:.3f} s")
-        return times[0], times[1:], rate
-    finally:
-        client.close()
-        os.killpg(server.pid, signal.SIGTERM)
-        server.wait(timeout=30)
+        return n_submit / (time.perf_counter() - start)
+
+    def close(self) -> None:
+        self.client.close()
+        os.killpg(self.server.pid, signal.SIGTERM)
+        self.server.wait(timeout=30)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=6)
     parser.add_argument("--submit", type=int, default=200)
     args = parser.parse_args()
     from renderers.backend import device_info, init_backend
 
     init_backend()
     with tempfile.TemporaryDirectory() as folder:
-        direct_first, direct = _direct(Path(folder) / "direct", args.repeats)
-        service_first, service, rate = _service(Path(folder) / "service", args.repeats,
-                                                args.submit)
-    d, s = median(direct), median(service)
+        direct, service = _Direct(Path(folder) / "direct"), _Service(Path(folder) / "service")
+        try:
+            specs = [{**SPEC, "eps": 0.01 + i * 1e-6} for i in range(args.repeats + 1)]
+            direct_first, service_first = direct.run(specs[0]), service.run(specs[0])
+            pairs = [(direct.run(spec), service.run(spec)) for spec in specs[1:]]
+            rate = service.submission_rate(args.submit)
+        finally:
+            service.close()
+    d = median(p[0][0] for p in pairs)
+    s = median(p[1][0] for p in pairs)
+    paired = median(p[1][0] / p[0][0] for p in pairs)
     print(f"device: {device_info()['device_key']}  job: pt, cornell-box 128x128, 32 frames x "
-          f"4 seeds; median of {args.repeats}")
+          f"4 seeds; {args.repeats} pairs, direct and service runs interleaved")
     print(f"  direct (executor in process)        {d:7.3f} s   (first, with compile: "
-          f"{direct_first:.2f} s)")
-    print(f"  REST + queue + worker + render proc {s:7.3f} s   (first: {service_first:.2f} s)")
-    print(f"service / direct: {s / d:.3f}  (goal <= 1.05; +{s - d:.3f} s per job); fixed "
-          f"start-up of the first service job over the first direct one: "
-          f"{service_first - direct_first:+.2f} s")
+          f"{direct_first[0]:.2f} s)")
+    print(f"  REST + queue + worker + render proc {s:7.3f} s   (first: {service_first[0]:.2f} s)")
+    queued = median(b[0] for b in service.breakdown[1:])
+    running = median(b[1] for b in service.breakdown[1:])
+    print(f"  service job: submitted -> claimed {queued:.3f} s, claimed -> done {running:.3f} s")
+    print(f"  CPU per job: direct {median(p[0][1] for p in pairs):.2f} s; render process "
+          f"{median(p[1][2] for p in pairs):.2f} s + service process (API, queue, Dask) "
+          f"{median(p[1][1] for p in pairs):.3f} s")
+    print(f"service / direct: {paired:.3f} (median of paired ratios; of medians {s / d:.3f}; "
+          f"goal <= 1.05; {s - d:+.3f} s per job); fixed start-up of the first service job "
+          f"over the first direct one: {service_first[0] - direct_first[0]:+.2f} s")
     print(f"submission throughput: {rate:.0f} jobs/s accepted (16 concurrent clients)")
 
 

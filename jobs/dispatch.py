@@ -31,6 +31,25 @@ from jobs.models import Job
 from jobs.queue import JobQueue
 from jobs.spec import SweepSpec
 
+#: Dask settings of every worker (and of the embedded cluster): Dask's defaults wake
+#: its event loop many times a second (an event-loop health tick every 20 ms, a memory
+#: probe every 100 ms, a system monitor every 500 ms, a profiler sampling worker
+#: threads 100 times a second). The service idled at ~5 % of a core with them, which
+#: on a 2-core machine is taken from the renders (benchmarks/bench_service.py); a
+#: worker here only waits on its render process, so slower housekeeping costs nothing.
+QUIET_WORKER_CONFIG = {
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.worker.memory.monitor-interval": "2s",
+    "distributed.worker.profile.enabled": False,
+}
+
+
+def dask_environment(config: dict[str, Any]) -> dict[str, str]:
+    """``config`` as the DASK_* environment variables a Dask process reads at start."""
+    return {"DASK_" + key.upper().replace(".", "__").replace("-", "_"): str(value)
+            for key, value in config.items()}
+
 
 def run_job_task(job_id: int, settings_json: dict[str, Any], timeout_s: float | None,
                  *upstream: str) -> str:
@@ -60,16 +79,16 @@ class Dispatcher:
         self.timeout_s = timeout_s
         self.queue = JobQueue(open_store(settings))
         self.cluster = None
-        # Dask's statistical profiler samples every worker thread 100 times a second:
-        # on a 2-core machine that steals measurable time from the render process.
-        dask.config.set({"distributed.worker.profile.enabled": False})
+        dask.config.set(QUIET_WORKER_CONFIG)
         if scheduler:
             self.client = Client(scheduler)
         else:
             # The worker runs in this process: it only claims jobs and watches their
             # render processes, which provide the isolation (jobs.runner).
-            self.cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                        dashboard_address=None)
+            # One worker: nothing to balance, so no work stealing (it rebalances every 100 ms).
+            with dask.config.set({"distributed.scheduler.work-stealing": False}):
+                self.cluster = LocalCluster(n_workers=1, threads_per_worker=1,
+                                            processes=False, dashboard_address=None)
             self.client = Client(self.cluster)
 
     def submit(self, job: Job) -> None:

@@ -406,11 +406,13 @@ def worker(
                                       help="one worker per GPU, each with resource GPU=1")] = 0,
 ) -> None:
     """Run Dask worker(s) for a service started with --scheduler (same data folder)."""
+    from jobs.dispatch import QUIET_WORKER_CONFIG, dask_environment
+
     args = [sys.executable, "-m", "distributed.cli.dask_worker", scheduler, "--nthreads", "1",
             "--no-dashboard"]
     if gpus:
         args += ["--nworkers", str(gpus), "--resources", "GPU=1"]
-    os.execv(sys.executable, args)
+    os.execve(sys.executable, args, {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})
 
 
 apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True)
