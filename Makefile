@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 CLI    := $(VENV)/bin/nirc-bench
 DEMO_DIR ?= data/demo
 
-.PHONY: bootstrap demo test test-fast bench lint clean
+.PHONY: bootstrap demo test test-fast bench lint docker clean
 
 bootstrap:
 	@bash scripts/bootstrap.sh
@@ -31,6 +31,15 @@ bench: bootstrap
 	$(PY) -m benchmarks.bench_nirc
 	$(PY) -m benchmarks.bench_sweep
 	$(PY) -m benchmarks.bench_service
+
+# Every image of docker/Dockerfile (needs a Docker engine; BASE_IMAGE=... to override).
+DOCKER_TARGETS := cli service scheduler worker worker-gpu
+docker:
+	for target in $(DOCKER_TARGETS); do \
+		docker build -f docker/Dockerfile --target $$target \
+			$${BASE_IMAGE:+--build-arg BASE_IMAGE=$$BASE_IMAGE} \
+			--build-arg GIT_COMMIT=$$(git rev-parse HEAD) -t nirc-bench:$$target . || exit 1; \
+	done
 
 lint: bootstrap
 	$(VENV)/bin/ruff check .

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 from functools import cache
 from importlib import metadata
@@ -24,7 +25,12 @@ def library_versions() -> dict[str, str]:
 
 @cache
 def git_commit() -> str:
-    """HEAD of the project checkout, suffixed '-dirty' with uncommitted changes."""
+    """HEAD of the project checkout, suffixed '-dirty' with uncommitted changes, or
+    ``NIRC_BENCH_GIT_COMMIT`` where there is no checkout (a Docker image records the
+    commit it was built from)."""
+    if os.environ.get("NIRC_BENCH_GIT_COMMIT"):
+        return os.environ["NIRC_BENCH_GIT_COMMIT"]
+
     def git(*args: str) -> str:
         return subprocess.run(["git", "-C", str(PROJECT_ROOT), *args], capture_output=True,
                               text=True, timeout=10, check=True).stdout.strip()

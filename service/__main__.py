@@ -1,5 +1,5 @@
 """``python -m service`` runs the nirc-bench CLI."""
 
-from service.cli import main
+from service.entry import main
 
 main()

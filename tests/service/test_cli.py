@@ -70,6 +70,23 @@ def test_missing_libllvm_is_a_clear_error(tmp_path):
     assert_clean_error(proc, "libllvm", "libllvm19")
 
 
+def test_a_missing_native_library_is_a_clear_error(tmp_path):
+    """Dr.Jit's extension cannot load libatomic: it raises a NameError while handling the
+    ImportError (as drjit/__init__.py does); the CLI says which library, in one line."""
+    fake = tmp_path / "fake" / "drjit"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text(
+        "try:\n"
+        "    raise ImportError('libatomic.so.1: cannot open shared object file: '\n"
+        "                      'No such file or directory')\n"
+        "except ImportError:\n"
+        "    filename = _drjit_ext.__file__\n")
+    env = {"PYTHONPATH": os.pathsep.join([str(fake.parent), os.environ.get("PYTHONPATH", "")])}
+    proc = run_cli("scenes", data_dir=tmp_path, env=env)
+    assert_clean_error(proc, "libatomic.so.1", "apt-get install libatomic1")
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
+
+
 def test_corrupt_and_mismatched_exr_are_clear_errors(tmp_path):
     from metrics.imageio import write_exr
 
