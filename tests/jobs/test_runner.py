@@ -91,3 +91,22 @@ def test_cancel(store, settings, when):
     timer.start()
     assert run_job(job.id, settings, worker="test") == "canceled"
     assert queue.get(job.id).run_id is None
+
+
+def test_a_failed_stage_fails_what_depends_on_it(store, settings):
+    """A sweep's reference stage fails (bad input, in the render process); the tasks
+    downstream receive its status and fail without running, with its error."""
+    from jobs.graph import sweep_stages
+    from jobs.spec import SweepSpec
+
+    queue = JobQueue(store)
+    spec = SweepSpec(scene="no-such-scene", seeds=2, eps=[0.5], methods=["nrc"])
+    sweep, _ = queue.submit("sweep", spec.model_dump(mode="json"), "sweep")
+    stages = queue.stage_jobs(sweep, sweep_stages(spec))
+    status = run_job(stages["reference"].id, settings, worker="test")
+    assert status == "failed" and "no-such-scene" in queue.get(stages["reference"].id).error
+    cache = stages["nrc cache 1/2"]
+    assert run_job(cache.id, settings, worker="test", upstream=(status,)) == "failed"
+    assert run_job(sweep.id, settings, worker="test", upstream=("failed", "failed")) == "failed"
+    for job in (queue.get(cache.id), queue.get(sweep.id)):
+        assert job.attempts == 0 and job.error.startswith("stage 'reference' failed:")
