@@ -1,4 +1,5 @@
-"""Fixtures of the service tests: a real headless Chromium (Debian's, via Playwright)."""
+"""Fixtures of the service tests: a real headless Chromium (Debian's, via Playwright);
+the database of a test run on both SQLite and PostgreSQL."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.pg import postgres_database
 from tests.setup_services import chromium_path
 
 #: Screenshots of the dashboard tests (kept as test artefacts; gitignored).
@@ -34,3 +36,13 @@ def open_page(chromium, url: str):
     page.on("pageerror", lambda err: errors.append(str(err)))
     page.goto(url)
     return page, errors
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def database_url(request):
+    """None (SQLite in the test's data folder) or a fresh PostgreSQL database's URL."""
+    if request.param == "sqlite":
+        yield None
+        return
+    with postgres_database() as url:
+        yield url

@@ -24,10 +24,13 @@ def free_port() -> int:
         return sock.getsockname()[1]
 
 
-def service_env(data_dir: Path) -> dict[str, str]:
-    """A short heartbeat lease, so a job whose runner was killed is taken over quickly."""
+def service_env(data_dir: Path, database_url: str | None = None) -> dict[str, str]:
+    """The data folder and database (SQLite in it, unless ``database_url``); a short
+    heartbeat lease, so a job whose runner was killed is taken over quickly."""
     env = {**os.environ, "NIRC_BENCH_DATA_DIR": str(data_dir), "NIRC_BENCH_JOB_LEASE_S": "3"}
     env.pop("NIRC_BENCH_DATABASE_URL", None)
+    if database_url:
+        env["NIRC_BENCH_DATABASE_URL"] = database_url
     return env
 
 
@@ -58,9 +61,9 @@ class Process:
                 self.kill()
 
 
-def create_key(data_dir: Path) -> str:
+def create_key(env: dict[str, str]) -> str:
     created = subprocess.run([sys.executable, "-m", "service", "apikey", "create", "--name",
-                              "test"], env=service_env(data_dir), capture_output=True, text=True)
+                              "test"], env=env, capture_output=True, text=True)
     assert created.returncode == 0, created.stderr
     return created.stdout.strip()
 
@@ -68,13 +71,14 @@ def create_key(data_dir: Path) -> str:
 class Service(Process):
     """`nirc-bench serve` (embedded LocalCluster, or ``scheduler``) on a loopback port."""
 
-    def __init__(self, data_dir: Path, scheduler: str | None = None) -> None:
+    def __init__(self, data_dir: Path, scheduler: str | None = None,
+                 database_url: str | None = None) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         args = [sys.executable, "-m", "service", "serve", "--port", str(self.port)]
         super().__init__(args + (["--scheduler", scheduler] if scheduler else []),
-                         service_env(data_dir))
-        self.key = create_key(data_dir)
+                         service_env(data_dir, database_url))
+        self.key = create_key(self.env)
 
     def start(self) -> None:
         super().start()
@@ -133,6 +137,7 @@ class Scheduler(Process):
 class Worker(Process):
     """`nirc-bench worker --scheduler ...` (a Dask worker with its nanny)."""
 
-    def __init__(self, scheduler: Scheduler, data_dir: Path) -> None:
+    def __init__(self, scheduler: Scheduler, data_dir: Path,
+                 database_url: str | None = None) -> None:
         super().__init__([sys.executable, "-m", "service", "worker", "--scheduler",
-                          scheduler.address], service_env(data_dir))
+                          scheduler.address], service_env(data_dir, database_url))

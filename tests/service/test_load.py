@@ -1,5 +1,6 @@
 """Load: 500 jobs submitted concurrently over the API are all persisted, and each
-completes exactly once (one attempt, one stored run), run by two runner threads."""
+completes exactly once (one attempt, one stored run), run by two runner threads;
+on SQLite and PostgreSQL."""
 
 from __future__ import annotations
 
@@ -33,9 +34,9 @@ class PoolDispatcher:
         self.futures.append(self.pool.submit(run_job, job.id, self.settings, worker="pool"))
 
 
-def test_500_concurrent_submissions_complete_exactly_once(tmp_path, monkeypatch):
+def test_500_concurrent_submissions_complete_exactly_once(tmp_path, monkeypatch, database_url):
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
-    settings = Settings(data_dir=tmp_path / "data")
+    settings = Settings(data_dir=tmp_path / "data", database_url=database_url)
     store = open_store(settings)
     _, key = create_api_key(store, "load")
     dispatcher = PoolDispatcher(settings)

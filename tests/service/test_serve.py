@@ -1,7 +1,7 @@
 """`nirc-bench serve` for real: uvicorn on loopback, the Dask LocalCluster (or a
 scheduler with separate `nirc-bench worker`s), the isolated runner — a job submitted
 over REST completes; killing the whole service, or separately a worker, mid-job
-completes the job once after a restart (no duplicate result)."""
+completes the job once after a restart (no duplicate result). On SQLite and PostgreSQL."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ SMALL = {**LONG, "resolution": 8, "frames": 2}
 
 
 @pytest.fixture
-def service(tmp_path):
-    svc = Service(tmp_path / "data")
+def service(tmp_path, database_url):
+    svc = Service(tmp_path / "data", database_url=database_url)
     svc.start()
     yield svc
     svc.stop()
@@ -42,7 +42,8 @@ def test_killing_the_service_mid_job_then_restarting_completes_it_once(service):
     assert [r["id"] for r in runs] == [done["run_id"]]
 
 
-def test_killing_a_worker_mid_job_then_starting_another_completes_it_once(tmp_path):
+def test_killing_a_worker_mid_job_then_starting_another_completes_it_once(tmp_path,
+                                                                          database_url):
     """Scale-out: service, scheduler and workers are separate processes. SIGKILL the
     worker running a job (with its render process); the service keeps serving, the
     scheduler hands the task to a new worker, which takes the job over once the dead
@@ -50,8 +51,8 @@ def test_killing_a_worker_mid_job_then_starting_another_completes_it_once(tmp_pa
     data_dir = tmp_path / "data"
     scheduler = Scheduler()
     scheduler.start()
-    service = Service(data_dir, scheduler=scheduler.address)
-    first, second = Worker(scheduler, data_dir), Worker(scheduler, data_dir)
+    service = Service(data_dir, scheduler=scheduler.address, database_url=database_url)
+    first, second = (Worker(scheduler, data_dir, database_url) for _ in range(2))
     try:
         first.start()
         service.start()
