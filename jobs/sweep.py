@@ -125,9 +125,12 @@ class _Sweep:
     """The state of one sweep run (see the module docstring for the protocol)."""
 
     def __init__(self, spec: SweepSpec, store: Store, settings: Settings,
-                 progress: Progress | None) -> None:
+                 progress: Progress | None, whole: bool = True) -> None:
+        """``whole``: this runs the whole sweep (else one stage of its task graph, which
+        reports its own steps but not the sweep's overall bar)."""
         self.spec, self.store, self.settings = spec, store, settings
         self.report = progress or (lambda stage, done, total: None)
+        self.whole = whole
         self.base = spec.base_render_spec()
         self.prepared: Prepared = prepare(self.base, store, settings, progress)
         self.device_key = self.prepared.device["device_key"]
@@ -147,7 +150,8 @@ class _Sweep:
 
     def advance(self, units: int = 1) -> None:
         self.units_done = min(self.units_total, self.units_done + units)
-        self.report("sweep", self.units_done, self.units_total)
+        if self.whole:
+            self.report("sweep", self.units_done, self.units_total)
 
     # ---- parameters and keys ----
 
@@ -490,7 +494,7 @@ def run_stage(spec: SweepSpec, task: dict[str, Any], store: Store, settings: Set
               progress: Progress | None = None) -> None:
     """Run one stage of ``spec``'s task graph (jobs/graph.py): store what the sweep
     would otherwise make itself when it gets there."""
-    sweep = _Sweep(spec, store, settings, progress)   # prepares (renders) the reference
+    sweep = _Sweep(spec, store, settings, progress, whole=False)   # prepares the reference
     match task["stage"]:
         case "reference":
             pass

@@ -91,10 +91,30 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
     if as_json:
         _print_json(result)
         return
+    if kind == "sweep":
+        _print_remote_sweep(client, job, result)
+        return
     from service.tables import key_value_table
 
     shown = {k: v for k, v in result.items() if not isinstance(v, dict | list)}
     console.print(key_value_table(f"{kind} result (job {job['id']})", shown))
+
+
+def _print_remote_sweep(client: Any, job: dict[str, Any], sweep: dict[str, Any]) -> None:
+    """The sweep's table as an embedded run prints it; its files are the service's
+    artifacts (URLs), and its stages are listed with what each was."""
+    from types import SimpleNamespace
+
+    from service.tables import sweep_table
+
+    files = {a["kind"]: f"{client.http.base_url}{a['url']}" for a in sweep["artifacts"]}
+    console.print(sweep_table(SimpleNamespace(**{**sweep["result"], "files": files})))
+    stages = client.get(f"/api/v1/jobs/{job['id']}").get("stages") or []
+    if stages:
+        console.print(f"ran on the service as {len(stages)} stage jobs "
+                      f"({', '.join(stage['name'] for stage in stages)}) and the sweep job "
+                      f"{job['id']}; 'rendered' counts the sweep job's own renders",
+                      markup=False, highlight=False)
 
 
 def _run(server: str | None, api_key: str | None, kind: str, spec: Any, as_json: bool,

@@ -49,12 +49,28 @@ class ServiceClient:
 
     def wait(self, job_id: int, progress: Callable[[str, int, int], None] | None = None,
              poll_s: float = 1.0) -> dict[str, Any]:
-        """Poll the job until it is final, reporting its progress."""
+        """Poll the job until it is final, reporting its progress (a sweep: how many of
+        its stages are done, and the progress of each running stage)."""
         while True:
             job = self.get(f"/api/v1/jobs/{job_id}")
-            if progress and job["progress"]:
-                p = job["progress"]
-                progress(p["stage"], p["done"], p["total"])
+            if progress:
+                _report(job, progress)
             if job["status"] in FINAL:
                 return job
             time.sleep(poll_s)
+
+
+def _report(job: dict[str, Any], progress: Callable[[str, int, int], None]) -> None:
+    stages = job.get("stages") or []
+    if stages:
+        done = sum(stage["status"] in FINAL for stage in stages)
+        progress("stages", done, len(stages))
+        for stage in stages:
+            p = stage["progress"]
+            if p:
+                label = (stage["name"] if p["stage"] == stage["name"]
+                         else f"{stage['name']}: {p['stage']}")
+                progress(label, p["done"], p["total"])
+    if job["progress"]:
+        p = job["progress"]
+        progress(p["stage"], p["done"], p["total"])

@@ -40,21 +40,13 @@ class JobOut(BaseModel):
 
     @classmethod
     def of(cls, job: Any, stages: list[Any] | None = None) -> JobOut:
-        """``job`` as served; a sweep with ``stages`` shows them, and while its own task
-        waits for them, the progress of the stage running now."""
+        """``job`` as served; a sweep with its ``stages``."""
         out = cls.model_validate(job, from_attributes=True)
         if stages:
             out.stages = [StageOut(id=stage.id, name=stage.spec.get("name", ""),
                                    status=stage.status, progress=stage.progress,
                                    attempts=stage.attempts, error=stage.error)
                           for stage in stages]
-            running = [stage for stage in out.stages
-                       if stage.status == "running" and stage.progress]
-            if not out.progress and running:
-                done = sum(stage.status == "succeeded" for stage in out.stages)
-                out.progress = {**running[0].progress,
-                                "stage": f"[stage {done + 1}/{len(out.stages)}] "
-                                         f"{running[0].progress['stage']}"}
         return out
 
 

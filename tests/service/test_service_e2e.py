@@ -48,6 +48,15 @@ def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashbo
                    for name, job in by_name.items() if name != "reference")
         assert detail["sweep_id"] == result["id"]
 
+        # The same sweep again, as a table: the service returns the finished job.
+        again = subprocess.run(
+            [sys.executable, "-m", "service", "sweep", *SWEEP, "--server", service.url,
+             "--api-key", service.key], capture_output=True, text=True, timeout=300)
+        assert again.returncode == 0, again.stderr
+        assert f"job {parent['id']} submitted" in again.stdout
+        assert "NIRC equal time" in again.stdout and "7 stage jobs" in again.stdout
+        assert f"{service.url}/api/v1/artifacts/" in again.stdout    # the plots' URLs
+
         page, errors = open_page(chromium, f"{service.url}/#/scene/cornell-box")
         page.wait_for_function(
             "document.querySelectorAll('#sweep svg.plot circle').length > 0")
