@@ -1,7 +1,8 @@
 """The service end to end, as a user meets it: on a fresh data folder `nirc-bench
 serve` (embedded defaults) runs a sweep submitted with `nirc-bench sweep --server`
 as its task graph (reference, then the caches, then the points, then the sweep),
-and the sweep's curves appear on the dashboard in a real Chromium."""
+and the sweep's curves appear on the dashboard in a real Chromium. On SQLite and
+PostgreSQL."""
 
 from __future__ import annotations
 
@@ -20,8 +21,8 @@ SWEEP = ["--scene", "cornell-box", "--eps", "0.3,1.0", "--nc", "1,2", "--res", "
 
 
 def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashboard(
-        tmp_path, chromium):
-    service = Service(tmp_path / "data")
+        tmp_path, chromium, database_url):
+    service = Service(tmp_path / "data", database_url=database_url)
     service.start()
     try:
         cli = subprocess.run(
@@ -64,7 +65,8 @@ def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashbo
         page.wait_for_function("[...document.querySelectorAll('#images img')]"
                                ".every(i => i.complete && i.naturalWidth > 0)")
         ARTIFACTS.mkdir(exist_ok=True)
-        page.screenshot(path=str(ARTIFACTS / "dashboard-e2e-sweep.png"), full_page=True)
+        name = f"dashboard-e2e-sweep-{'postgresql' if database_url else 'sqlite'}.png"
+        page.screenshot(path=str(ARTIFACTS / name), full_page=True)
         assert errors == []
     finally:
         service.stop()
