@@ -12,6 +12,9 @@ from tests.service.live import Scheduler, Service, Worker
 LONG = {"scene": "cornell-box", "method": "pt", "resolution": 16, "spp": 1, "frames": 400,
         "seeds": 2, "reference": {"spp": 64, "spp_per_pass": 8}}
 SMALL = {**LONG, "resolution": 8, "frames": 2}
+SWEEP = {"scene": "cornell-box", "eps": [0.3, 1.0], "nc": [1, 2], "resolution": 12, "seeds": 2,
+         "train_frames": 3, "v1_spp": 16, "reference": {"spp": 64},
+         "params": {"cache": {"batch_size": 1024}, "min_train_paths": 1024}}
 
 
 @pytest.fixture
@@ -69,4 +72,35 @@ def test_killing_a_worker_mid_job_then_starting_another_completes_it_once(tmp_pa
         assert [r["id"] for r in service.get("/api/v1/results")] == [done["run_id"]]
     finally:
         for process in (service, first, second, scheduler):
+            process.stop()
+
+
+def test_a_sweeps_independent_stages_run_on_different_workers_at_once(tmp_path):
+    """Scale-out: with two workers, the caches of a sweep train at the same time (the
+    task graph lets them: each needs only the reference)."""
+    from distributed import Client
+
+    data_dir = tmp_path / "data"
+    scheduler = Scheduler()
+    scheduler.start()
+    service = Service(data_dir, scheduler=scheduler.address)
+    workers = [Worker(scheduler, data_dir) for _ in range(2)]
+    try:
+        for worker in workers:
+            worker.start()
+        with Client(scheduler.address) as client:
+            client.wait_for_workers(2, timeout=120)
+        service.start()
+        job = service.submit(SWEEP, kind="sweeps")
+        assert service.wait(job["id"], timeout=600)["status"] == "succeeded"
+        stages = [j for j in service.get("/api/v1/jobs?limit=100") if j["parent_id"] == job["id"]]
+        assert {j["status"] for j in stages} == {"succeeded"}
+        caches = [j for j in stages if " cache " in j["spec"]["name"]]
+        overlapping = [(a["spec"]["name"], b["spec"]["name"]) for a in caches for b in caches
+                       if a["worker"] != b["worker"]
+                       and a["started_at"] < b["finished_at"] and b["started_at"] < a["finished_at"]]
+        assert overlapping, [(j["spec"]["name"], j["worker"], j["started_at"], j["finished_at"])
+                             for j in caches]
+    finally:
+        for process in (service, *workers, scheduler):
             process.stop()
