@@ -14,7 +14,7 @@ STAMP=$VENV/.installed
 # Dr.Jit's native libraries: libLLVM >= 16 (checked by renderers.llvm) and libatomic.
 missing=()
 "$PYTHON" -m renderers.llvm >/dev/null 2>&1 || missing+=(libllvm19)
-/sbin/ldconfig -p 2>/dev/null | grep -q 'libatomic\.so\.1' || missing+=(libatomic1)
+"$PYTHON" -c "import ctypes; ctypes.CDLL('libatomic.so.1')" 2>/dev/null || missing+=(libatomic1)
 if [ ${#missing[@]} -gt 0 ]; then
     if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
         echo "bootstrap: installing Debian's ${missing[*]} (Dr.Jit needs libLLVM >= 16 and libatomic)"
