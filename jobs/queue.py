@@ -92,9 +92,9 @@ class JobQueue:
         jobs = {}
         for stage in stages:
             spec = {"sweep": parent.spec, "name": stage.name, "task": stage.task}
+            key = f"job-{parent.id}-stage-{stage.name}"
             jobs[stage.name], _ = self.submit(
-                "stage", spec, f"job-{parent.id}-stage-{stage.name}",
-                idempotency_key=f"job-{parent.id}-stage-{stage.name}",
+                "stage", spec, key, idempotency_key=key,
                 device_class=parent.device_class, max_attempts=parent.max_attempts,
                 parent_id=parent.id)
         return jobs
