@@ -12,6 +12,8 @@ environment in ``jobs/migrations`` is configured in code, so no alembic.ini is
 needed at run time.
 """
 
+import sqlite3
+import time
 from pathlib import Path
 from typing import Any
 
@@ -59,10 +61,32 @@ def _sqlite_on_connect(dbapi_connection: Any, connection_record: Any) -> None:
     try:
         # busy_timeout first: switching to WAL needs a lock another process may hold.
         cursor.execute(f"PRAGMA busy_timeout = {SQLITE_BUSY_TIMEOUT_MS}")
-        cursor.execute("PRAGMA journal_mode = WAL")
+        _switch_to_wal(cursor)
         cursor.execute("PRAGMA foreign_keys = ON")
     finally:
         cursor.close()
+
+
+def _switch_to_wal(cursor: Any) -> None:
+    """``PRAGMA journal_mode = WAL``, retried while another connection blocks it.
+
+    The switch reads the file (shared lock) and then needs it exclusively. When
+    another connection holds the write lock at that moment, SQLite reports
+    "database is locked" at once instead of calling the busy handler (waiting
+    could deadlock), so ``busy_timeout`` does not cover it; this only happens
+    while a fresh database is being created by several processes at once.
+    """
+    deadline = time.monotonic() + SQLITE_BUSY_TIMEOUT_MS / 1000
+    delay_s = 0.005
+    while True:
+        try:
+            cursor.execute("PRAGMA journal_mode = WAL")
+            return
+        except sqlite3.OperationalError as error:
+            if "locked" not in str(error) or time.monotonic() > deadline:
+                raise
+        time.sleep(delay_s)
+        delay_s = min(2 * delay_s, 0.2)
 
 
 def _sqlite_on_begin(connection: Connection) -> None:

@@ -2,6 +2,8 @@
 and the migration history agreeing with the models."""
 
 import logging.config
+import sqlite3
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -83,6 +85,25 @@ def test_concurrent_migrations_on_a_fresh_database(tmp_path: Path) -> None:
     engine = make_engine(url)
     assert TABLES <= set(inspect(engine).get_table_names())
     engine.dispose()
+
+
+def test_wal_switch_waits_for_a_writer_on_a_fresh_database(tmp_path: Path) -> None:
+    # SQLite refuses the switch to WAL at once (no busy handler) while another
+    # connection holds the write lock on a database still in rollback mode.
+    path = tmp_path / "fresh.db"
+    writer = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
+    writer.execute("BEGIN IMMEDIATE")
+    writer.execute("CREATE TABLE t (x)")
+    release = threading.Timer(0.3, writer.execute, args=("COMMIT",))
+    release.start()
+    engine = make_engine(f"sqlite:///{path}")
+    try:
+        with engine.connect() as conn:
+            assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
+    finally:
+        release.join()
+        writer.close()
+        engine.dispose()
 
 
 def test_newer_schema_is_explained(store: Store) -> None:
