@@ -3,11 +3,11 @@
 Embedded default: a ``LocalCluster`` inside the service process, one worker
 with one thread on a CPU machine (a render uses every core; two at once would
 only slow each other and spoil their timings). The worker itself only claims
-jobs and watches their render processes, so it needs no process of its own. Scale-out: ``nirc-bench serve
---scheduler tcp://HOST:8786`` connects to a running scheduler, and each GPU
-machine runs ``nirc-bench worker --scheduler ... --gpus N``, whose workers
-advertise the resource ``GPU=1``; GPU jobs ask for it. On SLURM, dask-jobqueue's
-``SLURMCluster`` starts such workers as batch jobs (README).
+jobs and watches their render processes, so it needs no process of its own.
+Scale-out: ``nirc-bench serve --scheduler tcp://HOST:8786`` connects to a
+running scheduler, and each GPU machine runs ``nirc-bench worker --scheduler
+... --gpus N``, whose workers advertise the resource ``GPU=1``; GPU jobs ask
+for it. On SLURM, dask-jobqueue's ``SLURMCluster`` starts such workers as batch jobs (README).
 
 A Dask task only calls :func:`jobs.runner.run_job`, which claims the job in
 the database, so a task that Dask runs twice (a worker lost mid-task) cannot

@@ -102,14 +102,15 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
 
 def _print_remote_sweep(client: Any, job: dict[str, Any], sweep: dict[str, Any]) -> None:
     """The sweep's table as an embedded run prints it; its files are the service's
-    artifacts (URLs), and its stages are listed with what each was."""
+    artifacts (URLs), and the stages of ``job`` (as ``GET /jobs/{id}`` lists them)
+    are named."""
     from types import SimpleNamespace
 
     from service.tables import sweep_table
 
     files = {a["kind"]: f"{client.http.base_url}{a['url']}" for a in sweep["artifacts"]}
     console.print(sweep_table(SimpleNamespace(**{**sweep["result"], "files": files})))
-    stages = client.get(f"/api/v1/jobs/{job['id']}").get("stages") or []
+    stages = job.get("stages") or []
     if stages:
         console.print(f"ran on the service as {len(stages)} stage jobs "
                       f"({', '.join(stage['name'] for stage in stages)}) and the sweep job "
