@@ -363,7 +363,8 @@ class Job(Base):
     ``Idempotency-Key``. The result is ``run_id`` (render) or ``sweep_id``.
     A sweep runs as a task graph of *stage* jobs (kind ``stage``, ``parent_id``
     the sweep's job; jobs/graph.py), each queued, retried and isolated like
-    any job.
+    any job; a stage's ``work`` counts what it rendered and what it found
+    stored (jobs/sweep.py), and its sweep's result sums them.
     """
 
     __tablename__ = "jobs"
@@ -392,6 +393,7 @@ class Job(Base):
     cancel_requested: Mapped[bool] = mapped_column(default=False)
     run_id: Mapped[int | None] = mapped_column(ForeignKey("runs.id", ondelete="SET NULL"))
     sweep_id: Mapped[int | None] = mapped_column(ForeignKey("sweeps.id", ondelete="SET NULL"))
+    work: Mapped[dict[str, Any] | None]
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     started_at: Mapped[datetime | None]
     finished_at: Mapped[datetime | None]

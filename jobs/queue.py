@@ -105,6 +105,14 @@ class JobQueue:
             return list(session.scalars(
                 select(Job).where(Job.parent_id == parent_id).order_by(Job.id)))
 
+    def stage_work(self, parent_id: int) -> dict[str, int]:
+        """The work counters of a sweep job's stages, summed ({} without stages)."""
+        total: dict[str, int] = {}
+        for stage in self.children(parent_id):
+            for name, count in (stage.work or {}).items():
+                total[name] = total.get(name, 0) + count
+        return total
+
     def get(self, job_id: int) -> Job | None:
         with self.store.session() as session:
             return session.get(Job, job_id)
@@ -158,10 +166,10 @@ class JobQueue:
                          progress={"stage": stage, "done": done, "total": total})
 
     def succeed(self, job_id: int, *, run_id: int | None = None,
-                sweep_id: int | None = None) -> bool:
+                sweep_id: int | None = None, work: dict[str, int] | None = None) -> bool:
         return self._transition(job_id, [Job.status == JobStatus.RUNNING.value],
                                 status=JobStatus.SUCCEEDED.value, run_id=run_id,
-                                sweep_id=sweep_id, finished_at=_now())
+                                sweep_id=sweep_id, work=work, finished_at=_now())
 
     def fail(self, job_id: int, error: str, *, retry: bool) -> str:
         """End a running attempt with ``error``: back to queued when ``retry`` and

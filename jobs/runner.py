@@ -184,18 +184,20 @@ def _die_with_parent() -> None:
 # The child process
 # ---------------------------------------------------------------------------
 
-def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict[str, int]:
-    """Run a job's spec through the one executor; returns the result ids."""
+def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict[str, Any]:
+    """Run a job's spec through the one executor; returns what ``JobQueue.succeed``
+    records: the result ids, or a stage's work counters."""
     from jobs.executor import execute
     from jobs.spec import RenderSpec, SweepSpec
     from jobs.sweep import run_stage, run_sweep
 
     if job.kind == "stage":
-        run_stage(SweepSpec(**job.spec["sweep"]), job.spec["task"], store, settings,
-                  progress=progress)
-        return {}
+        work = run_stage(SweepSpec(**job.spec["sweep"]), job.spec["task"], store, settings,
+                         progress=progress)
+        return {"work": work}
     if job.kind == "sweep":
-        result = run_sweep(SweepSpec(**job.spec), store, settings, progress=progress)
+        result = run_sweep(SweepSpec(**job.spec), store, settings, progress=progress,
+                           stage_work=JobQueue(store).stage_work(job.id))
         return {"sweep_id": result.sweep_id}
     key = f"job-{job.id}"
     stored = store.find_run_by_idempotency_key(key)

@@ -77,6 +77,9 @@ class SweepResult:
     rows: list[dict[str, Any]]
     skipped: list[dict[str, str]]
     work: dict[str, int]
+    # Summed work of the stage jobs the sweep ran as on the service ({} when it ran
+    # whole); ``work`` is then only what the final sweep job did itself.
+    stage_work: dict[str, int] = field(default_factory=dict)
     snapshots: list[dict[str, Any]] = field(default_factory=list)
     files: dict[str, str] = field(default_factory=dict)
 
@@ -434,8 +437,10 @@ def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[di
 
 
 def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
-              progress: Progress | None = None, out_dir: Path | None = None) -> SweepResult:
-    """Run (or resume, or re-assemble) a sweep; see the module docstring."""
+              progress: Progress | None = None, out_dir: Path | None = None,
+              stage_work: dict[str, int] | None = None) -> SweepResult:
+    """Run (or resume, or re-assemble) a sweep; see the module docstring.
+    ``stage_work``: the summed work of the stage jobs that ran before (service)."""
     for method in spec.methods:
         get_method(method)
     sweep = _Sweep(spec, store, settings, progress)
@@ -449,6 +454,7 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
         result = SweepResult(
             sweep_id=row.id, key=key, kind=spec.kind, scene=sweep.prepared.scene.name,
             device_key=sweep.device_key, rows=rows, skipped=sweep.skipped, work=sweep.work,
+            stage_work=stage_work or {},
             snapshots=[{"method": m, "seed": s, "key": snap.key, "id": snap.id,
                         "train_s_per_frame": snap.stats["train_seconds_per_frame"],
                         "v1_render_s": snap.stats["v1_render_s"]}
@@ -491,9 +497,10 @@ def _nc_rows(sweep: _Sweep) -> list[dict[str, Any]]:
 
 
 def run_stage(spec: SweepSpec, task: dict[str, Any], store: Store, settings: Settings,
-              progress: Progress | None = None) -> None:
+              progress: Progress | None = None) -> dict[str, int]:
     """Run one stage of ``spec``'s task graph (jobs/graph.py): store what the sweep
-    would otherwise make itself when it gets there."""
+    would otherwise make itself when it gets there. Returns the stage's work
+    counters (as ``SweepResult.work``)."""
     sweep = _Sweep(spec, store, settings, progress, whole=False)   # prepares the reference
     match task["stage"]:
         case "reference":
@@ -506,3 +513,4 @@ def run_stage(spec: SweepSpec, task: dict[str, Any], store: Store, settings: Set
             sweep.nc_point(int(task["nc"]))
         case other:
             raise ValueError(f"unknown sweep stage {other!r}")
+    return sweep.work

@@ -114,7 +114,7 @@ def _print_remote_sweep(client: Any, job: dict[str, Any], sweep: dict[str, Any])
     if stages:
         console.print(f"ran on the service as {len(stages)} stage jobs "
                       f"({', '.join(stage['name'] for stage in stages)}) and the sweep job "
-                      f"{job['id']}; 'rendered' counts the sweep job's own renders",
+                      f"{job['id']}",
                       markup=False, highlight=False)
 
 

@@ -131,6 +131,12 @@ SWEEP_COLUMNS = (
 )
 
 
+def _work_line(work: dict[str, int]) -> str:
+    return (f"reference {work['reference_rendered']}, caches {work['snapshots_trained']} "
+            f"(reused {work['snapshots_reused']}), points {work['points_rendered']} "
+            f"(reused {work['points_reused']}), calibrations {work['calibrations']}")
+
+
 def sweep_table(result: Any) -> Group:
     """The sweep's points (one row per series and eps / N_c), skipped methods, work done."""
     table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
@@ -150,10 +156,11 @@ def sweep_table(result: Any) -> Group:
         table.add_row(*cells)
     lines: list[Any] = [table]
     lines += [f"skipped {s['method']}: {s['reason']}" for s in result.skipped]
-    work = result.work
-    lines.append(
-        f"rendered: reference {work['reference_rendered']}, caches {work['snapshots_trained']} "
-        f"(reused {work['snapshots_reused']}), points {work['points_rendered']} "
-        f"(reused {work['points_reused']}), calibrations {work['calibrations']}")
+    stage_work = getattr(result, "stage_work", None)   # absent in sweeps stored before it
+    if stage_work:
+        lines.append(f"rendered by its stage jobs: {_work_line(stage_work)}")
+        lines.append(f"rendered by the sweep job: {_work_line(result.work)}")
+    else:
+        lines.append(f"rendered: {_work_line(result.work)}")
     lines += [f"{name}: {path}" for name, path in result.files.items()]
     return Group(*lines)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 
 class StageOut(BaseModel):
@@ -17,6 +17,8 @@ class StageOut(BaseModel):
     progress: dict[str, Any]
     attempts: int
     error: str | None
+    work: dict[str, int] | None = Field(
+        None, description="what the stage rendered and what it found stored (once succeeded)")
 
 
 class JobOut(BaseModel):
@@ -32,6 +34,8 @@ class JobOut(BaseModel):
     run_id: int | None
     sweep_id: int | None
     parent_id: int | None
+    work: dict[str, int] | None = Field(
+        None, description="a stage job's work: what it rendered and what it found stored")
     created_at: datetime
     started_at: datetime | None
     finished_at: datetime | None
@@ -45,7 +49,8 @@ class JobOut(BaseModel):
         if stages:
             out.stages = [StageOut(id=stage.id, name=stage.spec.get("name", ""),
                                    status=stage.status, progress=stage.progress,
-                                   attempts=stage.attempts, error=stage.error)
+                                   attempts=stage.attempts, error=stage.error,
+                                   work=stage.work)
                           for stage in stages]
         return out
 

@@ -110,3 +110,22 @@ def test_a_sweeps_stages_are_made_once_and_go_with_their_sweep(store):
     assert queue.cancel_requested(running.id) and queue.get(running.id).status == "running"
     assert {queue.get(j.id).status for n, j in stages_of_other.items() if n != "reference"} \
         == {"canceled"}
+
+
+def test_a_sweeps_stage_work_is_summed(store):
+    from jobs.graph import sweep_stages
+    from jobs.spec import SweepSpec
+
+    queue = JobQueue(store)
+    spec = SweepSpec(scene="cornell-box", seeds=2, eps=[0.5], methods=["nrc"])
+    sweep, _ = queue.submit("sweep", spec.model_dump(mode="json"), "sweep")
+    assert queue.stage_work(sweep.id) == {}
+    stages = queue.stage_jobs(sweep, sweep_stages(spec))
+    for name, work in (("reference", {"reference_rendered": 1, "snapshots_trained": 0}),
+                       ("nrc cache 1/2", {"reference_rendered": 0, "snapshots_trained": 1}),
+                       ("nrc cache 2/2", {"reference_rendered": 0, "snapshots_trained": 1})):
+        queue.claim(stages[name].id, "w")
+        assert queue.succeed(stages[name].id, work=work)
+    assert queue.get(stages["reference"].id).work == {"reference_rendered": 1,
+                                                      "snapshots_trained": 0}
+    assert queue.stage_work(sweep.id) == {"reference_rendered": 1, "snapshots_trained": 2}

@@ -233,9 +233,11 @@ def _run_staged(spec: SweepSpec, store, settings_):
     from jobs.graph import sweep_stages
     from jobs.sweep import run_stage
 
+    stage_work: dict[str, int] = {}
     for stage in sweep_stages(spec):
-        run_stage(spec, stage.task, store, settings_)
-    return run_sweep(spec, store, settings_)
+        for name, count in run_stage(spec, stage.task, store, settings_).items():
+            stage_work[name] = stage_work.get(name, 0) + count
+    return run_sweep(spec, store, settings_, stage_work=stage_work)
 
 
 def test_a_sweep_run_as_stages_gives_the_same_points(sweep_env, tmp_path):
@@ -248,6 +250,9 @@ def test_a_sweep_run_as_stages_gives_the_same_points(sweep_env, tmp_path):
     # job only added the equal-time series.
     assert staged.work["reference_rendered"] == 0 and staged.work["snapshots_trained"] == 0
     assert staged.work["snapshots_reused"] == 4 and staged.work["points_reused"] == 6
+    assert staged.stage_work["reference_rendered"] == 1
+    assert staged.stage_work["snapshots_trained"] == 4
+    assert staged.stage_work["points_rendered"] == 6
     assert len(staged.snapshots) == 4     # every cache's training curve is in the plot
     for name in ("NIRC", "NRC"):
         for a, b in zip(_series(direct, name), _series(staged, name), strict=True):
@@ -260,4 +265,5 @@ def test_an_nc_sweep_run_as_stages_renders_its_points_in_the_stages(sweep_env):
     spec = small_spec(eps=None, nc=[1, 2], seeds=2)
     result = _run_staged(spec, store, settings_)
     assert result.work["points_rendered"] == 0 and result.work["points_reused"] == 2
+    assert result.stage_work["points_rendered"] == 2
     assert [row["nc"] for row in result.rows] == [1, 2]

@@ -48,6 +48,16 @@ def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashbo
         assert all(by_name["reference"]["finished_at"] <= job["started_at"]
                    for name, job in by_name.items() if name != "reference")
         assert detail["sweep_id"] == result["id"]
+        # What the stages rendered is summed into the sweep's result.
+        stage_work = result["result"]["stage_work"]
+        assert (stage_work["reference_rendered"], stage_work["snapshots_trained"],
+                stage_work["points_rendered"]) == (1, 4, 4)
+        assert by_name["reference"]["work"]["reference_rendered"] == 1
+        assert {stage["name"]: (stage["work"]["snapshots_trained"],
+                                stage["work"]["points_rendered"])
+                for stage in detail["stages"] if stage["name"] != "reference"} \
+            == {"nirc cache 1/2": (1, 0), "nirc cache 2/2": (1, 0), "nirc points": (0, 2),
+                "nrc cache 1/2": (1, 0), "nrc cache 2/2": (1, 0), "nrc points": (0, 2)}
 
         # The same sweep again, as a table: the service returns the finished job.
         again = subprocess.run(
@@ -56,6 +66,8 @@ def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashbo
         assert again.returncode == 0, again.stderr
         assert f"job {parent['id']} submitted" in again.stdout
         assert "NIRC equal time" in again.stdout and "7 stage jobs" in again.stdout
+        assert "rendered by its stage jobs: reference 1, caches 4 (reused 4), points 4 (reused 0)" \
+            in again.stdout
         assert f"{service.url}/api/v1/artifacts/" in again.stdout    # the plots' URLs
 
         page, errors = open_page(chromium, f"{service.url}/#/scene/cornell-box")
