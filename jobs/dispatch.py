@@ -1,13 +1,16 @@
 """Hand queued jobs to Dask distributed workers.
 
 Embedded default: a ``LocalCluster`` inside the service process, one worker
-with one thread on a CPU machine (a render uses every core; two at once would
-only slow each other and spoil their timings). The worker itself only claims
-jobs and watches their render processes, so it needs no process of its own.
-Scale-out: ``nirc-bench serve --scheduler tcp://HOST:8786`` connects to a
-running scheduler, and each GPU machine runs ``nirc-bench worker --scheduler
-... --gpus N``, whose workers advertise the resource ``GPU=1``; GPU jobs ask
-for it. On SLURM, dask-jobqueue's ``SLURMCluster`` starts such workers as batch jobs (README).
+with one thread for CPU jobs (a render uses every core; two at once would only
+slow each other and spoil their timings). That worker only claims jobs and
+watches their render processes, so it needs no process of its own. On a
+machine with GPUs the embedded cluster adds one worker process per GPU, pinned
+to it (jobs/gpus.py). Scale-out: ``nirc-bench serve --scheduler
+tcp://HOST:8786`` connects to a running scheduler; machines run ``nirc-bench
+worker --scheduler ...`` (one CPU worker) or ``... --gpus N`` (N GPU workers).
+CPU workers advertise the Dask resource ``CPU=1`` and GPU workers ``GPU=1``;
+every job asks for the one of its device class. On SLURM the same command runs
+as a batch job (scripts/slurm/nirc-bench-worker.sbatch, README).
 
 A Dask task only calls :func:`jobs.runner.run_job`, which claims the job in
 the database, so a task that Dask runs twice (a worker lost mid-task) cannot
@@ -21,11 +24,13 @@ stage fails everything downstream of it (jobs.runner.run_job).
 
 from __future__ import annotations
 
+import os
 import socket
 from typing import Any
 
 from jobs.config import Settings
 from jobs.db import open_store
+from jobs.gpus import CPU_WORKER, GPU_WORKER, detect_gpu_count, gpu_devices, start_gpu_workers
 from jobs.graph import final_stages, sweep_stages
 from jobs.models import Job
 from jobs.queue import JobQueue
@@ -71,7 +76,8 @@ class Dispatcher:
     """Submits job ids to a Dask cluster (embedded ``LocalCluster`` or a scheduler)."""
 
     def __init__(self, settings: Settings, scheduler: str | None = None,
-                 timeout_s: float | None = None) -> None:
+                 timeout_s: float | None = None, gpus: int | None = None) -> None:
+        """``gpus``: GPU workers of the embedded cluster (None: one per GPU found)."""
         import dask
         from distributed import Client, LocalCluster
 
@@ -79,17 +85,38 @@ class Dispatcher:
         self.timeout_s = timeout_s
         self.queue = JobQueue(open_store(settings))
         self.cluster = None
+        self.gpu_workers: list[Any] = []
         dask.config.set(QUIET_WORKER_CONFIG)
         if scheduler:
             self.client = Client(scheduler)
-        else:
-            # The worker runs in this process: it only claims jobs and watches their
-            # render processes, which provide the isolation (jobs.runner).
-            # One worker: nothing to balance, so no work stealing (it rebalances every 100 ms).
-            with dask.config.set({"distributed.scheduler.work-stealing": False}):
-                self.cluster = LocalCluster(n_workers=1, threads_per_worker=1,
-                                            processes=False, dashboard_address=None)
-            self.client = Client(self.cluster)
+            return
+        gpus = detect_gpu_count() if gpus is None else gpus
+        gpu_devices(gpus)       # fail now, not in the workers, if they are not there
+        # The CPU worker runs in this process: it only claims jobs and watches their
+        # render processes, which provide the isolation (jobs.runner). GPU workers are
+        # processes of their own, each pinned to its GPU (jobs/gpus.py), so the
+        # scheduler listens on loopback TCP for them. With the CPU worker alone there is
+        # nothing to balance, so no work stealing (it rebalances every 100 ms).
+        network = {"host": "127.0.0.1", "protocol": "tcp://", "scheduler_port": 0} if gpus else {}
+        with dask.config.set({"distributed.scheduler.work-stealing": bool(gpus)}):
+            self.cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                        dashboard_address=None, resources=CPU_WORKER,
+                                        **network)
+        self.client = Client(self.cluster)
+        self.gpu_workers = start_gpu_workers(
+            self.cluster.scheduler_address, gpus,
+            {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})
+        if gpus:
+            self.client.wait_for_workers(1 + gpus, timeout=120)
+
+    def unavailable(self, device_class: str) -> str | None:
+        """Why this cluster cannot run jobs of ``device_class`` (None: it can, or with
+        an external scheduler, it may once such workers join)."""
+        if device_class == "gpu" and self.cluster is not None and not self.gpu_workers:
+            return ("this service's embedded cluster has no GPU worker (no NVIDIA GPU "
+                    "found): run GPU jobs on a service started with --scheduler and "
+                    "`nirc-bench worker --gpus N` on the GPU machines")
+        return None
 
     def submit(self, job: Job) -> None:
         """Run ``job`` on a worker (GPU jobs on a worker with the GPU resource); a sweep
@@ -108,7 +135,7 @@ class Dispatcher:
         fire_and_forget(self._submit(job, upstream))
 
     def _submit(self, job: Job, upstream: list[Any]) -> Any:
-        resources = {"GPU": 1} if job.device_class == "gpu" else None
+        resources = GPU_WORKER if job.device_class == "gpu" else CPU_WORKER
         return self.client.submit(
             run_job_task, job.id, self.settings.model_dump(mode="json"), self.timeout_s,
             *upstream, key=f"nirc-job-{job.id}-{job.attempts}", pure=False,
@@ -117,5 +144,8 @@ class Dispatcher:
     def close(self) -> None:
         self.queue.store.close()
         self.client.close()
+        for process in self.gpu_workers:
+            process.terminate()
+            process.wait()
         if self.cluster is not None:
             self.cluster.close()

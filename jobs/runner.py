@@ -11,8 +11,10 @@ The parent — a Dask task in the service, or a test — claims the job, hands i
 to the child and watches:
 
 * status 0: the child stored the result and marked the job succeeded;
-* status 3: the job's input is wrong (unknown scene, bad parameters): the child
-  marked it failed with the message; retrying would fail the same way;
+* status 3: the job's input is wrong (unknown scene, bad parameters) or its
+  device class cannot render here (a GPU job on a worker without a usable
+  GPU): the child marked it failed with the message; retrying would fail the
+  same way;
 * the child dies (an abort, a signal, an out-of-memory kill), or the attempt
   times out or is canceled (the parent kills the child): the attempt failed;
   the job goes back to the queue until ``max_attempts``.
@@ -21,6 +23,9 @@ The child stores the run under the idempotency key ``job-<id>``, so an
 attempt that died after storing its result does not store it twice: the next
 attempt finds it and only marks the job done. Children are killed with their
 parent (Linux ``PR_SET_PDEATHSIG``), so a killed worker leaves no render behind.
+A child renders with the variant of its jobs' device class (``cpu``: LLVM,
+``gpu``: CUDA, on the GPU its worker was given — jobs/gpus.py), so a CPU job on a
+GPU worker still renders on the CPU it asked for.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ from jobs.config import Settings
 from jobs.db import open_store
 from jobs.models import JobStatus
 from jobs.queue import JobQueue
+from renderers.backend import BackendError
 
 #: Status of a job that failed for good (bad input).
 EXIT_JOB_FAILED = 3
@@ -50,6 +56,8 @@ PROGRESS_INTERVAL_S = 1.0
 MAX_JOBS_PER_CHILD = 100
 #: Set by Dask's nanny for its worker processes (1 thread, aggressive malloc trimming);
 #: a render process uses every core and the allocator's defaults.
+#: The Mitsuba variant a job's device class renders with (renderers/backend.py).
+VARIANT_OF_DEVICE_CLASS = {"cpu": "llvm_ad_rgb", "gpu": "cuda_ad_rgb"}
 _DASK_WORKER_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                             "MALLOC_TRIM_THRESHOLD_")
 
@@ -79,7 +87,8 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
                     continue
                 time.sleep(poll_s)
                 continue
-            status, reason = _child_for(settings).run(job_id, queue, timeout_s, poll_s)
+            child = _child_for(settings, queue.get(job_id).device_class)
+            status, reason = child.run(job_id, queue, timeout_s, poll_s)
             if status in (0, EXIT_JOB_FAILED):
                 return queue.get(job_id).status
             if queue.fail(job_id, reason, retry=True) != JobStatus.QUEUED.value:
@@ -91,13 +100,15 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
 class _Child:
     """One render process serving jobs over a line protocol (see the module doc)."""
 
-    def __init__(self, settings: Settings) -> None:
+    def __init__(self, settings: Settings, device_class: str) -> None:
         self.settings = settings
+        self.device_class = device_class
         self.jobs = 0
         env = {key: value for key, value in os.environ.items()
                if key not in _DASK_WORKER_VARIABLES}
         env.update(NIRC_BENCH_DATA_DIR=str(settings.data_dir),
-                   NIRC_BENCH_DATABASE_URL=str(settings.database_url))
+                   NIRC_BENCH_DATABASE_URL=str(settings.database_url),
+                   NIRC_BENCH_VARIANT=VARIANT_OF_DEVICE_CLASS[device_class])
         # stderr goes to a file, not a pipe: a chatty child must never block on it.
         self.stderr = tempfile.TemporaryFile("w+")
         self.proc = subprocess.Popen(
@@ -105,10 +116,10 @@ class _Child:
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
             preexec_fn=_die_with_parent)
 
-    def usable(self, settings: Settings) -> bool:
+    def usable(self, settings: Settings, device_class: str) -> bool:
         return (self.proc.poll() is None and self.jobs < MAX_JOBS_PER_CHILD
-                and (settings.data_dir, settings.database_url)
-                == (self.settings.data_dir, self.settings.database_url))
+                and (settings.data_dir, settings.database_url, device_class)
+                == (self.settings.data_dir, self.settings.database_url, self.device_class))
 
     def run(self, job_id: int, queue: JobQueue, timeout_s: float | None,
             poll_s: float) -> tuple[int, str]:
@@ -160,13 +171,14 @@ class _Child:
 _children = threading.local()
 
 
-def _child_for(settings: Settings) -> _Child:
-    """This thread's render process, replaced when it is dead, used up or elsewhere."""
+def _child_for(settings: Settings, device_class: str) -> _Child:
+    """This thread's render process, replaced when it is dead, used up, elsewhere or
+    on the other device class."""
     child: _Child | None = getattr(_children, "child", None)
-    if child is None or not child.usable(settings):
+    if child is None or not child.usable(settings, device_class):
         if child is not None:
             child.close()
-        child = _children.child = _Child(settings)
+        child = _children.child = _Child(settings, device_class)
     return child
 
 
@@ -228,7 +240,8 @@ def run_one(job_id: int, store: Any, settings: Settings) -> int:
         return EXIT_JOB_FAILED
     try:
         result = execute_job(job, store, settings, _throttled(queue, job_id))
-    except (ValueError, FileNotFoundError) as err:  # bad input: the same on every attempt
+    # Bad input, or a device class this worker cannot render: the same on every attempt.
+    except (ValueError, FileNotFoundError, BackendError) as err:
         queue.fail(job_id, f"{type(err).__name__}: {err}", retry=False)
         return EXIT_JOB_FAILED
     queue.succeed(job_id, **result)

@@ -404,6 +404,9 @@ def serve(
         "--scheduler", help="Dask scheduler address (default: an embedded LocalCluster)")] = None,
     job_timeout: Annotated[float | None, typer.Option(
         "--job-timeout", min=1.0, help="seconds before an attempt is killed")] = None,
+    gpus: Annotated[int | None, typer.Option(
+        "--gpus", min=0, max=64,
+        help="GPU workers of the embedded cluster (default: one per GPU found)")] = None,
     data_dir: DataDir = None,
 ) -> None:
     """Run the service: REST API (OpenAPI at /docs) + job queue on Dask."""
@@ -412,8 +415,11 @@ def serve(
     from jobs.dispatch import Dispatcher
     from service.api.main import create_app
 
+    if scheduler and gpus is not None:
+        raise UsageError("--gpus sizes the embedded cluster; with --scheduler, run "
+                         "`nirc-bench worker --scheduler ... --gpus N` on the GPU machines")
     settings = _settings(data_dir)
-    dispatcher = Dispatcher(settings, scheduler, timeout_s=job_timeout)
+    dispatcher = Dispatcher(settings, scheduler, timeout_s=job_timeout, gpus=gpus)
     try:
         uvicorn.run(create_app(settings, dispatcher), host=host, port=port)
     finally:
@@ -426,14 +432,17 @@ def worker(
     gpus: Annotated[int, typer.Option("--gpus", min=0, max=64,
                                       help="one worker per GPU, each with resource GPU=1")] = 0,
 ) -> None:
-    """Run Dask worker(s) for a service started with --scheduler (same data folder)."""
+    """Run Dask worker(s) for a service started with --scheduler (same data folder):
+    one CPU worker, or one per GPU, each seeing only its GPU (CUDA_VISIBLE_DEVICES)."""
     from jobs.dispatch import QUIET_WORKER_CONFIG, dask_environment
+    from jobs.gpus import run_workers, worker_commands
 
-    args = [sys.executable, "-m", "distributed.cli.dask_worker", scheduler, "--nthreads", "1",
-            "--no-dashboard"]
-    if gpus:
-        args += ["--nworkers", str(gpus), "--resources", "GPU=1"]
-    os.execve(sys.executable, args, {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})
+    commands = worker_commands(scheduler, gpus,
+                               {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})
+    if len(commands) == 1:      # nothing to supervise: become the worker
+        argv, env = commands[0]
+        os.execve(sys.executable, argv, env)
+    raise typer.Exit(run_workers(commands))
 
 
 apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True)

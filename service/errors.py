@@ -5,6 +5,7 @@ from __future__ import annotations
 from pydantic import ValidationError
 
 from jobs.db import SchemaVersionError
+from jobs.gpus import GpuError
 from jobs.ranges import RangeError
 from metrics.errors import MetricError
 from metrics.imageio import ImageReadError
@@ -20,7 +21,7 @@ class UsageError(ValueError):
 
 USER_ERRORS: tuple[type[BaseException], ...] = (
     BackendError, SceneError, MethodError, ImageReadError, MetricError, SchemaVersionError,
-    ValidationError, FileNotFoundError, RangeError, RemoteError, UsageError,
+    ValidationError, FileNotFoundError, RangeError, RemoteError, UsageError, GpuError,
 )
 
 

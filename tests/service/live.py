@@ -10,7 +10,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import httpx
@@ -72,10 +72,10 @@ class Service(Process):
     """`nirc-bench serve` (embedded LocalCluster, or ``scheduler``) on a loopback port."""
 
     def __init__(self, data_dir: Path, scheduler: str | None = None,
-                 database_url: str | None = None) -> None:
+                 database_url: str | None = None, options: Sequence[str] = ()) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        args = [sys.executable, "-m", "service", "serve", "--port", str(self.port)]
+        args = [sys.executable, "-m", "service", "serve", "--port", str(self.port), *options]
         super().__init__(args + (["--scheduler", scheduler] if scheduler else []),
                          service_env(data_dir, database_url))
         self.key = create_key(self.env)
@@ -91,9 +91,9 @@ class Service(Process):
                 time.sleep(0.3)
         raise AssertionError("the service did not start")
 
-    def submit(self, spec: dict, kind: str = "jobs") -> dict:
-        response = httpx.post(f"{self.url}/api/v1/{kind}", json=spec,
-                              headers={"X-API-Key": self.key}, timeout=10)
+    def submit(self, spec: dict, kind: str = "jobs", device_class: str = "cpu") -> dict:
+        response = httpx.post(f"{self.url}/api/v1/{kind}?device_class={device_class}",
+                              json=spec, headers={"X-API-Key": self.key}, timeout=10)
         assert response.status_code == 202, response.text
         return response.json()
 

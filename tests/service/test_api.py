@@ -28,6 +28,9 @@ class ThreadDispatcher:
         self.settings = settings
         self.threads: list[threading.Thread] = []
 
+    def unavailable(self, device_class: str) -> None:
+        return None
+
     def submit(self, job) -> None:
         thread = threading.Thread(target=run_job, args=(job.id, self.settings),
                                   kwargs={"worker": "thread"})

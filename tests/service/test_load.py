@@ -30,6 +30,9 @@ class PoolDispatcher:
         self.pool = ThreadPoolExecutor(2)
         self.futures = []
 
+    def unavailable(self, device_class: str) -> None:
+        return None
+
     def submit(self, job) -> None:
         self.futures.append(self.pool.submit(run_job, job.id, self.settings, worker="pool"))
 

@@ -43,6 +43,9 @@ def _check_render(spec: RenderSpec) -> None:
 
 def _enqueue(kind: str, spec_json: dict, queue, dispatcher, response: Response,
              idempotency_key: str | None, device_class: str) -> JobOut:
+    reason = dispatcher.unavailable(device_class) if dispatcher is not None else None
+    if reason:
+        raise HTTPException(status.HTTP_409_CONFLICT, reason)
     job, created = queue.submit(kind, spec_json, digest(kind, spec_json, device_class),
                                 idempotency_key=idempotency_key, device_class=device_class)
     if created and dispatcher is not None:
