@@ -28,6 +28,9 @@ class Settings(BaseSettings):
     # A running job whose runner has not renewed its heartbeat for this long is
     # taken over by another runner (its worker or the service died).
     job_lease_s: float = Field(30.0, gt=0.0)
+    # The longest a long poll (GET /api/v1/jobs/{id}?wait_s=) holds a request open,
+    # below the idle timeouts of proxies in front of the service.
+    long_poll_max_s: float = Field(30.0, ge=0.0)
 
     @field_validator("data_dir")
     @classmethod

@@ -49,15 +49,18 @@ class ServiceClient:
 
     def wait(self, job_id: int, progress: Callable[[str, int, int], None] | None = None,
              poll_s: float = 1.0) -> dict[str, Any]:
-        """Poll the job until it is final, reporting its progress (a sweep: how many of
-        its stages are done, and the progress of each running stage)."""
+        """Long-poll the job until it is final (the answer comes as soon as it is),
+        reporting its progress every ``poll_s`` (a sweep: how many of its stages are
+        done, and the progress of each running stage)."""
         while True:
-            job = self.get(f"/api/v1/jobs/{job_id}")
+            asked = time.monotonic()
+            job = self.get(f"/api/v1/jobs/{job_id}?wait_s={poll_s:g}")
             if progress:
                 _report(job, progress)
             if job["status"] in FINAL:
                 return job
-            time.sleep(poll_s)
+            # A service that answered early (older, or capped by long_poll_max_s).
+            time.sleep(max(0.0, poll_s - (time.monotonic() - asked)))
 
 
 def _report(job: dict[str, Any], progress: Callable[[str, int, int], None]) -> None:

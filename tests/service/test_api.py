@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from jobs.apikeys import create_api_key, revoke_api_key
 from jobs.config import Settings
 from jobs.db import open_store
+from jobs.queue import JobQueue
 from jobs.runner import run_job
 from service.api.main import create_app
 from tests.pg import postgres_database
@@ -155,3 +156,19 @@ def test_the_dashboard_is_served_without_external_assets(api):
     assert "https://" not in page.text and "http://" not in page.text
     assert client.get("/api/v1/sweeps").json() == []
     assert client.get("/api/v1/references/999/preview.png").status_code == 404
+
+
+def test_a_long_poll_answers_as_soon_as_the_job_is_final(api):
+    client, store, _, _ = api
+    queue = JobQueue(store)
+    job, _ = queue.submit("render", {**SPEC, "seeds": 3}, "long-poll")   # never dispatched
+    started = time.monotonic()
+    assert client.get(f"/api/v1/jobs/{job.id}?wait_s=0.5").json()["status"] == "queued"
+    assert time.monotonic() - started >= 0.5
+    canceler = threading.Timer(0.5, queue.cancel, args=(job.id,))
+    canceler.start()
+    started = time.monotonic()
+    assert client.get(f"/api/v1/jobs/{job.id}?wait_s=30").json()["status"] == "canceled"
+    assert time.monotonic() - started < 10          # not the 30 s it was allowed
+    canceler.join()
+    assert client.get(f"/api/v1/jobs/{job.id}?wait_s=61").status_code == 422

@@ -2,18 +2,23 @@
 
 from __future__ import annotations
 
+import time
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 
+from jobs.models import FINAL_JOB_STATES
 from jobs.spec import RenderSpec, SweepSpec
 from renderers.methods import MethodError, parse_params
 from renderers.scenes import builtin_names, is_scene_file
 from renderers.seeding import digest
-from service.api.deps import DispatcherDep, QueueDep, RowId, WriteAccess
+from service.api.deps import DispatcherDep, QueueDep, RowId, SettingsDep, WriteAccess
 from service.api.schemas import JobOut
 
 router = APIRouter(prefix="/api/v1", tags=["jobs"])
+
+#: Seconds between the reads of a long-polled job.
+LONG_POLL_INTERVAL_S = 0.1
 
 IdempotencyKey = Annotated[str | None, Header(max_length=200,
                                               description="return the job of an earlier "
@@ -87,10 +92,20 @@ def list_jobs(queue: QueueDep,
 @router.get("/jobs/{job_id}", response_model=JobOut,
             description="A job's status and progress; a sweep lists its stages (the task "
                         "graph: reference, caches, points), each a job of its own.")
-def get_job(job_id: RowId, queue: QueueDep) -> JobOut:
+def get_job(job_id: RowId, queue: QueueDep, settings: SettingsDep,
+            wait_s: Annotated[float, Query(
+                ge=0, le=60, description="long poll: answer when the job is final or after "
+                                         "this many seconds (at most the service's "
+                                         "long_poll_max_s), whichever is first")] = 0) -> JobOut:
+    deadline = time.monotonic() + min(wait_s, settings.long_poll_max_s)
     job = queue.get(job_id)
     if job is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no job {job_id}")
+    # Re-read the row, not the HTTP round trip: a waiting client costs one query per
+    # interval instead of one request.
+    while job.status not in FINAL_JOB_STATES and time.monotonic() < deadline:
+        time.sleep(LONG_POLL_INTERVAL_S)
+        job = queue.get(job_id)
     return JobOut.of(job, queue.children(job_id) if job.kind == "sweep" else None)
 
 
