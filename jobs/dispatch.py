@@ -99,9 +99,12 @@ class Dispatcher:
         # nothing to balance, so no work stealing (it rebalances every 100 ms).
         network = {"host": "127.0.0.1", "protocol": "tcp://", "scheduler_port": 0} if gpus else {}
         with dask.config.set({"distributed.scheduler.work-stealing": bool(gpus)}):
+            # Dask's HTTP endpoints (health, metrics) on loopback only, not on every
+            # interface as by default.
             self.cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                        dashboard_address=None, resources=CPU_WORKER,
-                                        **network)
+                                        dashboard_address="127.0.0.1:0",
+                                        worker_dashboard_address="127.0.0.1:0",
+                                        resources=CPU_WORKER, **network)
         self.client = Client(self.cluster)
         self.gpu_workers = start_gpu_workers(
             self.cluster.scheduler_address, gpus,

@@ -85,10 +85,16 @@ def _resources(resources: dict[str, int]) -> str:
 
 
 def start_gpu_workers(scheduler: str, gpus: int, env: dict[str, str]) -> list[Any]:
-    """Start ``gpus`` pinned GPU worker processes (for the embedded cluster)."""
+    """Start ``gpus`` pinned GPU worker processes for the embedded cluster. Each is a
+    single process (no nanny: the render process is the isolation) on loopback,
+    killed with the service, so a killed service leaves no worker behind."""
+    from jobs.runner import die_with_parent
+
     if gpus == 0:
         return []
-    return [subprocess.Popen(argv, env=worker_env)
+    loopback = ["--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0"]
+    return [subprocess.Popen([*argv, "--no-nanny", *loopback], env=worker_env,
+                             preexec_fn=die_with_parent)
             for argv, worker_env in worker_commands(scheduler, gpus, env)]
 
 

@@ -114,7 +114,7 @@ class _Child:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "jobs.runner", "--serve"], env=env, text=True,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
-            preexec_fn=_die_with_parent)
+            preexec_fn=die_with_parent)
 
     def usable(self, settings: Settings, device_class: str) -> bool:
         return (self.proc.poll() is None and self.jobs < MAX_JOBS_PER_CHILD
@@ -182,7 +182,7 @@ def _child_for(settings: Settings, device_class: str) -> _Child:
     return child
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """In the child, before exec: be killed when the runner dies (Linux
     PR_SET_PDEATHSIG), so a killed worker or service leaves no render behind."""
     if sys.platform.startswith("linux"):

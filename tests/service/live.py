@@ -45,6 +45,15 @@ class Process:
         self.proc = subprocess.Popen(self.args, env=self.env, stdout=subprocess.DEVNULL,
                                      stderr=subprocess.DEVNULL, start_new_session=True)
 
+    def listening(self) -> set[str]:
+        """The addresses it and its children listen on (TCP)."""
+        import psutil
+
+        root = psutil.Process(self.proc.pid)
+        return {conn.laddr.ip for process in (root, *root.children(recursive=True))
+                for conn in process.net_connections(kind="tcp")
+                if conn.status == psutil.CONN_LISTEN}
+
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
 

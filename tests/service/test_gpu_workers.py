@@ -94,6 +94,7 @@ def test_a_gpu_job_runs_only_on_a_gpu_worker_with_the_cuda_variant(tmp_path):
         cpu = service.wait(service.submit(SMALL)["id"])
         assert cpu["status"] == "succeeded", cpu
         assert cpu["worker"] != gpu["worker"]
+        assert service.listening() == {"127.0.0.1"}     # the GPU worker too
         run = service.get(f"/api/v1/runs/{cpu['run_id']}")
         assert run["device"]["variant"] == "llvm_ad_rgb"
     finally:

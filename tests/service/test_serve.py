@@ -32,6 +32,7 @@ def test_a_job_submitted_over_rest_runs_on_the_cluster(service):
     run = service.get(f"/api/v1/runs/{done['run_id']}")
     assert len(run["per_seed"]) == 2
     assert "://" in done["worker"]   # ran on a Dask worker (inproc:// in the embedded cluster)
+    assert service.listening() == {"127.0.0.1"}     # nothing of Dask's on other interfaces
 
 
 def test_killing_the_service_mid_job_then_restarting_completes_it_once(service):
