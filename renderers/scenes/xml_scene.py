@@ -182,10 +182,11 @@ def _parse(path: Path, data: bytes) -> ET.Element:
 
 def is_scene_file(name: str) -> bool:
     """True when ``name`` is the path of an existing file (False, not an error, for a
-    name no file can have: too long, or with a NUL character)."""
+    name no file can have: too long, with a NUL character, or in the home folder of an
+    unknown user, ``~user/...``, which ``expanduser`` reports as a RuntimeError)."""
     try:
         return Path(name).expanduser().is_file()
-    except (OSError, ValueError):
+    except (OSError, ValueError, RuntimeError):
         return False
 
 

@@ -23,6 +23,7 @@ from renderers.scenes import (
     SceneError,
     builtin_names,
     describe,
+    is_scene_file,
     library,
     load_scene,
 )
@@ -315,6 +316,14 @@ def test_unknown_name_lists_builtins() -> None:
 def test_missing_xml_file(tmp_path: Path) -> None:
     message = _error(str(tmp_path / "nope.xml"))
     assert "nope.xml" in message and "not found" in message
+
+
+@pytest.mark.parametrize("name", ["~no-such-user-x9/scene.xml", "~0", "a\x00b.xml",
+                                  "x" * 5000 + ".xml"])
+def test_names_no_file_can_have_are_not_found(name: str) -> None:
+    # An unknown user's home (~user), a NUL byte, a name too long: not found, no crash.
+    assert not is_scene_file(name)
+    assert "scene" in _error(name)
 
 
 def test_malformed_xml_says_where(tmp_path: Path) -> None:
