@@ -78,7 +78,8 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
             job = queue.get(job_id)
             return queue.abandon(job_id, queue.upstream_error(job)) if job else "missing"
         while True:
-            if queue.claim(job_id, worker, lease_s=lease_s) is None:
+            claimed = queue.claim(job_id, worker, lease_s=lease_s)
+            if claimed is None:
                 job = queue.get(job_id)
                 if job is None or job.status != JobStatus.RUNNING.value:
                     return job.status if job else "missing"
@@ -87,7 +88,7 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
                     continue
                 time.sleep(poll_s)
                 continue
-            child = _child_for(settings, queue.get(job_id).device_class)
+            child = _child_for(settings, claimed.device_class)
             status, reason = child.run(job_id, queue, timeout_s, poll_s)
             if status in (0, EXIT_JOB_FAILED):
                 return queue.get(job_id).status
