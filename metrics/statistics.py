@@ -384,3 +384,146 @@ def z_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray, var_b: np.
         worst_index=tuple(int(i) for i in worst),
         passed=n_failed == 0,
     )
+
+
+# ---------------------------------------------------------------------------
+# Aggregate test over pixel blocks (catches few-percent biases the per-pixel test misses)
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AggregateTestResult:
+    """Outcome of :func:`aggregate_test`: two statistics over B block means."""
+
+    n_blocks: int         # blocks tested (all channels)
+    block_pixels: int     # pixels per block side (tiles of block x block pixels)
+    chi2: float           # sum over blocks of z_B^2, chi-square with B d.o.f. under the null
+    p_chi2: float         # its upper-tail p-value
+    mean_z: float         # sum_B z_B / sqrt(B): standard normal under the null (signed bias)
+    p_mean: float         # its two-sided p-value
+    alpha: float          # family-wise level of the pair of statistics
+    passed: bool          # both p-values above alpha / 2 (Bonferroni over the two)
+
+    def summary(self) -> str:
+        verdict = "passed" if self.passed else "FAILED"
+        return (f"aggregate test {verdict} over {self.n_blocks} blocks of "
+                f"{self.block_pixels}x{self.block_pixels} px: chi2 {self.chi2:.1f} "
+                f"(p {self.p_chi2:.3g}), mean z {self.mean_z:+.2f} (p {self.p_mean:.3g}); "
+                f"level {self.alpha:g}")
+
+
+def _tile_sums(x: np.ndarray, block: int) -> np.ndarray:
+    """Sums over block x block tiles of an (H, W, C) array (trailing rows/columns dropped)."""
+    h, w = (x.shape[0] // block) * block, (x.shape[1] // block) * block
+    if h == 0 or w == 0:
+        raise MetricError(f"the image ({x.shape[0]}x{x.shape[1]}) is smaller than one "
+                          f"{block}x{block} block")
+    tiles = x[:h, :w].reshape(h // block, block, w // block, block, x.shape[2])
+    return tiles.sum(axis=(1, 3))
+
+
+def aggregate_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
+                   var_b: np.ndarray, *, dof: float | None = None, block: int = 4,
+                   alpha: float = 0.01) -> AggregateTestResult:
+    """Test "both images have the same expectation" on means over pixel blocks.
+
+    The per-pixel Šidák test (:func:`z_test`) only rejects a pixel whose
+    difference is ~5 standard deviations, so a bias of a few percent spread
+    over the image passes it. Here each channel is cut into ``block`` x
+    ``block`` tiles; per tile B the mean difference d_B and its variance
+    v_B = sum (var_a + var_b) / n^2 give z_B = d_B / sqrt(v_B), and
+
+    - chi2 = sum_B z_B^2 is chi-square with B degrees of freedom under the null
+      (any bias pattern raises it: ``p_chi2``);
+    - S = sum_B z_B / sqrt(B) is standard normal under the null (a bias of one
+      sign over the image shifts it by ~ sqrt(B) times the mean bias in units
+      of the block's standard deviation: ``p_mean``).
+
+    ``var_a`` / ``var_b`` are variances of the means (as for :func:`z_test`).
+    When the variances are estimated with ``dof`` degrees of freedom per pixel
+    (e.g. passes - 1), each z_B is a Student t with the Welch-Satterthwaite
+    degrees of freedom of its tile and is mapped to the standard normal with
+    the same tail probability before squaring, so the null distribution holds
+    for few passes too. Tiles where both variances are 0 are left out when
+    their means agree and fail otherwise; non-finite inputs fail.
+    """
+    from scipy import stats
+
+    if not 0.0 < alpha < 1.0:
+        raise MetricError(f"significance level must be in (0, 1), got {alpha}")
+    if block < 1:
+        raise MetricError(f"block size must be >= 1, got {block}")
+    if np.shape(mean_a) != np.shape(mean_b):
+        raise MetricError(f"mean shapes differ: {np.shape(mean_a)} vs {np.shape(mean_b)}")
+    try:
+        a, va, b, vb = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
+                                             for x in (mean_a, var_a, mean_b, var_b)))
+    except ValueError:
+        raise MetricError(f"variance shapes {np.shape(var_a)}, {np.shape(var_b)} do not "
+                          f"broadcast to the mean shape {np.shape(mean_a)}") from None
+    if a.ndim == 2:
+        a, va, b, vb = (x[..., None] for x in (a, va, b, vb))
+    if a.ndim != 3:
+        raise MetricError(f"images must be (H, W) or (H, W, C), got shape {a.shape}")
+    if np.any((va < 0) | (vb < 0)):
+        raise MetricError("variances must be >= 0")
+    n = block * block
+    finite = _tile_sums((np.isfinite(a) & np.isfinite(b) & np.isfinite(va)
+                         & np.isfinite(vb)).astype(np.float64), block) == n
+    with np.errstate(invalid="ignore", over="ignore"):
+        d = _tile_sums(a - b, block) / n
+        v = _tile_sums(va + vb, block) / n**2
+    z = np.full(d.shape, np.inf)
+    positive = finite & (v > 0)
+    z[positive] = d[positive] / np.sqrt(v[positive])
+    exact = finite & (v == 0)
+    z[exact & (d == 0)] = np.nan          # exact agreement: nothing to test
+    if dof is not None:
+        if not dof > 0:
+            raise MetricError(f"degrees of freedom must be > 0, got {dof}")
+        # Welch-Satterthwaite: df_B = (sum v_i)^2 / sum (v_i^2 / dof).
+        with np.errstate(invalid="ignore", divide="ignore"):
+            df = _tile_sums(va + vb, block) ** 2 / (_tile_sums((va + vb) ** 2, block) / dof)
+        t = z[positive]
+        z[positive] = np.sign(t) * stats.norm.isf(stats.t.sf(np.abs(t), df[positive]))
+    tested = ~np.isnan(z)
+    n_blocks = int(np.count_nonzero(tested))
+    if n_blocks == 0:
+        return AggregateTestResult(0, block, 0.0, 1.0, 0.0, 1.0, float(alpha), True)
+    zt = z[tested]
+    if not np.isfinite(zt).all():
+        return AggregateTestResult(n_blocks, block, math.inf, 0.0, math.nan, 0.0,
+                                   float(alpha), False)
+    chi2 = float(np.sum(zt * zt))
+    mean_z = float(np.sum(zt) / math.sqrt(n_blocks))
+    p_chi2 = float(stats.chi2.sf(chi2, n_blocks))
+    p_mean = float(2.0 * stats.norm.sf(abs(mean_z)))
+    passed = p_chi2 > alpha / 2 and p_mean > alpha / 2
+    return AggregateTestResult(n_blocks, block, chi2, p_chi2, mean_z, p_mean, float(alpha),
+                               passed)
+
+
+@dataclass(frozen=True)
+class AgreementResult:
+    """Per-pixel Šidák z-test and the aggregate block test of one image pair."""
+
+    per_pixel: ZTestResult
+    aggregate: AggregateTestResult
+
+    @property
+    def passed(self) -> bool:
+        return self.per_pixel.passed and self.aggregate.passed
+
+    def summary(self) -> str:
+        return f"{self.per_pixel.summary()}; {self.aggregate.summary()}"
+
+
+def agreement_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
+                   var_b: np.ndarray, *, dof: float | None = None, block: int = 4,
+                   alpha: float = 0.01) -> AgreementResult:
+    """Both tests at level ``alpha`` each: a render agrees with a reference only if
+    no pixel is an outlier (:func:`z_test`) and the block means agree
+    (:func:`aggregate_test`). Statistical render tests use this."""
+    return AgreementResult(z_test(mean_a, var_a, mean_b, var_b, alpha=alpha),
+                           aggregate_test(mean_a, var_a, mean_b, var_b, dof=dof, block=block,
+                                          alpha=alpha))
