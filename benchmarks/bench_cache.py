@@ -1,6 +1,6 @@
 """Benchmark: cost of the neural cache on this device (nirc preset by default).
 
-Reports, measured in one run (DESIGN.md "Performance goals"):
+Reports, measured in one run (docs/design.md, "Performance goals"):
 
 - one neural query (hash grid + SH + MLP, CoopVec) per point, and its parts:
   the hash-grid encoding alone and the MLP alone;

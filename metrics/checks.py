@@ -2,8 +2,7 @@
 
 Images in ``metrics`` are numpy arrays of shape (H, W, C) in linear RGB
 (C = 3 for colour images). A *pixel* is non-finite when any of its channels is
-NaN or +-Inf; metrics count such pixels instead of averaging them (DESIGN.md,
-"Metrics").
+NaN or +-Inf; metrics count such pixels instead of averaging them (docs/metrics.md).
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 NRC, NIRC and the neural visibility caches are presets of
 :class:`CacheConfig` (:func:`nrc_config`, :func:`nirc_config`,
-:func:`visibility_config`) over :class:`NeuralCache`; see DESIGN.md
-("Methods") and the NIRC paper, Sec. 4.1 (loss), 4.4 (architecture) and 4.5
+:func:`visibility_config`) over :class:`NeuralCache`; see docs/design.md
+("Methods in one paragraph each") and the NIRC paper, Sec. 4.1 (loss), 4.4 (architecture) and 4.5
 (shared per-surface encoding).
 
 Import after ``renderers.backend.init_backend()`` has selected the variant.

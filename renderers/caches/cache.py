@@ -5,8 +5,8 @@ direction, :mod:`renderers.caches.encodings`) followed by an MLP, trained
 online with Adam on :class:`TrainingRecords` and queried by the renderer. The
 methods differ only by their :class:`~renderers.caches.config.CacheConfig`.
 
-Two copies of the MLP exist, for the two jobs (DESIGN.md, "Neural-network
-practice on this stack"):
+Two copies of the MLP exist, for the two jobs (docs/design.md, "Neural caches
+on this CPU"):
 
 - training, in tensor mode: an unpacked ``nn.Sequential`` of ``nn.Linear``
   over a ``TensorXf`` of shape (features, batch), ~4x faster on the CPU than

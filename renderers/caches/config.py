@@ -278,8 +278,8 @@ def nirc_config(**overrides: Any) -> CacheConfig:
 
     (*) "without altering their corresponding encodings" (Sec. 4.4).
 
-    The defaults are what measured best in our CPU prototype (DESIGN.md,
-    "Neural-network practice"): 5 SH bands, lr 1e-2 with an EMA of 0.99 (the
+    The defaults are what measured best in our CPU prototype (docs/design.md,
+    "Neural caches on this CPU"): 5 SH bands, lr 1e-2 with an EMA of 0.99 (the
     EMA cut the bias ~3x), per-level scale 1.5 (scale 2 with 12 levels reaches
     resolution 32768, far finer than small scenes need). The table is 2^16
     because 2^19 x 12 levels is 10M parameters and ~10 ms per Adam step here;
@@ -307,7 +307,7 @@ def nirc_config(**overrides: Any) -> CacheConfig:
 def nrc_config(**overrides: Any) -> CacheConfig:
     """Neural Radiance Cache [MRNK21]: outgoing radiance L_o(x, w_o).
 
-    Inputs as DESIGN.md lists them: hash-grid(position) (same grid as
+    Inputs as docs/design.md lists them: hash-grid(position) (same grid as
     :func:`nirc_config`; the original NRC used a frequency encoding, its
     tiny-cuda-nn successor the hash grid), w_o one-blob encoded on spherical
     coordinates (4 bins), normal OneBlob(4) per component, roughness
