@@ -3,15 +3,17 @@
 The CLI (embedded) and the service workers (distributed) both run a job by
 calling :func:`execute`. A job renders its method K times with independent
 seeds, compares each accumulated image with the converged reference, reduces
-the K results to rBias^2 / rVar / MRSE with a confidence interval, writes the
-artifacts, and stores the run with its provenance in one transaction.
+the K results to rBias^2 / rVar / MRSE with a confidence interval (less the
+reference's own noise floor), adds rBias^2 / rVar per cache from each seed's
+frames, writes the artifacts, and stores the run with its provenance in one
+transaction.
 """
 
 from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -27,18 +29,21 @@ from jobs.provenance import git_commit, library_versions
 from jobs.references import LoadedReference, get_or_render_reference
 from jobs.spec import RenderSpec
 from jobs.store import Store
+from metrics.checks import MetricError
 from metrics.errors import (
     bias_variance,
     efficiency,
     image_metrics,
     mrse,
+    per_cache_bias_variance,
     relative_squared_error_map,
 )
 from metrics.imageio import write_exr, write_png
 from metrics.preview import error_map_preview, tonemap_preview
+from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
 from renderers.methods import get_method, parse_params
-from renderers.methods.base import FrameHooks, RenderOutput
+from renderers.methods.base import FrameHooks, OnFrame, RenderOutput
 from renderers.scenes import load_scene
 
 #: progress(stage, done, total): stage is 'reference' or 'seed k/K'.
@@ -119,18 +124,25 @@ def mean_over_seeds(stats: list[dict[str, Any]]) -> dict[str, Any]:
     return result
 
 
-def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray], reference: np.ndarray,
-              eps: float, frame_seconds: float) -> dict[str, Any]:
-    """Reduce K per-seed results: rBias^2/rVar over seeds, mean MRSE with its CI, FLIP.
+def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
+              reference: LoadedReference, eps: float, frame_seconds: float,
+              frame_moments: Sequence[RunningMoments] | None = None) -> dict[str, Any]:
+    """Reduce K per-seed results: rBias^2/rVar over seeds, mean MRSE with its CI, FLIP,
+    all less the reference floor (metrics.errors.bias_variance), and the per-cache
+    statistics of :func:`per_cache_metrics`.
 
     A per-seed value is None when that image had no finite pixel at all; such
     seeds are left out of the means (the quality flag already reports them).
     """
     metrics: dict[str, Any] = {"k": len(images), "eps": eps}
     if len(images) >= 2:
-        metrics.update(bias_variance(np.stack(images), reference, eps))
+        metrics.update(bias_variance(np.stack(images), reference.mean, eps,
+                                     ref_variance=reference.variance))
     else:
-        metrics["mrse_mean"] = per_seed[0]["mrse"]
+        metrics.update({"mrse_mean": per_seed[0]["mrse"],
+                        **{key: per_seed[0][key] for key in
+                           ("mrse_corrected", "ref_floor", "ref_floor_ratio_mrse", "warnings")}})
+    metrics.update(per_cache_metrics(frame_moments, reference, eps))
     for name in ("mse", "flip_hdr", "flip_ldr"):
         values = [s[name] for s in per_seed if s[name] is not None]
         metrics[f"{name}_mean"] = float(np.mean(values)) if values else None
@@ -139,6 +151,48 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray], referenc
     usable = mrse_mean is not None and np.isfinite(mrse_mean) and mrse_mean > 0
     metrics["efficiency"] = efficiency(mrse_mean, frame_seconds) if usable else None
     return metrics
+
+
+#: Keys of the per-cache statistics (metrics.errors.per_cache_bias_variance).
+PER_CACHE_KEYS = (*(f"{name}_per_cache{suffix}" for name in ("rbias2", "rvar")
+                    for suffix in ("", "_mean", "_std", "_min", "_max")),
+                  "per_cache_frames", "per_cache_excluded_pixels")
+
+
+def per_cache_metrics(frame_moments: Sequence[RunningMoments] | None,
+                      reference: LoadedReference, eps: float) -> dict[str, Any]:
+    """rBias^2 / rVar of each seed's cache from its own frames, with mean and spread.
+
+    When they cannot be computed (no frame statistics collected, fewer than 2
+    frames per seed, no finite pixel) every key is None and
+    ``per_cache_unavailable`` says why.
+    """
+    try:
+        if not frame_moments:
+            raise MetricError("no per-frame statistics were collected for this run")
+        return {**per_cache_bias_variance([m.estimate() for m in frame_moments],
+                                          reference.mean, eps, reference.variance),
+                "per_cache_unavailable": None}
+    except MetricError as err:
+        return {**dict.fromkeys(PER_CACHE_KEYS),
+                "per_cache_unavailable": f"per-cache rBias^2/rVar unavailable: {err}"}
+
+
+def frame_moments_hook(moments: RunningMoments) -> OnFrame:
+    """A FrameHooks.on_frame that adds every frame to ``moments`` (per-cache statistics)."""
+    def add(_index: int, frame: np.ndarray, _accumulated: np.ndarray) -> None:
+        moments.add(frame)
+
+    return add
+
+
+def chain(*hooks: OnFrame) -> OnFrame:
+    """One FrameHooks.on_frame that calls ``hooks`` in order."""
+    def call_all(index: int, frame: np.ndarray, accumulated: np.ndarray) -> None:
+        for hook in hooks:
+            hook(index, frame, accumulated)
+
+    return call_all
 
 
 class ConvergenceTracker:
@@ -191,11 +245,15 @@ def prepare(spec: RenderSpec, store: Store, settings: Settings,
 def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
               convergence: list[dict[str, Any]], store: Store, settings: Settings, *,
               idempotency_key: str | None = None, extra: dict[str, Any] | None = None,
-              out_dir: Path | None = None) -> RunSummary:
+              out_dir: Path | None = None,
+              frame_moments: Sequence[RunningMoments] | None = None) -> RunSummary:
     """Evaluate K seeds' renders against the reference and store them as one run.
 
     ``extra`` is merged into the run's metrics (e.g. a calibration record, or a
     sweep point's threshold and mask coverage) and stored with its parameters.
+    ``frame_moments`` (one per seed, filled through :func:`frame_moments_hook`;
+    16 bytes per pixel-channel each) give the per-cache rBias^2 / rVar; without
+    them those keys are None.
     """
     scene, reference, device = prepared.scene, prepared.reference, prepared.device
     params = parse_params(spec.method, spec.params)
@@ -207,7 +265,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     nonfinite = 0
     for seed, (output, curve) in enumerate(zip(outputs, convergence, strict=True)):
         values = image_metrics(output.accumulated, reference.mean, eps=spec.eps,
-                               flip_exposures=reference.flip_exposures)
+                               flip_exposures=reference.flip_exposures,
+                               ref_variance=reference.variance)
         nonfinite += values["nonfinite_pixels"]
         values["seconds_per_frame"] = output.timings["frame_median_s"]
         per_seed.append({"seed": seed, **values, "path_stats": output.path_stats,
@@ -222,8 +281,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
 
     seed_timings = [output.timings for output in outputs]
     frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
-    metrics = aggregate(per_seed, [o.accumulated for o in outputs], reference.mean, spec.eps,
-                        frame_seconds)
+    metrics = aggregate(per_seed, [o.accumulated for o in outputs], reference, spec.eps,
+                        frame_seconds, frame_moments)
     metrics.update(extra or {})
     timings = {
         "protocol": seed_timings[0]["protocol"],
@@ -294,12 +353,13 @@ def execute(
             progress("calibration", 1, 1)
     params = parse_params(spec.method, spec.params)
     param_json = params.model_dump(mode="json")
-    outputs, curves = [], []
+    outputs, curves, moments = [], [], []
     for seed in range(spec.seeds):
         label = f"seed {seed + 1}/{spec.seeds}"
         tracker = ConvergenceTracker(prepared.reference.mean, spec.eps)
+        moments.append(RunningMoments())
         hooks = FrameHooks(
-            keep_frames=spec.keep_frames, on_frame=tracker,
+            keep_frames=spec.keep_frames, on_frame=chain(tracker, frame_moments_hook(moments[-1])),
             progress=(lambda done, total, label=label: progress(label, done, total))
             if progress else None)
         outputs.append(method.render(
@@ -308,4 +368,4 @@ def execute(
             spp=spec.spp, frames=spec.frames, hooks=hooks))
         curves.append(tracker.result())
     return store_run(spec, prepared, outputs, curves, store, settings, out_dir=out_dir,
-                     idempotency_key=idempotency_key, extra=extra)
+                     idempotency_key=idempotency_key, extra=extra, frame_moments=moments)

@@ -1,12 +1,19 @@
-"""Error metrics of rendered images against a converged reference (DESIGN.md, "Metrics").
+"""Error metrics of rendered images against a converged reference (docs/metrics.md).
 
 For a test image X and a reference R, per pixel p and channel c, averaged over
 all pixels and channels:
 
 - MSE  = mean (X - R)^2
 - MRSE = mean (X - R)^2 / (R^2 + eps), eps = 0.01 unless configured
-- over K independent renders: rBias^2 and rVar (:func:`bias_variance`)
+- over K independent renders: rBias^2 and rVar (:func:`bias_variance`), and
+  per cache from each render's frames (:func:`per_cache_bias_variance`)
 - efficiency = 1 / (MRSE x seconds per frame)
+
+The reference is itself a Monte Carlo mean: with its per-pixel variance image
+Var[R] every squared error against it contains the *reference floor*
+mean Var[R] / (R^2 + eps). Given ``ref_variance`` the functions report that
+floor, subtract it from rBias^2 and MRSE, and warn when it is more than 10 %
+of a reported value.
 
 Non-finite pixels (any channel NaN or +-Inf) are never averaged silently:
 :func:`image_metrics` and :func:`bias_variance` count them, average over the
@@ -32,7 +39,7 @@ from metrics.checks import (
     check_same_shape,
     finite_pixel_mask,
 )
-from metrics.statistics import mean_confidence_interval
+from metrics.statistics import MeanEstimate, mean_confidence_interval
 
 __all__ = [
     "DEFAULT_EPS",
@@ -43,10 +50,13 @@ __all__ = [
     "image_metrics",
     "mrse",
     "mse",
+    "per_cache_bias_variance",
     "relative_squared_error_map",
 ]
 
 DEFAULT_EPS = 0.01
+#: Warn when the reference floor is more than this fraction of a reported value.
+REF_FLOOR_WARN_RATIO = 0.1
 
 
 def count_nonfinite(img: np.ndarray) -> int:
@@ -94,14 +104,61 @@ def relative_squared_error_map(test: np.ndarray, ref: np.ndarray,
     return per_channel.mean(axis=-1).astype(np.float32)
 
 
-def _finite_pixel_errors(test: np.ndarray, ref: np.ndarray, valid: np.ndarray,
-                         eps: float) -> tuple[float | None, float | None]:
-    """(MSE, MRSE) over the pixels where ``valid`` is True; None when there are none."""
-    if not valid.any():
-        return None, None
+def _finite_pixel_errors(test: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray | None,
+                         valid: np.ndarray, eps: float) -> tuple[float, float, float | None]:
+    """(MSE, MRSE, reference floor) over the pixels where ``valid`` is True (some must be)."""
     x, r = test[valid], ref[valid]
     squared = _squared_error(x, r)
-    return float(squared.mean()), float((squared * _relative_weight(r, eps)).mean())
+    w = _relative_weight(r, eps)
+    return (float(squared.mean()), float((squared * w).mean()),
+            _reference_floor(ref_variance, valid, w))
+
+
+def _reference_ok(ref: np.ndarray, ref_variance: np.ndarray | None) -> np.ndarray:
+    """(H, W) bool: pixels where the reference (and its variance image, if given) are finite.
+
+    Raises MetricError when the variance image has another shape or a negative value.
+    """
+    ok = finite_pixel_mask(ref)
+    if ref_variance is None:
+        return ok
+    variance = as_image(ref_variance, "reference variance image")
+    if variance.shape != ref.shape:
+        raise MetricError(f"reference variance image shape {variance.shape} does not match "
+                          f"reference image shape {ref.shape}")
+    if np.any(variance < 0):
+        raise MetricError("the reference variance image has negative values")
+    return ok & finite_pixel_mask(variance)
+
+
+def _reference_floor(ref_variance: np.ndarray | None, valid: np.ndarray,
+                     w: np.ndarray) -> float | None:
+    """mean Var[R] / (R^2 + eps) over the ``valid`` pixels (``w`` holds their weights)."""
+    if ref_variance is None:
+        return None
+    return float(np.mean(np.asarray(ref_variance[valid], dtype=np.float64) * w))
+
+
+def _floor_report(ref_floor: float | None, values: dict[str, float | None]) -> dict[str, Any]:
+    """``ref_floor_ratio_<name>`` = ref_floor / |value| per reported value, and ``warnings``.
+
+    A ratio is None without a floor or when the value is None or 0; a warning is
+    given whenever the floor exceeds REF_FLOOR_WARN_RATIO x |value|.
+    """
+    report: dict[str, Any] = {}
+    warnings: list[str] = []
+    for name, value in values.items():
+        ratio = None
+        if ref_floor is not None and value:
+            ratio = ref_floor / abs(value)
+        report[f"ref_floor_ratio_{name}"] = ratio
+        if ref_floor is not None and value is not None and ref_floor > REF_FLOOR_WARN_RATIO * abs(value):
+            share = f"{ratio:.0%} of" if ratio is not None else "above"
+            warnings.append(
+                f"reference floor {ref_floor:.3g} is {share} {name} ({value:.3g}, floor "
+                f"subtracted): the value rests on the reference's variance image")
+    report["warnings"] = warnings
+    return report
 
 
 def image_metrics(
@@ -111,6 +168,7 @@ def image_metrics(
     flip_exposures: tuple[float, float] | None = None,
     with_flip: bool = True,
     return_maps: bool = False,
+    ref_variance: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """All single-image metrics of ``test`` against ``ref``, as JSON-ready values.
 
@@ -118,6 +176,12 @@ def image_metrics(
 
     - ``mse``, ``mrse``: averages over the pixels finite in both images (None if
       no pixel is);
+    - with ``ref_variance`` (the reference's per-pixel variance of its mean):
+      ``ref_floor`` = mean Var[R] / (R^2 + eps) over the same pixels,
+      ``mrse_corrected`` = mrse - ref_floor (an unbiased estimate of the MRSE
+      against the true image), ``ref_floor_ratio_mrse`` = ref_floor / mrse and
+      ``warnings`` (a list of strings; see :func:`_floor_report`); without it
+      the three values are None and ``warnings`` is empty;
     - ``flip_hdr``, ``flip_ldr``: FLIP means (None when ``with_flip`` is False);
       HDR-FLIP uses ``flip_exposures`` (start, stop) — pass the ones stored with
       the reference so every run against it is comparable; when None they are
@@ -129,16 +193,25 @@ def image_metrics(
     - ``error_maps`` (only when ``return_maps``): (H, W) float32 arrays
       ``relative_squared_error``, and ``flip_hdr`` / ``flip_ldr`` with FLIP.
 
-    Raises MetricError when the shapes differ.
+    Pixels where the variance image is non-finite count as non-finite
+    reference pixels. Raises MetricError when the shapes differ.
     """
     test, ref = check_same_shape(test, ref)
     eps = check_eps(eps)
-    test_ok, ref_ok = finite_pixel_mask(test), finite_pixel_mask(ref)
-    mse_value, mrse_value = _finite_pixel_errors(test, ref, test_ok & ref_ok, eps)
+    test_ok, ref_ok = finite_pixel_mask(test), _reference_ok(ref, ref_variance)
+    valid = test_ok & ref_ok
+    mse_value = mrse_value = ref_floor = mrse_corrected = None
+    if valid.any():
+        mse_value, mrse_value, ref_floor = _finite_pixel_errors(test, ref, ref_variance, valid,
+                                                                eps)
+        mrse_corrected = None if ref_floor is None else mrse_value - ref_floor
     nonfinite, ref_nonfinite = int((~test_ok).sum()), int((~ref_ok).sum())
     result: dict[str, Any] = {
         "mse": mse_value,
         "mrse": mrse_value,
+        "ref_floor": ref_floor,
+        "mrse_corrected": mrse_corrected,
+        **_floor_report(ref_floor, {"mrse": mrse_corrected}),
         "flip_hdr": None,
         "flip_ldr": None,
         "flip_exposures": None,
@@ -175,8 +248,9 @@ def _as_render_list(images: np.ndarray | Sequence[np.ndarray]) -> list[np.ndarra
 
 
 def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
-                  eps: float = DEFAULT_EPS) -> dict[str, Any]:
-    """Relative bias^2 and variance from K >= 2 independent renders X_k (DESIGN.md).
+                  eps: float = DEFAULT_EPS,
+                  ref_variance: np.ndarray | None = None) -> dict[str, Any]:
+    """Relative bias^2 and variance from K >= 2 independent renders X_k (docs/metrics.md).
 
     With the per-pixel mean M = (1/K) sum_k X_k, the unbiased sample variance
     S^2 = sum_k (X_k - M)^2 / (K - 1) and the weight w = 1 / (R^2 + eps), all
@@ -184,26 +258,32 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
 
     - ``rbias2_raw``  = mean (M - R)^2 w
     - ``noise_floor`` = mean S^2 / K w   (the part of the raw term due to noise in M)
-    - ``rbias2``      = rbias2_raw - noise_floor (an unbiased estimate, so it
-      can be negative for an unbiased method; reported as computed)
+    - ``ref_floor``   = mean Var[R] w    (the part due to noise in R; None
+      without ``ref_variance``, and then taken as 0 below)
+    - ``rbias2``      = rbias2_raw - noise_floor - ref_floor (an unbiased
+      estimate, so it can be negative for an unbiased method; reported as computed)
     - ``rvar``        = mean S^2 w
     - ``mrse_per_seed`` = [MRSE(X_k)], ``mrse_mean`` their mean and
-      ``mrse_ci95`` = (lo, hi), the Student-t 95 % interval over the K values.
+      ``mrse_ci95`` = (lo, hi), the Student-t 95 % interval over the K values;
+      ``mrse_corrected`` = mrse_mean - ref_floor (None without a floor)
+    - ``ref_floor_ratio_rbias2`` / ``ref_floor_ratio_mrse`` = ref_floor / |rbias2|
+      and / |mrse_corrected|, and ``warnings`` (floor above 10 % of either).
 
     Why E[MRSE] = rBias^2 + rVar: for each pixel,
     (1/K) sum_k (X_k - R)^2 = (M - R)^2 + (1/K) sum_k (X_k - M)^2
                             = (M - R)^2 + (K-1)/K S^2,
     so, exactly (up to rounding), mean_k MRSE_k = rbias2_raw + (K-1)/K rvar
-    = rbias2 + rvar. In expectation E[S^2] = Var X and E[(M - R)^2] =
-    bias^2 + Var X / K, hence E[rbias2] and E[rvar] are the true relative
-    bias^2 and variance of one render, and they add up to its expected MRSE.
+    = rbias2 + rvar + ref_floor. In expectation over renders and reference,
+    E[(M - R)^2] = bias^2 + Var X / K + Var R and E[S^2] = Var X, hence
+    E[rbias2] and E[rvar] are the true relative bias^2 and variance of one
+    render against the true image (up to the noise of R in the weight w).
 
-    Pixels non-finite in the reference or in *any* render are excluded from all
-    terms (one pixel set keeps the identity exact); they are counted in
-    ``nonfinite_pixels`` (union over renders), ``nonfinite_pixels_per_seed`` and
-    ``ref_nonfinite_pixels``, and make ``finite`` False. MRSE per seed here is
-    therefore over that common pixel set. Also returned: ``k``. Averages are
-    None when no pixel is finite everywhere.
+    Pixels non-finite in the reference (or its variance image) or in *any*
+    render are excluded from all terms (one pixel set keeps the identity
+    exact); they are counted in ``nonfinite_pixels`` (union over renders),
+    ``nonfinite_pixels_per_seed`` and ``ref_nonfinite_pixels``, and make
+    ``finite`` False. MRSE per seed here is therefore over that common pixel
+    set. Also returned: ``k``. Averages are None when no pixel is finite everywhere.
 
     ``images`` is a (K, H, W, C) array or a sequence of (H, W, C) arrays; the
     renders are visited one at a time (memory stays O(H W) beyond the input).
@@ -215,7 +295,7 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
         check_same_shape(x, ref)
     k = len(renders)
 
-    ref_ok = finite_pixel_mask(ref)
+    ref_ok = _reference_ok(ref, ref_variance)
     render_ok = [finite_pixel_mask(x) for x in renders]
     all_ok = np.logical_and.reduce(render_ok)
     valid = ref_ok & all_ok
@@ -228,7 +308,9 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
     counts["finite"] = counts["nonfinite_pixels"] == 0 and counts["ref_nonfinite_pixels"] == 0
     if not valid.any():
         return {**counts, "rbias2": None, "rbias2_raw": None, "noise_floor": None,
-                "rvar": None, "mrse_mean": None, "mrse_ci95": None, "mrse_per_seed": None}
+                "ref_floor": None, "rvar": None, "mrse_mean": None, "mrse_corrected": None,
+                "mrse_ci95": None, "mrse_per_seed": None,
+                **_floor_report(None, {"rbias2": None, "mrse": None})}
 
     r = np.asarray(ref[valid], dtype=np.float64)
     w = _relative_weight(r, eps)
@@ -249,16 +331,92 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
     rbias2_raw = float(np.mean((m - r) ** 2 * w))
     rvar = float(np.mean(s2 * w))
     noise_floor = rvar / k
+    ref_floor = _reference_floor(ref_variance, valid, w)
+    rbias2 = rbias2_raw - noise_floor - (ref_floor or 0.0)
     mrse_mean, lo, hi = mean_confidence_interval(mrse_per_seed, 0.95)
+    mrse_corrected = None if ref_floor is None else mrse_mean - ref_floor
     return {
         **counts,
-        "rbias2": rbias2_raw - noise_floor,
+        "rbias2": rbias2,
         "rbias2_raw": rbias2_raw,
         "noise_floor": noise_floor,
+        "ref_floor": ref_floor,
         "rvar": rvar,
         "mrse_mean": mrse_mean,
+        "mrse_corrected": mrse_corrected,
         "mrse_ci95": (lo, hi),
         "mrse_per_seed": mrse_per_seed,
+        **_floor_report(ref_floor, {"rbias2": rbias2, "mrse": mrse_corrected}),
+    }
+
+
+def per_cache_bias_variance(caches: Sequence[MeanEstimate], ref: np.ndarray,
+                            eps: float = DEFAULT_EPS,
+                            ref_variance: np.ndarray | None = None) -> dict[str, Any]:
+    """rBias^2 and rVar of each of K caches from its own F frames (docs/metrics.md).
+
+    Pooling K independently trained caches first (:func:`bias_variance` takes
+    the mean over seeds) lets opposite biases cancel. Here cache k contributes
+    its frames' per-pixel mean M_k, unbiased variance S_k^2 and count F
+    (``caches[k]``: ``mean``, ``variance_of_mean`` = S_k^2 / F, ``count``), and
+    with w = 1 / (R^2 + eps), averaged over pixels and channels,
+
+    - rBias^2_k = mean (M_k - R)^2 w - mean S_k^2 / F w - ref_floor
+    - rVar_k    = mean S_k^2 w  (the variance of *one frame*)
+
+    Returned: ``rbias2_per_cache`` and ``rvar_per_cache`` (lists), their
+    ``_mean``, ``_std`` (sample standard deviation over caches; None for K = 1),
+    ``_min`` and ``_max``; ``per_cache_frames`` (F) and
+    ``per_cache_excluded_pixels`` (pixels non-finite in the reference or in
+    any cache's statistics, left out of every cache so all use one pixel set).
+
+    The estimate is exact for i.i.d. frames (a frozen cache). Frames of a
+    cache trained online are not identically distributed, so S_k^2 then also
+    holds the drift of the cache over the run.
+
+    Raises MetricError when F < 2, the caches differ in F or shape, or no
+    pixel is finite everywhere.
+    """
+    if not caches:
+        raise MetricError("per-cache statistics need at least one cache")
+    ref = as_image(ref, "reference image")
+    eps = check_eps(eps)
+    frames = caches[0].count
+    if frames < 2:
+        raise MetricError(f"per-cache rBias^2/rVar need F >= 2 frames per cache, got F = {frames}")
+    if any(c.count != frames for c in caches):
+        raise MetricError(f"caches have different frame counts: {[c.count for c in caches]}")
+    for c in caches:
+        check_same_shape(c.mean, ref)
+    valid = np.logical_and.reduce(
+        [_reference_ok(ref, ref_variance)]
+        + [finite_pixel_mask(c.mean) & finite_pixel_mask(c.variance_of_mean) for c in caches])
+    if not valid.any():
+        raise MetricError("no pixel is finite in the reference and in every cache's frames")
+    r = np.asarray(ref[valid], dtype=np.float64)
+    w = _relative_weight(r, eps)
+    ref_floor = _reference_floor(ref_variance, valid, w) or 0.0
+    rbias2, rvar = [], []
+    for c in caches:
+        var_of_mean = c.variance_of_mean[valid]
+        rbias2.append(float(np.mean(((c.mean[valid] - r) ** 2 - var_of_mean) * w)) - ref_floor)
+        rvar.append(float(np.mean(var_of_mean * frames * w)))
+    return {
+        **_spread("rbias2_per_cache", rbias2),
+        **_spread("rvar_per_cache", rvar),
+        "per_cache_frames": frames,
+        "per_cache_excluded_pixels": int((~valid).sum()),
+    }
+
+
+def _spread(name: str, values: list[float]) -> dict[str, Any]:
+    """``name`` (the list), and its ``_mean``, ``_std`` (ddof 1; None for one value), ``_min``, ``_max``."""
+    return {
+        name: values,
+        f"{name}_mean": float(np.mean(values)),
+        f"{name}_std": float(np.std(values, ddof=1)) if len(values) > 1 else None,
+        f"{name}_min": min(values),
+        f"{name}_max": max(values),
     }
 
 

@@ -1,20 +1,20 @@
 """Statistical tools for Monte Carlo tests and converged references.
 
-- :class:`PassAccumulator`: per-pixel running mean and variance over independent
-  render passes (Welford's update inside two half accumulators, merged with
-  Chan et al.'s pairwise formula), with the even/odd split halves that measure a
-  reference's own residual error.
+- :class:`RunningMoments`: per-pixel running mean and variance of a stream of
+  images (Welford), e.g. the frames of one seed for per-cache rBias^2 / rVar.
+- :class:`PassAccumulator`: the checked variant for independent render passes
+  (two Welford halves merged with Chan et al.'s pairwise formula), with the
+  even/odd split halves that measure a reference's own residual error.
 - :func:`z_test`: the per-pixel two-sample z-test of Mitsuba 3's render tests
   (``src/render/tests/test_renders.py``), with a Šidák correction over all
   tested pixel-channels.
+- :func:`aggregate_test`: chi-square and signed-mean statistics over pixel
+  blocks, which catch a bias of a few percent that no single pixel shows;
+  :func:`agreement_test` runs both tests.
 - :func:`mean_confidence_interval`: Student-t interval of a mean over seeds.
 
-Only numpy and the standard library are used. SciPy is deliberately not used:
-it is not a dependency of the project, and when it is missing ``colour-science``
-(imported for previews) installs a ``MagicMock`` as ``sys.modules["scipy"]``,
-so ``import scipy.stats`` would "succeed" and return mocks. The Student-t
-quantile is therefore computed here from the regularized incomplete beta
-function.
+Distributions (Student t, chi-square, normal tails) come from ``scipy.stats``
+and ``scipy.special``; SciPy is a declared dependency of the project.
 """
 
 from __future__ import annotations
@@ -23,88 +23,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import special, stats
 
 from metrics.checks import MetricError
 
 # ---------------------------------------------------------------------------
-# Student t distribution (for confidence intervals over a few seeds)
+# Confidence intervals over a few seeds
 # ---------------------------------------------------------------------------
-
-_BETACF_MAX_ITERATIONS = 500
-_BETACF_TOLERANCE = 1e-15
-_TINY = 1e-300  # keeps Lentz's continued-fraction denominators away from 0
-
-
-def _beta_continued_fraction(a: float, b: float, x: float) -> float:
-    """Continued fraction of I_x(a, b) (modified Lentz), converging for x < (a+1)/(a+b+2)."""
-    c = 1.0
-    d = 1.0 - (a + b) * x / (a + 1.0)
-    d = 1.0 / (d if abs(d) > _TINY else _TINY)
-    h = d
-    for m in range(1, _BETACF_MAX_ITERATIONS + 1):
-        # Even and odd terms of the fraction alternate; each updates c, d and h.
-        for numerator in (
-            m * (b - m) * x / ((a + 2 * m - 1.0) * (a + 2 * m)),
-            -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1.0)),
-        ):
-            d = 1.0 + numerator * d
-            d = 1.0 / (d if abs(d) > _TINY else _TINY)
-            c = 1.0 + numerator / c
-            c = c if abs(c) > _TINY else _TINY
-            step = c * d
-            h *= step
-        if abs(step - 1.0) < _BETACF_TOLERANCE:
-            return h
-    return h
-
-
-def _regularized_beta(a: float, b: float, x: float, one_minus_x: float) -> float:
-    """I_x(a, b); ``one_minus_x`` is passed separately to avoid cancellation near x = 1."""
-    if x <= 0.0:
-        return 0.0
-    if one_minus_x <= 0.0:
-        return 1.0
-    log_front = (math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
-                 + a * math.log(x) + b * math.log(one_minus_x))
-    front = math.exp(log_front)
-    # The fraction converges fast only on one side of the mean; use the symmetry
-    # I_x(a, b) = 1 - I_{1-x}(b, a) on the other.
-    if x < (a + 1.0) / (a + b + 2.0):
-        return front * _beta_continued_fraction(a, b, x) / a
-    return 1.0 - front * _beta_continued_fraction(b, a, one_minus_x) / b
-
-
-def student_t_cdf(t: float, df: float) -> float:
-    """P(T <= t) for Student's t with ``df`` > 0 degrees of freedom."""
-    if df <= 0:
-        raise MetricError(f"degrees of freedom must be > 0, got {df}")
-    t2 = t * t
-    # P(|T| > |t|) = I_{df/(df+t^2)}(df/2, 1/2)
-    two_sided_tail = _regularized_beta(0.5 * df, 0.5, df / (df + t2), t2 / (df + t2))
-    return 1.0 - 0.5 * two_sided_tail if t >= 0 else 0.5 * two_sided_tail
-
-
-def student_t_quantile(q: float, df: float) -> float:
-    """The ``q`` quantile of Student's t with ``df`` degrees of freedom (bisection on the CDF)."""
-    if not 0.0 < q < 1.0:
-        raise MetricError(f"quantile level must be in (0, 1), got {q}")
-    if q < 0.5:
-        return -student_t_quantile(1.0 - q, df)
-    if q == 0.5:
-        return 0.0
-    lo, hi = 0.0, 1.0
-    while student_t_cdf(hi, df) < q:
-        lo, hi = hi, 2.0 * hi
-    # The CDF is monotone, so bisection cannot fail; 200 halvings reach float precision.
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if student_t_cdf(mid, df) < q:
-            lo = mid
-        else:
-            hi = mid
-        if hi - lo <= 1e-13 * hi:
-            break
-    return 0.5 * (lo + hi)
 
 
 def mean_confidence_interval(values: np.ndarray | list[float],
@@ -123,7 +48,7 @@ def mean_confidence_interval(values: np.ndarray | list[float],
     if not 0.0 < level < 1.0:
         raise MetricError(f"confidence level must be in (0, 1), got {level}")
     mean = float(arr.mean())
-    half_width = (student_t_quantile(0.5 * (1.0 + level), arr.size - 1)
+    half_width = (float(stats.t.ppf(0.5 * (1.0 + level), arr.size - 1))
                   * float(arr.std(ddof=1)) / math.sqrt(arr.size))
     return mean, mean - half_width, mean + half_width
 
@@ -133,17 +58,33 @@ def mean_confidence_interval(values: np.ndarray | list[float],
 # ---------------------------------------------------------------------------
 
 
-class _Moments:
-    """Welford running mean and sum of squared deviations of a stream of images."""
+@dataclass(frozen=True)
+class MeanEstimate:
+    """A per-pixel Monte Carlo mean with the variance *of that mean*."""
+
+    mean: np.ndarray              # per-pixel mean of the passes
+    variance_of_mean: np.ndarray  # unbiased pass variance / count
+    count: int                    # passes averaged
+
+
+class RunningMoments:
+    """Welford running mean and sum of squared deviations of a stream of images (float64).
+
+    Unlike :class:`PassAccumulator` it checks nothing: a non-finite value
+    propagates into that pixel's mean and variance, so a caller that must not
+    fail on a NaN frame (the executor's per-seed frame statistics) can count
+    and exclude such pixels afterwards.
+    """
 
     __slots__ = ("count", "mean", "m2")
 
     def __init__(self) -> None:
         self.count = 0                      # images seen
-        self.mean: np.ndarray | None = None  # running per-pixel mean (float64)
+        self.mean: np.ndarray | None = None  # running per-pixel mean
         self.m2: np.ndarray | None = None    # running sum of squared deviations
 
-    def add(self, x: np.ndarray) -> None:
+    def add(self, image: np.ndarray) -> None:
+        x = np.asarray(image, dtype=np.float64)
         if self.mean is None or self.m2 is None:
             self.count, self.mean, self.m2 = 1, x.copy(), np.zeros_like(x)
             return
@@ -154,29 +95,27 @@ class _Moments:
         # subtracting two large sums of squares.
         self.m2 += delta * (x - self.mean)
 
+    def estimate(self) -> MeanEstimate:
+        """The mean with the variance of the mean, unbiased sample variance / count."""
+        if self.count < 2 or self.mean is None or self.m2 is None:
+            raise MetricError(f"a variance needs at least 2 images, have {self.count}")
+        return MeanEstimate(self.mean.copy(), self.m2 / (self.count - 1) / self.count,
+                            self.count)
+
     @staticmethod
-    def merged(a: _Moments, b: _Moments) -> _Moments:
+    def merged(a: RunningMoments, b: RunningMoments) -> RunningMoments:
         """Moments of the union of two disjoint streams (Chan, Golub & LeVeque)."""
         if b.count == 0:
             return a
         if a.count == 0:
             return b
         assert a.mean is not None and a.m2 is not None and b.mean is not None and b.m2 is not None
-        out = _Moments()
+        out = RunningMoments()
         out.count = a.count + b.count
         delta = b.mean - a.mean
         out.mean = a.mean + delta * (b.count / out.count)
         out.m2 = a.m2 + b.m2 + delta * delta * (a.count * b.count / out.count)
         return out
-
-
-@dataclass(frozen=True)
-class MeanEstimate:
-    """A per-pixel Monte Carlo mean with the variance *of that mean*."""
-
-    mean: np.ndarray              # per-pixel mean of the passes
-    variance_of_mean: np.ndarray  # unbiased pass variance / count
-    count: int                    # passes averaged
 
 
 class PassAccumulator:
@@ -195,8 +134,8 @@ class PassAccumulator:
     """
 
     def __init__(self) -> None:
-        self._halves = (_Moments(), _Moments())  # even passes, odd passes
-        self._total: _Moments | None = None      # merged halves, cached until the next add
+        self._halves = (RunningMoments(), RunningMoments())  # even passes, odd passes
+        self._total: RunningMoments | None = None      # merged halves, cached until the next add
 
     def add(self, pass_image: np.ndarray) -> None:
         x = np.asarray(pass_image, dtype=np.float64)
@@ -216,9 +155,9 @@ class PassAccumulator:
         """Number of passes added."""
         return self._halves[0].count + self._halves[1].count
 
-    def _merged(self) -> _Moments:
+    def _merged(self) -> RunningMoments:
         if self._total is None:
-            self._total = _Moments.merged(*self._halves)
+            self._total = RunningMoments.merged(*self._halves)
         return self._total
 
     def _require(self, passes: int, what: str) -> None:
@@ -267,18 +206,12 @@ class PassAccumulator:
     def half_estimates(self) -> tuple[MeanEstimate, MeanEstimate]:
         """Both halves with their own variance of the mean (each needs >= 2 passes)."""
         self._require(4, "split-half variances")
-        return tuple(  # type: ignore[return-value]
-            MeanEstimate(h.mean.copy(), h.m2 / (h.count - 1) / h.count, h.count)
-            for h in self._halves
-        )
+        return self._halves[0].estimate(), self._halves[1].estimate()
 
 
 # ---------------------------------------------------------------------------
 # Two-sample z-test with Šidák correction (as in Mitsuba 3's render tests)
 # ---------------------------------------------------------------------------
-
-_erfc = np.frompyfunc(math.erfc, 1, 1)
-
 
 def sidak_alpha(alpha: float, n_tests: int) -> float:
     """Per-test level so that n independent tests have family-wise level ``alpha``.
@@ -327,7 +260,7 @@ def _two_sided_p_values(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarra
     z = np.abs(diff[positive]) / np.sqrt(var[positive])
     # erfc(|z|/sqrt 2) keeps the tiny p-values that a Šidák level (~1e-7) needs;
     # 1 - cdf would round them to 0.
-    p[positive] = _erfc(z / math.sqrt(2.0)).astype(np.float64)
+    p[positive] = special.erfc(z / math.sqrt(2.0))
     # Zero variance on both sides: the means are exact, so they agree or they don't.
     p[(var == 0) & (diff == 0)] = 1.0
     return p
@@ -447,8 +380,6 @@ def aggregate_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
     for few passes too. Tiles where both variances are 0 are left out when
     their means agree and fail otherwise; non-finite inputs fail.
     """
-    from scipy import stats
-
     if not 0.0 < alpha < 1.0:
         raise MetricError(f"significance level must be in (0, 1), got {alpha}")
     if block < 1:
@@ -481,9 +412,12 @@ def aggregate_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
     if dof is not None:
         if not dof > 0:
             raise MetricError(f"degrees of freedom must be > 0, got {dof}")
-        # Welch-Satterthwaite: df_B = (sum v_i)^2 / sum (v_i^2 / dof).
+        # Welch-Satterthwaite over the 2 n independent variance estimates of the
+        # tile (one per pixel and side): df_B = (sum_i va_i + vb_i)^2 / sum_i
+        # (va_i^2 + vb_i^2) / dof. Squaring va_i + vb_i instead would undercount
+        # df_B up to 2x and make the test conservative.
         with np.errstate(invalid="ignore", divide="ignore"):
-            df = _tile_sums(va + vb, block) ** 2 / (_tile_sums((va + vb) ** 2, block) / dof)
+            df = _tile_sums(va + vb, block) ** 2 / (_tile_sums(va * va + vb * vb, block) / dof)
         t = z[positive]
         z[positive] = np.sign(t) * stats.norm.isf(stats.t.sf(np.abs(t), df[positive]))
     tested = ~np.isnan(z)

@@ -66,9 +66,15 @@ def metrics_table(summary: Any) -> Group:
         "reference floor MRSE (est.)": summary.reference["split_half"].get("reference_mrse_estimate"),
         "MRSE (mean over seeds)": m["mrse_mean"],
         "MRSE 95% CI": f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "n/a (K = 1)",
-        "rBias2 (noise-corrected)": m.get("rbias2", "n/a (K = 1)"),
+        "MRSE less reference floor": m.get("mrse_corrected"),
+        "rBias2 (less render and reference floors)": m.get("rbias2", "n/a (K = 1)"),
         "rBias2 (raw)": m.get("rbias2_raw", "n/a (K = 1)"),
+        "reference floor mean Var[R]/(R2+eps)": m.get("ref_floor"),
+        "floor / rBias2, floor / MRSE": f"{_fmt(m.get('ref_floor_ratio_rbias2'))}, "
+                                        f"{_fmt(m.get('ref_floor_ratio_mrse'))}",
         "rVar": m.get("rvar", "n/a (K = 1)"),
+        "rBias2 per cache (mean, std)": f"{_fmt(m.get('rbias2_per_cache_mean'))}, "
+                                        f"{_fmt(m.get('rbias2_per_cache_std'))}",
         "MSE": m["mse_mean"],
         "FLIP (HDR)": m["flip_hdr_mean"],
         "FLIP (LDR)": m["flip_ldr_mean"],
@@ -87,6 +93,7 @@ def metrics_table(summary: Any) -> Group:
                       _fmt(s["flip_ldr"]), _fmt(1e3 * s["seconds_per_frame"]),
                       str(s["nonfinite_pixels"]))
     parts: list[Any] = [key_value_table(f"{spec.method} vs reference", head), seeds]
+    parts += [f"warning: {text}" for text in m.get("warnings") or []]
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
     return Group(*parts)

@@ -91,6 +91,12 @@ class RunOut(BaseModel):
     seconds_per_frame: float | None
     device_key: str
     quality: dict[str, Any]
+    ref_floor_ratio_rbias2: float | None = Field(
+        None, description="reference noise floor mean Var[R]/(R^2+eps) over |rBias^2|")
+    ref_floor_ratio_mrse: float | None = Field(
+        None, description="reference noise floor over |MRSE less the floor|")
+    warnings: list[str] = Field(
+        default_factory=list, description="e.g. the reference floor is above 10 % of a metric")
 
     @classmethod
     def of(cls, run: Any) -> RunOut:
@@ -103,7 +109,10 @@ class RunOut(BaseModel):
                    seeds=run.seeds, mrse=m.get("mrse_mean"), mrse_ci95=list(ci) if ci else None,
                    rbias2=m.get("rbias2"), rvar=m.get("rvar"), flip=m.get("flip_hdr_mean"),
                    seconds_per_frame=run.timings.get("seconds_per_frame"),
-                   device_key=run.device_key, quality=run.quality)
+                   device_key=run.device_key, quality=run.quality,
+                   ref_floor_ratio_rbias2=m.get("ref_floor_ratio_rbias2"),
+                   ref_floor_ratio_mrse=m.get("ref_floor_ratio_mrse"),
+                   warnings=m.get("warnings") or [])
 
 
 class SeedOut(BaseModel):

@@ -34,7 +34,14 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
     lo, hi = run.metrics["mrse_ci95"]
     assert lo <= run.metrics["mrse_mean"] <= hi
     assert run.metrics["rbias2"] == pytest.approx(
-        run.metrics["rbias2_raw"] - run.metrics["noise_floor"])
+        run.metrics["rbias2_raw"] - run.metrics["noise_floor"] - run.metrics["ref_floor"])
+    assert run.metrics["ref_floor"] > 0 and isinstance(run.metrics["warnings"], list)
+    # Per cache from each seed's 2 frames.
+    assert len(run.metrics["rbias2_per_cache"]) == len(run.metrics["rvar_per_cache"]) == 3
+    assert run.metrics["rbias2_per_cache_mean"] == pytest.approx(
+        np.mean(run.metrics["rbias2_per_cache"]))
+    assert run.metrics["rbias2_per_cache_std"] is not None and run.metrics["rvar_per_cache_mean"] > 0
+    assert run.metrics["per_cache_frames"] == 2 and run.metrics["per_cache_unavailable"] is None
     assert run.device_key == summary.device["device_key"]
     assert run.git_commit and run.versions["mitsuba"]
     assert "sync" in run.timings["protocol"] and run.timings["warmup_s"] > 0
@@ -132,3 +139,22 @@ def test_a_time_budget_needs_a_knob(env):
         execute(spec, store, settings)
     with pytest.raises(ValueError, match="exactly one"):
         TimeBudget(ms=1, pt_spp=2)
+
+
+def test_per_cache_metrics_say_why_they_are_missing():
+    from pathlib import Path
+
+    from jobs.executor import PER_CACHE_KEYS, per_cache_metrics
+    from jobs.references import LoadedReference
+    from metrics.statistics import RunningMoments
+
+    image = np.ones((2, 2, 3), np.float32)
+    reference = LoadedReference(id=1, key="k", mean=image, variance=0 * image, spp=8,
+                                flip_exposures=(0.0, 1.0), split_half={},
+                                image_path=Path("r.exr"), rendered_now=False)
+    one_frame = RunningMoments()
+    one_frame.add(image)
+    for moments, reason in (([], "no per-frame statistics"), ([one_frame], "at least 2 images, have 1")):
+        result = per_cache_metrics(moments, reference, 0.01)
+        assert all(result[key] is None for key in PER_CACHE_KEYS)
+        assert reason in result["per_cache_unavailable"]

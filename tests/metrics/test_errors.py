@@ -1,4 +1,6 @@
-"""Properties of MSE / MRSE / rBias^2 / rVar and their non-finite accounting."""
+"""Properties of MSE / MRSE / rBias^2 / rVar, the reference floor, per-cache statistics and
+their non-finite accounting; the statistical claims are checked on synthetic renders of
+known bias and variance."""
 
 from __future__ import annotations
 
@@ -18,8 +20,10 @@ from metrics.errors import (
     image_metrics,
     mrse,
     mse,
+    per_cache_bias_variance,
     relative_squared_error_map,
 )
+from metrics.statistics import RunningMoments
 
 FAST = settings(max_examples=60, deadline=None)
 
@@ -168,11 +172,13 @@ def test_image_metrics_maps_and_json_ready_values():
     ref = rng.uniform(0.1, 2.0, (16, 16, 3)).astype(np.float32)
     test = ref * 1.1
     result = image_metrics(test, ref, with_flip=False, return_maps=True)
-    assert set(result) == {"mse", "mrse", "flip_hdr", "flip_ldr", "flip_exposures",
+    assert set(result) == {"mse", "mrse", "ref_floor", "mrse_corrected", "ref_floor_ratio_mrse",
+                           "warnings", "flip_hdr", "flip_ldr", "flip_exposures",
                            "nonfinite_pixels", "ref_nonfinite_pixels", "finite", "error_maps"}
     assert result["error_maps"]["relative_squared_error"].shape == (16, 16)
+    assert result["warnings"] == [] and result["ref_floor"] is None
     assert all(type(result[k]) in (float, int, bool, type(None))
-               for k in result if k != "error_maps")
+               for k in result if k not in ("error_maps", "warnings"))
 
 
 # ---- rBias^2 / rVar ----------------------------------------------------------
@@ -180,23 +186,22 @@ def test_image_metrics_maps_and_json_ready_values():
 
 @FAST
 @given(st.integers(2, 5), shapes, st.data())
-def test_mean_mrse_equals_rbias2_plus_rvar_exactly(k, shape, data):
+def test_identity_check_of_the_implementation_mean_mrse_decomposes(k, shape, data):
+    # An identity of the implementation, not evidence that the estimates are right
+    # (that is tested on synthetic renders below): per pixel,
+    # mean_k (X_k - R)^2 = (M - R)^2 + (K-1)/K S^2, so the mean MRSE over seeds is
+    # rbias2_raw + (K-1)/K rvar = rbias2 + rvar + ref_floor for any input.
     renders = data.draw(arrays(np.float32, (k, *shape), elements=values))
     ref = data.draw(arrays(np.float32, shape, elements=values))
-    result = bias_variance(renders, ref)
+    ref_variance = data.draw(arrays(np.float32, shape, elements=st.floats(0.0, 4.0, width=32)))
+    result = bias_variance(renders, ref, ref_variance=ref_variance)
     assert result["k"] == k
-    assert len(result["mrse_per_seed"]) == k
     scale = max(result["mrse_mean"], 1e-300)
-    # mean_k MRSE_k = rbias2_raw + (K-1)/K rvar = rbias2 + rvar (algebra, see docstring)
     assert math.isclose(result["mrse_mean"],
                         result["rbias2_raw"] + (k - 1) / k * result["rvar"],
                         rel_tol=1e-9, abs_tol=1e-12 * scale)
-    assert math.isclose(result["mrse_mean"], result["rbias2"] + result["rvar"],
-                        rel_tol=1e-9, abs_tol=1e-12 * scale)
-    assert math.isclose(result["noise_floor"], result["rvar"] / k, rel_tol=1e-12)
-    assert result["rvar"] >= 0.0 and result["rbias2_raw"] >= 0.0
-    lo, hi = result["mrse_ci95"]
-    assert lo <= result["mrse_mean"] <= hi
+    assert math.isclose(result["mrse_corrected"], result["rbias2"] + result["rvar"],
+                        rel_tol=1e-9, abs_tol=1e-9 * (scale + result["ref_floor"]))
     assert result["mrse_per_seed"] == pytest.approx(
         [mrse(renders[i], ref) for i in range(k)], rel=1e-12, abs=1e-300)
 
@@ -283,6 +288,164 @@ def test_identical_renders_have_no_variance():
     assert result["rvar"] == 0.0 and result["noise_floor"] == 0.0
     assert result["rbias2"] == pytest.approx(0.125**2 / (0.25 + 0.01))
     assert result["mrse_ci95"] == pytest.approx((result["mrse_mean"], result["mrse_mean"]))
+
+
+def test_expectations_over_repetitions_are_the_true_bias_and_variance():
+    # E[rbias2] = b^2, E[rvar] = sigma^2 and E[MRSE] = b^2 + sigma^2 (relative, weighted),
+    # checked on the mean over many independent synthetic experiments.
+    rng = np.random.default_rng(21)
+    eps, k, sigma, reps = 0.01, 4, 0.3, 300
+    ref = rng.uniform(0.05, 2.0, (6, 6, 3))
+    bias = np.full(ref.shape, 0.1)
+    w = 1.0 / (ref * ref + eps)
+    truth = {"rbias2": float(np.mean((bias * ref) ** 2 * w)),
+             "rvar": float(np.mean((sigma * ref) ** 2 * w))}
+    truth["mrse_mean"] = truth["rbias2"] + truth["rvar"]
+    samples = {name: [] for name in truth}
+    for _ in range(reps):
+        result = bias_variance(_synthetic_renders(rng, ref, bias, sigma, k), ref, eps)
+        for name in truth:
+            samples[name].append(result[name])
+    for name, expected in truth.items():
+        mean, se = _mean_and_stderr(np.array(samples[name]))
+        assert abs(mean - expected) < 4 * se, f"{name}: {mean:.5g} +- {se:.2g} vs {expected:.5g}"
+
+
+# ---- The reference's own noise -------------------------------------------------------
+
+
+def _noisy_reference(rng: np.random.Generator, truth: np.ndarray,
+                     relative_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """A reference = truth + noise, with its (known) variance image."""
+    variance = (relative_sigma * truth) ** 2
+    return truth + np.sqrt(variance) * rng.standard_normal(truth.shape), variance
+
+
+def test_reference_floor_is_subtracted_from_rbias2_and_mrse():
+    rng = np.random.default_rng(8)
+    eps, k, sigma = 0.01, 8, 0.3
+    truth = rng.uniform(0.2, 2.0, (32, 32, 3))
+    ref, ref_variance = _noisy_reference(rng, truth, 0.05)
+    renders = _synthetic_renders(rng, truth, np.zeros_like(truth), sigma, k)
+    result = bias_variance(renders, ref, eps, ref_variance=ref_variance)
+
+    w = 1.0 / (ref * ref + eps)
+    m, s2 = renders.mean(axis=0), renders.var(axis=0, ddof=1)
+    _, se = _mean_and_stderr(((m - ref) ** 2 - s2 / k - ref_variance) * w)
+    floor = float(np.mean(ref_variance * w))
+    assert result["ref_floor"] == pytest.approx(floor, rel=1e-12)
+    # Unbiased renders: corrected rBias^2 is 0 within its standard error, while the
+    # term left after the render-noise floor alone is the reference floor.
+    assert abs(result["rbias2"]) < 3 * se
+    assert result["rbias2_raw"] - result["noise_floor"] == pytest.approx(floor, abs=3 * se)
+    assert floor > 5 * se
+    assert result["mrse_corrected"] == pytest.approx(result["mrse_mean"] - floor, rel=1e-12)
+    assert result["ref_floor_ratio_mrse"] == pytest.approx(floor / result["mrse_corrected"])
+    # rBias^2 is ~0, so the floor dominates it: warned. MRSE is ~30x the floor: not warned.
+    assert len(result["warnings"]) == 1 and "rbias2" in result["warnings"][0]
+    assert result["ref_floor_ratio_rbias2"] > 0.1
+
+
+def test_reference_floor_warnings_follow_the_ten_percent_rule():
+    rng = np.random.default_rng(9)
+    truth = rng.uniform(0.2, 2.0, (16, 16, 3))
+    renders = _synthetic_renders(rng, truth, np.full(truth.shape, 0.2), 0.1, 4)
+    for relative_sigma, warned in ((0.01, False), (0.12, True)):
+        ref, ref_variance = _noisy_reference(rng, truth, relative_sigma)
+        result = bias_variance(renders, ref, ref_variance=ref_variance)
+        ratio = result["ref_floor_ratio_rbias2"]
+        assert (ratio > 0.1) is warned, ratio
+        assert any("rbias2" in text for text in result["warnings"]) is warned
+
+    single = image_metrics(truth * 1.01, truth, with_flip=False,
+                           ref_variance=np.full(truth.shape, 1e-3))
+    assert single["mrse_corrected"] == pytest.approx(single["mrse"] - single["ref_floor"])
+    assert single["ref_floor_ratio_mrse"] > 0.1  # floor / |MRSE - floor|
+    assert single["warnings"] and "mrse" in single["warnings"][0]
+
+
+def test_reference_variance_must_match_and_be_non_negative():
+    ref = np.ones((4, 4, 3))
+    with pytest.raises(MetricError, match="variance image shape"):
+        image_metrics(ref, ref, with_flip=False, ref_variance=np.ones((4, 5, 3)))
+    with pytest.raises(MetricError, match="negative"):
+        bias_variance(np.stack([ref, ref]), ref, ref_variance=-ref)
+    variance = np.zeros_like(ref)
+    variance[1, 2, 0] = math.inf
+    result = image_metrics(ref, ref, with_flip=False, ref_variance=variance)
+    assert result["ref_nonfinite_pixels"] == 1 and result["finite"] is False
+
+
+# ---- Per-cache rBias^2 / rVar ----------------------------------------------------------
+
+
+def _cache_estimates(rng: np.random.Generator, truth: np.ndarray, biases: list[float],
+                     sigma: float, frames: int):
+    """One MeanEstimate per cache from ``frames`` frames X = T (1 + b_k) + sigma T N."""
+    estimates = []
+    for b in biases:
+        moments = RunningMoments()
+        for frame in _synthetic_renders(rng, truth, np.full(truth.shape, b), sigma, frames):
+            moments.add(frame)
+        estimates.append(moments.estimate())
+    return estimates
+
+
+def test_per_cache_statistics_match_a_known_bias_and_variance():
+    rng = np.random.default_rng(30)
+    eps, sigma, frames, b = 0.01, 0.4, 16, 0.1
+    truth = rng.uniform(0.2, 2.0, (24, 24, 3))
+    ref, ref_variance = _noisy_reference(rng, truth, 0.02)
+    caches = _cache_estimates(rng, truth, [b, b, b], sigma, frames)
+    result = per_cache_bias_variance(caches, ref, eps, ref_variance=ref_variance)
+
+    w = 1.0 / (ref * ref + eps)
+    true_rbias2 = float(np.mean((b * truth) ** 2 * w))
+    true_rvar = float(np.mean((sigma * truth) ** 2 * w))
+    assert result["per_cache_frames"] == frames and result["per_cache_excluded_pixels"] == 0
+    for c, rbias2, rvar in zip(caches, result["rbias2_per_cache"], result["rvar_per_cache"],
+                               strict=True):
+        s2 = c.variance_of_mean * frames
+        _, se_bias = _mean_and_stderr(((c.mean - ref) ** 2 - s2 / frames - ref_variance) * w)
+        _, se_var = _mean_and_stderr(s2 * w)
+        assert abs(rbias2 - true_rbias2) < 4 * se_bias
+        assert abs(rvar - true_rvar) < 4 * se_var
+    assert result["rbias2_per_cache_mean"] == pytest.approx(np.mean(result["rbias2_per_cache"]))
+    assert result["rbias2_per_cache_min"] <= result["rbias2_per_cache_mean"]
+    assert result["rbias2_per_cache_std"] == pytest.approx(
+        np.std(result["rbias2_per_cache"], ddof=1))
+
+
+def test_opposite_cache_biases_cancel_when_pooled_but_not_per_cache():
+    rng = np.random.default_rng(31)
+    eps, sigma, frames, b = 0.01, 0.3, 16, 0.15
+    truth = rng.uniform(0.2, 2.0, (24, 24, 3))
+    caches = _cache_estimates(rng, truth, [b, -b] * 4, sigma, frames)
+    per_cache = per_cache_bias_variance(caches, truth, eps)
+    pooled = bias_variance([c.mean for c in caches], truth, eps)
+
+    true_rbias2 = float(np.mean((b * truth) ** 2 / (truth * truth + eps)))
+    assert per_cache["rbias2_per_cache_min"] > 0.8 * true_rbias2
+    assert per_cache["rbias2_per_cache_mean"] == pytest.approx(true_rbias2, rel=0.1)
+    # Pooled, the bias looks like variance between seeds: about -b^2 / (K - 1), not b^2.
+    assert abs(pooled["rbias2"]) < 0.25 * true_rbias2
+
+
+def test_per_cache_statistics_need_two_frames_and_equal_counts():
+    ref = np.ones((4, 4, 3))
+    one = RunningMoments()
+    one.add(ref)
+    with pytest.raises(MetricError, match="2 images"):
+        one.estimate()
+    rng = np.random.default_rng(0)
+    two, three = (_cache_estimates(rng, ref, [0.0], 0.1, n)[0] for n in (2, 3))
+    with pytest.raises(MetricError, match="different frame counts"):
+        per_cache_bias_variance([two, three], ref)
+    nan_cache = _cache_estimates(rng, ref, [0.0], 0.1, 2)[0]
+    nan_cache.mean[0, 0, 0] = math.nan
+    result = per_cache_bias_variance([two, nan_cache], ref)
+    assert result["per_cache_excluded_pixels"] == 1 and result["rbias2_per_cache_std"] is not None
+    assert per_cache_bias_variance([two], ref)["rbias2_per_cache_std"] is None
 
 
 # ---- Efficiency --------------------------------------------------------------

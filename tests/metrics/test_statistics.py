@@ -1,4 +1,4 @@
-"""PassAccumulator, the Šidák-corrected z-test and Student-t intervals."""
+"""PassAccumulator, the Šidák-corrected z-test, the aggregate block test and Student-t intervals."""
 
 from __future__ import annotations
 
@@ -10,45 +10,38 @@ import pytest
 from metrics.checks import MetricError
 from metrics.statistics import (
     PassAccumulator,
+    RunningMoments,
+    aggregate_test,
+    agreement_test,
     mean_confidence_interval,
     sidak_alpha,
-    student_t_cdf,
-    student_t_quantile,
     z_test,
 )
 
-# ---- Student t ---------------------------------------------------------------
-
-# Two-sided critical values from standard t tables.
-T_TABLE = [
-    (0.975, 1, 12.706204736),
-    (0.975, 2, 4.302652730),
-    (0.975, 5, 2.570581836),
-    (0.975, 10, 2.228138852),
-    (0.975, 30, 2.042272456),
-    (0.975, 1000, 1.962339081),
-    (0.995, 4, 4.604094871),
-    (0.95, 7, 1.894578605),
-]
-
-
-@pytest.mark.parametrize(("q", "df", "expected"), T_TABLE)
-def test_student_t_quantile_matches_tables(q, df, expected):
-    assert student_t_quantile(q, df) == pytest.approx(expected, rel=1e-8)
-    assert student_t_quantile(1 - q, df) == pytest.approx(-expected, rel=1e-8)
-    assert student_t_cdf(expected, df) == pytest.approx(q, abs=1e-10)
-
-
-def test_student_t_approaches_the_normal_distribution():
-    assert student_t_cdf(1.0, 1e7) == pytest.approx(0.5 * math.erfc(-1 / math.sqrt(2)), abs=1e-7)
-    assert student_t_cdf(0.0, 3) == 0.5
-
+# ---- Student-t confidence interval -----------------------------------------------
 
 def test_mean_confidence_interval_by_hand():
     mean, lo, hi = mean_confidence_interval([1.0, 2.0, 3.0, 4.0, 5.0])
     half = 2.776445105 * math.sqrt(2.5) / math.sqrt(5)
     assert mean == 3.0
     assert (lo, hi) == pytest.approx((3.0 - half, 3.0 + half), rel=1e-8)
+
+
+def test_mean_confidence_interval_matches_t_tables():
+    # Two-sided 95 % critical values from standard t tables, for n = df + 1 values.
+    for df, critical in ((1, 12.706204736), (4, 2.776445105), (29, 2.045229642)):
+        values = np.arange(df + 1, dtype=np.float64)
+        mean, lo, hi = mean_confidence_interval(values)
+        half = critical * values.std(ddof=1) / math.sqrt(values.size)
+        assert (lo, hi) == pytest.approx((mean - half, mean + half), rel=1e-8)
+
+
+def test_mean_confidence_interval_covers_the_mean_at_its_level():
+    rng = np.random.default_rng(4)
+    covered = sum(lo <= 0.0 <= hi
+                  for _, lo, hi in (mean_confidence_interval(rng.standard_normal(4), 0.9)
+                                    for _ in range(2000)))
+    assert covered / 2000 == pytest.approx(0.9, abs=3 * math.sqrt(0.09 / 2000))
 
 
 def test_mean_confidence_interval_rejects_too_few_or_nonfinite_values():
@@ -221,3 +214,117 @@ def test_z_test_summary_when_passing():
     result = z_test(np.zeros((2, 2)), 1.0, np.zeros((2, 2)), 1.0)
     assert result.passed
     assert result.summary().startswith("z-test passed: 0 of 4 pixel-channels")
+
+
+def test_running_moments_match_numpy_and_propagate_nan():
+    frames = _passes(np.random.default_rng(2), 6)
+    moments = RunningMoments()
+    for frame in frames:
+        moments.add(frame.astype(np.float32))
+    estimate = moments.estimate()
+    stack = np.stack(frames).astype(np.float32).astype(np.float64)
+    assert estimate.count == 6 and estimate.mean.dtype == np.float64
+    np.testing.assert_allclose(estimate.mean, stack.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(estimate.variance_of_mean, stack.var(axis=0, ddof=1) / 6,
+                               rtol=1e-10)
+    bad = frames[0].copy()
+    bad[0, 0, 0] = math.nan
+    moments.add(bad)
+    assert np.isnan(moments.estimate().mean[0, 0, 0])
+    assert np.isfinite(moments.estimate().mean[1:]).all()
+    with pytest.raises(MetricError, match="at least 2"):
+        single = RunningMoments()
+        single.add(frames[0])
+        single.estimate()
+
+
+# ---- Aggregate block test ----------------------------------------------------------
+
+TRUTH = np.random.default_rng(100).uniform(0.2, 2.0, (24, 24, 3))
+SPP = 256                                # samples behind each synthetic mean
+VAR_OF_MEAN = TRUTH**2 / SPP             # 1-spp relative standard deviation ~1
+
+
+def _noisy_mean(rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+    """A mean over SPP samples of an estimator of ``scale`` x TRUTH with known variance."""
+    return scale * TRUTH + np.sqrt(VAR_OF_MEAN) * rng.standard_normal(TRUTH.shape)
+
+
+def _binomial_bound(alpha: float, n: int) -> float:
+    """alpha plus 3 binomial standard deviations of a rejection rate over n repetitions."""
+    return alpha + 3 * math.sqrt(alpha * (1 - alpha) / n)
+
+
+def test_aggregate_test_finds_a_two_percent_bias_the_per_pixel_test_misses():
+    # Per pixel the 2 % bias is ~0.2 standard deviations; over 108 blocks of 16
+    # pixels the signed mean statistic moves by ~9.
+    outcomes = []
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        ref, test = _noisy_mean(rng), _noisy_mean(rng, scale=1.02)
+        result = agreement_test(test, VAR_OF_MEAN, ref, VAR_OF_MEAN)
+        assert not result.aggregate.passed, result.summary()
+        assert result.aggregate.n_blocks == 6 * 6 * 3 and result.aggregate.mean_z > 5
+        assert not result.passed
+        outcomes.append(result.per_pixel.passed)
+    assert sum(outcomes) >= 9  # the per-pixel test alone lets it through
+
+
+def test_aggregate_test_false_rejection_rate_under_the_null():
+    reps, alpha = 400, 0.01
+    rejected = 0
+    for seed in range(reps):
+        rng = np.random.default_rng(10_000 + seed)
+        result = aggregate_test(_noisy_mean(rng), VAR_OF_MEAN, _noisy_mean(rng), VAR_OF_MEAN,
+                                alpha=alpha)
+        rejected += not result.passed
+    assert rejected / reps <= _binomial_bound(alpha, reps), f"{rejected} of {reps} rejected"
+
+
+def test_estimated_variances_need_their_degrees_of_freedom():
+    # Six passes per side: the variance estimates have 5 d.o.f., and z-scores
+    # built from them are heavy-tailed. Block 2 keeps few estimates per tile.
+    reps, alpha, passes = 400, 0.01, 6
+    rejected = {"dof": 0, "none": 0}
+    for seed in range(reps):
+        rng = np.random.default_rng(20_000 + seed)
+        sides = []
+        for _ in range(2):
+            acc = PassAccumulator()
+            for _ in range(passes):
+                acc.add(TRUTH + 0.5 * TRUTH * rng.standard_normal(TRUTH.shape))
+            sides.append(acc.estimate())
+        a, b = sides
+        for label, dof in (("dof", passes - 1), ("none", None)):
+            result = aggregate_test(a.mean, a.variance_of_mean, b.mean, b.variance_of_mean,
+                                    dof=dof, block=2, alpha=alpha)
+            rejected[label] += not result.passed
+    rates = {label: count / reps for label, count in rejected.items()}
+    message = f"rejection rates with dof={passes - 1} and with dof=None: {rates}"
+    assert rates["dof"] <= _binomial_bound(alpha, reps), message
+    assert rates["none"] > 3 * _binomial_bound(alpha, reps), message
+
+
+def test_aggregate_test_degenerate_inputs():
+    image = np.ones((8, 8, 3))
+    variance = np.ones_like(image)
+    variance[:4, :4] = 0.0                        # one zero-variance tile per channel
+    result = aggregate_test(image, variance, image, variance)
+    assert result.passed and result.n_blocks == 3 * 3
+
+    exact = aggregate_test(image, 0.0, image, 0.0)
+    assert exact.passed and exact.n_blocks == 0
+
+    shifted = image.copy()
+    shifted[0, 0, 0] += 1.0
+    assert not aggregate_test(shifted, 0.0, image, 0.0).passed
+
+    nan = image.copy()
+    nan[5, 5, 1] = math.nan
+    failed = aggregate_test(nan, 1.0, image, 1.0)
+    assert not failed.passed and failed.p_chi2 == 0.0 and "FAILED" in failed.summary()
+
+    with pytest.raises(MetricError, match="smaller than one 4x4 block"):
+        aggregate_test(np.ones((3, 8, 3)), 1.0, np.ones((3, 8, 3)), 1.0)
+    with pytest.raises(MetricError, match="degrees of freedom"):
+        aggregate_test(image, 1.0, image, 1.0, dof=0)
