@@ -26,9 +26,11 @@ from jobs.calibration import calibrate_job
 from jobs.config import Settings
 from jobs.plots import plot_convergence
 from jobs.provenance import git_commit, library_versions
+from jobs.quality import judge_run
 from jobs.references import LoadedReference, get_or_render_reference
 from jobs.spec import RenderSpec
 from jobs.store import Store
+from jobs.versions import versions_of
 from metrics.checks import MetricError
 from metrics.errors import (
     bias_variance,
@@ -40,6 +42,7 @@ from metrics.errors import (
 )
 from metrics.imageio import write_exr, write_png
 from metrics.preview import error_map_preview, tonemap_preview
+from metrics.quality import withhold
 from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
 from renderers.methods import get_method, parse_params
@@ -64,6 +67,8 @@ class RunSummary:
     path_stats: dict[str, Any]
     device: dict[str, Any]
     quality: dict[str, Any]
+    estimator_version: int
+    metric_version: int
     files: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
@@ -254,6 +259,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     ``frame_moments`` (one per seed, filled through :func:`frame_moments_hook`;
     16 bytes per pixel-channel each) give the per-cache rBias^2 / rVar; without
     them those keys are None.
+    The run's quality verdict (jobs.quality) is stored with it, and the metrics
+    the verdict withholds are stored as None, per seed and aggregated.
     """
     scene, reference, device = prepared.scene, prepared.reference, prepared.device
     params = parse_params(spec.method, spec.params)
@@ -262,12 +269,10 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     scratch = settings.data_dir / "tmp"
     scratch.mkdir(parents=True, exist_ok=True)
     per_seed, artifacts = [], []
-    nonfinite = 0
     for seed, (output, curve) in enumerate(zip(outputs, convergence, strict=True)):
         values = image_metrics(output.accumulated, reference.mean, eps=spec.eps,
                                flip_exposures=reference.flip_exposures,
                                ref_variance=reference.variance)
-        nonfinite += values["nonfinite_pixels"]
         values["seconds_per_frame"] = output.timings["frame_median_s"]
         per_seed.append({"seed": seed, **values, "path_stats": output.path_stats,
                          "method_stats": output.method_stats, "convergence": curve})
@@ -292,7 +297,12 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
         "stages": seed_timings[0]["stages"],
     }
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
-    quality = {"finite": nonfinite == 0, "nonfinite_pixels": nonfinite}
+    verdict, quality = judge_run([o.accumulated for o in outputs], reference.mean,
+                                 scene.features.emitter_count,
+                                 [o.method_stats for o in outputs])
+    metrics = withhold(metrics, verdict.withheld)
+    per_seed = [withhold(s, verdict.withheld) for s in per_seed]
+    versions = versions_of(spec.method)
     reference_info = {"id": reference.id, "key": reference.key, "spp": reference.spp,
                       "split_half": reference.split_half, "path": str(reference.image_path),
                       "rendered_now": reference.rendered_now}
@@ -308,7 +318,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
             "metrics": metrics, "timings": timings, "path_stats": path_stats,
             "device": device, "device_key": device["device_key"],
             "versions": library_versions(), "git_commit": git_commit(), "quality": quality,
-            "idempotency_key": idempotency_key,
+            "idempotency_key": idempotency_key, **versions,
         },
         [{"seed": s["seed"], "metrics": s, "timings": t}
          for s, t in zip(per_seed, seed_timings, strict=True)],
@@ -317,7 +327,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     summary = RunSummary(
         run_id=run.id, spec=spec, scene_fingerprint=scene.fingerprint, reference=reference_info,
         metrics=metrics, per_seed=per_seed, timings=timings, path_stats=path_stats,
-        device=device, quality=quality)
+        device=device, quality=quality, **versions)
     if out_dir is not None:
         summary.files = _export(out_dir, summary, reference, artifacts_store, artifacts)
     return summary

@@ -123,6 +123,9 @@ class Reference(Base):
     render_seconds: Mapped[float]
     device: Mapped[dict[str, Any]] = mapped_column(default=dict)
     versions: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    # "mitsuba <version>" for Mitsuba's path, "pt <version>" for ours ('1': before versions)
+    estimator_version: Mapped[str] = mapped_column(String, server_default="1")
+    metric_version: Mapped[int] = mapped_column(Integer, server_default="1")
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     artifacts: Mapped[list["Artifact"]] = relationship(
@@ -173,7 +176,10 @@ class Run(Base):
     device_key: Mapped[str] = mapped_column(String, index=True)
     versions: Mapped[dict[str, Any]] = mapped_column(default=dict)
     git_commit: Mapped[str | None] = mapped_column(String)
-    quality: Mapped[dict[str, Any]] = mapped_column(default=dict)     # finite?, nonfinite_pixels
+    quality: Mapped[dict[str, Any]] = mapped_column(default=dict)     # verdict, reasons, withheld
+    # What computed the result (jobs.versions); 1 = stored before versions were recorded.
+    estimator_version: Mapped[int] = mapped_column(Integer, server_default="1")
+    metric_version: Mapped[int] = mapped_column(Integer, server_default="1")
     error: Mapped[str | None] = mapped_column(Text)
     idempotency_key: Mapped[str | None] = mapped_column(String, unique=True)
 
@@ -247,6 +253,8 @@ class CacheSnapshot(Base):
     stats: Mapped[dict[str, Any]] = mapped_column(default=dict)
     device: Mapped[dict[str, Any]] = mapped_column(default=dict)
     device_key: Mapped[str] = mapped_column(String)
+    estimator_version: Mapped[int] = mapped_column(Integer, server_default="1")
+    metric_version: Mapped[int] = mapped_column(Integer, server_default="1")
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     artifacts: Mapped[list["Artifact"]] = relationship(
@@ -278,6 +286,9 @@ class Sweep(Base):
     status: Mapped[str] = mapped_column(String)
     result: Mapped[dict[str, Any]] = mapped_column(default=dict)
     device_key: Mapped[str] = mapped_column(String, index=True)
+    # Method -> estimator version of the sweep's methods (None: before versions).
+    estimator_versions: Mapped[dict[str, Any] | None]
+    metric_version: Mapped[int] = mapped_column(Integer, server_default="1")
     created_at: Mapped[datetime] = mapped_column(default=utcnow, index=True)
     finished_at: Mapped[datetime | None]
 

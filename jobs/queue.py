@@ -34,10 +34,18 @@ from sqlalchemy import and_, or_, select, update
 from sqlalchemy.exc import IntegrityError
 
 from jobs.models import FINAL_JOB_STATES, Job, JobStatus
+from jobs.spec import RenderSpec, SweepSpec
 from jobs.store import Store
+from renderers.seeding import digest
 
 #: Live states: a new identical submission returns the existing job instead.
 _DEDUPE_STATES = (JobStatus.QUEUED.value, JobStatus.RUNNING.value, JobStatus.SUCCEEDED.value)
+
+
+def spec_key(kind: str, spec: RenderSpec | SweepSpec, device_class: str) -> str:
+    """The dedupe key of a submitted render or sweep: its spec, the worker class and
+    today's estimator and metric versions (after a version bump nothing old matches)."""
+    return digest(kind, spec.model_dump(mode="json"), device_class, spec.versions())
 
 
 def _now() -> datetime:

@@ -2,8 +2,10 @@
 
 A reference is identified by what determines its pixels: the scene fingerprint,
 the resolution and the reference settings (integrator, max depth, spp, pass
-size, stopping rule). That key names its files and its database row; asking
-for an existing reference loads it instead of rendering it again.
+size, stopping rule) and the versions of the reference integrator and of the
+metric definitions (its split-half floor is a metric). That key names its files
+and its database row; asking for an existing reference loads it instead of
+rendering it again.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import numpy as np
 
 from jobs.provenance import library_versions
 from jobs.store import DuplicateKeyError, Store
+from jobs.versions import reference_estimator_version
+from metrics import METRIC_VERSION
 from metrics.flip import hdr_exposures
 from metrics.imageio import ImageReadError, read_exr, write_exr
 from renderers.backend import device_info
@@ -41,7 +45,7 @@ class LoadedReference:
 
 def reference_key(scene: Any, settings: ReferenceSettings) -> str:
     return digest("reference", scene.fingerprint, list(scene.resolution), settings.to_json(),
-                  length=32)
+                  reference_estimator_version(settings.integrator), METRIC_VERSION, length=32)
 
 
 def get_or_render_reference(
@@ -76,7 +80,9 @@ def get_or_render_reference(
             max_depth=settings.max_depth, spp=image.spp, passes=image.passes,
             rel_stderr=image.rel_stderr, image_path=image_name, variance_path=variance_name,
             split_half=image.split_half, flip_exposures=list(exposures),
-            render_seconds=image.seconds, device=device_info(), versions=library_versions())
+            render_seconds=image.seconds, device=device_info(), versions=library_versions(),
+            estimator_version=reference_estimator_version(settings.integrator),
+            metric_version=METRIC_VERSION)
     except DuplicateKeyError as err:
         # Another job rendered the same reference meanwhile; the pixels are equal
         # (same key, same seeds), so keep the stored row.

@@ -31,6 +31,7 @@ from jobs.artifacts import ArtifactStore, artifact_record, encode_image
 from jobs.config import Settings
 from jobs.executor import ConvergenceTracker, Prepared
 from jobs.store import DuplicateKeyError, Store
+from jobs.versions import versions_of
 from metrics.imageio import ImageReadError, read_exr, write_exr
 from renderers.methods.base import FrameHooks
 from renderers.methods.cached import CacheTrainingParams, render_with_cache
@@ -58,10 +59,11 @@ Builder = Callable[[Any, Any, int], tuple[Any, Any, Any]]
 
 def snapshot_key(prepared: Prepared, method: str, params: CacheTrainingParams, seed: int,
                  train_frames: int, v1_spp: int) -> str:
-    """Content address of a snapshot (the reference is part of it: the curve uses it)."""
+    """Content address of a snapshot (the reference is part of it: the curve uses it) under
+    today's estimator and metric versions."""
     return digest("cache-snapshot", prepared.scene.fingerprint, list(prepared.scene.resolution),
                   method, params.model_dump(mode="json"), seed, train_frames, v1_spp,
-                  prepared.reference.key, length=32)
+                  prepared.reference.key, versions_of(method), length=32)
 
 
 def get_or_make_snapshot(
@@ -112,7 +114,7 @@ def get_or_make_snapshot(
         width=prepared.scene.resolution[0], height=prepared.scene.resolution[1],
         train_frames=train_frames, v1_spp=v1_spp, reference_id=prepared.reference.id,
         stats=stats, device=prepared.device, device_key=prepared.device["device_key"],
-        created_at=started)
+        created_at=started, **versions_of(method))
     if row is not None:  # replace the damaged one's row
         store.delete_snapshot(row.id)
     try:

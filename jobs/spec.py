@@ -11,6 +11,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from jobs.versions import sweep_estimator_versions, versions_of
+from metrics import METRIC_VERSION
 from renderers.methods.pt import DEFAULT_MAX_DEPTH
 from renderers.reference import ReferenceSettings
 from renderers.seeding import digest
@@ -80,9 +82,14 @@ class RenderSpec(BaseModel):
         """The method's path depth, which its reference must share."""
         return int(self.params.get("max_depth", DEFAULT_MAX_DEPTH))
 
+    def versions(self) -> dict[str, int]:
+        """The estimator version of the method and the metric version, as of today."""
+        return versions_of(self.method)
+
     def key(self) -> str:
-        """Content address of the spec (equal specs give equal keys)."""
-        return digest("render-spec", self.model_dump(mode="json"))
+        """Content address of the spec under today's estimator and metric versions
+        (equal specs give equal keys; a version bump gives new ones)."""
+        return digest("render-spec", self.model_dump(mode="json"), self.versions())
 
 
 SWEEP_METHODS = ("nirc", "nrc")
@@ -168,6 +175,12 @@ class SweepSpec(BaseModel):
                           resolution=self.resolution, spp=1, frames=self.frames,
                           seeds=self.seeds, eps=self.metric_eps, reference=self.reference)
 
+    def versions(self) -> dict[str, object]:
+        """The estimator versions of the sweep's methods and the metric version."""
+        return {"estimator_versions": sweep_estimator_versions(self.methods),
+                "metric_version": METRIC_VERSION}
+
     def key(self, device_key: str) -> str:
-        """Content address of the sweep on one device (timings are per device)."""
-        return digest("sweep-spec", self.model_dump(mode="json"), device_key)
+        """Content address of the sweep on one device (timings are per device) under
+        today's versions."""
+        return digest("sweep-spec", self.model_dump(mode="json"), device_key, self.versions())

@@ -15,7 +15,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-from sqlalchemy import Engine, delete, select
+from sqlalchemy import Engine, and_, delete, false, or_, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload, sessionmaker
 
@@ -190,10 +190,14 @@ class Store:
         device_key: str | None = None,
         *,
         limit: int | None = None,
+        current: Mapping[str, int] | None = None,
+        metric_version: int | None = None,
     ) -> list[Run]:
         """Runs matching the given filters, newest first, without relationships.
 
-        ``scene`` matches the scene name. Use ``get_run`` for seeds and artifacts.
+        ``scene`` matches the scene name. ``current`` (method -> estimator version)
+        keeps only runs of those methods at those versions, ``metric_version``
+        only runs scored under it. Use ``get_run`` for seeds and artifacts.
         """
         query = select(Run).order_by(Run.created_at.desc(), Run.id.desc())
         if scene is not None:
@@ -202,6 +206,11 @@ class Store:
             query = query.where(Run.method == method)
         if device_key is not None:
             query = query.where(Run.device_key == device_key)
+        if current is not None:
+            query = query.where(or_(false(), *(and_(Run.method == name, Run.estimator_version == v)
+                                             for name, v in current.items())))
+        if metric_version is not None:
+            query = query.where(Run.metric_version == metric_version)
         if limit is not None:
             query = query.limit(limit)
         with self.session() as session:
@@ -307,12 +316,16 @@ class Store:
               "seed": seeds.get(a.seed_result_id)} for a in source.artifacts],
         )
 
-    def list_sweeps(self, scene: str | None = None, *, limit: int = 50) -> list[Sweep]:
-        """Sweeps, newest first, with their artifacts loaded."""
+    def list_sweeps(self, scene: str | None = None, *, limit: int = 50,
+                    metric_version: int | None = None) -> list[Sweep]:
+        """Sweeps, newest first, with their artifacts loaded (only those scored under
+        ``metric_version`` when it is given)."""
         query = (select(Sweep).order_by(Sweep.id.desc()).limit(limit)
                  .options(selectinload(Sweep.artifacts)))
         if scene is not None:
             query = query.where(Sweep.scene_name == scene)
+        if metric_version is not None:
+            query = query.where(Sweep.metric_version == metric_version)
         with self.session() as session:
             return list(session.scalars(query))
 

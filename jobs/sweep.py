@@ -170,7 +170,8 @@ class _Sweep:
         return digest("sweep-point", series, self.prepared.scene.fingerprint,
                       self.base.model_dump(mode="json"), params.model_dump(mode="json"),
                       self.spec.train_frames, self.spec.v1_spp, float(eps),
-                      self.prepared.reference.key, self.device_key, extra, length=32)
+                      self.prepared.reference.key, self.device_key, extra,
+                      self.spec.versions(), length=32)
 
     def point_spec(self, method: str, params: Any) -> RenderSpec:
         return self.base.model_copy(update={"method": method,
@@ -352,7 +353,7 @@ class _Sweep:
                                        "pretrain_frames": self.spec.train_frames})
         spec = self.point_spec("nirc", params)
         key = digest("sweep-nc-point", spec.model_dump(mode="json"), self.device_key,
-                     self.prepared.reference.key, length=32)
+                     self.prepared.reference.key, spec.versions(), length=32)
         run = self.store.find_run_by_idempotency_key(key)
         if run is not None:
             self.work["points_reused"] += 1
@@ -448,7 +449,7 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
     row = store.start_sweep(key=key, kind=spec.kind, scene_name=sweep.prepared.scene.name,
                             scene_fingerprint=sweep.prepared.scene.fingerprint,
                             spec=spec.model_dump(mode="json"), result={},
-                            device_key=sweep.device_key)
+                            device_key=sweep.device_key, **spec.versions())
     try:
         rows = _eps_rows(sweep) if spec.kind == "eps" else _nc_rows(sweep)
         result = SweepResult(

@@ -9,4 +9,11 @@ numpy-only images: float32 (H, W, 3) linear RGB. This package never imports
 - ``tonemap`` / ``preview``: the display transform and 8-bit previews
 - ``statistics``: pass accumulator, z-test, confidence intervals
 - ``checks``: shared input checks and ``MetricError``
+- ``quality``: the quality verdict of a run and the metrics it withholds
 """
+
+#: Version of the metric definitions. A stored result records the version it was
+#: computed under; results of different versions are never reused or compared.
+#: 1: everything before versions were recorded. 2: rBias^2 corrected for the
+#: reference's noise floor, degenerate input withheld (metrics.quality).
+METRIC_VERSION = 2

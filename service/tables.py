@@ -51,11 +51,26 @@ def reference_table(info: dict[str, Any]) -> Table:
     })
 
 
+def verdict_text(quality: dict[str, Any]) -> str:
+    """A run's quality verdict and its reasons, one line each ('ok' when none)."""
+    reasons = quality.get("reasons", [])
+    return "\n".join([quality.get("verdict", "not judged (stored before verdicts)"),
+                      *(f"{r['code']}: {r['message']}" for r in reasons)])
+
+
+def _shown(value: Any) -> Any:
+    """A metric as shown: None is a value the quality verdict withheld."""
+    return "withheld" if value is None else value
+
+
 def metrics_table(summary: Any) -> Group:
-    """The method-vs-reference table of a run, then one row per seed."""
-    spec, m, t = summary.spec, summary.metrics, summary.timings
-    ci = m.get("mrse_ci95")
+    """The method-vs-reference table of a run, then one row per seed; the metrics the
+    quality verdict withholds read 'withheld'."""
+    spec, t = summary.spec, summary.timings
+    m = {key: _shown(value) for key, value in summary.metrics.items()}
+    ci = m.get("mrse_ci95", "n/a (K = 1)")
     head = {
+        "quality verdict": verdict_text(summary.quality),
         "run": summary.run_id,
         "scene / method": f"{spec.scene} / {spec.method}",
         "resolution": f"{spec.resolution}x{spec.resolution}",
@@ -65,7 +80,7 @@ def metrics_table(summary: Any) -> Group:
                      + (" (reused)" if not summary.reference["rendered_now"] else " (rendered)"),
         "reference floor MRSE (est.)": summary.reference["split_half"].get("reference_mrse_estimate"),
         "MRSE (mean over seeds)": m["mrse_mean"],
-        "MRSE 95% CI": f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "n/a (K = 1)",
+        "MRSE 95% CI": f"[{ci[0]:.4g}, {ci[1]:.4g}]" if isinstance(ci, list | tuple) else ci,
         "MRSE less reference floor": m.get("mrse_corrected"),
         "rBias2 (less render and reference floors)": m.get("rbias2", "n/a (K = 1)"),
         "rBias2 (raw)": m.get("rbias2_raw", "n/a (K = 1)"),
@@ -84,13 +99,15 @@ def metrics_table(summary: Any) -> Group:
         "avg path vertices": summary.path_stats["avg_path_vertices"],
         "non-finite pixels": summary.quality["nonfinite_pixels"],
         "device": summary.device["device_key"],
+        "estimator / metric version": f"{summary.estimator_version} / {summary.metric_version}",
     }
     seeds = Table(title="per seed")
     for column in ("seed", "MRSE", "MSE", "FLIP HDR", "FLIP LDR", "ms/frame", "non-finite"):
         seeds.add_column(column, justify="right")
     for s in summary.per_seed:
-        seeds.add_row(str(s["seed"]), _fmt(s["mrse"]), _fmt(s["mse"]), _fmt(s["flip_hdr"]),
-                      _fmt(s["flip_ldr"]), _fmt(1e3 * s["seconds_per_frame"]),
+        seeds.add_row(str(s["seed"]), *(_fmt(_shown(s[k])) for k in ("mrse", "mse", "flip_hdr",
+                                                                     "flip_ldr")),
+                      _fmt(1e3 * s["seconds_per_frame"]),
                       str(s["nonfinite_pixels"]))
     parts: list[Any] = [key_value_table(f"{spec.method} vs reference", head), seeds]
     parts += [f"warning: {text}" for text in m.get("warnings") or []]

@@ -1,7 +1,11 @@
 """The registry of render methods (the ``method`` of a render job).
 
 Each entry pairs a pydantic parameter model (validated, so a bad value is a
-clear error naming the field) with the method's render function.
+clear error naming the field) with the method's render function and the
+version of its estimator. Bump ``version`` whenever a change alters what the
+method's images converge to or how noisy they are: stored results record it,
+and results of another version are neither reused nor compared as equals
+(version 1 is everything stored before versions were recorded).
 """
 
 from __future__ import annotations
@@ -26,15 +30,17 @@ class Method:
     description: str
     params: type[MethodParams]
     render: Callable[..., RenderOutput]
+    version: int
 
 
 METHODS: dict[str, Method] = {
     "pt": Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", pt.PTParams,
-                 pt.render),
+                 pt.render, version=2),
     "nirc": Method("nirc", "Neural Incident Radiance Cache: biased (BTH/SPH termination) or "
-                   "unbiased two-level Monte Carlo", nirc.NIRCParams, nirc.render),
+                   "unbiased two-level Monte Carlo", nirc.NIRCParams, nirc.render,
+                   version=2),
     "nrc": Method("nrc", "Neural Radiance Cache, spread-angle termination", nrc.NRCParams,
-                  nrc.render),
+                  nrc.render, version=2),
 }
 
 

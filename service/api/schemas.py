@@ -7,6 +7,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from jobs.versions import is_current
+
 
 class StageOut(BaseModel):
     """One stage of a sweep's task graph (jobs/graph.py), itself a job."""
@@ -97,10 +99,17 @@ class RunOut(BaseModel):
         None, description="reference noise floor over |MRSE less the floor|")
     warnings: list[str] = Field(
         default_factory=list, description="e.g. the reference floor is above 10 % of a metric")
+    verdict: str | None = Field(
+        description="quality verdict (ok, untrained-cache, nonfinite, negative-radiance, "
+                    "degenerate-reference, no-emitter); null for runs stored before verdicts")
+    withheld: list[str] = Field(description="metrics the verdict makes meaningless (null above)")
+    estimator_version: int
+    metric_version: int
+    current: bool = Field(description="computed by today's estimator and metric versions")
 
     @classmethod
     def of(cls, run: Any) -> RunOut:
-        m = run.metrics
+        m, q = run.metrics, run.quality
         ci = m.get("mrse_ci95")
         return cls(id=run.id, created_at=run.created_at, scene=run.scene_name,
                    scene_fingerprint=run.scene_fingerprint, method=run.method,
@@ -109,7 +118,10 @@ class RunOut(BaseModel):
                    seeds=run.seeds, mrse=m.get("mrse_mean"), mrse_ci95=list(ci) if ci else None,
                    rbias2=m.get("rbias2"), rvar=m.get("rvar"), flip=m.get("flip_hdr_mean"),
                    seconds_per_frame=run.timings.get("seconds_per_frame"),
-                   device_key=run.device_key, quality=run.quality,
+                   device_key=run.device_key, quality=q, verdict=q.get("verdict"),
+                   withheld=q.get("withheld", []), estimator_version=run.estimator_version,
+                   metric_version=run.metric_version,
+                   current=is_current(run.method, run.estimator_version, run.metric_version),
                    ref_floor_ratio_rbias2=m.get("ref_floor_ratio_rbias2"),
                    ref_floor_ratio_mrse=m.get("ref_floor_ratio_mrse"),
                    warnings=m.get("warnings") or [])
@@ -147,6 +159,10 @@ class Comparison(BaseModel):
     runs: list[RunOut]
     same_device: bool
     same_reference_scene: bool
+    metric_version: int = Field(description="every compared run was scored under it")
+    estimator_versions: dict[str, list[int]] = Field(
+        description="method -> the estimator versions among the runs; two versions of one "
+                    "method are different estimators, not repeats")
     note: str
 
 
@@ -158,15 +174,23 @@ class SweepOut(BaseModel):
     spec: dict[str, Any]
     result: dict[str, Any]
     device_key: str
+    estimator_versions: dict[str, int] | None = Field(
+        description="method -> estimator version (null: stored before versions)")
+    metric_version: int
+    current: bool = Field(description="computed by today's estimator and metric versions")
     created_at: datetime
     finished_at: datetime | None
     artifacts: list[ArtifactOut]
 
     @classmethod
     def of(cls, sweep: Any) -> SweepOut:
+        versions = sweep.estimator_versions
+        current = bool(versions) and all(is_current(method, version, sweep.metric_version)
+                                         for method, version in versions.items())
         return cls(id=sweep.id, kind=sweep.kind, scene=sweep.scene_name, status=sweep.status,
                    spec=sweep.spec, result=sweep.result, device_key=sweep.device_key,
-                   created_at=sweep.created_at, finished_at=sweep.finished_at,
+                   estimator_versions=versions, metric_version=sweep.metric_version,
+                   current=current, created_at=sweep.created_at, finished_at=sweep.finished_at,
                    artifacts=[ArtifactOut.of(a) for a in sweep.artifacts])
 
 

@@ -12,17 +12,25 @@ const num = (v, d = 3) => (v === null || v === undefined ? "–" : Number(v).toP
 const DEVICE_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b"];
 const SERIES_COLORS = { "NIRC": "#d62728", "NRC": "#1f77b4", "NIRC equal time": "#8c564b" };
 let timer = null;
+// Results of older estimator or metric versions are hidden unless the header's box is ticked.
+const old = () => (document.getElementById("include-old").checked ? "&include_old=true" : "");
 
 function label(run) {
   const p = run.params || {};
   const extra = [p.estimator, p.termination, p.nc ? `Nc ${p.nc}` : null].filter(Boolean).join(" ");
-  return `${run.method}${extra ? ` (${extra})` : ""} ${run.spp} spp`;
+  const stale = run.current ? "" : ` [old: estimator v${run.estimator_version}, metrics v${run.metric_version}]`;
+  return `${run.method}${extra ? ` (${extra})` : ""} ${run.spp} spp${stale}`;
 }
 
+// A metric cell: a value, "withheld" when the run's quality verdict makes it meaningless, or "–".
+const metric = (run, name, value) => (value === null && (run.withheld || []).includes(name) ? "withheld" : num(value));
+const reasons = (run) => (run.quality.reasons || []).map((r) => `${r.code}: ${r.message}`).join("\n");
+const verdictCell = (run) => `<td class="text verdict verdict-${esc(run.verdict ?? "none")}" title="${esc(reasons(run))}">${esc(run.verdict ?? "not judged")}</td>`;
+
 async function overview() {
-  const runs = await api("/results?limit=1000");
+  const runs = await api(`/results?limit=1000${old()}`);
   const latest = new Map();
-  for (const run of runs) {  // newest first: keep the first per (scene, method label, device)
+  for (const run of runs) {  // newest first: keep the first per (scene, method label + versions, device)
     const key = `${run.scene}|${label(run)}|${run.device_key}`;
     if (!latest.has(key)) latest.set(key, run);
   }
@@ -31,12 +39,12 @@ async function overview() {
   if (!scenes.length) html += "<p class='muted'>No results yet: submit a job (POST /api/v1/jobs) or run <code>nirc-bench render</code>.</p>";
   for (const scene of scenes) {
     html += `<h3><a href="#/scene/${encodeURIComponent(scene)}">${esc(scene)}</a></h3><table><tr>
-      <th class="text">method</th><th class="text">device</th><th>MRSE</th><th>95% CI</th><th>rBias²</th>
+      <th class="text">method</th><th class="text">device</th><th class="text">verdict</th><th>MRSE</th><th>95% CI</th><th>rBias²</th>
       <th>FLIP</th><th>ms/frame</th><th>run</th></tr>`;
     for (const r of [...latest.values()].filter((r) => r.scene === scene)) {
-      const ci = r.mrse_ci95 ? `[${num(r.mrse_ci95[0])}, ${num(r.mrse_ci95[1])}]` : "–";
-      html += `<tr><td class="text">${esc(label(r))}</td><td class="text">${esc(r.device_key)}</td>
-        <td>${num(r.mrse)}</td><td>${ci}</td><td>${num(r.rbias2)}</td><td>${num(r.flip)}</td>
+      const ci = r.mrse_ci95 ? `[${num(r.mrse_ci95[0])}, ${num(r.mrse_ci95[1])}]` : metric(r, "mrse", null);
+      html += `<tr><td class="text">${esc(label(r))}</td><td class="text">${esc(r.device_key)}</td>${verdictCell(r)}
+        <td>${metric(r, "mrse", r.mrse)}</td><td>${ci}</td><td>${metric(r, "rbias2", r.rbias2)}</td><td>${metric(r, "flip", r.flip)}</td>
         <td>${num(r.seconds_per_frame * 1e3)}</td><td><a href="#/scene/${encodeURIComponent(scene)}/${r.id}">${r.id}</a></td></tr>`;
     }
     html += "</table>";
@@ -52,12 +60,12 @@ function paretoFront(points) {
 }
 
 async function scenePage(scene, runId) {
-  const runs = await api(`/results?scene=${encodeURIComponent(scene)}&limit=1000`);
-  const sweeps = await api(`/sweeps?scene=${encodeURIComponent(scene)}&limit=1`);
+  const runs = await api(`/results?scene=${encodeURIComponent(scene)}&limit=1000${old()}`);
+  const sweeps = await api(`/sweeps?scene=${encodeURIComponent(scene)}&limit=1${old()}`);
   const v = view();
   v.innerHTML = `<h2>${esc(scene)}</h2><h3>Error vs time (per device)</h3><div class="plots" id="pareto"></div>
     <h3>Adaptive equal-bias sweep</h3><div class="plots" id="sweep"></div>
-    <h3>Run</h3><p><select id="run"></select></p>
+    <h3>Run</h3><p><select id="run"></select></p><p id="verdict"></p>
     <h3>Convergence over frames</h3><div class="plots" id="convergence"></div>
     <h3>Images (click to crop)</h3><div class="images" id="images"></div>`;
   const devices = [...new Set(runs.map((r) => r.device_key))];
@@ -76,15 +84,16 @@ async function scenePage(scene, runId) {
   else {
     const rows = sweeps[0].result.rows || [];
     const names = [...new Set(rows.map((r) => r.series))];
+    const stale = sweeps[0].current ? "" : ", old versions";
     for (const [key, title, log] of [["mrse", "MRSE", true], ["flip", "FLIP", false], ["rbias2", "rBias²", true], ["rvar", "rVar", true]]) {
-      linePlot(sweepEl, { title: `${title} (sweep ${sweeps[0].id})`, xlabel: "% indirect-radiance bounces", ylabel: title,
+      linePlot(sweepEl, { title: `${title} (sweep ${sweeps[0].id}${stale})`, xlabel: "% indirect-radiance bounces", ylabel: title,
         logy: log, series: names.map((n) => ({ name: n, color: SERIES_COLORS[n], dashed: n.includes("equal time"),
           points: rows.filter((r) => r.series === n).map((r) => [r.ir_bounces_pct, r[key]]) })) });
     }
   }
 
   const select = document.getElementById("run");
-  select.innerHTML = runs.map((r) => `<option value="${r.id}">${r.id}: ${esc(label(r))} — ${esc(r.device_key)}</option>`).join("");
+  select.innerHTML = runs.map((r) => `<option value="${r.id}">${r.id}: ${esc(label(r))} — ${esc(r.device_key)} — ${esc(r.verdict ?? "not judged")}</option>`).join("");
   if (runId) select.value = runId;
   select.onchange = () => { location.hash = `#/scene/${encodeURIComponent(scene)}/${select.value}`; };
   if (runs.length) await runDetail(select.value || runs[0].id);
@@ -92,6 +101,8 @@ async function scenePage(scene, runId) {
 
 async function runDetail(runId) {
   const run = await api(`/runs/${runId}`);
+  document.getElementById("verdict").innerHTML = `quality verdict: <b class="verdict-${esc(run.verdict ?? "none")}">${esc(run.verdict ?? "not judged")}</b>`
+    + (run.quality.reasons || []).map((r) => `<br><span class="muted">${esc(r.code)}: ${esc(r.message)}</span>`).join("");
   const conv = document.getElementById("convergence");
   const seeds = run.per_seed.filter((s) => s.metrics.convergence);
   linePlot(conv, { title: `run ${run.id}: MRSE over frames`, xlabel: "frame", ylabel: "MRSE", logy: true, width: 560,
@@ -147,4 +158,5 @@ async function route() {
 }
 
 window.addEventListener("hashchange", route);
+document.getElementById("include-old").addEventListener("change", route);
 route();

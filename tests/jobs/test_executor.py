@@ -45,7 +45,8 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
     assert run.device_key == summary.device["device_key"]
     assert run.git_commit and run.versions["mitsuba"]
     assert "sync" in run.timings["protocol"] and run.timings["warmup_s"] > 0
-    assert run.quality == {"finite": True, "nonfinite_pixels": 0}
+    assert run.quality["verdict"] == "ok" and run.quality["finite"] is True
+    assert run.quality["nonfinite_pixels"] == 0
     kinds = sorted(a.kind for a in run.artifacts)
     assert kinds.count("image") == 3 and "preview" in kinds and "error_map" in kinds
     for artifact in run.artifacts:
@@ -80,8 +81,12 @@ def test_nonfinite_pixels_are_counted_and_fail_the_quality_flag(env, monkeypatch
 
     monkeypatch.setitem(methods.METHODS, "pt",
                         dataclasses.replace(original, render=render_with_a_nan))
-    summary = execute(SPEC, store, settings)
-    assert summary.quality == {"finite": False, "nonfinite_pixels": 3}
+    summary = execute(SPEC.model_copy(update={"resolution": 16}), store, settings)
+    # 1 of 256 pixels per seed: below the 1 % limit, so flagged but still scored.
+    assert summary.quality["finite"] is False and summary.quality["nonfinite_pixels"] == 3
+    assert summary.quality["verdict"] == "nonfinite" and summary.quality["withheld"] == []
+    assert summary.quality["nonfinite_fraction"] == pytest.approx(1 / 256)
+    assert "0.391 %" in summary.quality["reasons"][0]["message"]
     assert all(s["nonfinite_pixels"] == 1 for s in summary.per_seed)
     assert np.isfinite(summary.metrics["mrse_mean"])
     assert store.get_run(summary.run_id).quality["finite"] is False

@@ -16,6 +16,8 @@ from jobs.db import open_store
 from jobs.executor import execute
 from jobs.queue import JobQueue
 from jobs.spec import ReferenceSpec, RenderSpec
+from jobs.versions import current_estimator_versions
+from metrics import METRIC_VERSION
 from service.api.main import create_app
 from tests.service.conftest import ARTIFACTS, open_page
 
@@ -36,7 +38,9 @@ def site(tmp_path_factory, mi):
     execute(spec, store, settings)
     execute(spec.model_copy(update={"spp": 2}), store, settings)
     sweep = store.start_sweep(key="k", kind="eps", scene_name="cornell-box",
-                              scene_fingerprint="f", spec={}, result={}, device_key="test")
+                              scene_fingerprint="f", spec={}, result={}, device_key="test",
+                              estimator_versions=current_estimator_versions(),
+                              metric_version=METRIC_VERSION)
     store.finish_sweep(sweep.id, status="succeeded", result={"rows": SWEEP_ROWS},
                        finished_at=None)
     JobQueue(store).submit("render", spec.model_dump(mode="json"), "queued-job")
@@ -60,6 +64,7 @@ def test_overview_lists_the_latest_results(chromium, site):
     page.wait_for_selector("table td")
     assert "cornell-box" in page.inner_text("main")
     assert page.locator("table tr").count() >= 3   # header + pt 1 spp + pt 2 spp
+    assert page.locator("td.verdict").first.inner_text() == "ok"
     ARTIFACTS.mkdir(exist_ok=True)
     page.screenshot(path=str(ARTIFACTS / "dashboard-overview.png"))
     assert errors == []

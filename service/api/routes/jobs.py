@@ -8,10 +8,10 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 
 from jobs.models import FINAL_JOB_STATES
+from jobs.queue import spec_key
 from jobs.spec import RenderSpec, SweepSpec
 from renderers.methods import MethodError, parse_params
 from renderers.scenes import builtin_names, is_scene_file
-from renderers.seeding import digest
 from service.api.deps import DispatcherDep, QueueDep, RowId, SettingsDep, WriteAccess
 from service.api.schemas import JobOut
 
@@ -46,12 +46,13 @@ def _check_render(spec: RenderSpec) -> None:
         raise _unprocessable("params", str(err)) from None
 
 
-def _enqueue(kind: str, spec_json: dict, queue, dispatcher, response: Response,
+def _enqueue(kind: str, spec: RenderSpec | SweepSpec, queue, dispatcher, response: Response,
              idempotency_key: str | None, device_class: str) -> JobOut:
     reason = dispatcher.unavailable(device_class) if dispatcher is not None else None
     if reason:
         raise HTTPException(status.HTTP_409_CONFLICT, reason)
-    job, created = queue.submit(kind, spec_json, digest(kind, spec_json, device_class),
+    job, created = queue.submit(kind, spec.model_dump(mode="json"),
+                                spec_key(kind, spec, device_class),
                                 idempotency_key=idempotency_key, device_class=device_class)
     if created and dispatcher is not None:
         dispatcher.submit(job)
@@ -66,7 +67,7 @@ def submit_job(spec: RenderSpec, response: Response, queue: QueueDep,
                device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a render job (K seeds of a method on a scene, against its reference)."""
     _check_render(spec)
-    return _enqueue("render", spec.model_dump(mode="json"), queue, dispatcher, response,
+    return _enqueue("render", spec, queue, dispatcher, response,
                     idempotency_key, device_class)
 
 
@@ -77,7 +78,7 @@ def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
                  device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a sweep (adaptive equal-bias over eps, or over N_c); poll it as a job."""
     _check_scene(spec.scene)
-    return _enqueue("sweep", spec.model_dump(mode="json"), queue, dispatcher, response,
+    return _enqueue("sweep", spec, queue, dispatcher, response,
                     idempotency_key, device_class)
 
 

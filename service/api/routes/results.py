@@ -9,6 +9,8 @@ from fastapi.responses import FileResponse
 
 from jobs.artifacts import ArtifactStore
 from jobs.models import Artifact
+from jobs.versions import current_estimator_versions
+from metrics import METRIC_VERSION
 from metrics.imageio import ImageReadError, png_bytes, read_exr
 from metrics.preview import tonemap_preview
 from renderers.scenes import builtin_names, describe
@@ -19,6 +21,8 @@ router = APIRouter(prefix="/api/v1", tags=["results"])
 
 #: A text filter; no NUL characters (PostgreSQL rejects them in strings).
 Filter = Annotated[str | None, Query(max_length=500, pattern=r"^[^\x00]*$")]
+IncludeOld = Annotated[bool, Query(description="also results of older estimator or metric "
+                                               "versions (each says whether it is current)")]
 
 
 def _not_found(what: str) -> HTTPException:
@@ -34,10 +38,14 @@ def _found(row: Any, what: str) -> Any:
 
 @router.get("/results", response_model=list[RunOut])
 def list_results(store: StoreDep, scene: Filter = None, method: Filter = None,
-                 device: Filter = None,
+                 device: Filter = None, include_old: IncludeOld = False,
                  limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[RunOut]:
-    """Stored runs, newest first, filtered by scene name, method and device key."""
-    return [RunOut.of(run) for run in store.list_runs(scene, method, device, limit=limit)]
+    """Stored runs, newest first, filtered by scene name, method and device key; only
+    runs of today's estimator and metric versions unless ``include_old``."""
+    versions = {} if include_old else {"current": current_estimator_versions(),
+                                       "metric_version": METRIC_VERSION}
+    return [RunOut.of(run)
+            for run in store.list_runs(scene, method, device, limit=limit, **versions)]
 
 
 @router.get("/runs/{run_id}", response_model=RunDetail)
@@ -50,23 +58,42 @@ def get_run(run_id: RowId, store: StoreDep) -> RunDetail:
 def compare(store: StoreDep,
             runs: Annotated[str, Query(pattern=r"^[1-9]\d{0,8}(,[1-9]\d{0,8}){1,19}$",
                                        description="2 to 20 run ids, e.g. 3,7")]) -> Comparison:
-    """Runs side by side; timings compare only when the device is the same."""
+    """Runs side by side; timings compare only when the device is the same. Runs scored
+    under different metric versions are refused (422); two estimator versions of one
+    method are flagged in the note."""
     rows = []
     for run_id in dict.fromkeys(int(part) for part in runs.split(",")):
         rows.append(RunOut.of(_found(store.get_run(run_id), f"run {run_id}")))
+    metric_versions = sorted({r.metric_version for r in rows})
+    if len(metric_versions) > 1:
+        listed = ", ".join(f"run {r.id}: v{r.metric_version}" for r in rows)
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            "these runs were scored under different metric definitions "
+                            f"({listed}); their numbers are not comparable: compare runs of "
+                            "one metric version (re-run the old ones)")
+    estimators: dict[str, set[int]] = {}
+    for r in rows:
+        estimators.setdefault(r.method, set()).add(r.estimator_version)
     same_device = len({r.device_key for r in rows}) == 1
     same_scene = len({(r.scene_fingerprint, tuple(r.resolution)) for r in rows}) == 1
-    note = ("timings comparable (same device)" if same_device else
-            "different devices: compare errors only, not timings")
+    notes = ["timings comparable (same device)" if same_device else
+             "different devices: compare errors only, not timings"]
+    notes += [f"{method} runs of estimator versions {', '.join(map(str, sorted(v)))} are "
+              "different estimators, not repeats of one" for method, v in estimators.items()
+              if len(v) > 1]
     return Comparison(runs=rows, same_device=same_device, same_reference_scene=same_scene,
-                      note=note)
+                      metric_version=metric_versions[0],
+                      estimator_versions={m: sorted(v) for m, v in estimators.items()},
+                      note="; ".join(notes))
 
 
 @router.get("/sweeps", response_model=list[SweepOut])
-def list_sweeps(store: StoreDep, scene: Filter = None,
+def list_sweeps(store: StoreDep, scene: Filter = None, include_old: IncludeOld = False,
                 limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[SweepOut]:
-    """Sweeps, newest first, optionally of one scene."""
-    return [SweepOut.of(sweep) for sweep in store.list_sweeps(scene, limit=limit)]
+    """Sweeps, newest first, optionally of one scene; only those scored under today's
+    metric version unless ``include_old`` (``current`` also checks the estimators)."""
+    return [SweepOut.of(sweep) for sweep in store.list_sweeps(
+        scene, limit=limit, metric_version=None if include_old else METRIC_VERSION)]
 
 
 @router.get("/references/{reference_id}/preview.png", response_class=Response)

@@ -1,0 +1,215 @@
+"""The quality verdict of a run: degenerate input is told, not scored.
+
+A run's numbers only mean something when its inputs do: a scene without an
+emitter scores MRSE 0, a black reference makes every relative error divide by
+eps alone, negative radiance breaks FLIP's tone mapping, and NaN pixels cannot
+be averaged. :func:`assess` turns plain facts about a run (pixel counts,
+reference statistics, emitter count, cache training steps; see
+:class:`RunFacts`) into a :class:`Quality`: the overall ``verdict`` (the most
+severe reason, ``ok`` when there is none), every ``reason`` with a message in
+the user's terms, and the metrics the reasons make meaningless (``withheld``),
+which the caller stores as None instead of showing.
+
+To add a case: a row in :data:`VERDICTS` (code, severity, meaning, what it
+withholds) and a check in :data:`CHECKS` returning a :class:`Reason` or None.
+This module reduces images to facts (:func:`image_facts`) but imports nothing
+of ``jobs``, ``service`` or ``renderers``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from metrics.checks import finite_pixel_mask
+from metrics.flip import LUMINANCE_WEIGHTS
+
+#: Above this fraction of non-finite pixels the error metrics are withheld;
+#: at or below it they are averaged over the finite pixels and flagged.
+NONFINITE_WITHHOLD_FRACTION = 0.01
+#: A reference pixel this dim (luminance) or dimmer counts as black.
+BLACK_LUMINANCE = 1e-8
+#: A reference with more than this fraction of black pixels is degenerate.
+DEGENERATE_BLACK_FRACTION = 0.99
+
+#: Metric name -> the prefixes of the stored keys it covers (aggregated and per seed),
+#: e.g. "rbias2" covers rbias2, rbias2_raw and the noise floor it subtracts.
+METRIC_KEYS: dict[str, tuple[str, ...]] = {
+    "mse": ("mse",),
+    "mrse": ("mrse",),
+    "rbias2": ("rbias2", "noise_floor"),
+    "rvar": ("rvar",),
+    "flip": ("flip_hdr", "flip_ldr"),
+    "efficiency": ("efficiency",),
+}
+ERROR_METRICS = tuple(METRIC_KEYS)
+RELATIVE_METRICS = ("mrse", "rbias2", "rvar", "flip", "efficiency")
+
+
+@dataclass(frozen=True)
+class VerdictCode:
+    """One row of the verdict table."""
+
+    code: str
+    severity: int               # the overall verdict is the reason of highest severity
+    meaning: str                # what the code says, for documentation and tooltips
+    withholds: tuple[str, ...]  # metrics it makes meaningless (when it applies in full)
+
+
+VERDICTS: dict[str, VerdictCode] = {v.code: v for v in (
+    VerdictCode("ok", 0, "nothing found that makes the metrics meaningless", ()),
+    VerdictCode("untrained-cache", 10, "a cache took no successful training step: the "
+                "method ran, but not as intended", ()),
+    VerdictCode("nonfinite", 20, "the render has NaN or infinite pixels", ERROR_METRICS),
+    VerdictCode("negative-radiance", 30, "the reference or the render has negative values: "
+                "FLIP's tone mapping is undefined for them", ("flip",)),
+    VerdictCode("degenerate-reference", 40, "the reference is black (almost) everywhere: "
+                "relative errors and FLIP compare noise with nothing", RELATIVE_METRICS),
+    VerdictCode("no-emitter", 50, "the scene has no emitter: every image is black and "
+                "every error trivially zero", ERROR_METRICS),
+)}
+
+
+@dataclass(frozen=True)
+class Reason:
+    """Why a run is not plainly ``ok``: a code of :data:`VERDICTS` and a message."""
+
+    code: str
+    message: str
+    withheld: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {"code": self.code, "message": self.message, "withheld": list(self.withheld)}
+
+
+@dataclass(frozen=True)
+class RunFacts:
+    """What the verdict is decided from; counts are pixels of one (H, W) image."""
+
+    pixels: int                              # H * W
+    renders: int                             # K images evaluated
+    nonfinite_pixels: int                    # non-finite pixels summed over the K renders
+    reference_nonfinite_pixels: int = 0
+    reference_black_pixels: int = 0          # luminance <= BLACK_LUMINANCE
+    reference_negative_pixels: int = 0       # some channel < 0
+    render_negative_pixels: int = 0          # summed over the K renders
+    emitter_count: int | None = None         # None: not known
+    cache_steps: tuple[int, ...] = ()        # per render's cache (empty: no cache)
+    cache_skipped_steps: tuple[int, ...] = ()
+
+    @property
+    def nonfinite_fraction(self) -> float:
+        return self.nonfinite_pixels / max(1, self.pixels * self.renders)
+
+
+@dataclass(frozen=True)
+class Quality:
+    """The verdict of a run (see the module docstring)."""
+
+    verdict: str
+    reasons: tuple[Reason, ...] = field(default_factory=tuple)
+    withheld: tuple[str, ...] = field(default_factory=tuple)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"verdict": self.verdict, "reasons": [r.to_json() for r in self.reasons],
+                "withheld": list(self.withheld)}
+
+
+def _reason(code: str, message: str, withhold: bool = True) -> Reason:
+    return Reason(code, message, VERDICTS[code].withholds if withhold else ())
+
+
+def _percent(part: int, whole: int) -> str:
+    return f"{100.0 * part / max(1, whole):.3g} %"
+
+
+# ---- Checks: each looks at the facts and returns a reason or None ----
+
+def _no_emitter(facts: RunFacts) -> Reason | None:
+    if facts.emitter_count != 0:
+        return None
+    return _reason("no-emitter", "the scene has no emitter, so reference and render are black "
+                                 "and an error of 0 would say nothing; errors withheld")
+
+
+def _degenerate_reference(facts: RunFacts) -> Reason | None:
+    if facts.reference_black_pixels <= DEGENERATE_BLACK_FRACTION * facts.pixels:
+        return None
+    return _reason("degenerate-reference",
+                   f"{_percent(facts.reference_black_pixels, facts.pixels)} of the reference's "
+                   f"pixels are black (luminance <= {BLACK_LUMINANCE:g}, limit "
+                   f"{100 * DEGENERATE_BLACK_FRACTION:g} %): relative errors and FLIP withheld")
+
+
+def _nonfinite(facts: RunFacts) -> Reason | None:
+    total = facts.pixels * facts.renders
+    if facts.nonfinite_pixels == 0 and facts.reference_nonfinite_pixels == 0:
+        return None
+    fraction = max(facts.nonfinite_fraction,
+                   facts.reference_nonfinite_pixels / max(1, facts.pixels))
+    where = (f"{facts.nonfinite_pixels} of {total} rendered pixels "
+             f"({_percent(facts.nonfinite_pixels, total)})")
+    if facts.reference_nonfinite_pixels:
+        where += f" and {facts.reference_nonfinite_pixels} reference pixels"
+    limit = f"{100 * NONFINITE_WITHHOLD_FRACTION:g} %"
+    if fraction > NONFINITE_WITHHOLD_FRACTION:
+        return _reason("nonfinite", f"{where} are NaN or infinite, above {limit}: errors "
+                                    "withheld")
+    return _reason("nonfinite", f"{where} are NaN or infinite (at most {limit}): errors are "
+                                "over the finite pixels only", withhold=False)
+
+
+def _negative_radiance(facts: RunFacts) -> Reason | None:
+    if facts.reference_negative_pixels == 0 and facts.render_negative_pixels == 0:
+        return None
+    return _reason("negative-radiance",
+                   f"negative values in {facts.reference_negative_pixels} reference pixels and "
+                   f"{facts.render_negative_pixels} rendered pixels: FLIP withheld")
+
+
+def _untrained_cache(facts: RunFacts) -> Reason | None:
+    untrained = sum(1 for steps in facts.cache_steps if steps == 0)
+    if not untrained:
+        return None
+    skipped = sum(facts.cache_skipped_steps)
+    return _reason("untrained-cache",
+                   f"{untrained} of {len(facts.cache_steps)} caches took no successful training "
+                   f"step ({skipped} steps skipped as non-finite): the cache answered untrained")
+
+
+CHECKS: tuple[Callable[[RunFacts], Reason | None], ...] = (
+    _no_emitter, _degenerate_reference, _nonfinite, _negative_radiance, _untrained_cache)
+
+
+def assess(facts: RunFacts) -> Quality:
+    """The verdict of a run from its facts: every reason found, most severe first."""
+    reasons = sorted((r for check in CHECKS if (r := check(facts)) is not None),
+                     key=lambda r: -VERDICTS[r.code].severity)
+    if not reasons:
+        return Quality("ok")
+    withheld = {name for reason in reasons for name in reason.withheld}
+    return Quality(reasons[0].code, tuple(reasons),
+                   tuple(name for name in ERROR_METRICS if name in withheld))
+
+
+def image_facts(image: np.ndarray) -> dict[str, int]:
+    """Pixel counts of one (H, W, 3) image: non-finite, black (luminance), negative."""
+    finite = finite_pixel_mask(image)
+    values = np.where(finite[..., None], np.asarray(image, dtype=np.float64), 0.0)
+    luminance = values @ LUMINANCE_WEIGHTS
+    return {
+        "pixels": int(finite.size),
+        "nonfinite": int(np.count_nonzero(~finite)),
+        "black": int(np.count_nonzero(finite & (luminance <= BLACK_LUMINANCE))),
+        "negative": int(np.count_nonzero((values < 0).any(axis=-1))),
+    }
+
+
+def withhold(values: Mapping[str, Any], metrics: Iterable[str]) -> dict[str, Any]:
+    """``values`` with every key of the withheld ``metrics`` (see METRIC_KEYS) set to None."""
+    prefixes = tuple(p for name in metrics for p in METRIC_KEYS[name])
+    return {key: None if prefixes and key.startswith(prefixes) else value
+            for key, value in values.items()}
