@@ -64,8 +64,9 @@ VERDICTS: dict[str, VerdictCode] = {v.code: v for v in (
     VerdictCode("untrained-cache", 10, "a cache took no successful training step: the "
                 "method ran, but not as intended", ()),
     VerdictCode("nonfinite", 20, "the render has NaN or infinite pixels", ERROR_METRICS),
-    VerdictCode("negative-radiance", 30, "the reference or the render has negative values: "
-                "FLIP's tone mapping is undefined for them", ("flip",)),
+    VerdictCode("negative-radiance", 30, "the reference has negative values (the scene emits "
+                "or reflects negative radiance): FLIP's tone mapping is undefined for them",
+                ("flip",)),
     VerdictCode("degenerate-reference", 40, "the reference is black (almost) everywhere: "
                 "relative errors and FLIP compare noise with nothing", RELATIVE_METRICS),
     VerdictCode("no-emitter", 50, "the scene has no emitter: every image is black and "
@@ -163,11 +164,14 @@ def _nonfinite(facts: RunFacts) -> Reason | None:
 
 
 def _negative_radiance(facts: RunFacts) -> Reason | None:
-    if facts.reference_negative_pixels == 0 and facts.render_negative_pixels == 0:
+    # Only the reference decides: a signed estimator (the two-level residual of unbiased
+    # NIRC) legitimately averages to small negative pixels, which FLIP clamps to 0 like
+    # any display would; a reference with negative radiance has no meaningful FLIP.
+    if facts.reference_negative_pixels == 0:
         return None
     return _reason("negative-radiance",
-                   f"negative values in {facts.reference_negative_pixels} reference pixels and "
-                   f"{facts.render_negative_pixels} rendered pixels: FLIP withheld")
+                   f"negative values in {facts.reference_negative_pixels} reference pixels "
+                   f"({facts.render_negative_pixels} rendered pixels): FLIP withheld")
 
 
 def _untrained_cache(facts: RunFacts) -> Reason | None:

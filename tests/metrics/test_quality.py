@@ -52,7 +52,9 @@ def test_degenerate_reference_keeps_the_absolute_error() -> None:
 
 
 def test_negative_radiance_withholds_flip_and_untrained_cache_nothing() -> None:
-    assert assess(facts(render_negative_pixels=3)).withheld == ("flip",)
+    assert assess(facts(reference_negative_pixels=3)).withheld == ("flip",)
+    # A signed estimator's negative pixels alone are not degenerate input.
+    assert assess(facts(render_negative_pixels=3)).verdict == "ok"
     untrained = assess(facts(cache_steps=(0, 0), cache_skipped_steps=(4, 4)))
     assert untrained.verdict == "untrained-cache" and untrained.withheld == ()
     assert "2 of 2 caches" in untrained.reasons[0].message
