@@ -2,9 +2,11 @@
 
 A render can take the process down with it (a Dr.Jit/LLVM abort, a leak), so
 jobs never run in the worker itself but in a child process — a new interpreter
-(``python -m jobs.runner --serve``; spawned, not forked: nothing of the parent's
-JIT state is inherited) that reads job ids on stdin and answers each with a
-status line. Starting Python + Mitsuba + the JIT costs seconds, so a healthy
+(``python -m jobs.runner --serve FD``; spawned, not forked: nothing of the
+parent's JIT state is inherited) that reads job ids on stdin and answers each
+with a status line on a pipe of its own, file descriptor FD. Its stdout and
+stderr go to its log file: Mitsuba's log, warnings included, and anything a
+library prints land there and can never be read as a status. Starting Python + Mitsuba + the JIT costs seconds, so a healthy
 child serves further jobs (at most ``MAX_JOBS_PER_CHILD``, then it is
 replaced, so a slow leak cannot grow without bound); any failure retires it.
 The parent — a Dask task in the service, or a test — claims the job, hands it
@@ -31,6 +33,7 @@ GPU worker still renders on the CPU it asked for.
 from __future__ import annotations
 
 import os
+import re
 import select
 import signal
 import subprocess
@@ -54,12 +57,14 @@ EXIT_JOB_FAILED = 3
 PROGRESS_INTERVAL_S = 1.0
 #: Jobs a child serves before it is replaced by a fresh one.
 MAX_JOBS_PER_CHILD = 100
-#: Set by Dask's nanny for its worker processes (1 thread, aggressive malloc trimming);
-#: a render process uses every core and the allocator's defaults.
 #: The Mitsuba variant a job's device class renders with (renderers/backend.py).
 VARIANT_OF_DEVICE_CLASS = {"cpu": "llvm_ad_rgb", "gpu": "cuda_ad_rgb"}
+#: Set by Dask's nanny for its worker processes (1 thread, aggressive malloc trimming);
+#: a render process uses every core and the allocator's defaults.
 _DASK_WORKER_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                             "MALLOC_TRIM_THRESHOLD_")
+#: Mitsuba colours its log lines even in a file; a failure reason is plain text.
+_ANSI_COLOR = re.compile(r"\x1b\[[0-9;]*m")
 
 
 def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | None = None,
@@ -110,12 +115,17 @@ class _Child:
         env.update(NIRC_BENCH_DATA_DIR=str(settings.data_dir),
                    NIRC_BENCH_DATABASE_URL=str(settings.database_url),
                    NIRC_BENCH_VARIANT=VARIANT_OF_DEVICE_CLASS[device_class])
-        # stderr goes to a file, not a pipe: a chatty child must never block on it.
-        self.stderr = tempfile.TemporaryFile("w+")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "jobs.runner", "--serve"], env=env, text=True,
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
-            preexec_fn=die_with_parent)
+        # The log is a file, not a pipe: a chatty child must never block on it.
+        self.log = tempfile.TemporaryFile("w+")
+        status_read, status_write = os.pipe()
+        self.status = os.fdopen(status_read, "r")
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "jobs.runner", "--serve", str(status_write)], env=env,
+                text=True, stdin=subprocess.PIPE, stdout=self.log, stderr=self.log,
+                pass_fds=(status_write,), preexec_fn=die_with_parent)
+        finally:
+            os.close(status_write)     # the child's copy only: EOF when it dies
 
     def usable(self, settings: Settings, device_class: str) -> bool:
         return (self.proc.poll() is None and self.jobs < MAX_JOBS_PER_CHILD
@@ -133,9 +143,9 @@ class _Child:
             return -1, self.close("the render process was gone before the job started")
         started = time.monotonic()
         while True:
-            ready, _, _ = select.select([self.proc.stdout], [], [], poll_s)
+            ready, _, _ = select.select([self.status], [], [], poll_s)
             if ready:
-                line = self.proc.stdout.readline()
+                line = self.status.readline()
                 if line:
                     status = int(line)
                     if status != 0:
@@ -154,10 +164,11 @@ class _Child:
             self.proc.kill()
         exitcode = self.proc.wait()
         tail: list[str] = []
-        if not self.stderr.closed:
-            self.stderr.seek(0)
-            tail = self.stderr.read().strip().splitlines()
-            self.stderr.close()
+        if not self.log.closed:
+            self.log.seek(0)
+            tail = _ANSI_COLOR.sub("", self.log.read()).strip().splitlines()
+            self.log.close()
+            self.status.close()
         if reason is not None:
             return reason
         if exitcode < 0:
@@ -249,26 +260,28 @@ def run_one(job_id: int, store: Any, settings: Settings) -> int:
     return 0
 
 
-def serve() -> int:
-    """Child entry point: run the job ids read from stdin, one status line each.
+def serve(status_fd: int) -> int:
+    """Child entry point: run the job ids read from stdin, one status line each on
+    ``status_fd`` (nothing else writes there; stdout is the log).
 
     An unexpected exception ends the process (its state may be damaged): the
-    parent sees the pipe close and fails the attempt with the last stderr line.
+    parent sees the pipe close and fails the attempt with the last log line.
     """
     settings = Settings()
     store = open_store(settings)
-    for line in sys.stdin:
-        try:
-            status = run_one(int(line), store, settings)
-        except Exception:  # noqa: BLE001 - reported through stderr, then exit
-            traceback.print_exc()
-            return 1
-        sys.stdout.write(f"{status}\n")
-        sys.stdout.flush()
+    with os.fdopen(status_fd, "w") as status_out:
+        for line in sys.stdin:
+            try:
+                status = run_one(int(line), store, settings)
+            except Exception:  # noqa: BLE001 - reported through the log, then exit
+                traceback.print_exc()
+                return 1
+            status_out.write(f"{status}\n")
+            status_out.flush()
     return 0
 
 
 if __name__ == "__main__":
-    if sys.argv[1:] != ["--serve"]:
-        sys.exit("usage: python -m jobs.runner --serve  (started by the job runner)")
-    sys.exit(serve())
+    if len(sys.argv) != 3 or sys.argv[1] != "--serve" or not sys.argv[2].isdigit():
+        sys.exit("usage: python -m jobs.runner --serve STATUS_FD  (started by the job runner)")
+    sys.exit(serve(int(sys.argv[2])))

@@ -2,11 +2,14 @@
 
 A spec is plain data (pydantic): the CLI builds one from its options, the REST
 API from a request body; the executor runs it. Out-of-range values are
-rejected here with a message naming the field.
+rejected here with a message naming the field. Specs are strict: a JSON string
+or boolean is not a number, and no number is NaN or infinite (method
+parameters included: their JSON is checked here, their fields by the method).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -18,10 +21,32 @@ from renderers.reference import ReferenceSettings
 from renderers.seeding import digest
 
 
+def _non_finite(value: Any, where: str) -> str | None:
+    """The first NaN or infinite number in ``value`` (JSON), named by its dotted path."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return where
+    items = (value.items() if isinstance(value, dict)
+             else enumerate(value) if isinstance(value, list) else ())
+    for key, item in items:
+        found = _non_finite(item, f"{where}.{key}")
+        if found:
+            return found
+    return None
+
+
+def finite_params(params: dict[str, Any]) -> dict[str, Any]:
+    """Method parameters (free-form JSON here, the method's model checks its fields)
+    with no NaN or infinity anywhere, cache overrides included."""
+    where = _non_finite(params, "params")
+    if where:
+        raise ValueError(f"{where} must be a finite number (NaN and Infinity are not)")
+    return params
+
+
 class ReferenceSpec(BaseModel):
     """How the converged reference of a job is rendered (see renderers.reference)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     integrator: Literal["path", "pt"] = "path"
     spp: int = Field(4096, ge=8, le=1 << 24)
@@ -41,7 +66,7 @@ class TimeBudget(BaseModel):
     ``tolerance_ms``) is used; the calibration is stored with the run.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     ms: float | None = Field(None, gt=0.0, le=1e7, description="milliseconds per frame")
     pt_spp: int | None = Field(None, ge=1, le=1 << 16, description="as PT at this spp")
@@ -63,7 +88,7 @@ class TimeBudget(BaseModel):
 class RenderSpec(BaseModel):
     """One render job: a method on a scene, K seeds, compared with a reference."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     scene: str = Field(min_length=1, description="built-in scene name or path to a Mitsuba XML")
     method: str = "pt"
@@ -77,6 +102,8 @@ class RenderSpec(BaseModel):
     keep_frames: bool = False
     time_budget: TimeBudget | None = Field(
         None, description="calibrate spp (pt) or N_c (nirc biased) to this frame time")
+
+    _check_params = field_validator("params")(finite_params)
 
     def max_depth(self) -> int:
         """The method's path depth, which its reference must share."""
@@ -101,7 +128,7 @@ class SweepSpec(BaseModel):
     sweep over N_c of biased NIRC. Expanded by ``jobs.sweep`` into render jobs that
     share the reference and the trained caches."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     scene: str = Field(min_length=1, description="built-in scene name or path to a Mitsuba XML")
     eps: list[float] | None = Field(
@@ -128,6 +155,8 @@ class SweepSpec(BaseModel):
     params: dict[str, Any] = Field(default_factory=dict,
                                    description="extra parameters for every method")
     reference: ReferenceSpec = Field(default_factory=ReferenceSpec)
+
+    _check_params = field_validator("params")(finite_params)
 
     @field_validator("eps")
     @classmethod

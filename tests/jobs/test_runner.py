@@ -1,5 +1,6 @@
 """Jobs run in an isolated child process: results stored once, crashes retried, bad
-input failed for good, timeouts and cancels kill the child, the parent survives."""
+input failed for good, timeouts and cancels kill the child, the parent survives, and
+what the render libraries print never reaches the status channel."""
 
 from __future__ import annotations
 
@@ -15,6 +16,20 @@ from jobs.spec import ReferenceSpec, RenderSpec
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
                   reference=ReferenceSpec(spp=64, spp_per_pass=8))
+
+#: Mitsuba warns on its log (the process's stdout) that a sphere's to_world should not
+#: scale non-uniformly: every job on this scene makes the render process print.
+WARNING_SCENE = """<scene version="3.0.0">
+    <sensor type="perspective">
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
+    </sensor>
+    <emitter type="constant"/>
+    <shape type="sphere">
+        <transform name="to_world"><scale x="1" y="2" z="1"/></transform>
+    </shape>
+</scene>
+"""
 
 
 def _submit(queue: JobQueue, spec: dict, key: str, **kwargs):
@@ -119,3 +134,53 @@ def test_a_failed_stage_fails_what_depends_on_it(store, settings):
     assert run_job(sweep.id, settings, worker="test", upstream=("failed", "failed")) == "failed"
     for job in (queue.get(cache.id), queue.get(sweep.id)):
         assert job.attempts == 0 and job.error.startswith("stage 'reference' failed:")
+
+
+@pytest.fixture
+def warning_scene(tmp_path) -> str:
+    path = tmp_path / "warns.xml"
+    path.write_text(WARNING_SCENE)
+    return str(path)
+
+
+def _render_pids() -> set[int]:
+    return {p.pid for p in psutil.Process().children(recursive=True) if _is_render_process(p)}
+
+
+def test_a_job_that_makes_mitsuba_warn_and_the_next_job_both_succeed(store, settings,
+                                                                     warning_scene):
+    queue = JobQueue(store)
+    warns = _submit(queue, {**SPEC.model_dump(mode="json"), "scene": warning_scene}, "warns")
+    after = _submit(queue, SPEC.model_dump(mode="json"), "after")
+    assert run_job(warns.id, settings, worker="test") == "succeeded"
+    child = _render_pids()
+    assert run_job(after.id, settings, worker="test") == "succeeded"
+    assert _render_pids() == child                  # the same render process served both
+    for job in (warns, after):
+        done = queue.get(job.id)
+        assert done.attempts == 1 and done.error is None and done.run_id is not None
+
+
+@pytest.mark.parametrize("stop", ["timeout", "cancel"])
+def test_a_job_is_stopped_after_mitsuba_warned(store, settings, warning_scene, stop):
+    """A warning from the job before, and from the job itself, must not hide its timeout
+    or cancel: the stopped job is charged, the job before is not, the child is replaced."""
+    queue = JobQueue(store)
+    scene = {**SPEC.model_dump(mode="json"), "scene": warning_scene}
+    warns = _submit(queue, scene, "warns")
+    slow = _submit(queue, {**scene, "frames": 500, "resolution": 16}, f"slow-{stop}",
+                   max_attempts=1)
+    assert run_job(warns.id, settings, worker="test") == "succeeded"
+    child = _render_pids()
+    if stop == "timeout":
+        assert run_job(slow.id, settings, worker="test", timeout_s=2.0) == "failed"
+        assert "timed out" in queue.get(slow.id).error
+    else:
+        timer = threading.Timer(3.0, lambda: queue.cancel(slow.id))
+        timer.start()
+        assert run_job(slow.id, settings, worker="test") == "canceled"
+        timer.join()
+    assert queue.get(slow.id).run_id is None
+    done = queue.get(warns.id)
+    assert done.status == "succeeded" and done.error is None and done.attempts == 1
+    assert not child & _render_pids()               # the stopped child is gone

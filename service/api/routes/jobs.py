@@ -6,11 +6,12 @@ import time
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
+from pydantic import ValidationError
 
 from jobs.models import FINAL_JOB_STATES
 from jobs.queue import spec_key
 from jobs.spec import RenderSpec, SweepSpec
-from renderers.methods import MethodError, parse_params
+from renderers.methods import MethodError, format_validation_error, get_method
 from renderers.scenes import builtin_names, is_scene_file
 from service.api.deps import DispatcherDep, QueueDep, RowId, SettingsDep, WriteAccess
 from service.api.schemas import JobOut
@@ -38,12 +39,21 @@ def _check_scene(scene: str) -> None:
                                       "on the service's machine")
 
 
-def _check_render(spec: RenderSpec) -> None:
-    _check_scene(spec.scene)
+def _check_params(method: str, params: dict) -> None:
+    """``params`` as ``method``'s parameter model takes them, strictly: in a request
+    body a string or a boolean is not a number (the CLI's --param values are JSON too)."""
     try:
-        parse_params(spec.method, spec.params)
+        get_method(method).params.model_validate(params, strict=True)
     except MethodError as err:
         raise _unprocessable("params", str(err)) from None
+    except ValidationError as err:
+        raise _unprocessable("params", f"invalid {method} parameters: "
+                                       f"{format_validation_error(err)}") from None
+
+
+def _check_render(spec: RenderSpec) -> None:
+    _check_scene(spec.scene)
+    _check_params(spec.method, spec.params)
 
 
 def _enqueue(kind: str, spec: RenderSpec | SweepSpec, queue, dispatcher, response: Response,
@@ -78,6 +88,8 @@ def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
                  device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a sweep (adaptive equal-bias over eps, or over N_c); poll it as a job."""
     _check_scene(spec.scene)
+    for method in spec.methods:
+        _check_params(method, spec.params)
     return _enqueue("sweep", spec, queue, dispatcher, response,
                     idempotency_key, device_class)
 
