@@ -376,16 +376,19 @@ class _Sweep:
 
     def probe(self, method: str, eps: float, nc: int | None = None) -> float:
         """Seconds per 1-spp frame of ``method`` (NIRC: with ``nc`` samples at v1) with the
-        mask of ``eps`` (seed 0's cache; its own warm-up excluded)."""
+        mask of ``eps`` (seed 0's cache). Only an integrator's first probe warms up
+        (compiles): a new mask is data, not a new kernel."""
         snap = self.snapshot(method, 0)
-        if (method, nc) not in self._probes:
+        first = (method, nc) not in self._probes
+        if first:
             self._probes[(method, nc)] = self.frozen_integrator(
                 method, self.params(method, nc), snap)
         integrator = self._probes[(method, nc)]
         integrator.set_v1_mask(v1_mask(self.bias(snap), eps))
         output = run_frames(render_stage(self.prepared.scene, integrator, 1),
                             seed_parts=("probe", method, nc, eps),
-                            frames=self.spec.probe_frames, spp=1, aov_names=CACHE_AOVS)
+                            frames=self.spec.probe_frames, spp=1, aov_names=CACHE_AOVS,
+                            hooks=FrameHooks(warmup=first))
         self.report("calibration", self.work["calibrations"] + 1, len(self.spec.eps))
         return output.timings["frame_median_s"]
 
