@@ -193,6 +193,22 @@ def test_points_are_stored_with_seeds_snapshots_and_convergence(sweep_env):
     assert len(snapshot.stats["convergence"]["frame_mrse"]) == 4
 
 
+def test_a_snapshot_stored_without_its_variance_is_not_loaded(sweep_env):
+    """Snapshots made before the v1 variance was stored fail to load with the KeyError
+    that get_or_make_snapshot answers by making the snapshot again."""
+    from types import SimpleNamespace
+
+    from jobs.snapshots import _load
+
+    settings_, store, result = sweep_env
+    row = store.find_snapshot(result.snapshots[0]["key"])
+    assert _load(row, settings_).v1_variance.shape == (16, 16, 3)
+    old = SimpleNamespace(key=row.key, id=row.id, stats=row.stats,
+                          artifacts=[a for a in row.artifacts if a.kind != "v1_variance"])
+    with pytest.raises(KeyError):
+        _load(old, settings_)
+
+
 def test_plots_are_written_and_referenced_from_the_database(sweep_env):
     _, store, result = sweep_env
     for name in ("fig13", "fig10", "result"):
