@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from rich.console import Group
+from rich.markup import escape
 from rich.table import Table
 
 
@@ -129,7 +130,8 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
         budget += f" [{1e3 * lo:.3g}, {1e3 * hi:.3g}]"
     rows = {
         "budget": budget,
-        f"frame ms per {cal['knob']} (median [min, max] over {cal.get('rounds', 1)} rounds)":
+        (escape(f"frame ms per {cal['knob']} (median [min, max] of {cal['rounds']} rounds)")
+         if cal.get("rounds") else f"frame ms per {cal['knob']}"):   # old records: no rounds
             ", ".join(ms(k, s) for k, s in cal["measured_s"].items()),
         f"chosen {cal['knob']}": chosen,
         "device": cal["device_key"],
