@@ -1,16 +1,29 @@
 """Equal-time calibration: the largest knob (N_c, spp) whose frame time fits a budget.
 
-Papers compare methods at matched time per frame (DESIGN.md, "Equal-time
-protocol"); which N_c or spp that is depends on the device, so it is measured
-on the device that runs the comparison, never assumed from the papers' GPU
-numbers, and the measurement is stored with the result it justified.
+Papers compare methods at matched time per frame; which N_c or spp that is
+depends on the device, so it is measured on the device that runs the
+comparison, never assumed from the papers' GPU numbers, and the measurement
+is stored with the result it justified (docs/protocol.md, "Equal time").
 
-The search walks the candidates upward and stops at the first that exceeds
-the budget (plus a tolerance: the NIRC paper matches "within a 1 ms epsilon",
-Sec. 6.3). That assumes the frame time grows with the knob, which holds for
-spp and for N_c at a fixed termination policy (the policy, not N_c, decides
-which paths query the cache); the record keeps every measured time, so a
-violation would be visible.
+How it measures, because these machines are shared and their speed drifts:
+
+- every candidate is timed, not only until the first one over budget: the
+  frame time need not grow with the knob (with BTH, more neural samples can
+  stop paths earlier);
+- the measurements are interleaved in ``rounds`` rounds; each round times the
+  budget (when it is measured, e.g. PT at some spp or an NRC point) and then
+  every candidate, in ascending order on even rounds and descending on odd
+  ones, so a slow drift of the machine affects every value alike;
+- the decision uses medians over rounds: the chosen value is the largest
+  candidate whose median fits median(budget) + tolerance;
+- the spread (min and max over rounds) of every timing is stored. The
+  calibration is flagged ``unstable`` (with the reasons) when the budget's
+  spread, or the spread of a candidate whose rounds disagree about fitting,
+  exceeds the allowed spread max(tolerance, ``max_spread`` x budget): the
+  choice then depends on the noise of the machine;
+- ``capped`` says that the largest candidate fits: the true equal-time value
+  may be larger than any candidate tried; ``fits`` False says that not even
+  the smallest fits (it is then chosen).
 """
 
 from __future__ import annotations
@@ -19,49 +32,100 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import numpy as np
+
+#: Default number of interleaved rounds and the allowed spread (fraction of the budget).
+DEFAULT_ROUNDS = 3
+DEFAULT_MAX_SPREAD = 0.1
+
 
 @dataclass
 class Calibration:
     """The outcome of one calibration (stored with the result it was made for)."""
 
     knob: str                       # 'nc' or 'spp'
-    budget_s: float                 # seconds per frame to fit
-    budget_source: str              # e.g. 'NRC frame time at rBias2 1.2e-3', 'PT 2 spp'
+    budget_s: float                 # seconds per frame to fit (median over rounds if measured)
+    budget_source: str              # e.g. 'NRC frame time at eps 0.3', 'PT 2 spp'
     tolerance_s: float
-    measured_s: dict[int, float] = field(default_factory=dict)  # knob value -> s/frame
+    measured_s: dict[int, float] = field(default_factory=dict)  # knob value -> median s/frame
+    spread_s: dict[int, list[float]] = field(default_factory=dict)  # knob value -> [min, max]
+    budget_spread_s: list[float] | None = None  # [min, max] of a measured budget, else None
+    rounds: int = 1
     chosen: int = 0
     fits: bool = False              # False: even the smallest candidate is over budget
+    capped: bool = False            # True: the largest candidate fits (the top of the range)
+    unstable: bool = False          # True: the timings' spread could change the choice
+    reasons: list[str] = field(default_factory=list)
+    order: list[str] = field(default_factory=list)  # the measurement order ('budget', 'nc=4')
     device_key: str = ""
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
         data["measured_s"] = {str(k): v for k, v in self.measured_s.items()}
+        data["spread_s"] = {str(k): v for k, v in self.spread_s.items()}
         return data
 
 
 def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], float],
-              budget_s: float, *, budget_source: str, tolerance_s: float = 0.0,
-              device_key: str = "") -> Calibration:
-    """Measure ``measure(value)`` (seconds per frame) for ascending candidates until
-    one exceeds ``budget_s + tolerance_s``; choose the largest that fit.
-
-    When none fits, the smallest candidate is chosen and ``fits`` is False.
+              budget: float | Callable[[], float], *, budget_source: str,
+              tolerance_s: float = 0.0, device_key: str = "", rounds: int = DEFAULT_ROUNDS,
+              max_spread: float = DEFAULT_MAX_SPREAD) -> Calibration:
+    """Time every candidate (``measure(value)``: seconds per frame) and the budget
+    (a number, or a function measuring it) in ``rounds`` interleaved rounds and
+    choose the largest candidate whose median fits median(budget) + tolerance
+    (module docstring). When none fits, the smallest is chosen and ``fits`` is False.
     """
     values = sorted(set(int(c) for c in candidates))
     if not values:
         raise ValueError("calibration needs at least one candidate")
+    if rounds < 1:
+        raise ValueError(f"calibration needs at least one round, got {rounds}")
+    fixed = not callable(budget)
+    if fixed and not budget > 0:
+        raise ValueError(f"the time budget must be positive, got {budget}")
+    times: dict[int, list[float]] = {v: [] for v in values}
+    budgets: list[float] = []
+    order: list[str] = []
+    for index in range(rounds):
+        if not fixed:
+            budgets.append(float(budget()))
+            order.append("budget")
+        for value in values if index % 2 == 0 else reversed(values):
+            times[value].append(float(measure(value)))
+            order.append(f"{knob}={value}")
+    budget_s = float(budget) if fixed else float(np.median(budgets))
     if not budget_s > 0:
-        raise ValueError(f"the time budget must be positive, got {budget_s}")
-    record = Calibration(knob=knob, budget_s=budget_s, budget_source=budget_source,
-                         tolerance_s=tolerance_s, device_key=device_key)
-    for value in values:
-        seconds = float(measure(value))
-        record.measured_s[value] = seconds
-        if seconds > budget_s + tolerance_s:
-            break
-    fitting = [v for v, s in record.measured_s.items() if s <= budget_s + tolerance_s]
+        raise ValueError(f"the measured time budget must be positive, got {budget_s}")
+
+    limit = budget_s + tolerance_s
+    record = Calibration(
+        knob=knob, budget_s=budget_s, budget_source=budget_source, tolerance_s=tolerance_s,
+        measured_s={v: float(np.median(t)) for v, t in times.items()},
+        spread_s={v: [min(t), max(t)] for v, t in times.items()},
+        budget_spread_s=None if fixed else [min(budgets), max(budgets)],
+        rounds=rounds, order=order, device_key=device_key)
+    fitting = [v for v, s in record.measured_s.items() if s <= limit]
     record.fits = bool(fitting)
     record.chosen = max(fitting) if fitting else values[0]
+    record.capped = record.fits and record.chosen == values[-1]
+    if record.capped:
+        record.reasons.append(f"capped: the largest candidate ({knob} {values[-1]}) fits the "
+                              "budget; a larger one might too")
+
+    allowed = max(tolerance_s, max_spread * budget_s)
+    if record.budget_spread_s is not None:
+        lo, hi = record.budget_spread_s
+        if hi - lo > allowed:
+            record.unstable = True
+            record.reasons.append(f"unstable: the budget's spread {1e3 * (hi - lo):.3g} ms "
+                                  f"exceeds {1e3 * allowed:.3g} ms")
+    for value, (lo, hi) in record.spread_s.items():
+        # Only a candidate whose rounds disagree about fitting can change the choice.
+        if hi - lo > allowed and lo <= limit < hi:
+            record.unstable = True
+            record.reasons.append(f"unstable: {knob} {value} spreads over "
+                                  f"{1e3 * lo:.3g}..{1e3 * hi:.3g} ms across the limit "
+                                  f"{1e3 * limit:.3g} ms (allowed spread {1e3 * allowed:.3g} ms)")
     return record
 
 
@@ -71,13 +135,22 @@ KNOBS = {"pt": ("spp", [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 
          "nirc": ("nc", [1, 2, 4, 8, 16, 32])}
 
 
+def with_nc_at_v1(params: dict[str, Any], value: int) -> dict[str, Any]:
+    """``params`` with N_c ``value`` at the first vertex; the N_c of later vertices
+    (adaptive termination: ``nc=[at v1, later]``) is kept."""
+    later = list(params.get("nc") or [])[1:]
+    return {**params, "nc": [value, *later]}
+
+
 def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibration]:
     """Calibrate ``spec``'s knob to its ``time_budget`` on this device.
 
-    Returns the spec with the chosen spp (pt) or N_c (biased nirc) and no
-    budget, and the calibration record. Probes render one seed for
-    ``probe_frames`` frames (caches without pre-training: the per-frame cost,
-    online training included, does not depend on how trained the cache is).
+    Returns the spec with the chosen spp (pt) or N_c (biased nirc; the N_c of
+    later vertices of an adaptive ``nc`` is kept) and no budget, and the
+    calibration record. Probes render one seed for ``probe_frames`` frames
+    (caches without pre-training: the per-frame cost, online training
+    included, does not depend on how trained the cache is). A PT budget is
+    re-measured in every round, interleaved with the candidates.
     """
     from renderers.methods import MethodError, get_method, parse_params
 
@@ -97,24 +170,26 @@ def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibrat
             spp=spp, frames=budget.probe_frames)
         return output.timings["frame_median_s"]
 
+    budget_value: float | Callable[[], float]
     if budget.ms is not None:
-        budget_s, source = budget.ms / 1e3, f"{budget.ms} ms per frame"
+        budget_value, source = budget.ms / 1e3, f"{budget.ms} ms per frame"
     else:
         pt_params = {"max_depth": spec.max_depth()}
-        budget_s = frame_seconds("pt", pt_params, budget.pt_spp)
+        budget_value = lambda: frame_seconds("pt", pt_params, budget.pt_spp)  # noqa: E731
         source = f"PT {budget.pt_spp} spp frame time (measured)"
 
     def measure(value: int) -> float:
         if knob == "spp":
             return frame_seconds(spec.method, spec.params, value)
-        return frame_seconds(spec.method, {**spec.params, "nc": [value]}, spec.spp)
+        return frame_seconds(spec.method, with_nc_at_v1(spec.params, value), spec.spp)
 
-    record = calibrate(knob, budget.candidates or default_candidates, measure, budget_s,
+    record = calibrate(knob, budget.candidates or default_candidates, measure, budget_value,
                        budget_source=source, tolerance_s=budget.tolerance_ms / 1e3,
-                       device_key=device_key)
+                       device_key=device_key, rounds=budget.rounds,
+                       max_spread=budget.max_spread)
     update: dict[str, Any] = {"time_budget": None}
     if knob == "spp":
         update["spp"] = record.chosen
     else:
-        update["params"] = {**spec.params, "nc": [record.chosen]}
+        update["params"] = with_nc_at_v1(spec.params, record.chosen)
     return spec.model_copy(update=update), record

@@ -6,14 +6,17 @@ terminating every path into that cache at its first vertex v1, from which
 the per-pixel relative bias, and so the v1 mask of every eps, follows. Both
 are pure functions of (scene, resolution, method parameters, training
 frames, v1 samples, seed), which is the snapshot's content key: a snapshot
-is computed once, stored (weights .npz + v1 image .exr + statistics), and
-reused by every eps of a sweep and by every later sweep.
+is computed once, stored (weights .npz + v1 image .exr + the v1 image's
+per-pixel variance .exr + statistics), and reused by every eps of a sweep and
+by every later sweep. A stored snapshot without the variance (made before it
+was kept) is made again when loaded.
 
 Training is the method's own online loop (renderers/methods/cached.py): each
 training frame also renders one 1-spp frame with the cache at v1 everywhere,
 so the snapshot records how the error of that image falls while the cache
 trains (the convergence curve of the paper's Fig. 10). The v1 image is then
-rendered with the frozen cache.
+rendered with the frozen cache, in independent passes whose spread gives the
+variance the bias maps subtract (metrics/bias_maps.py).
 """
 
 from __future__ import annotations
@@ -39,16 +42,20 @@ from renderers.seeding import derive_seed, digest
 
 #: Lanes per pass of the v1 render (bounds the memory of one wavefront).
 V1_PASS_LANES = 1 << 22
+#: Passes of the v1 render (its variance has V1_PASSES - 1 degrees of freedom).
+V1_PASSES = 16
 
 
 @dataclass
 class Snapshot:
-    """A loaded snapshot: the cache weights and the converged cache-at-v1 image."""
+    """A loaded snapshot: the cache weights, the converged cache-at-v1 image and the
+    per-pixel variance of that image (of the mean, from its independent passes)."""
 
     key: str
     id: int
     weights: dict[str, np.ndarray]
     v1_image: np.ndarray
+    v1_variance: np.ndarray
     stats: dict[str, Any]
     created_now: bool
 
@@ -92,7 +99,8 @@ def get_or_make_snapshot(
         prepared.scene, params.model_copy(update={"pretrain_frames": 0}), integrator, trainer,
         cache, seed_parts=(key, "train"), spp=1, frames=train_frames,
         hooks=FrameHooks(on_frame=tracker, progress=progress))
-    v1_image, v1_seconds = render_v1(prepared.scene, integrator, v1_spp, derive_seed(key, "v1"))
+    v1_image, v1_variance, v1_info = render_v1(prepared.scene, integrator, v1_spp,
+                                               derive_seed(key, "v1"))
     weights = cache.inference_parameters()
     stats = {
         "convergence": tracker.result(),
@@ -100,14 +108,14 @@ def get_or_make_snapshot(
         "train_frames_s": sum(sum(f.values()) for f in training.timings["per_frame"]),
         "train_stages": training.timings["stages"],
         "warmup_s": training.timings["warmup_s"],
-        "v1_render_s": v1_seconds,
+        **v1_info,
         "path_stats": training.path_stats,
         "loss_history": training.method_stats["loss_history"],
         "cache_stats": training.method_stats["cache_stats"],
         "cache_config": training.method_stats["cache_config"],
         "nonfinite_v1_pixels": int(np.count_nonzero(~np.isfinite(v1_image).all(axis=-1))),
     }
-    artifacts = _snapshot_artifacts(settings, weights, v1_image)
+    artifacts = _snapshot_artifacts(settings, weights, v1_image, v1_variance)
     fields = dict(
         key=key, scene_name=prepared.scene.name, scene_fingerprint=prepared.scene.fingerprint,
         method=method, params=params.model_dump(mode="json"), seed=seed,
@@ -121,37 +129,56 @@ def get_or_make_snapshot(
         stored = store.add_snapshot(artifacts=artifacts, **fields)
     except DuplicateKeyError as err:  # made concurrently by another job: keep that one
         return _load(err.existing, settings)
-    return Snapshot(key=key, id=stored.id, weights=weights, v1_image=v1_image, stats=stats,
-                    created_now=True)
+    return Snapshot(key=key, id=stored.id, weights=weights, v1_image=v1_image,
+                    v1_variance=v1_variance, stats=stats, created_now=True)
 
 
-def render_v1(scene: Any, integrator: Any, spp: int, seed: int) -> tuple[np.ndarray, float]:
-    """The converged cache-at-v1 image: the mean of ``spp`` samples, in passes.
+def render_v1(scene: Any, integrator: Any, spp: int,
+              seed: int) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """The converged cache-at-v1 image and the per-pixel variance of that mean.
 
     ``integrator`` is an adaptive-termination integrator without a v1 mask.
-    Returns (image, seconds).
+    The image is rendered in ``n >= 2`` equal passes (``V1_PASSES``, fewer
+    when ``spp`` is smaller; more when one pass would exceed
+    ``V1_PASS_LANES``), each with its own seed, so the pass means are
+    independent: the variance of the mean is their sample variance / n. When
+    ``spp`` is not a multiple of n the last pass is not cut short (every pass
+    has the same count): up to n - 1 more samples than asked are rendered.
+    Returns (image, variance of the image, info: spp rendered, passes, seconds).
     """
     import mitsuba as mi
 
     from renderers.timing import synchronize
 
+    if spp < 2:
+        raise ValueError(f"the v1 image needs at least 2 spp for its variance, got {spp}")
     width, height = scene.resolution
-    per_pass = max(1, min(spp, V1_PASS_LANES // (width * height)))
-    total = np.zeros((height, width, 3), np.float64)
-    done = 0
+    max_per_pass = max(1, V1_PASS_LANES // (width * height))
+    per_pass = min(max_per_pass, -(-spp // min(V1_PASSES, spp)))
+    passes = max(2, -(-spp // per_pass))
+    shift: np.ndarray | None = None     # the first pass: keeps the moments well conditioned
+    total = np.zeros((height, width, 3), np.float64)      # sum of (pass - shift)
+    total_sq = np.zeros((height, width, 3), np.float64)   # sum of (pass - shift)^2
     start = time.perf_counter()
-    for index in range(-(-spp // per_pass)):
-        n = min(per_pass, spp - done)
-        image = mi.render(scene.scene, integrator=integrator, spp=n,
+    for index in range(passes):
+        image = mi.render(scene.scene, integrator=integrator, spp=per_pass,
                           seed=derive_seed(seed, index))
         synchronize(image)
-        total += np.asarray(image)[..., :3] * n
-        done += n
-    return (total / done).astype(np.float32), time.perf_counter() - start
+        x = np.asarray(image, dtype=np.float64)[..., :3]
+        if shift is None:
+            shift = x.copy()
+        total += x - shift
+        total_sq += (x - shift) ** 2
+    seconds = time.perf_counter() - start
+    assert shift is not None
+    mean = shift + total / passes
+    sample_variance = np.maximum(total_sq - total * total / passes, 0.0) / (passes - 1)
+    info = {"v1_spp_rendered": per_pass * passes, "v1_passes": passes, "v1_render_s": seconds}
+    return (mean.astype(np.float32), (sample_variance / passes).astype(np.float32), info)
 
 
 def _snapshot_artifacts(settings: Settings, weights: dict[str, np.ndarray],
-                        v1_image: np.ndarray) -> list[dict[str, Any]]:
+                        v1_image: np.ndarray, v1_variance: np.ndarray) -> list[dict[str, Any]]:
     artifacts = ArtifactStore(settings.artifacts_dir)
     scratch = settings.data_dir / "tmp"
     scratch.mkdir(parents=True, exist_ok=True)
@@ -162,6 +189,8 @@ def _snapshot_artifacts(settings: Settings, weights: dict[str, np.ndarray],
                         "application/x-npz"),
         artifact_record(artifacts, encode_image(write_exr, v1_image, scratch / "v1.exr"),
                         "v1_image", ".exr", "image/x-exr"),
+        artifact_record(artifacts, encode_image(write_exr, v1_variance, scratch / "v1var.exr"),
+                        "v1_variance", ".exr", "image/x-exr"),
     ]
     for record in records:
         record.pop("seed")
@@ -173,5 +202,9 @@ def _load(row: Any, settings: Settings) -> Snapshot:
     paths = {a.kind: artifacts.path_of(a.path) for a in row.artifacts}
     with np.load(paths["cache_weights"]) as data:
         weights = {name: data[name] for name in data.files}
+    # A snapshot stored before the v1 variance was kept has no "v1_variance": the
+    # KeyError makes the caller render it again (its bias map needs the variance).
     return Snapshot(key=row.key, id=row.id, weights=weights,
-                    v1_image=read_exr(paths["v1_image"]), stats=row.stats, created_now=False)
+                    v1_image=read_exr(paths["v1_image"]),
+                    v1_variance=read_exr(paths["v1_variance"]), stats=row.stats,
+                    created_now=False)

@@ -62,8 +62,10 @@ class TimeBudget(BaseModel):
     """Equal time: the frame-time budget a job's knob (PT spp, NIRC N_c) is calibrated to.
 
     Either ``ms`` per frame, or ``pt_spp``: the frame time of PT at that spp on
-    this device, measured now. The largest candidate that fits (within
-    ``tolerance_ms``) is used; the calibration is stored with the run.
+    this device, measured now (in every round, interleaved with the candidates).
+    Every candidate is timed in ``rounds`` rounds; the largest whose median fits
+    (within ``tolerance_ms``) is used; the calibration, with its spread and its
+    ``capped`` / ``unstable`` flags, is stored with the run (jobs.calibration).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
@@ -74,6 +76,10 @@ class TimeBudget(BaseModel):
         None, description="knob values to try (default: 1, 2, 4, ... per method)")
     probe_frames: int = Field(3, ge=1, le=1000, description="timed frames per probe")
     tolerance_ms: float = Field(0.0, ge=0.0, le=1e6)
+    rounds: int = Field(3, ge=1, le=100, description="interleaved timing rounds (medians)")
+    max_spread: float = Field(
+        0.1, gt=0.0, le=10.0, description="spread (max - min over rounds) allowed before the "
+                                          "calibration is flagged unstable, x the budget")
 
     @model_validator(mode="after")
     def _one_budget(self) -> TimeBudget:
@@ -143,13 +149,24 @@ class SweepSpec(BaseModel):
     frames: int = Field(1, ge=1, le=100_000, description="1-spp frames per sweep point")
     train_frames: int = Field(100, ge=1, le=100_000,
                               description="online-training frames of each cache")
-    v1_spp: int = Field(256, ge=1, le=1 << 20, description="spp of the converged cache-at-v1 image")
+    v1_spp: int = Field(256, ge=2, le=1 << 20,
+                        description="spp of the converged cache-at-v1 image (rendered in passes "
+                                    "for its variance, so at least 2)")
+    bias_definition: Literal["relative-mse", "authors"] = Field(
+        "relative-mse", description="per-pixel relative bias of the v1 mask (noise-corrected): "
+                                    "'relative-mse' (root of the pixel's rBias2 term) or "
+                                    "'authors' (per channel |V-R| / luminance(R), all pass)")
     max_depth: int = Field(8, ge=1, le=1024)
     equal_time: bool = Field(True, description="add the 'NIRC equal time' series (needs both "
                                                "methods)")
     probe_frames: int = Field(5, ge=1, le=1000, description="timed frames per calibration probe")
     time_tolerance_ms: float = Field(1.0, ge=0.0, le=1e6,
                                      description="equal time means within this many ms")
+    calibration_rounds: int = Field(3, ge=1, le=100,
+                                    description="interleaved timing rounds per calibration")
+    time_max_spread: float = Field(0.1, gt=0.0, le=10.0,
+                                   description="timing spread allowed before a calibration is "
+                                               "flagged unstable, x the budget")
     termination: Literal["bth", "sph"] = Field("bth", description="N_c sweep: NIRC termination")
     metric_eps: float = Field(0.01, gt=0.0, le=1.0, description="epsilon of MRSE / rBias2")
     params: dict[str, Any] = Field(default_factory=dict,

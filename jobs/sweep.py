@@ -5,9 +5,12 @@ Adaptive equal-bias sweep, per caching method (NIRC, NRC) and seed k:
 1. train a cache and render the converged image V of terminating every path
    into it at the first vertex v1 (a *snapshot*, jobs/snapshots.py: computed
    once per scene/settings/seed, reused by every eps and every later sweep);
-2. the per-pixel relative bias of V against the reference R,
-   b_p = sqrt(mean_c (V - R)^2 / (R^2 + e)), e the metric epsilon — the root of
-   the pixel's relative squared error in the definition of MRSE;
+2. the per-pixel relative bias b_p of V against the reference R with the noise
+   of both removed (metrics/bias_maps.py; V is rendered in independent passes
+   for its variance, R stores its own), by ``bias_definition``:
+   ``relative-mse`` (default) b_p^2 = max(0, mean_c [(V-R)^2 - Var V - Var R]
+   / (R^2 + e)), e the metric epsilon, or ``authors``: per channel
+   |V_c - R_c| / luminance(R), every channel must pass;
 3. for every eps, the mask "use the cache at v1 where b_p < eps" (masks grow
    with eps); elsewhere, and at later vertices, the spread heuristic decides.
    NIRC is not used at v1 for delta lobes and NRC where the roughness is below
@@ -22,14 +25,28 @@ once per integrator, not per eps. Timings are those of the render stage with
 a frozen, converged cache (the paper trains for 2000 frames first); the
 training time is reported with the snapshots.
 
-% IR bounces (the paper's Fig. 13 x axis): the average over paths that
-invoked the cache of (index of the invoking vertex - 1), in percent, from the
-per-path ``cache_depth`` AOV (exact at 1 spp, where a pixel is one path).
+Path statistics, from the per-path ``cache_depth`` AOV (exact at 1 spp, where
+a pixel is one path) and the count of background paths (no surface vertex):
 
-"NIRC equal time": for each eps, the NRC point with the closest rBias^2 gives
-a frame-time budget, and N_c at v1 of NIRC is calibrated to the largest
-candidate whose frame time fits it (within ``time_tolerance_ms``), measured on
-this device with seed 0's cache; the calibration is stored with the point.
+- ``ir_bounces_pct``: the average over paths that invoked the cache of
+  (index of the invoking vertex - 1), in percent (the paper's Fig. 13 x axis
+  as its text words it: "the averaged index of a vertex at which the path was
+  invoked minus one");
+- ``avg_path_length_authors``: the authors' public implementation logs this
+  instead: per pixel s = 1 + index of the first vertex that queried the cache,
+  s = 1 for paths that never query it, s = 0 for background pixels, averaged
+  over all pixels; ``ir_bounces_pct_authors`` = 100 x mean (s - 1) over the
+  non-background pixels (equal to 100 x (avg_path_length_authors - 1) when no
+  pixel sees the background).
+
+"NIRC equal time": for each eps, the NRC point with the closest rBias^2 (the
+mean over caches of the per-cache rBias^2 when the run has it, else the
+pooled rBias^2) gives a frame-time budget, and N_c at v1 of NIRC is calibrated
+to the largest candidate whose median frame time fits it (within
+``time_tolerance_ms``), measured on this device with seed 0's caches: the NRC
+point's frame time is re-measured in every round, interleaved with the NIRC
+candidates (jobs/calibration.py). The calibration, with its spread and its
+``capped`` / ``unstable`` flags, is stored with the point.
 
 Every point is a stored run whose idempotency key addresses what determines
 it (scene, settings, snapshots, eps, device): an identical point is never
@@ -56,7 +73,7 @@ from jobs.plots import plot_convergence, plot_sweep
 from jobs.snapshots import Snapshot, get_or_make_snapshot
 from jobs.spec import RenderSpec, SweepSpec
 from jobs.store import Store
-from metrics.errors import relative_squared_error_map
+from metrics.bias_maps import bias_map, passes
 from renderers.methods import get_method, parse_params
 from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
 from renderers.methods.cached import CACHE_AOVS
@@ -91,16 +108,9 @@ class SweepResult:
 # Masks and path statistics
 # ---------------------------------------------------------------------------
 
-def relative_bias_map(v1_image: np.ndarray, reference: np.ndarray, eps: float) -> np.ndarray:
-    """Per-pixel relative bias b_p of the converged cache-at-v1 image (module doc, 2.);
-    non-finite where either image is non-finite."""
-    return np.sqrt(relative_squared_error_map(v1_image, reference, eps))
-
-
 def v1_mask(bias: np.ndarray, threshold: float) -> np.ndarray:
     """Pixels that may use the cache at v1: relative bias below ``threshold``."""
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(bias) & (bias < threshold)
+    return passes(bias, threshold)
 
 
 def ir_bounces_pct(cache_depth_fractions: dict[str, float] | None) -> float | None:
@@ -113,6 +123,29 @@ def ir_bounces_pct(cache_depth_fractions: dict[str, float] | None) -> float | No
     if total <= 0:
         return None
     return 100.0 * sum((k - 1) * v for k, v in invoking.items()) / total
+
+
+def avg_path_length_authors(cache_depth_fractions: dict[str, float] | None,
+                            background_fraction: float | None) -> float | None:
+    """The authors' average path length (module doc): mean over all pixels of
+    s = cache_depth for paths that used the cache, 1 for paths that did not, 0 for
+    background; None without the histogram or the background count."""
+    if not cache_depth_fractions or background_fraction is None:
+        return None
+    fractions = {int(k): v for k, v in cache_depth_fractions.items()}
+    never = max(0.0, fractions.get(0, 0.0) - background_fraction)  # foreground, no cache
+    return never + sum(k * v for k, v in fractions.items() if k >= 1)
+
+
+def ir_bounces_pct_authors(cache_depth_fractions: dict[str, float] | None,
+                           background_fraction: float | None) -> float | None:
+    """100 x mean (s - 1) over the non-background pixels, s as in
+    :func:`avg_path_length_authors` (paths that never used the cache count 0 bounces)."""
+    length = avg_path_length_authors(cache_depth_fractions, background_fraction)
+    if length is None or background_fraction is None or background_fraction >= 1.0:
+        return None
+    foreground = 1.0 - background_fraction
+    return 100.0 * (length - foreground) / foreground
 
 
 def v1_fraction(cache_depth_fractions: dict[str, float] | None) -> float:
@@ -142,7 +175,7 @@ class _Sweep:
                      "points_reused": 0, "calibrations": 0}
         self.snapshots: dict[tuple[str, int], Snapshot] = {}
         self.skipped: list[dict[str, str]] = []
-        self._probes: dict[int, Any] = {}     # calibration integrators by N_c at v1
+        self._probes: dict[tuple[str, int | None], Any] = {}  # probe integrators (method, N_c)
         self._bias: dict[str, np.ndarray] = {}  # relative-bias maps by snapshot key
         # One bar across the whole sweep: caches, then points (reused ones count too).
         n_points = len(spec.eps or spec.nc or [])
@@ -201,10 +234,13 @@ class _Sweep:
         return integrator
 
     def bias(self, snap: Snapshot) -> np.ndarray:
-        """The snapshot's relative-bias map (computed once; every eps and probe reuses it)."""
+        """The snapshot's relative-bias map, noise-corrected with the variances of the v1
+        image and of the reference (computed once; every eps and probe reuses it)."""
         if snap.key not in self._bias:
-            self._bias[snap.key] = relative_bias_map(snap.v1_image, self.prepared.reference.mean,
-                                                     self.spec.metric_eps)
+            reference = self.prepared.reference
+            self._bias[snap.key] = bias_map(
+                self.spec.bias_definition, snap.v1_image, reference.mean, self.spec.metric_eps,
+                v_variance=snap.v1_variance, ref_variance=reference.variance)
         return self._bias[snap.key]
 
     def skip_reason(self, method: str) -> str | None:
@@ -267,7 +303,9 @@ class _Sweep:
     def series(self, method: str) -> dict[float, Any] | None:
         """The stored runs of ``method`` at every eps, rendering the missing ones."""
         params = self.params(method)
-        keys = {eps: self.point_key(method, eps, params) for eps in self.spec.eps}
+        keys = {eps: self.point_key(method, eps, params,
+                                    extra={"bias_definition": self.spec.bias_definition})
+                for eps in self.spec.eps}
         runs = {eps: self.store.find_run_by_idempotency_key(key) for eps, key in keys.items()}
         pending = [(eps, params, keys[eps]) for eps, run in runs.items() if run is None]
         self.work["points_reused"] += len(keys) - len(pending)
@@ -285,31 +323,37 @@ class _Sweep:
         """NIRC with the most N_c at v1 that fits the frame time of the NRC point with the
         closest rBias^2 (module docstring)."""
         candidates = self.spec.nc_candidates()
-        nrc_points = [(run.metrics.get("rbias2"), run) for run in nrc.values()
-                      if run.metrics.get("rbias2") is not None]
+        nrc_points = [(matching_rbias2(run), run) for run in nrc.values()
+                      if matching_rbias2(run) is not None]
         runs: dict[float, Any] = {}
         plan: dict[int, list[tuple[float, Any, str]]] = {}
         extras: dict[int, dict[float, dict[str, Any]]] = {}
         for eps, run in nirc.items():
-            rbias2 = run.metrics.get("rbias2")
+            rbias2 = matching_rbias2(run)
             if rbias2 is None or not nrc_points:
                 continue
             _, match = min(nrc_points, key=lambda item: abs(item[0] - rbias2))
+            match_eps = match.params["sweep"]["eps"]
             key = self.point_key("nirc-equal-time", eps, self.params("nirc"),
                                  extra=[candidates, match.idempotency_key,
-                                        self.spec.probe_frames, self.spec.time_tolerance_ms])
+                                        self.spec.probe_frames, self.spec.time_tolerance_ms,
+                                        self.spec.calibration_rounds, self.spec.time_max_spread,
+                                        self.spec.bias_definition])
             stored = self.store.find_run_by_idempotency_key(key)
             if stored is not None:
                 runs[eps] = stored
                 self.work["points_reused"] += 1
                 self.advance()
                 continue
-            budget = match.timings["seconds_per_frame"]
+            # The budget is the matched NRC point's frame time re-measured in every
+            # round (same probe as the candidates), not its stored render time.
             record = calibrate(
-                "nc", candidates, lambda nc, eps=eps: self.probe(nc, eps), budget,
-                budget_source=f"NRC frame time at eps {match.params['sweep']['eps']} "
-                              f"(rBias2 {match.metrics['rbias2']:.3g}, run {match.id})",
-                tolerance_s=self.spec.time_tolerance_ms / 1e3, device_key=self.device_key)
+                "nc", candidates, lambda nc, eps=eps: self.probe("nirc", eps, nc),
+                lambda match_eps=match_eps: self.probe("nrc", match_eps),
+                budget_source=f"NRC frame time at eps {match_eps} "
+                              f"(rBias2 {matching_rbias2(match):.3g}, run {match.id})",
+                tolerance_s=self.spec.time_tolerance_ms / 1e3, device_key=self.device_key,
+                rounds=self.spec.calibration_rounds, max_spread=self.spec.time_max_spread)
             self.work["calibrations"] += 1
             plan.setdefault(record.chosen, []).append(
                 (eps, self.params("nirc", record.chosen), key))
@@ -331,17 +375,21 @@ class _Sweep:
             runs.update({eps: self.store.get_run(run_id) for eps, run_id in rendered.items()})
         return runs
 
-    def probe(self, nc: int, eps: float) -> float:
-        """Seconds per 1-spp frame of NIRC with ``nc`` samples at v1 and the mask of ``eps``
-        (seed 0's cache; its own warm-up excluded)."""
-        snap = self.snapshot("nirc", 0)
-        if nc not in self._probes:
-            self._probes[nc] = self.frozen_integrator("nirc", self.params("nirc", nc), snap)
-        integrator = self._probes[nc]
+    def probe(self, method: str, eps: float, nc: int | None = None) -> float:
+        """Seconds per 1-spp frame of ``method`` (NIRC: with ``nc`` samples at v1) with the
+        mask of ``eps`` (seed 0's cache). Only an integrator's first probe warms up
+        (compiles): a new mask is data, not a new kernel."""
+        snap = self.snapshot(method, 0)
+        first = (method, nc) not in self._probes
+        if first:
+            self._probes[(method, nc)] = self.frozen_integrator(
+                method, self.params(method, nc), snap)
+        integrator = self._probes[(method, nc)]
         integrator.set_v1_mask(v1_mask(self.bias(snap), eps))
         output = run_frames(render_stage(self.prepared.scene, integrator, 1),
-                            seed_parts=("probe", nc, eps), frames=self.spec.probe_frames,
-                            spp=1, aov_names=CACHE_AOVS)
+                            seed_parts=("probe", method, nc, eps),
+                            frames=self.spec.probe_frames, spp=1, aov_names=CACHE_AOVS,
+                            hooks=FrameHooks(warmup=first))
         self.report("calibration", self.work["calibrations"] + 1, len(self.spec.eps))
         return output.timings["frame_median_s"]
 
@@ -364,6 +412,14 @@ class _Sweep:
         return self.store.get_run(summary.run_id)
 
 
+def matching_rbias2(run: Any) -> float | None:
+    """The rBias^2 the equal-time series matches on: the mean over caches of the
+    per-cache rBias^2 when the run has it (opposite biases of different caches do
+    not cancel there), else the pooled rBias^2."""
+    value = run.metrics.get("rbias2_per_cache_mean")
+    return value if value is not None else run.metrics.get("rbias2")
+
+
 def _builder(method: str) -> Callable[[Any, Any, int], tuple[Any, Any, Any]]:
     from renderers.methods import nirc, nrc
 
@@ -379,7 +435,9 @@ def point_row(series: str, eps: float | None, run: Any) -> dict[str, Any]:
     m, stats = run.metrics, run.path_stats
     sweep = m.get("sweep", {})
     fractions = stats.get("cache_depth_fractions")
+    background = stats.get("background_fraction")
     ci = m.get("mrse_ci95")
+    calibration = sweep.get("calibration")
     return {
         "series": SERIES_LABELS.get(series, series), "eps": eps, "run_id": run.id,
         "nc": (run.params.get("nc") or [None])[0],
@@ -388,9 +446,14 @@ def point_row(series: str, eps: float | None, run: Any) -> dict[str, Any]:
         "rbias2": m.get("rbias2"), "rbias2_raw": m.get("rbias2_raw"), "rvar": m.get("rvar"),
         "avg_path_length": stats.get("avg_path_vertices"),
         "ir_bounces_pct": ir_bounces_pct(fractions),
+        "avg_path_length_authors": avg_path_length_authors(fractions, background),
+        "ir_bounces_pct_authors": ir_bounces_pct_authors(fractions, background),
+        "background_pct": 100.0 * background if background is not None else None,
         "cache_at_v1_pct": 100.0 * v1_fraction(fractions) if fractions else None,
         "mask_pct": 100.0 * sweep["mask_fraction"] if "mask_fraction" in sweep else None,
-        "calibration": sweep.get("calibration"),
+        "calibration": calibration,
+        "calibration_capped": calibration.get("capped") if calibration else None,
+        "calibration_unstable": calibration.get("unstable") if calibration else None,
         "finite": run.quality.get("finite", True),
     }
 

@@ -345,8 +345,11 @@ def sweep(
                                         help="1-spp frames per point")] = 1,
     train_frames: Annotated[int, typer.Option("--train-frames", min=1, max=100_000,
                                               help="online-training frames per cache")] = 100,
-    v1_spp: Annotated[int, typer.Option("--v1-spp", min=1, max=1 << 20,
+    v1_spp: Annotated[int, typer.Option("--v1-spp", min=2, max=1 << 20,
                                         help="spp of the converged cache-at-v1 images")] = 256,
+    bias_definition: Annotated[str, typer.Option(
+        "--bias-definition", help="per-pixel bias of the v1 mask: 'relative-mse' or "
+                                  "'authors' (docs/protocol.md)")] = "relative-mse",
     max_depth: Annotated[int, typer.Option("--max-depth", min=1, max=1024)] = 8,
     termination: Annotated[str, typer.Option(
         "--termination", help="N_c sweep: 'bth' or 'sph'")] = "bth",
@@ -389,7 +392,7 @@ def sweep(
         seeds=seeds, frames=frames, train_frames=train_frames, v1_spp=v1_spp,
         max_depth=max_depth, termination=termination, equal_time=equal_time,
         time_tolerance_ms=tolerance_ms, params=dict(_parse_param(p) for p in param or []),
-        reference=ReferenceSpec(spp=ref_spp))
+        reference=ReferenceSpec(spp=ref_spp), bias_definition=bias_definition)
     _run(server, api_key, "sweep", spec, as_json, data_dir,
          lambda store, settings, report: run_sweep(spec, store, settings, progress=report,
                                                    out_dir=out),

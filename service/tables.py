@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from rich.console import Group
+from rich.markup import escape
 from rich.table import Table
 
 
@@ -138,19 +139,37 @@ def comparison_tables(report: Any) -> Group:
 def calibration_table(title: str, cal: dict[str, Any]) -> Table:
     """An equal-time calibration record (jobs.calibration.Calibration.to_json())."""
     chosen = cal["chosen"] if cal["fits"] else f"{cal['chosen']} (none fits: over budget)"
-    return key_value_table(title, {
-        "budget": f"{cal['budget_source']} = {1e3 * cal['budget_s']:.3g} ms",
-        f"frame ms per {cal['knob']}": ", ".join(
-            f"{k}: {1e3 * s:.3g}" for k, s in cal["measured_s"].items()),
+    if cal.get("capped"):   # records stored before the flags have none
+        chosen = f"{chosen} (capped: the largest candidate fits)"
+    spread = cal.get("spread_s") or {}
+
+    def ms(value: int | str, seconds: float) -> str:
+        lo_hi = spread.get(str(value))
+        return (f"{value}: {1e3 * seconds:.3g}" if not lo_hi else
+                f"{value}: {1e3 * seconds:.3g} [{1e3 * lo_hi[0]:.3g}, {1e3 * lo_hi[1]:.3g}]")
+
+    budget = f"{cal['budget_source']} = {1e3 * cal['budget_s']:.3g} ms"
+    if cal.get("budget_spread_s"):
+        lo, hi = cal["budget_spread_s"]
+        budget += f" [{1e3 * lo:.3g}, {1e3 * hi:.3g}]"
+    rows = {
+        "budget": budget,
+        (escape(f"frame ms per {cal['knob']} (median [min, max] of {cal['rounds']} rounds)")
+         if cal.get("rounds") else f"frame ms per {cal['knob']}"):   # old records: no rounds
+            ", ".join(ms(k, s) for k, s in cal["measured_s"].items()),
         f"chosen {cal['knob']}": chosen,
         "device": cal["device_key"],
-    })
+    }
+    if cal.get("unstable"):
+        rows["UNSTABLE"] = "; ".join(r for r in cal.get("reasons", []) if r.startswith("unstable"))
+    return key_value_table(title, rows)
 
 
 SWEEP_COLUMNS = (
     ("series", "series"), ("eps", "eps"), ("nc", "N_c v1"), ("mrse", "MRSE"),
     ("flip", "FLIP"), ("ms_frame", "ms/frame"), ("rbias2", "rBias²"), ("rvar", "rVar"),
     ("avg_path_length", "path len"), ("ir_bounces_pct", "% IR"),
+    ("avg_path_length_authors", "path len (authors)"), ("ir_bounces_pct_authors", "% IR (authors)"),
     ("cache_at_v1_pct", "% v1 cache"), ("run_id", "run"),
 )
 
@@ -173,6 +192,9 @@ def sweep_table(result: Any) -> Group:
             if key == "mrse" and row.get("mrse_ci95"):
                 lo, hi = row["mrse_ci95"]
                 cells.append(f"{_fmt(value)} [{_fmt(lo)}, {_fmt(hi)}]")
+            elif key == "nc" and (row.get("calibration_capped") or row.get("calibration_unstable")):
+                flags = [name for name in ("capped", "unstable") if row.get(f"calibration_{name}")]
+                cells.append(f"{_fmt(value)} ({', '.join(flags)})")
             else:
                 cells.append("-" if value is None else _fmt(value))
         if not row.get("finite", True):

@@ -85,12 +85,15 @@ AOV_STATS = {
 
 class PathStats:
     """Frame means of the per-path AOVs, and (at 1 spp, where a pixel is one path)
-    the fraction of paths per value of ``cache_depth``: how often each vertex used the cache."""
+    the fraction of paths per value of ``cache_depth``: how often each vertex used the cache,
+    and (with the ``depth`` AOV) ``background_fraction``, the paths with no surface vertex
+    (``cache_depth`` 0 alone does not tell them from paths that never used the cache)."""
 
     def __init__(self, aov_names: tuple[str, ...]) -> None:
         self.aov_names = aov_names
         self.sums = dict.fromkeys(aov_names, 0.0)
         self.histogram: dict[int, float] = {}
+        self.background = 0.0   # sum over frames of the fraction of paths without a vertex
         self.frames = 0
 
     def add(self, aovs: np.ndarray, spp: int) -> None:
@@ -101,12 +104,17 @@ class PathStats:
             values = np.rint(aovs[..., self.aov_names.index("cache_depth")]).astype(int).ravel()
             for value, count in zip(*np.unique(values, return_counts=True), strict=True):
                 self.histogram[int(value)] = self.histogram.get(int(value), 0.0) + count / values.size
+            if "depth" in self.aov_names:
+                depth = np.rint(aovs[..., self.aov_names.index("depth")])
+                self.background += float(np.count_nonzero(depth == 0)) / depth.size
 
     def result(self) -> dict[str, Any]:
         stats: dict[str, Any] = {AOV_STATS.get(n, n): s / self.frames for n, s in self.sums.items()}
         if self.histogram:
             stats["cache_depth_fractions"] = {
                 str(k): v / self.frames for k, v in sorted(self.histogram.items())}
+            if "depth" in self.aov_names:
+                stats["background_fraction"] = self.background / self.frames
         return stats
 
 

@@ -3,7 +3,7 @@
 One small sweep (16x16, K = 2, 3 thresholds, a few training frames) is run once per
 module; the tests read its stored result. What they check does not depend on how
 well the tiny caches are trained: masks grow with eps, % IR bounces falls, the
-metrics identity holds, and nothing is rendered twice.
+rBias^2 of NIRC grows with its mask, and nothing is rendered twice.
 """
 
 from __future__ import annotations
@@ -16,18 +16,23 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from jobs.calibration import calibrate
 from jobs.config import Settings
 from jobs.db import open_store
 from jobs.spec import ReferenceSpec, SweepSpec
-from jobs.sweep import ir_bounces_pct, relative_bias_map, run_sweep, v1_mask
+from jobs.sweep import (
+    avg_path_length_authors,
+    ir_bounces_pct,
+    ir_bounces_pct_authors,
+    run_sweep,
+    v1_mask,
+)
 
 SMALL = {"cache": {"batch_size": 1024}, "min_train_paths": 1024}
 
 
 def small_spec(**overrides) -> SweepSpec:
     values = dict(scene="cornell-box", resolution=16, seeds=2, train_frames=4, v1_spp=32,
-                  eps=[0.1, 0.3, 1.0], nc=[1, 2], params=SMALL,
+                  eps=[0.1, 0.3, 1.0], nc=[1, 2], params=SMALL, probe_frames=1,
                   reference=ReferenceSpec(spp=256))
     return SweepSpec(**{**values, **overrides})
 
@@ -44,15 +49,6 @@ def test_masks_are_monotone_in_eps(bias, thresholds):
     assert not np.any(masks[-1] & np.isnan(bias))
 
 
-def test_relative_bias_is_the_root_of_the_pixel_relative_squared_error():
-    ref = np.full((2, 2, 3), 2.0, np.float32)
-    test = ref.copy()
-    test[0, 0] = [3.0, 2.0, 2.0]            # one channel off by 1
-    bias = relative_bias_map(test, ref, eps=0.01)
-    assert bias[0, 0] == pytest.approx(np.sqrt((1 / (4 + 0.01)) / 3), rel=1e-5)
-    assert np.all(bias.ravel()[1:] == 0)
-
-
 def test_ir_bounces_from_cache_depth_fractions():
     assert ir_bounces_pct({"0": 0.5, "1": 0.5}) == 0.0
     assert ir_bounces_pct({"1": 0.25, "2": 0.75}) == pytest.approx(75.0)
@@ -60,22 +56,22 @@ def test_ir_bounces_from_cache_depth_fractions():
     assert ir_bounces_pct({"0": 1.0}) is None and ir_bounces_pct(None) is None
 
 
-def test_calibration_chooses_the_largest_fitting_candidate():
-    measured = []
-
-    def measure(nc):
-        measured.append(nc)
-        return 0.010 + 0.002 * nc
-
-    record = calibrate("nc", [8, 1, 2, 4, 16], measure, 0.018, budget_source="test",
-                       tolerance_s=0.0005)
-    assert record.chosen == 4 and record.fits
-    assert measured == [1, 2, 4, 8]        # stops at the first candidate over budget
-    none = calibrate("nc", [1, 2], lambda nc: 1.0, 0.5, budget_source="test")
-    assert none.chosen == 1 and not none.fits
-    assert record.to_json()["measured_s"]["8"] == pytest.approx(0.026)
-    with pytest.raises(ValueError):
-        calibrate("nc", [], measure, 1.0, budget_source="test")
+def test_authors_average_path_length_from_the_histogram_and_the_background():
+    # Half background, a quarter never used the cache (s = 1), a quarter used it at v2.
+    fractions = {"0": 0.75, "2": 0.25}
+    assert avg_path_length_authors(fractions, 0.5) == pytest.approx(0.25 * 1 + 0.25 * 2)
+    assert ir_bounces_pct_authors(fractions, 0.5) == pytest.approx(50.0)  # (0 + 1) / 2
+    # Today's figure counts only the invoking paths: 100 %.
+    assert ir_bounces_pct(fractions) == pytest.approx(100.0)
+    # No background: every path counts, s = 1 for those without a cache query.
+    fractions = {"0": 0.2, "1": 0.5, "3": 0.3}
+    assert avg_path_length_authors(fractions, 0.0) == pytest.approx(0.2 + 0.5 + 0.9)
+    assert ir_bounces_pct_authors(fractions, 0.0) == pytest.approx(100 * (1.6 - 1))
+    assert ir_bounces_pct(fractions) == pytest.approx(100 * 0.6 / 0.8)
+    # All background: length 0, no foreground to take a percentage over.
+    assert avg_path_length_authors({"0": 1.0}, 1.0) == 0.0
+    assert ir_bounces_pct_authors({"0": 1.0}, 1.0) is None
+    assert avg_path_length_authors(fractions, None) is None   # runs without the count
 
 
 @pytest.mark.parametrize("values, fragment", [
@@ -116,12 +112,24 @@ def test_sweep_reports_every_series_and_point(sweep_env):
         for row in rows:
             assert row["finite"]
             for key in ("mrse", "flip", "ms_frame", "rbias2", "rvar", "avg_path_length",
-                        "ir_bounces_pct"):
+                        "ir_bounces_pct", "avg_path_length_authors", "ir_bounces_pct_authors"):
                 assert row[key] is not None and np.isfinite(row[key]), (name, key)
+        # s <= the path's vertex count for every pixel; the camera of cornell-box sees
+        # some background through the box's open side (s = 0 there).
+        for row in rows:
+            foreground = 1 - row["background_pct"] / 100
+            assert 0 < row["background_pct"] < 20
+            assert row["avg_path_length_authors"] <= row["avg_path_length"] + 1e-9
+            assert row["avg_path_length_authors"] == pytest.approx(
+                foreground * (1 + row["ir_bounces_pct_authors"] / 100))
     for row in _series(result, "NIRC equal time"):
         calibration = row["calibration"]
         assert calibration["knob"] == "nc" and calibration["chosen"] == row["nc"]
-        assert calibration["measured_s"]
+        # Every candidate timed in 3 rounds, each round after a re-measured NRC budget.
+        assert set(calibration["measured_s"]) == {"1", "2"} and calibration["rounds"] == 3
+        assert calibration["order"][::3] == ["budget"] * 3
+        assert row["calibration_capped"] == (calibration["chosen"] == 2)
+        assert row["calibration_unstable"] == calibration["unstable"]
     work = result.work
     assert work["reference_rendered"] == 1 and work["snapshots_trained"] == 4
     assert work["points_rendered"] >= 6 and work["calibrations"] == 3
@@ -141,15 +149,34 @@ def test_masks_grow_and_ir_bounces_fall_with_eps(sweep_env):
         assert ir[0] > ir[-1], (name, ir)
 
 
-def test_rbias2_plus_rvar_matches_the_mean_mrse(sweep_env):
-    _, store, result = sweep_env
-    for row in result.rows:
-        run = store.get_run(row["run_id"])
-        lo, hi = run.metrics["mrse_ci95"]
-        total = run.metrics["rbias2"] + run.metrics["rvar"]
-        assert lo <= total <= hi
-        # With the noise-corrected rBias^2 the identity is exact (DESIGN.md, Metrics).
-        assert total == pytest.approx(run.metrics["mrse_mean"], rel=1e-6)
+def test_masks_use_the_noise_corrected_bias_of_the_snapshots(sweep_env):
+    """The rows' mask coverage is that of the noise-corrected map of the stored v1 images
+    and variances; on these 32-spp images the raw map would admit fewer pixels."""
+    from jobs.executor import prepare
+    from jobs.snapshots import _load
+    from metrics.bias_maps import bias_map, passes
+
+    settings_, store, result = sweep_env
+    spec = small_spec()
+    reference = prepare(spec.base_render_spec(), store, settings_).reference
+    gained = 0
+    for name in ("NIRC", "NRC"):
+        for row in _series(result, name):
+            run = store.get_run(row["run_id"])
+            corrected, raw = [], []
+            for key in run.metrics["sweep"]["snapshots"]:
+                snap = _load(store.find_snapshot(key), settings_)
+                assert snap.v1_variance.shape == snap.v1_image.shape
+                assert np.all(snap.v1_variance >= 0) and np.any(snap.v1_variance > 0)
+                args = (snap.v1_image, reference.mean, spec.metric_eps)
+                corrected.append(passes(bias_map("relative-mse", *args,
+                                                 v_variance=snap.v1_variance,
+                                                 ref_variance=reference.variance),
+                                        row["eps"]).mean())
+                raw.append(passes(bias_map("relative-mse", *args), row["eps"]).mean())
+            assert row["mask_pct"] == pytest.approx(100 * np.mean(corrected)), (name, row["eps"])
+            gained += np.mean(corrected) > np.mean(raw)
+    assert gained > 0
 
 
 def test_points_are_stored_with_seeds_snapshots_and_convergence(sweep_env):
@@ -161,8 +188,25 @@ def test_points_are_stored_with_seeds_snapshots_and_convergence(sweep_env):
     curve = run.seed_results[0].metrics["convergence"]
     assert len(curve["frame_mrse"]) == run.frames == 1
     snapshot = store.find_snapshot(run.metrics["sweep"]["snapshots"][0])
-    assert {a.kind for a in snapshot.artifacts} == {"cache_weights", "v1_image"}
+    assert {a.kind for a in snapshot.artifacts} == {"cache_weights", "v1_image", "v1_variance"}
+    assert snapshot.stats["v1_passes"] >= 2 and snapshot.stats["v1_spp_rendered"] >= 32
     assert len(snapshot.stats["convergence"]["frame_mrse"]) == 4
+
+
+def test_a_snapshot_stored_without_its_variance_is_not_loaded(sweep_env):
+    """Snapshots made before the v1 variance was stored fail to load with the KeyError
+    that get_or_make_snapshot answers by making the snapshot again."""
+    from types import SimpleNamespace
+
+    from jobs.snapshots import _load
+
+    settings_, store, result = sweep_env
+    row = store.find_snapshot(result.snapshots[0]["key"])
+    assert _load(row, settings_).v1_variance.shape == (16, 16, 3)
+    old = SimpleNamespace(key=row.key, id=row.id, stats=row.stats,
+                          artifacts=[a for a in row.artifacts if a.kind != "v1_variance"])
+    with pytest.raises(KeyError):
+        _load(old, settings_)
 
 
 def test_plots_are_written_and_referenced_from_the_database(sweep_env):

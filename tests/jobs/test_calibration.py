@@ -1,0 +1,133 @@
+"""Equal-time calibration (jobs/calibration.py) with fake timings: no rendering.
+
+Each fake ``measure`` records the order of the calls, so the tests see that
+every candidate is timed, that the budget is re-measured between rounds, and
+which value was chosen from the medians.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from jobs.calibration import calibrate, calibrate_job, with_nc_at_v1
+from jobs.spec import RenderSpec, TimeBudget
+
+
+class Clock:
+    """Fake timings: ``times[value]`` is a list cycled over rounds (or one number)."""
+
+    def __init__(self, times: dict[int, float | list[float]],
+                 budget: float | list[float] | None = None) -> None:
+        self.times = {k: itertools.cycle(v if isinstance(v, list) else [v])
+                      for k, v in times.items()}
+        self.budgets = itertools.cycle(budget if isinstance(budget, list) else [budget])
+        self.calls: list[str] = []
+
+    def measure(self, value: int) -> float:
+        self.calls.append(f"nc={value}")
+        return next(self.times[value])
+
+    def budget(self) -> float:
+        self.calls.append("budget")
+        return next(self.budgets)
+
+
+def test_every_candidate_is_timed_and_the_largest_fitting_median_wins():
+    clock = Clock({1: 0.012, 2: 0.014, 4: 0.018, 8: 0.026, 16: 0.042})
+    record = calibrate("nc", [8, 1, 2, 4, 16], clock.measure, 0.018, budget_source="test",
+                       tolerance_s=0.0005, rounds=1)
+    assert record.chosen == 4 and record.fits and not record.capped and not record.unstable
+    # The old search stopped at the first candidate over budget (8); every one is timed.
+    assert clock.calls == ["nc=1", "nc=2", "nc=4", "nc=8", "nc=16"]
+    assert record.to_json()["measured_s"]["8"] == pytest.approx(0.026)
+    none = calibrate("nc", [1, 2], lambda nc: 1.0, 0.5, budget_source="test")
+    assert none.chosen == 1 and not none.fits and not none.capped
+    with pytest.raises(ValueError):
+        calibrate("nc", [], clock.measure, 1.0, budget_source="test")
+
+
+def test_non_monotone_times_choose_a_larger_candidate_past_a_slow_one():
+    """With BTH more neural samples can stop paths earlier: 8 is slower than 16."""
+    clock = Clock({1: 0.010, 2: 0.012, 4: 0.016, 8: 0.025, 16: 0.019, 32: 0.030})
+    record = calibrate("nc", [1, 2, 4, 8, 16, 32], clock.measure, 0.020,
+                       budget_source="test", rounds=3)
+    assert record.chosen == 16          # the old walk stopped at 8 and chose 4
+    assert set(record.measured_s) == {1, 2, 4, 8, 16, 32}
+
+
+def test_a_fitting_top_candidate_is_reported_as_capped():
+    """'PT 512 spp = NRC time' silently hit the top of the candidates."""
+    record = calibrate("spp", [1, 64, 512], lambda spp: 1e-5 * spp, 0.5,
+                       budget_source="test", rounds=2)
+    assert record.chosen == 512 and record.fits and record.capped
+    assert any(reason.startswith("capped") for reason in record.reasons)
+    assert record.to_json()["capped"] is True
+
+
+def test_budget_and_candidates_are_interleaved_over_rounds_and_medians_decide():
+    # nc 4 is over budget in one round of three (a spike): the median says it fits.
+    clock = Clock({1: 0.010, 2: 0.014, 4: [0.0195, 0.030, 0.0195]},
+                  budget=[0.020, 0.021, 0.019])
+    record = calibrate("nc", [1, 2, 4], clock.measure, clock.budget, budget_source="test",
+                       tolerance_s=0.001, rounds=3, max_spread=1.0)
+    assert clock.calls == ["budget", "nc=1", "nc=2", "nc=4",
+                           "budget", "nc=4", "nc=2", "nc=1",
+                           "budget", "nc=1", "nc=2", "nc=4"]
+    assert record.order == clock.calls
+    assert record.budget_s == pytest.approx(0.020)       # median of the three rounds
+    assert record.budget_spread_s == pytest.approx([0.019, 0.021])
+    assert record.measured_s[4] == pytest.approx(0.0195)
+    assert record.spread_s[4] == pytest.approx([0.0195, 0.030])
+    assert record.chosen == 4 and not record.unstable   # max_spread 1.0: a wide allowance
+
+
+def test_a_spread_across_the_limit_is_flagged_unstable():
+    # nc 4's rounds disagree about fitting the 20 ms budget and spread 10 ms > 10 % of it.
+    clock = Clock({1: 0.010, 2: 0.014, 4: [0.015, 0.025, 0.019]}, budget=0.020)
+    record = calibrate("nc", [1, 2, 4], clock.measure, clock.budget, budget_source="test",
+                       tolerance_s=0.001, rounds=3)
+    assert record.unstable and record.chosen == 4
+    assert any("nc 4 spreads" in reason for reason in record.reasons)
+    # A noisy candidate far from the limit cannot change the choice: not flagged.
+    quiet = Clock({1: [0.001, 0.009, 0.005], 2: 0.014}, budget=0.020)
+    assert not calibrate("nc", [1, 2], quiet.measure, quiet.budget, budget_source="test",
+                         rounds=3).unstable
+    # A budget that itself jumps is flagged.
+    jumpy = Clock({1: 0.010}, budget=[0.020, 0.030, 0.020])
+    record = calibrate("nc", [1], jumpy.measure, jumpy.budget, budget_source="test", rounds=3)
+    assert record.unstable and any("budget's spread" in r for r in record.reasons)
+
+
+def test_adaptive_nc_keeps_its_later_vertex_count():
+    assert with_nc_at_v1({"nc": [8, 1]}, 4) == {"nc": [4, 1]}
+    assert with_nc_at_v1({"nc": [8]}, 4) == {"nc": [4]}
+    assert with_nc_at_v1({}, 2) == {"nc": [2]}
+
+
+def test_calibrate_job_keeps_the_later_vertex_nc(monkeypatch):
+    """calibrate_job with a fake method: nc=[8, 1] is probed and returned as [N, 1]."""
+    import renderers.methods as methods
+
+    seen: list[list[int]] = []
+    real = methods.get_method("nirc")
+
+    class FakeMethod:
+        params = real.params
+
+        def render(self, scene, values, seed_parts, spp, frames):
+            seen.append(list(values.nc))
+            seconds = 0.001 * values.nc[0]
+
+            class Output:
+                timings = {"frame_median_s": seconds}
+            return Output()
+
+    monkeypatch.setattr(methods, "get_method", lambda name: FakeMethod())
+    spec = RenderSpec(scene="cornell-box", method="nirc",
+                      params={"termination": "adaptive", "nc": [8, 1]},
+                      time_budget=TimeBudget(ms=4.5, candidates=[1, 2, 4, 8], rounds=2))
+    calibrated, record = calibrate_job(spec, scene=None, device_key="test")
+    assert calibrated.params["nc"] == [4, 1] and record.chosen == 4
+    assert all(nc[1:] == [1] for nc in seen) and len(seen) == 8   # 4 candidates x 2 rounds
