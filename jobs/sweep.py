@@ -68,12 +68,22 @@ import numpy as np
 from jobs.artifacts import ArtifactStore, artifact_record
 from jobs.calibration import calibrate
 from jobs.config import Settings
-from jobs.executor import ConvergenceTracker, Prepared, Progress, execute, prepare, store_run
+from jobs.executor import (
+    ConvergenceTracker,
+    Prepared,
+    Progress,
+    chain,
+    execute,
+    frame_moments_hook,
+    prepare,
+    store_run,
+)
 from jobs.plots import plot_convergence, plot_sweep
 from jobs.snapshots import Snapshot, get_or_make_snapshot
 from jobs.spec import RenderSpec, SweepSpec
 from jobs.store import Store
 from metrics.bias_maps import bias_map, passes
+from metrics.statistics import RunningMoments
 from renderers.methods import get_method, parse_params
 from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
 from renderers.methods.cached import CACHE_AOVS
@@ -263,6 +273,8 @@ class _Sweep:
         outputs: dict[float, list[RenderOutput]] = {eps: [] for eps, _, _ in points}
         curves: dict[float, list[dict[str, Any]]] = {eps: [] for eps, _, _ in points}
         masks: dict[float, list[float]] = {eps: [] for eps, _, _ in points}
+        # Each seed's frames per point: the per-cache rBias^2 / rVar of a frozen cache.
+        moments: dict[float, list[RunningMoments]] = {eps: [] for eps, _, _ in points}
         stage = f"{SERIES_LABELS[series]} points"
         total, done = self.spec.seeds * len(points), 0
         for seed in range(self.spec.seeds):
@@ -273,12 +285,14 @@ class _Sweep:
                 mask = v1_mask(bias, eps)
                 integrator.set_v1_mask(mask)
                 tracker = ConvergenceTracker(self.prepared.reference.mean, self.spec.metric_eps)
+                moments[eps].append(RunningMoments())
                 output = run_frames(
                     render_stage(self.prepared.scene, integrator, 1),
                     seed_parts=(self.prepared.scene.fingerprint, method,
                                 params.model_dump(mode="json"), "sweep", seed),
                     frames=self.spec.frames, spp=1, aov_names=CACHE_AOVS,
-                    hooks=FrameHooks(warmup=index == 0, on_frame=tracker))
+                    hooks=FrameHooks(warmup=index == 0,
+                                     on_frame=chain(tracker, frame_moments_hook(moments[eps][-1]))))
                 output.method_stats = {"snapshot": snap.key, "mask_fraction": float(mask.mean())}
                 outputs[eps].append(output)
                 curves[eps].append(tracker.result())
@@ -294,7 +308,7 @@ class _Sweep:
                                **((extras or {}).get(eps, {}))}}
             summary = store_run(self.point_spec(method, params), self.prepared, outputs[eps],
                                 curves[eps], self.store, self.settings, idempotency_key=key,
-                                extra=extra)
+                                extra=extra, frame_moments=moments[eps])
             run_ids[eps] = summary.run_id
             self.work["points_rendered"] += 1
             self.advance()
