@@ -187,6 +187,10 @@ def test_points_are_stored_with_seeds_snapshots_and_convergence(sweep_env):
     assert len(run.metrics["sweep"]["snapshots"]) == 2
     curve = run.seed_results[0].metrics["convergence"]
     assert len(curve["frame_mrse"]) == run.frames == 1
+    # Each seed's frames were collected for the per-cache statistics; one frame per
+    # seed is too few for a per-cache variance, and the run says so.
+    reason = run.metrics["per_cache_unavailable"]
+    assert run.metrics["rbias2_per_cache_mean"] is None and "no per-frame" not in reason
     snapshot = store.find_snapshot(run.metrics["sweep"]["snapshots"][0])
     assert {a.kind for a in snapshot.artifacts} == {"cache_weights", "v1_image", "v1_variance"}
     assert snapshot.stats["v1_passes"] >= 2 and snapshot.stats["v1_spp_rendered"] >= 32
