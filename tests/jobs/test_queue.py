@@ -136,10 +136,23 @@ def test_a_sweeps_stage_work_is_summed(store):
     assert queue.stage_work(sweep.id) == {"reference_rendered": 1, "snapshots_trained": 2}
 
 
-def test_concurrent_identical_submissions_make_exactly_one_job(store):
+def test_concurrent_identical_submissions_make_exactly_one_job(store, monkeypatch):
     # Before 0007 the queue checked, then inserted: 50 threads made several jobs.
     queue = JobQueue(store)
     start = threading.Barrier(50)
+    # The worst interleaving, every time: all 50 look before any of them inserts.
+    looked = threading.Barrier(50)
+    first_look = threading.local()
+    existing = JobQueue._existing
+
+    def look_then_wait(self, *args):
+        found = existing(self, *args)
+        if not getattr(first_look, "done", False):
+            first_look.done = True
+            looked.wait()
+        return found
+
+    monkeypatch.setattr(JobQueue, "_existing", look_then_wait)
 
     def submit(_: int) -> tuple[int, bool]:
         start.wait()

@@ -133,8 +133,9 @@ def test_a_fifo_in_a_scene_is_refused_before_anything_opens_it(tmp_path, mi):
     fifo = tmp_path / "mesh.ply"
     os.mkfifo(fifo)
     scene = tmp_path / "scene.xml"
-    scene.write_text('<scene version="3.0.0"><shape type="ply">'
-                     '<string name="filename" value="mesh.ply"/></shape></scene>')
+    scene.write_text('<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm"/>'
+                     '</sensor><shape type="ply"><string name="filename" value="mesh.ply"/>'
+                     '</shape></scene>')
     outcome: list[BaseException | None] = []
 
     def load() -> None:
