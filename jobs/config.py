@@ -31,6 +31,21 @@ class Settings(BaseSettings):
     # The longest a long poll (GET /api/v1/jobs/{id}?wait_s=) holds a request open,
     # below the idle timeouts of proxies in front of the service.
     long_poll_max_s: float = Field(30.0, ge=0.0)
+    # ---- Bounded work and disk (docs/operations.md; estimates in jobs/work.py) ----
+    # The most path samples (pixels x spp x frames x seeds, references and sweep
+    # stages included) one submission may ask for; more is refused with 422.
+    max_job_work: int = Field(100_000_000_000, ge=1)
+    # The most stage jobs one sweep may make (seeds x methods + 2, or N_c values + 1).
+    max_sweep_stages: int = Field(256, ge=1)
+    # Without --job-timeout an attempt gets job_timeout_min_s plus its estimated
+    # samples at timeout_samples_per_s (a slow machine's rate: a generous bound).
+    job_timeout_min_s: float = Field(600.0, gt=0.0)
+    timeout_samples_per_s: float = Field(1_000_000.0, gt=0.0)
+    # Disk: None means no limit; with a limit, a submission whose estimated files would
+    # take the data folder past it is refused (507).
+    max_data_bytes: int | None = Field(None, ge=0)
+    # `nirc-bench gc` removes unreferenced files and references older than this.
+    gc_keep_days: float = Field(30.0, ge=0.0)
 
     @field_validator("data_dir")
     @classmethod

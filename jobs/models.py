@@ -31,6 +31,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -363,6 +364,11 @@ class JobStatus(StrEnum):
 
 
 FINAL_JOB_STATES = (JobStatus.SUCCEEDED, JobStatus.FAILED, JobStatus.CANCELED)
+#: A spec has at most one job in these states (a new identical submission returns it);
+#: the database enforces it (``uq_jobs_live_spec_key``).
+DEDUPE_JOB_STATES = (JobStatus.QUEUED, JobStatus.RUNNING, JobStatus.SUCCEEDED)
+#: The partial index's condition, the same text on SQLite and PostgreSQL.
+LIVE_SPEC_KEY_WHERE = "status IN ('queued', 'running', 'succeeded')"
 
 
 class Job(Base):
@@ -385,6 +391,10 @@ class Job(Base):
         ),
         CheckConstraint("kind IN ('render', 'sweep', 'stage')", name="kind"),
         Index("ix_jobs_status_created_at", "status", "created_at"),
+        # Exactly once: one live or succeeded job per spec (jobs.queue.JobQueue.submit).
+        Index("uq_jobs_live_spec_key", "spec_key", unique=True,
+              sqlite_where=text(LIVE_SPEC_KEY_WHERE),
+              postgresql_where=text(LIVE_SPEC_KEY_WHERE)),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)

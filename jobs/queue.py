@@ -33,13 +33,13 @@ from typing import Any
 from sqlalchemy import and_, or_, select, update
 from sqlalchemy.exc import IntegrityError
 
-from jobs.models import FINAL_JOB_STATES, Job, JobStatus
+from jobs.models import DEDUPE_JOB_STATES, FINAL_JOB_STATES, Job, JobStatus
 from jobs.spec import RenderSpec, SweepSpec
 from jobs.store import Store
 from renderers.seeding import digest
 
 #: Live states: a new identical submission returns the existing job instead.
-_DEDUPE_STATES = (JobStatus.QUEUED.value, JobStatus.RUNNING.value, JobStatus.SUCCEEDED.value)
+_DEDUPE_STATES = [state.value for state in DEDUPE_JOB_STATES]
 
 
 def spec_key(kind: str, spec: RenderSpec | SweepSpec, device_class: str) -> str:
@@ -50,6 +50,41 @@ def spec_key(kind: str, spec: RenderSpec | SweepSpec, device_class: str) -> str:
 
 def _now() -> datetime:
     return datetime.now(UTC)
+
+
+#: Inserts tried before giving up on a key that keeps conflicting (each conflict means
+#: another submission won; a retry reads its job, or inserts if that one has failed).
+_INSERT_ATTEMPTS = 5
+
+
+class IdempotencyKeyReused(ValueError):
+    """An Idempotency-Key already used for a different request (kind, spec or worker
+    class): answering with the other request's job would be a silent mistake."""
+
+
+def _same_request(job: Job, kind: str, spec: dict[str, Any], device_class: str,
+                  idempotency_key: str | None) -> Job:
+    """``job``, found for a submission; refuses it if found by an Idempotency-Key that
+    an earlier, different request used."""
+    if idempotency_key is None or job.idempotency_key != idempotency_key:
+        return job
+    if job.kind != kind:
+        raise IdempotencyKeyReused(
+            f"Idempotency-Key {idempotency_key!r} was used for a {job.kind} (job {job.id}); "
+            f"use a new key for this {kind}")
+    if job.spec != spec or job.device_class != device_class:
+        raise IdempotencyKeyReused(
+            f"Idempotency-Key {idempotency_key!r} was used for job {job.id} with a different "
+            "request body or worker class; use a new key for a different request")
+    return job
+
+
+def _new_job(kind: str, spec: dict[str, Any], spec_key: str, idempotency_key: str | None,
+             device_class: str, max_attempts: int, parent_id: int | None) -> Job:
+    return Job(kind=kind, spec=spec, spec_key=spec_key, idempotency_key=idempotency_key,
+               device_class=device_class, status=JobStatus.QUEUED.value, attempts=0,
+               max_attempts=max_attempts, progress={}, cancel_requested=False,
+               parent_id=parent_id)
 
 
 class JobQueue:
@@ -65,23 +100,30 @@ class JobQueue:
                max_attempts: int = 3, parent_id: int | None = None) -> tuple[Job, bool]:
         """Store a new queued job, or return the existing one: the job submitted
         under ``idempotency_key``, else a live or succeeded job with the same spec.
-        Returns (job, created)."""
-        existing = self._existing(spec_key, idempotency_key)
-        if existing is not None:
-            return existing, False
-        job = Job(kind=kind, spec=spec, spec_key=spec_key, idempotency_key=idempotency_key,
-                  device_class=device_class, status=JobStatus.QUEUED.value, attempts=0,
-                  max_attempts=max_attempts, progress={}, cancel_requested=False,
-                  parent_id=parent_id)
-        try:
-            with self.store.session(write=True) as session:
-                session.add(job)
-        except IntegrityError:  # the same Idempotency-Key submitted concurrently
+        Returns (job, created).
+
+        Exactly once: the database holds at most one queued, running or succeeded
+        job per ``spec_key`` (the partial unique index ``uq_jobs_live_spec_key``)
+        and one job per ``idempotency_key``, so of concurrent identical submissions
+        one insert wins and the others catch its IntegrityError and return the
+        winner. Raises :class:`IdempotencyKeyReused` when ``idempotency_key`` names
+        a job of another kind, spec or device class.
+        """
+        for _ in range(_INSERT_ATTEMPTS):
             existing = self._existing(spec_key, idempotency_key)
-            if existing is None:
-                raise
-            return existing, False
-        return job, True
+            if existing is not None:
+                return _same_request(existing, kind, spec, device_class, idempotency_key), False
+            job = _new_job(kind, spec, spec_key, idempotency_key, device_class,
+                           max_attempts, parent_id)
+            try:
+                with self.store.session(write=True) as session:
+                    session.add(job)
+            except IntegrityError:
+                # Another submission inserted the same spec or key first: return it
+                # (read again; if it has since failed, insert anew).
+                continue
+            return job, True
+        raise RuntimeError(f"job submission for spec {spec_key[:12]} kept conflicting")
 
     def _existing(self, spec_key: str, idempotency_key: str | None) -> Job | None:
         with self.store.session() as session:
@@ -96,16 +138,28 @@ class JobQueue:
 
     def stage_jobs(self, parent: Job, stages: Sequence[Any]) -> dict[str, Job]:
         """The stage jobs of the sweep job ``parent`` (jobs.graph.Stage), made on first
-        call and returned by name afterwards (their keys derive from the parent's id)."""
-        jobs = {}
-        for stage in stages:
-            spec = {"sweep": parent.spec, "name": stage.name, "task": stage.task}
-            key = f"job-{parent.id}-stage-{stage.name}"
-            jobs[stage.name], _ = self.submit(
-                "stage", spec, key, idempotency_key=key,
-                device_class=parent.device_class, max_attempts=parent.max_attempts,
-                parent_id=parent.id)
-        return jobs
+        call and returned by name afterwards (their keys derive from the parent's id).
+
+        All missing stages are inserted in one transaction (a sweep's stages cost one
+        write, not one per stage); a concurrent call that inserted them first makes
+        this one read theirs."""
+        def key(stage: Any) -> str:
+            return f"job-{parent.id}-stage-{stage.name}"
+
+        for _ in range(_INSERT_ATTEMPTS):
+            made = {job.idempotency_key: job for job in self.children(parent.id)}
+            missing = [stage for stage in stages if key(stage) not in made]
+            if not missing:
+                return {stage.name: made[key(stage)] for stage in stages}
+            try:
+                with self.store.session(write=True) as session:
+                    session.add_all(_new_job(
+                        "stage", {"sweep": parent.spec, "name": stage.name, "task": stage.task},
+                        key(stage), key(stage), parent.device_class, parent.max_attempts,
+                        parent.id) for stage in missing)
+            except IntegrityError:
+                continue
+        raise RuntimeError(f"the stage jobs of job {parent.id} kept conflicting")
 
     def children(self, parent_id: int) -> list[Job]:
         """The stage jobs of a sweep job, in the order they were made."""
@@ -194,10 +248,12 @@ class JobQueue:
                          status=final.value, error=error, finished_at=_now())
         return final.value
 
-    def abandon(self, job_id: int, error: str) -> str:
-        """A queued job whose upstream stage did not succeed: failed (canceled if its
-        cancel was asked for) without running. Returns its status."""
-        for final, requested in ((JobStatus.CANCELED, True), (JobStatus.FAILED, False)):
+    def abandon(self, job_id: int, error: str, *, canceled: bool = False) -> str:
+        """A queued job whose upstream stage did not succeed: failed without running, or
+        canceled if its cancel was asked for or the upstream stage was ``canceled``.
+        Returns its status."""
+        failed = JobStatus.CANCELED if canceled else JobStatus.FAILED
+        for final, requested in ((JobStatus.CANCELED, True), (failed, False)):
             self._transition(job_id, [Job.status == JobStatus.QUEUED.value,
                                       Job.cancel_requested.is_(requested)],
                              status=final.value, error=error, finished_at=_now())

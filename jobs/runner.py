@@ -81,7 +81,12 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
     try:
         if any(status != JobStatus.SUCCEEDED.value for status in upstream):
             job = queue.get(job_id)
-            return queue.abandon(job_id, queue.upstream_error(job)) if job else "missing"
+            # Stopped by a cancel upstream (and nothing failed): canceled, not failed.
+            canceled = JobStatus.CANCELED.value in upstream and not any(
+                status not in (JobStatus.SUCCEEDED.value, JobStatus.CANCELED.value)
+                for status in upstream)
+            return (queue.abandon(job_id, queue.upstream_error(job), canceled=canceled)
+                    if job else "missing")
         while True:
             claimed = queue.claim(job_id, worker, lease_s=lease_s)
             if claimed is None:
@@ -94,13 +99,27 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
                 time.sleep(poll_s)
                 continue
             child = _child_for(settings, claimed.device_class)
-            status, reason = child.run(job_id, queue, timeout_s, poll_s)
+            status, reason = child.run(job_id, queue, _timeout_of(claimed, settings, timeout_s),
+                                       poll_s)
             if status in (0, EXIT_JOB_FAILED):
                 return queue.get(job_id).status
             if queue.fail(job_id, reason, retry=True) != JobStatus.QUEUED.value:
                 return queue.get(job_id).status
     finally:
         store.close()
+
+
+def _timeout_of(job: Any, settings: Settings, timeout_s: float | None) -> float:
+    """The service's ``--job-timeout``, else one from the job's work estimate
+    (jobs.work.default_timeout_s): no attempt runs unbounded."""
+    if timeout_s is not None:
+        return timeout_s
+    from jobs.work import default_timeout_s, job_work
+
+    try:
+        return default_timeout_s(job_work(job.kind, job.spec), settings)
+    except (ValueError, KeyError, TypeError):  # a spec the child will refuse at once
+        return settings.job_timeout_min_s
 
 
 class _Child:

@@ -448,6 +448,39 @@ def worker(
     raise typer.Exit(run_workers(commands))
 
 
+@app.command()
+def gc(
+    apply_: Annotated[bool, typer.Option("--apply", help="remove (default: only list what "
+                                                         "would be removed)")] = False,
+    keep_days: Annotated[float | None, typer.Option(
+        "--keep-days", min=0.0,
+        help="keep anything younger (default: the gc_keep_days setting)")] = None,
+    data_dir: DataDir = None,
+) -> None:
+    """Free disk: remove references no run uses, and files no stored row names
+    (older than --keep-days). Lists them with sizes; removes them only with --apply."""
+    from jobs import gc as retention
+
+    settings = _settings(data_dir)
+    store = _store(settings)
+    try:
+        plan = retention.plan(store, settings, keep_days)
+        for removal in plan.removals:
+            name = (f"reference {removal.reference_id}" if removal.reference_id is not None
+                    else str(removal.path))
+            console.print(f"{removal.bytes:>14,d}  {removal.what:<15} {name}",
+                          markup=False, highlight=False)
+        if not apply_:
+            console.print(f"would remove {len(plan.removals)} items, {plan.bytes:,d} bytes "
+                          "(run with --apply to remove them)", markup=False, highlight=False)
+            return
+        freed = retention.apply(store, settings, plan)
+        console.print(f"removed {len(plan.removals)} items, {freed:,d} bytes",
+                      markup=False, highlight=False)
+    finally:
+        store.close()
+
+
 apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True)
 app.add_typer(apikey_app, name="apikey")
 

@@ -15,11 +15,15 @@ stored under it), its features (which methods apply) and its resolution.
 from __future__ import annotations
 
 import os
+import stat
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from renderers.scenes.errors import SceneError
 from renderers.scenes.features import SceneFeatures, compute_features
+from renderers.scenes.fingerprint import _referenced_names as referenced_names
 from renderers.scenes.fingerprint import builtin_fingerprint
 from renderers.scenes.library import BUILTINS, LIBRARY_VERSION, get_builtin
 from renderers.scenes.parts import set_film_resolution
@@ -72,7 +76,53 @@ def _load_builtin(name: str, resolution: Resolution | None) -> LoadedScene:
     )
 
 
+#: Size caps of a scene given by path: its XML (and included XML) files, and every
+#: other file it references (meshes, textures); environment variables override them.
+MAX_SCENE_XML_BYTES = int(os.environ.get("NIRC_BENCH_MAX_SCENE_XML_BYTES", 64 << 20))
+MAX_SCENE_FILE_BYTES = int(os.environ.get("NIRC_BENCH_MAX_SCENE_FILE_BYTES", 4 << 30))
+
+
+def _checked_file(path: Path, what: str, cap: int) -> bool:
+    """Whether ``path`` exists; refuses (SceneError) anything but a regular file of at
+    most ``cap`` bytes: opening a FIFO or a device would block the render forever."""
+    try:
+        info = path.stat()
+    except (OSError, ValueError):
+        return False
+    if not stat.S_ISREG(info.st_mode):
+        raise SceneError(f"{what} {path}: not a regular file (a FIFO, device, socket or "
+                         "folder); scenes and the files they use must be regular files")
+    if info.st_size > cap:
+        raise SceneError(f"{what} {path}: {info.st_size} bytes, more than the {cap} this "
+                         "service accepts")
+    return True
+
+
+def check_scene_files(xml_path: Path, seen: set[Path] | None = None) -> None:
+    """Before anything opens them: the XML at ``xml_path``, its includes and every file
+    it names (``filename``) wherever Mitsuba would look (absolute, beside the XML, the
+    working folder) are regular files within the size caps."""
+    seen = set() if seen is None else seen
+    if not _checked_file(xml_path, "scene file", MAX_SCENE_XML_BYTES):
+        return                  # missing: load_xml_scene explains
+    seen.add(xml_path.resolve())
+    try:
+        root = ET.fromstring(xml_path.read_bytes())
+    except ET.ParseError:
+        return                  # malformed: load_xml_scene explains, with the position
+    for name in referenced_names(root):
+        relative = Path(name)
+        for candidate in ((relative,) if relative.is_absolute()
+                          else (xml_path.parent / relative, Path.cwd() / relative)):
+            is_xml = candidate.suffix.lower() == ".xml"
+            cap = MAX_SCENE_XML_BYTES if is_xml else MAX_SCENE_FILE_BYTES
+            if _checked_file(candidate, "file used by the scene", cap) and is_xml \
+                    and candidate.resolve() not in seen:
+                check_scene_files(candidate, seen)
+
+
 def _load_xml(path: str, resolution: Resolution | None) -> LoadedScene:
+    check_scene_files(Path(path).expanduser())
     loaded = load_xml_scene(path, resolution)
     features = compute_features(loaded.scene, loaded.resolution)
     return LoadedScene(

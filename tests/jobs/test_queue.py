@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
-from jobs.queue import JobQueue
+import pytest
+from sqlalchemy import func, select, text
+from sqlalchemy.exc import IntegrityError
+
+from jobs.models import Job
+from jobs.queue import IdempotencyKeyReused, JobQueue
 
 SPEC = {"scene": "cornell-box", "method": "pt"}
 
@@ -15,8 +21,7 @@ def test_identical_specs_and_idempotency_keys_return_the_existing_job(store):
     again, created_again = queue.submit("render", SPEC, "key-a")
     assert created and not created_again and again.id == first.id
     keyed, created_keyed = queue.submit("render", SPEC, "key-b", idempotency_key="client-1")
-    retried, created_retried = queue.submit("render", {"other": 1}, "key-c",
-                                            idempotency_key="client-1")
+    retried, created_retried = queue.submit("render", SPEC, "key-b", idempotency_key="client-1")
     assert created_keyed and not created_retried and retried.id == keyed.id
     # A failed job does not block a new submission of the same spec.
     queue.claim(first.id, "w")
@@ -129,3 +134,94 @@ def test_a_sweeps_stage_work_is_summed(store):
     assert queue.get(stages["reference"].id).work == {"reference_rendered": 1,
                                                       "snapshots_trained": 0}
     assert queue.stage_work(sweep.id) == {"reference_rendered": 1, "snapshots_trained": 2}
+
+
+def test_concurrent_identical_submissions_make_exactly_one_job(store, monkeypatch):
+    # Before 0007 the queue checked, then inserted: 50 threads made several jobs.
+    queue = JobQueue(store)
+    start = threading.Barrier(50)
+    # The worst interleaving, every time: all 50 look before any of them inserts.
+    looked = threading.Barrier(50)
+    first_look = threading.local()
+    existing = JobQueue._existing
+
+    def look_then_wait(self, *args):
+        found = existing(self, *args)
+        if not getattr(first_look, "done", False):
+            first_look.done = True
+            looked.wait()
+        return found
+
+    monkeypatch.setattr(JobQueue, "_existing", look_then_wait)
+
+    def submit(_: int) -> tuple[int, bool]:
+        start.wait()
+        job, created = queue.submit("render", SPEC, "same-spec")
+        return job.id, created
+
+    with ThreadPoolExecutor(50) as pool:
+        answers = list(pool.map(submit, range(50)))
+    assert len({job_id for job_id, _ in answers}) == 1
+    assert sum(created for _, created in answers) == 1
+    with store.session() as session:
+        assert session.scalar(select(func.count()).select_from(Job)) == 1
+
+
+def test_the_database_refuses_a_second_live_job_per_spec(store):
+    queue = JobQueue(store)
+    first, _ = queue.submit("render", SPEC, "k")
+    with pytest.raises(IntegrityError), store.session(write=True) as session:
+        session.add(Job(kind="render", spec=SPEC, spec_key="k", status="queued"))
+    # A failed or canceled job does not count: the spec may run again.
+    queue.cancel(first.id)
+    with store.session(write=True) as session:
+        session.add(Job(kind="render", spec=SPEC, spec_key="k", status="queued"))
+
+
+def test_an_idempotency_key_reused_for_another_request_is_refused(store):
+    queue = JobQueue(store)
+    job, _ = queue.submit("render", SPEC, "k", idempotency_key="client-1")
+    with pytest.raises(IdempotencyKeyReused, match="different request body"):
+        queue.submit("render", {**SPEC, "seeds": 3}, "k3", idempotency_key="client-1")
+    with pytest.raises(IdempotencyKeyReused, match="was used for a render"):
+        queue.submit("sweep", SPEC, "k", idempotency_key="client-1")
+    with pytest.raises(IdempotencyKeyReused):
+        queue.submit("render", SPEC, "k", idempotency_key="client-1", device_class="gpu")
+    again, created = queue.submit("render", SPEC, "k", idempotency_key="client-1")
+    assert again.id == job.id and not created
+
+
+def test_migration_0007_merges_duplicate_jobs_stored_before_it(store):
+    from alembic import command
+
+    from jobs.db import alembic_config, migrate
+
+    config = alembic_config()
+    with store.engine.begin() as conn:
+        config.attributes["connection"] = conn
+        command.downgrade(config, "0006")
+    rows = [  # (spec_key, status, parent): two keys with duplicates, one without
+        ("a", "queued", None), ("a", "succeeded", None), ("a", "running", None),
+        ("a", "failed", None), ("b", "queued", None), ("b", "queued", None),
+        ("c", "succeeded", None), ("b-stage", "queued", 6)]
+    with store.engine.begin() as conn:
+        for spec_key, status, parent in rows:
+            conn.execute(text(
+                "INSERT INTO jobs (kind, spec, spec_key, device_class, status, attempts, "
+                "max_attempts, progress, cancel_requested, parent_id, created_at, updated_at) "
+                "VALUES (:kind, '{}', :key, 'cpu', :status, 0, 3, '{}', false, :parent, "
+                "CURRENT_TIMESTAMP, CURRENT_TIMESTAMP)"),
+                {"kind": "stage" if parent else "sweep", "key": spec_key, "status": status,
+                 "parent": parent})
+    migrate(store.engine)
+    queue = JobQueue(store)
+    status = {job.id: (job.status, job.error) for job in queue.list(limit=100)}
+    # Key a keeps its succeeded job (2), b its oldest (5); c is alone; failed stays failed.
+    assert status[2][0] == "succeeded" and status[5][0] == "queued"
+    assert status[7][0] == "succeeded" and status[4][0] == "failed"
+    for merged, keeper in ((1, 2), (3, 2), (6, 5)):
+        assert status[merged][0] == "canceled"
+        assert f"merged into job {keeper}" in status[merged][1]
+    assert status[8][0] == "canceled" and "merged into job 5" in status[8][1]
+    # And from now on the database holds the line.
+    assert queue.submit("render", SPEC, "a")[0].id == 2

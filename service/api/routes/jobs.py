@@ -8,9 +8,11 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 from pydantic import ValidationError
 
+from jobs.graph import sweep_stages
 from jobs.models import FINAL_JOB_STATES
-from jobs.queue import spec_key
+from jobs.queue import IdempotencyKeyReused, spec_key
 from jobs.spec import RenderSpec, SweepSpec
+from jobs.work import data_bytes, reference_stored, render_work, sweep_work
 from renderers.methods import MethodError, format_validation_error, get_method
 from renderers.scenes import builtin_names, is_scene_file
 from service.api.deps import DispatcherDep, QueueDep, RowId, SettingsDep, WriteAccess
@@ -56,14 +58,51 @@ def _check_render(spec: RenderSpec) -> None:
     _check_params(spec.method, spec.params)
 
 
+def _check_work(kind: str, spec: RenderSpec | SweepSpec, store, settings) -> None:
+    """Refuse what is too big before it is queued: too many stage jobs or samples for
+    this service's limits (422), or more files than its disk limit allows (507)."""
+    if kind == "sweep":
+        stages = sweep_stages(spec)
+        if len(stages) > settings.max_sweep_stages:
+            raise _unprocessable("seeds", (
+                f"this sweep would make {len(stages)} stage jobs ({spec.seeds} seeds x "
+                f"{len(spec.methods)} methods, or one per N_c value, plus the reference); "
+                f"this service allows {settings.max_sweep_stages} (max_sweep_stages)"))
+        estimate = sweep_work(spec, stages)
+    else:
+        estimate = render_work(spec, reference_stored(store, spec.scene, spec.resolution,
+                                                      spec.reference, spec.max_depth()))
+    if estimate.samples > settings.max_job_work:
+        parts = ", ".join(f"{name} {samples:.3g}" for name, samples in estimate.parts.items())
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, [{"loc": ["body"], "msg": (
+            f"this {kind} job is estimated at {estimate.samples:.3g} path samples "
+            f"({parts}); this service allows {settings.max_job_work:.3g} per job "
+            "(max_job_work): lower the resolution, spp, frames or seeds"),
+            "type": "value_error"}])
+    if settings.max_data_bytes is not None:
+        used = data_bytes(store, settings)
+        if used + estimate.artifact_bytes > settings.max_data_bytes:
+            raise HTTPException(status.HTTP_507_INSUFFICIENT_STORAGE, (
+                f"the data folder holds {used / 1e6:.1f} MB and this {kind} may write "
+                f"{estimate.artifact_bytes / 1e6:.1f} MB more, past this service's limit "
+                f"of {settings.max_data_bytes / 1e6:.1f} MB (max_data_bytes); free space "
+                "with `nirc-bench gc --apply`"))
+
+
 def _enqueue(kind: str, spec: RenderSpec | SweepSpec, queue, dispatcher, response: Response,
-             idempotency_key: str | None, device_class: str) -> JobOut:
+             idempotency_key: str | None, device_class: str, settings) -> JobOut:
     reason = dispatcher.unavailable(device_class) if dispatcher is not None else None
     if reason:
         raise HTTPException(status.HTTP_409_CONFLICT, reason)
-    job, created = queue.submit(kind, spec.model_dump(mode="json"),
-                                spec_key(kind, spec, device_class),
-                                idempotency_key=idempotency_key, device_class=device_class)
+    _check_work(kind, spec, queue.store, settings)
+    try:
+        job, created = queue.submit(kind, spec.model_dump(mode="json"),
+                                    spec_key(kind, spec, device_class),
+                                    idempotency_key=idempotency_key, device_class=device_class)
+    except IdempotencyKeyReused as err:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, [
+            {"loc": ["header", "Idempotency-Key"], "msg": str(err),
+             "type": "value_error"}]) from None
     if created and dispatcher is not None:
         dispatcher.submit(job)
     response.headers["Location"] = f"/api/v1/jobs/{job.id}"
@@ -73,25 +112,27 @@ def _enqueue(kind: str, spec: RenderSpec | SweepSpec, queue, dispatcher, respons
 @router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut,
              dependencies=[WriteAccess])
 def submit_job(spec: RenderSpec, response: Response, queue: QueueDep,
-               dispatcher: DispatcherDep, idempotency_key: IdempotencyKey = None,
+               dispatcher: DispatcherDep, settings: SettingsDep,
+               idempotency_key: IdempotencyKey = None,
                device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a render job (K seeds of a method on a scene, against its reference)."""
     _check_render(spec)
     return _enqueue("render", spec, queue, dispatcher, response,
-                    idempotency_key, device_class)
+                    idempotency_key, device_class, settings)
 
 
 @router.post("/sweeps", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut,
              dependencies=[WriteAccess])
 def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
-                 dispatcher: DispatcherDep, idempotency_key: IdempotencyKey = None,
+                 dispatcher: DispatcherDep, settings: SettingsDep,
+                 idempotency_key: IdempotencyKey = None,
                  device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a sweep (adaptive equal-bias over eps, or over N_c); poll it as a job."""
     _check_scene(spec.scene)
     for method in spec.methods:
         _check_params(method, spec.params)
     return _enqueue("sweep", spec, queue, dispatcher, response,
-                    idempotency_key, device_class)
+                    idempotency_key, device_class, settings)
 
 
 @router.get("/jobs", response_model=list[JobOut])

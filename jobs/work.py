@@ -1,0 +1,171 @@
+"""Work estimates of jobs: what a submission may cost before anything runs.
+
+A job's work is counted in *path samples* (pixels x samples per pixel): a
+render is ``pixels x spp x frames x seeds``, plus its reference's ``pixels x
+spp`` if that reference is not stored yet; a sweep is the sum over its stages
+(jobs/graph.py) and its own last step. The estimate is an upper bound of the
+sampling only (a reference with a ``rel_stderr`` target may stop early; a
+cache's per-sample training cost is not counted), good enough to refuse what
+no service should accept (``Settings.max_job_work``) and to give a job without
+an explicit ``--job-timeout`` a timeout of its size (:func:`default_timeout_s`).
+
+``artifact_bytes`` estimates the files a job writes (uncompressed RGB float32
+EXRs, PNG previews, cache weights), for the disk limit ``Settings.max_data_bytes``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import func, select
+
+from jobs.calibration import KNOBS
+from jobs.config import DATABASE_FILENAME, Settings
+from jobs.graph import Stage, sweep_stages
+from jobs.models import Artifact, Reference
+from jobs.spec import ReferenceSpec, RenderSpec, SweepSpec
+from jobs.store import Store
+from jobs.versions import reference_estimator_version
+from metrics import METRIC_VERSION
+
+#: Bytes per pixel of a stored image: RGB float32 (an upper bound; EXRs compress).
+IMAGE_BYTES_PER_PIXEL = 12
+#: Bytes per pixel of a PNG preview or error map (RGB 8 bit, uncompressed).
+PREVIEW_BYTES_PER_PIXEL = 3
+#: A trained cache's stored weights (.npz), a rough allowance per snapshot.
+SNAPSHOT_WEIGHTS_BYTES = 16 << 20
+
+
+@dataclass
+class WorkEstimate:
+    """Path samples a job renders (``samples``) and the bytes it may store."""
+
+    samples: int = 0
+    artifact_bytes: int = 0
+    parts: dict[str, int] = field(default_factory=dict)   # samples by what renders them
+
+    def add(self, part: str, samples: int, artifact_bytes: int = 0) -> None:
+        self.samples += samples
+        self.artifact_bytes += artifact_bytes
+        self.parts[part] = self.parts.get(part, 0) + samples
+
+
+def _reference(estimate: WorkEstimate, pixels: int, reference: ReferenceSpec) -> None:
+    estimate.add("reference", pixels * reference.spp, 2 * pixels * IMAGE_BYTES_PER_PIXEL)
+
+
+def render_work(spec: RenderSpec, reference_stored: bool = False) -> WorkEstimate:
+    """A render job: K seeds of ``frames`` frames at ``spp`` (calibration probes and the
+    largest candidate when the spp is calibrated to a time budget)."""
+    estimate = WorkEstimate()
+    pixels = spec.resolution ** 2
+    if not reference_stored:
+        _reference(estimate, pixels, spec.reference)
+    spp = spec.spp
+    if spec.time_budget is not None and spec.method in KNOBS:
+        knob, default = KNOBS[spec.method]
+        candidates = spec.time_budget.candidates or default
+        per_candidate = [c if knob == "spp" else spp for c in candidates]
+        estimate.add("calibration", pixels * spec.time_budget.probe_frames * sum(per_candidate))
+        if knob == "spp":
+            spp = max(candidates)
+    frames_kept = spec.frames * spec.seeds if spec.keep_frames else 0
+    estimate.add("seeds", pixels * spp * spec.frames * spec.seeds,
+                 pixels * (IMAGE_BYTES_PER_PIXEL * (spec.seeds + frames_kept)
+                           + 2 * PREVIEW_BYTES_PER_PIXEL))
+    return estimate
+
+
+def stage_work(spec: SweepSpec, task: dict[str, Any]) -> WorkEstimate:
+    """One stage of a sweep (jobs.graph.sweep_stages), or the sweep job's own last step
+    (``{"stage": "sweep"}``: the 'NIRC equal time' series and the plots)."""
+    estimate = WorkEstimate()
+    pixels = spec.resolution ** 2
+    point_bytes = pixels * (IMAGE_BYTES_PER_PIXEL * spec.seeds + 2 * PREVIEW_BYTES_PER_PIXEL)
+    match task["stage"]:
+        case "reference":
+            _reference(estimate, pixels, spec.reference)
+        case "snapshot":
+            estimate.add("caches", pixels * (spec.train_frames + spec.v1_spp),
+                         SNAPSHOT_WEIGHTS_BYTES + pixels * IMAGE_BYTES_PER_PIXEL)
+        case "series":
+            points = len(spec.eps or [])
+            estimate.add("points", points * pixels * spec.frames * spec.seeds,
+                         points * point_bytes)
+        case "nc-point":
+            estimate.add("points", pixels * (spec.train_frames + spec.frames) * spec.seeds,
+                         point_bytes)
+        case "sweep":
+            if spec.kind == "eps" and spec.equal_time and set(spec.methods) >= {"nirc", "nrc"}:
+                points = len(spec.eps or [])
+                probes = len(spec.nc_candidates()) * spec.probe_frames
+                estimate.add("equal time", points * pixels * (probes + spec.frames * spec.seeds),
+                             points * point_bytes)
+    return estimate
+
+
+def sweep_work(spec: SweepSpec, stages: list[Stage] | None = None) -> WorkEstimate:
+    """A whole sweep: every stage and the sweep job's own step."""
+    estimate = WorkEstimate()
+    for stage in [*(stages if stages is not None else sweep_stages(spec)),
+                  Stage("sweep", {"stage": "sweep"})]:
+        part = stage_work(spec, stage.task)
+        estimate.artifact_bytes += part.artifact_bytes
+        for name, samples in part.parts.items():
+            estimate.add(name, samples)
+    return estimate
+
+
+def job_work(kind: str, spec: dict[str, Any]) -> WorkEstimate:
+    """The work of a stored job row (its kind and spec JSON); the reference counted."""
+    if kind == "render":
+        return render_work(RenderSpec(**spec))
+    if kind == "stage":
+        return stage_work(SweepSpec(**spec["sweep"]), spec["task"])
+    return stage_work(SweepSpec(**spec), {"stage": "sweep"})
+
+
+def default_timeout_s(estimate: WorkEstimate, settings: Settings) -> float:
+    """A job's timeout from its size: start-up and JIT time plus its samples at the
+    slowest rate the service is expected to sample (both settings)."""
+    return settings.job_timeout_min_s + estimate.samples / settings.timeout_samples_per_s
+
+
+def reference_stored(store: Store, scene: str, resolution: int, reference: ReferenceSpec,
+                     max_depth: int) -> bool:
+    """Whether a reference for these settings is stored (by scene name, as the loader
+    names it: a built-in's name or an XML file's absolute path), so it need not be
+    counted. An XML file edited since would be rendered again, uncounted."""
+    settings = reference.settings(max_depth)
+    name = scene
+    if scene.lower().endswith(".xml"):
+        try:
+            name = str(Path(scene).expanduser().resolve())
+        except (OSError, RuntimeError, ValueError):
+            return False
+    with store.session() as session:
+        rows = session.scalars(select(Reference).where(
+            Reference.scene_name == name, Reference.width == resolution,
+            Reference.height == resolution,
+            Reference.estimator_version == reference_estimator_version(settings.integrator),
+            Reference.metric_version == METRIC_VERSION)).all()
+    return any(row.settings == settings.to_json() for row in rows)
+
+
+def data_bytes(store: Store, settings: Settings) -> int:
+    """Bytes the data folder holds: the stored artifacts (each file once), the
+    reference files and the SQLite database file (if the database is one)."""
+    with store.session() as session:
+        distinct = select(Artifact.path, func.max(Artifact.bytes).label("bytes")) \
+            .group_by(Artifact.path).subquery()
+        total = int(session.scalar(select(func.coalesce(func.sum(distinct.c.bytes), 0))) or 0)
+    if settings.references_dir.is_dir():
+        total += sum(entry.stat().st_size for entry in settings.references_dir.iterdir()
+                     if entry.is_file())
+    database = settings.data_dir / DATABASE_FILENAME
+    for path in (database, database.with_name(database.name + "-wal")):
+        if str(settings.database_url).startswith("sqlite") and path.is_file():
+            total += path.stat().st_size
+    return total

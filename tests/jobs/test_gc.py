@@ -1,0 +1,97 @@
+"""Retention (`nirc-bench gc`): unused references and unnamed files go, results stay;
+a dry run only lists; young files are kept (a job in flight writes them first)."""
+
+from __future__ import annotations
+
+import os
+import time
+from datetime import UTC, datetime, timedelta
+
+from typer.testing import CliRunner
+
+from jobs import gc
+from jobs.artifacts import ArtifactStore
+from jobs.config import Settings
+from jobs.db import open_store
+from tests.jobs.factories import artifact_fields, reference_fields, run_fields
+
+OLD = datetime.now(UTC) - timedelta(days=90)
+
+
+def _age(path, days: float = 90) -> None:
+    past = time.time() - days * 86400
+    os.utime(path, (past, past))
+
+
+def _data(store, settings: Settings) -> dict:
+    """An unused old reference, a used one, an unnamed old and young artifact file,
+    a named one, a stray reference file and an old scratch file."""
+    refs = settings.references_dir
+    refs.mkdir(parents=True)
+    files = {}
+    for name in ("unused.exr", "unused.variance.exr", "used.exr", "used.variance.exr",
+                 "stray.exr"):
+        (refs / name).write_bytes(b"x" * 100)
+        _age(refs / name)
+        files[name] = refs / name
+    unused = store.add_reference(**reference_fields(
+        "unused", image_path="unused.exr", variance_path="unused.variance.exr", created_at=OLD))
+    used = store.add_reference(**reference_fields(
+        "used", image_path="used.exr", variance_path="used.variance.exr", created_at=OLD))
+    artifacts = ArtifactStore(settings.artifacts_dir)
+    named = artifacts.put_bytes(b"named" * 10, ".exr")
+    orphan = artifacts.put_bytes(b"orphan" * 10, ".exr")
+    young = artifacts.put_bytes(b"young" * 10, ".exr")
+    for blob in (named, orphan):
+        _age(artifacts.path_of(blob.relpath))
+    fields = artifact_fields("image", named.sha256)
+    run = store.add_run(run_fields(reference_id=used.id), [], [{**fields, "path": named.relpath}])
+    scratch = settings.data_dir / "tmp" / ".tmp-abc.exr"
+    scratch.parent.mkdir(parents=True)
+    scratch.write_bytes(b"s" * 7)
+    _age(scratch)
+    return {"unused": unused, "used": used, "run": run, "files": files, "scratch": scratch,
+            "named": artifacts.path_of(named.relpath), "young": artifacts.path_of(young.relpath),
+            "orphan": artifacts.path_of(orphan.relpath)}
+
+
+def test_gc_lists_then_removes_what_no_result_needs(store, settings):
+    data = _data(store, settings)
+    plan = gc.plan(store, settings)
+    listed = {(r.what, r.reference_id or str(r.path)) for r in plan.removals}
+    assert listed == {("reference", data["unused"].id),
+                      ("reference file", str(data["files"]["stray.exr"])),
+                      ("artifact file", str(data["orphan"])),
+                      ("scratch file", str(data["scratch"]))}
+    assert plan.bytes == 200 + 100 + 60 + 7
+    assert data["orphan"].exists() and store.get_reference(data["unused"].id)  # a plan only
+    assert gc.apply(store, settings, plan) == plan.bytes
+    assert store.get_reference(data["unused"].id) is None
+    assert store.get_reference(data["used"].id) is not None
+    assert store.get_run(data["run"].id).artifacts[0].path
+    for kept in (data["named"], data["young"], data["files"]["used.exr"]):
+        assert kept.exists()
+    for gone in (data["orphan"], data["scratch"], data["files"]["unused.exr"],
+                 data["files"]["stray.exr"]):
+        assert not gone.exists()
+    assert gc.plan(store, settings).removals == []
+    # With no age limit, the young unnamed file goes too.
+    assert [r.path for r in gc.plan(store, settings, keep_days=0).removals] == [data["young"]]
+
+
+def test_gc_command_is_a_dry_run_unless_applied(tmp_path, monkeypatch):
+    from service.cli import app
+
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    settings = Settings(data_dir=tmp_path / "data")
+    store = open_store(settings)
+    data = _data(store, settings)
+    store.close()
+    runner = CliRunner()
+    dry = runner.invoke(app, ["gc", "--data-dir", str(settings.data_dir)])
+    assert dry.exit_code == 0, dry.output
+    assert "would remove 4 items, 367 bytes" in dry.output and "--apply" in dry.output
+    assert data["orphan"].exists()
+    applied = runner.invoke(app, ["gc", "--apply", "--data-dir", str(settings.data_dir)])
+    assert applied.exit_code == 0 and "removed 4 items, 367 bytes" in applied.output
+    assert not data["orphan"].exists() and data["named"].exists()
