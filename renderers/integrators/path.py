@@ -23,6 +23,12 @@ termination probability 0.1 of the NIRC paper, Sec. 6.2); ``rr_mode=
 'throughput'`` uses Mitsuba's rule q = min(max(beta) * eta^2, 0.95). Both are
 unbiased; they differ in path length and so in speed and variance.
 
+A method ends a path with ``VertexTerms.stop_indirect`` (its term replaced
+the indirect light at the vertex: the continuation ray is still traced, only
+to collect the MIS-weighted emission it hits, so direct light stays exactly
+PT's) or ``VertexTerms.stop`` (the path ends at the vertex; for a term that
+already contains direct light). docs/estimators.md states each estimator.
+
 Left out on purpose: participating media, polarisation, hidden emitters.
 """
 
@@ -113,7 +119,8 @@ class PathIntegrator(mi.SamplingIntegrator):
         ``init_state(ray, sampler)``: a PyTree of extra per-path loop state, or None.
         ``after_emission(vertex, state)``: called after a vertex's emission term.
         ``vertex_terms(vertex, state)``: after BSDF sampling, before NEE is added;
-            returns (VertexTerms or None, state).
+            returns (VertexTerms or None, state). NEE is MIS-weighted unless
+            skipped, also at a vertex that stops.
     """
 
     def __init__(self, props: mi.Properties) -> None:
