@@ -144,7 +144,13 @@ def pixel_index(ray: mi.Ray3f, sampler: mi.Sampler) -> mi.UInt32:
 
 
 def update_spread(vertex: Vertex, state: CacheState) -> CacheState:
-    """Add the vertex to the path's spread (SPH, spread.py); a_0 at the first vertex."""
+    """Add the vertex to the path's spread (SPH, spread.py); a_0 at the first vertex.
+
+    A segment that follows a delta BSDF sample adds nothing: a mirror or a
+    smooth dielectric does not widen the footprint (NRC treats a Dirac bounce
+    as zero spread), while Mitsuba reports such a sample with pdf 1, which
+    would add sqrt(d^2 / |cos|).
+    """
     si = vertex.si
     distance_sq = dr.square(si.t)
     cos_theta = dr.dot(si.sh_frame.n, -vertex.ray.d)
@@ -152,6 +158,7 @@ def update_spread(vertex: Vertex, state: CacheState) -> CacheState:
     state.a0 = dr.select(first & vertex.active, primary_footprint(distance_sq, cos_theta),
                          state.a0)
     increment = spread_increment(distance_sq, vertex.prev_bsdf_pdf, cos_theta)
-    grow = ~first & vertex.active & si.is_valid() & dr.isfinite(increment)
+    grow = (~first & ~vertex.prev_bsdf_delta & vertex.active & si.is_valid()
+            & dr.isfinite(increment))
     state.spread_sum = dr.select(grow, state.spread_sum + increment, state.spread_sum)
     return state

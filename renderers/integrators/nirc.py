@@ -3,33 +3,57 @@
 The cache n(x, w_i) approximates the *indirect* incident radiance L_ind(x, w_i)
 (NIRC paper Eq. 8-9): radiance reflected at the next vertex y toward x, without
 y's own emission, which next-event estimation and MIS already account for.
-With N_c directions w_i sampled from the BSDF at x, the cache term is
+With N_c directions w_i sampled from the *smooth* lobes of the BSDF at x, the
+cache term is
 
-    L_c = 1/N_c sum_i n(x, w_i) f(x, w_i, w_o) cos / p(w_i)            (Eq. 12)
+    L_c = 1/N_c sum_i n(x, w_i) f_s(x, w_i, w_o) cos / p_s(w_i)          (Eq. 12)
+
+Delta and smooth lobes (e.g. Mitsuba's ``plastic``): the indirect light at x
+is I = I_s + I_delta. L_c estimates only I_s (its samples are drawn with a
+BSDF context that excludes delta lobes, so f_s and p_s are the smooth part's);
+I_delta is never cached: it is estimated by the path itself, which continues
+whenever its continuation sample picked a delta lobe (with Mitsuba's weight
+F / P_delta, whose expectation over the lobe choice is I_delta). So at a
+vertex where the method replaces the smooth indirect light ("stop"), a
+smooth continuation only collects its emitter hit and a delta continuation
+goes on as a path; the expectation is I_s + I_delta whenever the stop
+decision does not depend on the continuation's lobe (SPH, adaptive).
 
 Two estimators use it:
 
-* biased (Eq. 13): at the vertex where the path terminates, L_e + L_nee + L_c;
-  termination by the Balanced Termination Heuristic (Eq. 22-23: continue with
-  P_s = p(w) / (p(w) + N_c / pi), and for vertices after the first also stop
-  when the spread heuristic says so) or by the spread heuristic alone. Delta
-  lobes always continue. Because the path does not continue, NEE at that vertex
-  is not MIS-weighted (nothing collects the BSDF-sampled part of direct light).
+* biased (Eq. 13): at the vertex where the path terminates, L_e + L_nee + L_c,
+  in the order of the authors' code: NEE with its MIS weight; sample the
+  continuation direction; the continuation ray collects the MIS-weighted
+  emission it hits (``VertexTerms.stop_indirect``, path.py); the termination
+  decision only replaces the *indirect* part by L_c (N_c fresh samples, not the
+  continuation direction), and nothing is divided by the continuation
+  probability. So direct light is exactly PT's. Termination by the Balanced
+  Termination Heuristic (Eq. 22-23: continue with P_s = p(w) / (p(w) + N_c / pi),
+  p the full BSDF pdf of the continuation direction w; for vertices after the
+  first also stop when the spread heuristic says so) or by the spread heuristic
+  alone. Where the continuation is a delta lobe, the BTH decision for the
+  smooth part is drawn with a virtual smooth sample instead (its full pdf), so
+  the smooth part is cached with the same probability as in the smooth branch.
+  BTH is biased even with a perfect cache unless L_ind is uniform over the
+  hemisphere: P_s depends on the direction the continuing path then follows
+  and the continuing path is not reweighted (docs/estimators.md).
   ``termination='adaptive'`` is the per-pixel policy of Sec. 6.3: at the first
   vertex v1 a path terminates where the pixel's v1 mask allows (the mask comes
   from the relative bias of the converged cache-at-v1 image, jobs/sweep.py),
   at later vertices by the spread heuristic; N_c may differ at v1 and later
   (``nc='8,1'``: 8 neural samples at v1, 1 afterwards — the paper's "NIRC
   equal time" series varies the first).
-* unbiased (Eq. 10-11, two-level Monte Carlo): at the first three non-specular
-  vertices add L_c and the residual with the path's own continuation direction
-  w, -n(x, w) f cos / p(w), then continue as PT: the path's continuation is the
-  one-sample estimate of L_ind(x, w), so the residual term has expectation
-  E[L_ind - n] and the whole estimator has exactly PT's expectation, whatever
-  the cache has learned.
+* unbiased (Eq. 10-11, two-level Monte Carlo): at the first three
+  non-specular vertices add L_c and the residual with the path's own
+  continuation direction w, -n(x, w) f cos / p(w) (only where w is a smooth
+  sample: a delta continuation estimates I_delta, which L_c leaves out), then
+  continue as PT: the path's continuation is the one-sample estimate of
+  L_ind(x, w), so the residual term has expectation E[L_ind - n] and the whole
+  estimator has exactly PT's expectation, whatever the cache has learned.
 
 The position encoding is computed once per shading point and shared by its N_c
-directions (Sec. 4.5), through ``NeuralCache.surface_features``.
+directions (Sec. 4.5), through ``NeuralCache.surface_features``. Directions of
+lanes whose value is not used are passed as 0 (an oracle cache skips them).
 """
 
 from __future__ import annotations
@@ -74,18 +98,19 @@ class NIRCIntegrator(CachedPathIntegrator):
         if self.estimator == "biased" and len(self.nc) > (2 if self.termination == "adaptive" else 1):
             raise ValueError("the biased estimator takes one N_c (adaptive: N_c at v1 and later)")
 
-    # ---- Cache term L_c (Eq. 12) with the per-surface encoding shared by N_c directions ----
+    # ---- Cache term L_c over the smooth lobes (Eq. 12), one surface encoding for N_c ----
     def cache_term(self, vertex: Vertex, surface: list, nc_lane: mi.UInt32, max_nc: int,
                    active: mi.Bool) -> mi.Spectrum:
         si, bsdf = vertex.si, vertex.bsdf
-        ctx = mi.BSDFContext()
+        ctx = smooth_context()
         total = mi.Spectrum(0)
         for slot in range(max_nc):
             use = active & (slot < nc_lane)
             bs, weight = bsdf.sample(ctx, si, vertex.sampler.next_1d(use),
                                      vertex.sampler.next_2d(use), use)
-            n_i = self.cache.query(surface, si.to_world(bs.wo))
-            total += dr.select(use & (bs.pdf > 0), n_i * weight, 0)
+            use &= bs.pdf > 0
+            n_i = self.cache.query(surface, used_direction(si, bs.wo, use))
+            total += dr.select(use, n_i * weight, 0)
         return total / mi.Float(dr.maximum(nc_lane, 1))
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
@@ -95,7 +120,8 @@ class NIRCIntegrator(CachedPathIntegrator):
             return self._unbiased_terms(vertex, state, usable)
         return self._biased_terms(vertex, state, usable)
 
-    def _unbiased_terms(self, vertex, state, usable):
+    def _unbiased_terms(self, vertex: Vertex, state: CacheState,
+                        usable: mi.Bool) -> tuple[VertexTerms, CacheState]:
         # ---- Two-level MC (Eq. 10-11): L_c plus the residual along the continuation ----
         use = usable & (state.cache_vertices < len(self.nc))
         nc_lane = mi.UInt32(self.nc[-1])
@@ -103,25 +129,37 @@ class NIRCIntegrator(CachedPathIntegrator):
             nc_lane = dr.select(state.cache_vertices == index, self.nc[index], nc_lane)
         surface = self.cache.surface_features(**cache_inputs(vertex.si, vertex.bsdf))
         L_c = self.cache_term(vertex, surface, nc_lane, max(self.nc), use)
-        # The continuation sample was drawn independently of the N_c cache samples.
-        wo = vertex.si.to_world(vertex.bsdf_sample.wo)
-        n_cont = self.cache.query(surface, wo)
-        continues = use & (vertex.bsdf_sample.pdf > 0)
-        residual_cache = dr.select(continues, n_cont * vertex.bsdf_weight, 0)
+        # The continuation sample was drawn independently of the N_c cache samples;
+        # only a smooth one estimates what L_c integrates (I_s).
+        bs = vertex.bsdf_sample
+        smooth_cont = use & (bs.pdf > 0) & ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        n_cont = self.cache.query(surface, used_direction(vertex.si, bs.wo, smooth_cont))
+        residual_cache = dr.select(smooth_cont, n_cont * vertex.bsdf_weight, 0)
         state.cache_vertices = dr.select(use, state.cache_vertices + 1, state.cache_vertices)
         terms = VertexTerms(L_add=dr.select(use, L_c - residual_cache, 0), stop=mi.Bool(False),
-                            nee_unweighted=mi.Bool(False), skip_nee=mi.Bool(False))
+                            stop_indirect=mi.Bool(False), skip_nee=mi.Bool(False))
         return terms, state
 
-    def _biased_terms(self, vertex, state, usable):
-        # ---- Termination (BTH Eq. 22-23, SPH Eq. 19-21, or adaptive Sec. 6.3);
-        #      delta lobes continue (the paper excludes delta scattering at v1) ----
+    def _bth_continue_pdf(self, vertex: Vertex, usable: mi.Bool) -> mi.Float:
+        """Full BSDF pdf p(w) for Eq. 22: of the continuation w where it is a smooth
+        sample, else of a virtual smooth sample (the decision is about the smooth part)."""
+        si, bsdf, bs = vertex.si, vertex.bsdf, vertex.bsdf_sample
+        delta = usable & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        virtual, _ = bsdf.sample(smooth_context(), si, vertex.sampler.next_1d(delta),
+                                 vertex.sampler.next_2d(delta), delta)
+        pdf_virtual = bsdf.pdf(mi.BSDFContext(), si, virtual.wo, delta)
+        return dr.select(delta, pdf_virtual, bs.pdf)
+
+    def _biased_terms(self, vertex: Vertex, state: CacheState,
+                      usable: mi.Bool) -> tuple[VertexTerms, CacheState]:
+        # ---- Termination of the smooth indirect part (BTH Eq. 22-23, SPH Eq. 19-21,
+        #      adaptive Sec. 6.3). NEE (MIS-weighted) and the continuation's emitter
+        #      hit are collected whatever is decided here (path.py, stop_indirect) ----
         nc = self.nc[0]
         nc_later = self.nc[-1] if self.termination == "adaptive" else nc
-        delta = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
         spread_stop = (vertex.depth > 0) & spread_exceeded(state.spread_sum, state.a0, self.sph_c)
         if self.termination == "bth":
-            pdf = vertex.bsdf_sample.pdf
+            pdf = self._bth_continue_pdf(vertex, usable)
             p_continue = pdf / (pdf + nc / math.pi)
             xi = vertex.sampler.next_1d(usable)
             stop = (xi > p_continue) | spread_stop
@@ -129,13 +167,28 @@ class NIRCIntegrator(CachedPathIntegrator):
             stop = dr.select(vertex.depth == 0, state.v1_allowed, spread_stop)
         else:
             stop = spread_stop
-        stop &= usable & ~delta
-        # ---- Shade the terminal vertex: L_e (done) + L_nee (unweighted) + L_c (Eq. 13) ----
+        stop &= usable
+        # ---- Shade the terminal vertex: L_e (done) + L_nee (core) + L_c (Eq. 13) ----
         nc_lane = dr.select(vertex.depth == 0, mi.UInt32(nc), mi.UInt32(nc_later))
         surface = self.cache.surface_features(**cache_inputs(vertex.si, vertex.bsdf))
         L_c = self.cache_term(vertex, surface, nc_lane, max(nc, nc_later), stop)
+        # A delta continuation carries I_delta, which L_c leaves out: it goes on as a path.
+        delta_cont = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
         state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
         state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
-        terms = VertexTerms(L_add=dr.select(stop, L_c, 0), stop=stop, nee_unweighted=stop,
-                            skip_nee=mi.Bool(False))
+        terms = VertexTerms(L_add=dr.select(stop, L_c, 0), stop=mi.Bool(False),
+                            stop_indirect=stop & ~delta_cont, skip_nee=mi.Bool(False))
         return terms, state
+
+
+def smooth_context() -> mi.BSDFContext:
+    """A BSDF context restricted to the smooth (non-delta) lobes."""
+    ctx = mi.BSDFContext()
+    ctx.type_mask = int(mi.BSDFFlags.Smooth)
+    return ctx
+
+
+def used_direction(si: mi.SurfaceInteraction3f, wo_local: mi.Vector3f,
+                   used: mi.Bool) -> mi.Vector3f:
+    """World direction of a cache query, 0 on lanes whose value is discarded."""
+    return dr.select(used, si.to_world(wo_local), mi.Vector3f(0))

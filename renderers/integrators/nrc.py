@@ -8,7 +8,13 @@ query multiplies by a_d + a_s, so it learns the smoother irradiance-like part.
 A path terminates into the cache at the first vertex where the spread heuristic
 fires (NIRC paper Eq. 19-21 in NRC's original form, spread.py); there it adds
 beta * cache(x, w_o) and, since the cache already contains direct light, does
-no next-event estimation. Delta lobes continue. One cache query per path, as
+no next-event estimation and ends without tracing its continuation
+(``VertexTerms.stop``; NIRC's ``stop_indirect`` would count the continuation's
+emitter hit twice). Vertices whose BSDF has no smooth lobe (mirrors, glass)
+never terminate. The decision does not look at the lobe the continuation
+sample picked: L_r contains the light of every lobe, delta lobes included, so
+continuing only where a delta lobe was sampled would bias it. One cache query
+per path, as
 in the NIRC paper's NRC baseline (Sec. 6.2). Training uses NRC's self-training
 (``NRCSelfTrainingIntegrator``) by default.
 """
@@ -45,21 +51,22 @@ def nrc_terms(cache: Any, sph_c: float, vertex: Vertex, state: CacheState,
     also at v1 where the pixel's v1 mask allows and the surface is not too
     glossy (roughness >= ``MIN_V1_ROUGHNESS``)."""
     smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
-    delta = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
     inputs = cache_inputs(vertex.si, vertex.bsdf, specular=True)
     # ---- Termination by the spread heuristic (Eq. 21) ----
     stop = (vertex.depth > 0) & spread_exceeded(state.spread_sum, state.a0, sph_c)
     if adaptive:
         at_v1 = state.v1_allowed & (inputs["roughness"] >= MIN_V1_ROUGHNESS)
         stop = dr.select(vertex.depth == 0, at_v1, stop)
-    stop &= vertex.active_next & smooth & ~delta & may_terminate
+    stop &= vertex.active_next & smooth & may_terminate
     # ---- Shade the terminal vertex with the cache: L_e (done) + L_r(x, w_o) ----
     surface = cache.surface_features(**inputs)
-    L_r = cache.query(surface, -vertex.ray.d) * demodulation(inputs)
+    # Directions of unused lanes are 0 (an oracle cache skips them).
+    w_o = dr.select(stop, -vertex.ray.d, mi.Vector3f(0))
+    L_r = cache.query(surface, w_o) * demodulation(inputs)
     state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
     state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
     terms = VertexTerms(L_add=dr.select(stop, L_r, 0), stop=stop,
-                        nee_unweighted=mi.Bool(False), skip_nee=stop)
+                        stop_indirect=mi.Bool(False), skip_nee=stop)
     return terms, state
 
 

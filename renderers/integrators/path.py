@@ -23,6 +23,12 @@ termination probability 0.1 of the NIRC paper, Sec. 6.2); ``rr_mode=
 'throughput'`` uses Mitsuba's rule q = min(max(beta) * eta^2, 0.95). Both are
 unbiased; they differ in path length and so in speed and variance.
 
+A method ends a path with ``VertexTerms.stop_indirect`` (its term replaced
+the indirect light at the vertex: the continuation ray is still traced, only
+to collect the MIS-weighted emission it hits, so direct light stays exactly
+PT's) or ``VertexTerms.stop`` (the path ends at the vertex; for a term that
+already contains direct light). docs/estimators.md states each estimator.
+
 Left out on purpose: participating media, polarisation, hidden emitters.
 """
 
@@ -39,9 +45,16 @@ RR_MODES = ("fixed", "throughput")
 
 
 def mis_weight(pdf_a: mi.Float, pdf_b: mi.Float) -> mi.Float:
-    """Power heuristic (beta = 2) weight of technique a; 0 where p_a is 0."""
-    a2 = dr.square(pdf_a)
-    return dr.detach(dr.select(pdf_a > 0, a2 / dr.fma(pdf_b, pdf_b, a2), 0))
+    """Power heuristic (beta = 2) weight of technique a; 0 where p_a is 0.
+
+    Written as 1 / (1 + (p_b/p_a)^2): the textbook p_a^2 / (p_a^2 + p_b^2)
+    overflows float32 once p_a > ~1.8e19, giving inf/inf = NaN. Such pdfs
+    occur when a point on an area light samples that same light (the sampled
+    direction lies in the light's plane, |cos| ~ 1e-20; docs/estimators.md,
+    "Non-finite values"). As in Mitsuba's ``path``, non-finite weights become 0.
+    """
+    w = dr.rcp(1.0 + dr.square(pdf_b / pdf_a))
+    return dr.detach(dr.select((pdf_a > 0) & dr.isfinite(w), w, 0))
 
 
 @dataclass
@@ -59,6 +72,7 @@ class Vertex:
     active: mi.Bool               # lanes whose path reached this vertex
     active_next: mi.Bool          # lanes that may extend the path beyond this vertex
     prev_bsdf_pdf: mi.Float       # pdf of the BSDF sample that led to this vertex
+    prev_bsdf_delta: mi.Bool      # that sample was a delta lobe (or this is the camera ray)
     bsdf_sample: Any = None       # mi.BSDFSample3f of the continuation direction
     bsdf_weight: Any = None       # f cos / pdf of the continuation direction
 
@@ -67,16 +81,24 @@ class Vertex:
 class VertexTerms:
     """A method's contribution at a vertex (all masks per lane).
 
-    ``L_add`` is added with the path throughput; ``stop`` ends the path after
-    this vertex; where ``nee_unweighted`` is set, next-event estimation is not
-    MIS-weighted (the path will not continue to collect the BSDF-sampled part of
-    direct light); where ``skip_nee`` is set no NEE is done (the method's term
-    already contains direct light).
+    ``L_add`` is added with the path throughput. Two ways to end a path:
+
+    * ``stop_indirect``: the method's term replaced the *indirect* light at
+      this vertex (NIRC's L_c). Direct light stays the core's: NEE here is
+      MIS-weighted as usual, and the path still traces its continuation ray,
+      only to collect the MIS-weighted emission it hits (no NEE there, no
+      further bounce). So direct light is estimated exactly as by PT, whatever
+      the method decides (the order of the NIRC authors' code).
+    * ``stop``: the path ends at this vertex, its continuation is not traced
+      (NRC: the cached outgoing radiance contains everything, direct light
+      included, so it is combined with ``skip_nee``).
+
+    Where ``skip_nee`` is set no NEE is done at this vertex.
     """
 
     L_add: mi.Spectrum
     stop: mi.Bool
-    nee_unweighted: mi.Bool
+    stop_indirect: mi.Bool
     skip_nee: mi.Bool
 
 
@@ -97,7 +119,8 @@ class PathIntegrator(mi.SamplingIntegrator):
         ``init_state(ray, sampler)``: a PyTree of extra per-path loop state, or None.
         ``after_emission(vertex, state)``: called after a vertex's emission term.
         ``vertex_terms(vertex, state)``: after BSDF sampling, before NEE is added;
-            returns (VertexTerms or None, state).
+            returns (VertexTerms or None, state). NEE is MIS-weighted unless
+            skipped, also at a vertex that stops.
     """
 
     def __init__(self, props: mi.Properties) -> None:
@@ -172,6 +195,7 @@ class PathIntegrator(mi.SamplingIntegrator):
         prev_si = dr.zeros(mi.SurfaceInteraction3f)  # previous vertex (for the emitter pdf)
         prev_bsdf_pdf = mi.Float(1.0)         # solid-angle pdf of the last BSDF sample
         prev_bsdf_delta = mi.Bool(True)       # last BSDF sample was a delta lobe (or camera)
+        last_segment = mi.Bool(False)         # the ray only collects the emission it hits
         state = self.init_state(ray, sampler) # the method's own per-path state (or None)
 
         while dr.hint(active, max_iterations=-1, label="nirc path tracer"):
@@ -185,11 +209,13 @@ class PathIntegrator(mi.SamplingIntegrator):
             Le = ds.emitter.eval(si, active & (prev_bsdf_pdf > 0))
             L = dr.fma(beta, Le * w_bsdf, L)
 
-            active_next = (depth + 1 < self.max_depth_u32) & si.is_valid() & active
+            # A path whose indirect light was replaced (stop_indirect) ends here.
+            active_next = ((depth + 1 < self.max_depth_u32) & si.is_valid() & active
+                           & ~last_segment)
             valid_ray |= active & si.is_valid()
             bsdf = si.bsdf(ray)
             vertex = Vertex(scene, sampler, ray, si, bsdf, beta, L, depth, active, active_next,
-                            prev_bsdf_pdf)
+                            prev_bsdf_pdf, prev_bsdf_delta)
             state = self.after_emission(vertex, state)
 
             # ---- Emitter sampling (next-event estimation; MIS weight vs BSDF) ----
@@ -210,10 +236,10 @@ class PathIntegrator(mi.SamplingIntegrator):
             vertex.bsdf_sample, vertex.bsdf_weight = bsdf_sample, bsdf_weight
             terms, state = self.vertex_terms(vertex, state)
             if terms is not None:
-                w_light = dr.select(terms.nee_unweighted, 1.0, w_light)
                 active_em &= ~terms.skip_nee
                 L = dr.fma(beta, terms.L_add, L)
                 active_next &= ~terms.stop
+                last_segment = active_next & terms.stop_indirect
 
             L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_light, L)
 
