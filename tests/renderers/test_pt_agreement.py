@@ -7,15 +7,19 @@ is tested at significance alpha = 1 %. Our `pt` uses a fixed-probability
 Russian roulette (survival 0.9) while `path` uses a throughput-based one, so
 the two draw different samples and agree only if both are unbiased.
 
-The power test shows the procedure can fail: a path tracer missing bounces
-(max_depth 3 against 8) is rejected.
+Every comparison runs both the per-pixel test and the aggregate test over
+pixel tiles (``agreement_test``), which catches biases of a few percent that
+no single pixel shows. The power tests show the procedure can fail: a path
+tracer missing bounces (max_depth 3 against 8) is rejected, and so is a 2 %
+brighter reference, which the per-pixel test alone lets through. The null
+test counts false rejections over independent pairs of unbiased renders.
 """
 
 from __future__ import annotations
 
 import pytest
 
-from metrics.statistics import z_test
+from metrics.statistics import agreement_test
 from renderers.moments import render_moments
 
 pytestmark = pytest.mark.slow
@@ -36,7 +40,7 @@ def _agreement(scene, test_integrator, seed=0):
     mean_a, var_a = render_moments(scene, test_integrator, SPP, seed=seed + 1)
     mean_b, var_b = render_moments(scene, {"type": "path", "max_depth": MAX_DEPTH}, SPP,
                                    seed=seed + 1000)
-    return z_test(mean_a, var_a, mean_b, var_b, alpha=0.01)
+    return agreement_test(mean_a, var_a, mean_b, var_b, alpha=0.01)
 
 
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-glossy", "sky", "door"])
@@ -73,6 +77,35 @@ def test_z_test_rejects_a_path_tracer_missing_bounces(mi):
     scene = load_scene("cornell-box", RES).scene
     result = _agreement(scene, _pt(max_depth=3))
     assert not result.passed, result.summary()
+
+
+def test_agreement_rejects_a_two_percent_bias_the_per_pixel_test_misses(mi):
+    from renderers.scenes import load_scene
+
+    # 1024 spp: a 2 % shift is about half a standard deviation per pixel.
+    scene = load_scene("cornell-box", RES).scene
+    mean_a, var_a = render_moments(scene, _pt(), 1024, seed=1)
+    mean_b, var_b = render_moments(scene, {"type": "path", "max_depth": MAX_DEPTH}, 1024,
+                                   seed=1000)
+    planted = agreement_test(mean_a, var_a, 1.02 * mean_b, 1.02**2 * var_b, alpha=0.01)
+    assert planted.per_pixel.passed and not planted.aggregate.passed, planted.summary()
+
+
+def test_false_rejections_of_unbiased_pairs_are_rare(mi):
+    """Ten independent pairs (our pt against Mitsuba's path, 16x16, 512 spp): at
+    alpha 0.01 per pair, two or more rejections happen with probability < 0.5 %."""
+    from renderers.scenes import load_scene
+
+    scene = load_scene("cornell-box", 16).scene
+    rejected = []
+    for pair in range(10):
+        mean_a, var_a = render_moments(scene, _pt(), 512, seed=10 + 2 * pair)
+        mean_b, var_b = render_moments(scene, {"type": "path", "max_depth": MAX_DEPTH}, 512,
+                                       seed=11 + 2 * pair)
+        result = agreement_test(mean_a, var_a, mean_b, var_b, alpha=0.01)
+        if not result.passed:
+            rejected.append(result.summary())
+    assert len(rejected) <= 1, rejected
 
 
 XML_SCENE = """<scene version="3.0.0">
