@@ -7,10 +7,13 @@ everything in ``./data`` under the working directory: a SQLite database plus
 the artifact and reference folders beside it.
 """
 
+import json
+import os
 from pathlib import Path
+from typing import Annotated, Any
 
 from pydantic import Field, field_validator, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 DATABASE_FILENAME = "nirc-bench.db"
 
@@ -31,6 +34,29 @@ class Settings(BaseSettings):
     # The longest a long poll (GET /api/v1/jobs/{id}?wait_s=) holds a request open,
     # below the idle timeouts of proxies in front of the service.
     long_poll_max_s: float = Field(30.0, ge=0.0)
+    # Folders whose Mitsuba XML scenes REST clients may name by path (docs/service.md);
+    # none by default. The environment variable is a JSON list or an os.pathsep-
+    # separated one: NIRC_BENCH_SCENE_ROOTS=/srv/scenes:/data/more-scenes.
+    scene_roots: Annotated[list[Path], NoDecode] = Field(default_factory=list)
+    # Size limits of a scene given over REST (uploaded, or copied from a scene root):
+    # each file, and all of its files together.
+    scene_max_file_bytes: int = Field(64 << 20, ge=1)
+    scene_max_bytes: int = Field(256 << 20, ge=1)
+
+    @field_validator("scene_roots", mode="before")
+    @classmethod
+    def _split_scene_roots(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            text = value.strip()
+            if text.startswith("["):
+                return json.loads(text)
+            return [part for part in text.split(os.pathsep) if part.strip()]
+        return value
+
+    @field_validator("scene_roots")
+    @classmethod
+    def _absolute_scene_roots(cls, value: list[Path]) -> list[Path]:
+        return [root.expanduser().absolute() for root in value]
 
     @field_validator("data_dir")
     @classmethod
