@@ -26,7 +26,6 @@ import dataclasses
 import os
 import re
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 
@@ -56,9 +55,10 @@ def scenes_dir(settings: Settings) -> Path:
     return settings.data_dir / "scenes"
 
 
-def unavailable_message(scene: str) -> str:
-    """The one answer for a scene that does not exist *or* may not be used."""
-    return (f"scene {scene[:200]!r} is not available: give a built-in scene "
+def unavailable_message() -> str:
+    """The one answer for a scene that does not exist *or* may not be used; it does
+    not even repeat the name, so two answers can be compared byte for byte."""
+    return ("the scene is not available: give a built-in scene "
             f"({', '.join(builtin_names())}), the id of an uploaded scene (upload:<digest>, "
             "from POST /api/v1/scenes) or the path of a Mitsuba XML file under the "
             "service's scene roots")
@@ -113,10 +113,10 @@ def rest_scene(scene: str, settings: Settings) -> str:
         return scene
     if SCENE_ID.match(scene):
         if stored_scene_file(scene, settings) is None:
-            raise SceneRefused(unavailable_message(scene))
+            raise SceneRefused(unavailable_message())
         return scene
     staged = vet_root_scene(scene, settings.scene_roots, limits_of(settings),
-                            missing=unavailable_message(scene))
+                            missing=unavailable_message())
     store_scene(staged, settings)
     return f"staged:{staged.digest}"
 
@@ -128,19 +128,19 @@ def load_spec_scene(scene: str, resolution: int, settings: Settings) -> LoadedSc
 
     A stored scene that Mitsuba refuses fails with a fixed message naming the id:
     Mitsuba's own text can quote a line of a file, and a job's error is served to
-    every reader. Its text goes to the render's log instead.
+    every reader.
     """
     if SCENE_ID.match(scene) is None:
         return load_scene(scene, resolution)
     path = stored_scene_file(scene, settings)
     if path is None:
-        raise SceneError(unavailable_message(scene))
+        raise SceneError(unavailable_message())
     try:
         loaded = load_scene(path, resolution)
-    except SceneError as err:
-        print(f"scene {scene} could not be loaded: {err}", file=sys.stderr, flush=True)
+    except SceneError:
         raise SceneError(f"scene {scene} could not be loaded: Mitsuba refused the scene or "
-                         "one of its files (the service's log has Mitsuba's message)") \
+                         "one of its files (its message is not shown, as it can quote the "
+                         "files; `nirc-bench reference --scene FILE` on a copy shows it)") \
             from None
     # Its name in results is the id, not a path inside the service's data folder.
     return dataclasses.replace(loaded, name=scene)

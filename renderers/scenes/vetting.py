@@ -36,6 +36,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Protocol
+from xml.parsers import expat
 
 from renderers.scenes.errors import SceneError
 
@@ -212,15 +213,29 @@ def _check_file_size(name: str, size: int, limits: Limits) -> None:
 
 # ---- The XML walk --------------------------------------------------------------
 
+class _DocumentType(Exception):
+    pass
+
+
+def _refuse_document_type(*_: object) -> None:
+    raise _DocumentType
+
+
 def _parse(data: bytes, shown: str) -> ET.Element:
-    # No DTDs: entities could expand without bound or name files of their own.
-    if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
-        raise SceneRefused(f"{shown}: a document type declaration (<!DOCTYPE>) is not "
-                           "allowed in a scene")
+    # No DTDs: entities could expand without bound or name files of their own. A
+    # parser of its own finds one in any encoding the XML may declare.
+    checker = expat.ParserCreate()
+    checker.StartDoctypeDeclHandler = _refuse_document_type
+    checker.EntityDeclHandler = _refuse_document_type
     try:
+        checker.Parse(data, True)
         root = ET.fromstring(data)
-    except ET.ParseError as err:
-        line, column = err.position
+    except _DocumentType:
+        raise SceneRefused(f"{shown}: a document type declaration (<!DOCTYPE>) is not "
+                           "allowed in a scene") from None
+    except (ET.ParseError, expat.ExpatError) as err:
+        line, column = (err.position if isinstance(err, ET.ParseError)
+                        else (err.lineno, err.offset))
         raise SceneRefused(f"{shown}: malformed XML at line {line}, column {column + 1}") \
             from None
     if root.tag != "scene":
@@ -310,11 +325,12 @@ class _Walk:
                     raise SceneRefused(f"scene {_shown(self.scene)}: <{element.tag}> (extra "
                                        "file search folders) is not allowed")
         for element in root.iter():
+            # Substitute every attribute first: `name="$n"` may turn out to be "filename".
             for attribute, value in list(element.attrib.items()):
-                value = self.substitute(value)
+                element.set(attribute, self.substitute(value))
+            for attribute, value in list(element.attrib.items()):
                 if _is_reference(element, attribute, value):
-                    value = self.reference(element, value, near)
-                element.set(attribute, value)
+                    element.set(attribute, self.reference(element, value, near))
         self.including.pop()
         return ET.tostring(root, encoding="utf-8", xml_declaration=False)
 

@@ -210,3 +210,21 @@ def test_upload_size_limits_name_the_limit():
         vet_upload(b"<scene/>", {"big.obj": b"x" * 101}, small)
     with pytest.raises(SceneTooLarge, match="1000 bytes in all"):
         vet_upload(b"<scene/>", {f"f{i}.obj": b"x" * 100 for i in range(10)}, small)
+
+
+def test_a_parameter_that_makes_a_property_a_filename_is_vetted(roots):
+    root, _ = roots
+    write(root / "passwd", "not a secret")   # a slash-less name Mitsuba would also find
+    body = '<shape type="obj"><string value="no-such-file" name="$n"/></shape>'
+    write(root / "renamed.xml", scene(body, defaults='<default name="n" value="filename"/>'))
+    with pytest.raises(SceneRefused, match="'no-such-file' it references is not available"):
+        vet(root / "renamed.xml", root)
+
+
+def test_a_document_type_in_another_encoding_is_refused(roots):
+    root, _ = roots
+    text = ('<?xml version="1.0" encoding="UTF-16"?><!DOCTYPE scene [<!ENTITY e "x">]>'
+            + scene('<shape type="sphere"/>'))
+    write(root / "utf16.xml", text.encode("utf-16"))
+    with pytest.raises(SceneRefused, match="DOCTYPE"):
+        vet(root / "utf16.xml", root)
