@@ -4,7 +4,8 @@ Read from environment variables with the prefix ``NIRC_BENCH_`` (e.g.
 ``NIRC_BENCH_DATA_DIR``, ``NIRC_BENCH_DATABASE_URL``), in the style of the
 FastAPI full-stack template's ``core/config.py``. The embedded default keeps
 everything in ``./data`` under the working directory: a SQLite database plus
-the artifact and reference folders beside it.
+the artifact and reference folders beside it. Scenes over REST are limited to
+built-ins, uploads and the configured scene roots (docs/service.md).
 """
 
 import json
