@@ -4,13 +4,17 @@ Read from environment variables with the prefix ``NIRC_BENCH_`` (e.g.
 ``NIRC_BENCH_DATA_DIR``, ``NIRC_BENCH_DATABASE_URL``), in the style of the
 FastAPI full-stack template's ``core/config.py``. The embedded default keeps
 everything in ``./data`` under the working directory: a SQLite database plus
-the artifact and reference folders beside it.
+the artifact and reference folders beside it. Scenes over REST are limited to
+built-ins, uploads and the configured scene roots (docs/service.md).
 """
 
+import json
+import os
 from pathlib import Path
+from typing import Annotated, Any
 
 from pydantic import Field, field_validator, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 DATABASE_FILENAME = "nirc-bench.db"
 
@@ -46,6 +50,29 @@ class Settings(BaseSettings):
     max_data_bytes: int | None = Field(None, ge=0)
     # `nirc-bench gc` removes unreferenced files and references older than this.
     gc_keep_days: float = Field(30.0, ge=0.0)
+    # Folders whose Mitsuba XML scenes REST clients may name by path (docs/service.md);
+    # none by default. The environment variable is a JSON list or an os.pathsep-
+    # separated one: NIRC_BENCH_SCENE_ROOTS=/srv/scenes:/data/more-scenes.
+    scene_roots: Annotated[list[Path], NoDecode] = Field(default_factory=list)
+    # Size limits of a scene given over REST (uploaded, or copied from a scene root):
+    # each file, and all of its files together.
+    scene_max_file_bytes: int = Field(64 << 20, ge=1)
+    scene_max_bytes: int = Field(256 << 20, ge=1)
+
+    @field_validator("scene_roots", mode="before")
+    @classmethod
+    def _split_scene_roots(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            text = value.strip()
+            if text.startswith("["):
+                return json.loads(text)
+            return [part for part in text.split(os.pathsep) if part.strip()]
+        return value
+
+    @field_validator("scene_roots")
+    @classmethod
+    def _absolute_scene_roots(cls, value: list[Path]) -> list[Path]:
+        return [root.expanduser().absolute() for root in value]
 
     @field_validator("data_dir")
     @classmethod

@@ -28,6 +28,7 @@ from jobs.plots import plot_convergence
 from jobs.provenance import git_commit, library_versions
 from jobs.quality import judge_run
 from jobs.references import LoadedReference, get_or_render_reference
+from jobs.scene_store import load_spec_scene
 from jobs.spec import RenderSpec
 from jobs.store import Store
 from jobs.versions import versions_of
@@ -47,7 +48,6 @@ from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
 from renderers.methods import get_method, parse_params
 from renderers.methods.base import FrameHooks, OnFrame, RenderOutput
-from renderers.scenes import load_scene
 
 #: progress(stage, done, total): stage is 'reference' or 'seed k/K'.
 Progress = Callable[[str, int, int], None]
@@ -239,7 +239,7 @@ def prepare(spec: RenderSpec, store: Store, settings: Settings,
             progress: Progress | None = None) -> Prepared:
     """Initialise the backend, load the scene and get (or render) its reference."""
     init_backend()
-    scene = load_scene(spec.scene, spec.resolution)
+    scene = load_spec_scene(spec.scene, spec.resolution, settings)
     started = datetime.now(UTC)
     reference = get_or_render_reference(
         store, settings.references_dir, scene, spec.reference.settings(spec.max_depth()),

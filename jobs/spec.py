@@ -43,6 +43,11 @@ def finite_params(params: dict[str, Any]) -> dict[str, Any]:
     return params
 
 
+#: What a spec's ``scene`` may be (docs/service.md has the REST rules).
+SCENE_DESCRIPTION = ("built-in scene name, an uploaded scene's id (upload:<digest>), or the path "
+                     "of a Mitsuba XML (over REST: under the service's scene roots)")
+
+
 class ReferenceSpec(BaseModel):
     """How the converged reference of a job is rendered (see renderers.reference)."""
 
@@ -96,7 +101,7 @@ class RenderSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
-    scene: str = Field(min_length=1, description="built-in scene name or path to a Mitsuba XML")
+    scene: str = Field(min_length=1, description=SCENE_DESCRIPTION)
     method: str = "pt"
     params: dict[str, Any] = Field(default_factory=dict)
     resolution: int = Field(64, ge=1, le=8192, description="image width and height in pixels")
@@ -136,7 +141,7 @@ class SweepSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
-    scene: str = Field(min_length=1, description="built-in scene name or path to a Mitsuba XML")
+    scene: str = Field(min_length=1, description=SCENE_DESCRIPTION)
     eps: list[float] | None = Field(
         None, description="relative-bias thresholds: use the cache at v1 where the per-pixel "
                           "relative bias of the converged cache-at-v1 image is below eps")

@@ -26,7 +26,7 @@ from fastapi.staticfiles import StaticFiles
 from jobs.config import Settings
 from jobs.db import open_store
 from jobs.queue import JobQueue
-from service.api.routes import jobs, results
+from service.api.routes import jobs, results, scenes
 
 #: The dashboard's files (HTML, CSS, JavaScript with its own SVG plots): served from
 #: here, never from a CDN.
@@ -74,6 +74,7 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.add_exception_handler(RequestValidationError, validation_failed)
     app.include_router(jobs.router)
     app.include_router(results.router)
+    app.include_router(scenes.router)
     app.mount("/static", StaticFiles(directory=DASHBOARD_DIR), name="static")
 
     @app.get("/", include_in_schema=False)

@@ -197,3 +197,11 @@ class SweepOut(BaseModel):
 class SceneOut(BaseModel):
     name: str
     description: str
+
+
+class SceneUploadOut(BaseModel):
+    """A stored uploaded scene: use ``id`` as the ``scene`` of a job or sweep."""
+
+    id: str = Field(description="upload:<digest>, the digest of the vetted XML and files")
+    files: int = Field(description="files stored with the scene XML")
+    bytes: int = Field(description="bytes stored in all")

@@ -8,13 +8,15 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 from pydantic import ValidationError
 
+from jobs.config import Settings
 from jobs.graph import sweep_stages
 from jobs.models import FINAL_JOB_STATES
 from jobs.queue import IdempotencyKeyReused, spec_key
+from jobs.scene_store import rest_scene
 from jobs.spec import RenderSpec, SweepSpec
 from jobs.work import data_bytes, reference_stored, render_work, sweep_work
 from renderers.methods import MethodError, format_validation_error, get_method
-from renderers.scenes import builtin_names, is_scene_file
+from renderers.scenes.vetting import SceneRefused
 from service.api.deps import DispatcherDep, QueueDep, RowId, SettingsDep, WriteAccess
 from service.api.schemas import JobOut
 
@@ -34,11 +36,14 @@ def _unprocessable(field: str, message: str) -> HTTPException:
                          [{"loc": ["body", field], "msg": message, "type": "value_error"}])
 
 
-def _check_scene(scene: str) -> None:
-    if scene not in builtin_names() and not is_scene_file(scene):
-        raise _unprocessable("scene", f"unknown scene '{scene}'; built-ins: "
-                                      f"{', '.join(builtin_names())}, or a Mitsuba XML path "
-                                      "on the service's machine")
+def _check_scene(scene: str, settings: Settings) -> str:
+    """The scene as the job will name it: a built-in, or the id of a stored, vetted
+    copy (jobs.scene_store). A scene that does not exist and one that may not be used
+    get the same answer."""
+    try:
+        return rest_scene(scene, settings)
+    except SceneRefused as err:
+        raise _unprocessable("scene", str(err)) from None
 
 
 def _check_params(method: str, params: dict) -> None:
@@ -53,9 +58,9 @@ def _check_params(method: str, params: dict) -> None:
                                        f"{format_validation_error(err)}") from None
 
 
-def _check_render(spec: RenderSpec) -> None:
-    _check_scene(spec.scene)
+def _check_render(spec: RenderSpec, settings: Settings) -> RenderSpec:
     _check_params(spec.method, spec.params)
+    return spec.model_copy(update={"scene": _check_scene(spec.scene, settings)})
 
 
 def _check_work(kind: str, spec: RenderSpec | SweepSpec, store, settings) -> None:
@@ -116,7 +121,7 @@ def submit_job(spec: RenderSpec, response: Response, queue: QueueDep,
                idempotency_key: IdempotencyKey = None,
                device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a render job (K seeds of a method on a scene, against its reference)."""
-    _check_render(spec)
+    spec = _check_render(spec, settings)
     return _enqueue("render", spec, queue, dispatcher, response,
                     idempotency_key, device_class, settings)
 
@@ -128,9 +133,9 @@ def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
                  idempotency_key: IdempotencyKey = None,
                  device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a sweep (adaptive equal-bias over eps, or over N_c); poll it as a job."""
-    _check_scene(spec.scene)
     for method in spec.methods:
         _check_params(method, spec.params)
+    spec = spec.model_copy(update={"scene": _check_scene(spec.scene, settings)})
     return _enqueue("sweep", spec, queue, dispatcher, response,
                     idempotency_key, device_class, settings)
 

@@ -1,0 +1,146 @@
+"""Scenes given over the REST API: vetted, then stored content-addressed in the data
+folder, where the render loads them from.
+
+A REST client names a scene in one of three ways (docs/service.md):
+
+* a built-in name (``cornell-box``), used as is;
+* ``upload:<digest>``, the id ``POST /api/v1/scenes`` answered with;
+* the path of a Mitsuba XML file under a configured scene root
+  (``NIRC_BENCH_SCENE_ROOTS``), absolute or relative to a root. It is vetted
+  (renderers.scenes.vetting) and its files *copied* into the store at submission;
+  the job's spec then names the copy, ``staged:<digest>``.
+
+Both kinds of id name a folder ``<data_dir>/scenes/<digest>/`` holding the staged
+``scene.xml`` and the files it reads. A folder is written under a temporary name
+and renamed into place, and never changed afterwards: the same content always
+gives the same id, and a render reads exactly the bytes that were vetted.
+
+Anything else — a path outside the roots, a missing file, a symlink leading out —
+gets one and the same message, :func:`unavailable_message`: the answer must not
+tell a client whether some file exists on the server.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+
+from jobs.config import Settings
+from renderers.scenes import LoadedScene, SceneError, builtin_names, load_scene
+from renderers.scenes.vetting import (
+    STAGED_SCENE,
+    Limits,
+    SceneRefused,
+    StagedScene,
+    vet_root_scene,
+    vet_upload,
+)
+
+#: ``upload:<digest>`` (sent by a client) or ``staged:<digest>`` (a scene-root file
+#: copied at submission).
+SCENE_ID = re.compile(r"^(upload|staged):([0-9a-f]{32})$")
+
+
+def limits_of(settings: Settings) -> Limits:
+    return Limits(max_file_bytes=settings.scene_max_file_bytes,
+                  max_total_bytes=settings.scene_max_bytes)
+
+
+def scenes_dir(settings: Settings) -> Path:
+    """Root of the stored (uploaded or staged) scenes."""
+    return settings.data_dir / "scenes"
+
+
+def unavailable_message() -> str:
+    """The one answer for a scene that does not exist *or* may not be used; it does
+    not even repeat the name, so two answers can be compared byte for byte."""
+    return ("the scene is not available: give a built-in scene "
+            f"({', '.join(builtin_names())}), the id of an uploaded scene (upload:<digest>, "
+            "from POST /api/v1/scenes) or the path of a Mitsuba XML file under the "
+            "service's scene roots")
+
+
+def stored_scene_file(scene: str, settings: Settings) -> Path | None:
+    """The staged XML of a stored scene id, or None when ``scene`` is no such id (or
+    names nothing stored)."""
+    match = SCENE_ID.match(scene)
+    if match is None:
+        return None
+    path = scenes_dir(settings) / match.group(2) / STAGED_SCENE
+    return path if path.is_file() else None
+
+
+def store_scene(staged: StagedScene, settings: Settings) -> bool:
+    """Write ``staged`` under its digest unless it is there; True if written now."""
+    root = scenes_dir(settings)
+    target = root / staged.digest
+    if (target / STAGED_SCENE).is_file():
+        return False
+    root.mkdir(parents=True, exist_ok=True)
+    temporary = Path(tempfile.mkdtemp(prefix=".incoming-", dir=root))
+    try:
+        for name, data in staged.files.items():
+            (temporary / name).write_bytes(data)
+        try:
+            os.rename(temporary, target)
+        except OSError:
+            # Another request stored the same content first (same digest, same bytes).
+            if not (target / STAGED_SCENE).is_file():
+                raise
+            return False
+        return True
+    finally:
+        shutil.rmtree(temporary, ignore_errors=True)
+
+
+def save_upload(xml: bytes, files: dict[str, bytes],
+                settings: Settings) -> tuple[str, StagedScene, bool]:
+    """Vet and store an uploaded scene: its id, what was stored, and whether it was
+    new. Raises SceneRefused (SceneTooLarge) for a scene that may not be stored."""
+    staged = vet_upload(xml, files, limits_of(settings))
+    created = store_scene(staged, settings)
+    return f"upload:{staged.digest}", staged, created
+
+
+def rest_scene(scene: str, settings: Settings) -> str:
+    """The scene a REST job renders, as its spec will name it: a built-in name, or
+    the id of a stored copy. Raises SceneRefused with a message safe to serve."""
+    if scene in builtin_names():
+        return scene
+    if SCENE_ID.match(scene):
+        if stored_scene_file(scene, settings) is None:
+            raise SceneRefused(unavailable_message())
+        return scene
+    staged = vet_root_scene(scene, settings.scene_roots, limits_of(settings),
+                            missing=unavailable_message())
+    store_scene(staged, settings)
+    return f"staged:{staged.digest}"
+
+
+def load_spec_scene(scene: str, resolution: int, settings: Settings) -> LoadedScene:
+    """Load the scene a job spec names: a stored id from the data folder, anything
+    else through :func:`load_scene` (built-in names; local paths, which only the CLI
+    passes — REST specs name stored ids).
+
+    A stored scene that Mitsuba refuses fails with a fixed message naming the id:
+    Mitsuba's own text can quote a line of a file, and a job's error is served to
+    every reader.
+    """
+    if SCENE_ID.match(scene) is None:
+        return load_scene(scene, resolution)
+    path = stored_scene_file(scene, settings)
+    if path is None:
+        raise SceneError(unavailable_message())
+    try:
+        loaded = load_scene(path, resolution)
+    except SceneError:
+        raise SceneError(f"scene {scene} could not be loaded: Mitsuba refused the scene or "
+                         "one of its files (its message is not shown, as it can quote the "
+                         "files; `nirc-bench reference --scene FILE` on a copy shows it)") \
+            from None
+    # Its name in results is the id, not a path inside the service's data folder.
+    return dataclasses.replace(loaded, name=scene)

@@ -1,0 +1,402 @@
+"""Vetting a Mitsuba XML scene that a remote user names: which files it reads, and
+whether each may be read, before anything of it is loaded.
+
+A scene given over the REST API comes either from an upload (its XML and files
+sent with the request) or from a file under the service's configured scene
+roots. Mitsuba would read whatever the XML names — ``<include filename>``, a
+mesh's or bitmap's ``filename`` property, ``<spectrum filename>``, a ``$name``
+whose ``<default>`` is a path — from anywhere on the machine, and quote a line of
+it in its error. So before a render ever sees the scene:
+
+* every reference is found here, after ``$`` substitution, in the main XML and
+  (recursively) in every included XML;
+* each must resolve inside the upload, or under a scene root after symlinks;
+  anything else, and anything missing, is refused with one message (no oracle
+  telling "exists" from "not allowed");
+* the vetted bytes are returned as a *staged* scene: flat, content-named files
+  and XML rewritten to name them (``$`` substituted, ``<default>``s dropped), which
+  the service stores and the render loads instead of the originals. The render
+  never opens an original path, so a file swapped after vetting changes nothing.
+
+Which files a reference may name (``source``), and how a name is looked up, is
+the only difference between uploads and roots: see :class:`RootSource` and
+:class:`UploadSource`. Relative names are looked up, like Mitsuba does, first
+next to the XML that names them, then next to the main scene file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import stat
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Protocol
+from xml.parsers import expat
+
+from renderers.scenes.errors import SceneError
+
+#: The staged main scene's file name.
+STAGED_SCENE = "scene.xml"
+#: Hex digits of a staged scene's digest (its id): 128 bits.
+DIGEST_LENGTH = 32
+#: Includes nested deeper than this are refused (a cycle is refused at once).
+MAX_INCLUDE_DEPTH = 16
+
+_PARAMETER = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+# Tags that change where Mitsuba looks for files (its `<path value=...>` prepends a
+# folder to the file resolver).
+_RESOLVER_TAGS = frozenset({"path", "resource"})
+# Attributes that name things, never files.
+_NAME_ATTRIBUTES = frozenset({"name", "type", "id", "version"})
+_UNSAFE_NAME_CHARACTERS = re.compile(r"[^A-Za-z0-9._-]")
+
+
+class SceneRefused(SceneError):
+    """The scene (or a file it names) may not be used; the message is safe to serve."""
+
+
+class SceneTooLarge(SceneRefused):
+    """A file of the scene, or all of them together, exceed a configured size limit."""
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Size limits of a vetted scene (bytes)."""
+
+    max_file_bytes: int
+    max_total_bytes: int
+    max_files: int = 1000
+
+
+@dataclass(frozen=True)
+class StagedScene:
+    """A vetted scene ready to be stored: ``files`` (staged name -> bytes) hold the
+    rewritten main XML under :data:`STAGED_SCENE` and everything it reads."""
+
+    digest: str
+    files: dict[str, bytes]
+
+    @property
+    def total_bytes(self) -> int:
+        return sum(len(data) for data in self.files.values())
+
+
+class Source(Protocol):
+    """Where a scene's files may come from."""
+
+    def open(self, name: str, near: Sequence[str]) -> tuple[str, bytes] | None:
+        """The key and bytes of the file ``name`` (looked up relative to each folder
+        key of ``near`` in turn when relative), or None if it is missing *or* not
+        allowed — the caller must not be able to tell which."""
+        ...
+
+    def folder(self, key: str) -> str:
+        """The folder key of the file ``key`` (for names relative to it)."""
+        ...
+
+
+def _shown(name: str) -> str:
+    """A user-given name as quoted in a message (bounded, printable)."""
+    return repr(name[:200])
+
+
+# ---- Sources -----------------------------------------------------------------
+
+class RootSource:
+    """Files under the service's scene roots, after symlinks are resolved.
+
+    A path is accepted when ``Path.resolve(strict=True)`` lands inside a root and
+    on a regular file; the file is then opened without blocking (a FIFO cannot
+    hang the request) and its open descriptor checked again (``/proc/self/fd``)
+    against the roots, so a link swapped in between is caught.
+    """
+
+    def __init__(self, roots: Iterable[Path], limits: Limits) -> None:
+        self.roots = [resolved for root in roots if (resolved := _resolve_root(root))]
+        self.limits = limits
+
+    def _inside(self, path: Path) -> bool:
+        return any(path.is_relative_to(root) for root in self.roots)
+
+    def open(self, name: str, near: Sequence[str]) -> tuple[str, bytes] | None:
+        if not name or "\x00" in name or not self.roots:
+            return None
+        path = Path(name)
+        candidates = [path] if path.is_absolute() else [Path(folder) / path for folder in near]
+        for candidate in candidates:
+            found = self._read(candidate)
+            if found is not None:
+                return found
+        return None
+
+    def folder(self, key: str) -> str:
+        return str(Path(key).parent)
+
+    def _read(self, path: Path) -> tuple[str, bytes] | None:
+        try:
+            real = path.resolve(strict=True)
+        except (OSError, RuntimeError, ValueError):
+            return None
+        if not self._inside(real) or not real.is_file():
+            return None
+        try:
+            fd = os.open(real, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0))
+        except OSError:
+            return None
+        try:
+            opened = Path(os.readlink(f"/proc/self/fd/{fd}")) if Path("/proc/self/fd").is_dir() \
+                else real
+            info = os.fstat(fd)
+            if not self._inside(opened) or not stat.S_ISREG(info.st_mode):
+                return None
+            _check_file_size(str(real), info.st_size, self.limits)
+            with os.fdopen(os.dup(fd), "rb") as file:
+                data = file.read(self.limits.max_file_bytes + 1)
+            _check_file_size(str(real), len(data), self.limits)
+            return str(opened), data
+        except OSError:
+            return None
+        finally:
+            os.close(fd)
+
+
+def _resolve_root(root: Path) -> Path | None:
+    try:
+        resolved = Path(root).expanduser().resolve(strict=True)
+    except (OSError, RuntimeError):
+        return None  # a root that does not exist allows nothing
+    return resolved if resolved.is_dir() else None
+
+
+def upload_name(name: str) -> str | None:
+    """``name`` as a normalized relative POSIX path inside an upload, or None if it
+    is absolute, empty, or climbs out (``..``)."""
+    if not name or "\x00" in name or "\\" in name:
+        return None
+    path = PurePosixPath(name)
+    if path.is_absolute() or any(part in ("..", "") for part in path.parts):
+        return None
+    parts = [part for part in path.parts if part != "."]
+    return "/".join(parts) if parts else None
+
+
+class UploadSource:
+    """The files of an upload (relative name -> bytes); nothing else exists."""
+
+    def __init__(self, files: Mapping[str, bytes]) -> None:
+        self.files = dict(files)
+
+    def open(self, name: str, near: Sequence[str]) -> tuple[str, bytes] | None:
+        if upload_name(name) is None:
+            return None
+        for folder in near:
+            key = upload_name(str(PurePosixPath(folder) / name)) if folder else upload_name(name)
+            if key is not None and key in self.files:
+                return key, self.files[key]
+        return None
+
+    def folder(self, key: str) -> str:
+        parent = str(PurePosixPath(key).parent)
+        return "" if parent == "." else parent
+
+
+def _check_file_size(name: str, size: int, limits: Limits) -> None:
+    if size > limits.max_file_bytes:
+        raise SceneTooLarge(f"file {_shown(name)} is {size} bytes; the limit is "
+                            f"{limits.max_file_bytes} bytes per file")
+
+
+# ---- The XML walk --------------------------------------------------------------
+
+class _DocumentType(Exception):
+    pass
+
+
+def _refuse_document_type(*_: object) -> None:
+    raise _DocumentType
+
+
+def _parse(data: bytes, shown: str) -> ET.Element:
+    # No DTDs: entities could expand without bound or name files of their own. A
+    # parser of its own finds one in any encoding the XML may declare.
+    checker = expat.ParserCreate()
+    checker.StartDoctypeDeclHandler = _refuse_document_type
+    checker.EntityDeclHandler = _refuse_document_type
+    try:
+        checker.Parse(data, True)
+        root = ET.fromstring(data)
+    except _DocumentType:
+        raise SceneRefused(f"{shown}: a document type declaration (<!DOCTYPE>) is not "
+                           "allowed in a scene") from None
+    except (ET.ParseError, expat.ExpatError) as err:
+        line, column = (err.position if isinstance(err, ET.ParseError)
+                        else (err.lineno, err.offset))
+        raise SceneRefused(f"{shown}: malformed XML at line {line}, column {column + 1}") \
+            from None
+    if root.tag != "scene":
+        raise SceneRefused(f"{shown}: not a Mitsuba scene (the root element is not <scene>)")
+    return root
+
+
+def _is_reference(element: ET.Element, attribute: str, value: str) -> bool:
+    """Whether Mitsuba could open ``value`` as a file: a ``filename`` attribute
+    (``<include>``, ``<spectrum>``), the value of a property named ``filename``,
+    or any value that looks like a path."""
+    if attribute == "filename":
+        return True
+    if attribute in _NAME_ATTRIBUTES:
+        return False
+    if attribute == "value" and element.get("name") == "filename":
+        return True
+    return "/" in value or "\\" in value or value.startswith("~")
+
+
+def _staged_name(key: str, data: bytes) -> str:
+    """A flat, content-addressed name that keeps the original's extension (Mitsuba
+    picks some readers by it)."""
+    base = _UNSAFE_NAME_CHARACTERS.sub("_", PurePosixPath(key.replace("\\", "/")).name)[-80:]
+    return f"{hashlib.sha256(data).hexdigest()[:16]}-{base or 'file'}"
+
+
+@dataclass
+class _Walk:
+    source: Source
+    limits: Limits
+    scene: str  # the scene's name as the user gave it, for messages
+    main_folder: str
+    defaults: dict[str, str] = field(default_factory=dict)
+    files: dict[str, bytes] = field(default_factory=dict)
+    staged: dict[str, str] = field(default_factory=dict)  # source key -> staged name
+    including: list[str] = field(default_factory=list)  # the chain of XML being walked
+
+    def unavailable(self, name: str) -> SceneRefused:
+        return SceneRefused(f"scene {_shown(self.scene)}: the file {_shown(name)} it "
+                            "references is not available (a scene's files must be in its "
+                            "upload, or under the service's scene roots)")
+
+    def substitute(self, value: str) -> str:
+        substituted = _PARAMETER.sub(lambda m: self.defaults.get(m.group(1), m.group(0)), value)
+        if "$" in substituted:
+            raise SceneRefused(f"scene {_shown(self.scene)}: {_shown(value)} uses a parameter "
+                               "without a <default> (over the API a scene cannot be given "
+                               "parameters)")
+        return substituted
+
+    def add(self, key: str, data: bytes, name: str) -> str:
+        if key not in self.staged:
+            _check_file_size(name, len(data), self.limits)
+            staged = _staged_name(key, data)
+            self.files[staged] = data
+            self.staged[key] = staged
+            total = sum(len(d) for d in self.files.values())
+            if total > self.limits.max_total_bytes:
+                raise SceneTooLarge(f"scene {_shown(self.scene)} is more than "
+                                    f"{self.limits.max_total_bytes} bytes in all (the limit)")
+            if len(self.files) > self.limits.max_files:
+                raise SceneTooLarge(f"scene {_shown(self.scene)} reads more than "
+                                    f"{self.limits.max_files} files (the limit)")
+        return self.staged[key]
+
+    def xml(self, key: str, data: bytes, shown: str) -> bytes:
+        """``data`` (the XML at ``key``) with every reference vetted, staged and
+        renamed, ``$`` parameters substituted and ``<default>``s dropped."""
+        if key in self.including:
+            raise SceneRefused(f"scene {_shown(self.scene)}: {shown} includes itself")
+        if len(self.including) >= MAX_INCLUDE_DEPTH:
+            raise SceneRefused(f"scene {_shown(self.scene)}: includes are nested more than "
+                               f"{MAX_INCLUDE_DEPTH} deep")
+        root = _parse(data, shown)
+        # Mitsuba keeps a parameter's first definition; includes see the scene's.
+        for default in root.iter("default"):
+            if default.get("name"):
+                self.defaults.setdefault(default.get("name", ""), default.get("value", ""))
+        near = [self.source.folder(key), self.main_folder]
+        self.including.append(key)
+        for parent in list(root.iter()):
+            for element in list(parent):
+                if element.tag == "default":
+                    parent.remove(element)
+                elif element.tag in _RESOLVER_TAGS:
+                    raise SceneRefused(f"scene {_shown(self.scene)}: <{element.tag}> (extra "
+                                       "file search folders) is not allowed")
+        for element in root.iter():
+            # Substitute every attribute first: `name="$n"` may turn out to be "filename".
+            for attribute, value in list(element.attrib.items()):
+                element.set(attribute, self.substitute(value))
+            for attribute, value in list(element.attrib.items()):
+                if _is_reference(element, attribute, value):
+                    element.set(attribute, self.reference(element, value, near))
+        self.including.pop()
+        return ET.tostring(root, encoding="utf-8", xml_declaration=False)
+
+    def reference(self, element: ET.Element, name: str, near: list[str]) -> str:
+        found = self.source.open(name, near)
+        if found is None:
+            raise self.unavailable(name)
+        key, data = found
+        if element.tag == "include":
+            if key not in self.staged:
+                data = self.xml(key, data, f"included file {_shown(name)}")
+            return self.add(key, data, name)
+        return self.add(key, data, name)
+
+
+def _digest(files: Mapping[str, bytes]) -> str:
+    manifest = {name: hashlib.sha256(data).hexdigest() for name, data in sorted(files.items())}
+    text = json.dumps(manifest, separators=(",", ":"), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:DIGEST_LENGTH]
+
+
+def _stage(source: Source, key: str, data: bytes, shown: str, limits: Limits) -> StagedScene:
+    """The staged scene of the main XML ``data`` (at ``key`` of ``source``)."""
+    walk = _Walk(source, limits, shown, source.folder(key))
+    main = walk.xml(key, data, f"scene {_shown(shown)}")
+    _check_file_size(shown, len(main), limits)
+    files = {STAGED_SCENE: main, **walk.files}
+    if sum(len(d) for d in files.values()) > limits.max_total_bytes:
+        raise SceneTooLarge(f"scene {_shown(shown)} is more than {limits.max_total_bytes} "
+                            "bytes in all (the limit)")
+    return StagedScene(_digest(files), files)
+
+
+def vet_root_scene(path: str, roots: Sequence[Path], limits: Limits,
+                   missing: str | None = None) -> StagedScene:
+    """Vet the scene file ``path`` (absolute, or relative to each root in turn) and
+    everything it reads. ``missing`` is the message when the file itself is not
+    available — the same whether it does not exist or lies outside the roots.
+    Raises :class:`SceneRefused` (:class:`SceneTooLarge` for a size limit)."""
+    source = RootSource(roots, limits)
+    if "\x00" not in path:
+        candidates = [path] if Path(path).is_absolute() else [
+            str(root / path) for root in source.roots]
+        for candidate in candidates:
+            found = source.open(candidate, [])
+            if found is not None:
+                return _stage(source, *found, path, limits)
+    raise SceneRefused(missing or f"scene {_shown(path)} is not available")
+
+
+#: The key of an upload's main XML: no uploaded file can have it (NUL).
+_UPLOAD_MAIN = "\x00scene.xml"
+
+
+def vet_upload(xml: bytes, files: Mapping[str, bytes], limits: Limits) -> StagedScene:
+    """Vet an uploaded scene: its main ``xml`` and ``files`` (relative name -> bytes),
+    the only files it may read. Raises :class:`SceneRefused` (or
+    :class:`SceneTooLarge`), naming the first bad name or limit."""
+    for name, data in files.items():
+        if upload_name(name) != name:
+            raise SceneRefused(f"file name {_shown(name)} of the upload must be relative, "
+                               "without '..', '.' or backslashes")
+        _check_file_size(name, len(data), limits)
+    total = len(xml) + sum(len(data) for data in files.values())
+    if total > limits.max_total_bytes:
+        raise SceneTooLarge(f"the upload is {total} bytes; the limit is "
+                            f"{limits.max_total_bytes} bytes in all")
+    _check_file_size("the scene XML", len(xml), limits)
+    return _stage(UploadSource(files), _UPLOAD_MAIN, xml, "the uploaded scene", limits)
