@@ -72,9 +72,12 @@ def _print_json(value: Any) -> None:
 
 def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json: bool) -> None:
     """Submit ``spec`` to the service at ``server``, follow its progress, print the result."""
+    from renderers.scenes import is_scene_file
     from service.client import ServiceClient
 
     client = ServiceClient(server, api_key)
+    if is_scene_file(spec.scene):   # a local scene file: the service gets a copy
+        spec = spec.model_copy(update={"scene": client.upload_scene(spec.scene)})
     job = client.submit(kind, spec.model_dump(mode="json"))
     if not as_json:
         console.print(f"job {job['id']} submitted to {server} ({job['status']})")

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import base64
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -43,6 +45,26 @@ class ServiceClient:
     def submit(self, kind: str, spec: dict[str, Any]) -> dict[str, Any]:
         return self._request("POST", f"/api/v1/{'sweeps' if kind == 'sweep' else 'jobs'}",
                              json=spec)
+
+    def upload_scene(self, path: str) -> str:
+        """Upload the local Mitsuba XML scene at ``path`` with every file it reads and
+        return its id on the service (``upload:<digest>``), to use as a job's scene.
+
+        The service never reads the client's paths: the scene is vetted here as the
+        service vets uploads (the same walk over includes and file references,
+        here with the whole local filesystem allowed: the files are the user's own)
+        and sent as the rewritten XML plus its files; the service vets it again
+        under its own limits.
+        """
+        from renderers.scenes.vetting import STAGED_SCENE, Limits, vet_root_scene
+
+        scene = Path(path).expanduser().absolute()
+        unlimited = Limits(max_file_bytes=1 << 62, max_total_bytes=1 << 62, max_files=1 << 30)
+        files = dict(vet_root_scene(str(scene), [Path(scene.anchor)], unlimited).files)
+        xml = files.pop(STAGED_SCENE)
+        body = {"xml": xml.decode(),
+                "files": {name: base64.b64encode(data).decode() for name, data in files.items()}}
+        return self._request("POST", "/api/v1/scenes", json=body)["id"]
 
     def get(self, path: str) -> Any:
         return self._request("GET", path)

@@ -156,7 +156,8 @@ class RootSource:
                 return None
             _check_file_size(str(real), info.st_size, self.limits)
             with os.fdopen(os.dup(fd), "rb") as file:
-                data = file.read(self.limits.max_file_bytes + 1)
+                # One byte past the size seen (or the limit) shows a file that grows.
+                data = file.read(min(info.st_size, self.limits.max_file_bytes) + 1)
             _check_file_size(str(real), len(data), self.limits)
             return str(opened), data
         except OSError:

@@ -13,7 +13,10 @@ Mitsuba refuses fails with a fixed message, never quoting one of its files.
 from __future__ import annotations
 
 import base64
+import json
 import os
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -250,3 +253,19 @@ def test_a_scene_mitsuba_refuses_fails_without_quoting_its_files(live):
     assert job["status"] == "failed", job
     assert scene_id in job["error"] and "could not be loaded" in job["error"], job["error"]
     assert SECRET not in every_job_text(live)
+
+
+def test_the_cli_uploads_a_local_scene_the_service_may_not_read(live, layout):
+    """`render --server` with a local XML path (outside every scene root): the CLI
+    uploads the scene and the files it reads, the job renders the uploaded copy."""
+    local = layout["base"] / "client"
+    write(local / "scene.xml", scene('<shape type="obj"><string name="filename" '
+                                     'value="../client-meshes/quad.obj"/></shape>'))
+    write(layout["base"] / "client-meshes" / "quad.obj", QUAD)
+    done = subprocess.run(
+        [sys.executable, "-m", "service", "render", "--scene", str(local / "scene.xml"),
+         "--res", "16", "--spp", "1", "--frames", "1", "--seeds", "1", "--ref-spp", "8",
+         "--server", live.service.url, "--api-key", live.key, "--json"],
+        capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads(done.stdout)["scene"].startswith("upload:")
