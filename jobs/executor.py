@@ -299,7 +299,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
     verdict, quality = judge_run([o.accumulated for o in outputs], reference.mean,
                                  scene.features.emitter_count,
-                                 [o.method_stats for o in outputs])
+                                 [o.method_stats for o in outputs], reference.variance)
     metrics = withhold(metrics, verdict.withheld)
     per_seed = [withhold(s, verdict.withheld) for s in per_seed]
     versions = versions_of(spec.method)

@@ -30,7 +30,8 @@ from metrics.flip import LUMINANCE_WEIGHTS
 #: Above this fraction of non-finite pixels the error metrics are withheld;
 #: at or below it they are averaged over the finite pixels and flagged.
 NONFINITE_WITHHOLD_FRACTION = 0.01
-#: A reference pixel this dim (luminance) or dimmer counts as black.
+#: A reference pixel this dim (absolute luminance) or dimmer counts as black; a
+#: negative pixel is not black (negative-radiance tells it).
 BLACK_LUMINANCE = 1e-8
 #: A reference with more than this fraction of black pixels is degenerate.
 DEGENERATE_BLACK_FRACTION = 0.99
@@ -93,13 +94,16 @@ class RunFacts:
     pixels: int                              # H * W
     renders: int                             # K images evaluated
     nonfinite_pixels: int                    # non-finite pixels summed over the K renders
-    reference_nonfinite_pixels: int = 0
-    reference_black_pixels: int = 0          # luminance <= BLACK_LUMINANCE
+    reference_nonfinite_pixels: int = 0      # mean or variance non-finite (metrics skip them)
+    reference_variance_nonfinite_pixels: int = 0  # of those: mean finite, variance not
+    reference_black_pixels: int = 0          # |luminance| <= BLACK_LUMINANCE
     reference_negative_pixels: int = 0       # some channel < 0
     render_negative_pixels: int = 0          # summed over the K renders
     emitter_count: int | None = None         # None: not known
     cache_steps: tuple[int, ...] = ()        # per render's cache (empty: no cache)
     cache_skipped_steps: tuple[int, ...] = ()
+    cache_records: tuple[int, ...] = ()      # usable training records per cache
+    cache_dropped_nonfinite: tuple[int, ...] = ()  # records dropped: non-finite target/input
 
     @property
     def nonfinite_fraction(self) -> float:
@@ -151,10 +155,18 @@ def _nonfinite(facts: RunFacts) -> Reason | None:
         return None
     fraction = max(facts.nonfinite_fraction,
                    facts.reference_nonfinite_pixels / max(1, facts.pixels))
-    where = (f"{facts.nonfinite_pixels} of {total} rendered pixels "
-             f"({_percent(facts.nonfinite_pixels, total)})")
+    parts = []
+    if facts.nonfinite_pixels:
+        parts.append(f"{facts.nonfinite_pixels} of {total} rendered pixels "
+                     f"({_percent(facts.nonfinite_pixels, total)})")
     if facts.reference_nonfinite_pixels:
-        where += f" and {facts.reference_nonfinite_pixels} reference pixels"
+        ref = f"{facts.reference_nonfinite_pixels} of {facts.pixels} reference pixels"
+        if facts.reference_variance_nonfinite_pixels:
+            ref += (f" (in {facts.reference_variance_nonfinite_pixels} of them the "
+                    "reference's variance overflowed: radiance too large for float32, "
+                    "e.g. an emitter of 1e30)")
+        parts.append(ref)
+    where = " and ".join(parts)
     limit = f"{100 * NONFINITE_WITHHOLD_FRACTION:g} %"
     if fraction > NONFINITE_WITHHOLD_FRACTION:
         return _reason("nonfinite", f"{where} are NaN or infinite, above {limit}: errors "
@@ -178,10 +190,25 @@ def _untrained_cache(facts: RunFacts) -> Reason | None:
     untrained = sum(1 for steps in facts.cache_steps if steps == 0)
     if not untrained:
         return None
-    skipped = sum(facts.cache_skipped_steps)
+    skipped = sum(s for steps, s in zip(facts.cache_steps, facts.cache_skipped_steps,
+                                        strict=False) if steps == 0)
+    records = sum(r for steps, r in zip(facts.cache_steps, facts.cache_records, strict=False)
+                  if steps == 0)
+    dropped = sum(d for steps, d in zip(facts.cache_steps, facts.cache_dropped_nonfinite,
+                                        strict=False) if steps == 0)
+    if skipped:
+        why = (f"all {skipped} steps they tried were skipped because the loss or its "
+               "gradients were NaN or infinite (radiance too large for float32 training, "
+               "e.g. an emitter of 1e30, or NaN training targets)")
+    elif facts.cache_records and records == 0:
+        why = (f"they received no usable training record ({dropped} dropped as NaN or "
+               "infinite)")
+    else:
+        why = "no training step was attempted (too few frames or records)"
     return _reason("untrained-cache",
                    f"{untrained} of {len(facts.cache_steps)} caches took no successful training "
-                   f"step ({skipped} steps skipped as non-finite): the cache answered untrained")
+                   f"step: {why}; the cache answered untrained, so the errors measure an "
+                   "untrained cache, not the method")
 
 
 CHECKS: tuple[Callable[[RunFacts], Reason | None], ...] = (
@@ -207,7 +234,7 @@ def image_facts(image: np.ndarray) -> dict[str, int]:
     return {
         "pixels": int(finite.size),
         "nonfinite": int(np.count_nonzero(~finite)),
-        "black": int(np.count_nonzero(finite & (luminance <= BLACK_LUMINANCE))),
+        "black": int(np.count_nonzero(finite & (np.abs(luminance) <= BLACK_LUMINANCE))),
         "negative": int(np.count_nonzero((values < 0).any(axis=-1))),
     }
 

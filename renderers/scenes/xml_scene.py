@@ -9,11 +9,16 @@ are resolved from the XML file's folder, as ``mitsuba`` on the command line
 would.
 
 Every failure a user can cause (missing file, malformed XML, a scene Mitsuba
-refuses) becomes a one-line :class:`SceneError` naming the file.
+refuses) becomes a one-line :class:`SceneError` naming the file. So does a
+scene Mitsuba loads without complaint but cannot render meaningfully (see
+:func:`check_finite_scene`): a shape whose transform or vertices are NaN or
+infinite (Mitsuba drops it silently: it is never hit), or an emitter whose
+radiance is NaN or infinite (every estimate it touches is NaN or infinite).
 """
 
 from __future__ import annotations
 
+import math
 import re
 import threading
 import xml.etree.ElementTree as ET
@@ -23,6 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from xml.parsers import expat
+
+import numpy as np
 
 from renderers.scenes.errors import SceneError
 from renderers.scenes.fingerprint import xml_fingerprint
@@ -190,6 +197,53 @@ def is_scene_file(name: str) -> bool:
         return False
 
 
+def _label(kind: str, index: int, obj: Any) -> str:
+    """How the user's file names a shape or emitter: its id, else its type and position."""
+    ident = obj.id()
+    if ident and not ident.startswith("_unnamed"):
+        return f"{kind} id={ident!r} ({obj.class_name()})"
+    return f"{kind} #{index + 1} ({obj.class_name()}, no id)"
+
+
+def _nonfinite_values(value: Any) -> bool:
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False            # not numeric (a string, a nested object)
+    return bool(array.size) and not bool(np.isfinite(array).all())
+
+
+def check_finite_scene(scene: Any, path: Path) -> None:
+    """Refuse (SceneError) a loaded scene with non-finite geometry or emission.
+
+    A shape's bounding box is non-finite when its ``to_world`` (a ``scale``,
+    ``translate``, ``rotate`` or ``matrix`` with NaN or inf) or its vertex
+    positions are: Mitsuba renders such a shape as absent, so the run would
+    measure a different scene than the file describes. An emitter parameter
+    (radiance, intensity, scale, ...) that is NaN or infinite makes every pixel
+    it lights non-finite. Both are named the way the file names them.
+    """
+    for index, shape in enumerate(scene.shapes()):
+        box = shape.bbox()
+        corners = [float(v) for v in (*box.min, *box.max)]
+        if not all(math.isfinite(v) for v in corners):
+            raise SceneError(
+                f"{path}: {_label('shape', index, shape)} has a NaN or infinite transform "
+                "or vertex position (its bounding box is not finite), so it would vanish "
+                "from the render; fix its <transform name=\"to_world\"> or its mesh")
+    mi = mitsuba()
+    for index, emitter in enumerate(scene.emitters()):
+        for key, value in mi.traverse(emitter).items():
+            if _nonfinite_values(value):
+                shape = emitter.get_shape()
+                where = (f" on {_label('shape', scene.shapes().index(shape), shape)}"
+                         if shape is not None and shape in scene.shapes() else "")
+                raise SceneError(
+                    f"{path}: {_label('emitter', index, emitter)}{where} has a NaN or "
+                    f"infinite {key.split('.')[0]!r}; every pixel it lights would be NaN or "
+                    "infinite")
+
+
 def load_xml_scene(name: str, resolution: Resolution | None) -> XmlScene:
     """Load the XML scene at ``name``, optionally at ``resolution`` (width, height)."""
     if not is_scene_file(name):
@@ -223,6 +277,7 @@ def load_xml_scene(name: str, resolution: Resolution | None) -> XmlScene:
         raise SceneError(f"{path}: Mitsuba could not load the scene: {message}") from None
     if not scene.sensors():
         raise SceneError(f"{path}: the scene has no <sensor> (camera) to render from")
+    check_finite_scene(scene, path)
 
     width, height = (int(x) for x in scene.sensors()[0].film().size())
     return XmlScene(path, scene, (width, height), xml_fingerprint(root, path))

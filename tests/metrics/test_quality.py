@@ -76,3 +76,28 @@ def test_image_facts_and_withhold() -> None:
         **values, "mrse_mean": None, "mrse_ci95": None, "rbias2_raw": None,
         "noise_floor": None, "flip_hdr_mean": None}
     assert withhold(values, []) == values
+
+
+def test_negative_pixels_are_not_black() -> None:
+    image = np.full((4, 4, 3), -1.0, np.float32)
+    assert image_facts(image)["black"] == 0 and image_facts(image)["negative"] == 16
+
+
+def test_an_overflowing_reference_variance_is_named() -> None:
+    quality = assess(facts(reference_nonfinite_pixels=100,
+                           reference_variance_nonfinite_pixels=100))
+    assert quality.verdict == "nonfinite" and set(quality.withheld) == set(ERROR_METRICS)
+    message = quality.reasons[0].message
+    assert message.startswith("100 of 100 reference pixels (in 100 of them the reference's "
+                              "variance overflowed")
+
+
+def test_an_untrained_cache_says_why() -> None:
+    skipped = assess(facts(cache_steps=(0, 5), cache_skipped_steps=(12, 3),
+                           cache_records=(900, 900)))
+    assert "all 12 steps they tried were skipped because the loss" in \
+        skipped.reasons[0].message
+    starved = assess(facts(cache_steps=(0,), cache_skipped_steps=(0,), cache_records=(0,),
+                           cache_dropped_nonfinite=(40,)))
+    assert "no usable training record (40 dropped as NaN or infinite)" in \
+        starved.reasons[0].message
