@@ -29,7 +29,7 @@ from renderers.scenes.library import BUILTINS, LIBRARY_VERSION, get_builtin
 from renderers.scenes.parts import set_film_resolution
 from renderers.scenes.resolution import DEFAULT_RESOLUTION, Resolution, normalize_resolution
 from renderers.scenes.runtime import mitsuba
-from renderers.scenes.xml_scene import load_xml_scene
+from renderers.scenes.xml_scene import is_scene_file, load_xml_scene
 
 
 @dataclass
@@ -122,7 +122,8 @@ def check_scene_files(xml_path: Path, seen: set[Path] | None = None) -> None:
 
 
 def _load_xml(path: str, resolution: Resolution | None) -> LoadedScene:
-    check_scene_files(Path(path).expanduser())
+    if is_scene_file(path):     # else load_xml_scene says why it cannot be read
+        check_scene_files(Path(path).expanduser())
     loaded = load_xml_scene(path, resolution)
     features = compute_features(loaded.scene, loaded.resolution)
     return LoadedScene(
