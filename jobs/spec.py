@@ -110,7 +110,9 @@ class SweepSpec(BaseModel):
     train_frames: int = Field(100, ge=1, le=100_000,
                               description="online-training frames of each cache")
     v1_spp: int = Field(256, ge=1, le=1 << 20, description="spp of the converged cache-at-v1 image")
-    max_depth: int = Field(8, ge=1, le=1024)
+    max_depth: int = Field(DEFAULT_MAX_DEPTH, ge=-1, le=1024,
+                           description="longest path in segments, renders, training paths and "
+                                       "reference alike; -1 = unbounded (roulette ends paths)")
     equal_time: bool = Field(True, description="add the 'NIRC equal time' series (needs both "
                                                "methods)")
     probe_frames: int = Field(5, ge=1, le=1000, description="timed frames per calibration probe")
@@ -153,6 +155,8 @@ class SweepSpec(BaseModel):
             raise ValueError("a sweep needs eps values (adaptive equal-bias) or nc values")
         if "max_depth" in self.params:
             raise ValueError("set max_depth on the sweep, not in params")
+        if self.max_depth == 0:
+            raise ValueError("max_depth must be -1 (unbounded) or >= 1")
         return self
 
     @property
