@@ -153,6 +153,8 @@ def test_default_depth_is_unbounded_everywhere():
     sweep = SweepSpec(scene="door", nc=[1])
     assert sweep.max_depth == -1
     assert sweep.base_render_spec().max_depth() == -1
+    with pytest.raises(ValueError, match="max_depth"):
+        SweepSpec(scene="door", nc=[1], max_depth=0)
 
 
 @pytest.mark.parametrize("method", ["nirc", "nrc"])
