@@ -65,7 +65,7 @@ def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
 
 def comparison_report(
     scene: str, store: Store, settings: Settings, *, resolution: int = 64, frames: int = 16,
-    seeds: int = 2, pretrain_frames: int = 100, max_depth: int = 8, ref_spp: int = 4096,
+    seeds: int = 2, pretrain_frames: int = 100, max_depth: int = -1, ref_spp: int = 4096,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> Report:
     """Run the Fig. 7 comparison on ``scene`` (see the module docstring)."""

@@ -161,7 +161,9 @@ class SweepSpec(BaseModel):
         "relative-mse", description="per-pixel relative bias of the v1 mask (noise-corrected): "
                                     "'relative-mse' (root of the pixel's rBias2 term) or "
                                     "'authors' (per channel |V-R| / luminance(R), all pass)")
-    max_depth: int = Field(8, ge=1, le=1024)
+    max_depth: int = Field(DEFAULT_MAX_DEPTH, ge=-1, le=1024,
+                           description="longest path in segments, renders, training paths and "
+                                       "reference alike; -1 = unbounded (roulette ends paths)")
     equal_time: bool = Field(True, description="add the 'NIRC equal time' series (needs both "
                                                "methods)")
     probe_frames: int = Field(5, ge=1, le=1000, description="timed frames per calibration probe")
@@ -211,6 +213,8 @@ class SweepSpec(BaseModel):
             raise ValueError("a sweep needs eps values (adaptive equal-bias) or nc values")
         if "max_depth" in self.params:
             raise ValueError("set max_depth on the sweep, not in params")
+        if self.max_depth == 0:
+            raise ValueError("max_depth must be -1 (unbounded) or >= 1")
         return self
 
     @property

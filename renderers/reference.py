@@ -38,7 +38,7 @@ class ReferenceSettings:
     """Everything that determines a reference besides the scene and resolution."""
 
     integrator: str = "path"         # 'path' (Mitsuba built-in) or 'pt' (our core)
-    max_depth: int = 8
+    max_depth: int = -1              # -1: unbounded (roulette), as renders and training paths
     spp: int = 4096                  # target (and maximum) samples per pixel
     spp_per_pass: int = 64
     rel_stderr: float | None = None  # stop early below this relative standard error

@@ -44,8 +44,10 @@ DataDir = Annotated[
 ]
 Scene = Annotated[str, typer.Option("--scene", "-s", help="built-in scene name or XML path")]
 Res = Annotated[int, typer.Option("--res", help="image width and height", min=1, max=8192)]
-MaxDepth = Annotated[int, typer.Option("--max-depth", help="longest path in segments (-1 = unbounded)",
-                                       min=-1, max=1024)]
+MaxDepth = Annotated[int, typer.Option(
+    "--max-depth", min=-1, max=1024,
+    help="longest path in segments for renders, cache-training paths and the reference "
+         "alike (-1 = unbounded: Russian roulette ends paths)")]
 JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a table")]
 Server = Annotated[str | None, typer.Option(
     "--server", envvar="NIRC_BENCH_SERVER",
@@ -172,7 +174,7 @@ def reference(
     scene: Scene,
     res: Res = 64,
     spp: Annotated[int, typer.Option("--spp", min=8, max=1 << 24, help="target spp")] = 4096,
-    max_depth: MaxDepth = 8,
+    max_depth: MaxDepth = -1,
     integrator: Annotated[str, typer.Option("--integrator", help="'path' (Mitsuba) or 'pt'")] = "path",
     rel_stderr: Annotated[float | None, typer.Option(
         "--rel-stderr", min=0.0, help="stop early below this relative standard error")] = None,
@@ -235,7 +237,7 @@ def render(
     spp: Annotated[int, typer.Option("--spp", min=1, max=1 << 16, help="spp per frame")] = 1,
     frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 1,
     seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000, help="K independent renders")] = 4,
-    max_depth: MaxDepth = 8,
+    max_depth: MaxDepth = -1,
     param: Annotated[list[str] | None, typer.Option(
         "--param", "-p", help="method parameter NAME=VALUE (repeatable)")] = None,
     estimator: Annotated[str | None, typer.Option(
@@ -313,7 +315,7 @@ def report(
     frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 16,
     seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000)] = 2,
     pretrain: Annotated[int, typer.Option("--pretrain", min=0, max=100_000)] = 100,
-    max_depth: MaxDepth = 8,
+    max_depth: MaxDepth = -1,
     ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
@@ -353,7 +355,7 @@ def sweep(
     bias_definition: Annotated[str, typer.Option(
         "--bias-definition", help="per-pixel bias of the v1 mask: 'relative-mse' or "
                                   "'authors' (docs/protocol.md)")] = "relative-mse",
-    max_depth: Annotated[int, typer.Option("--max-depth", min=1, max=1024)] = 8,
+    max_depth: MaxDepth = -1,
     termination: Annotated[str, typer.Option(
         "--termination", help="N_c sweep: 'bth' or 'sph'")] = "bth",
     equal_time: Annotated[bool, typer.Option(

@@ -106,7 +106,7 @@ class PathIntegrator(mi.SamplingIntegrator):
     """Unidirectional path tracer with NEE + MIS and Russian roulette.
 
     Parameters (Mitsuba properties):
-        max_depth    (int, default 8): longest path in segments; -1 = unbounded.
+        max_depth    (int, default -1): longest path in segments; -1 = unbounded.
                      1 shows only directly visible emitters, 2 adds direct light.
         rr_depth     (int, default 5): first depth at which roulette may stop a path.
         rr_mode      ('fixed' | 'throughput', default 'fixed').
@@ -125,7 +125,7 @@ class PathIntegrator(mi.SamplingIntegrator):
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.max_depth = int(props.get("max_depth", 8))
+        self.max_depth = int(props.get("max_depth", -1))
         self.rr_depth = int(props.get("rr_depth", 5))
         self.rr_mode = str(props.get("rr_mode", "fixed"))
         self.rr_survival = float(props.get("rr_survival", 0.9))

@@ -1,8 +1,12 @@
 """Training paths: the PT core with recording hooks, producing cache training records.
 
 Training paths are traced by a separate launch from the render paths (NIRC
-paper Sec. 4.5: a few % of the pixel count, unbounded length with Russian
-roulette), starting at uniformly random pixels. At each of the first ``D``
+paper Sec. 4.5: a few % of the pixel count), starting at uniformly random
+pixels, with the same core, Russian roulette and ``max_depth`` as the render
+paths (default unbounded). Counted from the camera like a render path, a
+record at x_j then has exactly the depth budget a render path terminating
+into the cache at x_j had left; docs/training.md states what still differs.
+At each of the first ``D``
 vertices x_j of a path we record the cache inputs at x_j and the direction w_j
 the path continued in; when the path arrives at x_{j+1} we record the radiance
 accumulated so far *including* x_{j+1}'s MIS-weighted emission, L_j, and the
@@ -15,7 +19,9 @@ is a one-sample, unbiased estimate of the indirect incident radiance
 L_ind(x_j, w_j) (Eq. 8: NEE at x_{j+1} plus everything further; not x_{j+1}'s
 own emission). A direction that escapes the scene has target 0 (light from the
 environment is direct light). Records whose path stopped before reaching
-x_{j+1} (roulette, depth limit, absorbed sample) are invalid.
+x_{j+1} (roulette, depth limit, absorbed sample) are invalid; a record whose
+x_{j+1} is the last vertex ``max_depth`` allows is valid with target 0 (a
+render path at that depth gets no indirect light there either).
 
 The same quantity is the radiance *reflected at x_{j+1} toward x_j*, which is
 what NRC caches: with ``key_vertex='arrival'`` record j holds the inputs of

@@ -1,8 +1,9 @@
 """The frame loop of the caching methods: online training every frame, then render.
 
-Real-time semantics (DESIGN.md): every frame first traces training paths (a few
-% of the pixel count, at least ``min_train_paths``; unbounded length with
-Russian roulette) and takes the cache's training steps on their records, then
+Real-time semantics: every frame first traces training paths (a few % of the
+pixel count, at least ``min_train_paths``; the same PT core, Russian roulette
+and ``max_depth`` as the render paths, see docs/training.md) and takes the
+cache's training steps on their records, then
 renders the frame with the updated cache — frame f uses a cache trained on
 frames 0..f. Static scenes may pre-train for ``pretrain_frames`` frames before
 the first timed frame. Stages timed per frame: ``training_paths``,
@@ -35,15 +36,21 @@ class CacheTrainingParams(PTParams):
     train_fraction: float = Field(0.03, gt=0.0, le=1.0, description="training paths / pixels")
     min_train_paths: int = Field(4096, ge=1, le=1 << 22)
     record_depth: int = Field(3, ge=1, le=16, description="vertices recorded per training path")
-    train_max_depth: int = Field(-1, ge=-1, le=1024, description="-1: unbounded with roulette")
     pretrain_frames: int = Field(0, ge=0, le=100_000)
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
 
-    @model_validator(mode="after")
-    def _check_train_depth(self) -> CacheTrainingParams:
-        if self.train_max_depth == 0:
-            raise ValueError("train_max_depth must be -1 (unbounded) or >= 1")
-        return self
+    @model_validator(mode="before")
+    @classmethod
+    def _removed_train_max_depth(cls, values: Any) -> Any:
+        # Training paths used to have their own depth (default unbounded while
+        # renders stopped at 8): the cache then learned another quantity than
+        # the one the render and its reference estimate. They now follow
+        # max_depth (docs/training.md). Stored runs keep the old field in
+        # their params JSON, which is only read, never validated again.
+        if isinstance(values, dict) and "train_max_depth" in values:
+            raise ValueError("train_max_depth was removed: training paths now stop at "
+                             "max_depth like render paths (set max_depth instead)")
+        return values
 
     def core(self) -> dict[str, Any]:
         """The PT core's plugin properties."""
@@ -66,8 +73,10 @@ def load_integrators(plugin: str, cls: type, params: CacheTrainingParams, key_ve
     path.register(trainer_plugin, trainer_cls)
     integrator = mi.load_dict({"type": plugin, **params.core(), "sph_c": params.sph_c,
                                **properties})
-    trainer = mi.load_dict({"type": trainer_plugin,
-                            **{**params.core(), "max_depth": params.train_max_depth},
+    # Training paths are bounded exactly like render paths (same core, same
+    # max_depth counted from the camera): a record at vertex x_j then sees the
+    # depth budget a render path terminating into the cache at x_j had left.
+    trainer = mi.load_dict({"type": trainer_plugin, **params.core(),
                             "record_depth": params.record_depth,
                             "key_vertex": key_vertex, **(trainer_properties or {})})
     return integrator, trainer

@@ -14,7 +14,9 @@ from renderers.methods.base import (
     run_frames,
 )
 
-DEFAULT_MAX_DEPTH = 8
+#: Unbounded: Russian roulette ends paths, as Mitsuba's ``path`` does by default.
+#: Renders, references and cache-training paths share this depth (docs/training.md).
+DEFAULT_MAX_DEPTH = -1
 
 
 class PTParams(MethodParams):

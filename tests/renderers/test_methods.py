@@ -38,7 +38,7 @@ def test_frames_use_independent_seeds_and_accumulate_their_mean(scene):
 
 
 def test_outputs_carry_timings_and_path_statistics(scene):
-    out = _render(scene, 0, frames=3)
+    out = _render(scene, 0, frames=3, max_depth=8)
     assert out.timings["frames"] == 3 and len(out.timings["per_frame"]) == 3
     assert out.timings["stages"]["render"]["mean_s"] > 0
     assert out.timings["warmup_s"] > 0
