@@ -33,21 +33,29 @@ def cache_inputs(si: mi.SurfaceInteraction3f, bsdf: mi.BSDF,
 
     Roughness is the BSDF's ``alpha`` where it has one; purely diffuse surfaces
     count as fully rough (1) — the cache encodes 1 - exp(-r) (NRC's mapping).
-    With ``specular``, also the BSDF's ``specular_reflectance`` (0 where it has
-    none) as ``albedo_spec`` (NRC's inputs).
+    The diffuse albedo is 0 on BSDFs without a diffuse lobe (Mitsuba's generic
+    ``eval_diffuse_reflectance`` evaluates the BSDF at normal incidence, e.g. 25
+    for a default rough conductor). With ``specular``, also the specular albedo
+    ``albedo_spec`` (NRC's inputs): the BSDF's ``specular_reflectance``, whose
+    Mitsuba default is 1 on BSDFs with a glossy or delta lobe when it is not set
+    (the attribute then does not exist), and 0 on BSDFs without such a lobe.
     """
     flags = bsdf.flags()
-    diffuse_only = (mi.has_flag(flags, mi.BSDFFlags.Diffuse)
-                    & ~mi.has_flag(flags, mi.BSDFFlags.Glossy))
+    has_diffuse = mi.has_flag(flags, mi.BSDFFlags.Diffuse)
+    has_specular = mi.has_flag(flags, mi.BSDFFlags.Glossy) | mi.has_flag(flags, mi.BSDFFlags.Delta)
     alpha = bsdf.eval_attribute_1("alpha", si)
     inputs = {
         "position": si.p,
         "normal": si.sh_frame.n,
-        "roughness": dr.select(diffuse_only, 1.0, alpha),
-        "albedo": bsdf.eval_diffuse_reflectance(si),
+        "roughness": dr.select(has_diffuse & ~mi.has_flag(flags, mi.BSDFFlags.Glossy), 1.0,
+                               alpha),
+        "albedo": dr.select(has_diffuse, bsdf.eval_diffuse_reflectance(si), 0.0),
     }
     if specular:
-        inputs["albedo_spec"] = bsdf.eval_attribute_3("specular_reflectance", si)
+        inputs["albedo_spec"] = dr.select(
+            bsdf.has_attribute("specular_reflectance"),
+            bsdf.eval_attribute_3("specular_reflectance", si),
+            dr.select(has_specular, 1.0, 0.0))
     return inputs
 
 

@@ -416,3 +416,26 @@ def test_nrc_query_multiplies_the_demodulation_back(mi):
     result = agreement_test(mean_y, var_y, np.full_like(mean_y, expected),
                             np.zeros_like(var_y), alpha=0.001)
     assert result.passed, f"expected {expected}, got {mean_y.mean():.5f}: {result.summary()}"
+
+
+@pytest.mark.parametrize("bsdf, albedo, albedo_spec", [
+    ({"type": "diffuse"}, 0.5, 0.0),
+    ({"type": "roughconductor"}, 0.0, 1.0),     # generic diffuse reflectance was 25
+    ({"type": "plastic"}, 0.5, 1.0),            # unset specular_reflectance read as 0
+    ({"type": "plastic", "specular_reflectance": 0.25}, 0.5, 0.25),
+    ({"type": "dielectric"}, 0.0, 1.0),
+])
+def test_cache_albedo_inputs_follow_the_bsdf_lobes(mi, bsdf, albedo, albedo_spec):
+    """NRC's albedo inputs (and so its demodulation factor) on common BSDFs."""
+    import drjit as dr
+
+    from renderers.integrators.cached import cache_inputs
+
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    si.n = mi.Normal3f(0, 0, 1)
+    si.sh_frame = mi.Frame3f(si.n)
+    si.wi = mi.Vector3f(0, 0, 1)
+    loaded = mi.load_dict(bsdf)        # kept alive: the pointer array does not own it
+    inputs = cache_inputs(si, mi.BSDFPtr(loaded), specular=True)
+    assert np.allclose(np.asarray(inputs["albedo"]), albedo)
+    assert np.allclose(np.asarray(inputs["albedo_spec"]), albedo_spec)
