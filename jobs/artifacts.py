@@ -8,6 +8,10 @@ runs or seeds are stored once, and a path never changes meaning.
 Writes are atomic: content goes to a temporary file in the destination folder
 (same filesystem) and is renamed into place with ``os.replace``, so a reader, a
 crash or a concurrent writer of the same content never sees a partial file.
+
+Files are owner-only (0600) in owner-only folders (0700): results, specs and
+errors are the service's to serve, under its own access rules (docs/security.md),
+not readable by every account on the machine.
 """
 
 import hashlib
@@ -21,6 +25,23 @@ import numpy as np
 
 _CHUNK = 1 << 20            # bytes read at a time when hashing or copying files
 _TEMP_PREFIX = ".tmp-"      # temporary files; never a valid content-addressed name
+PRIVATE_DIR_MODE = 0o700
+PRIVATE_FILE_MODE = 0o600
+
+
+def make_private_dir(path: Path) -> Path:
+    """``mkdir -p path``, each folder it creates owner-only (existing ones untouched)."""
+    missing = []
+    folder = Path(path)
+    while not folder.exists():
+        missing.append(folder)
+        folder = folder.parent
+    for folder in reversed(missing):
+        try:
+            folder.mkdir(mode=PRIVATE_DIR_MODE)
+        except FileExistsError:     # created by another process meanwhile
+            pass
+    return Path(path)
 
 
 class StoredBlob(NamedTuple):
@@ -86,7 +107,7 @@ class ArtifactStore:
         # something other than this class, which only ever renames complete files).
         if destination.is_file() and destination.stat().st_size == size:
             return StoredBlob(sha256, relpath)
-        destination.parent.mkdir(parents=True, exist_ok=True)
+        make_private_dir(destination.parent)
         fd, temp_name = tempfile.mkstemp(prefix=_TEMP_PREFIX, dir=destination.parent)
         try:
             with os.fdopen(fd, "wb") as out:
@@ -95,8 +116,8 @@ class ArtifactStore:
                 # Durable before the rename makes it visible: a crash must not
                 # leave a complete-looking name over incomplete data.
                 os.fsync(out.fileno())
-            # mkstemp creates 0600; artifacts are served by other processes.
-            os.chmod(temp_name, 0o644)
+            # mkstemp creates 0600 already; say so, whatever the platform does.
+            os.chmod(temp_name, PRIVATE_FILE_MODE)
             os.replace(temp_name, destination)
         except BaseException:
             try:

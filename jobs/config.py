@@ -74,6 +74,23 @@ class Settings(BaseSettings):
     def _absolute_scene_roots(cls, value: list[Path]) -> list[Path]:
         return [root.expanduser().absolute() for root in value]
 
+    # ---- Access and limits of the service (docs/security.md) ----
+    # Whether GETs (results, jobs with their specs and errors, worker addresses) are
+    # open to anyone who can reach the service. None: on if `serve` binds to
+    # loopback; on any other address `serve` refuses to start until it is chosen.
+    public_read: bool | None = None
+    # The largest request body accepted (413 beyond, counted as it streams in).
+    max_body_bytes: int = Field(1_000_000, ge=1024)
+    # Long polls waiting at once; more are answered 429 (each costs a database read
+    # per poll interval, not a thread).
+    long_poll_max_waiters: int = Field(256, ge=1)
+    # TLS of the scale-out Dask connections (tls:// scheduler addresses): the CA that
+    # signed the scheduler's and workers' certificates, and this process's own
+    # certificate and private key (PEM files).
+    tls_ca_file: Path | None = None
+    tls_cert: Path | None = None
+    tls_key: Path | None = None
+
     @field_validator("data_dir")
     @classmethod
     def _absolute_data_dir(cls, value: Path) -> Path:

@@ -12,6 +12,7 @@ environment in ``jobs/migrations`` is configured in code, so no alembic.ini is
 needed at run time.
 """
 
+import os
 import sqlite3
 import time
 from pathlib import Path
@@ -24,6 +25,7 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
 
+from jobs.artifacts import PRIVATE_FILE_MODE, make_private_dir
 from jobs.config import Settings, get_settings
 from jobs.store import BEGIN_IMMEDIATE_OPTION, Store
 
@@ -46,11 +48,21 @@ def make_engine(url: str | URL) -> Engine:
         return create_engine(url, pool_pre_ping=True)
     database = url.database
     if database and database != ":memory:" and not url.query.get("uri"):
-        Path(database).expanduser().parent.mkdir(parents=True, exist_ok=True)
+        _create_private_file(Path(database).expanduser())
     engine = create_engine(url)
     event.listen(engine, "connect", _sqlite_on_connect)
     event.listen(engine, "begin", _sqlite_on_begin)
     return engine
+
+
+def _create_private_file(path: Path) -> None:
+    """The SQLite file and its folder, owner-only (0600 in 0700) if they are new.
+
+    SQLite would create the file with the process's umask (0644 typically); created
+    empty first, it is a valid empty database, and SQLite gives its -wal and -shm
+    files the database file's mode."""
+    make_private_dir(path.parent)
+    os.close(os.open(path, os.O_CREAT | os.O_WRONLY, PRIVATE_FILE_MODE))
 
 
 def _sqlite_on_connect(dbapi_connection: Any, connection_record: Any) -> None:

@@ -12,6 +12,11 @@ CPU workers advertise the Dask resource ``CPU=1`` and GPU workers ``GPU=1``;
 every job asks for the one of its device class. On SLURM the same command runs
 as a batch job (scripts/slurm/nirc-bench-worker.sbatch, README).
 
+Scale-out connections are TLS with certificates (``tls://`` addresses and
+``Settings.tls_*``, see :func:`scheduler_security`): a Dask scheduler runs any
+code its clients send on its workers, so only holders of a certificate signed by
+the deployment's CA may connect. The embedded cluster never leaves loopback.
+
 A Dask task only calls :func:`jobs.runner.run_job`, which claims the job in
 the database, so a task that Dask runs twice (a worker lost mid-task) cannot
 run a job twice: the second claim finds it running or finished.
@@ -56,6 +61,27 @@ def dask_environment(config: dict[str, Any]) -> dict[str, str]:
             for key, value in config.items()}
 
 
+def scheduler_security(settings: Settings, address: str) -> Any:
+    """The Dask ``Security`` of a client of the scheduler at ``address``: mutual TLS for
+    ``tls://`` (the CA, this process's certificate and key from ``settings``; a peer
+    without a certificate of that CA is refused), None for other addresses."""
+    from distributed.security import Security
+
+    if not address.startswith("tls://"):
+        return None
+    return Security(tls_ca_file=str(settings.tls_ca_file),
+                    tls_client_cert=str(settings.tls_cert),
+                    tls_client_key=str(settings.tls_key), require_encryption=True)
+
+
+def worker_tls_options(settings: Settings) -> list[str]:
+    """``dask worker`` options giving it the same CA, certificate and key."""
+    if settings.tls_ca_file is None:
+        return []
+    return ["--tls-ca-file", str(settings.tls_ca_file), "--tls-cert", str(settings.tls_cert),
+            "--tls-key", str(settings.tls_key)]
+
+
 def run_job_task(job_id: int, settings_json: dict[str, Any], timeout_s: float | None,
                  *upstream: str) -> str:
     """The Dask task: run one job (in its own child process) and return its status;
@@ -88,7 +114,7 @@ class Dispatcher:
         self.gpu_workers: list[Any] = []
         dask.config.set(QUIET_WORKER_CONFIG)
         if scheduler:
-            self.client = Client(scheduler)
+            self.client = Client(scheduler, security=scheduler_security(settings, scheduler))
             return
         gpus = detect_gpu_count() if gpus is None else gpus
         gpu_devices(gpus)       # fail now, not in the workers, if they are not there

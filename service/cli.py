@@ -404,29 +404,110 @@ def sweep(
          lambda r: r.to_json(), sweep_table, out)
 
 
+TlsCaFile = Annotated[Path | None, typer.Option(
+    "--tls-ca-file", help="tls:// scheduler: the CA that signed the scheduler's and workers' "
+                          "certificates (or NIRC_BENCH_TLS_CA_FILE)")]
+TlsCert = Annotated[Path | None, typer.Option(
+    "--tls-cert", help="tls:// scheduler: this process's certificate, PEM "
+                       "(or NIRC_BENCH_TLS_CERT)")]
+TlsKey = Annotated[Path | None, typer.Option(
+    "--tls-key", help="tls:// scheduler: its private key, PEM (or NIRC_BENCH_TLS_KEY)")]
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (an address or 'localhost') reaches this machine only."""
+    import ipaddress
+
+    host = host.strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:      # a name: it may resolve to any interface
+        return False
+
+
+def decide_public_read(choice: bool | None, host: str) -> bool:
+    """Whether reads need no API key: as chosen, else only on a loopback address."""
+    if choice is not None:
+        return choice
+    if is_loopback(host):
+        return True
+    raise UsageError(
+        f"--host {host} is reachable from other machines: choose whether anyone who can "
+        "reach it may read results, jobs (specs, errors, worker addresses) without an API "
+        "key: --public-read or --no-public-read (or NIRC_BENCH_PUBLIC_READ=true/false)")
+
+
+def _with_tls(settings: Any, scheduler: str, ca_file: Path | None, cert: Path | None,
+              key: Path | None) -> Any:
+    """``settings`` with the TLS files of a tls:// ``scheduler`` (options over the
+    environment's settings), checked; a plain scheduler off loopback gets a warning."""
+    files = {"tls_ca_file": ca_file or settings.tls_ca_file,
+             "tls_cert": cert or settings.tls_cert, "tls_key": key or settings.tls_key}
+    given = {name: path for name, path in files.items() if path is not None}
+    if scheduler.startswith("tls://"):
+        if len(given) < 3:
+            raise UsageError("a tls:// scheduler needs --tls-ca-file, --tls-cert and --tls-key "
+                             "(or NIRC_BENCH_TLS_CA_FILE, NIRC_BENCH_TLS_CERT, "
+                             "NIRC_BENCH_TLS_KEY)")
+        for path in given.values():
+            if not Path(path).is_file():
+                raise UsageError(f"TLS file {path} not found")
+    elif given:
+        raise UsageError(f"TLS certificates are for a tls:// scheduler address, not "
+                         f"'{scheduler}' (start the scheduler with --protocol tls)")
+    elif not is_loopback(scheduler.split("://", 1)[-1].rsplit(":", 1)[0]):
+        err_console.print(f"nirc-bench: warning: the scheduler {scheduler} is not encrypted "
+                          "or authenticated: anyone who reaches it runs code on the workers; "
+                          "use tls:// with certificates (docs/security.md)",
+                          markup=False, highlight=False)
+    return settings.model_copy(update=given)
+
+
 @app.command()
 def serve(
     host: Annotated[str, typer.Option("--host")] = "127.0.0.1",
     port: Annotated[int, typer.Option("--port", min=1, max=65535)] = 8000,
     scheduler: Annotated[str | None, typer.Option(
-        "--scheduler", help="Dask scheduler address (default: an embedded LocalCluster)")] = None,
+        "--scheduler", help="Dask scheduler address, tls://HOST:8786 with the --tls-* options "
+                            "(default: an embedded LocalCluster)")] = None,
     job_timeout: Annotated[float | None, typer.Option(
         "--job-timeout", min=1.0, help="seconds before an attempt is killed")] = None,
     gpus: Annotated[int | None, typer.Option(
         "--gpus", min=0, max=64,
         help="GPU workers of the embedded cluster (default: one per GPU found)")] = None,
+    public_read: Annotated[bool | None, typer.Option(
+        "--public-read/--no-public-read",
+        help="whether reads (results, jobs, the dashboard) need no API key (default: only "
+             "on a loopback --host; elsewhere a choice is required; or "
+             "NIRC_BENCH_PUBLIC_READ)")] = None,
+    tls_ca_file: TlsCaFile = None,
+    tls_cert: TlsCert = None,
+    tls_key: TlsKey = None,
     data_dir: DataDir = None,
 ) -> None:
     """Run the service: REST API (OpenAPI at /docs) + job queue on Dask."""
+    settings = _settings(data_dir)
+    # Decided before anything starts: an open service must be asked for, not stumbled on.
+    public = decide_public_read(public_read if public_read is not None
+                                else settings.public_read, host)
+    if scheduler and gpus is not None:
+        raise UsageError("--gpus sizes the embedded cluster; with --scheduler, run "
+                         "`nirc-bench worker --scheduler ... --gpus N` on the GPU machines")
+    if scheduler:
+        settings = _with_tls(settings, scheduler, tls_ca_file, tls_cert, tls_key)
+    elif tls_ca_file or tls_cert or tls_key:
+        raise UsageError("--tls-* options are for a tls:// --scheduler; the embedded cluster "
+                         "stays on loopback")
+    settings = settings.model_copy(update={"public_read": public})
+
     import uvicorn
 
     from jobs.dispatch import Dispatcher
     from service.api.main import create_app
 
-    if scheduler and gpus is not None:
-        raise UsageError("--gpus sizes the embedded cluster; with --scheduler, run "
-                         "`nirc-bench worker --scheduler ... --gpus N` on the GPU machines")
-    settings = _settings(data_dir)
+    os.umask(0o077)     # references, logs, snapshots: owner-only, like the database
     dispatcher = Dispatcher(settings, scheduler, timeout_s=job_timeout, gpus=gpus)
     try:
         uvicorn.run(create_app(settings, dispatcher), host=host, port=port)
@@ -436,17 +517,23 @@ def serve(
 
 @app.command()
 def worker(
-    scheduler: Annotated[str, typer.Option("--scheduler", help="tcp://HOST:8786")],
+    scheduler: Annotated[str, typer.Option("--scheduler", help="tls://HOST:8786 (or tcp://)")],
     gpus: Annotated[int, typer.Option("--gpus", min=0, max=64,
                                       help="one worker per GPU, each with resource GPU=1")] = 0,
+    tls_ca_file: TlsCaFile = None,
+    tls_cert: TlsCert = None,
+    tls_key: TlsKey = None,
 ) -> None:
     """Run Dask worker(s) for a service started with --scheduler (same data folder):
     one CPU worker, or one per GPU, each seeing only its GPU (CUDA_VISIBLE_DEVICES)."""
-    from jobs.dispatch import QUIET_WORKER_CONFIG, dask_environment
+    from jobs.dispatch import QUIET_WORKER_CONFIG, dask_environment, worker_tls_options
     from jobs.gpus import run_workers, worker_commands
 
-    commands = worker_commands(scheduler, gpus,
-                               {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})
+    settings = _with_tls(_settings(None), scheduler, tls_ca_file, tls_cert, tls_key)
+    tls = worker_tls_options(settings)
+    commands = [([*argv, *tls], env) for argv, env in worker_commands(
+        scheduler, gpus, {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})]
+    os.umask(0o077)     # what the workers write into the data folder: owner-only
     if len(commands) == 1:      # nothing to supervise: become the worker
         argv, env = commands[0]
         os.execve(sys.executable, argv, env)
@@ -520,7 +607,7 @@ def main() -> None:
         app()
     except USER_ERRORS as err:
         err_console.print(f"nirc-bench: error: {describe_user_error(err)}", markup=False,
-                          highlight=False)
+                          highlight=False, soft_wrap=True)     # one line, not wrapped at 80
         sys.exit(2)
     except Exception as err:  # noqa: BLE001 - the last line of defence: one line, no traceback
         if os.environ.get("NIRC_BENCH_DEBUG"):

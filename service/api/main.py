@@ -6,7 +6,12 @@ stay queued) or a stand-in. On start every unfinished job is dispatched again:
 queued ones run, and running ones left by a killed process are taken over when
 their heartbeat lease expires (jobs.queue). A request that fails validation is
 answered 422 with the errors as JSON, even when the bad value is NaN or Infinity
-(which a JSON body may carry, but a JSON answer cannot).
+(which a JSON body may carry, but a JSON answer cannot), and with any echoed input
+cut short (service/api/limits.py, which also bounds bodies).
+
+Reads need an API key unless ``settings.public_read`` (None counts as on: the app
+alone does not know where it listens, and ``serve`` decides None before it gets
+here, refusing a non-loopback address without an explicit choice).
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, Request, status
+from fastapi import Depends, FastAPI, Request, status
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
@@ -26,7 +31,9 @@ from fastapi.staticfiles import StaticFiles
 from jobs.config import Settings
 from jobs.db import open_store
 from jobs.queue import JobQueue
-from service.api.routes import jobs, results, scenes
+from service.api.deps import ReadAccess
+from service.api.limits import BodySizeLimit, bounded_json_body, truncate_echo
+from service.api.routes import auth, jobs, results, scenes
 
 #: The dashboard's files (HTML, CSS, JavaScript with its own SVG plots): served from
 #: here, never from a CDN.
@@ -45,9 +52,29 @@ def _json_safe(value: Any) -> Any:
 
 
 async def validation_failed(request: Request, exc: RequestValidationError) -> JSONResponse:
-    """FastAPI's 422 answer, which would fail with a 500 on a NaN it has to echo."""
+    """FastAPI's 422 answer, which would fail with a 500 on a NaN it has to echo, and
+    would repeat a huge input whole."""
+    errors = [truncate_echo(error) for error in jsonable_encoder(exc.errors())]
     return JSONResponse(status_code=status.HTTP_422_UNPROCESSABLE_CONTENT,
-                        content={"detail": _json_safe(jsonable_encoder(exc.errors()))})
+                        content={"detail": _json_safe(errors)})
+
+
+def _write_operations_need_the_header(app: FastAPI) -> None:
+    """OpenAPI: the login cookie is accepted for reads only (deps.require_read_access),
+    so a write operation lists the header scheme alone."""
+    generate = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        schema = generate()
+        for operations in schema.get("paths", {}).values():
+            for method, operation in operations.items():
+                if method not in ("get", "head") and "security" in operation:
+                    operation["security"] = [requirement for requirement in
+                                             operation["security"]
+                                             if "APIKeyCookie" not in requirement]
+        return schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def create_app(settings: Settings | None = None, dispatcher: Any = None) -> FastAPI:
@@ -72,9 +99,17 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.state.settings, app.state.store, app.state.queue = settings, store, queue
     app.state.dispatcher = dispatcher
     app.add_exception_handler(RequestValidationError, validation_failed)
-    app.include_router(jobs.router)
-    app.include_router(results.router)
+    # A scene upload reads its body under its own cap (scene_max_bytes).
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes,
+                       exempt=(("POST", scenes.UPLOAD_PATH),))
+    guards = [Depends(bounded_json_body)]
+    if settings.public_read is False:
+        guards.append(ReadAccess)
+    app.include_router(jobs.router, dependencies=guards)
+    app.include_router(results.router, dependencies=guards)
+    app.include_router(auth.router, dependencies=[Depends(bounded_json_body)])
     app.include_router(scenes.router)
+    _write_operations_need_the_header(app)
     app.mount("/static", StaticFiles(directory=DASHBOARD_DIR), name="static")
 
     @app.get("/", include_in_schema=False)

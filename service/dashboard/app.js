@@ -2,7 +2,10 @@
 // Plain JavaScript against the REST API (/api/v1); plots by plot.js (bundled here).
 "use strict";
 
+// Raised when the service wants an API key for reads: the view becomes the login form.
+class NeedsKey extends Error {}
 const api = (path) => fetch(`/api/v1${path}`).then((r) => {
+  if (r.status === 401 || r.status === 403) throw new NeedsKey(r.status === 403 ? "that key is invalid or revoked" : "");
   if (!r.ok) throw new Error(`${path}: ${r.status}`);
   return r.json();
 });
@@ -145,6 +148,26 @@ async function jobsPage() {
   view().innerHTML = html + "</table><p class='muted'>refreshes every 2 s</p>";
 }
 
+// The key goes to the service once; it answers with an HttpOnly cookie (unreadable here)
+// that the browser sends with every read from then on.
+function loginForm(message) {
+  view().innerHTML = `<form id="login"><h2>API key</h2>
+    <p class="muted">This service's results are not public. Enter an API key (<code>nirc-bench apikey create</code>);
+    this browser keeps it in a cookie that page scripts cannot read.</p>
+    <input type="password" id="api-key" name="api-key" autocomplete="current-password" required maxlength="200" size="60">
+    <button type="submit">log in</button>
+    <p class="status-failed" id="login-error">${esc(message)}</p></form>`;
+  document.getElementById("login").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const r = await fetch("/api/v1/auth/login", {
+      method: "POST", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ api_key: document.getElementById("api-key").value.trim() }),
+    });
+    if (r.ok) route();
+    else document.getElementById("login-error").textContent = r.status === 403 ? "that key is invalid or revoked" : `login failed: ${r.status}`;
+  });
+}
+
 async function route() {
   clearTimeout(timer);
   const parts = location.hash.replace(/^#\/?/, "").split("/").map(decodeURIComponent);
@@ -153,10 +176,16 @@ async function route() {
     else if (parts[0] === "scene" && parts[1]) await scenePage(parts[1], parts[2]);
     else await overview();
   } catch (err) {
-    view().innerHTML = `<p class="status-failed">${esc(err.message)}</p>`;
+    if (err instanceof NeedsKey) loginForm(err.message);
+    else view().innerHTML = `<p class="status-failed">${esc(err.message)}</p>`;
   }
 }
 
+document.getElementById("logout").addEventListener("click", async (event) => {
+  event.preventDefault();
+  await fetch("/api/v1/auth/logout", { method: "POST" });
+  route();
+});
 window.addEventListener("hashchange", route);
 document.getElementById("include-old").addEventListener("change", route);
 route();

@@ -269,3 +269,21 @@ def test_the_cli_uploads_a_local_scene_the_service_may_not_read(live, layout):
         capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert json.loads(done.stdout)["scene"].startswith("upload:")
+
+
+def test_a_scene_upload_has_its_own_body_cap_not_the_service_wide_one(tmp_path):
+    """Bodies are capped service-wide (max_body_bytes), but an upload carries its
+    files: it is read under the scene limits instead (and still refused beyond them)."""
+    settings = Settings(data_dir=tmp_path / "data", database_url=None, max_body_bytes=2000,
+                        scene_max_file_bytes=MAX_FILE_BYTES, scene_max_bytes=MAX_BYTES)
+    store = open_store(settings)
+    _, key = create_api_key(store, "tests")
+    mesh = QUAD + b"# padding\n" * 1000          # ~10 kB: over the service-wide cap
+    xml = scene('<shape type="obj"><string name="filename" value="quad.obj"/></shape>')
+    with TestClient(create_app(settings, None)) as client:
+        target = Target(client, key)
+        assert upload(target, xml, {"quad.obj": mesh}).status_code == 201
+        assert target.post("jobs", {"scene": "x" * 3000, **TINY}).status_code == 413
+        too_big = upload(target, xml, {"quad.obj": b"#" * (MAX_FILE_BYTES + 1)})
+        assert too_big.status_code == 413
+    store.close()

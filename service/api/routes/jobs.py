@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import asyncio
 import time
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Header, HTTPException, Query, Response, status
+from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 from pydantic import ValidationError
+from starlette.concurrency import run_in_threadpool
 
 from jobs.config import Settings
 from jobs.graph import sweep_stages
@@ -22,8 +24,10 @@ from service.api.schemas import JobOut
 
 router = APIRouter(prefix="/api/v1", tags=["jobs"])
 
-#: Seconds between the reads of a long-polled job.
+#: Seconds between the reads of a long-polled job: short at first (a job that is about
+#: to finish answers quickly), growing to the longest while it keeps running.
 LONG_POLL_INTERVAL_S = 0.1
+LONG_POLL_MAX_INTERVAL_S = 1.0
 
 IdempotencyKey = Annotated[str | None, Header(max_length=200,
                                               description="return the job of an earlier "
@@ -150,22 +154,50 @@ def list_jobs(queue: QueueDep,
 
 @router.get("/jobs/{job_id}", response_model=JobOut,
             description="A job's status and progress; a sweep lists its stages (the task "
-                        "graph: reference, caches, points), each a job of its own.")
-def get_job(job_id: RowId, queue: QueueDep, settings: SettingsDep,
-            wait_s: Annotated[float, Query(
-                ge=0, le=60, description="long poll: answer when the job is final or after "
-                                         "this many seconds (at most the service's "
-                                         "long_poll_max_s), whichever is first")] = 0) -> JobOut:
+                        "graph: reference, caches, points), each a job of its own. With "
+                        "wait_s, 429 while the service already holds its most long polls.")
+async def get_job(job_id: RowId, request: Request, queue: QueueDep, settings: SettingsDep,
+                  wait_s: Annotated[float, Query(
+                      ge=0, le=60, description="long poll: answer when the job is final or "
+                                               "after this many seconds (at most the "
+                                               "service's long_poll_max_s), whichever is "
+                                               "first")] = 0) -> JobOut:
+    # Async, with each database read in a worker thread: a waiting poll holds no thread,
+    # so polls cannot starve the thread pool that the other endpoints run on.
     deadline = time.monotonic() + min(wait_s, settings.long_poll_max_s)
-    job = queue.get(job_id)
+    job = await run_in_threadpool(queue.get, job_id)
     if job is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no job {job_id}")
-    # Re-read the row, not the HTTP round trip: a waiting client costs one query per
-    # interval instead of one request.
-    while job.status not in FINAL_JOB_STATES and time.monotonic() < deadline:
-        time.sleep(LONG_POLL_INTERVAL_S)
-        job = queue.get(job_id)
-    return JobOut.of(job, queue.children(job_id) if job.kind == "sweep" else None)
+    if job.status not in FINAL_JOB_STATES and time.monotonic() < deadline:
+        job = await _wait_until_final(request, queue, job, deadline,
+                                      settings.long_poll_max_waiters)
+    stages = await run_in_threadpool(queue.children, job_id) if job.kind == "sweep" else None
+    return JobOut.of(job, stages)
+
+
+async def _wait_until_final(request: Request, queue, job, deadline: float, max_waiters: int):
+    """``job`` re-read until it is final, the deadline passes or the client leaves.
+
+    Re-read the row, not the HTTP round trip: a waiting client costs one query per
+    interval instead of one request."""
+    state = request.app.state
+    waiting = getattr(state, "long_poll_waiters", 0)
+    if waiting >= max_waiters:
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS,
+                            f"the service already holds {waiting} long polls; poll again "
+                            "shortly, or without wait_s", headers={"Retry-After": "2"})
+    state.long_poll_waiters = waiting + 1     # one event loop: no lock needed
+    try:
+        interval = LONG_POLL_INTERVAL_S
+        while job.status not in FINAL_JOB_STATES and time.monotonic() < deadline:
+            await asyncio.sleep(min(interval, max(0.0, deadline - time.monotonic())))
+            if await request.is_disconnected():
+                break
+            job = await run_in_threadpool(queue.get, job.id)
+            interval = min(1.5 * interval, LONG_POLL_MAX_INTERVAL_S)
+        return job
+    finally:
+        state.long_poll_waiters -= 1
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut, dependencies=[WriteAccess])

@@ -25,6 +25,9 @@ from service.api.schemas import SceneUploadOut
 
 router = APIRouter(prefix="/api/v1", tags=["scenes"])
 
+#: The upload route; it reads its body under its own cap, not the service-wide one.
+UPLOAD_PATH = "/api/v1/scenes"
+
 #: JSON around the content: field names, quotes, the file names.
 _BODY_OVERHEAD = 1 << 20
 
@@ -76,7 +79,7 @@ def _decode(upload: SceneUpload) -> tuple[bytes, dict[str, bytes]]:
     return upload.xml.encode("utf-8"), files
 
 
-@router.post("/scenes", status_code=status.HTTP_201_CREATED, response_model=SceneUploadOut,
+@router.post(UPLOAD_PATH.removeprefix(router.prefix), status_code=status.HTTP_201_CREATED, response_model=SceneUploadOut,
              dependencies=[WriteAccess],
              responses={200: {"model": SceneUploadOut, "description": "already stored"},
                         413: {"description": "a file or the whole scene is over the limit"}},
