@@ -1,8 +1,8 @@
 """Database models of the job store: references, runs, per-seed results, cache
 snapshots, sweeps, artifacts, queued jobs and API keys.
 
-The SQL database is the durable record of every result (DESIGN.md, "Jobs,
-sweeps, storage"); images live outside it, content-addressed, and are referenced
+The SQL database is the durable record of every result (docs/results.md);
+images live outside it, content-addressed, and are referenced
 here by ``Artifact`` rows. Schema changes go through an Alembic revision in
 ``jobs/migrations/versions`` (a test checks that the models and the migrations
 agree).

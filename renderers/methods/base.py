@@ -1,7 +1,7 @@
 """What every render method has in common: parameters, the frame loop, its output.
 
 A method is a pure function of (scene, method parameters, seed, spp, frames)
--> images + statistics (DESIGN.md, "Layout"). The frame loop gives all methods
+-> images + statistics (docs/design.md, "Layout"). The frame loop gives all methods
 the same real-time semantics and the same timing protocol: one warm-up frame
 (excluded, reported), then F timed frames, each rendered with its own derived
 seed and accumulated into the running mean.
