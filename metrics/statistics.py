@@ -266,6 +266,22 @@ def _two_sided_p_values(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarra
     return p
 
 
+def _paired_means(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
+                  var_b: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Two means and the variances of the means, as float64 arrays of one shape."""
+    if np.shape(mean_a) != np.shape(mean_b):
+        raise MetricError(f"mean shapes differ: {np.shape(mean_a)} vs {np.shape(mean_b)}")
+    try:
+        a, va, b, vb = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
+                                             for x in (mean_a, var_a, mean_b, var_b)))
+    except ValueError:
+        raise MetricError(f"variance shapes {np.shape(var_a)}, {np.shape(var_b)} do not "
+                          f"broadcast to the mean shape {np.shape(mean_a)}") from None
+    if np.any((va < 0) | (vb < 0)):
+        raise MetricError("variances must be >= 0")
+    return a, va, b, vb
+
+
 def z_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray, var_b: np.ndarray,
            alpha: float = 0.01) -> ZTestResult:
     """Per-pixel-channel two-sample z-test of "both means estimate the same image".
@@ -288,17 +304,8 @@ def z_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray, var_b: np.
     assumes the variance estimates are accurate: use many passes per side
     (hundreds), or the heavier tails of estimated variances cause false failures.
     """
-    if np.shape(mean_a) != np.shape(mean_b):
-        raise MetricError(f"mean shapes differ: {np.shape(mean_a)} vs {np.shape(mean_b)}")
-    try:
-        a, va, b, vb = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
-                                             for x in (mean_a, var_a, mean_b, var_b)))
-    except ValueError:
-        raise MetricError(f"variance shapes {np.shape(var_a)}, {np.shape(var_b)} do not "
-                          f"broadcast to the mean shape {np.shape(mean_a)}") from None
+    a, va, b, vb = _paired_means(mean_a, var_a, mean_b, var_b)
     finite = np.isfinite(a) & np.isfinite(b) & np.isfinite(va) & np.isfinite(vb)
-    if np.any((va < 0) | (vb < 0)):
-        raise MetricError("variances must be >= 0")
     n_tested = int(a.size)
     alpha_corrected = sidak_alpha(alpha, n_tested)
 
@@ -423,20 +430,11 @@ def aggregate_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
         raise MetricError(f"block size must be >= 1, got {block}")
     if dof is not None and not dof > 0:
         raise MetricError(f"degrees of freedom must be > 0, got {dof}")
-    if np.shape(mean_a) != np.shape(mean_b):
-        raise MetricError(f"mean shapes differ: {np.shape(mean_a)} vs {np.shape(mean_b)}")
-    try:
-        a, va, b, vb = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
-                                             for x in (mean_a, var_a, mean_b, var_b)))
-    except ValueError:
-        raise MetricError(f"variance shapes {np.shape(var_a)}, {np.shape(var_b)} do not "
-                          f"broadcast to the mean shape {np.shape(mean_a)}") from None
+    a, va, b, vb = _paired_means(mean_a, var_a, mean_b, var_b)
     if a.ndim == 2:
         a, va, b, vb = (x[..., None] for x in (a, va, b, vb))
     if a.ndim != 3:
         raise MetricError(f"images must be (H, W) or (H, W, C), got shape {a.shape}")
-    if np.any((va < 0) | (vb < 0)):
-        raise MetricError("variances must be >= 0")
     n = block * block
     finite = _tile_sums((np.isfinite(a) & np.isfinite(b) & np.isfinite(va)
                          & np.isfinite(vb)).astype(np.float64), block) == n
