@@ -12,7 +12,13 @@ each vertex x_k with throughput beta_k
     L += beta_k * w_bsdf * L_e(x_k)                      (emission hit by BSDF sampling)
     L += beta_k * f(x_k) * L_e / p_light * w_light       (next-event estimation)
 
-with the power heuristic w_a = p_a^2 / (p_a^2 + p_b^2). Its expectation is
+with the power heuristic w_a = p_a^2 / (p_a^2 + p_b^2). p_light is the pdf of
+NEE's direction *including* the probability of selecting the emitter, and one
+light-selection object (``renderers.integrators.lights``, pbrt-v4's
+``LightSampler``) gives it in both places: NEE samples through it, and the MIS
+weight of a BSDF-sampled emitter hit asks it for the pmf at the previous
+vertex. The default is Mitsuba's own (uniform) selection; a method replaces it
+by setting ``light_sampler_type`` (`pt-power`, `pt-spatial`). Its expectation is
 the rendering equation's solution up to ``max_depth`` segments, which the
 statistical test in ``tests/renderers/test_pt_agreement.py`` checks against
 Mitsuba's built-in ``path``.
@@ -39,6 +45,8 @@ from typing import Any
 
 import drjit as dr
 import mitsuba as mi
+
+from renderers.integrators.lights import LightSampler, UniformLightSampler
 
 PLUGIN_NAME = "nirc_path"
 RR_MODES = ("fixed", "throughput")
@@ -115,6 +123,11 @@ class PathIntegrator(mi.SamplingIntegrator):
     The AOV ``depth`` holds the number of surface vertices each path visited,
     from which the frame loop reports the average path length.
 
+    Light selection: ``light_sampler_type`` (default :class:`UniformLightSampler`,
+    Mitsuba's own selection) is built once per scene (``light_sampler(scene)``)
+    and drives both NEE and the MIS weight of BSDF-sampled emitter hits; a
+    method sets another class on the class or the loaded instance.
+
     Hooks for methods (default: nothing, so `pt` traces exactly this loop):
         ``init_state(ray, sampler)``: a PyTree of extra per-path loop state, or None.
         ``after_emission(vertex, state)``: called after a vertex's emission term.
@@ -142,6 +155,20 @@ class PathIntegrator(mi.SamplingIntegrator):
 
     def aov_names(self) -> list[str]:
         return ["depth"]
+
+    # ---- Light selection (one object for NEE and the MIS weight) ----
+
+    light_sampler_type: type[LightSampler] = UniformLightSampler
+
+    def light_sampler(self, scene: mi.Scene) -> LightSampler:
+        """The light sampler of ``scene``, built on first use (a selector may
+        precompute per-scene data, e.g. emitter powers) and kept for that scene."""
+        cached = getattr(self, "_light_sampler", None)
+        if (cached is None or cached.scene is not scene
+                or type(cached) is not self.light_sampler_type):
+            cached = self.light_sampler_type(scene)
+            self._light_sampler = cached
+        return cached
 
     # ---- Hooks (overridden by the caching methods) ----
 
@@ -183,6 +210,7 @@ class PathIntegrator(mi.SamplingIntegrator):
     ) -> tuple[mi.Spectrum, mi.Bool, mi.UInt32, Any]:
         """Trace one path per lane; returns (L, valid_ray, vertex count, hook state)."""
         bsdf_ctx = mi.BSDFContext()
+        lights = self.light_sampler(scene)  # emitter selection for NEE and MIS alike
 
         # --------------------- Loop state ---------------------
         ray = mi.Ray3f(ray)
@@ -204,7 +232,8 @@ class PathIntegrator(mi.SamplingIntegrator):
 
             # ---- Direct emission (BSDF sampling hit an emitter; MIS weight vs NEE) ----
             ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
-            pdf_light = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_bsdf_delta)
+            # p_light: the pdf NEE at the previous vertex had for this direction.
+            pdf_light = lights.pdf_emitter_direction(prev_si, ds, active & ~prev_bsdf_delta)
             w_bsdf = mis_weight(prev_bsdf_pdf, pdf_light)
             Le = ds.emitter.eval(si, active & (prev_bsdf_pdf > 0))
             L = dr.fma(beta, Le * w_bsdf, L)
@@ -220,8 +249,8 @@ class PathIntegrator(mi.SamplingIntegrator):
 
             # ---- Emitter sampling (next-event estimation; MIS weight vs BSDF) ----
             active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            ds_em, em_weight = scene.sample_emitter_direction(
-                si, sampler.next_2d(active_em), True, active_em)
+            ds_em, em_weight = lights.sample_emitter_direction(
+                si, sampler.next_2d(active_em), active_em)
             active_em &= ds_em.pdf != 0
             wo_em = si.to_local(ds_em.d)
 

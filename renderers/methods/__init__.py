@@ -16,7 +16,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from renderers.methods import nirc, nrc, pt
+from renderers.methods import nirc, nrc, pt, pt_power, pt_spatial
 from renderers.methods.base import MethodParams, RenderOutput
 
 
@@ -36,6 +36,11 @@ class Method:
 METHODS: dict[str, Method] = {
     "pt": Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", pt.PTParams,
                  pt.render, version=2),
+    "pt-power": Method("pt-power", "path tracing with emitters selected in proportion to power",
+                       pt_power.PTPowerParams, pt_power.render, version=1),
+    "pt-spatial": Method("pt-spatial", "path tracing with emitters selected by power / "
+                         "distance^2 per shading point", pt_spatial.PTSpatialParams,
+                         pt_spatial.render, version=1),
     "nirc": Method("nirc", "Neural Incident Radiance Cache: biased (BTH/SPH termination) or "
                    "unbiased two-level Monte Carlo", nirc.NIRCParams, nirc.render,
                    version=2),

@@ -1,0 +1,260 @@
+"""Light selection: which emitter a shading point samples, as one object.
+
+As pbrt-v4's ``LightSampler`` (``src/pbrt/lightsamplers.h``; PBR 4th ed.,
+Sec. 12.6), one object answers both questions the path-tracing core asks
+about emitters, so that next-event estimation and the MIS weight of
+BSDF-sampled emitter hits cannot disagree:
+
+* ``sample_emitter_direction(si, u)`` (NEE): pick emitter i with probability
+  p(i | x), sample a direction on it with ``emitter.sample_direction``; the
+  weight is that emitter's radiance / pdf divided by p(i | x), the pdf is
+  p(i | x) * emitter.pdf_direction.
+* ``pdf_emitter_direction(prev_si, ds)`` (MIS of a BSDF sample that hit
+  emitter i from the previous vertex x'): p(i | x') * emitter.pdf_direction,
+  i.e. the pdf NEE *at that previous vertex* would have had for the same
+  direction — the p_light of Veach's balance/power heuristic (Veach 1997,
+  Sec. 9.2).
+
+A selector only provides ``sample(si, u) -> (index, pmf, u_reused)`` and
+``pmf(si, index)``; the direction sampling and pdf above are built on them
+once, here. The estimator is unbiased for any selector whose pmf is positive
+for every emitter that can contribute at x and that returns the same pmf in
+``sample`` and ``pmf``.
+
+Selectors:
+
+* :class:`UniformLightSampler` (the core's default): Mitsuba's own
+  ``Scene::sample_emitter_direction`` / ``pdf_emitter_direction``, called
+  directly (uniform selection, or the emitters' ``sampling_weight``), so
+  `pt` stays Mitsuba's ``path`` estimator and as fast.
+* :class:`PowerLightSampler`: p(i) ∝ Φ_i, the approximate emitted power
+  (pbrt-v4's ``PowerLightSampler``), the same at every point.
+* :class:`SpatialLightSampler`: p(i | x) ∝ Φ_i / max(|x - c_i|^2, r_i^2),
+  with c_i and r_i the centre and half diagonal of the emitter's bounding
+  box — the distance part of pbrt-v4's ``BVHLightSampler`` importance, without
+  the tree and the orientation bounds (cost O(number of emitters) per query).
+
+Power Φ_i (computed once per scene, :func:`emitter_powers`): an area emitter
+π · A · mean luminance of its radiance over POWER_SAMPLES points of its shape;
+an environment emitter 4π² · R² · mean luminance over POWER_SAMPLES directions
+(R: the scene's bounding-sphere radius; pbrt-v4's ``UniformInfiniteLight::
+Phi``). Emitters whose radiance cannot be evaluated this way (point, spot,
+directional lights: delta emitters) get the mean power of the others. Every
+power is floored at POWER_FLOOR times the mean, so no emitter has pmf 0.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+POWER_SAMPLES = 256      # points (directions) per emitter for its mean radiance
+POWER_FLOOR = 1e-3       # relative to the mean power: every emitter stays selectable
+
+
+class LightSampler:
+    """Base of the light selectors: NEE and the MIS light pdf built on ``sample``/``pmf``.
+
+    Subclasses implement ``sample`` and ``pmf``; both receive the shading
+    point, so a selector may depend on it (``pmf`` of a BSDF-sampled hit is
+    evaluated at the previous vertex, where NEE would have sampled).
+    """
+
+    def __init__(self, scene: mi.Scene) -> None:
+        self.scene = scene
+        self.emitters = scene.emitters()
+        self.count = len(self.emitters)
+        # Emitter pointers are registry ids in the JIT variants: a table from
+        # id to position in scene.emitters() turns ds.emitter into an index.
+        ids = dr.reinterpret_array(mi.UInt32, scene.emitters_dr()).numpy() if self.count else []
+        table = np.zeros(int(max(ids, default=0)) + 1, dtype=np.uint32)
+        table[np.asarray(ids, dtype=np.int64)] = np.arange(self.count, dtype=np.uint32)
+        self.index_table = mi.UInt32(table)
+
+    # ---- What a selector defines ----
+
+    def sample(self, si: mi.SurfaceInteraction3f, u: mi.Float,
+               active: mi.Bool) -> tuple[mi.UInt32, mi.Float, mi.Float]:
+        """Pick an emitter for the point ``si``: (index, its pmf, ``u`` rescaled to [0, 1))."""
+        raise NotImplementedError
+
+    def pmf(self, si: mi.SurfaceInteraction3f, index: mi.UInt32, active: mi.Bool) -> mi.Float:
+        """The probability that ``sample`` at ``si`` picks emitter ``index``."""
+        raise NotImplementedError
+
+    # ---- Built on it: NEE and the MIS light pdf ----
+
+    def index_of(self, emitter: mi.EmitterPtr, active: mi.Bool) -> mi.UInt32:
+        """Position of ``emitter`` in ``scene.emitters()`` (0 for a null pointer)."""
+        ids = dr.reinterpret_array(mi.UInt32, emitter)
+        return dr.gather(mi.UInt32, self.index_table, ids, active & (ids != 0))
+
+    def sample_emitter_direction(self, si: mi.SurfaceInteraction3f, u: mi.Point2f,
+                                 active: mi.Bool) -> tuple[mi.DirectionSample3f, mi.Spectrum]:
+        """NEE: (direction sample with pdf = pmf * emitter pdf, Le / pdf, 0 if occluded)."""
+        if self.count == 0:
+            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0)
+        index, pmf, u_x = self.sample(si, u.x, active)
+        emitter = dr.gather(mi.EmitterPtr, self.scene.emitters_dr(), index, active)
+        ds, weight = emitter.sample_direction(si, mi.Point2f(u_x, u.y), active)
+        active &= (ds.pdf != 0) & (pmf > 0)
+        ds.pdf *= pmf
+        weight = dr.select(active, weight * dr.rcp(pmf), 0)
+        # Visibility as Scene::sample_emitter_direction: an occluded sample has pdf 0.
+        occluded = self.scene.ray_test(si.spawn_ray_to(ds.p), active)
+        weight[occluded] = 0
+        ds.pdf[occluded | ~active] = 0
+        return ds, weight
+
+    def pdf_emitter_direction(self, prev_si: mi.SurfaceInteraction3f, ds: mi.DirectionSample3f,
+                              active: mi.Bool) -> mi.Float:
+        """p_light of a BSDF sample from ``prev_si`` that hit ``ds.emitter``."""
+        active &= dr.reinterpret_array(mi.UInt32, ds.emitter) != 0  # an emitter was hit
+        pmf = self.pmf(prev_si, self.index_of(ds.emitter, active), active)
+        return dr.select(active, pmf * ds.emitter.pdf_direction(prev_si, ds, active), 0)
+
+
+class UniformLightSampler(LightSampler):
+    """Mitsuba's selection (uniform, or by ``sampling_weight``): the core's default.
+
+    NEE and the MIS pdf call the scene's own routines, so the default path
+    tracer is exactly Mitsuba's ``path`` and pays nothing for the hook.
+    """
+
+    def __init__(self, scene: mi.Scene) -> None:
+        # No index table: the scene's routines need none (and building it evaluates).
+        self.scene = scene
+
+    def sample(self, si, u, active):
+        index, weight, u_x = self.scene.sample_emitter(u, active)
+        return index, dr.rcp(weight), u_x
+
+    def pmf(self, si, index, active):
+        return self.scene.pdf_emitter(index, active)
+
+    def sample_emitter_direction(self, si, u, active):
+        return self.scene.sample_emitter_direction(si, u, True, active)
+
+    def pdf_emitter_direction(self, prev_si, ds, active):
+        return self.scene.pdf_emitter_direction(prev_si, ds, active)
+
+
+def _mean_luminance(emitter: mi.Emitter, si: mi.SurfaceInteraction3f) -> float:
+    value = mi.luminance(mi.unpolarized_spectrum(emitter.eval(si))) if mi.is_rgb else \
+        dr.mean(emitter.eval(si))
+    return float(np.mean(value.numpy()))
+
+
+def emitter_powers(scene: mi.Scene) -> np.ndarray:
+    """Approximate emitted power of each emitter (see the module docstring), shape (N,)."""
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(0, POWER_SAMPLES)
+    u = sampler.next_2d()
+    radius = scene.bbox().bounding_sphere().radius
+    powers = np.full(len(scene.emitters()), np.nan)
+    for i, emitter in enumerate(scene.emitters()):
+        shape = emitter.get_shape()
+        if emitter.is_environment():
+            si = dr.zeros(mi.SurfaceInteraction3f, POWER_SAMPLES)
+            si.t = dr.inf
+            si.wi = mi.warp.square_to_uniform_sphere(u)
+            powers[i] = 4 * dr.pi**2 * radius**2 * _mean_luminance(emitter, si)
+        elif shape is not None:
+            ps = shape.sample_position(0.0, u)
+            si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
+            si.wi = mi.Vector3f(0, 0, 1)  # local frame: the emitting side
+            powers[i] = dr.pi * float(shape.surface_area()[0]) * _mean_luminance(emitter, si)
+    finite = powers[np.isfinite(powers) & (powers > 0)]
+    mean = float(finite.mean()) if finite.size else 1.0
+    powers[~np.isfinite(powers)] = mean
+    return np.maximum(powers, POWER_FLOOR * mean)
+
+
+class PowerLightSampler(LightSampler):
+    """p(i) ∝ Φ_i, the same at every point (pbrt-v4 ``PowerLightSampler``)."""
+
+    def __init__(self, scene: mi.Scene) -> None:
+        super().__init__(scene)
+        self.powers = emitter_powers(scene)
+        self.distribution = mi.DiscreteDistribution(mi.Float(self.powers))
+
+    def sample(self, si, u, active):
+        index, u_x, pmf = self.distribution.sample_reuse_pmf(u, active)
+        return index, pmf, u_x
+
+    def pmf(self, si, index, active):
+        return self.distribution.eval_pmf_normalized(index, active)
+
+
+class SpatialLightSampler(LightSampler):
+    """p(i | x) ∝ Φ_i / max(|x - c_i|^2, r_i^2): near, bright emitters first.
+
+    Environment emitters have no centre: their weight is Φ / R^2 at every
+    point (R the scene's bounding-sphere radius), the weight of an emitter of
+    the same power at the scene's edge. Each query loops over all emitters
+    (unrolled into the kernel), which suits scenes of tens of emitters; pbrt-v4's
+    ``BVHLightSampler`` is the O(log N) version of the same idea.
+    """
+
+    def __init__(self, scene: mi.Scene) -> None:
+        super().__init__(scene)
+        self.powers = emitter_powers(scene)
+        radius = scene.bbox().bounding_sphere().radius
+        self.terms: list[tuple[float, Any, float]] = []  # (power, centre or None, r^2) per emitter
+        for power, emitter in zip(self.powers, self.emitters, strict=True):
+            box = emitter.bbox()  # a scalar bounding box
+            if emitter.is_environment() or not box.valid():
+                self.terms.append((float(power) / radius**2, None, 0.0))
+            else:
+                centre = [float(c) for c in box.center()]
+                r2 = max(float(dr.squared_norm(box.extents())) / 4, 1e-8)
+                self.terms.append((float(power), centre, r2))
+        self.power_table = mi.Float([t[0] for t in self.terms])
+        self.centre_table = mi.Point3f(*(mi.Float([t[1][k] if t[1] else 0.0 for t in self.terms])
+                                         for k in range(3)))
+        self.r2_table = mi.Float([t[2] for t in self.terms])
+        self.finite_table = mi.Bool([t[1] is not None for t in self.terms])
+
+    def _weight(self, p: mi.Point3f, term: tuple[float, Any, float]) -> mi.Float:
+        power, centre, r2 = term
+        if centre is None:
+            return mi.Float(power)
+        return power * dr.rcp(dr.maximum(dr.squared_norm(p - mi.Point3f(*centre)), r2))
+
+    def _total(self, p: mi.Point3f) -> mi.Float:
+        total = mi.Float(0)
+        for term in self.terms:
+            total += self._weight(p, term)
+        return total
+
+    def sample(self, si, u, active):
+        # Inverse CDF over the emitters: the first i whose running sum exceeds u * total.
+        target = u * self._total(si.p)
+        index = mi.UInt32(self.count - 1)
+        chosen_weight = self._weight(si.p, self.terms[-1])
+        below = mi.Float(0)      # running sum before the chosen emitter
+        running = mi.Float(0)
+        found = mi.Bool(False)
+        for i, term in enumerate(self.terms):
+            weight = self._weight(si.p, term)
+            hit = ~found & (target < running + weight)
+            index[hit] = i
+            chosen_weight[hit] = weight
+            below[hit] = running
+            found |= hit
+            running += weight
+        pmf = chosen_weight / running
+        u_x = dr.clip((target - below) * dr.rcp(chosen_weight), 0, dr.one_minus_epsilon(mi.Float))
+        return index, pmf, u_x
+
+    def pmf(self, si, index, active):
+        power = dr.gather(mi.Float, self.power_table, index, active)
+        centre = dr.gather(mi.Point3f, self.centre_table, index, active)
+        r2 = dr.gather(mi.Float, self.r2_table, index, active)
+        finite = dr.gather(mi.Bool, self.finite_table, index, active)
+        weight = dr.select(finite, power * dr.rcp(dr.maximum(dr.squared_norm(si.p - centre), r2)),
+                           power)
+        return weight / self._total(si.p)

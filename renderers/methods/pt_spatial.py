@@ -1,0 +1,30 @@
+"""`pt-spatial`: the PT core with emitters selected per shading point.
+
+The light sampler is :class:`renderers.integrators.lights.SpatialLightSampler`:
+p(i | x) ∝ Φ_i / max(|x - c_i|^2, r_i^2) with Φ_i the emitter's approximate
+power, c_i its bounding-box centre and r_i its half diagonal (the distance
+term of pbrt-v4's ``BVHLightSampler`` importance, without the tree). The MIS
+weight of a BSDF-sampled emitter hit uses the pmf at the previous vertex, the
+one NEE there would have used (docs/estimators.md, "Light selection").
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from renderers.integrators.lights import SpatialLightSampler
+from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
+from renderers.methods.pt import PTParams, path_integrator
+
+
+class PTSpatialParams(PTParams):
+    """The path-tracing core's parameters; the selector has none of its own."""
+
+
+def render(scene: Any, params: PTSpatialParams, *, seed_parts: tuple[Any, ...], spp: int,
+           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
+    """Render ``frames`` frames of ``spp`` samples per pixel, distance-aware selection."""
+    integrator = path_integrator(params)
+    integrator.light_sampler_type = SpatialLightSampler
+    return run_frames(render_stage(scene, integrator, spp), seed_parts=seed_parts,
+                      frames=frames, spp=spp, hooks=hooks)
