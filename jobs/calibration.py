@@ -129,37 +129,35 @@ def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], flo
     return record
 
 
-#: The knob each method is calibrated by, and its default candidates.
-KNOBS = {"pt": ("spp", [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384,
-                        512]),
-         "nirc": ("nc", [1, 2, 4, 8, 16, 32])}
+def knob_of(spec: Any) -> Any:
+    """The equal-time knob of ``spec``'s method with its parameters (MethodError if none)."""
+    from renderers.methods import METHODS, MethodError
 
-
-def with_nc_at_v1(params: dict[str, Any], value: int) -> dict[str, Any]:
-    """``params`` with N_c ``value`` at the first vertex; the N_c of later vertices
-    (adaptive termination: ``nc=[at v1, later]``) is kept."""
-    later = list(params.get("nc") or [])[1:]
-    return {**params, "nc": [value, *later]}
+    method = METHODS.get(spec.method)
+    knob = method.knob if method is not None else None
+    if knob is None or not knob.usable(spec.params):
+        knobs = " and ".join(f"{m.knob.requirement or name} ({m.knob.name})"
+                          for name, m in METHODS.items() if m.knob is not None)
+        raise MethodError(f"no equal-time knob for method '{spec.method}' with these "
+                          f"parameters: time budgets calibrate {knobs}")
+    return knob
 
 
 def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibration]:
     """Calibrate ``spec``'s knob to its ``time_budget`` on this device.
 
-    Returns the spec with the chosen spp (pt) or N_c (biased nirc; the N_c of
-    later vertices of an adaptive ``nc`` is kept) and no budget, and the
-    calibration record. Probes render one seed for ``probe_frames`` frames
+    The knob is the method's (its ``Method.knob``): spp, or a parameter the
+    method sets (N_c at v1 for biased nirc). Returns the spec with the chosen
+    value and no budget, and the calibration record. Probes render one seed for ``probe_frames`` frames
     (caches without pre-training: the per-frame cost, online training
     included, does not depend on how trained the cache is). A PT budget is
     re-measured in every round, interleaved with the candidates.
     """
-    from renderers.methods import MethodError, get_method, parse_params
+    from renderers.methods import BASELINE, get_method, parse_params
 
     budget = spec.time_budget
-    if spec.method not in KNOBS or (spec.method == "nirc"
-                                    and spec.params.get("estimator", "biased") != "biased"):
-        raise MethodError(f"no equal-time knob for method '{spec.method}' with these "
-                          "parameters: time budgets calibrate pt (spp) and biased nirc (N_c)")
-    knob, default_candidates = KNOBS[spec.method]
+    spec_knob = knob_of(spec)
+    knob, default_candidates = spec_knob.name, list(spec_knob.candidates)
 
     def frame_seconds(method: str, params: dict[str, Any], spp: int) -> float:
         values = parse_params(method, params)
@@ -175,13 +173,13 @@ def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibrat
         budget_value, source = budget.ms / 1e3, f"{budget.ms} ms per frame"
     else:
         pt_params = {"max_depth": spec.max_depth()}
-        budget_value = lambda: frame_seconds("pt", pt_params, budget.pt_spp)  # noqa: E731
+        budget_value = lambda: frame_seconds(BASELINE, pt_params, budget.pt_spp)  # noqa: E731
         source = f"PT {budget.pt_spp} spp frame time (measured)"
 
     def measure(value: int) -> float:
         if knob == "spp":
             return frame_seconds(spec.method, spec.params, value)
-        return frame_seconds(spec.method, with_nc_at_v1(spec.params, value), spec.spp)
+        return frame_seconds(spec.method, spec_knob.apply(spec.params, value), spec.spp)
 
     record = calibrate(knob, budget.candidates or default_candidates, measure, budget_value,
                        budget_source=source, tolerance_s=budget.tolerance_ms / 1e3,
@@ -191,5 +189,5 @@ def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibrat
     if knob == "spp":
         update["spp"] = record.chosen
     else:
-        update["params"] = with_nc_at_v1(spec.params, record.chosen)
+        update["params"] = spec_knob.apply(spec.params, record.chosen)
     return spec.model_copy(update=update), record

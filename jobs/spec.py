@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from jobs.versions import sweep_estimator_versions, versions_of
 from metrics import METRIC_VERSION
+from renderers.methods import BASELINE, METHODS, equal_time_pairs, sweep_methods
 from renderers.methods.pt import DEFAULT_MAX_DEPTH
 from renderers.reference import ReferenceSettings
 from renderers.seeding import digest
@@ -102,7 +103,7 @@ class RenderSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     scene: str = Field(min_length=1, description=SCENE_DESCRIPTION)
-    method: str = "pt"
+    method: str = BASELINE
     params: dict[str, Any] = Field(default_factory=dict)
     resolution: int = Field(64, ge=1, le=8192, description="image width and height in pixels")
     spp: int = Field(1, ge=1, le=1 << 16, description="samples per pixel per frame")
@@ -130,8 +131,15 @@ class RenderSpec(BaseModel):
         return digest("render-spec", self.model_dump(mode="json"), self.versions())
 
 
-SWEEP_METHODS = ("nirc", "nrc")
-DEFAULT_NC_CANDIDATES = [1, 2, 4, 8, 16, 32]
+#: The methods a sweep can run (the registry's methods with a sweep role).
+SWEEP_METHODS = sweep_methods()
+#: The names a sweep spec accepts in ``methods`` (the JSON schema lists them).
+SweepMethod = Literal[SWEEP_METHODS]  # type: ignore[valid-type]
+
+
+def _knob_method() -> str:
+    """The method an N_c sweep and the equal-time series vary the knob of."""
+    return next(name for name in SWEEP_METHODS if METHODS[name].sweep.knob_point is not None)
 
 
 class SweepSpec(BaseModel):
@@ -148,7 +156,7 @@ class SweepSpec(BaseModel):
     nc: list[int] | None = Field(
         None, description="without eps: the N_c values of a biased-NIRC sweep; with eps: the "
                           "N_c candidates of the 'NIRC equal time' series")
-    methods: list[Literal["nirc", "nrc"]] = Field(default_factory=lambda: list(SWEEP_METHODS))
+    methods: list[SweepMethod] = Field(default_factory=lambda: list(SWEEP_METHODS))
     resolution: int = Field(64, ge=1, le=8192, description="image width and height in pixels")
     seeds: int = Field(4, ge=2, le=1000, description="K independent caches and renders")
     frames: int = Field(1, ge=1, le=100_000, description="1-spp frames per sweep point")
@@ -221,12 +229,19 @@ class SweepSpec(BaseModel):
     def kind(self) -> str:
         return "eps" if self.eps is not None else "nc"
 
+    @property
+    def knob_method(self) -> str:
+        """The method whose knob an N_c sweep varies (and the equal-time series calibrates)."""
+        pairs = equal_time_pairs(self.methods)
+        return pairs[0][0] if pairs else _knob_method()
+
     def nc_candidates(self) -> list[int]:
-        return self.nc if self.nc is not None else list(DEFAULT_NC_CANDIDATES)
+        knob = METHODS[self.knob_method].knob
+        return self.nc if self.nc is not None else list(knob.candidates if knob else ())
 
     def base_render_spec(self) -> RenderSpec:
         """The render job every point of the sweep specialises (scene, reference, depth)."""
-        return RenderSpec(scene=self.scene, method="pt", params={"max_depth": self.max_depth},
+        return RenderSpec(scene=self.scene, method=BASELINE, params={"max_depth": self.max_depth},
                           resolution=self.resolution, spp=1, frames=self.frames,
                           seeds=self.seeds, eps=self.metric_eps, reference=self.reference)
 

@@ -57,7 +57,6 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -84,12 +83,21 @@ from jobs.spec import RenderSpec, SweepSpec
 from jobs.store import Store
 from metrics.bias_maps import bias_map, passes
 from metrics.statistics import RunningMoments
-from renderers.methods import get_method, parse_params
+from renderers.methods import (
+    EQUAL_TIME_SUFFIX,
+    equal_time_pairs,
+    get_method,
+    parse_params,
+    series_label,
+    sweep_methods,
+)
 from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
 from renderers.methods.cached import CACHE_AOVS
 from renderers.seeding import digest
 
-SERIES_LABELS = {"nirc": "NIRC", "nrc": "NRC", "nirc-equal-time": "NIRC equal time"}
+#: Series name -> label in tables and plots (from the registry: each method's sweep role).
+SERIES_LABELS = {series: series_label(series) for name in sweep_methods()
+                 for series in (name, name + EQUAL_TIME_SUFFIX)}
 
 
 @dataclass
@@ -189,8 +197,9 @@ class _Sweep:
         self._bias: dict[str, np.ndarray] = {}  # relative-bias maps by snapshot key
         # One bar across the whole sweep: caches, then points (reused ones count too).
         n_points = len(spec.eps or spec.nc or [])
+        equal_time_series = len(equal_time_pairs(spec.methods)) if spec.equal_time else 0
         self.units_total = (len(spec.methods) * (spec.seeds + n_points)
-                            + (n_points if spec.equal_time and len(spec.methods) > 1 else 0)
+                            + n_points * equal_time_series
                             if spec.kind == "eps" else n_points)
         self.units_done = 0
 
@@ -202,11 +211,11 @@ class _Sweep:
     # ---- parameters and keys ----
 
     def params(self, method: str, nc_v1: int | None = None) -> Any:
-        """Validated parameters of a sweep point: adaptive termination, N_c 1 (or nc_v1) at v1."""
+        """Validated parameters of a sweep point: adaptive termination, and what the
+        method's sweep role adds (NIRC: biased, N_c 1 or ``nc_v1`` at v1)."""
         values: dict[str, Any] = {**self.spec.params, "max_depth": self.spec.max_depth,
                                   "pretrain_frames": 0, "termination": "adaptive"}
-        if method == "nirc":
-            values.update(estimator="biased", nc=[nc_v1 or 1, 1])
+        values.update(get_method(method).sweep.point(nc_v1))
         return parse_params(method, values)
 
     def point_key(self, series: str, eps: float, params: Any, extra: Any = None) -> str:
@@ -227,7 +236,7 @@ class _Sweep:
             label = f"{method} cache {seed + 1}/{self.spec.seeds}"
             snap = get_or_make_snapshot(
                 self.store, self.settings, self.prepared, method,
-                _builder(method), self.params(method), seed,
+                get_method(method).build, self.params(method), seed,
                 train_frames=self.spec.train_frames, v1_spp=self.spec.v1_spp,
                 eps=self.spec.metric_eps,
                 progress=lambda done, total: self.report(label, done, total))
@@ -238,7 +247,7 @@ class _Sweep:
 
     def frozen_integrator(self, method: str, params: Any, snap: Snapshot) -> Any:
         """The render integrator of ``params`` with the snapshot's cache loaded (frozen)."""
-        integrator, _trainer, cache = _builder(method)(self.prepared.scene, params, 0)
+        integrator, _trainer, cache = get_method(method).build(self.prepared.scene, params, 0)
         cache.load_inference_parameters(snap.weights)
         integrator.cache = cache
         return integrator
@@ -333,22 +342,25 @@ class _Sweep:
                 runs[eps] = self.store.get_run(run_id)
         return runs
 
-    def equal_time_series(self, nirc: dict[float, Any], nrc: dict[float, Any]) -> dict[float, Any]:
-        """NIRC with the most N_c at v1 that fits the frame time of the NRC point with the
-        closest rBias^2 (module docstring)."""
+    def equal_time_series(self, method: str, against: str, own: dict[float, Any],
+                          budget_runs: dict[float, Any]) -> dict[float, Any]:
+        """``method`` (NIRC) with the largest knob value (N_c at v1) that fits the frame time
+        of the ``against`` (NRC) point with the closest rBias^2 (module docstring)."""
+        series = method + EQUAL_TIME_SUFFIX
+        knob = get_method(method).knob.name
         candidates = self.spec.nc_candidates()
-        nrc_points = [(matching_rbias2(run), run) for run in nrc.values()
-                      if matching_rbias2(run) is not None]
+        budget_points = [(matching_rbias2(run), run) for run in budget_runs.values()
+                         if matching_rbias2(run) is not None]
         runs: dict[float, Any] = {}
         plan: dict[int, list[tuple[float, Any, str]]] = {}
         extras: dict[int, dict[float, dict[str, Any]]] = {}
-        for eps, run in nirc.items():
+        for eps, run in own.items():
             rbias2 = matching_rbias2(run)
-            if rbias2 is None or not nrc_points:
+            if rbias2 is None or not budget_points:
                 continue
-            _, match = min(nrc_points, key=lambda item: abs(item[0] - rbias2))
+            _, match = min(budget_points, key=lambda item: abs(item[0] - rbias2))
             match_eps = match.params["sweep"]["eps"]
-            key = self.point_key("nirc-equal-time", eps, self.params("nirc"),
+            key = self.point_key(series, eps, self.params(method),
                                  extra=[candidates, match.idempotency_key,
                                         self.spec.probe_frames, self.spec.time_tolerance_ms,
                                         self.spec.calibration_rounds, self.spec.time_max_spread,
@@ -359,33 +371,33 @@ class _Sweep:
                 self.work["points_reused"] += 1
                 self.advance()
                 continue
-            # The budget is the matched NRC point's frame time re-measured in every
+            # The budget is the matched point's frame time re-measured in every
             # round (same probe as the candidates), not its stored render time.
             record = calibrate(
-                "nc", candidates, lambda nc, eps=eps: self.probe("nirc", eps, nc),
-                lambda match_eps=match_eps: self.probe("nrc", match_eps),
-                budget_source=f"NRC frame time at eps {match_eps} "
+                knob, candidates, lambda nc, eps=eps: self.probe(method, eps, nc),
+                lambda match_eps=match_eps: self.probe(against, match_eps),
+                budget_source=f"{series_label(against)} frame time at eps {match_eps} "
                               f"(rBias2 {matching_rbias2(match):.3g}, run {match.id})",
                 tolerance_s=self.spec.time_tolerance_ms / 1e3, device_key=self.device_key,
                 rounds=self.spec.calibration_rounds, max_spread=self.spec.time_max_spread)
             self.work["calibrations"] += 1
             plan.setdefault(record.chosen, []).append(
-                (eps, self.params("nirc", record.chosen), key))
+                (eps, self.params(method, record.chosen), key))
             extras.setdefault(record.chosen, {})[eps] = {
-                "calibration": record.to_json(), "nc_v1": record.chosen,
-                "matched_nrc_run": match.id}
+                "calibration": record.to_json(), f"{knob}_v1": record.chosen,
+                f"matched_{against}_run": match.id}
         for nc, points in plan.items():
-            if nc == self.params("nirc").nc[0]:
-                # The NIRC point itself (same parameters, same seeds): record, don't render.
+            if self.params(method, nc) == self.params(method):
+                # The method's own point (same parameters, same seeds): record, don't render.
                 for eps, _, key in points:
                     self.advance()
                     runs[eps] = self.store.clone_run(
-                        nirc[eps].id, idempotency_key=key,
-                        metrics_update={"sweep": {**nirc[eps].metrics["sweep"],
-                                                  "series": "nirc-equal-time",
+                        own[eps].id, idempotency_key=key,
+                        metrics_update={"sweep": {**own[eps].metrics["sweep"],
+                                                  "series": series,
                                                   **extras[nc][eps]}})
                 continue
-            rendered = self.render_points("nirc", "nirc-equal-time", points, extras[nc])
+            rendered = self.render_points(method, series, points, extras[nc])
             runs.update({eps: self.store.get_run(run_id) for eps, run_id in rendered.items()})
         return runs
 
@@ -408,12 +420,14 @@ class _Sweep:
         return output.timings["frame_median_s"]
 
     def nc_point(self, nc: int) -> Any:
-        """The stored run of biased NIRC with ``nc`` (N_c sweep), rendering it if missing."""
-        params = parse_params("nirc", {**self.spec.params, "max_depth": self.spec.max_depth,
-                                       "estimator": "biased",
-                                       "termination": self.spec.termination, "nc": [nc],
-                                       "pretrain_frames": self.spec.train_frames})
-        spec = self.point_spec("nirc", params)
+        """The stored run of the knob method (biased NIRC) with ``nc`` (N_c sweep),
+        rendering it if missing."""
+        method = self.spec.knob_method
+        params = parse_params(method, {
+            **self.spec.params, "max_depth": self.spec.max_depth,
+            **get_method(method).sweep.knob_point(nc, self.spec.termination),
+            "pretrain_frames": self.spec.train_frames})
+        spec = self.point_spec(method, params)
         key = digest("sweep-nc-point", spec.model_dump(mode="json"), self.device_key,
                      self.prepared.reference.key, spec.versions(), length=32)
         run = self.store.find_run_by_idempotency_key(key)
@@ -432,12 +446,6 @@ def matching_rbias2(run: Any) -> float | None:
     not cancel there), else the pooled rBias^2."""
     value = run.metrics.get("rbias2_per_cache_mean")
     return value if value is not None else run.metrics.get("rbias2")
-
-
-def _builder(method: str) -> Callable[[Any, Any, int], tuple[Any, Any, Any]]:
-    from renderers.methods import nirc, nrc
-
-    return {"nirc": nirc.build, "nrc": nrc.build}[method]
 
 
 # ---------------------------------------------------------------------------
@@ -555,12 +563,15 @@ def _eps_rows(sweep: _Sweep) -> list[dict[str, Any]]:
             sweep.snapshot(method, seed)
     rows = [point_row(method, eps, run) for method, runs in series.items() if runs
             for eps, run in sorted(runs.items())]
-    if sweep.spec.equal_time and series.get("nirc") and series.get("nrc"):
-        equal_time = sweep.equal_time_series(series["nirc"], series["nrc"])
-        rows += [point_row("nirc-equal-time", eps, run) for eps, run in sorted(equal_time.items())]
-    elif sweep.spec.equal_time and len(sweep.spec.methods) > 1:
-        sweep.skipped.append({"method": "nirc-equal-time",
-                              "reason": "needs both the NIRC and the NRC series"})
+    for method, against in equal_time_pairs(sweep.spec.methods) if sweep.spec.equal_time else []:
+        if series.get(method) and series.get(against):
+            equal_time = sweep.equal_time_series(method, against, series[method], series[against])
+            rows += [point_row(method + EQUAL_TIME_SUFFIX, eps, run)
+                     for eps, run in sorted(equal_time.items())]
+        else:
+            sweep.skipped.append({"method": method + EQUAL_TIME_SUFFIX,
+                                  "reason": f"needs both the {series_label(method)} and the "
+                                            f"{series_label(against)} series"})
     return rows
 
 
@@ -570,7 +581,8 @@ def _nc_rows(sweep: _Sweep) -> list[dict[str, Any]]:
     for nc in sweep.spec.nc or []:
         run = sweep.nc_point(nc)
         sweep.advance()
-        rows.append(point_row(f"NIRC biased {sweep.spec.termination.upper()}", None, run))
+        rows.append(point_row(f"{get_method(sweep.spec.knob_method).sweep.knob_label} "
+                              f"{sweep.spec.termination.upper()}", None, run))
     return rows
 
 

@@ -21,7 +21,6 @@ from typing import Any
 
 from sqlalchemy import func, select
 
-from jobs.calibration import KNOBS
 from jobs.config import DATABASE_FILENAME, Settings
 from jobs.graph import Stage, sweep_stages
 from jobs.models import Artifact, Reference
@@ -29,6 +28,7 @@ from jobs.spec import ReferenceSpec, RenderSpec, SweepSpec
 from jobs.store import Store
 from jobs.versions import reference_estimator_version
 from metrics import METRIC_VERSION
+from renderers.methods import METHODS, equal_time_pairs
 
 #: Bytes per pixel of a stored image: RGB float32 (an upper bound; EXRs compress).
 IMAGE_BYTES_PER_PIXEL = 12
@@ -64,8 +64,9 @@ def render_work(spec: RenderSpec, reference_stored: bool = False) -> WorkEstimat
     if not reference_stored:
         _reference(estimate, pixels, spec.reference)
     spp = spec.spp
-    if spec.time_budget is not None and spec.method in KNOBS:
-        knob, default = KNOBS[spec.method]
+    method = METHODS.get(spec.method)
+    if spec.time_budget is not None and method is not None and method.knob is not None:
+        knob, default = method.knob.name, list(method.knob.candidates)
         candidates = spec.time_budget.candidates or default
         per_candidate = [c if knob == "spp" else spp for c in candidates]
         estimate.add("calibration", pixels * spec.time_budget.probe_frames * sum(per_candidate))
@@ -98,7 +99,8 @@ def stage_work(spec: SweepSpec, task: dict[str, Any]) -> WorkEstimate:
             estimate.add("points", pixels * (spec.train_frames + spec.frames) * spec.seeds,
                          point_bytes)
         case "sweep":
-            if spec.kind == "eps" and spec.equal_time and set(spec.methods) >= {"nirc", "nrc"}:
+            pairs = equal_time_pairs(spec.methods) if spec.kind == "eps" and spec.equal_time else []
+            for _pair in pairs:
                 points = len(spec.eps or [])
                 probes = len(spec.nc_candidates()) * spec.probe_frames
                 estimate.add("equal time", points * pixels * (probes + spec.frames * spec.seeds),

@@ -63,40 +63,39 @@ import math
 import drjit as dr
 import mitsuba as mi
 
+from renderers.integrators import path
 from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import spread_exceeded
+from renderers.methods.nirc import NIRCParams
 
 NIRC_PLUGIN = "nirc_nirc"
-UNBIASED_VERTICES = 3
-TERMINATIONS = ("bth", "sph", "adaptive")
 
 
 class NIRCIntegrator(CachedPathIntegrator):
-    """PT core + NIRC cache terms. Properties (besides CachedPathIntegrator's):
+    """PT core + NIRC cache terms, configured by the `nirc` method's validated
+    parameters (:class:`renderers.methods.nirc.NIRCParams`: ``estimator``,
+    ``termination``, ``nc``, ``sph_c``) through :meth:`configure`.
 
-        estimator    'biased' | 'unbiased' (default 'biased')
-        termination  'bth' | 'sph' | 'adaptive' (biased only; default 'bth')
-        nc           N_c per vertex as text, e.g. '4' (biased), '8,1' (adaptive: at v1,
-                     then later vertices) or '3,1,1' (unbiased: one entry per
-                     non-specular vertex, at most three)
+    Loaded directly (tests, a scene file), the same fields come as properties,
+    with ``nc`` as text, e.g. '4' (biased), '8,1' (adaptive: at v1, then later
+    vertices) or '3,1,1' (unbiased: one entry per non-specular vertex, at most
+    three); they are validated by the same model.
     """
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.estimator = str(props.get("estimator", "biased"))
-        self.termination = str(props.get("termination", "bth"))
-        self.nc = [int(n) for n in str(props.get("nc", "4")).split(",")]
-        if self.estimator not in ("biased", "unbiased"):
-            raise ValueError("estimator must be 'biased' or 'unbiased'")
-        if self.termination not in TERMINATIONS:
-            raise ValueError(f"termination must be one of {TERMINATIONS}")
-        if not self.nc or min(self.nc) < 1:
-            raise ValueError("nc must list positive sample counts")
-        if self.estimator == "unbiased" and len(self.nc) > UNBIASED_VERTICES:
-            raise ValueError(f"the unbiased estimator uses at most {UNBIASED_VERTICES} vertices")
-        if self.estimator == "biased" and len(self.nc) > (2 if self.termination == "adaptive" else 1):
-            raise ValueError("the biased estimator takes one N_c (adaptive: N_c at v1 and later)")
+        values = {name: props.get(name, None) for name in ("estimator", "termination")}
+        nc = [int(n) for n in str(props.get("nc", "4")).split(",")]
+        self.configure(NIRCParams(**{k: str(v) for k, v in values.items() if v is not None},
+                                  nc=nc, sph_c=self.sph_c))
+
+    def configure(self, params: NIRCParams) -> None:
+        """Take the method's parameters (validated once, by the model)."""
+        self.sph_c = params.sph_c
+        self.estimator = params.estimator
+        self.termination = params.termination
+        self.nc = params.sample_counts()
 
     # ---- Cache term L_c over the smooth lobes (Eq. 12), one surface encoding for N_c ----
     def cache_term(self, vertex: Vertex, surface: list, nc_lane: mi.UInt32, max_nc: int,
@@ -192,3 +191,8 @@ def used_direction(si: mi.SurfaceInteraction3f, wo_local: mi.Vector3f,
                    used: mi.Bool) -> mi.Vector3f:
     """World direction of a cache query, 0 on lanes whose value is discarded."""
     return dr.select(used, si.to_world(wo_local), mi.Vector3f(0))
+
+
+# ---- Registration (per Mitsuba variant: the `nirc` method calls it when a render starts) ----
+def register() -> None:
+    path.register(NIRC_PLUGIN, NIRCIntegrator)

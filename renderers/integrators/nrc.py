@@ -26,6 +26,7 @@ from typing import Any
 import drjit as dr
 import mitsuba as mi
 
+from renderers.integrators import path
 from renderers.integrators.cached import (
     CachedPathIntegrator,
     CacheState,
@@ -36,7 +37,8 @@ from renderers.integrators.cached import (
 )
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import SPREAD_C, spread_exceeded
-from renderers.integrators.training import TrainingPathIntegrator
+from renderers.integrators.training import TrainingPathIntegrator, training_plugin
+from renderers.methods.nrc import NRCParams
 
 NRC_PLUGIN = "nirc_nrc"
 #: NRC is not used at v1 on surfaces glossier than this (NIRC paper Sec. 6.3).
@@ -73,15 +75,21 @@ def nrc_terms(cache: Any, sph_c: float, vertex: Vertex, state: CacheState,
 class NRCIntegrator(CachedPathIntegrator):
     """PT core + termination into an outgoing-radiance cache.
 
-    Property ``termination``: 'sph' (spread heuristic, default) or 'adaptive'
-    (the per-pixel v1 mask at the first vertex, then the spread heuristic).
+    ``termination`` (from :class:`renderers.methods.nrc.NRCParams` through
+    :meth:`configure`, or a property when loaded directly): 'sph' (spread
+    heuristic, default) or 'adaptive' (the per-pixel v1 mask at the first
+    vertex, then the spread heuristic).
     """
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.termination = str(props.get("termination", "sph"))
-        if self.termination not in ("sph", "adaptive"):
-            raise ValueError("termination must be 'sph' or 'adaptive'")
+        self.configure(NRCParams(termination=str(props.get("termination", "sph")),
+                                 sph_c=self.sph_c))
+
+    def configure(self, params: NRCParams) -> None:
+        """Take the `nrc` method's parameters (validated once, by the model)."""
+        self.sph_c = params.sph_c
+        self.termination = params.termination
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
         return nrc_terms(self.cache, self.sph_c, vertex, state,
@@ -110,6 +118,11 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
         if self.unbiased_every < 1:
             raise ValueError("unbiased_every must be >= 1")
 
+    def configure(self, params: NRCParams) -> None:
+        """Take the `nrc` method's parameters (validated once, by the model)."""
+        self.unbiased_every = params.unbiased_every
+        self.sph_c = params.sph_c
+
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> CacheState:
         return new_cache_state()
 
@@ -123,3 +136,9 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
         own_prediction = terms.stop & (vertex.depth < self.record_depth)
         dr.scatter(self.buffers["valid"], False, self._slot(vertex.depth), own_prediction)
         return terms, state
+
+
+# ---- Registration (per Mitsuba variant: the `nrc` method calls it when a render starts) ----
+def register() -> None:
+    path.register(NRC_PLUGIN, NRCIntegrator)
+    path.register(training_plugin(NRCSelfTrainingIntegrator), NRCSelfTrainingIntegrator)

@@ -38,6 +38,7 @@ from typing import Any
 import drjit as dr
 import mitsuba as mi
 
+from renderers.integrators import path
 from renderers.integrators.cached import cache_inputs, demodulation
 from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
 
@@ -64,6 +65,10 @@ class TrainingPathIntegrator(PathIntegrator):
             raise ValueError("key_vertex must be 'departure' or 'arrival'")
         self.buffers: dict[str, Any] = {}
         self.n_paths = 0
+
+    def configure(self, params: Any) -> None:
+        """Take the method's validated parameters: plain training paths need none
+        beyond the PT core's properties (a subclass may, e.g. NRC self-training)."""
 
     def _slot(self, record: mi.UInt32) -> mi.UInt32:
         return self.path_index() * self.record_depth + record
@@ -138,3 +143,16 @@ class TrainingPathIntegrator(PathIntegrator):
             del records["albedo_spec"]
         dr.eval(records)
         return records
+
+
+# ---- Registration (per Mitsuba variant: a caching method calls it when a render starts) ----
+TRAINING_PLUGIN = "nirc_training"
+
+
+def training_plugin(cls: type) -> str:
+    """The plugin name of a training-path integrator class."""
+    return f"{TRAINING_PLUGIN}_{cls.__name__.lower()}"
+
+
+def register() -> None:
+    path.register(training_plugin(TrainingPathIntegrator), TrainingPathIntegrator)

@@ -1,8 +1,15 @@
 """The registry of render methods (the ``method`` of a render job).
 
-Each entry pairs a pydantic parameter model (validated, so a bad value is a
-clear error naming the field) with the method's render function and the
-version of its estimator. Bump ``version`` whenever a change alters what the
+A method is one module of this package that declares everything about itself
+at its bottom, as ``METHOD = Method(...)`` (renderers/methods/base.py): its
+pydantic parameter model (validated once, so a bad value is a clear error
+naming the field), its render function, the version of its estimator, its
+integrators (registered per Mitsuba variant when a render starts), its
+equal-time knob, its part in sweeps, its cache builder and what it needs of a
+scene. ``jobs/`` and ``service/`` read this registry and never name a method;
+adding one is a module plus one line in ``METHODS`` (docs/architecture.md).
+Reading the registry does not import Mitsuba: the service validates specs
+without it. Bump ``version`` whenever a change alters what the
 method's images converge to or how noisy they are: stored results record it,
 and results of another version are neither reused nor compared as equals
 (version 1 is everything stored before versions were recorded).
@@ -10,43 +17,52 @@ and results of another version are neither reused nor compared as equals
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 from pydantic import ValidationError
 
 from renderers.methods import nirc, nrc, pt, pt_power, pt_spatial
-from renderers.methods.base import MethodParams, RenderOutput
+from renderers.methods.base import Knob, Method, MethodParams, SweepRole
+
+__all__ = ["BASELINE", "METHODS", "Knob", "Method", "MethodError", "MethodParams", "SweepRole",
+           "equal_time_pairs", "get_method", "parse_params", "sweep_methods", "series_label"]
 
 
 class MethodError(ValueError):
     """An unknown method or invalid method parameters (message names the field)."""
 
 
-@dataclass(frozen=True)
-class Method:
-    name: str
-    description: str
-    params: type[MethodParams]
-    render: Callable[..., RenderOutput]
-    version: int
+METHODS: dict[str, Method] = {module.METHOD.name: module.METHOD
+                              for module in (pt, pt_power, pt_spatial, nirc, nrc)}
+
+#: The baseline: the method a time budget's ``pt_spp`` and a sweep's reference-sharing
+#: base render name, and the one calibrated when nothing else is (unbiased path tracing).
+BASELINE = pt.METHOD.name
+
+#: Suffix of the series of a method calibrated to another's frame time in a sweep.
+EQUAL_TIME_SUFFIX = "-equal-time"
 
 
-METHODS: dict[str, Method] = {
-    "pt": Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", pt.PTParams,
-                 pt.render, version=2),
-    "pt-power": Method("pt-power", "path tracing with emitters selected in proportion to power",
-                       pt_power.PTPowerParams, pt_power.render, version=1),
-    "pt-spatial": Method("pt-spatial", "path tracing with emitters selected by power / "
-                         "distance^2 per shading point", pt_spatial.PTSpatialParams,
-                         pt_spatial.render, version=1),
-    "nirc": Method("nirc", "Neural Incident Radiance Cache: biased (BTH/SPH termination) or "
-                   "unbiased two-level Monte Carlo", nirc.NIRCParams, nirc.render,
-                   version=2),
-    "nrc": Method("nrc", "Neural Radiance Cache, spread-angle termination", nrc.NRCParams,
-                  nrc.render, version=2),
-}
+def sweep_methods() -> tuple[str, ...]:
+    """The methods an adaptive equal-bias sweep can run (those with a sweep role)."""
+    return tuple(name for name, method in METHODS.items() if method.sweep is not None)
+
+
+def equal_time_pairs(methods: list[str] | tuple[str, ...]) -> list[tuple[str, str]]:
+    """(method, budget method) of every equal-time series a sweep over ``methods`` has:
+    the method's knob calibrated to the budget method's frame time (both swept)."""
+    return [(name, METHODS[name].sweep.equal_time_against) for name in methods
+            if name in METHODS and METHODS[name].sweep is not None
+            and METHODS[name].sweep.equal_time_against in methods]
+
+
+def series_label(series: str) -> str:
+    """The label of a sweep series: a method's, or '<label> equal time'."""
+    name = series.removesuffix(EQUAL_TIME_SUFFIX)
+    method = METHODS.get(name)
+    if method is None or method.sweep is None:
+        return series
+    return method.sweep.label + (" equal time" if series != name else "")
 
 
 def get_method(name: str) -> Method:

@@ -9,6 +9,7 @@ seed and accumulated into the running mean.
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,6 +25,81 @@ class MethodParams(BaseModel):
     """Base of every method's parameter model: unknown fields are errors."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def everywhere(_features: Any) -> tuple[bool, str]:
+    """A method that renders every scene (the path-tracing methods)."""
+    return True, ""
+
+
+@dataclass(frozen=True)
+class Knob:
+    """What equal-time calibration varies for a method (jobs/calibration.py).
+
+    ``name`` is ``'spp'`` (the frame's samples per pixel) or a parameter the
+    method's ``apply(params JSON, value)`` sets; ``usable(params JSON)`` says
+    whether these parameters have the knob at all (``requirement`` says when).
+    """
+
+    name: str
+    candidates: tuple[int, ...]
+    apply: Callable[[dict[str, Any], int], dict[str, Any]] | None = None
+    usable: Callable[[dict[str, Any]], bool] = lambda _params: True
+    requirement: str = ""
+
+
+@dataclass(frozen=True)
+class SweepRole:
+    """How a caching method takes part in a sweep (jobs/sweep.py).
+
+    ``label`` names its series in tables and plots. ``point(knob_value)`` gives
+    the parameters of an adaptive equal-bias point on top of the shared ones
+    (adaptive termination, no pre-training); ``knob_value`` is None except for
+    the equal-time series. ``equal_time_against``: the method whose frame time
+    this method's knob is calibrated to (the series ``<name>-equal-time``).
+    ``knob_point(value, termination)``: the parameters of a point of a sweep over
+    the knob (the N_c sweep), for the one method that has it; ``knob_label``
+    names that series.
+    """
+
+    label: str
+    point: Callable[[int | None], dict[str, Any]] = lambda _value: {}
+    equal_time_against: str | None = None
+    knob_point: Callable[[int, str], dict[str, Any]] | None = None
+    knob_label: str = ""
+
+
+@dataclass(frozen=True)
+class Method:
+    """Everything about a render method, declared at the bottom of its own module.
+
+    ``integrators``: modules (dotted names) whose ``register()`` makes the
+    method's Mitsuba plugins known to the current variant; they are imported
+    only when a render starts, so reading the registry never imports Mitsuba.
+    ``build(scene, params, seed)``: (render integrator, training integrator,
+    cache) of a caching method. ``requires(features)``: (applies, reason why
+    not) for a scene's :class:`renderers.scenes.features.SceneFeatures`.
+    """
+
+    name: str
+    description: str
+    params: type[MethodParams]
+    render: Callable[..., RenderOutput]
+    version: int
+    integrators: tuple[str, ...] = ()
+    knob: Knob | None = None
+    sweep: SweepRole | None = None
+    build: Callable[[Any, Any, int], tuple[Any, Any, Any]] | None = None
+    requires: Callable[[Any], tuple[bool, str]] = everywhere
+
+    def applies_to(self, features: Any) -> tuple[bool, str]:
+        """Whether the method can render a scene with ``features``, and why not."""
+        return self.requires(features)
+
+    def register_integrators(self) -> None:
+        """Register the method's integrators for the current Mitsuba variant."""
+        for module in self.integrators:
+            importlib.import_module(module).register()
 
 
 @dataclass

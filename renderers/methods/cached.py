@@ -26,7 +26,6 @@ from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
 
 CACHE_AOVS = ("depth", "cache_depth", "cache_vertices")
-TRAINING_PLUGIN = "nirc_training"
 
 
 class CacheTrainingParams(PTParams):
@@ -58,27 +57,25 @@ class CacheTrainingParams(PTParams):
                 "rr_mode": self.rr_mode, "rr_survival": self.rr_survival}
 
 
-def load_integrators(plugin: str, cls: type, params: CacheTrainingParams, key_vertex: str,
-                     trainer_cls: type | None = None, trainer_properties: dict | None = None,
-                     **properties: Any) -> tuple[Any, Any]:
-    """The render integrator (``cls`` as ``plugin``) and its training-path integrator
-    (``trainer_cls``, by default plain PT training paths)."""
+def load_integrators(plugin: str, params: CacheTrainingParams, key_vertex: str,
+                     trainer_plugin: str | None = None) -> tuple[Any, Any]:
+    """The render integrator (plugin ``plugin``) and its training-path integrator
+    (``trainer_plugin``, by default plain PT training paths), both configured with
+    the method's validated ``params``. The plugins must be registered (the method's
+    ``register_integrators``)."""
     import mitsuba as mi
 
-    from renderers.integrators import path, training
+    from renderers.integrators import training
 
-    trainer_cls = trainer_cls or training.TrainingPathIntegrator
-    trainer_plugin = f"{TRAINING_PLUGIN}_{trainer_cls.__name__.lower()}"
-    path.register(plugin, cls)
-    path.register(trainer_plugin, trainer_cls)
-    integrator = mi.load_dict({"type": plugin, **params.core(), "sph_c": params.sph_c,
-                               **properties})
+    trainer_plugin = trainer_plugin or training.training_plugin(training.TrainingPathIntegrator)
+    integrator = mi.load_dict({"type": plugin, **params.core()})
+    integrator.configure(params)
     # Training paths are bounded exactly like render paths (same core, same
     # max_depth counted from the camera): a record at vertex x_j then sees the
     # depth budget a render path terminating into the cache at x_j had left.
     trainer = mi.load_dict({"type": trainer_plugin, **params.core(),
-                            "record_depth": params.record_depth,
-                            "key_vertex": key_vertex, **(trainer_properties or {})})
+                            "record_depth": params.record_depth, "key_vertex": key_vertex})
+    trainer.configure(params)
     return integrator, trainer
 
 
@@ -155,3 +152,14 @@ def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Cal
                                  seed_parts=seed_parts, spp=spp, frames=frames, hooks=hooks)
 
     return render
+
+
+#: Integrator modules every caching method registers besides its own.
+TRAINING_INTEGRATORS = ("renderers.integrators.training",)
+
+
+def has_surface(features: Any) -> tuple[bool, str]:
+    """A cache is keyed on surface points: a caching method needs a scene with shapes."""
+    if features.shape_count == 0:
+        return False, "the scene has no surface for the cache to live on"
+    return True, ""

@@ -10,9 +10,12 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
+from renderers.methods.base import Knob, Method, SweepRole
 from renderers.methods.cached import (
+    TRAINING_INTEGRATORS,
     CacheTrainingParams,
     cached_render,
+    has_surface,
     load_integrators,
     make_cache,
 )
@@ -55,11 +58,36 @@ def build(scene: Any, params: NIRCParams, seed: int) -> tuple[Any, Any, Any]:
     from renderers.caches import nirc_config
     from renderers.integrators import nirc
 
-    integrator, trainer = load_integrators(
-        nirc.NIRC_PLUGIN, nirc.NIRCIntegrator, params, key_vertex="departure",
-        estimator=params.estimator, termination=params.termination,
-        nc=",".join(str(n) for n in params.sample_counts()))
+    METHOD.register_integrators()
+    integrator, trainer = load_integrators(nirc.NIRC_PLUGIN, params, key_vertex="departure")
     return integrator, trainer, make_cache(scene, nirc_config, params, seed)
 
 
-render = cached_render(build)
+def with_nc_at_v1(params: dict[str, Any], value: int) -> dict[str, Any]:
+    """``params`` with N_c ``value`` at the first vertex; the N_c of later vertices
+    (adaptive termination: ``nc=[at v1, later]``) is kept."""
+    later = list(params.get("nc") or [])[1:]
+    return {**params, "nc": [value, *later]}
+
+
+def _biased(params: dict[str, Any]) -> bool:
+    return params.get("estimator", "biased") == "biased"
+
+
+#: N_c candidates of equal-time calibration and of the 'NIRC equal time' sweep series.
+NC_CANDIDATES = (1, 2, 4, 8, 16, 32)
+
+METHOD = Method(
+    "nirc", "Neural Incident Radiance Cache: biased (BTH/SPH termination) or unbiased "
+            "two-level Monte Carlo",
+    NIRCParams, cached_render(build), version=2,
+    integrators=("renderers.integrators.nirc", *TRAINING_INTEGRATORS),
+    knob=Knob("nc", NC_CANDIDATES, apply=with_nc_at_v1, usable=_biased,
+              requirement="biased nirc"),
+    sweep=SweepRole("NIRC", point=lambda nc_v1: {"estimator": "biased", "nc": [nc_v1 or 1, 1]},
+                    equal_time_against="nrc",
+                    knob_point=lambda nc, termination: {"estimator": "biased",
+                                                        "termination": termination,
+                                                        "nc": [nc]},
+                    knob_label="NIRC biased"),
+    build=build, requires=has_surface)

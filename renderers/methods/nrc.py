@@ -14,9 +14,12 @@ from typing import Any, Literal
 
 from pydantic import Field
 
+from renderers.methods.base import Method, SweepRole
 from renderers.methods.cached import (
+    TRAINING_INTEGRATORS,
     CacheTrainingParams,
     cached_render,
+    has_surface,
     load_integrators,
     make_cache,
 )
@@ -35,16 +38,17 @@ class NRCParams(CacheTrainingParams):
 def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
     """(render integrator, training integrator, cache) of an NRC render."""
     from renderers.caches import nrc_config
-    from renderers.integrators import nrc
+    from renderers.integrators import nrc, training
 
-    self_training = {"trainer_cls": nrc.NRCSelfTrainingIntegrator,
-                     "trainer_properties": {"unbiased_every": params.unbiased_every,
-                                            "sph_c": params.sph_c}}
-    integrator, trainer = load_integrators(nrc.NRC_PLUGIN, nrc.NRCIntegrator, params,
-                                           key_vertex="arrival",
-                                           termination=params.termination,
-                                           **(self_training if params.self_training else {}))
+    METHOD.register_integrators()
+    trainer = (training.training_plugin(nrc.NRCSelfTrainingIntegrator)
+               if params.self_training else None)
+    integrator, trainer = load_integrators(nrc.NRC_PLUGIN, params, key_vertex="arrival",
+                                           trainer_plugin=trainer)
     return integrator, trainer, make_cache(scene, nrc_config, params, seed)
 
 
-render = cached_render(build)
+METHOD = Method(
+    "nrc", "Neural Radiance Cache, spread-angle termination", NRCParams, cached_render(build),
+    version=2, integrators=("renderers.integrators.nrc", *TRAINING_INTEGRATORS),
+    sweep=SweepRole("NRC"), build=build, requires=has_surface)

@@ -8,6 +8,8 @@ from pydantic import Field, model_validator
 
 from renderers.methods.base import (
     FrameHooks,
+    Knob,
+    Method,
     MethodParams,
     RenderOutput,
     render_stage,
@@ -51,3 +53,13 @@ def render(scene: Any, params: PTParams, *, seed_parts: tuple[Any, ...], spp: in
     """Render ``frames`` frames of ``spp`` samples per pixel with the PT core."""
     return run_frames(render_stage(scene, path_integrator(params), spp), seed_parts=seed_parts,
                       frames=frames, spp=spp, hooks=hooks)
+
+
+#: spp candidates of equal-time calibration.
+SPP_CANDIDATES = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384, 512)
+
+#: The core's integrator module (its ``register()`` registers the core for the variant).
+PATH_INTEGRATORS = ("renderers.integrators.path",)
+
+METHOD = Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", PTParams, render,
+                version=2, integrators=PATH_INTEGRATORS, knob=Knob("spp", SPP_CANDIDATES))

@@ -12,9 +12,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from renderers.integrators.lights import PowerLightSampler
-from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
-from renderers.methods.pt import PTParams, path_integrator
+from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
+from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
 
 
 class PTPowerParams(PTParams):
@@ -24,7 +23,13 @@ class PTPowerParams(PTParams):
 def render(scene: Any, params: PTPowerParams, *, seed_parts: tuple[Any, ...], spp: int,
            frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
     """Render ``frames`` frames of ``spp`` samples per pixel, power-proportional selection."""
+    from renderers.integrators.lights import PowerLightSampler
+
     integrator = path_integrator(params)
     integrator.light_sampler_type = PowerLightSampler
     return run_frames(render_stage(scene, integrator, spp), seed_parts=seed_parts,
                       frames=frames, spp=spp, hooks=hooks)
+
+
+METHOD = Method("pt-power", "path tracing with emitters selected in proportion to power",
+                PTPowerParams, render, version=1, integrators=PATH_INTEGRATORS)

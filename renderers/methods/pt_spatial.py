@@ -12,9 +12,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from renderers.integrators.lights import SpatialLightSampler
-from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
-from renderers.methods.pt import PTParams, path_integrator
+from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
+from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
 
 
 class PTSpatialParams(PTParams):
@@ -24,7 +23,13 @@ class PTSpatialParams(PTParams):
 def render(scene: Any, params: PTSpatialParams, *, seed_parts: tuple[Any, ...], spp: int,
            frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
     """Render ``frames`` frames of ``spp`` samples per pixel, distance-aware selection."""
+    from renderers.integrators.lights import SpatialLightSampler
+
     integrator = path_integrator(params)
     integrator.light_sampler_type = SpatialLightSampler
     return run_frames(render_stage(scene, integrator, spp), seed_parts=seed_parts,
                       frames=frames, spp=spp, hooks=hooks)
+
+
+METHOD = Method("pt-spatial", "path tracing with emitters selected by power / distance^2 per shading point",
+                PTSpatialParams, render, version=1, integrators=PATH_INTEGRATORS)

@@ -11,8 +11,9 @@ import itertools
 
 import pytest
 
-from jobs.calibration import calibrate, calibrate_job, with_nc_at_v1
+from jobs.calibration import calibrate, calibrate_job
 from jobs.spec import RenderSpec, TimeBudget
+from renderers.methods.nirc import with_nc_at_v1
 
 
 class Clock:
