@@ -46,7 +46,7 @@ from metrics.preview import error_map_preview, tonemap_preview
 from metrics.quality import withhold
 from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
-from renderers.methods import get_method, parse_params
+from renderers.methods import check_applies, get_method, parse_params
 from renderers.methods.base import FrameHooks, OnFrame, RenderOutput
 
 #: progress(stage, done, total): stage is 'reference' or 'seed k/K'.
@@ -353,6 +353,7 @@ def execute(
     method = get_method(spec.method)
     parse_params(spec.method, spec.params)
     prepared = prepare(spec, store, settings, progress)
+    check_applies(spec.method, prepared.scene.features)
     extra: dict[str, Any] = {}
     if spec.time_budget is not None:
         if progress:

@@ -89,15 +89,14 @@ from renderers.methods import (
     get_method,
     parse_params,
     series_label,
-    sweep_methods,
+    sweep_series,
 )
 from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
 from renderers.methods.cached import CACHE_AOVS
 from renderers.seeding import digest
 
 #: Series name -> label in tables and plots (from the registry: each method's sweep role).
-SERIES_LABELS = {series: series_label(series) for name in sweep_methods()
-                 for series in (name, name + EQUAL_TIME_SUFFIX)}
+SERIES_LABELS = {series: series_label(series) for series in sweep_series()}
 
 
 @dataclass
@@ -264,6 +263,9 @@ class _Sweep:
 
     def skip_reason(self, method: str) -> str | None:
         """Why ``method`` cannot be swept on this scene (None: it can)."""
+        applies, reason = get_method(method).applies_to(self.prepared.scene.features)
+        if not applies:
+            return reason
         snap = self.snapshot(method, 0)
         if v1_fraction(snap.stats["path_stats"].get("cache_depth_fractions")) == 0.0:
             return ("no path can terminate into the cache at its first vertex on this scene "

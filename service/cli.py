@@ -22,6 +22,7 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
+from renderers.methods import METHODS, sweep_methods
 from service.errors import USER_ERRORS, UsageError, describe_user_error
 from service.progress import progress_reporter
 from service.tables import metrics_table, reference_table, scenes_table
@@ -221,6 +222,17 @@ def _parse_param(text: str) -> tuple[str, Any]:
         return name.strip(), value
 
 
+def _shortcut_help(field: str, what: str) -> str:
+    """Help of a parameter shortcut: which methods have ``field`` (from the registry)."""
+    names = [name for name, method in METHODS.items() if field in method.params.model_fields]
+    return f"{', '.join(names)}: {what} (same as -p {field}=...)"
+
+
+def _knob_help() -> str:
+    return ", ".join(f"{m.knob.name} ({m.knob.requirement or name})"
+                     for name, m in METHODS.items() if m.knob is not None)
+
+
 def _parse_nc(text: str) -> list[int]:
     try:
         return [int(part) for part in text.split(",")]
@@ -232,7 +244,8 @@ def _parse_nc(text: str) -> list[int]:
 @app.command()
 def render(
     scene: Scene,
-    method: Annotated[str, typer.Option("--method", "-m")] = "pt",
+    method: Annotated[str, typer.Option(
+        "--method", "-m", help=f"one of {', '.join(METHODS)}")] = "pt",
     res: Res = 64,
     spp: Annotated[int, typer.Option("--spp", min=1, max=1 << 16, help="spp per frame")] = 1,
     frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 1,
@@ -241,18 +254,20 @@ def render(
     param: Annotated[list[str] | None, typer.Option(
         "--param", "-p", help="method parameter NAME=VALUE (repeatable)")] = None,
     estimator: Annotated[str | None, typer.Option(
-        "--estimator", help="nirc: 'biased' or 'unbiased'")] = None,
+        "--estimator", help=_shortcut_help("estimator", "'biased' or 'unbiased'"))] = None,
     termination: Annotated[str | None, typer.Option(
-        "--termination", help="nirc biased: 'bth' or 'sph'")] = None,
+        "--termination", help=_shortcut_help("termination", "path termination"))] = None,
     nc: Annotated[str | None, typer.Option(
-        "--nc", help="N_c: '4' (biased) or per vertex '3,1,1' (unbiased)")] = None,
+        "--nc", help=_shortcut_help("nc", "N_c: '4' (biased) or per vertex '3,1,1' "
+                                          "(unbiased)"))] = None,
     pretrain: Annotated[int | None, typer.Option(
-        "--pretrain", min=0, max=100_000, help="cache training frames before timing")] = None,
+        "--pretrain", min=0, max=100_000,
+        help=_shortcut_help("pretrain_frames", "cache training frames before timing"))] = None,
     ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
     eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0, help="MRSE epsilon")] = 0.01,
     budget_ms: Annotated[float | None, typer.Option(
         "--budget-ms", min=1e-6, max=1e7,
-        help="equal time: calibrate spp (pt) or N_c (nirc biased) to this ms per frame")] = None,
+        help=f"equal time: calibrate {_knob_help()} to this ms per frame")] = None,
     budget_pt_spp: Annotated[int | None, typer.Option(
         "--budget-pt-spp", min=1, max=1 << 16,
         help="equal time: calibrate to the frame time of PT at this spp")] = None,
@@ -342,7 +357,8 @@ def sweep(
     nc: Annotated[str | None, typer.Option(
         "--nc", help="N_c values ('1:32', '1,2,4'): a biased-NIRC sweep, or with --eps the "
                      "candidates of the 'NIRC equal time' series (default 1,2,4,8,16,32)")] = None,
-    methods: Annotated[str, typer.Option("--methods", help="comma list of nirc, nrc")] = "nirc,nrc",
+    methods: Annotated[str, typer.Option(
+        "--methods", help=f"comma list of {', '.join(sweep_methods())}")] = ",".join(sweep_methods()),
     res: Res = 64,
     seeds: Annotated[int, typer.Option("--seeds", min=2, max=1000,
                                        help="K independent caches and renders")] = 4,

@@ -25,7 +25,7 @@ from renderers.methods import nirc, nrc, pt, pt_power, pt_spatial
 from renderers.methods.base import Knob, Method, MethodParams, SweepRole
 
 __all__ = ["BASELINE", "METHODS", "Knob", "Method", "MethodError", "MethodParams", "SweepRole",
-           "equal_time_pairs", "get_method", "parse_params", "sweep_methods", "series_label"]
+           "check_applies", "equal_time_pairs", "get_method", "method_table", "parse_params", "sweep_methods", "sweep_series", "series_label"]
 
 
 class MethodError(ValueError):
@@ -46,6 +46,16 @@ EQUAL_TIME_SUFFIX = "-equal-time"
 def sweep_methods() -> tuple[str, ...]:
     """The methods an adaptive equal-bias sweep can run (those with a sweep role)."""
     return tuple(name for name, method in METHODS.items() if method.sweep is not None)
+
+
+def sweep_series() -> list[str]:
+    """Every series a sweep can have: each sweep method's, and its equal-time series."""
+    names = []
+    for name in sweep_methods():
+        names.append(name)
+        if METHODS[name].sweep.equal_time_against:
+            names.append(name + EQUAL_TIME_SUFFIX)
+    return names
 
 
 def equal_time_pairs(methods: list[str] | tuple[str, ...]) -> list[tuple[str, str]]:
@@ -72,6 +82,26 @@ def get_method(name: str) -> Method:
         raise MethodError(
             f"unknown method '{name}'; available: {', '.join(sorted(METHODS))}"
         ) from None
+
+
+def check_applies(method: str, features: Any) -> None:
+    """Raise MethodError, in the user's terms, when ``method`` cannot render a scene
+    with ``features`` (its ``applies_to``)."""
+    applies, reason = get_method(method).applies_to(features)
+    if not applies:
+        raise MethodError(f"method '{method}' does not apply to this scene: {reason}")
+
+
+def method_table() -> str:
+    """The Markdown table of registered methods (README.md, "Methods"; checked by
+    tests/renderers/test_registry.py; print it with ``python -m renderers.methods``)."""
+    lines = ["| method | what it is | equal-time knob | in sweeps |",
+             "|---|---|---|---|"]
+    for name, method in METHODS.items():
+        knob = f"`{method.knob.name}`" if method.knob else "—"
+        sweep = method.sweep.label if method.sweep else "—"
+        lines.append(f"| `{name}` | {method.description} | {knob} | {sweep} |")
+    return "\n".join(lines)
 
 
 def format_validation_error(err: ValidationError) -> str:

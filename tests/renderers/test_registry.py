@@ -1,0 +1,144 @@
+"""The method registry: each method declares itself, and jobs/service read only the registry."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from renderers.methods import (
+    BASELINE,
+    METHODS,
+    MethodError,
+    check_applies,
+    equal_time_pairs,
+    method_table,
+    parse_params,
+    series_label,
+    sweep_methods,
+)
+from renderers.methods.base import Method, MethodParams
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_reading_the_registry_does_not_import_mitsuba():
+    """The service validates specs without Mitsuba: the registry, the spec models and
+    the knobs must not import it (the integrators are imported when a render starts)."""
+    code = ("import sys, renderers.methods, jobs.spec, jobs.calibration; "
+            "from renderers.methods import METHODS; "
+            "[m.knob for m in METHODS.values()]; "
+            "assert 'mitsuba' not in sys.modules, 'mitsuba imported'")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_every_method_is_declared_by_its_own_module(name):
+    method = METHODS[name]
+    assert isinstance(method, Method) and method.name == name and method.description
+    assert issubclass(method.params, MethodParams)
+    module = importlib.import_module(method.render.__module__)
+    assert module.__name__.startswith("renderers.methods.")
+    # Default parameters are valid; integrators name importable modules (lazily).
+    parse_params(name, {})
+    for integrator_module in method.integrators:
+        assert importlib.util.find_spec(integrator_module) is not None
+
+
+def test_readme_method_table_is_generated_from_the_registry():
+    readme = (ROOT / "README.md").read_text()
+    begin, end = "<!-- methods:begin -->\n", "\n<!-- methods:end -->"
+    assert begin in readme and end in readme, "README.md lost the method-table markers"
+    table = readme[readme.index(begin) + len(begin):readme.index(end)]
+    assert table == method_table(), ("README.md's method table is stale: replace it with "
+                                     "the output of `python -m renderers.methods`")
+    for name, method in METHODS.items():
+        assert f"| `{name}` | {method.description} |" in table
+
+
+def test_knobs_keep_todays_candidates():
+    assert METHODS[BASELINE].knob.name == "spp"
+    assert list(METHODS[BASELINE].knob.candidates) == [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48,
+                                                       64, 96, 128, 192, 256, 384, 512]
+    nirc = METHODS["nirc"].knob
+    assert nirc.name == "nc" and list(nirc.candidates) == [1, 2, 4, 8, 16, 32]
+    assert nirc.usable({}) and not nirc.usable({"estimator": "unbiased"})
+    assert nirc.apply({"nc": [8, 1], "x": 1}, 4) == {"nc": [4, 1], "x": 1}
+    assert [name for name, m in METHODS.items() if m.knob] == ["pt", "nirc"]
+
+
+def test_sweep_roles_keep_todays_series_and_labels():
+    from jobs.spec import SWEEP_METHODS, SweepSpec
+    from jobs.sweep import SERIES_LABELS
+
+    assert sweep_methods() == SWEEP_METHODS == ("nirc", "nrc")
+    assert SERIES_LABELS == {"nirc": "NIRC", "nrc": "NRC", "nirc-equal-time": "NIRC equal time"}
+    assert series_label("NIRC biased BTH") == "NIRC biased BTH"
+    assert equal_time_pairs(["nirc", "nrc"]) == equal_time_pairs(["nrc", "nirc"]) \
+        == [("nirc", "nrc")]
+    assert equal_time_pairs(["nirc"]) == []
+    assert SweepSpec(scene="s", eps=[0.5]).nc_candidates() == [1, 2, 4, 8, 16, 32]
+    with pytest.raises(ValueError, match="methods"):
+        SweepSpec(scene="s", eps=[0.5], methods=["pt"])
+    assert METHODS["nirc"].sweep.point(None) == {"estimator": "biased", "nc": [1, 1]}
+    assert METHODS["nirc"].sweep.point(8) == {"estimator": "biased", "nc": [8, 1]}
+    assert METHODS["nrc"].sweep.point(None) == {}
+
+
+def _features(**values):
+    base = dict(shape_count=3, emitter_count=1, area_emitter_count=1, has_envmap=False,
+                has_many_lights=False, has_glossy=False, has_delta=False)
+    return SimpleNamespace(**{**base, **values})
+
+
+def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
+    for name, method in METHODS.items():
+        assert method.applies_to(_features()) == (True, "")
+        applies, reason = method.applies_to(_features(shape_count=0))
+        assert applies == (method.build is None), name
+        assert applies or "surface" in reason
+    with pytest.raises(MethodError, match="does not apply"):
+        check_applies("nrc", _features(shape_count=0))
+
+
+def test_every_method_applies_to_every_built_in_scene(mi):
+    """Today's behaviour: no built-in scene is skipped by any method."""
+    from renderers.scenes import load_scene
+    from renderers.scenes.library import builtin_names
+
+    for scene_name in builtin_names():
+        features = load_scene(scene_name, 8).features
+        for name in METHODS:
+            check_applies(name, features)
+
+
+def test_integrators_receive_the_validated_model(mi):
+    """The method's parameter model reaches the integrator as typed values (no text)."""
+    from renderers.scenes import load_scene
+
+    scene = load_scene("cornell-box", 8)
+    params = parse_params("nirc", {"termination": "adaptive", "nc": [8, 1], "sph_c": 0.02})
+    integrator, trainer, _cache = METHODS["nirc"].build(scene, params, 0)
+    assert (integrator.estimator, integrator.termination, integrator.nc, integrator.sph_c) \
+        == ("biased", "adaptive", [8, 1], 0.02)
+    assert trainer.key_vertex == "departure"
+    params = parse_params("nrc", {"unbiased_every": 4, "termination": "adaptive"})
+    integrator, trainer, _cache = METHODS["nrc"].build(scene, params, 0)
+    assert integrator.termination == "adaptive" and trainer.unbiased_every == 4
+    assert trainer.key_vertex == "arrival"
+
+
+def test_integrator_properties_are_validated_by_the_same_model(mi):
+    from renderers.integrators import nirc
+
+    nirc.register()
+    loaded = mi.load_dict({"type": nirc.NIRC_PLUGIN, "estimator": "unbiased", "nc": "3,1,1"})
+    assert loaded.nc == [3, 1, 1]
+    with pytest.raises(Exception, match="biased estimator takes one N_c"):
+        mi.load_dict({"type": nirc.NIRC_PLUGIN, "nc": "4,2"})
