@@ -1,16 +1,18 @@
 """The method comparison of the NIRC paper's Fig. 7, at equal spp and at equal time.
 
-Rows: PT 1 spp, PT 2 spp, NRC (biased), NIRC biased, NIRC unbiased — each run
+The runs are the registry's (each method's ``comparison``, ordered by rank):
+PT 1 spp, PT 2 spp, NRC (biased), NIRC biased, NIRC unbiased — each run
 through the executor (so every row is a stored run against the same reference)
 and reported with MRSE, FLIP and milliseconds per frame (total, and the render
 stage alone; the caches' totals include their online training).
 
 Equal time on this device: the papers' GPU ordering (a neural sample costs a few
 % of a path) need not hold on a CPU, so we do not assume it. For NIRC biased we
-calibrate N_c (jobs.calibration, a job time budget): the largest of 1, 2, 4,
-..., 32 whose frame time fits the PT 2 spp budget (none fitting is reported as
-such); and for every cached method PT gets the largest spp that fits that
-method's frame time ("PT at equal time"). Each calibration is stored with its run.
+calibrate N_c (jobs.calibration, a job time budget; a 'knob' run): the largest
+of its knob's candidates 1, 2, 4, ..., 32 whose frame time fits the PT 2 spp
+budget (the 'budget' run; none fitting is reported as such); and for every
+'matched' cached method PT gets the largest spp that fits that method's frame
+time ("PT at equal time"). Each calibration is stored with its run.
 """
 
 from __future__ import annotations
@@ -23,8 +25,7 @@ from jobs.config import Settings
 from jobs.executor import RunSummary, execute
 from jobs.spec import ReferenceSpec, RenderSpec, TimeBudget
 from jobs.store import Store
-
-NC_CANDIDATES = (1, 2, 4, 8, 16, 32)
+from renderers.methods import BASELINE, METHODS, NotApplicable
 
 
 @dataclass
@@ -50,6 +51,7 @@ class Report:
     equal_spp: list[ReportRow] = field(default_factory=list)
     equal_time: list[ReportRow] = field(default_factory=list)
     calibration: dict[str, Any] = field(default_factory=dict)
+    skipped: list[dict[str, str]] = field(default_factory=list)  # methods the scene rules out
 
 
 def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
@@ -74,41 +76,62 @@ def comparison_report(
     cache_params = {"max_depth": max_depth, "pretrain_frames": pretrain_frames}
 
     def run(label: str, method: str, params: dict[str, Any], spp: int = 1,
-            budget: TimeBudget | None = None) -> RunSummary:
+            budget: TimeBudget | None = None) -> RunSummary | None:
         spec = base.model_copy(update={"method": method, "params": params, "spp": spp,
                                        "time_budget": budget})
         step = (lambda stage, done, total: progress(f"{label}: {stage}", done, total)) \
             if progress else None
-        return execute(spec, store, settings, progress=step)
+        try:
+            return execute(spec, store, settings, progress=step)
+        except NotApplicable as err:   # the method's applies_to rules the scene out
+            report.skipped.append({"method": method, "label": label, "reason": str(err)})
+            return None
 
-    pt1 = run("PT 1 spp", "pt", {"max_depth": max_depth})
-    pt2 = run("PT 2 spp", "pt", {"max_depth": max_depth}, spp=2)
-    nrc = run("NRC", "nrc", cache_params)
-    nirc_b = run("NIRC biased", "nirc", {**cache_params, "estimator": "biased", "nc": [4]})
-    nirc_u = run("NIRC unbiased", "nirc", {**cache_params, "estimator": "unbiased",
-                                           "nc": [3, 1, 1]})
-    report = Report(scene=scene, device=pt1.device["device_key"])
-    report.equal_spp = [_row("PT 1 spp", pt1), _row("PT 2 spp", pt2), _row("NRC biased", nrc),
-                        _row("NIRC biased (N_c 4)", nirc_b),
-                        _row("NIRC unbiased (N_c 3,1,1)", nirc_u)]
+    def shared(method: str) -> dict[str, Any]:
+        return (cache_params if "pretrain_frames" in METHODS[method].params.model_fields
+                else {"max_depth": max_depth})
 
-    # ---- Equal time: N_c of NIRC biased calibrated to the PT 2 spp frame time ----
-    nirc_eq = run("NIRC biased (equal time)", "nirc",
-                  {**cache_params, "estimator": "biased"},
-                  budget=TimeBudget(pt_spp=2, candidates=list(NC_CANDIDATES)))
-    calibration = nirc_eq.metrics["calibration"]
-    report.calibration = calibration
-    chosen = calibration["chosen"]
-    report.equal_time = [
-        _row("PT 2 spp (budget)", pt2),
-        _row(f"NIRC biased (N_c {chosen})", nirc_eq,
-             "" if calibration["fits"] else "over budget even at N_c = 1"),
-    ]
+    entries = sorted(((name, entry) for name, method in METHODS.items()
+                      for entry in method.comparison), key=lambda item: item[1].rank)
+    report = Report(scene=scene, device="")
+    summaries: dict[str, RunSummary] = {}
+    for name, entry in entries:
+        if entry.role != "knob":
+            summary = run(entry.label, name, {**shared(name), **entry.params}, spp=entry.spp)
+            if summary is not None:
+                summaries[entry.label] = summary
+    report.device = next(iter(summaries.values())).device["device_key"]
+    report.equal_spp = [_row(entry.row, summaries[entry.label]) for _, entry in entries
+                        if entry.label in summaries]
 
-    # ---- Equal time: PT with the spp that fits each cached method's frame time ----
-    for label, summary in (("NRC", nrc), ("NIRC unbiased", nirc_u)):
-        pt_eq = run(f"PT (= {label} time)", "pt", {"max_depth": max_depth},
+    # ---- Equal time: a method's knob calibrated to the budget run's frame time ----
+    budget = next(entry for _, entry in entries if entry.role == "budget")
+    baseline = METHODS[BASELINE].label or BASELINE
+    for name, entry in entries:
+        if entry.role != "knob":
+            continue
+        knob = METHODS[name].knob
+        summary = run(entry.label, name, {**shared(name), **entry.params},
+                      budget=TimeBudget(pt_spp=budget.spp,
+                                        candidates=list(knob.candidates if knob else ())))
+        if summary is None:
+            continue
+        calibration = summary.metrics["calibration"]
+        report.calibration = calibration
+        if not report.equal_time:
+            report.equal_time.append(_row(f"{budget.row} (budget)", summaries[budget.label]))
+        report.equal_time.append(_row(entry.row.format(chosen=calibration["chosen"]), summary,
+                                      "" if calibration["fits"] else entry.unfit))
+
+    # ---- Equal time: the baseline with the spp that fits each matched method's time ----
+    for _name, entry in entries:
+        if entry.role != "matched" or entry.label not in summaries:
+            continue
+        summary = summaries[entry.label]
+        pt_eq = run(f"{baseline} (= {entry.label} time)", BASELINE, {"max_depth": max_depth},
                     budget=TimeBudget(ms=1e3 * summary.timings["seconds_per_frame"]))
-        report.equal_time += [_row(label, summary),
-                              _row(f"PT {pt_eq.spec.spp} spp (= {label} time)", pt_eq)]
+        assert pt_eq is not None    # the baseline renders every scene
+        report.equal_time += [_row(entry.label, summary),
+                              _row(f"{baseline} {pt_eq.spec.spp} spp (= {entry.label} time)",
+                                   pt_eq)]
     return report

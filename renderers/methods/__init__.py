@@ -24,12 +24,16 @@ from pydantic import ValidationError
 from renderers.methods import nirc, nrc, pt, pt_power, pt_spatial
 from renderers.methods.base import Knob, Method, MethodParams, SweepRole
 
-__all__ = ["BASELINE", "METHODS", "Knob", "Method", "MethodError", "MethodParams", "SweepRole",
+__all__ = ["BASELINE", "METHODS", "Knob", "Method", "MethodError", "MethodParams", "NotApplicable", "SweepRole",
            "check_applies", "equal_time_pairs", "get_method", "method_table", "parse_params", "sweep_methods", "sweep_series", "series_label"]
 
 
 class MethodError(ValueError):
     """An unknown method or invalid method parameters (message names the field)."""
+
+
+class NotApplicable(MethodError):
+    """A method that cannot render a scene (its ``applies_to`` says why)."""
 
 
 METHODS: dict[str, Method] = {module.METHOD.name: module.METHOD
@@ -89,7 +93,7 @@ def check_applies(method: str, features: Any) -> None:
     with ``features`` (its ``applies_to``)."""
     applies, reason = get_method(method).applies_to(features)
     if not applies:
-        raise MethodError(f"method '{method}' does not apply to this scene: {reason}")
+        raise NotApplicable(f"method '{method}' does not apply to this scene: {reason}")
 
 
 def method_table() -> str:

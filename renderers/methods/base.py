@@ -70,6 +70,29 @@ class SweepRole:
 
 
 @dataclass(frozen=True)
+class ComparisonRun:
+    """One run of a method in the method comparison (jobs/report.py, NIRC paper Fig. 7).
+
+    ``rank`` orders runs and rows across methods; ``params`` go on top of the
+    comparison's shared ones (max_depth; pre-training for methods that have it);
+    ``row`` labels the equal-spp row (a 'knob' run's may use ``{chosen}``).
+    ``role``: 'budget' (its frame time is the budget of the knob runs; the
+    baseline's, as a TimeBudget's ``pt_spp``), 'knob' (the method's knob
+    calibrated to that budget; ``unfit`` notes a budget not even the smallest
+    value fits), 'matched' (the baseline gets the spp that fits its frame time)
+    or '' (an equal-spp row only).
+    """
+
+    rank: int
+    label: str
+    row: str
+    params: dict[str, Any] = field(default_factory=dict)
+    spp: int = 1
+    role: str = ""
+    unfit: str = ""
+
+
+@dataclass(frozen=True)
 class Method:
     """Everything about a render method, declared at the bottom of its own module.
 
@@ -79,6 +102,8 @@ class Method:
     ``build(scene, params, seed)``: (render integrator, training integrator,
     cache) of a caching method. ``requires(features)``: (applies, reason why
     not) for a scene's :class:`renderers.scenes.features.SceneFeatures`.
+    ``label``: its short name in tables; ``comparison``: its runs in the method
+    comparison report.
     """
 
     name: str
@@ -91,6 +116,8 @@ class Method:
     sweep: SweepRole | None = None
     build: Callable[[Any, Any, int], tuple[Any, Any, Any]] | None = None
     requires: Callable[[Any], tuple[bool, str]] = everywhere
+    label: str = ""
+    comparison: tuple[ComparisonRun, ...] = ()
 
     def applies_to(self, features: Any) -> tuple[bool, str]:
         """Whether the method can render a scene with ``features``, and why not."""

@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from renderers.methods.base import Knob, Method, SweepRole
+from renderers.methods.base import ComparisonRun, Knob, Method, SweepRole
 from renderers.methods.cached import (
     TRAINING_INTEGRATORS,
     CacheTrainingParams,
@@ -90,4 +90,11 @@ METHOD = Method(
                                                         "termination": termination,
                                                         "nc": [nc]},
                     knob_label="NIRC biased"),
-    build=build, requires=has_surface)
+    build=build, requires=has_surface, label="NIRC",
+    comparison=(
+        ComparisonRun(3, "NIRC biased", "NIRC biased (N_c 4)", {"estimator": "biased", "nc": [4]}),
+        ComparisonRun(4, "NIRC unbiased", "NIRC unbiased (N_c 3,1,1)",
+                      {"estimator": "unbiased", "nc": [3, 1, 1]}, role="matched"),
+        ComparisonRun(5, "NIRC biased (equal time)", "NIRC biased (N_c {chosen})",
+                      {"estimator": "biased"}, role="knob", unfit="over budget even at N_c = 1"),
+    ))

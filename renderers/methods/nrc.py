@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from renderers.methods.base import Method, SweepRole
+from renderers.methods.base import ComparisonRun, Method, SweepRole
 from renderers.methods.cached import (
     TRAINING_INTEGRATORS,
     CacheTrainingParams,
@@ -51,4 +51,5 @@ def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
 METHOD = Method(
     "nrc", "Neural Radiance Cache, spread-angle termination", NRCParams, cached_render(build),
     version=2, integrators=("renderers.integrators.nrc", *TRAINING_INTEGRATORS),
-    sweep=SweepRole("NRC"), build=build, requires=has_surface)
+    sweep=SweepRole("NRC"), build=build, requires=has_surface, label="NRC",
+    comparison=(ComparisonRun(2, "NRC", "NRC biased", role="matched"),))

@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import Field, model_validator
 
 from renderers.methods.base import (
+    ComparisonRun,
     FrameHooks,
     Knob,
     Method,
@@ -62,4 +63,7 @@ SPP_CANDIDATES = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256, 3
 PATH_INTEGRATORS = ("renderers.integrators.path",)
 
 METHOD = Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", PTParams, render,
-                version=2, integrators=PATH_INTEGRATORS, knob=Knob("spp", SPP_CANDIDATES))
+                version=2, integrators=PATH_INTEGRATORS, knob=Knob("spp", SPP_CANDIDATES),
+                label="PT",
+                comparison=(ComparisonRun(0, "PT 1 spp", "PT 1 spp"),
+                            ComparisonRun(1, "PT 2 spp", "PT 2 spp", spp=2, role="budget")))

@@ -142,3 +142,39 @@ def test_integrator_properties_are_validated_by_the_same_model(mi):
     assert loaded.nc == [3, 1, 1]
     with pytest.raises(Exception, match="biased estimator takes one N_c"):
         mi.load_dict({"type": nirc.NIRC_PLUGIN, "nc": "4,2"})
+
+
+def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
+    """The report reads its runs from the registry; runs, labels and rows are today's."""
+    import jobs.report as report_module
+
+    calls = []
+
+    def fake_execute(spec, store, settings, progress=None):
+        calls.append((spec.method, dict(spec.params), spec.spp,
+                      spec.time_budget and spec.time_budget.model_dump(exclude_defaults=True)))
+        metrics = {"mrse_mean": 1.0, "flip_hdr_mean": 0.1}
+        if spec.time_budget is not None:
+            metrics["calibration"] = {"chosen": 8, "fits": True}
+        spp = 3 if spec.time_budget is not None and spec.method == "pt" else spec.spp
+        return SimpleNamespace(metrics=metrics, timings={"seconds_per_frame": 0.01, "stages": {}},
+                               run_id=len(calls), spec=spec.model_copy(update={"spp": spp}),
+                               device={"device_key": "dev"})
+
+    monkeypatch.setattr(report_module, "execute", fake_execute)
+    report = report_module.comparison_report("s", None, None, max_depth=8, pretrain_frames=7)
+    cache = {"max_depth": 8, "pretrain_frames": 7}
+    assert calls == [
+        ("pt", {"max_depth": 8}, 1, None), ("pt", {"max_depth": 8}, 2, None),
+        ("nrc", cache, 1, None),
+        ("nirc", {**cache, "estimator": "biased", "nc": [4]}, 1, None),
+        ("nirc", {**cache, "estimator": "unbiased", "nc": [3, 1, 1]}, 1, None),
+        ("nirc", {**cache, "estimator": "biased"}, 1,
+         {"pt_spp": 2, "candidates": [1, 2, 4, 8, 16, 32]}),
+        ("pt", {"max_depth": 8}, 1, {"ms": 10.0}), ("pt", {"max_depth": 8}, 1, {"ms": 10.0})]
+    assert [row.label for row in report.equal_spp] == [
+        "PT 1 spp", "PT 2 spp", "NRC biased", "NIRC biased (N_c 4)", "NIRC unbiased (N_c 3,1,1)"]
+    assert [row.label for row in report.equal_time] == [
+        "PT 2 spp (budget)", "NIRC biased (N_c 8)", "NRC", "PT 3 spp (= NRC time)",
+        "NIRC unbiased", "PT 3 spp (= NIRC unbiased time)"]
+    assert report.device == "dev" and report.skipped == []
