@@ -22,7 +22,7 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
-from renderers.methods import METHODS, sweep_methods
+from renderers.methods import BASELINE, METHODS, sweep_methods
 from service.errors import USER_ERRORS, UsageError, describe_user_error
 from service.progress import progress_reporter
 from service.tables import metrics_table, reference_table, scenes_table
@@ -245,7 +245,7 @@ def _parse_nc(text: str) -> list[int]:
 def render(
     scene: Scene,
     method: Annotated[str, typer.Option(
-        "--method", "-m", help=f"one of {', '.join(METHODS)}")] = "pt",
+        "--method", "-m", help=f"one of {', '.join(METHODS)}")] = BASELINE,
     res: Res = 64,
     spp: Annotated[int, typer.Option("--spp", min=1, max=1 << 16, help="spp per frame")] = 1,
     frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 1,
