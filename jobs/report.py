@@ -2,8 +2,9 @@
 
 Rows: PT 1 spp, PT 2 spp, NRC (biased), NIRC biased, NIRC unbiased — each run
 through the executor (so every row is a stored run against the same reference)
-and reported with MRSE, FLIP and milliseconds per frame (total, and the render
-stage alone; the caches' totals include their online training).
+and reported with the listed metrics of metrics.registry (MRSE with its CI, rBias²,
+rVar, FLIP, PSNR, ...) and milliseconds per frame (total, and the render stage
+alone; the caches' totals include their online training).
 
 Equal time on this device: the papers' GPU ordering (a neural sample costs a few
 % of a path) need not hold on a CPU, so we do not assume it. For NIRC biased we
@@ -23,6 +24,7 @@ from jobs.config import Settings
 from jobs.executor import RunSummary, execute
 from jobs.spec import ReferenceSpec, RenderSpec, TimeBudget
 from jobs.store import Store
+from metrics.registry import row_values
 
 NC_CANDIDATES = (1, 2, 4, 8, 16, 32)
 
@@ -34,12 +36,9 @@ class ReportRow:
     method: str
     params: dict[str, Any]
     spp: int
-    mrse: float
-    mrse_ci95: tuple[float, float] | None
-    flip: float
+    metrics: dict[str, Any]   # the listed metrics by result-row field (metrics.registry)
     ms_frame: float
     ms_render: float
-    rbias2: float | None
     note: str = ""
 
 
@@ -55,12 +54,9 @@ class Report:
 def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
     m, t = summary.metrics, summary.timings
     render = t["stages"].get("render", {}).get("median_s", t["seconds_per_frame"])
-    ci = m.get("mrse_ci95")
     return ReportRow(label=label, run_id=summary.run_id, method=summary.spec.method,
-                     params=summary.spec.params, spp=summary.spec.spp, mrse=m["mrse_mean"],
-                     mrse_ci95=tuple(ci) if ci else None, flip=m["flip_hdr_mean"],
-                     ms_frame=1e3 * t["seconds_per_frame"], ms_render=1e3 * render,
-                     rbias2=m.get("rbias2"), note=note)
+                     params=summary.spec.params, spp=summary.spec.spp, metrics=row_values(m),
+                     ms_frame=1e3 * t["seconds_per_frame"], ms_render=1e3 * render, note=note)
 
 
 def comparison_report(
