@@ -17,7 +17,7 @@ method's frame time ("PT at equal time"). Each calibration is stored with its ru
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, make_dataclass
 from typing import Any
 
 from jobs.config import Settings
@@ -29,33 +29,33 @@ from metrics.registry import row_values
 NC_CANDIDATES = (1, 2, 4, 8, 16, 32)
 
 
-@dataclass
-class ReportRow:
-    label: str
-    run_id: int
-    method: str
-    params: dict[str, Any]
-    spp: int
-    metrics: dict[str, Any]   # the listed metrics by result-row field (metrics.registry)
-    ms_frame: float
-    ms_render: float
-    note: str = ""
+def _report_row_fields() -> list[tuple[str, Any, Any]]:
+    """ReportRow's fields: the run, then one per listed metric of metrics.registry
+    (``mrse``, ``mrse_ci95``, ``flip``, ``rbias2``, ``rvar``, ``psnr``), then the timings."""
+    metric_fields = [(name, Any, None) for name in row_values({})]
+    return [("label", str), ("run_id", int), ("method", str), ("params", dict[str, Any]),
+            ("spp", int), ("ms_frame", float), ("ms_render", float), ("note", str, ""),
+            *metric_fields]
+
+
+#: One row of the comparison; its metric fields are generated from the registry.
+ReportRow = make_dataclass("ReportRow", _report_row_fields())
 
 
 @dataclass
 class Report:
     scene: str
     device: str
-    equal_spp: list[ReportRow] = field(default_factory=list)
-    equal_time: list[ReportRow] = field(default_factory=list)
+    equal_spp: list[Any] = field(default_factory=list)    # ReportRow
+    equal_time: list[Any] = field(default_factory=list)   # ReportRow
     calibration: dict[str, Any] = field(default_factory=dict)
 
 
-def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
+def _row(label: str, summary: RunSummary, note: str = "") -> Any:
     m, t = summary.metrics, summary.timings
     render = t["stages"].get("render", {}).get("median_s", t["seconds_per_frame"])
     return ReportRow(label=label, run_id=summary.run_id, method=summary.spec.method,
-                     params=summary.spec.params, spp=summary.spec.spp, metrics=row_values(m),
+                     params=summary.spec.params, spp=summary.spec.spp, **row_values(m),
                      ms_frame=1e3 * t["seconds_per_frame"], ms_render=1e3 * render, note=note)
 
 

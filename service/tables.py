@@ -141,10 +141,10 @@ def comparison_tables(report: Any) -> Group:
         for r in rows:
             cells = []
             for m in LISTED:
-                cells.append(_fmt(r.metrics.get(m.field)) if r.metrics.get(m.field) is not None
-                             else "-")
+                value = getattr(r, m.field, None)
+                cells.append("-" if value is None else _fmt(value))
                 if m.ci_key:
-                    ci = r.metrics.get(f"{m.field}_ci95")
+                    ci = getattr(r, f"{m.field}_ci95", None)
                     cells.append(f"[{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "-")
             t.add_row(r.label, str(r.run_id), str(r.spp), *cells, _fmt(r.ms_frame),
                       _fmt(r.ms_render), r.note)

@@ -174,7 +174,7 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     from jobs.sweep import point_row
     from metrics.registry import LISTED, METRICS, PER_SEED
     from service.api.schemas import RunOut
-    from service.tables import metrics_table, sweep_table
+    from service.tables import metric_label, metrics_table, sweep_table
 
     settings, store = env
     summary = execute(SPEC, store, settings)
@@ -188,12 +188,15 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     assert run.metrics["psnr_mean"] == pytest.approx(np.mean(seeds))
 
     row = RunOut.of(run).model_dump()
-    assert row["psnr"] == run.metrics["psnr_mean"] and row["mrse"] == run.metrics["mrse_mean"]
-    assert row["flip"] == run.metrics["flip_hdr_mean"]
+    for metric in LISTED:
+        assert row[metric.field] == run.metrics[metric.key], metric.name
+    assert row["psnr"] == run.metrics["psnr_mean"] and row["flip"] == run.metrics["flip_hdr_mean"]
 
     console = Console(width=250, record=True)
     console.print(metrics_table(summary))
     text = console.export_text()
+    for metric in METRICS:
+        assert metric_label(metric) in text, metric.name
     assert "PSNR (dB, higher better)" in text and "MRSE (lower better)" in text
     sweep_row = point_row("nirc", 0.5, run)
     assert {m.field for m in LISTED} <= set(sweep_row) and sweep_row["psnr"] == row["psnr"]
@@ -203,4 +206,5 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
             ("reference_rendered", "snapshots_trained", "snapshots_reused", "points_rendered",
              "points_reused", "calibrations"), 0), {})
     console.print(sweep_table(result))
-    assert "PSNR" in console.export_text()
+    text = console.export_text()
+    assert all(metric.label in text for metric in LISTED) and "PSNR" in text

@@ -78,11 +78,19 @@ def test_stored_keys_and_verdict_names_are_unchanged():
 
 
 def test_result_rows_and_api_fields_come_from_the_registry():
+    from dataclasses import fields
+
+    from jobs.plots import _SWEEP_PANELS
+    from jobs.report import ReportRow
     from service.api.schemas import RunOut
     from service.tables import SWEEP_COLUMNS
 
-    fields = set(RunOut.model_fields)
-    assert {"mrse", "mrse_ci95", "rbias2", "rvar", "flip", "psnr"} <= fields
+    served = {"mrse", "mrse_ci95", "rbias2", "rvar", "flip", "psnr"}
+    assert served <= set(RunOut.model_fields)
+    assert served <= {f.name for f in fields(ReportRow)}   # the report's JSON keys stay
+    # The sweep figure keeps the paper's four panels (PSNR is not one of Fig. 13's).
+    assert [(key, log) for key, _, log, _ in _SWEEP_PANELS] == [
+        ("mrse", True), ("flip", False), ("rbias2", True), ("rvar", True)]
     assert {key for key, _ in SWEEP_COLUMNS} >= {"mrse", "flip", "rbias2", "rvar", "psnr"}
     stored = {"mrse_mean": 0.5, "mrse_ci95": (0.4, 0.6), "flip_hdr_mean": 0.2, "rbias2": 0.1,
               "psnr_mean": 31.0}
