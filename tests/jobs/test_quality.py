@@ -54,8 +54,10 @@ def test_a_scene_without_emitter_is_told_not_scored(env, tmp_path):
     assert run.quality["verdict"] == "no-emitter"
     assert {r["code"] for r in run.quality["reasons"]} == {"no-emitter", "degenerate-reference"}
     assert set(run.quality["withheld"]) == {"mse", "mrse", "rbias2", "rvar", "flip",
-                                            "efficiency"}
+                                            "efficiency", "psnr"}
     assert run.metrics["mrse_mean"] is None and run.metrics["rbias2"] is None
+    assert run.metrics["psnr_mean"] is None
+    assert all(s.metrics["psnr"] is None for s in run.seed_results)
     assert all(s.metrics["mrse"] is None for s in run.seed_results)
     assert run.quality["finite"] is True  # the older keys stay
     assert (run.estimator_version, run.metric_version) == (2, METRIC_VERSION)
