@@ -41,7 +41,9 @@ DEGENERATE_BLACK_FRACTION = 0.99
 #: e.g. "rbias2" covers rbias2, rbias2_raw and the noise floor it subtracts.
 METRIC_KEYS: dict[str, tuple[str, ...]] = verdict_keys()  # from metrics.registry
 ERROR_METRICS = tuple(METRIC_KEYS)
-RELATIVE_METRICS = ("mrse", "rbias2", "rvar", "flip", "efficiency")
+# A (nearly) black reference: relative errors, FLIP and the PSNR of two almost
+# black tone-mapped images compare noise with nothing.
+RELATIVE_METRICS = ("mrse", "rbias2", "rvar", "flip", "efficiency", "psnr")
 
 
 @dataclass(frozen=True)

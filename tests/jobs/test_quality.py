@@ -70,6 +70,7 @@ def test_a_black_reference_is_degenerate_and_keeps_the_absolute_error(env, tmp_p
     summary = execute(_spec(path), store, settings)
     assert summary.quality["verdict"] == "degenerate-reference"
     assert summary.metrics["mrse_mean"] is None and summary.metrics["flip_hdr_mean"] is None
+    assert summary.metrics["psnr_mean"] is None     # two black tone-mapped images: 100 dB
     assert summary.metrics["mse_mean"] is not None
     assert "100 % of the reference's pixels are black" in summary.quality["reasons"][0]["message"]
 
