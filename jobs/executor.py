@@ -35,7 +35,6 @@ from jobs.versions import versions_of
 from metrics.checks import MetricError
 from metrics.errors import (
     bias_variance,
-    efficiency,
     image_metrics,
     mrse,
     per_cache_bias_variance,
@@ -44,6 +43,7 @@ from metrics.errors import (
 from metrics.imageio import write_exr, write_png
 from metrics.preview import error_map_preview, tonemap_preview
 from metrics.quality import withhold
+from metrics.registry import METRICS, Aggregate, per_seed_values, seed_mean
 from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
 from renderers.methods import check_applies, get_method, parse_params
@@ -132,29 +132,34 @@ def mean_over_seeds(stats: list[dict[str, Any]]) -> dict[str, Any]:
 def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
               reference: LoadedReference, eps: float, frame_seconds: float,
               frame_moments: Sequence[RunningMoments] | None = None) -> dict[str, Any]:
-    """Reduce K per-seed results: rBias^2/rVar over seeds, mean MRSE with its CI, FLIP,
-    all less the reference floor (metrics.errors.bias_variance), and the per-cache
-    statistics of :func:`per_cache_metrics`.
+    """Reduce K per-seed results to each metric of metrics.registry.METRICS by its
+    aggregate form: rBias^2/rVar over seeds and mean MRSE with its CI, less the
+    reference floor (metrics.errors.bias_variance), the per-cache statistics of
+    :func:`per_cache_metrics`, means over seeds, then the derived values.
 
     A per-seed value is None when that image had no finite pixel at all; such
     seeds are left out of the means (the quality flag already reports them).
     """
     metrics: dict[str, Any] = {"k": len(images), "eps": eps}
+    # ---- Joint passes over the K renders (MEAN_CI, BIAS_VARIANCE and PER_CACHE entries) ----
     if len(images) >= 2:
         metrics.update(bias_variance(np.stack(images), reference.mean, eps,
                                      ref_variance=reference.variance))
     else:
-        metrics.update({"mrse_mean": per_seed[0]["mrse"],
-                        **{key: per_seed[0][key] for key in
-                           ("mrse_corrected", "ref_floor", "ref_floor_ratio_mrse", "warnings")}})
+        metrics.update({m.key: per_seed[0][m.seed_key] for m in METRICS
+                        if m.aggregate is Aggregate.MEAN_CI})
+        metrics.update({key: per_seed[0][key] for key in
+                        ("mrse_corrected", "ref_floor", "ref_floor_ratio_mrse", "warnings")})
     metrics.update(per_cache_metrics(frame_moments, reference, eps))
-    for name in ("mse", "flip_hdr", "flip_ldr"):
-        values = [s[name] for s in per_seed if s[name] is not None]
-        metrics[f"{name}_mean"] = float(np.mean(values)) if values else None
+    # ---- Means over seeds (MEAN entries) ----
+    for metric in METRICS:
+        if metric.aggregate is Aggregate.MEAN:
+            metrics[metric.key] = seed_mean(metric, per_seed)
     metrics["seconds_per_frame"] = frame_seconds
-    mrse_mean = metrics["mrse_mean"]
-    usable = mrse_mean is not None and np.isfinite(mrse_mean) and mrse_mean > 0
-    metrics["efficiency"] = efficiency(mrse_mean, frame_seconds) if usable else None
+    # ---- Values derived from the aggregates above (DERIVED entries) ----
+    for metric in METRICS:
+        if metric.aggregate is Aggregate.DERIVED:
+            metrics[metric.key] = metric.derive(metrics)
     return metrics
 
 
@@ -273,6 +278,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
         values = image_metrics(output.accumulated, reference.mean, eps=spec.eps,
                                flip_exposures=reference.flip_exposures,
                                ref_variance=reference.variance)
+        values.update(per_seed_values(output.accumulated, reference.mean))
         values["seconds_per_frame"] = output.timings["frame_median_s"]
         per_seed.append({"seed": seed, **values, "path_stats": output.path_stats,
                          "method_stats": output.method_stats, "convergence": curve})

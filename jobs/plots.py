@@ -3,9 +3,10 @@
 The figures follow "Neural Two-Level Monte Carlo Real-Time Rendering" (the NIRC
 paper):
 
-* ``plot_sweep`` is the adaptive equal-bias sweep of Figure 13: MRSE, FLIP,
-  relative squared bias (rBias²) and relative variance (rVar) against the
-  percentage of bounces that use indirect radiance, one line per method.
+* ``plot_sweep`` is the adaptive equal-bias sweep of Figure 13: the metrics
+  marked ``sweep_plot`` in metrics.registry (MRSE, FLIP, relative squared bias
+  rBias² and relative variance rVar) against the percentage of bounces that use
+  indirect radiance, one line per method.
 * ``plot_convergence`` is the error-over-frames plot of Figure 10: MRSE of each
   single frame and, optionally, of the running mean of the frames so far.
 
@@ -30,17 +31,17 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 
+from metrics.registry import LISTED
+
 DPI = 110
 
 # Method colours of the paper's figures; other series take the default colour cycle.
 _PAPER_COLOURS = {"NIRC": "tab:red", "NIRC equal time": "tab:brown", "NRC": "tab:blue"}
 
-# Sweep panels (Figure 13): row key, axis label, log y axis.
-_SWEEP_PANELS = (
-    ("mrse", "MRSE", True),
-    ("flip", "FLIP", False),
-    ("rbias2", "rBias²", True),
-    ("rvar", "rVar", True),
+# Sweep panels (Figure 13) from the registry: row key, axis label, log y axis, CI row key.
+_SWEEP_PANELS = tuple(
+    (m.field, m.label, m.log_axis, f"{m.field}_ci95" if m.ci_key else None)
+    for m in LISTED if m.sweep_plot
 )
 
 
@@ -48,15 +49,19 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
     """Plot an adaptive equal-bias sweep (NIRC paper, Figure 13) to a PNG at ``path``.
 
     Each row is one sweep point of one series, with keys ``series``, ``eps``,
-    ``ir_bounces_pct``, ``mrse``, ``mrse_ci95`` ([lo, hi] or None), ``flip``,
-    ``rbias2``, ``rvar`` and ``ms_frame``. Points with a missing or non-finite
+    ``ir_bounces_pct``, ``ms_frame`` and one per panel (``mrse``, ``flip``,
+    ``rbias2``, ``rvar``; ``mrse_ci95`` = [lo, hi] or None). Points with a missing or non-finite
     value are left out of that metric's panel; on log panels, points <= 0 are
     left out too and counted in a note on the panel.
     """
     series = list(dict.fromkeys(str(row["series"]) for row in rows))
     colours = _series_colours(series)
-    figure, axes = _new_figure(2, 2, title, figsize=(9.0, 7.0))
-    for ax, (key, label, log) in zip(axes, _SWEEP_PANELS, strict=True):
+    nrows = math.ceil(len(_SWEEP_PANELS) / 2)
+    figure, axes = _new_figure(nrows, 2, title, figsize=(9.0, 3.5 * nrows))
+    for ax in axes[len(_SWEEP_PANELS):]:  # an odd panel count leaves one cell empty
+        figure.delaxes(ax)
+    axes = axes[:len(_SWEEP_PANELS)]
+    for ax, (key, label, log, ci_key) in zip(axes, _SWEEP_PANELS, strict=True):
         plotted, hidden = False, 0
         for name in series:
             members = [row for row in rows if str(row["series"]) == name]
@@ -70,8 +75,8 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
                 ax.plot(xs, ys, "s--" if dashed else "o-", color=colours[name], label=name,
                         markersize=6 if dashed else 4, fillstyle="none" if dashed else "full")
                 plotted = True
-            if key == "mrse":
-                _draw_mrse_ci(ax, members, colours[name])
+            if ci_key:
+                _draw_ci(ax, members, key, ci_key, colours[name])
         ax.set_title(label)
         ax.set_xlabel("% indirect-radiance bounces")
         ax.set_ylabel(label)
@@ -157,14 +162,14 @@ def _plottable(
     return [x for x, _ in points], [y for _, y in points], hidden
 
 
-def _draw_mrse_ci(ax: Axes, rows: list[dict[str, Any]], colour: str) -> None:
-    """Error bars for the rows' ``mrse_ci95`` intervals that fit on the log MRSE axis."""
+def _draw_ci(ax: Axes, rows: list[dict[str, Any]], key: str, ci_key: str, colour: str) -> None:
+    """Error bars for the rows' ``ci_key`` intervals around ``key`` that fit on a log axis."""
     xs, ys, below, above = [], [], [], []
     for row in rows:
         x, y, interval = (
             _finite(row.get("ir_bounces_pct")),
-            _finite(row.get("mrse")),
-            row.get("mrse_ci95"),
+            _finite(row.get(key)),
+            row.get(ci_key),
         )
         if x is None or y is None or y <= 0 or interval is None:
             continue

@@ -3,8 +3,9 @@
 The runs are the registry's (each method's ``comparison``, ordered by rank):
 PT 1 spp, PT 2 spp, NRC (biased), NIRC biased, NIRC unbiased — each run
 through the executor (so every row is a stored run against the same reference)
-and reported with MRSE, FLIP and milliseconds per frame (total, and the render
-stage alone; the caches' totals include their online training).
+and reported with the listed metrics of metrics.registry (MRSE with its CI, rBias²,
+rVar, FLIP, PSNR, ...) and milliseconds per frame (total, and the render stage
+alone; the caches' totals include their online training).
 
 Equal time on this device: the papers' GPU ordering (a neural sample costs a few
 % of a path) need not hold on a CPU, so we do not assume it. For NIRC biased we
@@ -18,51 +19,46 @@ time ("PT at equal time"). Each calibration is stored with its run.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, make_dataclass
 from typing import Any
 
 from jobs.config import Settings
 from jobs.executor import RunSummary, execute
 from jobs.spec import ReferenceSpec, RenderSpec, TimeBudget
 from jobs.store import Store
+from metrics.registry import row_values
 from renderers.methods import BASELINE, METHODS, NotApplicable
 
 
-@dataclass
-class ReportRow:
-    label: str
-    run_id: int
-    method: str
-    params: dict[str, Any]
-    spp: int
-    mrse: float
-    mrse_ci95: tuple[float, float] | None
-    flip: float
-    ms_frame: float
-    ms_render: float
-    rbias2: float | None
-    note: str = ""
+def _report_row_fields() -> list[tuple[str, Any, Any]]:
+    """ReportRow's fields: the run, then one per listed metric of metrics.registry
+    (``mrse``, ``mrse_ci95``, ``flip``, ``rbias2``, ``rvar``, ``psnr``), then the timings."""
+    metric_fields = [(name, Any, None) for name in row_values({})]
+    return [("label", str), ("run_id", int), ("method", str), ("params", dict[str, Any]),
+            ("spp", int), ("ms_frame", float), ("ms_render", float), ("note", str, ""),
+            *metric_fields]
+
+
+#: One row of the comparison; its metric fields are generated from the registry.
+ReportRow = make_dataclass("ReportRow", _report_row_fields())
 
 
 @dataclass
 class Report:
     scene: str
     device: str
-    equal_spp: list[ReportRow] = field(default_factory=list)
-    equal_time: list[ReportRow] = field(default_factory=list)
+    equal_spp: list[Any] = field(default_factory=list)    # ReportRow
+    equal_time: list[Any] = field(default_factory=list)   # ReportRow
     calibration: dict[str, Any] = field(default_factory=dict)
     skipped: list[dict[str, str]] = field(default_factory=list)  # methods the scene rules out
 
 
-def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
+def _row(label: str, summary: RunSummary, note: str = "") -> Any:
     m, t = summary.metrics, summary.timings
     render = t["stages"].get("render", {}).get("median_s", t["seconds_per_frame"])
-    ci = m.get("mrse_ci95")
     return ReportRow(label=label, run_id=summary.run_id, method=summary.spec.method,
-                     params=summary.spec.params, spp=summary.spec.spp, mrse=m["mrse_mean"],
-                     mrse_ci95=tuple(ci) if ci else None, flip=m["flip_hdr_mean"],
-                     ms_frame=1e3 * t["seconds_per_frame"], ms_render=1e3 * render,
-                     rbias2=m.get("rbias2"), note=note)
+                     params=summary.spec.params, spp=summary.spec.spp, **row_values(m),
+                     ms_frame=1e3 * t["seconds_per_frame"], ms_render=1e3 * render, note=note)
 
 
 def comparison_report(

@@ -82,6 +82,7 @@ from jobs.snapshots import Snapshot, get_or_make_snapshot
 from jobs.spec import RenderSpec, SweepSpec
 from jobs.store import Store
 from metrics.bias_maps import bias_map, passes
+from metrics.registry import row_values
 from metrics.statistics import RunningMoments
 from renderers.methods import (
     EQUAL_TIME_SUFFIX,
@@ -460,14 +461,12 @@ def point_row(series: str, eps: float | None, run: Any) -> dict[str, Any]:
     sweep = m.get("sweep", {})
     fractions = stats.get("cache_depth_fractions")
     background = stats.get("background_fraction")
-    ci = m.get("mrse_ci95")
     calibration = sweep.get("calibration")
     return {
         "series": SERIES_LABELS.get(series, series), "eps": eps, "run_id": run.id,
         "nc": (run.params.get("nc") or [None])[0],
-        "mrse": m.get("mrse_mean"), "mrse_ci95": list(ci) if ci else None,
-        "flip": m.get("flip_hdr_mean"), "ms_frame": 1e3 * run.timings["seconds_per_frame"],
-        "rbias2": m.get("rbias2"), "rbias2_raw": m.get("rbias2_raw"), "rvar": m.get("rvar"),
+        **row_values(m),   # the listed metrics (metrics.registry), e.g. mrse, mrse_ci95, flip
+        "ms_frame": 1e3 * run.timings["seconds_per_frame"], "rbias2_raw": m.get("rbias2_raw"),
         "avg_path_length": stats.get("avg_path_vertices"),
         "ir_bounces_pct": ir_bounces_pct(fractions),
         "avg_path_length_authors": avg_path_length_authors(fractions, background),

@@ -3,7 +3,10 @@
 numpy-only images: float32 (H, W, 3) linear RGB. This package never imports
 ``jobs``, ``service``, ``renderers``, Mitsuba or Dr.Jit.
 
-- ``errors``: MSE, MRSE, rBias^2 / rVar, efficiency, non-finite accounting
+- ``registry``: one entry per metric (how it is computed, reduced over seeds,
+  stored and shown); every table, plot and API row of metrics is generated from it
+- ``errors``: MSE, MRSE, rBias^2 / rVar, efficiency, PSNR of the tone-mapped
+  image, non-finite accounting
 - ``flip``: HDR/LDR FLIP via NVIDIA's ``flip_evaluator``
 - ``imageio``: EXR (OpenEXR) and PNG files, written atomically
 - ``tonemap`` / ``preview``: the display transform and 8-bit previews

@@ -8,6 +8,9 @@ all pixels and channels:
 - over K independent renders: rBias^2 and rVar (:func:`bias_variance`), and
   per cache from each render's frames (:func:`per_cache_bias_variance`)
 - efficiency = 1 / (MRSE x seconds per frame)
+- PSNR of the tone-mapped images (:func:`psnr_tonemapped`): both through the
+  project's display transform "clamp + sRGB" (:func:`metrics.tonemap.to_display_srgb`),
+  then 10 log10(1 / MSE) on [0, 1] values, capped at PSNR_MAX_DB
 
 The reference is itself a Monte Carlo mean: with its per-pixel variance image
 Var[R] every squared error against it contains the *reference floor*
@@ -51,10 +54,14 @@ __all__ = [
     "mrse",
     "mse",
     "per_cache_bias_variance",
+    "psnr_tonemapped",
     "relative_squared_error_map",
 ]
 
 DEFAULT_EPS = 0.01
+#: PSNR of identical (display) images, and the cap of every PSNR: a number that can be
+#: stored as JSON, sorted and plotted, where 10 log10(1 / 0) would be +inf.
+PSNR_MAX_DB = 100.0
 #: Warn when the reference floor is more than this fraction of a reported value.
 REF_FLOOR_WARN_RATIO = 0.1
 
@@ -426,3 +433,26 @@ def efficiency(mrse: float, seconds_per_frame: float) -> float:
         if value is None or not (math.isfinite(value) and value > 0):
             raise MetricError(f"efficiency needs a finite {name} > 0, got {value!r}")
     return 1.0 / (float(mrse) * float(seconds_per_frame))
+
+
+def psnr_tonemapped(test: np.ndarray, ref: np.ndarray) -> float | None:
+    """PSNR in dB of ``test`` against ``ref`` as displayed: higher is better.
+
+    Both images go through the project's tone mapper "clamp + sRGB"
+    (:func:`metrics.tonemap.to_display_srgb` at exposure 0: clamp to [0, 1],
+    sRGB encoding), then PSNR = 10 log10(1 / MSE) with MSE over all pixels and
+    channels of the [0, 1] values, over the pixels finite in both images.
+    Identical displays (MSE = 0) and anything above give PSNR_MAX_DB; None when
+    no pixel is finite in both.
+    """
+    from metrics.tonemap import to_display_srgb  # loads colour-science on first use
+
+    test, ref = check_same_shape(test, ref)
+    valid = finite_pixel_mask(test) & finite_pixel_mask(ref)
+    if not valid.any():
+        return None
+    squared = _squared_error(to_display_srgb(test)[valid], to_display_srgb(ref)[valid])
+    error = float(squared.mean())
+    if error <= 10.0 ** (-PSNR_MAX_DB / 10.0):
+        return PSNR_MAX_DB
+    return 10.0 * math.log10(1.0 / error)

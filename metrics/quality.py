@@ -26,6 +26,7 @@ import numpy as np
 
 from metrics.checks import finite_pixel_mask
 from metrics.flip import LUMINANCE_WEIGHTS
+from metrics.registry import verdict_keys
 
 #: Above this fraction of non-finite pixels the error metrics are withheld;
 #: at or below it they are averaged over the finite pixels and flagged.
@@ -38,16 +39,11 @@ DEGENERATE_BLACK_FRACTION = 0.99
 
 #: Metric name -> the prefixes of the stored keys it covers (aggregated and per seed),
 #: e.g. "rbias2" covers rbias2, rbias2_raw and the noise floor it subtracts.
-METRIC_KEYS: dict[str, tuple[str, ...]] = {
-    "mse": ("mse",),
-    "mrse": ("mrse",),
-    "rbias2": ("rbias2", "noise_floor"),
-    "rvar": ("rvar",),
-    "flip": ("flip_hdr", "flip_ldr"),
-    "efficiency": ("efficiency",),
-}
+METRIC_KEYS: dict[str, tuple[str, ...]] = verdict_keys()  # from metrics.registry
 ERROR_METRICS = tuple(METRIC_KEYS)
-RELATIVE_METRICS = ("mrse", "rbias2", "rvar", "flip", "efficiency")
+# A (nearly) black reference: relative errors, FLIP and the PSNR of two almost
+# black tone-mapped images compare noise with nothing.
+RELATIVE_METRICS = ("mrse", "rbias2", "rvar", "flip", "efficiency", "psnr")
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,8 @@ from rich.console import Group
 from rich.markup import escape
 from rich.table import Table
 
+from metrics.registry import LISTED, METRICS, PER_SEED, Metric
+
 
 def _fmt(value: Any) -> str:
     if isinstance(value, float):
@@ -64,12 +66,34 @@ def _shown(value: Any) -> Any:
     return "withheld" if value is None else value
 
 
+def metric_label(metric: Metric) -> str:
+    """``metric``'s label with its unit and which way is better, e.g. 'PSNR (dB, higher better)'."""
+    notes = [metric.unit] if metric.unit else []
+    return f"{metric.label} ({', '.join([*notes, metric.direction + ' better'])})"
+
+
+def _ci_text(ci: Any) -> str:
+    return f"[{ci[0]:.4g}, {ci[1]:.4g}]" if isinstance(ci, list | tuple) else str(ci)
+
+
+def _metric_rows(m: dict[str, Any]) -> dict[str, Any]:
+    """The run table's rows of every registered metric (values as :func:`_shown` gives them)."""
+    rows: dict[str, Any] = {}
+    for metric in METRICS:
+        absent = "n/a (K = 1)" if metric.needs_k2 else "-"
+        rows[metric_label(metric)] = m.get(metric.key, absent)
+        if metric.ci_key:
+            rows[f"{metric.label} 95% CI"] = _ci_text(m.get(metric.ci_key, "n/a (K = 1)"))
+        for label, key in metric.details:
+            rows[label] = m.get(key, absent)
+    return rows
+
+
 def metrics_table(summary: Any) -> Group:
     """The method-vs-reference table of a run, then one row per seed; the metrics the
     quality verdict withholds read 'withheld'."""
     spec, t = summary.spec, summary.timings
     m = {key: _shown(value) for key, value in summary.metrics.items()}
-    ci = m.get("mrse_ci95", "n/a (K = 1)")
     head = {
         "quality verdict": verdict_text(summary.quality),
         "run": summary.run_id,
@@ -80,34 +104,22 @@ def metrics_table(summary: Any) -> Group:
         "reference": f"{summary.reference['spp']} spp"
                      + (" (reused)" if not summary.reference["rendered_now"] else " (rendered)"),
         "reference floor MRSE (est.)": summary.reference["split_half"].get("reference_mrse_estimate"),
-        "MRSE (mean over seeds)": m["mrse_mean"],
-        "MRSE 95% CI": f"[{ci[0]:.4g}, {ci[1]:.4g}]" if isinstance(ci, list | tuple) else ci,
-        "MRSE less reference floor": m.get("mrse_corrected"),
-        "rBias2 (less render and reference floors)": m.get("rbias2", "n/a (K = 1)"),
-        "rBias2 (raw)": m.get("rbias2_raw", "n/a (K = 1)"),
         "reference floor mean Var[R]/(R2+eps)": m.get("ref_floor"),
         "floor / rBias2, floor / MRSE": f"{_fmt(m.get('ref_floor_ratio_rbias2'))}, "
                                         f"{_fmt(m.get('ref_floor_ratio_mrse'))}",
-        "rVar": m.get("rvar", "n/a (K = 1)"),
-        "rBias2 per cache (mean, std)": f"{_fmt(m.get('rbias2_per_cache_mean'))}, "
-                                        f"{_fmt(m.get('rbias2_per_cache_std'))}",
-        "MSE": m["mse_mean"],
-        "FLIP (HDR)": m["flip_hdr_mean"],
-        "FLIP (LDR)": m["flip_ldr_mean"],
+        **_metric_rows(m),
         "ms per frame": 1e3 * t["seconds_per_frame"],
         "warm-up / compile (s)": f"{t['warmup_s']:.3g} / {t['compile_s_estimate']:.3g}",
-        "efficiency 1/(MRSE*s)": m["efficiency"],
         "avg path vertices": summary.path_stats["avg_path_vertices"],
         "non-finite pixels": summary.quality["nonfinite_pixels"],
         "device": summary.device["device_key"],
         "estimator / metric version": f"{summary.estimator_version} / {summary.metric_version}",
     }
     seeds = Table(title="per seed")
-    for column in ("seed", "MRSE", "MSE", "FLIP HDR", "FLIP LDR", "ms/frame", "non-finite"):
+    for column in ("seed", *(m.label for m in PER_SEED), "ms/frame", "non-finite"):
         seeds.add_column(column, justify="right")
     for s in summary.per_seed:
-        seeds.add_row(str(s["seed"]), *(_fmt(_shown(s[k])) for k in ("mrse", "mse", "flip_hdr",
-                                                                     "flip_ldr")),
+        seeds.add_row(str(s["seed"]), *(_fmt(_shown(s.get(m.seed_key))) for m in PER_SEED),
                       _fmt(1e3 * s["seconds_per_frame"]),
                       str(s["nonfinite_pixels"]))
     parts: list[Any] = [key_value_table(f"{spec.method} vs reference", head), seeds]
@@ -121,13 +133,20 @@ def comparison_tables(report: Any) -> Group:
     """The Fig. 7 comparison: one table at equal spp, one at equal time."""
     def table(title: str, rows: list[Any]) -> Table:
         t = Table(title=title)
-        for column in ("method", "run", "spp", "MRSE", "MRSE 95% CI", "FLIP", "rBias2",
-                       "ms/frame", "ms render", "note"):
+        columns = ["method", "run", "spp"]
+        for m in LISTED:
+            columns += [m.label, f"{m.label} 95% CI"] if m.ci_key else [m.label]
+        for column in (*columns, "ms/frame", "ms render", "note"):
             t.add_column(column, justify="left" if column in ("method", "note") else "right")
         for r in rows:
-            ci = f"[{r.mrse_ci95[0]:.3g}, {r.mrse_ci95[1]:.3g}]" if r.mrse_ci95 else "-"
-            t.add_row(r.label, str(r.run_id), str(r.spp), _fmt(r.mrse), ci, _fmt(r.flip),
-                      _fmt(r.rbias2) if r.rbias2 is not None else "-", _fmt(r.ms_frame),
+            cells = []
+            for m in LISTED:
+                value = getattr(r, m.field, None)
+                cells.append("-" if value is None else _fmt(value))
+                if m.ci_key:
+                    ci = getattr(r, f"{m.field}_ci95", None)
+                    cells.append(f"[{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "-")
+            t.add_row(r.label, str(r.run_id), str(r.spp), *cells, _fmt(r.ms_frame),
                       _fmt(r.ms_render), r.note)
         return t
 
@@ -165,13 +184,16 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
     return key_value_table(title, rows)
 
 
+#: The sweep table's columns (row key, header); the metric columns come from metrics.registry.
 SWEEP_COLUMNS = (
-    ("series", "series"), ("eps", "eps"), ("nc", "N_c v1"), ("mrse", "MRSE"),
-    ("flip", "FLIP"), ("ms_frame", "ms/frame"), ("rbias2", "rBias²"), ("rvar", "rVar"),
+    ("series", "series"), ("eps", "eps"), ("nc", "N_c v1"),
+    *((m.field, m.label) for m in LISTED), ("ms_frame", "ms/frame"),
     ("avg_path_length", "path len"), ("ir_bounces_pct", "% IR"),
     ("avg_path_length_authors", "path len (authors)"), ("ir_bounces_pct_authors", "% IR (authors)"),
     ("cache_at_v1_pct", "% v1 cache"), ("run_id", "run"),
 )
+#: Row key -> the row key of its 95 % interval, shown in the same cell.
+_SWEEP_CI = {m.field: f"{m.field}_ci95" for m in LISTED if m.ci_key}
 
 
 def _work_line(work: dict[str, int]) -> str:
@@ -189,8 +211,8 @@ def sweep_table(result: Any) -> Group:
         cells = []
         for key, _ in SWEEP_COLUMNS:
             value = row.get(key)
-            if key == "mrse" and row.get("mrse_ci95"):
-                lo, hi = row["mrse_ci95"]
+            if key in _SWEEP_CI and row.get(_SWEEP_CI[key]):
+                lo, hi = row[_SWEEP_CI[key]]
                 cells.append(f"{_fmt(value)} [{_fmt(lo)}, {_fmt(hi)}]")
             elif key == "nc" and (row.get("calibration_capped") or row.get("calibration_unstable")):
                 flags = [name for name in ("capped", "unstable") if row.get(f"calibration_{name}")]

@@ -5,9 +5,10 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, create_model
 
 from jobs.versions import is_current
+from metrics.registry import LISTED, Metric, row_values
 
 
 class StageOut(BaseModel):
@@ -72,8 +73,27 @@ class ArtifactOut(BaseModel):
                    url=f"/api/v1/artifacts/{artifact.id}")
 
 
-class RunOut(BaseModel):
-    """A result row: what a results list or a comparison shows of a run."""
+def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
+    """RunOut's metric fields: ``<field>`` per listed metric (and ``<field>_ci95``)."""
+    fields: dict[str, Any] = {}
+    for m in metrics:
+        unit = f" [{m.unit}]" if m.unit else ""
+        fields[m.field] = (float | None, Field(
+            description=f"{m.description}{unit}; {m.direction} is better (stored as "
+                        f"metrics.{m.key}; null when withheld or not computed)"))
+        if m.ci_key:
+            fields[f"{m.field}_ci95"] = (list[float] | None, Field(
+                description=f"Student-t 95 % interval of {m.label} over the seeds"))
+    return fields
+
+
+#: The metric columns of a result row, generated from metrics.registry.
+_RunMetrics = create_model("_RunMetrics", **_metric_fields(LISTED))
+
+
+class RunOut(_RunMetrics):
+    """A result row: what a results list or a comparison shows of a run (the metric
+    fields, e.g. mrse, mrse_ci95, rbias2, rvar, flip, psnr, come from metrics.registry)."""
 
     id: int
     created_at: datetime
@@ -85,11 +105,6 @@ class RunOut(BaseModel):
     spp: int
     frames: int
     seeds: int
-    mrse: float | None
-    mrse_ci95: list[float] | None
-    rbias2: float | None
-    rvar: float | None
-    flip: float | None
     seconds_per_frame: float | None
     device_key: str
     quality: dict[str, Any]
@@ -110,14 +125,11 @@ class RunOut(BaseModel):
     @classmethod
     def of(cls, run: Any) -> RunOut:
         m, q = run.metrics, run.quality
-        ci = m.get("mrse_ci95")
-        return cls(id=run.id, created_at=run.created_at, scene=run.scene_name,
+        return cls(**row_values(m), id=run.id, created_at=run.created_at, scene=run.scene_name,
                    scene_fingerprint=run.scene_fingerprint, method=run.method,
                    params={k: v for k, v in run.params.items() if k != "spec"},
                    resolution=[run.width, run.height], spp=run.spp, frames=run.frames,
-                   seeds=run.seeds, mrse=m.get("mrse_mean"), mrse_ci95=list(ci) if ci else None,
-                   rbias2=m.get("rbias2"), rvar=m.get("rvar"), flip=m.get("flip_hdr_mean"),
-                   seconds_per_frame=run.timings.get("seconds_per_frame"),
+                   seeds=run.seeds, seconds_per_frame=run.timings.get("seconds_per_frame"),
                    device_key=run.device_key, quality=q, verdict=q.get("verdict"),
                    withheld=q.get("withheld", []), estimator_version=run.estimator_version,
                    metric_version=run.metric_version,

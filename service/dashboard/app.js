@@ -27,28 +27,37 @@ function label(run) {
 
 // A metric cell: a value, "withheld" when the run's quality verdict makes it meaningless, or "–".
 const metric = (run, name, value) => (value === null && (run.withheld || []).includes(name) ? "withheld" : num(value));
+// The metric registry (GET /api/v1/metrics): columns and plots are built from it, once per page load.
+let registry = null;
+const metricRegistry = async () => (registry ??= await api("/metrics"));
+const better = (m) => `${m.description}${m.unit ? ` [${m.unit}]` : ""}; ${m.direction} is better`;
+const unitLabel = (m) => (m.unit ? `${m.label} (${m.unit})` : m.label);
 const reasons = (run) => (run.quality.reasons || []).map((r) => `${r.code}: ${r.message}`).join("\n");
 const verdictCell = (run) => `<td class="text verdict verdict-${esc(run.verdict ?? "none")}" title="${esc(reasons(run))}">${esc(run.verdict ?? "not judged")}</td>`;
 
 async function overview() {
   const runs = await api(`/results?limit=1000${old()}`);
+  const listed = (await metricRegistry()).filter((m) => m.field);
   const latest = new Map();
   for (const run of runs) {  // newest first: keep the first per (scene, method label + versions, device)
     const key = `${run.scene}|${label(run)}|${run.device_key}`;
     if (!latest.has(key)) latest.set(key, run);
   }
   const scenes = [...new Set([...latest.values()].map((r) => r.scene))].sort();
+  const heads = listed.map((m) => `<th title="${esc(better(m))}">${esc(unitLabel(m))}</th>${m.ci_field ? "<th>95% CI</th>" : ""}`).join("");
+  const cells = (r) => listed.map((m) => {
+    const ci = m.ci_field ? (r[m.ci_field] ? `[${num(r[m.ci_field][0])}, ${num(r[m.ci_field][1])}]` : metric(r, m.verdict_name, null)) : null;
+    return `<td>${metric(r, m.verdict_name, r[m.field])}</td>${ci === null ? "" : `<td>${ci}</td>`}`;
+  }).join("");
   let html = "<h2>Latest results</h2>";
   if (!scenes.length) html += "<p class='muted'>No results yet: submit a job (POST /api/v1/jobs) or run <code>nirc-bench render</code>.</p>";
   for (const scene of scenes) {
     html += `<h3><a href="#/scene/${encodeURIComponent(scene)}">${esc(scene)}</a></h3><table><tr>
-      <th class="text">method</th><th class="text">device</th><th class="text">verdict</th><th>MRSE</th><th>95% CI</th><th>rBias²</th>
-      <th>FLIP</th><th>ms/frame</th><th>run</th></tr>`;
+      <th class="text">method</th><th class="text">device</th><th class="text">verdict</th>${heads}
+      <th>ms/frame</th><th>run</th></tr>`;
     for (const r of [...latest.values()].filter((r) => r.scene === scene)) {
-      const ci = r.mrse_ci95 ? `[${num(r.mrse_ci95[0])}, ${num(r.mrse_ci95[1])}]` : metric(r, "mrse", null);
       html += `<tr><td class="text">${esc(label(r))}</td><td class="text">${esc(r.device_key)}</td>${verdictCell(r)}
-        <td>${metric(r, "mrse", r.mrse)}</td><td>${ci}</td><td>${metric(r, "rbias2", r.rbias2)}</td><td>${metric(r, "flip", r.flip)}</td>
-        <td>${num(r.seconds_per_frame * 1e3)}</td><td><a href="#/scene/${encodeURIComponent(scene)}/${r.id}">${r.id}</a></td></tr>`;
+        ${cells(r)}<td>${num(r.seconds_per_frame * 1e3)}</td><td><a href="#/scene/${encodeURIComponent(scene)}/${r.id}">${r.id}</a></td></tr>`;
     }
     html += "</table>";
   }
@@ -88,7 +97,10 @@ async function scenePage(scene, runId) {
     const rows = sweeps[0].result.rows || [];
     const names = [...new Set(rows.map((r) => r.series))];
     const stale = sweeps[0].current ? "" : ", old versions";
-    for (const [key, title, log] of [["mrse", "MRSE", true], ["flip", "FLIP", false], ["rbias2", "rBias²", true], ["rvar", "rVar", true]]) {
+    // One plot per sweep-plotted metric of the registry that this sweep's rows hold.
+    const panels = (await metricRegistry()).filter((m) => m.sweep_plot && rows.some((r) => r[m.field] !== undefined))
+      .map((m) => [m.field, unitLabel(m), m.log_axis]);
+    for (const [key, title, log] of panels) {
       linePlot(sweepEl, { title: `${title} (sweep ${sweeps[0].id}${stale})`, xlabel: "% indirect-radiance bounces", ylabel: title,
         logy: log, series: names.map((n) => ({ name: n, color: SERIES_COLORS[n], dashed: n.includes("equal time"),
           points: rows.filter((r) => r.series === n).map((r) => [r.ir_bounces_pct, r[key]]) })) });

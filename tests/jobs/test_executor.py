@@ -164,3 +164,47 @@ def test_per_cache_metrics_say_why_they_are_missing():
         result = per_cache_metrics(moments, reference, 0.01)
         assert all(result[key] is None for key in PER_CACHE_KEYS)
         assert reason in result["per_cache_unavailable"]
+
+
+def test_every_registered_metric_is_stored_served_and_tabulated(env):
+    """The registry drives the executor, the API row, the CLI tables and the sweep row:
+    PSNR (one registry entry) appears in each without code of its own there."""
+    from rich.console import Console
+
+    from jobs.sweep import point_row
+    from metrics.registry import LISTED, METRICS, PER_SEED
+    from service.api.schemas import RunOut
+    from service.tables import metric_label, metrics_table, sweep_table
+
+    settings, store = env
+    summary = execute(SPEC, store, settings)
+    run = store.get_run(summary.run_id)
+    for metric in METRICS:
+        assert metric.key in run.metrics, metric.name
+    for metric in PER_SEED:
+        assert all(metric.seed_key in s.metrics for s in run.seed_results), metric.name
+    seeds = [s.metrics["psnr"] for s in run.seed_results]
+    assert all(0 < p < 100 for p in seeds)
+    assert run.metrics["psnr_mean"] == pytest.approx(np.mean(seeds))
+
+    row = RunOut.of(run).model_dump()
+    for metric in LISTED:
+        assert row[metric.field] == run.metrics[metric.key], metric.name
+    assert row["psnr"] == run.metrics["psnr_mean"] and row["flip"] == run.metrics["flip_hdr_mean"]
+
+    console = Console(width=250, record=True)
+    console.print(metrics_table(summary))
+    text = console.export_text()
+    for metric in METRICS:
+        assert metric_label(metric) in text, metric.name
+    assert "PSNR (dB, higher better)" in text and "MRSE (lower better)" in text
+    sweep_row = point_row("nirc", 0.5, run)
+    assert {m.field for m in LISTED} <= set(sweep_row) and sweep_row["psnr"] == row["psnr"]
+    result = dataclasses.make_dataclass("Result", ["sweep_id", "scene", "device_key", "rows",
+                                                   "skipped", "work", "files"])(
+        1, "cornell-box", "dev", [sweep_row], [], dict.fromkeys(
+            ("reference_rendered", "snapshots_trained", "snapshots_reused", "points_rendered",
+             "points_reused", "calibrations"), 0), {})
+    console.print(sweep_table(result))
+    text = console.export_text()
+    assert all(metric.label in text for metric in LISTED) and "PSNR" in text

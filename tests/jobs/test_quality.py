@@ -54,8 +54,10 @@ def test_a_scene_without_emitter_is_told_not_scored(env, tmp_path):
     assert run.quality["verdict"] == "no-emitter"
     assert {r["code"] for r in run.quality["reasons"]} == {"no-emitter", "degenerate-reference"}
     assert set(run.quality["withheld"]) == {"mse", "mrse", "rbias2", "rvar", "flip",
-                                            "efficiency"}
+                                            "efficiency", "psnr"}
     assert run.metrics["mrse_mean"] is None and run.metrics["rbias2"] is None
+    assert run.metrics["psnr_mean"] is None
+    assert all(s.metrics["psnr"] is None for s in run.seed_results)
     assert all(s.metrics["mrse"] is None for s in run.seed_results)
     assert run.quality["finite"] is True  # the older keys stay
     assert (run.estimator_version, run.metric_version) == (2, METRIC_VERSION)
@@ -68,6 +70,7 @@ def test_a_black_reference_is_degenerate_and_keeps_the_absolute_error(env, tmp_p
     summary = execute(_spec(path), store, settings)
     assert summary.quality["verdict"] == "degenerate-reference"
     assert summary.metrics["mrse_mean"] is None and summary.metrics["flip_hdr_mean"] is None
+    assert summary.metrics["psnr_mean"] is None     # two black tone-mapped images: 100 dB
     assert summary.metrics["mse_mean"] is not None
     assert "100 % of the reference's pixels are black" in summary.quality["reasons"][0]["message"]
 

@@ -38,7 +38,7 @@ SCENE = """\
     </shape>
 </scene>
 """
-ERRORS = {"mse", "mrse", "rbias2", "rvar", "flip", "efficiency"}
+ERRORS = {"mse", "mrse", "rbias2", "rvar", "flip", "efficiency", "psnr"}  # every error metric
 
 
 def scene(tmp_path: Path, name: str, radiance: str = "5", floor: str = "",

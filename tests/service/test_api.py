@@ -119,6 +119,10 @@ def test_a_job_runs_and_its_results_are_served(api):
     assert job["status"] == "succeeded" and job["attempts"] == 1, job
     run = client.get(f"/api/v1/runs/{job['run_id']}").json()
     assert len(run["per_seed"]) == 2 and run["mrse"] > 0 and run["device"]["device_key"]
+    # Registry metrics are served under their fields; PSNR (higher is better) among them.
+    assert run["psnr"] == run["metrics"]["psnr_mean"] and run["flip"] == run["metrics"]["flip_hdr_mean"]
+    registry = {m["name"]: m for m in client.get("/api/v1/metrics").json()}
+    assert registry["psnr"]["direction"] == "higher" and registry["mrse"]["field"] == "mrse"
     assert run["timings"]["protocol"] and run["versions"]["mitsuba"]
     preview = client.get(f"/api/v1/references/{run['reference_id']}/preview.png")
     assert preview.status_code == 200 and preview.content[:4] == b"\x89PNG"

@@ -65,6 +65,10 @@ def test_overview_lists_the_latest_results(chromium, site):
     assert "cornell-box" in page.inner_text("main")
     assert page.locator("table tr").count() >= 3   # header + pt 1 spp + pt 2 spp
     assert page.locator("td.verdict").first.inner_text() == "ok"
+    # The metric columns are the registry's listed metrics (GET /api/v1/metrics), PSNR included.
+    headers = page.locator("table").first.locator("th").all_inner_texts()
+    assert headers[3:] == ["MRSE", "95% CI", "FLIP", "rBias²", "rVar", "PSNR (dB)", "ms/frame",
+                           "run"]
     ARTIFACTS.mkdir(exist_ok=True)
     page.screenshot(path=str(ARTIFACTS / "dashboard-overview.png"))
     assert errors == []

@@ -1,4 +1,4 @@
-"""Results: runs, comparisons, sweeps, artifacts, scenes."""
+"""Results: runs, comparisons, sweeps, artifacts, scenes, and the metric registry."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from jobs.versions import current_estimator_versions
 from metrics import METRIC_VERSION
 from metrics.imageio import ImageReadError, png_bytes, read_exr
 from metrics.preview import tonemap_preview
+from metrics.registry import METRICS
 from renderers.scenes import builtin_names, describe
 from service.api.deps import RowId, SettingsDep, StoreDep
 from service.api.schemas import Comparison, RunDetail, RunOut, SceneOut, SweepOut
@@ -46,6 +47,16 @@ def list_results(store: StoreDep, scene: Filter = None, method: Filter = None,
                                        "metric_version": METRIC_VERSION}
     return [RunOut.of(run)
             for run in store.list_runs(scene, method, device, limit=limit, **versions)]
+
+
+@router.get("/metrics")
+def list_metrics() -> list[dict[str, Any]]:
+    """The metric registry (metrics/registry.py), in display order: per metric its
+    ``name``, ``label``, ``unit``, ``direction`` (lower or higher is better), ``aggregate``
+    (how the seeds reduce), stored ``key`` / ``seed_key`` / ``ci_key``, result-row ``field``
+    / ``ci_field`` (null: run details only), ``log_axis``, ``needs_k2``, ``sweep_plot`` and
+    the ``verdict_name`` a quality verdict withholds it under."""
+    return [m.to_json() for m in METRICS]
 
 
 @router.get("/runs/{run_id}", response_model=RunDetail)

@@ -1,0 +1,180 @@
+"""The metric registry: one entry per metric, read by every place that stores or shows one.
+
+The executor (per-seed and aggregated values), the API's result rows, the CLI
+tables, the sweep's rows, table and figure, the Fig. 7 report and the dashboard
+(``GET /api/v1/metrics``) are generated from :data:`METRICS`; the quality
+verdict's withheld names (:mod:`metrics.quality`) are its ``verdict_name``.
+Adding a metric is one :class:`Metric` in :data:`METRICS` plus its test
+(docs/architecture.md, "Adding a metric").
+
+How K seeds reduce to the stored value is the entry's :class:`Aggregate`.
+Values that several metrics share one pass over the images for (MSE, MRSE,
+FLIP with their finite-pixel masks and reference floor; MRSE's CI, rBias^2 and
+rVar over the K renders) are computed by :func:`metrics.errors.image_metrics`
+and :func:`metrics.errors.bias_variance`; their entries name the key they
+store and give no ``per_seed`` function. A metric with its own per-image
+function gives it as ``per_seed`` and is computed by :func:`per_seed_values`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any, Literal
+
+import numpy as np
+
+from metrics.errors import efficiency, psnr_tonemapped
+
+
+class Aggregate(StrEnum):
+    """How the K seeds of a run reduce to the stored value."""
+
+    #: mean over seeds of the per-seed values (seeds without a value left out)
+    MEAN = "mean"
+    #: mean over seeds with its Student-t 95 % interval under ``<seed_key>_ci95``
+    #: (metrics.errors.bias_variance; the single value when K = 1)
+    MEAN_CI = "mean_ci"
+    #: from the K renders jointly, like rBias^2 and rVar (metrics.errors.bias_variance)
+    BIAS_VARIANCE = "bias_variance"
+    #: from each seed's own frames, mean over the caches (per_cache_bias_variance)
+    PER_CACHE = "per_cache"
+    #: from other aggregated values (``derive``), e.g. efficiency from MRSE and time
+    DERIVED = "derived"
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One metric: what it is, how it is computed and reduced, where it is stored and shown."""
+
+    name: str                      # registry name (unique)
+    label: str                     # column / axis label
+    description: str               # one line, for tooltips and docs
+    direction: Literal["lower", "higher"]  # which way is better
+    aggregate: Aggregate
+    key: str                       # key of the aggregated value in a run's metrics
+    seed_key: str | None = None    # key of the per-seed value in a seed's metrics
+    per_seed: Callable[[np.ndarray, np.ndarray], float | None] | None = None  # (test, ref)
+    derive: Callable[[Mapping[str, Any]], float | None] | None = None  # DERIVED only
+    unit: str = ""
+    log_axis: bool = False         # plotted on a log axis
+    needs_k2: bool = False         # needs K >= 2 seeds (absent from a K = 1 run)
+    group: str | None = None       # the quality verdict's name for it (default: ``name``)
+    field: str | None = None       # name in result rows (API RunOut, sweep rows, report,
+                                   # dashboard); None: shown in run details only
+    sweep_plot: bool = False       # a panel of the sweep figure (NIRC paper Fig. 13)
+    withheld_keys: tuple[str, ...] = ()  # further stored-key prefixes the verdict clears
+    details: tuple[tuple[str, str], ...] = ()  # (label, stored key) shown beside it in details
+
+    @property
+    def verdict_name(self) -> str:
+        """The name the quality verdict withholds it under (metrics.quality)."""
+        return self.group or self.name
+
+    @property
+    def ci_key(self) -> str | None:
+        """Stored key of its 95 % interval (MEAN_CI only)."""
+        return f"{self.seed_key}_ci95" if self.aggregate is Aggregate.MEAN_CI else None
+
+    @property
+    def key_prefixes(self) -> tuple[str, ...]:
+        """Prefixes of every stored key (per seed and aggregated) that holds this metric."""
+        return (self.seed_key or self.key, *self.withheld_keys)
+
+    def better(self, a: float, b: float) -> bool:
+        """Whether value ``a`` is strictly better than ``b``."""
+        return a < b if self.direction == "lower" else a > b
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "label": self.label, "description": self.description,
+                "direction": self.direction, "aggregate": self.aggregate.value,
+                "key": self.key, "seed_key": self.seed_key, "ci_key": self.ci_key,
+                "unit": self.unit, "log_axis": self.log_axis, "needs_k2": self.needs_k2,
+                "verdict_name": self.verdict_name, "field": self.field,
+                "ci_field": f"{self.field}_ci95" if self.field and self.ci_key else None,
+                "sweep_plot": self.sweep_plot}
+
+
+def _efficiency(metrics: Mapping[str, Any]) -> float | None:
+    """1 / (MRSE x seconds per frame) when MRSE is a usable number (> 0, finite)."""
+    mrse = metrics.get("mrse_mean")
+    if mrse is None or not (math.isfinite(mrse) and mrse > 0):
+        return None
+    return efficiency(mrse, metrics["seconds_per_frame"])
+
+
+#: Every metric, in the order tables and plots show them (the NIRC paper's Fig. 13
+#: order: MRSE, FLIP, rBias², rVar).
+METRICS: tuple[Metric, ...] = (
+    Metric("mse", "MSE", "mean squared error against the reference", "lower",
+           Aggregate.MEAN, key="mse_mean", seed_key="mse", log_axis=True),
+    Metric("mrse", "MRSE", "mean relative squared error (X-R)^2/(R^2+eps)", "lower",
+           Aggregate.MEAN_CI, key="mrse_mean", seed_key="mrse", log_axis=True, field="mrse",
+           sweep_plot=True, details=(("MRSE less reference floor", "mrse_corrected"),)),
+    Metric("flip_hdr", "FLIP", "HDR-FLIP mean over pixels, at the reference's exposures",
+           "lower", Aggregate.MEAN, key="flip_hdr_mean", seed_key="flip_hdr", group="flip",
+           field="flip", sweep_plot=True),
+    Metric("flip_ldr", "FLIP (LDR)", "LDR-FLIP mean over pixels of the tone-mapped images",
+           "lower", Aggregate.MEAN, key="flip_ldr_mean", seed_key="flip_ldr", group="flip"),
+    Metric("rbias2", "rBias²", "relative squared bias over K renders, less the render and "
+           "reference noise floors", "lower", Aggregate.BIAS_VARIANCE, key="rbias2",
+           log_axis=True, needs_k2=True, field="rbias2", sweep_plot=True,
+           withheld_keys=("noise_floor",), details=(("rBias² (raw)", "rbias2_raw"),)),
+    Metric("rvar", "rVar", "relative variance of one render over K renders", "lower",
+           Aggregate.BIAS_VARIANCE, key="rvar", log_axis=True, needs_k2=True, field="rvar",
+           sweep_plot=True),
+    Metric("rbias2_per_cache", "rBias² per cache", "rBias² of each seed's cache from its own "
+           "frames, mean over caches", "lower", Aggregate.PER_CACHE,
+           key="rbias2_per_cache_mean", group="rbias2", log_axis=True,
+           details=(("rBias² per cache (std)", "rbias2_per_cache_std"),)),
+    Metric("efficiency", "efficiency", "1 / (MRSE x seconds per frame)", "higher",
+           Aggregate.DERIVED, key="efficiency", derive=_efficiency, unit="1/s",
+           log_axis=True),
+    Metric("psnr", "PSNR", "PSNR of the tone-mapped images (clamp + sRGB), "
+           "10 log10(1/MSE) on [0, 1]", "higher", Aggregate.MEAN, key="psnr_mean",
+           seed_key="psnr", per_seed=psnr_tonemapped, unit="dB", field="psnr"),
+)
+
+BY_NAME: dict[str, Metric] = {m.name: m for m in METRICS}
+if len(BY_NAME) != len(METRICS):
+    raise RuntimeError("metric names in METRICS must be unique")
+
+#: The metrics shown in result rows (API, sweep rows, report, dashboard), in order.
+LISTED: tuple[Metric, ...] = tuple(m for m in METRICS if m.field)
+#: The metrics with a value per seed, in order.
+PER_SEED: tuple[Metric, ...] = tuple(m for m in METRICS if m.seed_key)
+
+
+def verdict_keys() -> dict[str, tuple[str, ...]]:
+    """Verdict name -> prefixes of the stored keys it covers (metrics.quality.METRIC_KEYS)."""
+    keys: dict[str, tuple[str, ...]] = {}
+    for m in METRICS:
+        have = keys.setdefault(m.verdict_name, ())
+        # A prefix already covered (rbias2 covers rbias2_per_cache_mean) is not repeated.
+        keys[m.verdict_name] = have + tuple(p for p in m.key_prefixes if not p.startswith(have))
+    return keys
+
+
+def per_seed_values(test: np.ndarray, ref: np.ndarray) -> dict[str, float | None]:
+    """The per-seed values of the metrics with their own ``per_seed`` function."""
+    return {m.seed_key: m.per_seed(test, ref) for m in PER_SEED if m.per_seed is not None}
+
+
+def seed_mean(metric: Metric, per_seed: list[Mapping[str, Any]]) -> float | None:
+    """Mean of ``metric``'s per-seed values (seeds without one left out; None if none has)."""
+    values = [s.get(metric.seed_key) for s in per_seed]
+    values = [v for v in values if v is not None]
+    return float(np.mean(values)) if values else None
+
+
+def row_values(metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """A run's listed metrics under their ``field`` names (and ``<field>_ci95``)."""
+    row: dict[str, Any] = {}
+    for m in LISTED:
+        row[m.field] = metrics.get(m.key)
+        if m.ci_key:
+            ci = metrics.get(m.ci_key)
+            row[f"{m.field}_ci95"] = list(ci) if ci else None
+    return row
