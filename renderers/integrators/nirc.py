@@ -59,6 +59,7 @@ lanes whose value is not used are passed as 0 (an oracle cache skips them).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
@@ -67,7 +68,9 @@ from renderers.integrators import path
 from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import spread_exceeded
-from renderers.methods.nirc import NIRCParams
+
+if TYPE_CHECKING:  # the method module imports this one (the method declares its integrator)
+    from renderers.methods.nirc import NIRCParams
 
 NIRC_PLUGIN = "nirc_nirc"
 
@@ -77,18 +80,14 @@ class NIRCIntegrator(CachedPathIntegrator):
     parameters (:class:`renderers.methods.nirc.NIRCParams`: ``estimator``,
     ``termination``, ``nc``, ``sph_c``) through :meth:`configure`.
 
-    Loaded directly (tests, a scene file), the same fields come as properties,
-    with ``nc`` as text, e.g. '4' (biased), '8,1' (adaptive: at v1, then later
-    vertices) or '3,1,1' (unbiased: one entry per non-specular vertex, at most
-    three); they are validated by the same model.
+    The plugin's properties are those of the PT core; the estimator's own
+    parameters come only through :meth:`configure`, so they are parsed and
+    validated once, by the method's model.
     """
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        values = {name: props.get(name, None) for name in ("estimator", "termination")}
-        nc = [int(n) for n in str(props.get("nc", "4")).split(",")]
-        self.configure(NIRCParams(**{k: str(v) for k, v in values.items() if v is not None},
-                                  nc=nc, sph_c=self.sph_c))
+        self.nc: list[int] = []       # N_c per vertex: set by configure
 
     def configure(self, params: NIRCParams) -> None:
         """Take the method's parameters (validated once, by the model)."""
@@ -113,6 +112,9 @@ class NIRCIntegrator(CachedPathIntegrator):
         return total / mi.Float(dr.maximum(nc_lane, 1))
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
+        if not self.nc:
+            raise RuntimeError("the nirc integrator needs configure(params) before it renders "
+                               "(renderers.methods.nirc.build does it)")
         smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
         usable = vertex.active_next & smooth
         if self.estimator == "unbiased":

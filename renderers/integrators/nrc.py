@@ -21,7 +21,7 @@ in the NIRC paper's NRC baseline (Sec. 6.2). Training uses NRC's self-training
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import drjit as dr
 import mitsuba as mi
@@ -38,7 +38,9 @@ from renderers.integrators.cached import (
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import SPREAD_C, spread_exceeded
 from renderers.integrators.training import TrainingPathIntegrator, training_plugin
-from renderers.methods.nrc import NRCParams
+
+if TYPE_CHECKING:  # the method module imports this one (the method declares its integrator)
+    from renderers.methods.nrc import NRCParams
 
 NRC_PLUGIN = "nirc_nrc"
 #: NRC is not used at v1 on surfaces glossier than this (NIRC paper Sec. 6.3).
@@ -76,15 +78,14 @@ class NRCIntegrator(CachedPathIntegrator):
     """PT core + termination into an outgoing-radiance cache.
 
     ``termination`` (from :class:`renderers.methods.nrc.NRCParams` through
-    :meth:`configure`, or a property when loaded directly): 'sph' (spread
-    heuristic, default) or 'adaptive' (the per-pixel v1 mask at the first
-    vertex, then the spread heuristic).
+    :meth:`configure`): 'sph' (spread heuristic, the default before it is
+    configured) or 'adaptive' (the per-pixel v1 mask at the first vertex, then
+    the spread heuristic).
     """
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.configure(NRCParams(termination=str(props.get("termination", "sph")),
-                                 sph_c=self.sph_c))
+        self.termination = "sph"
 
     def configure(self, params: NRCParams) -> None:
         """Take the `nrc` method's parameters (validated once, by the model)."""

@@ -139,8 +139,23 @@ def _plugins():
     return path.PLUGIN_NAME, nirc.NIRC_PLUGIN, nrc.NRC_PLUGIN
 
 
+#: Properties of the PT core; the rest are the estimator's own parameters.
+CORE_PROPERTIES = ("max_depth", "rr_depth", "rr_mode", "rr_survival", "sph_c")
+
+
 def _integrator(mi, plugin: str, cache=None, **props):
-    integrator = mi.load_dict({"type": plugin, **props})
+    """The plugin with the core's properties, configured (nirc, nrc and subclasses)
+    with the method's validated model of the other ``props`` (``nc`` as text)."""
+    from renderers.methods import parse_params
+
+    core = {name: value for name, value in props.items() if name in CORE_PROPERTIES}
+    own = {name: value for name, value in props.items() if name not in CORE_PROPERTIES}
+    integrator = mi.load_dict({"type": plugin, **core})
+    if hasattr(integrator, "configure"):
+        if "nc" in own:
+            own["nc"] = [int(n) for n in str(own["nc"]).split(",")]
+        method = "nrc" if plugin.endswith("nrc") else "nirc"
+        integrator.configure(parse_params(method, {**own, **core}))
     if cache is not None:
         integrator.cache = cache
     return integrator

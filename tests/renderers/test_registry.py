@@ -134,14 +134,26 @@ def test_integrators_receive_the_validated_model(mi):
     assert trainer.key_vertex == "arrival"
 
 
-def test_integrator_properties_are_validated_by_the_same_model(mi):
+def test_the_integrator_takes_its_parameters_only_from_the_methods_model(mi):
+    """The estimator's parameters are parsed once, by the method's model, and reach
+    the plugin through configure(); an unconfigured plugin refuses to render."""
     from renderers.integrators import nirc
 
     nirc.register()
-    loaded = mi.load_dict({"type": nirc.NIRC_PLUGIN, "estimator": "unbiased", "nc": "3,1,1"})
-    assert loaded.nc == [3, 1, 1]
-    with pytest.raises(Exception, match="biased estimator takes one N_c"):
-        mi.load_dict({"type": nirc.NIRC_PLUGIN, "nc": "4,2"})
+    loaded = mi.load_dict({"type": nirc.NIRC_PLUGIN})
+    loaded.configure(parse_params("nirc", {"estimator": "unbiased", "nc": [3, 1, 1]}))
+    assert loaded.nc == [3, 1, 1] and loaded.estimator == "unbiased"
+    with pytest.raises(MethodError, match="biased estimator takes one N_c"):
+        parse_params("nirc", {"nc": [4, 2]})
+    unconfigured = mi.load_dict({"type": nirc.NIRC_PLUGIN})
+    scene = mi.load_dict(mi.cornell_box())
+    with pytest.raises(Exception) as refused:   # mi.render wraps the error it raised
+        mi.render(scene, integrator=unconfigured, spp=1)
+    chain, error = [], refused.value
+    while error is not None:
+        chain.append(str(error))
+        error = error.__cause__ or error.__context__
+    assert any("configure" in message for message in chain), chain
 
 
 def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
