@@ -59,7 +59,7 @@ lanes whose value is not used are passed as 0 (an oracle cache skips them).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import drjit as dr
 import mitsuba as mi
@@ -69,15 +69,24 @@ from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import spread_exceeded
 
-if TYPE_CHECKING:  # the method module imports this one (the method declares its integrator)
-    from renderers.methods.nirc import NIRCParams
+
+class NIRCSettings(Protocol):
+    """What the estimator reads of the `nirc` method's validated parameters
+    (renderers.methods.nirc.NIRCParams; that module declares this integrator)."""
+
+    sph_c: float
+    estimator: str
+    termination: str
+
+    def sample_counts(self) -> list[int]: ...
+
 
 NIRC_PLUGIN = "nirc_nirc"
 
 
 class NIRCIntegrator(CachedPathIntegrator):
     """PT core + NIRC cache terms, configured by the `nirc` method's validated
-    parameters (:class:`renderers.methods.nirc.NIRCParams`: ``estimator``,
+    parameters (:class:`NIRCSettings`, the `nirc` method's model: ``estimator``,
     ``termination``, ``nc``, ``sph_c``) through :meth:`configure`.
 
     The plugin's properties are those of the PT core; the estimator's own
@@ -89,7 +98,7 @@ class NIRCIntegrator(CachedPathIntegrator):
         super().__init__(props)
         self.nc: list[int] = []       # N_c per vertex: set by configure
 
-    def configure(self, params: NIRCParams) -> None:
+    def configure(self, params: NIRCSettings) -> None:
         """Take the method's parameters (validated once, by the model)."""
         self.sph_c = params.sph_c
         self.estimator = params.estimator

@@ -21,7 +21,7 @@ in the NIRC paper's NRC baseline (Sec. 6.2). Training uses NRC's self-training
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import drjit as dr
 import mitsuba as mi
@@ -39,8 +39,16 @@ from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import SPREAD_C, spread_exceeded
 from renderers.integrators.training import TrainingPathIntegrator, training_plugin
 
-if TYPE_CHECKING:  # the method module imports this one (the method declares its integrator)
-    from renderers.methods.nrc import NRCParams
+
+class NRCSettings(Protocol):
+    """What the estimator and its self-training paths read of the `nrc` method's
+    validated parameters (renderers.methods.nrc.NRCParams; that module declares
+    these integrators)."""
+
+    sph_c: float
+    termination: str
+    unbiased_every: int
+
 
 NRC_PLUGIN = "nirc_nrc"
 #: NRC is not used at v1 on surfaces glossier than this (NIRC paper Sec. 6.3).
@@ -77,7 +85,7 @@ def nrc_terms(cache: Any, sph_c: float, vertex: Vertex, state: CacheState,
 class NRCIntegrator(CachedPathIntegrator):
     """PT core + termination into an outgoing-radiance cache.
 
-    ``termination`` (from :class:`renderers.methods.nrc.NRCParams` through
+    ``termination`` (from the method's model, :class:`NRCSettings`, through
     :meth:`configure`): 'sph' (spread heuristic, the default before it is
     configured) or 'adaptive' (the per-pixel v1 mask at the first vertex, then
     the spread heuristic).
@@ -87,7 +95,7 @@ class NRCIntegrator(CachedPathIntegrator):
         super().__init__(props)
         self.termination = "sph"
 
-    def configure(self, params: NRCParams) -> None:
+    def configure(self, params: NRCSettings) -> None:
         """Take the `nrc` method's parameters (validated once, by the model)."""
         self.sph_c = params.sph_c
         self.termination = params.termination
@@ -119,7 +127,7 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
         if self.unbiased_every < 1:
             raise ValueError("unbiased_every must be >= 1")
 
-    def configure(self, params: NRCParams) -> None:
+    def configure(self, params: NRCSettings) -> None:
         """Take the `nrc` method's parameters (validated once, by the model)."""
         self.unbiased_every = params.unbiased_every
         self.sph_c = params.sph_c
