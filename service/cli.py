@@ -35,7 +35,8 @@ app = typer.Typer(
     add_completion=False,
 )
 # Tables are wide: when the output is not a terminal (a log, CI), do not wrap at 80 columns.
-console = Console(width=None if sys.stdout.isatty() else 160)
+# Not a terminal (a log, a pipe, CI): wide enough that the sweep table keeps its rows whole.
+console = Console(width=None if sys.stdout.isatty() else 220)
 err_console = Console(stderr=True)
 
 DataDir = Annotated[

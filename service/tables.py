@@ -206,7 +206,9 @@ def sweep_table(result: Any) -> Group:
     """The sweep's points (one row per series and eps / N_c), skipped methods, work done."""
     table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
     for _, header in SWEEP_COLUMNS:
-        table.add_column(header, justify="left" if header == "series" else "right")
+        # The series label is what a reader looks rows up by: never wrapped.
+        table.add_column(header, justify="left" if header == "series" else "right",
+                         no_wrap=header == "series")
     for row in result.rows:
         cells = []
         for key, _ in SWEEP_COLUMNS:
