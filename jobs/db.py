@@ -62,7 +62,14 @@ def _create_private_file(path: Path) -> None:
     empty first, it is a valid empty database, and SQLite gives its -wal and -shm
     files the database file's mode."""
     make_private_dir(path.parent)
-    os.close(os.open(path, os.O_CREAT | os.O_WRONLY, PRIVATE_FILE_MODE))
+    # Never open an existing database file here: closing any descriptor of a file
+    # drops every POSIX lock this process holds on it, including those of SQLite's
+    # own open connections (measured: 'disk I/O error' in the next transaction of
+    # the service's embedded worker). O_EXCL only ever creates a new, empty file.
+    try:
+        os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, PRIVATE_FILE_MODE))
+    except FileExistsError:
+        pass
 
 
 def _sqlite_on_connect(dbapi_connection: Any, connection_record: Any) -> None:

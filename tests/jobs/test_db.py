@@ -134,3 +134,27 @@ def test_command_line_configuration(settings: Settings, monkeypatch: pytest.Monk
     engine = make_engine(f"sqlite:///{settings.data_dir / 'nirc-bench.db'}")
     assert TABLES <= set(inspect(engine).get_table_names())
     engine.dispose()
+
+
+def test_an_existing_database_file_is_never_opened_outside_sqlite(tmp_path, monkeypatch):
+    """Closing any descriptor of a file drops every POSIX lock the process holds on it,
+    SQLite's included: opening the store again (as every job of the embedded worker
+    does) must not touch an existing database file (it gave 'disk I/O error')."""
+    import os
+
+    from jobs import db
+
+    database = tmp_path / "data" / "nirc-bench.db"
+    db._create_private_file(database)
+    assert database.stat().st_mode & 0o777 == 0o600
+    opened = []                                  # descriptors actually obtained
+
+    def recording_open(path, *args):
+        fd = real_open(path, *args)
+        opened.append(os.fspath(path))
+        return fd
+
+    real_open = os.open
+    monkeypatch.setattr(os, "open", recording_open)
+    db._create_private_file(database)
+    assert os.fspath(database) not in opened
