@@ -105,7 +105,7 @@ def test_a_timeout_kills_the_attempt_and_gives_up_after_max_attempts(store, sett
 @pytest.mark.parametrize("when", ["queued", "running"])
 def test_cancel(store, settings, when):
     queue = JobQueue(store)
-    spec = SPEC.model_copy(update={"frames": 500, "resolution": 16})
+    spec = SPEC.model_copy(update={"frames": 100_000, "resolution": 32})  # outlasts 3 s
     job = _submit(queue, spec.model_dump(mode="json"), f"cancel-{when}")
     if when == "queued":
         queue.cancel(job.id)
@@ -168,7 +168,8 @@ def test_a_job_is_stopped_after_mitsuba_warned(store, settings, warning_scene, s
     queue = JobQueue(store)
     scene = {**SPEC.model_dump(mode="json"), "scene": warning_scene}
     warns = _submit(queue, scene, "warns")
-    slow = _submit(queue, {**scene, "frames": 500, "resolution": 16}, f"slow-{stop}",
+    # Long enough that neither the timeout nor the cancel can come after it finished.
+    slow = _submit(queue, {**scene, "frames": 100_000, "resolution": 32}, f"slow-{stop}",
                    max_attempts=1)
     assert run_job(warns.id, settings, worker="test") == "succeeded"
     child = _render_pids()
