@@ -1,6 +1,6 @@
 """Benchmark: the service's overhead over a direct render, and its submission rate.
 
-1. The same small render job called directly (``jobs.executor.execute`` in this
+1. The same small render job called directly (``jobs.protocol.executor.execute`` in this
    process) and submitted through REST -> database queue -> Dask worker ->
    render process (``nirc-bench serve`` on loopback, embedded LocalCluster),
    wall time from submission to the job's final status (a long poll: the
@@ -43,11 +43,11 @@ def _cpu_s(process) -> float:
 
 
 class _Direct:
-    """The job called directly (``jobs.executor.execute`` in this process)."""
+    """The job called directly (``jobs.protocol.executor.execute`` in this process)."""
 
     def __init__(self, data_dir: Path) -> None:
-        from jobs.config import Settings
-        from jobs.db import open_store
+        from jobs.record.config import Settings
+        from jobs.record.db import open_store
 
         self.settings = Settings(data_dir=data_dir)
         self.store = open_store(self.settings)
@@ -56,8 +56,8 @@ class _Direct:
         """(wall s, CPU s of this process)."""
         import psutil
 
-        from jobs.executor import execute
-        from jobs.spec import RenderSpec
+        from jobs.protocol.executor import execute
+        from jobs.protocol.spec import RenderSpec
 
         me = psutil.Process()
         cpu, start = _cpu_s(me), time.perf_counter()

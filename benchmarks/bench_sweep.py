@@ -18,14 +18,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from jobs.ranges import parse_range
+from jobs.protocol.ranges import parse_range
 
 
 def _sweep(data_dir: Path, **spec_values):
-    from jobs.config import Settings
-    from jobs.db import open_store
-    from jobs.spec import ReferenceSpec, SweepSpec
-    from jobs.sweep import run_sweep
+    from jobs.protocol.spec import ReferenceSpec, SweepSpec
+    from jobs.protocol.sweep import run_sweep
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
 
     settings = Settings(data_dir=data_dir)
     store = open_store(settings)
@@ -46,7 +46,7 @@ def _unavoidable(result, store) -> dict[str, float]:
         for seed in run.seed_results:
             points += sum(sum(frame.values()) for frame in seed.timings["per_frame"])
     with store.session() as session:
-        from jobs.models import CacheSnapshot, Reference
+        from jobs.record.models import CacheSnapshot, Reference
 
         reference_s = session.get(Reference, reference_id).render_seconds
         snapshots = session.query(CacheSnapshot).all()

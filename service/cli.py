@@ -59,13 +59,13 @@ ApiKeyOpt = Annotated[str | None, typer.Option(
 
 
 def _settings(data_dir: Path | None):
-    from jobs.config import Settings
+    from jobs.record.config import Settings
 
     return Settings(data_dir=data_dir) if data_dir else Settings()
 
 
 def _store(settings):
-    from jobs.db import open_store
+    from jobs.record.db import open_store
 
     return open_store(settings)
 
@@ -185,8 +185,8 @@ def reference(
     data_dir: DataDir = None,
 ) -> None:
     """Render (or reuse) the converged reference of a scene."""
-    from jobs.references import get_or_render_reference
-    from jobs.spec import ReferenceSpec
+    from jobs.protocol.references import get_or_render_reference
+    from jobs.protocol.spec import ReferenceSpec
     from renderers.backend import init_backend
     from renderers.scenes import load_scene
 
@@ -279,8 +279,8 @@ def render(
     api_key: ApiKeyOpt = None,
 ) -> None:
     """Render a method over K seeds, compare with the reference, store the run."""
-    from jobs.executor import execute
-    from jobs.spec import ReferenceSpec, RenderSpec, TimeBudget
+    from jobs.protocol.executor import execute
+    from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
 
     params = dict(_parse_param(p) for p in param or [])
     params.setdefault("max_depth", max_depth)
@@ -339,7 +339,7 @@ def report(
     """Compare PT, NRC and NIRC on a scene (NIRC paper Fig. 7): equal spp and equal time."""
     from dataclasses import asdict
 
-    from jobs.report import comparison_report
+    from jobs.protocol.report import comparison_report
     from service.tables import comparison_tables
 
     _run_embedded(
@@ -394,9 +394,9 @@ def sweep(
     References, trained caches and converged cache-at-v1 images are computed once
     and reused; points already stored are not rendered again.
     """
-    from jobs.ranges import RangeError, parse_range
-    from jobs.spec import ReferenceSpec, SweepSpec
-    from jobs.sweep import run_sweep
+    from jobs.protocol.ranges import RangeError, parse_range
+    from jobs.protocol.spec import ReferenceSpec, SweepSpec
+    from jobs.protocol.sweep import run_sweep
     from service.tables import sweep_table
 
     if eps is None and nc is None:
@@ -521,7 +521,7 @@ def serve(
 
     import uvicorn
 
-    from jobs.dispatch import Dispatcher
+    from jobs.execution.dispatch import Dispatcher
     from service.api.main import create_app
 
     os.umask(0o077)     # references, logs, snapshots: owner-only, like the database
@@ -543,8 +543,8 @@ def worker(
 ) -> None:
     """Run Dask worker(s) for a service started with --scheduler (same data folder):
     one CPU worker, or one per GPU, each seeing only its GPU (CUDA_VISIBLE_DEVICES)."""
-    from jobs.dispatch import QUIET_WORKER_CONFIG, dask_environment, worker_tls_options
-    from jobs.gpus import run_workers, worker_commands
+    from jobs.execution.dispatch import QUIET_WORKER_CONFIG, dask_environment, worker_tls_options
+    from jobs.execution.gpus import run_workers, worker_commands
 
     settings = _with_tls(_settings(None), scheduler, tls_ca_file, tls_cert, tls_key)
     tls = worker_tls_options(settings)
@@ -568,7 +568,7 @@ def gc(
 ) -> None:
     """Free disk: remove references no run uses, and files no stored row names
     (older than --keep-days). Lists them with sizes; removes them only with --apply."""
-    from jobs import gc as retention
+    from jobs.record import gc as retention
 
     settings = _settings(data_dir)
     store = _store(settings)
@@ -600,7 +600,7 @@ def apikey_create(
     data_dir: DataDir = None,
 ) -> None:
     """Create a key; it is printed once and stored only as a digest."""
-    from jobs.apikeys import create_api_key
+    from jobs.execution.apikeys import create_api_key
 
     row, key = create_api_key(_store(_settings(data_dir)), name)
     console.print(key, markup=False, highlight=False)
@@ -611,7 +611,7 @@ def apikey_create(
 def apikey_revoke(prefix: Annotated[str, typer.Argument(help="the key's prefix")],
                   data_dir: DataDir = None) -> None:
     """Revoke a key by its prefix (the part after 'nb_')."""
-    from jobs.apikeys import revoke_api_key
+    from jobs.execution.apikeys import revoke_api_key
 
     if not revoke_api_key(_store(_settings(data_dir)), prefix):
         raise UsageError(f"no active API key with prefix '{prefix}'")

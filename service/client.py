@@ -10,7 +10,7 @@ from typing import Any
 
 import httpx
 
-from jobs.models import FINAL_JOB_STATES
+from jobs.record.models import FINAL_JOB_STATES
 
 FINAL = tuple(state.value for state in FINAL_JOB_STATES)
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pydantic import ValidationError
 
-from jobs.db import SchemaVersionError
-from jobs.gpus import GpuError
-from jobs.ranges import RangeError
+from jobs.execution.gpus import GpuError
+from jobs.protocol.ranges import RangeError
+from jobs.record.db import SchemaVersionError
 from metrics.errors import MetricError
 from metrics.imageio import ImageReadError
 from renderers.backend import BackendError

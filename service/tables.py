@@ -156,7 +156,7 @@ def comparison_tables(report: Any) -> Group:
 
 
 def calibration_table(title: str, cal: dict[str, Any]) -> Table:
-    """An equal-time calibration record (jobs.calibration.Calibration.to_json())."""
+    """An equal-time calibration record (jobs.protocol.calibration.Calibration.to_json())."""
     chosen = cal["chosen"] if cal["fits"] else f"{cal['chosen']} (none fits: over budget)"
     if cal.get("capped"):   # records stored before the flags have none
         chosen = f"{chosen} (capped: the largest candidate fits)"

@@ -39,7 +39,7 @@ Two estimators use it:
   and the continuing path is not reweighted (docs/estimators.md).
   ``termination='adaptive'`` is the per-pixel policy of Sec. 6.3: at the first
   vertex v1 a path terminates where the pixel's v1 mask allows (the mask comes
-  from the relative bias of the converged cache-at-v1 image, jobs/sweep.py),
+  from the relative bias of the converged cache-at-v1 image, jobs/protocol/sweep.py),
   at later vertices by the spread heuristic; N_c may differ at v1 and later
   (``nc='8,1'``: 8 neural samples at v1, 1 afterwards — the paper's "NIRC
   equal time" series varies the first).

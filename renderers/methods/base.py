@@ -34,7 +34,7 @@ def everywhere(_features: Any) -> tuple[bool, str]:
 
 @dataclass(frozen=True)
 class Knob:
-    """What equal-time calibration varies for a method (jobs/calibration.py).
+    """What equal-time calibration varies for a method (jobs/protocol/calibration.py).
 
     ``name`` is ``'spp'`` (the frame's samples per pixel) or a parameter the
     method's ``apply(params JSON, value)`` sets; ``usable(params JSON)`` says
@@ -50,7 +50,7 @@ class Knob:
 
 @dataclass(frozen=True)
 class SweepRole:
-    """How a caching method takes part in a sweep (jobs/sweep.py).
+    """How a caching method takes part in a sweep (jobs/protocol/sweep.py).
 
     ``label`` names its series in tables and plots. ``point(knob_value)`` gives
     the parameters of an adaptive equal-bias point on top of the shared ones
@@ -71,7 +71,7 @@ class SweepRole:
 
 @dataclass(frozen=True)
 class ComparisonRun:
-    """One run of a method in the method comparison (jobs/report.py, NIRC paper Fig. 7).
+    """One run of a method in the method comparison (jobs/protocol/report.py, NIRC paper Fig. 7).
 
     ``rank`` orders runs and rows across methods; ``params`` go on top of the
     comparison's shared ones (max_depth; pre-training for methods that have it);

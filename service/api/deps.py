@@ -13,10 +13,10 @@ from typing import Annotated, Any
 from fastapi import Depends, HTTPException, Path, Request, Security, status
 from fastapi.security import APIKeyCookie, APIKeyHeader
 
-from jobs.apikeys import verify_api_key
-from jobs.config import Settings
-from jobs.queue import JobQueue
-from jobs.store import Store
+from jobs.execution.apikeys import verify_api_key
+from jobs.execution.queue import JobQueue
+from jobs.record.config import Settings
+from jobs.record.store import Store
 
 
 def get_settings(request: Request) -> Settings:

@@ -1,10 +1,10 @@
 """The FastAPI application: REST API (OpenAPI at /docs) over the job store and queue.
 
 ``create_app(settings, dispatcher)`` builds the app; the service (``nirc-bench
-serve``) passes a :class:`jobs.dispatch.Dispatcher`, tests may pass None (jobs
+serve``) passes a :class:`jobs.execution.dispatch.Dispatcher`, tests may pass None (jobs
 stay queued) or a stand-in. On start every unfinished job is dispatched again:
 queued ones run, and running ones left by a killed process are taken over when
-their heartbeat lease expires (jobs.queue). A request that fails validation is
+their heartbeat lease expires (jobs.execution.queue). A request that fails validation is
 answered 422 with the errors as JSON, even when the bad value is NaN or Infinity
 (which a JSON body may carry, but a JSON answer cannot), and with any echoed input
 cut short (service/api/limits.py, which also bounds bodies).
@@ -28,9 +28,9 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.queue import JobQueue
+from jobs.execution.queue import JobQueue
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from service.api.deps import ReadAccess
 from service.api.limits import BodySizeLimit, bounded_json_body, truncate_echo
 from service.api.routes import auth, jobs, results, scenes

@@ -7,12 +7,12 @@ from typing import Any
 
 from pydantic import BaseModel, Field, create_model
 
-from jobs.versions import is_current
+from jobs.protocol.versions import is_current
 from metrics.registry import LISTED, Metric, row_values
 
 
 class StageOut(BaseModel):
-    """One stage of a sweep's task graph (jobs/graph.py), itself a job."""
+    """One stage of a sweep's task graph (jobs/execution/graph.py), itself a job."""
 
     id: int
     name: str

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.store import Store
+from jobs.record.config import Settings
+from jobs.record.db import open_store
+from jobs.record.store import Store
 from tests.pg import postgres_database
 
 

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jobs.artifacts import ArtifactStore
+from jobs.record.artifacts import ArtifactStore
 
 
 def all_files(root: Path) -> list[Path]:

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import pytest
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.executor import execute
-from jobs.spec import ReferenceSpec, RenderSpec
+from jobs.protocol.executor import execute
+from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 
 pytestmark = pytest.mark.slow
 

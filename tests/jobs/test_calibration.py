@@ -1,4 +1,4 @@
-"""Equal-time calibration (jobs/calibration.py) with fake timings: no rendering.
+"""Equal-time calibration (jobs/protocol/calibration.py) with fake timings: no rendering.
 
 Each fake ``measure`` records the order of the calls, so the tests see that
 every candidate is timed, that the budget is re-measured between rounds, and
@@ -11,8 +11,8 @@ import itertools
 
 import pytest
 
-from jobs.calibration import calibrate, calibrate_job
-from jobs.spec import RenderSpec, TimeBudget
+from jobs.protocol.calibration import calibrate, calibrate_job
+from jobs.protocol.spec import RenderSpec, TimeBudget
 from renderers.methods.nirc import with_nc_at_v1
 
 

@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from jobs.config import get_settings
-from jobs.db import open_store
+from jobs.record.config import get_settings
+from jobs.record.db import open_store
 
 
 @pytest.fixture(autouse=True)

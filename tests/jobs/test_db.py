@@ -14,16 +14,16 @@ from alembic.config import Config
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect, text
 
-from jobs.config import Settings
-from jobs.db import (
+from jobs.record.config import Settings
+from jobs.record.db import (
     MIGRATIONS_DIR,
     SQLITE_BUSY_TIMEOUT_MS,
     SchemaVersionError,
     make_engine,
     migrate,
 )
-from jobs.models import Base
-from jobs.store import Store
+from jobs.record.models import Base
+from jobs.record.store import Store
 
 TABLES = {"reference_renders", "runs", "seed_results", "artifacts", "cache_snapshots", "sweeps",
           "jobs", "api_keys"}
@@ -114,7 +114,7 @@ def test_newer_schema_is_explained(store: Store) -> None:
 
 
 def test_downgrade_and_upgrade_again(store: Store) -> None:
-    from jobs.db import alembic_config
+    from jobs.record.db import alembic_config
 
     config = alembic_config()
     with store.engine.begin() as conn:
@@ -142,7 +142,7 @@ def test_an_existing_database_file_is_never_opened_outside_sqlite(tmp_path, monk
     does) must not touch an existing database file (it gave 'disk I/O error')."""
     import os
 
-    from jobs import db
+    from jobs.record import db
 
     database = tmp_path / "data" / "nirc-bench.db"
     db._create_private_file(database)

@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.executor import execute
-from jobs.spec import ReferenceSpec, RenderSpec
+from jobs.protocol.executor import execute
+from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from renderers import methods
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=3,
@@ -115,7 +115,7 @@ def test_convergence_over_frames_is_stored_per_seed(env):
 
 
 def test_a_time_budget_calibrates_spp_and_is_recorded(env):
-    from jobs.spec import TimeBudget
+    from jobs.protocol.spec import TimeBudget
 
     settings, store = env
     budget = TimeBudget(pt_spp=2, candidates=[1, 2, 4, 8], probe_frames=2, tolerance_ms=1e6)
@@ -137,7 +137,7 @@ def test_a_time_budget_calibrates_spp_and_is_recorded(env):
 
 
 def test_a_time_budget_needs_a_knob(env):
-    from jobs.spec import TimeBudget
+    from jobs.protocol.spec import TimeBudget
 
     settings, store = env
     spec = SPEC.model_copy(update={"method": "nrc", "time_budget": TimeBudget(ms=10)})
@@ -150,8 +150,8 @@ def test_a_time_budget_needs_a_knob(env):
 def test_per_cache_metrics_say_why_they_are_missing():
     from pathlib import Path
 
-    from jobs.executor import PER_CACHE_KEYS, per_cache_metrics
-    from jobs.references import LoadedReference
+    from jobs.protocol.executor import PER_CACHE_KEYS, per_cache_metrics
+    from jobs.protocol.references import LoadedReference
     from metrics.statistics import RunningMoments
 
     image = np.ones((2, 2, 3), np.float32)
@@ -171,7 +171,7 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     PSNR (one registry entry) appears in each without code of its own there."""
     from rich.console import Console
 
-    from jobs.sweep import point_row
+    from jobs.protocol.sweep import point_row
     from metrics.registry import LISTED, METRICS, PER_SEED
     from service.api.schemas import RunOut
     from service.tables import metric_label, metrics_table, sweep_table

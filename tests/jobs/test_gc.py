@@ -9,10 +9,10 @@ from datetime import UTC, datetime, timedelta
 
 from typer.testing import CliRunner
 
-from jobs import gc
-from jobs.artifacts import ArtifactStore
-from jobs.config import Settings
-from jobs.db import open_store
+from jobs.record import gc
+from jobs.record.artifacts import ArtifactStore
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from tests.jobs.factories import artifact_fields, reference_fields, run_fields
 
 OLD = datetime.now(UTC) - timedelta(days=90)

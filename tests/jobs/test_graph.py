@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from jobs.graph import final_stages, sweep_stages
-from jobs.spec import SweepSpec
+from jobs.execution.graph import final_stages, sweep_stages
+from jobs.protocol.spec import SweepSpec
 
 
 def _spec(**values) -> SweepSpec:

@@ -9,8 +9,8 @@ from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 from PIL import Image
 
-from jobs import plots
-from jobs.plots import plot_convergence, plot_sweep
+from jobs.protocol import plots
+from jobs.protocol.plots import plot_convergence, plot_sweep
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.executor import execute
-from jobs.quality import judge_run
-from jobs.spec import ReferenceSpec, RenderSpec
+from jobs.protocol.executor import execute
+from jobs.protocol.quality import judge_run
+from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from metrics import METRIC_VERSION
 
 SCENE = """\

@@ -9,8 +9,8 @@ import pytest
 from sqlalchemy import func, select, text
 from sqlalchemy.exc import IntegrityError
 
-from jobs.models import Job
-from jobs.queue import IdempotencyKeyReused, JobQueue
+from jobs.execution.queue import IdempotencyKeyReused, JobQueue
+from jobs.record.models import Job
 
 SPEC = {"scene": "cornell-box", "method": "pt"}
 
@@ -85,8 +85,8 @@ def test_unfinished_jobs_and_lease_takeover(store):
 
 
 def test_a_sweeps_stages_are_made_once_and_go_with_their_sweep(store):
-    from jobs.graph import sweep_stages
-    from jobs.spec import SweepSpec
+    from jobs.execution.graph import sweep_stages
+    from jobs.protocol.spec import SweepSpec
 
     queue = JobQueue(store)
     spec = SweepSpec(scene="cornell-box", seeds=2, eps=[0.5], methods=["nrc"])
@@ -118,8 +118,8 @@ def test_a_sweeps_stages_are_made_once_and_go_with_their_sweep(store):
 
 
 def test_a_sweeps_stage_work_is_summed(store):
-    from jobs.graph import sweep_stages
-    from jobs.spec import SweepSpec
+    from jobs.execution.graph import sweep_stages
+    from jobs.protocol.spec import SweepSpec
 
     queue = JobQueue(store)
     spec = SweepSpec(scene="cornell-box", seeds=2, eps=[0.5], methods=["nrc"])
@@ -194,7 +194,7 @@ def test_an_idempotency_key_reused_for_another_request_is_refused(store):
 def test_migration_0007_merges_duplicate_jobs_stored_before_it(store):
     from alembic import command
 
-    from jobs.db import alembic_config, migrate
+    from jobs.record.db import alembic_config, migrate
 
     config = alembic_config()
     with store.engine.begin() as conn:

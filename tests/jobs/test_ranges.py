@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from jobs.ranges import RangeError, parse_range
+from jobs.protocol.ranges import RangeError, parse_range
 
 
 def test_eps_sweep_of_the_paper_has_twenty_values_ending_at_one():

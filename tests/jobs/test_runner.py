@@ -10,9 +10,9 @@ import time
 import psutil
 import pytest
 
-from jobs.queue import JobQueue
-from jobs.runner import run_job
-from jobs.spec import ReferenceSpec, RenderSpec
+from jobs.execution.queue import JobQueue
+from jobs.execution.runner import run_job
+from jobs.protocol.spec import ReferenceSpec, RenderSpec
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
                   reference=ReferenceSpec(spp=64, spp_per_pass=8))
@@ -58,7 +58,7 @@ def test_bad_input_fails_once_with_the_message(store, settings):
 
 def _is_render_process(process: psutil.Process) -> bool:
     try:
-        return "jobs.runner" in process.cmdline()
+        return "jobs.execution.runner" in process.cmdline()
     except psutil.Error:     # exited meanwhile
         return False
 
@@ -120,8 +120,8 @@ def test_cancel(store, settings, when):
 def test_a_failed_stage_fails_what_depends_on_it(store, settings):
     """A sweep's reference stage fails (bad input, in the render process); the tasks
     downstream receive its status and fail without running, with its error."""
-    from jobs.graph import sweep_stages
-    from jobs.spec import SweepSpec
+    from jobs.execution.graph import sweep_stages
+    from jobs.protocol.spec import SweepSpec
 
     queue = JobQueue(store)
     spec = SweepSpec(scene="no-such-scene", seeds=2, eps=[0.5], methods=["nrc"])

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.executor import execute
-from jobs.spec import ReferenceSpec, RenderSpec
+from jobs.protocol.executor import execute
+from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from renderers.scenes.errors import SceneError
 from renderers.scenes.loader import load_scene
 from service.api.main import create_app

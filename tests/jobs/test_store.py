@@ -7,8 +7,8 @@ import pytest
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError, InvalidRequestError
 
-from jobs.models import Artifact, Reference, Run, RunStatus, SeedResult
-from jobs.store import DuplicateKeyError, Store
+from jobs.record.models import Artifact, Reference, Run, RunStatus, SeedResult
+from jobs.record.store import DuplicateKeyError, Store
 from tests.jobs.factories import artifact_fields, reference_fields, run_fields, seed_fields
 
 
@@ -167,7 +167,7 @@ def test_unloaded_relationships_fail_loudly(store: Store) -> None:
 
 def test_concurrent_writers(store: Store) -> None:
     # Separate engines, as separate worker processes would have.
-    from jobs.db import make_engine
+    from jobs.record.db import make_engine
 
     def write(worker: int) -> None:
         other = Store(make_engine(store.engine.url))

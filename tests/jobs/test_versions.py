@@ -8,12 +8,12 @@ from types import SimpleNamespace
 
 from alembic import command
 
-from jobs.db import alembic_config, migrate
-from jobs.queue import JobQueue, spec_key
-from jobs.references import reference_key
-from jobs.snapshots import snapshot_key
-from jobs.spec import RenderSpec, SweepSpec
-from jobs.store import Store
+from jobs.execution.queue import JobQueue, spec_key
+from jobs.protocol.references import reference_key
+from jobs.protocol.snapshots import snapshot_key
+from jobs.protocol.spec import RenderSpec, SweepSpec
+from jobs.record.db import alembic_config, migrate
+from jobs.record.store import Store
 from renderers import methods
 from renderers.methods.nrc import NRCParams
 from renderers.reference import ReferenceSettings
@@ -47,12 +47,12 @@ def test_every_key_changes_with_the_estimator_version(monkeypatch) -> None:
 
 
 def test_every_key_changes_with_the_metric_version(monkeypatch) -> None:
-    import jobs.references
-    import jobs.spec
-    import jobs.versions
+    import jobs.protocol.references
+    import jobs.protocol.spec
+    import jobs.protocol.versions
 
     before = _keys()
-    for module in (jobs.versions, jobs.spec, jobs.references):
+    for module in (jobs.protocol.versions, jobs.protocol.spec, jobs.protocol.references):
         monkeypatch.setattr(module, "METRIC_VERSION", 99)
     assert all(b != a for b, a in zip(before, _keys(), strict=True))
 

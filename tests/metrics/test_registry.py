@@ -80,8 +80,8 @@ def test_stored_keys_and_verdict_names_are_unchanged():
 def test_result_rows_and_api_fields_come_from_the_registry():
     from dataclasses import fields
 
-    from jobs.plots import _SWEEP_PANELS
-    from jobs.report import ReportRow
+    from jobs.protocol.plots import _SWEEP_PANELS
+    from jobs.protocol.report import ReportRow
     from service.api.schemas import RunOut
     from service.tables import SWEEP_COLUMNS
 

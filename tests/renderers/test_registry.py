@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_reading_the_registry_does_not_import_mitsuba():
     """The service validates specs without Mitsuba: the registry, the spec models and
     the knobs must not import it (the integrators are imported when a render starts)."""
-    code = ("import sys, renderers.methods, jobs.spec, jobs.calibration; "
+    code = ("import sys, renderers.methods, jobs.protocol.spec, jobs.protocol.calibration; "
             "from renderers.methods import METHODS; "
             "[m.knob for m in METHODS.values()]; "
             "assert 'mitsuba' not in sys.modules, 'mitsuba imported'")
@@ -74,8 +74,8 @@ def test_knobs_keep_todays_candidates():
 
 
 def test_sweep_roles_keep_todays_series_and_labels():
-    from jobs.spec import SWEEP_METHODS, SweepSpec
-    from jobs.sweep import SERIES_LABELS
+    from jobs.protocol.spec import SWEEP_METHODS, SweepSpec
+    from jobs.protocol.sweep import SERIES_LABELS
 
     assert sweep_methods() == SWEEP_METHODS == ("nirc", "nrc")
     assert SERIES_LABELS == {"nirc": "NIRC", "nrc": "NRC", "nirc-equal-time": "NIRC equal time"}
@@ -158,7 +158,7 @@ def test_the_integrator_takes_its_parameters_only_from_the_methods_model(mi):
 
 def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
     """The report reads its runs from the registry; runs, labels and rows are today's."""
-    import jobs.report as report_module
+    import jobs.protocol.report as report_module
 
     calls = []
 

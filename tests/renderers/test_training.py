@@ -141,7 +141,7 @@ class ConstantCache:
 # ---- Defaults: one depth for renders, references and training ----
 
 def test_default_depth_is_unbounded_everywhere():
-    from jobs.spec import RenderSpec, SweepSpec
+    from jobs.protocol.spec import RenderSpec, SweepSpec
     from renderers.methods.pt import PTParams
     from renderers.reference import ReferenceSettings
 

@@ -16,8 +16,8 @@ import schemathesis
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
 
-from jobs.apikeys import create_api_key
-from jobs.config import Settings
+from jobs.execution.apikeys import create_api_key
+from jobs.record.config import Settings
 from service.api.main import create_app
 from tests.pg import postgres_database
 

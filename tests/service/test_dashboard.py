@@ -11,12 +11,12 @@ import time
 import pytest
 import uvicorn
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.executor import execute
-from jobs.queue import JobQueue
-from jobs.spec import ReferenceSpec, RenderSpec
-from jobs.versions import current_estimator_versions
+from jobs.execution.queue import JobQueue
+from jobs.protocol.executor import execute
+from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.protocol.versions import current_estimator_versions
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from metrics import METRIC_VERSION
 from service.api.main import create_app
 from tests.service.conftest import ARTIFACTS, open_page

@@ -15,11 +15,11 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from jobs.apikeys import create_api_key
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.dispatch import Dispatcher
-from jobs.gpus import GpuError, detect_gpu_count, worker_commands
+from jobs.execution.apikeys import create_api_key
+from jobs.execution.dispatch import Dispatcher
+from jobs.execution.gpus import GpuError, detect_gpu_count, worker_commands
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from service.api.main import create_app
 from tests.service.live import Process, Scheduler, Service
 

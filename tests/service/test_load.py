@@ -9,11 +9,11 @@ from concurrent.futures import ThreadPoolExecutor
 
 from fastapi.testclient import TestClient
 
-from jobs.apikeys import create_api_key
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.queue import JobQueue
-from jobs.runner import run_job
+from jobs.execution.apikeys import create_api_key
+from jobs.execution.queue import JobQueue
+from jobs.execution.runner import run_job
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from service.api.main import create_app
 
 N_JOBS = 500

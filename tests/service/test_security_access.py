@@ -20,9 +20,9 @@ import httpx
 import pytest
 import uvicorn
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.queue import JobQueue
+from jobs.execution.queue import JobQueue
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from tests.service.conftest import open_page
 from tests.service.live import Process, Service, Worker, free_port, service_env
 
@@ -91,7 +91,7 @@ def app_with(tmp_path, monkeypatch):
     """``app_with(public_read)``: the app in-process, and a key."""
     from fastapi.testclient import TestClient
 
-    from jobs.apikeys import create_api_key
+    from jobs.execution.apikeys import create_api_key
     from service.api.main import create_app
 
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
@@ -180,7 +180,7 @@ def test_openapi_declares_the_key_on_protected_operations(app_with):
 
 def test_database_and_artifacts_are_owner_only(tmp_path):
     """Before: the data folder 0755, the SQLite file and artifacts 0644."""
-    from jobs.artifacts import ArtifactStore
+    from jobs.record.artifacts import ArtifactStore
 
     data_dir = tmp_path / "data"
     open_store(Settings(data_dir=data_dir)).close()
@@ -197,7 +197,7 @@ def test_database_and_artifacts_are_owner_only(tmp_path):
 @pytest.fixture
 def site(tmp_path):
     """The app with public_read off, in a thread on loopback; and a key."""
-    from jobs.apikeys import create_api_key
+    from jobs.execution.apikeys import create_api_key
     from service.api.main import create_app
 
     settings = Settings(data_dir=tmp_path / "data", public_read=False)

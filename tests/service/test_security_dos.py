@@ -13,10 +13,10 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from jobs.apikeys import create_api_key
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.queue import JobQueue
+from jobs.execution.apikeys import create_api_key
+from jobs.execution.queue import JobQueue
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from service.api.main import create_app
 from tests.service.live import Service
 

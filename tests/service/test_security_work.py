@@ -15,10 +15,10 @@ from types import SimpleNamespace
 import pytest
 from fastapi.testclient import TestClient
 
-from jobs.apikeys import create_api_key
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.queue import JobQueue
+from jobs.execution.apikeys import create_api_key
+from jobs.execution.queue import JobQueue
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from service.api.main import create_app
 
 SPEC = {"scene": "cornell-box", "method": "pt", "resolution": 16, "spp": 1, "frames": 2,
@@ -97,9 +97,9 @@ def test_a_full_disk_refuses_new_jobs(api):
 
 
 def test_a_job_without_a_timeout_gets_one_from_its_size():
-    from jobs.runner import _timeout_of
-    from jobs.spec import RenderSpec
-    from jobs.work import render_work
+    from jobs.execution.runner import _timeout_of
+    from jobs.execution.work import render_work
+    from jobs.protocol.spec import RenderSpec
 
     settings = Settings(job_timeout_min_s=60, timeout_samples_per_s=1000)
     job = SimpleNamespace(kind="render", spec=SPEC)
@@ -110,9 +110,9 @@ def test_a_job_without_a_timeout_gets_one_from_its_size():
 
 
 def test_a_canceled_stage_cancels_what_needs_it(tmp_path, monkeypatch):
-    from jobs.graph import sweep_stages
-    from jobs.runner import run_job
-    from jobs.spec import SweepSpec
+    from jobs.execution.graph import sweep_stages
+    from jobs.execution.runner import run_job
+    from jobs.protocol.spec import SweepSpec
 
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
     settings = Settings(data_dir=tmp_path / "data")

@@ -10,8 +10,8 @@ import json
 import subprocess
 import sys
 
-from jobs.graph import sweep_stages
-from jobs.spec import SweepSpec
+from jobs.execution.graph import sweep_stages
+from jobs.protocol.spec import SweepSpec
 from tests.service.conftest import ARTIFACTS, open_page
 from tests.service.live import Service
 

@@ -9,9 +9,9 @@ import json
 import pytest
 from fastapi.testclient import TestClient
 
-from jobs.apikeys import create_api_key
-from jobs.config import Settings
-from jobs.db import open_store
+from jobs.execution.apikeys import create_api_key
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from service.api.main import create_app
 
 RENDER = {"scene": "cornell-box", "method": "pt", "resolution": 8, "spp": 1, "frames": 2,

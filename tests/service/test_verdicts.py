@@ -8,8 +8,8 @@ import json
 import pytest
 from fastapi.testclient import TestClient
 
-from jobs.config import Settings
-from jobs.db import open_store
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from service.api.main import create_app
 from tests.jobs.factories import run_fields
 from tests.jobs.test_quality import SCENE

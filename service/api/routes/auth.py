@@ -12,7 +12,7 @@ from __future__ import annotations
 from fastapi import APIRouter, HTTPException, Request, Response, status
 from pydantic import BaseModel, Field
 
-from jobs.apikeys import verify_api_key
+from jobs.execution.apikeys import verify_api_key
 from service.api.deps import KEY_COOKIE, StoreDep
 
 router = APIRouter(prefix="/api/v1/auth", tags=["auth"])

@@ -10,13 +10,13 @@ from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, 
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
-from jobs.config import Settings
-from jobs.graph import sweep_stages
-from jobs.models import FINAL_JOB_STATES
-from jobs.queue import IdempotencyKeyReused, spec_key
-from jobs.scene_store import rest_scene
-from jobs.spec import RenderSpec, SweepSpec
-from jobs.work import data_bytes, reference_stored, render_work, sweep_work
+from jobs.execution.graph import sweep_stages
+from jobs.execution.queue import IdempotencyKeyReused, spec_key
+from jobs.execution.work import data_bytes, reference_stored, render_work, sweep_work
+from jobs.protocol.scene_store import rest_scene
+from jobs.protocol.spec import RenderSpec, SweepSpec
+from jobs.record.config import Settings
+from jobs.record.models import FINAL_JOB_STATES
 from renderers.methods import MethodError, format_validation_error, get_method
 from renderers.scenes.vetting import SceneRefused
 from service.api.deps import DispatcherDep, QueueDep, RowId, SettingsDep, WriteAccess
@@ -42,7 +42,7 @@ def _unprocessable(field: str, message: str) -> HTTPException:
 
 def _check_scene(scene: str, settings: Settings) -> str:
     """The scene as the job will name it: a built-in, or the id of a stored, vetted
-    copy (jobs.scene_store). A scene that does not exist and one that may not be used
+    copy (jobs.protocol.scene_store). A scene that does not exist and one that may not be used
     get the same answer."""
     try:
         return rest_scene(scene, settings)

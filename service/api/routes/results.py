@@ -7,9 +7,9 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
 
-from jobs.artifacts import ArtifactStore
-from jobs.models import Artifact
-from jobs.versions import current_estimator_versions
+from jobs.protocol.versions import current_estimator_versions
+from jobs.record.artifacts import ArtifactStore
+from jobs.record.models import Artifact
 from metrics import METRIC_VERSION
 from metrics.imageio import ImageReadError, png_bytes, read_exr
 from metrics.preview import tonemap_preview

@@ -18,7 +18,7 @@ from fastapi import APIRouter, HTTPException, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from jobs.scene_store import save_upload
+from jobs.protocol.scene_store import save_upload
 from renderers.scenes.vetting import SceneRefused, SceneTooLarge
 from service.api.deps import SettingsDep, WriteAccess
 from service.api.schemas import SceneUploadOut

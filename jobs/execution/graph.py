@@ -1,6 +1,6 @@
 """A sweep as a task graph: its reference first, then the caches, then the points.
 
-A sweep (jobs/sweep.py) is a chain of content-keyed steps, each of which only
+A sweep (jobs/protocol/sweep.py) is a chain of content-keyed steps, each of which only
 needs what earlier steps stored: the reference; per method and seed a trained
 cache with its converged cache-at-v1 image (a snapshot); per method the eps
 points, which need every seed's snapshot; finally the sweep job itself, which
@@ -10,7 +10,7 @@ need the reference.
 
 Each step is a *stage* job in the database (kind ``stage``, ``parent_id`` the
 sweep's job), so it is queued, isolated, retried and resumed like any job, and
-:class:`jobs.dispatch.Dispatcher` submits the stages to Dask with these
+:class:`jobs.execution.dispatch.Dispatcher` submits the stages to Dask with these
 dependencies: independent stages (the caches of different seeds, the points
 of different methods) run on different workers at once. A stage only stores
 what the sweep would otherwise make itself, so the sweep's result is the
@@ -22,13 +22,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from jobs.spec import SweepSpec
+from jobs.protocol.spec import SweepSpec
 
 
 @dataclass(frozen=True)
 class Stage:
     """One step of a sweep: ``name`` is unique within the sweep; ``after`` names the
-    stages it needs; ``task`` says what to run (jobs.sweep.run_stage)."""
+    stages it needs; ``task`` says what to run (jobs.protocol.sweep.run_stage)."""
 
     name: str
     task: dict[str, Any]

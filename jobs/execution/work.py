@@ -3,7 +3,7 @@
 A job's work is counted in *path samples* (pixels x samples per pixel): a
 render is ``pixels x spp x frames x seeds``, plus its reference's ``pixels x
 spp`` if that reference is not stored yet; a sweep is the sum over its stages
-(jobs/graph.py) and its own last step. The estimate is an upper bound of the
+(jobs/execution/graph.py) and its own last step. The estimate is an upper bound of the
 sampling only (a reference with a ``rel_stderr`` target may stop early; a
 cache's per-sample training cost is not counted), good enough to refuse what
 no service should accept (``Settings.max_job_work``) and to give a job without
@@ -21,12 +21,12 @@ from typing import Any
 
 from sqlalchemy import func, select
 
-from jobs.config import DATABASE_FILENAME, Settings
-from jobs.graph import Stage, sweep_stages
-from jobs.models import Artifact, Reference
-from jobs.spec import ReferenceSpec, RenderSpec, SweepSpec
-from jobs.store import Store
-from jobs.versions import reference_estimator_version
+from jobs.execution.graph import Stage, sweep_stages
+from jobs.protocol.spec import ReferenceSpec, RenderSpec, SweepSpec
+from jobs.protocol.versions import reference_estimator_version
+from jobs.record.config import DATABASE_FILENAME, Settings
+from jobs.record.models import Artifact, Reference
+from jobs.record.store import Store
 from metrics import METRIC_VERSION
 from renderers.methods import METHODS, equal_time_pairs
 
@@ -80,7 +80,7 @@ def render_work(spec: RenderSpec, reference_stored: bool = False) -> WorkEstimat
 
 
 def stage_work(spec: SweepSpec, task: dict[str, Any]) -> WorkEstimate:
-    """One stage of a sweep (jobs.graph.sweep_stages), or the sweep job's own last step
+    """One stage of a sweep (jobs.execution.graph.sweep_stages), or the sweep job's own last step
     (``{"stage": "sweep"}``: the 'NIRC equal time' series and the plots)."""
     estimate = WorkEstimate()
     pixels = spec.resolution ** 2

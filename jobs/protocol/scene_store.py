@@ -29,7 +29,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from jobs.config import Settings
+from jobs.record.config import Settings
 from renderers.scenes import LoadedScene, SceneError, builtin_names, load_scene
 from renderers.scenes.vetting import (
     STAGED_SCENE,

@@ -4,7 +4,7 @@ snapshots, sweeps, artifacts, queued jobs and API keys.
 The SQL database is the durable record of every result (docs/results.md);
 images live outside it, content-addressed, and are referenced
 here by ``Artifact`` rows. Schema changes go through an Alembic revision in
-``jobs/migrations/versions`` (a test checks that the models and the migrations
+``jobs/record/migrations/versions`` (a test checks that the models and the migrations
 agree).
 
 Relationships are ``lazy="raise"``: rows are used after their session closes
@@ -178,7 +178,7 @@ class Run(Base):
     versions: Mapped[dict[str, Any]] = mapped_column(default=dict)
     git_commit: Mapped[str | None] = mapped_column(String)
     quality: Mapped[dict[str, Any]] = mapped_column(default=dict)     # verdict, reasons, withheld
-    # What computed the result (jobs.versions); 1 = stored before versions were recorded.
+    # What computed the result (jobs.protocol.versions); 1 = stored before versions were recorded.
     estimator_version: Mapped[int] = mapped_column(Integer, server_default="1")
     metric_version: Mapped[int] = mapped_column(Integer, server_default="1")
     error: Mapped[str | None] = mapped_column(Text)
@@ -300,7 +300,7 @@ class Sweep(Base):
 
 
 class Artifact(Base):
-    """A file kept outside the database by content hash (see ``jobs.artifacts``).
+    """A file kept outside the database by content hash (see ``jobs.record.artifacts``).
 
     ``path`` is relative to ``Settings.artifacts_dir``. An artifact belongs to a
     run, a seed result of a run, a reference, a cache snapshot or a sweep (at
@@ -379,9 +379,9 @@ class Job(Base):
     specs dedupe to one live job); ``idempotency_key`` is the client's
     ``Idempotency-Key``. The result is ``run_id`` (render) or ``sweep_id``.
     A sweep runs as a task graph of *stage* jobs (kind ``stage``, ``parent_id``
-    the sweep's job; jobs/graph.py), each queued, retried and isolated like
+    the sweep's job; jobs/execution/graph.py), each queued, retried and isolated like
     any job; a stage's ``work`` counts what it rendered and what it found
-    stored (jobs/sweep.py), and its sweep's result sums them.
+    stored (jobs/protocol/sweep.py), and its sweep's result sums them.
     """
 
     __tablename__ = "jobs"
@@ -391,7 +391,7 @@ class Job(Base):
         ),
         CheckConstraint("kind IN ('render', 'sweep', 'stage')", name="kind"),
         Index("ix_jobs_status_created_at", "status", "created_at"),
-        # Exactly once: one live or succeeded job per spec (jobs.queue.JobQueue.submit).
+        # Exactly once: one live or succeeded job per spec (jobs.execution.queue.JobQueue.submit).
         Index("uq_jobs_live_spec_key", "spec_key", unique=True,
               sqlite_where=text(LIVE_SPEC_KEY_WHERE),
               postgresql_where=text(LIVE_SPEC_KEY_WHERE)),

@@ -8,7 +8,7 @@ by SQLAlchemy rather than the sqlite3 driver so that DDL is transactional and
 a migration is never half-applied. PostgreSQL URLs need none of this.
 
 Migrations run programmatically on every ``open_store``: the Alembic
-environment in ``jobs/migrations`` is configured in code, so no alembic.ini is
+environment in ``jobs/record/migrations`` is configured in code, so no alembic.ini is
 needed at run time.
 """
 
@@ -25,9 +25,9 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
 
-from jobs.artifacts import PRIVATE_FILE_MODE, make_private_dir
-from jobs.config import Settings, get_settings
-from jobs.store import BEGIN_IMMEDIATE_OPTION, Store
+from jobs.record.artifacts import PRIVATE_FILE_MODE, make_private_dir
+from jobs.record.config import Settings, get_settings
+from jobs.record.store import BEGIN_IMMEDIATE_OPTION, Store
 
 MIGRATIONS_DIR = Path(__file__).resolve().with_name("migrations")
 SQLITE_BUSY_TIMEOUT_MS = 30_000

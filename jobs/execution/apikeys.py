@@ -15,8 +15,8 @@ from datetime import UTC, datetime
 
 from sqlalchemy import select
 
-from jobs.models import ApiKey
-from jobs.store import Store
+from jobs.record.models import ApiKey
+from jobs.record.store import Store
 
 PREFIX_BYTES = 6
 SECRET_BYTES = 32

@@ -35,7 +35,7 @@ class Settings(BaseSettings):
     # The longest a long poll (GET /api/v1/jobs/{id}?wait_s=) holds a request open,
     # below the idle timeouts of proxies in front of the service.
     long_poll_max_s: float = Field(30.0, ge=0.0)
-    # ---- Bounded work and disk (docs/operations.md; estimates in jobs/work.py) ----
+    # ---- Bounded work and disk (docs/operations.md; estimates in jobs/execution/work.py) ----
     # The most path samples (pixels x spp x frames x seeds, references and sweep
     # stages included) one submission may ask for; more is refused with 422.
     max_job_work: int = Field(100_000_000_000, ge=1)

@@ -3,7 +3,7 @@
 Adaptive equal-bias sweep, per caching method (NIRC, NRC) and seed k:
 
 1. train a cache and render the converged image V of terminating every path
-   into it at the first vertex v1 (a *snapshot*, jobs/snapshots.py: computed
+   into it at the first vertex v1 (a *snapshot*, jobs/protocol/snapshots.py: computed
    once per scene/settings/seed, reused by every eps and every later sweep);
 2. the per-pixel relative bias b_p of V against the reference R with the noise
    of both removed (metrics/bias_maps.py; V is rendered in independent passes
@@ -45,7 +45,7 @@ pooled rBias^2) gives a frame-time budget, and N_c at v1 of NIRC is calibrated
 to the largest candidate whose median frame time fits it (within
 ``time_tolerance_ms``), measured on this device with seed 0's caches: the NRC
 point's frame time is re-measured in every round, interleaved with the NIRC
-candidates (jobs/calibration.py). The calibration, with its spread and its
+candidates (jobs/protocol/calibration.py). The calibration, with its spread and its
 ``capped`` / ``unstable`` flags, is stored with the point.
 
 Every point is a stored run whose idempotency key addresses what determines
@@ -64,10 +64,8 @@ from typing import Any
 
 import numpy as np
 
-from jobs.artifacts import ArtifactStore, artifact_record
-from jobs.calibration import calibrate
-from jobs.config import Settings
-from jobs.executor import (
+from jobs.protocol.calibration import calibrate
+from jobs.protocol.executor import (
     ConvergenceTracker,
     Prepared,
     Progress,
@@ -77,10 +75,12 @@ from jobs.executor import (
     prepare,
     store_run,
 )
-from jobs.plots import plot_convergence, plot_sweep
-from jobs.snapshots import Snapshot, get_or_make_snapshot
-from jobs.spec import RenderSpec, SweepSpec
-from jobs.store import Store
+from jobs.protocol.plots import plot_convergence, plot_sweep
+from jobs.protocol.snapshots import Snapshot, get_or_make_snapshot
+from jobs.protocol.spec import RenderSpec, SweepSpec
+from jobs.record.artifacts import ArtifactStore, artifact_record
+from jobs.record.config import Settings
+from jobs.record.store import Store
 from metrics.bias_maps import bias_map, passes
 from metrics.registry import row_values
 from metrics.statistics import RunningMoments
@@ -589,7 +589,7 @@ def _nc_rows(sweep: _Sweep) -> list[dict[str, Any]]:
 
 def run_stage(spec: SweepSpec, task: dict[str, Any], store: Store, settings: Settings,
               progress: Progress | None = None) -> dict[str, int]:
-    """Run one stage of ``spec``'s task graph (jobs/graph.py): store what the sweep
+    """Run one stage of ``spec``'s task graph (jobs/execution/graph.py): store what the sweep
     would otherwise make itself when it gets there. Returns the stage's work
     counters (as ``SweepResult.work``)."""
     sweep = _Sweep(spec, store, settings, progress, whole=False)   # prepares the reference

@@ -9,7 +9,7 @@ alone; the caches' totals include their online training).
 
 Equal time on this device: the papers' GPU ordering (a neural sample costs a few
 % of a path) need not hold on a CPU, so we do not assume it. For NIRC biased we
-calibrate N_c (jobs.calibration, a job time budget; a 'knob' run): the largest
+calibrate N_c (jobs.protocol.calibration, a job time budget; a 'knob' run): the largest
 of its knob's candidates 1, 2, 4, ..., 32 whose frame time fits the PT 2 spp
 budget (the 'budget' run; none fitting is reported as such); and for every
 'matched' cached method PT gets the largest spp that fits that method's frame
@@ -22,10 +22,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, make_dataclass
 from typing import Any
 
-from jobs.config import Settings
-from jobs.executor import RunSummary, execute
-from jobs.spec import ReferenceSpec, RenderSpec, TimeBudget
-from jobs.store import Store
+from jobs.protocol.executor import RunSummary, execute
+from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
+from jobs.record.config import Settings
+from jobs.record.store import Store
 from metrics.registry import row_values
 from renderers.methods import BASELINE, METHODS, NotApplicable
 

@@ -1,6 +1,6 @@
 """The durable job queue: every job is a database row before anything runs it.
 
-State machine (``jobs.models.JobStatus``)::
+State machine (``jobs.record.models.JobStatus``)::
 
     queued --claim--> running --succeed--> succeeded
        ^                 |  \\--fail (user error, or attempts used up)--> failed
@@ -17,7 +17,7 @@ every job that is not final again (:meth:`JobQueue.unfinished`): queued ones
 start, running ones are taken over once their lease expires — or simply
 reported done if their runner is alive and finishes.
 
-A sweep's stages (jobs/graph.py) are jobs too, children of the sweep's job:
+A sweep's stages (jobs/execution/graph.py) are jobs too, children of the sweep's job:
 they are made once per sweep job (:meth:`JobQueue.stage_jobs`, idempotent),
 canceled with it, and re-dispatched through it, never on their own. A job
 whose upstream stage failed is *abandoned*: failed without running, with the
@@ -33,9 +33,9 @@ from typing import Any
 from sqlalchemy import and_, or_, select, update
 from sqlalchemy.exc import IntegrityError
 
-from jobs.models import DEDUPE_JOB_STATES, FINAL_JOB_STATES, Job, JobStatus
-from jobs.spec import RenderSpec, SweepSpec
-from jobs.store import Store
+from jobs.protocol.spec import RenderSpec, SweepSpec
+from jobs.record.models import DEDUPE_JOB_STATES, FINAL_JOB_STATES, Job, JobStatus
+from jobs.record.store import Store
 from renderers.seeding import digest
 
 #: Live states: a new identical submission returns the existing job instead.
@@ -88,7 +88,7 @@ def _new_job(kind: str, spec: dict[str, Any], spec_key: str, idempotency_key: st
 
 
 class JobQueue:
-    """Job rows and their transitions, over a :class:`~jobs.store.Store`."""
+    """Job rows and their transitions, over a :class:`~jobs.record.store.Store`."""
 
     def __init__(self, store: Store) -> None:
         self.store = store
@@ -137,7 +137,7 @@ class JobQueue:
                 .order_by(Job.id.desc()).limit(1)).one_or_none()
 
     def stage_jobs(self, parent: Job, stages: Sequence[Any]) -> dict[str, Job]:
-        """The stage jobs of the sweep job ``parent`` (jobs.graph.Stage), made on first
+        """The stage jobs of the sweep job ``parent`` (jobs.execution.graph.Stage), made on first
         call and returned by name afterwards (their keys derive from the parent's id).
 
         All missing stages are inserted in one transaction (a sweep's stages cost one

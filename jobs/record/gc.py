@@ -24,9 +24,9 @@ from pathlib import Path
 
 from sqlalchemy import delete, select
 
-from jobs.config import Settings
-from jobs.models import Artifact, CacheSnapshot, Reference, Run
-from jobs.store import Store
+from jobs.record.config import Settings
+from jobs.record.models import Artifact, CacheSnapshot, Reference, Run
+from jobs.record.store import Store
 
 
 @dataclass

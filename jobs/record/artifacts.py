@@ -2,7 +2,7 @@
 
 Files live outside the database, named by the SHA-256 of their bytes:
 ``root/ab/cdef….exr`` for hash ``abcdef…``. The database keeps only the relative
-path and the hash (``jobs.models.Artifact``), so equal files written by many
+path and the hash (``jobs.record.models.Artifact``), so equal files written by many
 runs or seeds are stored once, and a path never changes meaning.
 
 Writes are atomic: content goes to a temporary file in the destination folder

@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 
-from jobs.artifacts import ArtifactStore, artifact_record, encode_image
-from jobs.config import Settings
-from jobs.executor import ConvergenceTracker, Prepared
-from jobs.store import DuplicateKeyError, Store
-from jobs.versions import versions_of
+from jobs.protocol.executor import ConvergenceTracker, Prepared
+from jobs.protocol.versions import versions_of
+from jobs.record.artifacts import ArtifactStore, artifact_record, encode_image
+from jobs.record.config import Settings
+from jobs.record.store import DuplicateKeyError, Store
 from metrics.imageio import ImageReadError, read_exr, write_exr
 from renderers.methods.base import FrameHooks
 from renderers.methods.cached import CacheTrainingParams, render_with_cache

@@ -2,7 +2,7 @@
 
 A partial unique index (SQLite and PostgreSQL both support ``WHERE`` on an
 index) makes the database refuse a second live job for a spec, so concurrent
-identical submissions can no longer both insert (jobs.queue.JobQueue.submit).
+identical submissions can no longer both insert (jobs.execution.queue.JobQueue.submit).
 
 Duplicates stored before this revision are merged first: per spec key the job
 kept is the oldest succeeded one (it has the result), else the oldest live one;

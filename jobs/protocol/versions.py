@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any
 
-from jobs.provenance import library_versions
+from jobs.protocol.provenance import library_versions
 from metrics import METRIC_VERSION
 from renderers.methods import METHODS, get_method
 

@@ -2,7 +2,7 @@
 
 A render can take the process down with it (a Dr.Jit/LLVM abort, a leak), so
 jobs never run in the worker itself but in a child process — a new interpreter
-(``python -m jobs.runner --serve FD``; spawned, not forked: nothing of the
+(``python -m jobs.execution.runner --serve FD``; spawned, not forked: nothing of the
 parent's JIT state is inherited) that reads job ids on stdin and answers each
 with a status line on a pipe of its own, file descriptor FD. Its stdout and
 stderr go to its log file: Mitsuba's log, warnings included, and anything a
@@ -26,7 +26,7 @@ attempt that died after storing its result does not store it twice: the next
 attempt finds it and only marks the job done. Children are killed with their
 parent (Linux ``PR_SET_PDEATHSIG``), so a killed worker leaves no render behind.
 A child renders with the variant of its jobs' device class (``cpu``: LLVM,
-``gpu``: CUDA, on the GPU its worker was given — jobs/gpus.py), so a CPU job on a
+``gpu``: CUDA, on the GPU its worker was given — jobs/execution/gpus.py), so a CPU job on a
 GPU worker still renders on the CPU it asked for.
 """
 
@@ -45,10 +45,10 @@ import traceback
 from collections.abc import Sequence
 from typing import Any
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.models import JobStatus
-from jobs.queue import JobQueue
+from jobs.execution.queue import JobQueue
+from jobs.record.config import Settings
+from jobs.record.db import open_store
+from jobs.record.models import JobStatus
 from renderers.backend import BackendError
 
 #: Status of a job that failed for good (bad input).
@@ -111,10 +111,10 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
 
 def _timeout_of(job: Any, settings: Settings, timeout_s: float | None) -> float:
     """The service's ``--job-timeout``, else one from the job's work estimate
-    (jobs.work.default_timeout_s): no attempt runs unbounded."""
+    (jobs.execution.work.default_timeout_s): no attempt runs unbounded."""
     if timeout_s is not None:
         return timeout_s
-    from jobs.work import default_timeout_s, job_work
+    from jobs.execution.work import default_timeout_s, job_work
 
     try:
         return default_timeout_s(job_work(job.kind, job.spec), settings)
@@ -140,7 +140,7 @@ class _Child:
         self.status = os.fdopen(status_read, "r")
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "jobs.runner", "--serve", str(status_write)], env=env,
+                [sys.executable, "-m", "jobs.execution.runner", "--serve", str(status_write)], env=env,
                 text=True, stdin=subprocess.PIPE, stdout=self.log, stderr=self.log,
                 pass_fds=(status_write,), preexec_fn=die_with_parent)
         finally:
@@ -230,9 +230,9 @@ def die_with_parent() -> None:
 def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict[str, Any]:
     """Run a job's spec through the one executor; returns what ``JobQueue.succeed``
     records: the result ids, or a stage's work counters."""
-    from jobs.executor import execute
-    from jobs.spec import RenderSpec, SweepSpec
-    from jobs.sweep import run_stage, run_sweep
+    from jobs.protocol.executor import execute
+    from jobs.protocol.spec import RenderSpec, SweepSpec
+    from jobs.protocol.sweep import run_stage, run_sweep
 
     if job.kind == "stage":
         work = run_stage(SweepSpec(**job.spec["sweep"]), job.spec["task"], store, settings,
@@ -302,5 +302,5 @@ def serve(status_fd: int) -> int:
 
 if __name__ == "__main__":
     if len(sys.argv) != 3 or sys.argv[1] != "--serve" or not sys.argv[2].isdigit():
-        sys.exit("usage: python -m jobs.runner --serve STATUS_FD  (started by the job runner)")
+        sys.exit("usage: python -m jobs.execution.runner --serve STATUS_FD  (started by the job runner)")
     sys.exit(serve(int(sys.argv[2])))

@@ -21,17 +21,17 @@ from typing import Any
 
 import numpy as np
 
-from jobs.artifacts import ArtifactStore, artifact_record, encode_image
-from jobs.calibration import calibrate_job
-from jobs.config import Settings
-from jobs.plots import plot_convergence
-from jobs.provenance import git_commit, library_versions
-from jobs.quality import judge_run
-from jobs.references import LoadedReference, get_or_render_reference
-from jobs.scene_store import load_spec_scene
-from jobs.spec import RenderSpec
-from jobs.store import Store
-from jobs.versions import versions_of
+from jobs.protocol.calibration import calibrate_job
+from jobs.protocol.plots import plot_convergence
+from jobs.protocol.provenance import git_commit, library_versions
+from jobs.protocol.quality import judge_run
+from jobs.protocol.references import LoadedReference, get_or_render_reference
+from jobs.protocol.scene_store import load_spec_scene
+from jobs.protocol.spec import RenderSpec
+from jobs.protocol.versions import versions_of
+from jobs.record.artifacts import ArtifactStore, artifact_record, encode_image
+from jobs.record.config import Settings
+from jobs.record.store import Store
 from metrics.checks import MetricError
 from metrics.errors import (
     bias_variance,
@@ -264,7 +264,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     ``frame_moments`` (one per seed, filled through :func:`frame_moments_hook`;
     16 bytes per pixel-channel each) give the per-cache rBias^2 / rVar; without
     them those keys are None.
-    The run's quality verdict (jobs.quality) is stored with it, and the metrics
+    The run's quality verdict (jobs.protocol.quality) is stored with it, and the metrics
     the verdict withholds are stored as None, per seed and aggregated.
     """
     scene, reference, device = prepared.scene, prepared.reference, prepared.device
@@ -350,7 +350,7 @@ def execute(
     """Run ``spec`` to completion and store the result; see the module docstring.
 
     With a ``time_budget`` the spp (pt) or N_c (biased nirc) is first calibrated
-    to it on this device (jobs.calibration); the run stores the calibrated spec
+    to it on this device (jobs.protocol.calibration); the run stores the calibrated spec
     and the calibration record (metrics['calibration']).
 
     ``idempotency_key`` (e.g. a sweep point's key) is stored with the run; a

@@ -3,10 +3,10 @@
 Every function runs in its own short transaction and returns *detached* model
 objects (``expire_on_commit=False``) that stay usable after the session closes.
 What each function loads is stated in its docstring; relationships that were
-not loaded raise on access (``lazy="raise"`` in ``jobs.models``) rather than
+not loaded raise on access (``lazy="raise"`` in ``jobs.record.models``) rather than
 querying a closed session.
 
-Writes start with ``BEGIN IMMEDIATE`` on SQLite (see ``jobs.db``): the write
+Writes start with ``BEGIN IMMEDIATE`` on SQLite (see ``jobs.record.db``): the write
 lock is taken up front, so concurrent writers queue on ``busy_timeout`` instead
 of failing with "database is locked" when a read transaction tries to upgrade.
 """
@@ -19,9 +19,9 @@ from sqlalchemy import Engine, and_, delete, false, or_, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload, sessionmaker
 
-from jobs.models import Artifact, CacheSnapshot, Reference, Run, SeedResult, Sweep
+from jobs.record.models import Artifact, CacheSnapshot, Reference, Run, SeedResult, Sweep
 
-# Execution option read by the SQLite "begin" hook in jobs.db; ignored elsewhere.
+# Execution option read by the SQLite "begin" hook in jobs.record.db; ignored elsewhere.
 BEGIN_IMMEDIATE_OPTION = "nirc_bench_begin_immediate"
 
 # Everything get_run() promises to load.
@@ -41,7 +41,7 @@ class DuplicateKeyError(ValueError):
 
 
 class Store:
-    """Repository over one engine (SQLite or PostgreSQL); see ``jobs.db.open_store``."""
+    """Repository over one engine (SQLite or PostgreSQL); see ``jobs.record.db.open_store``."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine

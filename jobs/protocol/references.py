@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from jobs.provenance import library_versions
-from jobs.store import DuplicateKeyError, Store
-from jobs.versions import reference_estimator_version
+from jobs.protocol.provenance import library_versions
+from jobs.protocol.versions import reference_estimator_version
+from jobs.record.store import DuplicateKeyError, Store
 from metrics import METRIC_VERSION
 from metrics.flip import hdr_exposures
 from metrics.imageio import ImageReadError, read_exr, write_exr

@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from jobs.versions import sweep_estimator_versions, versions_of
+from jobs.protocol.versions import sweep_estimator_versions, versions_of
 from metrics import METRIC_VERSION
 from renderers.methods import BASELINE, METHODS, equal_time_pairs, sweep_methods
 from renderers.methods.pt import DEFAULT_MAX_DEPTH
@@ -71,7 +71,7 @@ class TimeBudget(BaseModel):
     this device, measured now (in every round, interleaved with the candidates).
     Every candidate is timed in ``rounds`` rounds; the largest whose median fits
     (within ``tolerance_ms``) is used; the calibration, with its spread and its
-    ``capped`` / ``unstable`` flags, is stored with the run (jobs.calibration).
+    ``capped`` / ``unstable`` flags, is stored with the run (jobs.protocol.calibration).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
@@ -144,7 +144,7 @@ def _knob_method() -> str:
 
 class SweepSpec(BaseModel):
     """A sweep: the adaptive equal-bias protocol over eps (NIRC paper Sec. 6.3), or a
-    sweep over N_c of biased NIRC. Expanded by ``jobs.sweep`` into render jobs that
+    sweep over N_c of biased NIRC. Expanded by ``jobs.protocol.sweep`` into render jobs that
     share the reference and the trained caches."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)

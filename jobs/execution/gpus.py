@@ -88,7 +88,7 @@ def start_gpu_workers(scheduler: str, gpus: int, env: dict[str, str]) -> list[An
     """Start ``gpus`` pinned GPU worker processes for the embedded cluster. Each is a
     single process (no nanny: the render process is the isolation) on loopback,
     killed with the service, so a killed service leaves no worker behind."""
-    from jobs.runner import die_with_parent
+    from jobs.execution.runner import die_with_parent
 
     if gpus == 0:
         return []

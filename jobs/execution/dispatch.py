@@ -5,7 +5,7 @@ with one thread for CPU jobs (a render uses every core; two at once would only
 slow each other and spoil their timings). That worker only claims jobs and
 watches their render processes, so it needs no process of its own. On a
 machine with GPUs the embedded cluster adds one worker process per GPU, pinned
-to it (jobs/gpus.py). Scale-out: ``nirc-bench serve --scheduler
+to it (jobs/execution/gpus.py). Scale-out: ``nirc-bench serve --scheduler
 tcp://HOST:8786`` connects to a running scheduler; machines run ``nirc-bench
 worker --scheduler ...`` (one CPU worker) or ``... --gpus N`` (N GPU workers).
 CPU workers advertise the Dask resource ``CPU=1`` and GPU workers ``GPU=1``;
@@ -17,14 +17,14 @@ Scale-out connections are TLS with certificates (``tls://`` addresses and
 code its clients send on its workers, so only holders of a certificate signed by
 the deployment's CA may connect. The embedded cluster never leaves loopback.
 
-A Dask task only calls :func:`jobs.runner.run_job`, which claims the job in
+A Dask task only calls :func:`jobs.execution.runner.run_job`, which claims the job in
 the database, so a task that Dask runs twice (a worker lost mid-task) cannot
 run a job twice: the second claim finds it running or finished.
 
-A sweep is submitted as its task graph (jobs/graph.py): one task per stage job,
+A sweep is submitted as its task graph (jobs/execution/graph.py): one task per stage job,
 each depending on the tasks of the stages it needs, and the sweep job's own
 task last. A task receives the final statuses of its upstream tasks; a failed
-stage fails everything downstream of it (jobs.runner.run_job).
+stage fails everything downstream of it (jobs.execution.runner.run_job).
 """
 
 from __future__ import annotations
@@ -33,13 +33,19 @@ import os
 import socket
 from typing import Any
 
-from jobs.config import Settings
-from jobs.db import open_store
-from jobs.gpus import CPU_WORKER, GPU_WORKER, detect_gpu_count, gpu_devices, start_gpu_workers
-from jobs.graph import final_stages, sweep_stages
-from jobs.models import Job
-from jobs.queue import JobQueue
-from jobs.spec import SweepSpec
+from jobs.execution.gpus import (
+    CPU_WORKER,
+    GPU_WORKER,
+    detect_gpu_count,
+    gpu_devices,
+    start_gpu_workers,
+)
+from jobs.execution.graph import final_stages, sweep_stages
+from jobs.execution.queue import JobQueue
+from jobs.protocol.spec import SweepSpec
+from jobs.record.config import Settings
+from jobs.record.db import open_store
+from jobs.record.models import Job
 
 #: Dask settings of every worker (and of the embedded cluster): Dask's defaults wake
 #: its event loop many times a second (an event-loop health tick every 20 ms, a memory
@@ -88,7 +94,7 @@ def run_job_task(job_id: int, settings_json: dict[str, Any], timeout_s: float | 
     ``upstream``: the statuses of the tasks it depends on."""
     from distributed import get_worker
 
-    from jobs.runner import run_job
+    from jobs.execution.runner import run_job
 
     try:
         worker = get_worker().address
@@ -119,8 +125,8 @@ class Dispatcher:
         gpus = detect_gpu_count() if gpus is None else gpus
         gpu_devices(gpus)       # fail now, not in the workers, if they are not there
         # The CPU worker runs in this process: it only claims jobs and watches their
-        # render processes, which provide the isolation (jobs.runner). GPU workers are
-        # processes of their own, each pinned to its GPU (jobs/gpus.py), so the
+        # render processes, which provide the isolation (jobs.execution.runner). GPU workers are
+        # processes of their own, each pinned to its GPU (jobs/execution/gpus.py), so the
         # scheduler listens on loopback TCP for them. With the CPU worker alone there is
         # nothing to balance, so no work stealing (it rebalances every 100 ms).
         network = {"host": "127.0.0.1", "protocol": "tcp://", "scheduler_port": 0} if gpus else {}

@@ -1,0 +1,3 @@
+"""Execution: the durable job queue, the render-process runner, Dask dispatch, the
+sweep task graph, GPU workers, API keys and work estimates. Imports
+``jobs.protocol`` and ``jobs.record``; nothing imports it back."""
