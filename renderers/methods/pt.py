@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Literal
 
 from pydantic import Field, model_validator
@@ -49,11 +50,26 @@ def path_integrator(params: PTParams) -> Any:
     return mi.load_dict({"type": path.PLUGIN_NAME, **params.model_dump()})
 
 
-def render(scene: Any, params: PTParams, *, seed_parts: tuple[Any, ...], spp: int, frames: int,
-           hooks: FrameHooks = FrameHooks()) -> RenderOutput:
-    """Render ``frames`` frames of ``spp`` samples per pixel with the PT core."""
-    return run_frames(render_stage(scene, path_integrator(params), spp), seed_parts=seed_parts,
-                      frames=frames, spp=spp, hooks=hooks)
+def render_with_lights(sampler: str | None) -> Callable[..., RenderOutput]:
+    """The render function of the PT core selecting emitters with ``sampler`` (a class
+    of renderers.integrators.lights, looked up when a render starts so that the
+    registry never imports Mitsuba; None: the core's default, Mitsuba's selection)."""
+
+    def render(scene: Any, params: PTParams, *, seed_parts: tuple[Any, ...], spp: int,
+               frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
+        """Render ``frames`` frames of ``spp`` samples per pixel with the PT core."""
+        integrator = path_integrator(params)
+        if sampler is not None:
+            from renderers.integrators import lights
+
+            integrator.light_sampler_type = getattr(lights, sampler)
+        return run_frames(render_stage(scene, integrator, spp), seed_parts=seed_parts,
+                          frames=frames, spp=spp, hooks=hooks)
+
+    return render
+
+
+render = render_with_lights(None)
 
 
 #: spp candidates of equal-time calibration.

@@ -10,25 +10,15 @@ emitter hits alike, so the estimator stays unbiased (docs/estimators.md,
 
 from __future__ import annotations
 
-from typing import Any
-
-from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
-from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
+from renderers.methods.base import Method
+from renderers.methods.pt import PATH_INTEGRATORS, PTParams, render_with_lights
 
 
 class PTPowerParams(PTParams):
     """The path-tracing core's parameters; the selector has none of its own."""
 
 
-def render(scene: Any, params: PTPowerParams, *, seed_parts: tuple[Any, ...], spp: int,
-           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
-    """Render ``frames`` frames of ``spp`` samples per pixel, power-proportional selection."""
-    from renderers.integrators.lights import PowerLightSampler
-
-    integrator = path_integrator(params)
-    integrator.light_sampler_type = PowerLightSampler
-    return run_frames(render_stage(scene, integrator, spp), seed_parts=seed_parts,
-                      frames=frames, spp=spp, hooks=hooks)
+render = render_with_lights("PowerLightSampler")
 
 
 METHOD = Method("pt-power", "path tracing with emitters selected in proportion to power",

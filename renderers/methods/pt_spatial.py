@@ -10,25 +10,15 @@ one NEE there would have used (docs/estimators.md, "Light selection").
 
 from __future__ import annotations
 
-from typing import Any
-
-from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
-from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
+from renderers.methods.base import Method
+from renderers.methods.pt import PATH_INTEGRATORS, PTParams, render_with_lights
 
 
 class PTSpatialParams(PTParams):
     """The path-tracing core's parameters; the selector has none of its own."""
 
 
-def render(scene: Any, params: PTSpatialParams, *, seed_parts: tuple[Any, ...], spp: int,
-           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
-    """Render ``frames`` frames of ``spp`` samples per pixel, distance-aware selection."""
-    from renderers.integrators.lights import SpatialLightSampler
-
-    integrator = path_integrator(params)
-    integrator.light_sampler_type = SpatialLightSampler
-    return run_frames(render_stage(scene, integrator, spp), seed_parts=seed_parts,
-                      frames=frames, spp=spp, hooks=hooks)
+render = render_with_lights("SpatialLightSampler")
 
 
 METHOD = Method("pt-spatial", "path tracing with emitters selected by power / distance^2 per shading point",
