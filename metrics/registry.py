@@ -178,3 +178,23 @@ def row_values(metrics: Mapping[str, Any]) -> dict[str, Any]:
             ci = metrics.get(m.ci_key)
             row[f"{m.field}_ci95"] = list(ci) if ci else None
     return row
+
+
+def metric_table() -> str:
+    """The Markdown table of registered metrics (README.md, "Metrics"; checked by
+    tests/metrics/test_registry.py; print it with ``python -m metrics.registry``)."""
+    over_seeds = {Aggregate.MEAN: "mean", Aggregate.MEAN_CI: "mean, 95 % CI",
+                  Aggregate.BIAS_VARIANCE: "jointly", Aggregate.PER_CACHE: "per cache, mean",
+                  Aggregate.DERIVED: "derived"}
+    lines = ["| metric | what it is | better | over the K seeds | stored as |",
+             "|---|---|---|---|---|"]
+    for m in METRICS:
+        unit = f" [{m.unit}]" if m.unit else ""
+        k2 = " (K >= 2)" if m.needs_k2 else ""
+        lines.append(f"| {m.label}{unit} | {m.description} | {m.direction} | "
+                     f"{over_seeds[m.aggregate]}{k2} | `{m.key}` |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(metric_table())

@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -99,6 +99,33 @@ def split_half_floor(acc: PassAccumulator) -> dict[str, float]:
     return {"half_vs_half_mrse": half_mrse, "reference_mrse_estimate": half_mrse / 4.0}
 
 
+class PassSink(Protocol):
+    """Where :func:`render_passes` puts each pass image (a PassAccumulator, RunningMoments)."""
+
+    def add(self, image: np.ndarray) -> None: ...
+
+
+def render_passes(scene: Any, integrator: Any, *, pass_spp: int, passes: int,
+                  seed_of: Callable[[int], int], sink: PassSink,
+                  progress: Callable[[int, int], None] | None = None,
+                  enough: Callable[[], bool] = lambda: False) -> float:
+    """Render up to ``passes`` independent passes of ``pass_spp`` samples (pass i with seed
+    ``seed_of(i)``) into ``sink`` (RGB, float64), stopping early once ``enough()``.
+    Returns the seconds spent. The references and the cache-at-v1 images use it."""
+    import mitsuba as mi
+
+    start = time.perf_counter()
+    for index in range(passes):
+        image = mi.render(scene, integrator=integrator, spp=pass_spp, seed=seed_of(index))
+        synchronize(image)
+        sink.add(np.asarray(image)[..., :3].astype(np.float64))
+        if progress:
+            progress((index + 1) * pass_spp, passes * pass_spp)
+        if enough():
+            break
+    return time.perf_counter() - start
+
+
 def render_reference(
     scene: Any,
     settings: ReferenceSettings,
@@ -107,25 +134,15 @@ def render_reference(
     progress: Callable[[int, int], None] | None = None,
 ) -> ReferenceImage:
     """Render passes until the stopping rule holds (see module docstring)."""
-    import mitsuba as mi
-
     settings.validate()
-    integrator = reference_integrator(settings)
     acc = PassAccumulator()
     pass_spp = settings.pass_spp()
-    max_passes = settings.spp // pass_spp
-    start = time.perf_counter()
-    for index in range(max_passes):
-        image = mi.render(scene, integrator=integrator, spp=pass_spp,
-                          seed=derive_seed(*seed_parts, "reference-pass", index))
-        synchronize(image)
-        acc.add(np.asarray(image)[..., :3].astype(np.float64))
-        if progress:
-            progress((index + 1) * pass_spp, max_passes * pass_spp)
-        if (settings.rel_stderr is not None and acc.count >= settings.min_passes
-                and acc.relative_stderr() <= settings.rel_stderr):
-            break
-    seconds = time.perf_counter() - start
+    seconds = render_passes(
+        scene, reference_integrator(settings), pass_spp=pass_spp,
+        passes=settings.spp // pass_spp, sink=acc, progress=progress,
+        seed_of=lambda index: derive_seed(*seed_parts, "reference-pass", index),
+        enough=lambda: (settings.rel_stderr is not None and acc.count >= settings.min_passes
+                        and acc.relative_stderr() <= settings.rel_stderr))
     return ReferenceImage(
         mean=acc.mean.astype(np.float32),
         variance=acc.variance_of_mean.astype(np.float32),

@@ -101,22 +101,21 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
     if kind == "sweep":
         _print_remote_sweep(client, job, result)
         return
-    from service.tables import key_value_table
+    from jobs.protocol.results import RunResultDetail
 
-    shown = {k: v for k, v in result.items() if not isinstance(v, dict | list)}
-    console.print(key_value_table(f"{kind} result (job {job['id']})", shown))
+    # The table an embedded render prints, from the same public model the API serves.
+    console.print(metrics_table(RunResultDetail.model_validate(result)))
 
 
 def _print_remote_sweep(client: Any, job: dict[str, Any], sweep: dict[str, Any]) -> None:
     """The sweep's table as an embedded run prints it; its files are the service's
     artifacts (URLs), and the stages of ``job`` (as ``GET /jobs/{id}`` lists them)
     are named."""
-    from types import SimpleNamespace
-
+    from jobs.protocol.sweep import SweepResult
     from service.tables import sweep_table
 
     files = {a["kind"]: f"{client.http.base_url}{a['url']}" for a in sweep["artifacts"]}
-    console.print(sweep_table(SimpleNamespace(**{**sweep["result"], "files": files})))
+    console.print(sweep_table(SweepResult.model_validate({**sweep["result"], "files": files})))
     stages = job.get("stages") or []
     if stages:
         console.print(f"ran on the service as {len(stages)} stage jobs "
@@ -295,7 +294,7 @@ def render(
     _run(server, api_key, "render", spec, as_json, data_dir,
          lambda store, settings, report: execute(spec, store, settings, progress=report,
                                                  out_dir=out),
-         lambda s: s.to_json(), metrics_table, out)
+         lambda s: s.to_json(), lambda s: metrics_table(s.result), out)
     if out is not None and not as_json:
         console.print(f"images and summary.json written to {out}")
 
@@ -337,8 +336,6 @@ def report(
     data_dir: DataDir = None,
 ) -> None:
     """Compare PT, NRC and NIRC on a scene (NIRC paper Fig. 7): equal spp and equal time."""
-    from dataclasses import asdict
-
     from jobs.protocol.report import comparison_report
     from service.tables import comparison_tables
 
@@ -346,7 +343,7 @@ def report(
         lambda store, settings, report: comparison_report(
             scene, store, settings, resolution=res, frames=frames, seeds=seeds,
             pretrain_frames=pretrain, max_depth=max_depth, ref_spp=ref_spp, progress=report),
-        data_dir, as_json, asdict, comparison_tables)
+        data_dir, as_json, lambda r: r.model_dump(mode="json"), comparison_tables)
 
 
 @app.command()

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Group
 from rich.markup import escape
 from rich.table import Table
 
+from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
 from metrics.registry import LISTED, METRICS, PER_SEED, Metric
+
+if TYPE_CHECKING:
+    from jobs.protocol.report import Report
+    from jobs.protocol.sweep import SweepResult
 
 
 def _fmt(value: Any) -> str:
@@ -89,70 +94,80 @@ def _metric_rows(m: dict[str, Any]) -> dict[str, Any]:
     return rows
 
 
-def metrics_table(summary: Any) -> Group:
-    """The method-vs-reference table of a run, then one row per seed; the metrics the
-    quality verdict withholds read 'withheld'."""
-    spec, t = summary.spec, summary.timings
-    m = {key: _shown(value) for key, value in summary.metrics.items()}
+def metrics_table(run: RunResultDetail) -> Group:
+    """The method-vs-reference table of a stored run (jobs.protocol.results), then one row
+    per seed; the metrics the quality verdict withholds read 'withheld'."""
+    t = run.timings
+    m = {key: _shown(value) for key, value in run.metrics.items()}
+    reference = run.reference
     head = {
-        "quality verdict": verdict_text(summary.quality),
-        "run": summary.run_id,
-        "scene / method": f"{spec.scene} / {spec.method}",
-        "resolution": f"{spec.resolution}x{spec.resolution}",
-        "spp x frames": f"{spec.spp} x {spec.frames}",
-        "seeds (K)": spec.seeds,
-        "reference": f"{summary.reference['spp']} spp"
-                     + (" (reused)" if not summary.reference["rendered_now"] else " (rendered)"),
-        "reference floor MRSE (est.)": summary.reference["split_half"].get("reference_mrse_estimate"),
+        "quality verdict": verdict_text(run.quality),
+        "run": run.id,
+        "scene / method": f"{run.scene} / {run.method}",
+        "resolution": "x".join(map(str, run.resolution)),
+        "spp x frames": f"{run.spp} x {run.frames}",
+        "seeds (K)": run.seeds,
+        "reference": f"{reference.spp} spp (reference {reference.id})" if reference else "-",
+        "reference floor MRSE (est.)":
+            reference.split_half.get("reference_mrse_estimate") if reference else None,
         "reference floor mean Var[R]/(R2+eps)": m.get("ref_floor"),
-        "floor / rBias2, floor / MRSE": f"{_fmt(m.get('ref_floor_ratio_rbias2'))}, "
-                                        f"{_fmt(m.get('ref_floor_ratio_mrse'))}",
+        "floor / rBias2, floor / MRSE": f"{_fmt(run.ref_floor_ratio_rbias2)}, "
+                                        f"{_fmt(run.ref_floor_ratio_mrse)}",
         **_metric_rows(m),
-        "ms per frame": 1e3 * t["seconds_per_frame"],
+        "ms per frame": _ms(run.seconds_per_frame),
+        "ms render stage": _ms(run.render_seconds_per_frame),
         "warm-up / compile (s)": f"{t['warmup_s']:.3g} / {t['compile_s_estimate']:.3g}",
-        "avg path vertices": summary.path_stats["avg_path_vertices"],
-        "non-finite pixels": summary.quality["nonfinite_pixels"],
-        "device": summary.device["device_key"],
-        "estimator / metric version": f"{summary.estimator_version} / {summary.metric_version}",
+        "avg path vertices": run.path_stats.get("avg_path_vertices"),
+        "non-finite pixels": run.quality.get("nonfinite_pixels"),
+        "device": run.device_key,
+        "estimator / metric version": f"{run.estimator_version} / {run.metric_version}",
     }
     seeds = Table(title="per seed")
     for column in ("seed", *(m.label for m in PER_SEED), "ms/frame", "non-finite"):
         seeds.add_column(column, justify="right")
-    for s in summary.per_seed:
-        seeds.add_row(str(s["seed"]), *(_fmt(_shown(s.get(m.seed_key))) for m in PER_SEED),
-                      _fmt(1e3 * s["seconds_per_frame"]),
-                      str(s["nonfinite_pixels"]))
-    parts: list[Any] = [key_value_table(f"{spec.method} vs reference", head), seeds]
-    parts += [f"warning: {text}" for text in m.get("warnings") or []]
+    for s in run.per_seed:
+        seeds.add_row(str(s.seed), *(_fmt(_shown(s.metrics.get(m.seed_key))) for m in PER_SEED),
+                      _fmt(_ms(s.metrics.get("seconds_per_frame"))),
+                      str(s.metrics.get("nonfinite_pixels")))
+    parts: list[Any] = [key_value_table(f"{run.method} vs reference", head), seeds]
+    parts += [f"warning: {text}" for text in run.warnings]
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
     return Group(*parts)
 
 
-def comparison_tables(report: Any) -> Group:
+def _ms(seconds: float | None) -> float | None:
+    return None if seconds is None else 1e3 * seconds
+
+
+def _metric_cells(row: RunResult) -> list[str]:
+    """A result row's listed metrics (metrics.registry), each with its 95 % interval."""
+    cells = []
+    for m in LISTED:
+        value = getattr(row, m.field)
+        ci = getattr(row, f"{m.field}_ci95") if m.ci_key else None
+        cells.append("-" if value is None else
+                     f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else _fmt(value))
+    return cells
+
+
+def comparison_tables(report: Report) -> Group:
     """The Fig. 7 comparison: one table at equal spp, one at equal time."""
-    def table(title: str, rows: list[Any]) -> Table:
+    def table(title: str, rows: list[ReportRow]) -> Table:
         t = Table(title=title)
-        columns = ["method", "run", "spp"]
-        for m in LISTED:
-            columns += [m.label, f"{m.label} 95% CI"] if m.ci_key else [m.label]
-        for column in (*columns, "ms/frame", "ms render", "note"):
+        for column in ("method", "run", "spp", *(m.label for m in LISTED), "ms/frame",
+                       "ms render", "note"):
             t.add_column(column, justify="left" if column in ("method", "note") else "right")
         for r in rows:
-            cells = []
-            for m in LISTED:
-                value = getattr(r, m.field, None)
-                cells.append("-" if value is None else _fmt(value))
-                if m.ci_key:
-                    ci = getattr(r, f"{m.field}_ci95", None)
-                    cells.append(f"[{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "-")
-            t.add_row(r.label, str(r.run_id), str(r.spp), *cells, _fmt(r.ms_frame),
-                      _fmt(r.ms_render), r.note)
+            t.add_row(r.label, str(r.id), str(r.spp), *_metric_cells(r),
+                      _fmt(_ms(r.seconds_per_frame)), _fmt(_ms(r.render_seconds_per_frame)),
+                      r.note)
         return t
 
     return Group(table(f"{report.scene}: equal spp ({report.device})", report.equal_spp),
                  table(f"{report.scene}: equal time ({report.device})", report.equal_time),
-                 calibration_table("N_c calibration (NIRC biased)", report.calibration))
+                 calibration_table("N_c calibration (NIRC biased)", report.calibration),
+                 *(f"skipped {s.label or s.method}: {s.reason}" for s in report.skipped))
 
 
 def calibration_table(title: str, cal: dict[str, Any]) -> Table:
@@ -184,16 +199,15 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
     return key_value_table(title, rows)
 
 
-#: The sweep table's columns (row key, header); the metric columns come from metrics.registry.
+#: The sweep table's columns (SweepRow attribute, header); the metric columns (each with
+#: its 95 % interval) come from metrics.registry.
 SWEEP_COLUMNS = (
     ("series", "series"), ("eps", "eps"), ("nc", "N_c v1"),
     *((m.field, m.label) for m in LISTED), ("ms_frame", "ms/frame"),
     ("avg_path_length", "path len"), ("ir_bounces_pct", "% IR"),
     ("avg_path_length_authors", "path len (authors)"), ("ir_bounces_pct_authors", "% IR (authors)"),
-    ("cache_at_v1_pct", "% v1 cache"), ("run_id", "run"),
+    ("cache_at_v1_pct", "% v1 cache"), ("id", "run"),
 )
-#: Row key -> the row key of its 95 % interval, shown in the same cell.
-_SWEEP_CI = {m.field: f"{m.field}_ci95" for m in LISTED if m.ci_key}
 
 
 def _work_line(work: dict[str, int]) -> str:
@@ -202,33 +216,34 @@ def _work_line(work: dict[str, int]) -> str:
             f"(reused {work['points_reused']}), calibrations {work['calibrations']}")
 
 
-def sweep_table(result: Any) -> Group:
+def sweep_table(result: SweepResult) -> Group:
     """The sweep's points (one row per series and eps / N_c), skipped methods, work done."""
     table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
     for _, header in SWEEP_COLUMNS:
         # The series label is what a reader looks rows up by: never wrapped.
         table.add_column(header, justify="left" if header == "series" else "right",
                          no_wrap=header == "series")
+    metric_cells = {m.field: index for index, m in enumerate(LISTED)}
     for row in result.rows:
+        metrics = _metric_cells(row)
         cells = []
         for key, _ in SWEEP_COLUMNS:
-            value = row.get(key)
-            if key in _SWEEP_CI and row.get(_SWEEP_CI[key]):
-                lo, hi = row[_SWEEP_CI[key]]
-                cells.append(f"{_fmt(value)} [{_fmt(lo)}, {_fmt(hi)}]")
-            elif key == "nc" and (row.get("calibration_capped") or row.get("calibration_unstable")):
-                flags = [name for name in ("capped", "unstable") if row.get(f"calibration_{name}")]
+            value = getattr(row, key)
+            if key in metric_cells:
+                cells.append(metrics[metric_cells[key]])
+            elif key == "nc" and (row.calibration_capped or row.calibration_unstable):
+                flags = [name for name in ("capped", "unstable")
+                         if getattr(row, f"calibration_{name}")]
                 cells.append(f"{_fmt(value)} ({', '.join(flags)})")
             else:
                 cells.append("-" if value is None else _fmt(value))
-        if not row.get("finite", True):
+        if not row.finite:
             cells[0] += " (non-finite pixels!)"
         table.add_row(*cells)
     lines: list[Any] = [table]
-    lines += [f"skipped {s['method']}: {s['reason']}" for s in result.skipped]
-    stage_work = getattr(result, "stage_work", None)   # absent in sweeps stored before it
-    if stage_work:
-        lines.append(f"rendered by its stage jobs: {_work_line(stage_work)}")
+    lines += [f"skipped {s.method}: {s.reason}" for s in result.skipped]
+    if result.stage_work:
+        lines.append(f"rendered by its stage jobs: {_work_line(result.stage_work)}")
         lines.append(f"rendered by the sweep job: {_work_line(result.work)}")
     else:
         lines.append(f"rendered: {_work_line(result.work)}")

@@ -26,6 +26,7 @@ from jobs.protocol.plots import plot_convergence
 from jobs.protocol.provenance import git_commit, library_versions
 from jobs.protocol.quality import judge_run
 from jobs.protocol.references import LoadedReference, get_or_render_reference
+from jobs.protocol.results import RunResultDetail
 from jobs.protocol.scene_store import load_spec_scene
 from jobs.protocol.spec import RenderSpec
 from jobs.protocol.versions import versions_of
@@ -69,11 +70,13 @@ class RunSummary:
     quality: dict[str, Any]
     estimator_version: int
     metric_version: int
+    result: RunResultDetail     # the stored run as users see it (jobs.protocol.results)
     files: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
         data["spec"] = self.spec.model_dump(mode="json")
+        data["result"] = self.result.model_dump(mode="json")
         return data
 
 
@@ -205,6 +208,28 @@ def chain(*hooks: OnFrame) -> OnFrame:
     return call_all
 
 
+@dataclass
+class SeedRender:
+    """One seed's render with what :func:`store_run` needs of it besides the image."""
+
+    output: RenderOutput
+    convergence: dict[str, Any]     # ConvergenceTracker.result()
+    moments: RunningMoments         # per-pixel moments of its frames (per-cache rBias^2/rVar)
+
+
+def render_seed(render: Callable[[FrameHooks], RenderOutput], reference: np.ndarray, eps: float,
+                *, keep_frames: bool = False, warmup: bool = True,
+                progress: Callable[[int, int], None] | None = None) -> SeedRender:
+    """Run ``render(hooks)`` (one seed's frame loop) with the error-over-frames tracker and
+    the frame moments attached: the one frame loop of every stored run (render jobs, sweep
+    points)."""
+    tracker = ConvergenceTracker(reference, eps)
+    moments = RunningMoments()
+    output = render(FrameHooks(keep_frames=keep_frames, warmup=warmup, progress=progress,
+                               on_frame=chain(tracker, frame_moments_hook(moments))))
+    return SeedRender(output, tracker.result(), moments)
+
+
 class ConvergenceTracker:
     """Error of every frame and of the running mean against the reference (Fig. 10 of
     the NIRC paper: how the error falls as the cache trains), as a FrameHooks.on_frame.
@@ -252,18 +277,16 @@ def prepare(spec: RenderSpec, store: Store, settings: Settings,
     return Prepared(scene=scene, reference=reference, device=device_info(), started=started)
 
 
-def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
-              convergence: list[dict[str, Any]], store: Store, settings: Settings, *,
-              idempotency_key: str | None = None, extra: dict[str, Any] | None = None,
-              out_dir: Path | None = None,
-              frame_moments: Sequence[RunningMoments] | None = None) -> RunSummary:
-    """Evaluate K seeds' renders against the reference and store them as one run.
+def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender], store: Store,
+              settings: Settings, *, idempotency_key: str | None = None,
+              extra: dict[str, Any] | None = None, out_dir: Path | None = None) -> RunSummary:
+    """Evaluate K seeds' renders (:func:`render_seed`) against the reference and store them
+    as one run.
 
     ``extra`` is merged into the run's metrics (e.g. a calibration record, or a
     sweep point's threshold and mask coverage) and stored with its parameters.
-    ``frame_moments`` (one per seed, filled through :func:`frame_moments_hook`;
-    16 bytes per pixel-channel each) give the per-cache rBias^2 / rVar; without
-    them those keys are None.
+    The seeds' frame moments (16 bytes per pixel-channel each) give the per-cache
+    rBias^2 / rVar.
     The run's quality verdict (jobs.protocol.quality) is stored with it, and the metrics
     the verdict withholds are stored as None, per seed and aggregated.
     """
@@ -273,8 +296,10 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     artifacts_store = ArtifactStore(settings.artifacts_dir)
     scratch = settings.data_dir / "tmp"
     scratch.mkdir(parents=True, exist_ok=True)
+    outputs = [rendered.output for rendered in seeds]
     per_seed, artifacts = [], []
-    for seed, (output, curve) in enumerate(zip(outputs, convergence, strict=True)):
+    for seed, (output, curve) in enumerate(zip(outputs, (r.convergence for r in seeds),
+                                               strict=True)):
         values = image_metrics(output.accumulated, reference.mean, eps=spec.eps,
                                flip_exposures=reference.flip_exposures,
                                ref_variance=reference.variance)
@@ -293,7 +318,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     seed_timings = [output.timings for output in outputs]
     frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
     metrics = aggregate(per_seed, [o.accumulated for o in outputs], reference, spec.eps,
-                        frame_seconds, frame_moments)
+                        frame_seconds, [rendered.moments for rendered in seeds])
     metrics.update(extra or {})
     timings = {
         "protocol": seed_timings[0]["protocol"],
@@ -333,7 +358,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
     summary = RunSummary(
         run_id=run.id, spec=spec, scene_fingerprint=scene.fingerprint, reference=reference_info,
         metrics=metrics, per_seed=per_seed, timings=timings, path_stats=path_stats,
-        device=device, quality=quality, **versions)
+        device=device, quality=quality, result=RunResultDetail.of(run), **versions)
     if out_dir is not None:
         summary.files = _export(out_dir, summary, reference, artifacts_store, artifacts)
     return summary
@@ -370,19 +395,16 @@ def execute(
             progress("calibration", 1, 1)
     params = parse_params(spec.method, spec.params)
     param_json = params.model_dump(mode="json")
-    outputs, curves, moments = [], [], []
+    rendered = []
     for seed in range(spec.seeds):
         label = f"seed {seed + 1}/{spec.seeds}"
-        tracker = ConvergenceTracker(prepared.reference.mean, spec.eps)
-        moments.append(RunningMoments())
-        hooks = FrameHooks(
-            keep_frames=spec.keep_frames, on_frame=chain(tracker, frame_moments_hook(moments[-1])),
+        rendered.append(render_seed(
+            lambda hooks, seed=seed: method.render(
+                prepared.scene, params,
+                seed_parts=(prepared.scene.fingerprint, spec.method, param_json, spec.spp, seed),
+                spp=spec.spp, frames=spec.frames, hooks=hooks),
+            prepared.reference.mean, spec.eps, keep_frames=spec.keep_frames,
             progress=(lambda done, total, label=label: progress(label, done, total))
-            if progress else None)
-        outputs.append(method.render(
-            prepared.scene, params,
-            seed_parts=(prepared.scene.fingerprint, spec.method, param_json, spec.spp, seed),
-            spp=spec.spp, frames=spec.frames, hooks=hooks))
-        curves.append(tracker.result())
-    return store_run(spec, prepared, outputs, curves, store, settings, out_dir=out_dir,
-                     idempotency_key=idempotency_key, extra=extra, frame_moments=moments)
+            if progress else None))
+    return store_run(spec, prepared, rendered, store, settings, out_dir=out_dir,
+                     idempotency_key=idempotency_key, extra=extra)

@@ -19,46 +19,33 @@ time ("PT at equal time"). Each calibration is stored with its run.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, make_dataclass
 from typing import Any
 
+from pydantic import BaseModel, Field
+
 from jobs.protocol.executor import RunSummary, execute
+from jobs.protocol.results import ReportRow, Skipped
 from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
 from jobs.record.config import Settings
 from jobs.record.store import Store
-from metrics.registry import row_values
 from renderers.methods import BASELINE, METHODS, NotApplicable
 
 
-def _report_row_fields() -> list[tuple[str, Any, Any]]:
-    """ReportRow's fields: the run, then one per listed metric of metrics.registry
-    (``mrse``, ``mrse_ci95``, ``flip``, ``rbias2``, ``rvar``, ``psnr``), then the timings."""
-    metric_fields = [(name, Any, None) for name in row_values({})]
-    return [("label", str), ("run_id", int), ("method", str), ("params", dict[str, Any]),
-            ("spp", int), ("ms_frame", float), ("ms_render", float), ("note", str, ""),
-            *metric_fields]
+class Report(BaseModel):
+    """The comparison: rows at equal spp and at equal time (each a stored run's public
+    result, jobs.protocol.results), the N_c calibration, the methods the scene rules out."""
 
-
-#: One row of the comparison; its metric fields are generated from the registry.
-ReportRow = make_dataclass("ReportRow", _report_row_fields())
-
-
-@dataclass
-class Report:
     scene: str
     device: str
-    equal_spp: list[Any] = field(default_factory=list)    # ReportRow
-    equal_time: list[Any] = field(default_factory=list)   # ReportRow
-    calibration: dict[str, Any] = field(default_factory=dict)
-    skipped: list[dict[str, str]] = field(default_factory=list)  # methods the scene rules out
+    equal_spp: list[ReportRow] = Field(default_factory=list)
+    equal_time: list[ReportRow] = Field(default_factory=list)
+    calibration: dict[str, Any] = Field(default_factory=dict)
+    skipped: list[Skipped] = Field(default_factory=list)
 
 
-def _row(label: str, summary: RunSummary, note: str = "") -> Any:
-    m, t = summary.metrics, summary.timings
-    render = t["stages"].get("render", {}).get("median_s", t["seconds_per_frame"])
-    return ReportRow(label=label, run_id=summary.run_id, method=summary.spec.method,
-                     params=summary.spec.params, spp=summary.spec.spp, **row_values(m),
-                     ms_frame=1e3 * t["seconds_per_frame"], ms_render=1e3 * render, note=note)
+def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
+    return ReportRow.model_validate({**summary.result.model_dump(), "label": label,
+                                     "note": note})
 
 
 def comparison_report(
@@ -80,7 +67,7 @@ def comparison_report(
         try:
             return execute(spec, store, settings, progress=step)
         except NotApplicable as err:   # the method's applies_to rules the scene out
-            report.skipped.append({"method": method, "label": label, "reason": str(err)})
+            report.skipped.append(Skipped(method=method, label=label, reason=str(err)))
             return None
 
     def shared(method: str) -> dict[str, Any]:

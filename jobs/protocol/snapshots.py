@@ -22,7 +22,6 @@ variance the bias maps subtract (metrics/bias_maps.py).
 from __future__ import annotations
 
 import io
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -36,8 +35,10 @@ from jobs.record.artifacts import ArtifactStore, artifact_record, encode_image
 from jobs.record.config import Settings
 from jobs.record.store import DuplicateKeyError, Store
 from metrics.imageio import ImageReadError, read_exr, write_exr
+from metrics.statistics import RunningMoments
 from renderers.methods.base import FrameHooks
 from renderers.methods.cached import CacheTrainingParams, render_with_cache
+from renderers.reference import render_passes
 from renderers.seeding import derive_seed, digest
 
 #: Lanes per pass of the v1 render (bounds the memory of one wavefront).
@@ -146,35 +147,19 @@ def render_v1(scene: Any, integrator: Any, spp: int,
     has the same count): up to n - 1 more samples than asked are rendered.
     Returns (image, variance of the image, info: spp rendered, passes, seconds).
     """
-    import mitsuba as mi
-
-    from renderers.timing import synchronize
-
     if spp < 2:
         raise ValueError(f"the v1 image needs at least 2 spp for its variance, got {spp}")
     width, height = scene.resolution
     max_per_pass = max(1, V1_PASS_LANES // (width * height))
     per_pass = min(max_per_pass, -(-spp // min(V1_PASSES, spp)))
     passes = max(2, -(-spp // per_pass))
-    shift: np.ndarray | None = None     # the first pass: keeps the moments well conditioned
-    total = np.zeros((height, width, 3), np.float64)      # sum of (pass - shift)
-    total_sq = np.zeros((height, width, 3), np.float64)   # sum of (pass - shift)^2
-    start = time.perf_counter()
-    for index in range(passes):
-        image = mi.render(scene.scene, integrator=integrator, spp=per_pass,
-                          seed=derive_seed(seed, index))
-        synchronize(image)
-        x = np.asarray(image, dtype=np.float64)[..., :3]
-        if shift is None:
-            shift = x.copy()
-        total += x - shift
-        total_sq += (x - shift) ** 2
-    seconds = time.perf_counter() - start
-    assert shift is not None
-    mean = shift + total / passes
-    sample_variance = np.maximum(total_sq - total * total / passes, 0.0) / (passes - 1)
+    # Unlike a reference, a non-finite pixel is counted with the snapshot, not refused.
+    moments = RunningMoments()
+    seconds = render_passes(scene.scene, integrator, pass_spp=per_pass, passes=passes,
+                            seed_of=lambda index: derive_seed(seed, index), sink=moments)
+    v1 = moments.estimate()
     info = {"v1_spp_rendered": per_pass * passes, "v1_passes": passes, "v1_render_s": seconds}
-    return (mean.astype(np.float32), (sample_variance / passes).astype(np.float32), info)
+    return v1.mean.astype(np.float32), v1.variance_of_mean.astype(np.float32), info
 
 
 def _snapshot_artifacts(settings: Settings, weights: dict[str, np.ndarray],

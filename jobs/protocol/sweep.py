@@ -57,33 +57,31 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+from pydantic import BaseModel, Field, computed_field
 
 from jobs.protocol.calibration import calibrate
 from jobs.protocol.executor import (
-    ConvergenceTracker,
     Prepared,
     Progress,
-    chain,
+    SeedRender,
     execute,
-    frame_moments_hook,
     prepare,
+    render_seed,
     store_run,
 )
 from jobs.protocol.plots import plot_convergence, plot_sweep
+from jobs.protocol.results import RunResult, Skipped
 from jobs.protocol.snapshots import Snapshot, get_or_make_snapshot
 from jobs.protocol.spec import RenderSpec, SweepSpec
 from jobs.record.artifacts import ArtifactStore, artifact_record
 from jobs.record.config import Settings
 from jobs.record.store import Store
 from metrics.bias_maps import bias_map, passes
-from metrics.registry import row_values
-from metrics.statistics import RunningMoments
 from renderers.methods import (
     EQUAL_TIME_SUFFIX,
     equal_time_pairs,
@@ -92,7 +90,7 @@ from renderers.methods import (
     series_label,
     sweep_series,
 )
-from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
+from renderers.methods.base import FrameHooks, render_stage, run_frames
 from renderers.methods.cached import CACHE_AOVS
 from renderers.seeding import digest
 
@@ -100,8 +98,45 @@ from renderers.seeding import digest
 SERIES_LABELS = {series: series_label(series) for series in sweep_series()}
 
 
-@dataclass
-class SweepResult:
+class SweepRow(RunResult):
+    """One line of the sweep table: a stored point's public result (jobs.protocol.results)
+    with the sweep's own columns."""
+
+    series: str = Field(description="the series' label (a method, or its equal-time series)")
+    eps: float | None = Field(description="relative-bias threshold of the v1 mask (eps sweep)")
+    nc: int | None = Field(description="N_c at v1 (null: the method has no N_c)")
+    rbias2_raw: float | None = None
+    avg_path_length: float | None = Field(None, description="average path vertices")
+    ir_bounces_pct: float | None = Field(None, description="% indirect-radiance bounces")
+    avg_path_length_authors: float | None = None
+    ir_bounces_pct_authors: float | None = None
+    background_pct: float | None = None
+    cache_at_v1_pct: float | None = Field(None, description="% of paths cached at v1")
+    mask_pct: float | None = Field(None, description="% of pixels the v1 mask allows")
+    calibration: dict[str, Any] | None = Field(None, description="the equal-time calibration")
+    calibration_capped: bool | None = None
+    calibration_unstable: bool | None = None
+    finite: bool = True
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def ms_frame(self) -> float | None:
+        """Milliseconds per frame (the plots' and the dashboard's time axis)."""
+        return None if self.seconds_per_frame is None else 1e3 * self.seconds_per_frame
+
+
+class SweepSnapshot(BaseModel):
+    """A trained cache a sweep used (jobs.protocol.snapshots), with its cost."""
+
+    method: str
+    seed: int
+    key: str
+    id: int
+    train_s_per_frame: float
+    v1_render_s: float
+
+
+class SweepResult(BaseModel):
     """What a finished sweep reports (also stored as the sweep row's result)."""
 
     sweep_id: int
@@ -109,17 +144,25 @@ class SweepResult:
     kind: str
     scene: str
     device_key: str
-    rows: list[dict[str, Any]]
-    skipped: list[dict[str, str]]
+    rows: list[SweepRow]
+    skipped: list[Skipped]
     work: dict[str, int]
     # Summed work of the stage jobs the sweep ran as on the service ({} when it ran
     # whole); ``work`` is then only what the final sweep job did itself.
-    stage_work: dict[str, int] = field(default_factory=dict)
-    snapshots: list[dict[str, Any]] = field(default_factory=list)
-    files: dict[str, str] = field(default_factory=dict)
+    stage_work: dict[str, int] = Field(default_factory=dict)
+    snapshots: list[SweepSnapshot] = Field(default_factory=list)
+    files: dict[str, str] = Field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        return self.model_dump(mode="json")
+
+
+class Point(NamedTuple):
+    """A sweep point to render: its threshold, the method's parameters, its stored key."""
+
+    eps: float
+    params: Any
+    key: str
 
 
 # ---------------------------------------------------------------------------
@@ -192,7 +235,7 @@ class _Sweep:
                      "snapshots_trained": 0, "snapshots_reused": 0, "points_rendered": 0,
                      "points_reused": 0, "calibrations": 0}
         self.snapshots: dict[tuple[str, int], Snapshot] = {}
-        self.skipped: list[dict[str, str]] = []
+        self.skipped: list[Skipped] = []
         self._probes: dict[tuple[str, int | None], Any] = {}  # probe integrators (method, N_c)
         self._bias: dict[str, np.ndarray] = {}  # relative-bias maps by snapshot key
         # One bar across the whole sweep: caches, then points (reused ones count too).
@@ -275,53 +318,48 @@ class _Sweep:
 
     # ---- rendering points ----
 
-    def render_points(self, method: str, series: str, points: list[tuple[float, Any, str]],
+    def render_points(self, method: str, series: str, points: list[Point],
                       extras: dict[float, dict[str, Any]] | None = None) -> dict[float, int]:
-        """Render and store the points (eps, params, key); all share one params value.
+        """Render and store the points; all share one params value.
 
         Returns run ids by eps. One warm-up per seed; eps vary in the inner loop.
         """
-        params = points[0][1]
-        outputs: dict[float, list[RenderOutput]] = {eps: [] for eps, _, _ in points}
-        curves: dict[float, list[dict[str, Any]]] = {eps: [] for eps, _, _ in points}
-        masks: dict[float, list[float]] = {eps: [] for eps, _, _ in points}
-        # Each seed's frames per point: the per-cache rBias^2 / rVar of a frozen cache.
-        moments: dict[float, list[RunningMoments]] = {eps: [] for eps, _, _ in points}
+        params = points[0].params
+        rendered: dict[float, list[SeedRender]] = {point.eps: [] for point in points}
+        masks: dict[float, list[float]] = {point.eps: [] for point in points}
         stage = f"{SERIES_LABELS[series]} points"
         total, done = self.spec.seeds * len(points), 0
         for seed in range(self.spec.seeds):
             snap = self.snapshot(method, seed)
             integrator = self.frozen_integrator(method, params, snap)
             bias = self.bias(snap)
-            for index, (eps, _, _) in enumerate(points):
-                mask = v1_mask(bias, eps)
+            for index, point in enumerate(points):
+                mask = v1_mask(bias, point.eps)
                 integrator.set_v1_mask(mask)
-                tracker = ConvergenceTracker(self.prepared.reference.mean, self.spec.metric_eps)
-                moments[eps].append(RunningMoments())
-                output = run_frames(
-                    render_stage(self.prepared.scene, integrator, 1),
-                    seed_parts=(self.prepared.scene.fingerprint, method,
-                                params.model_dump(mode="json"), "sweep", seed),
-                    frames=self.spec.frames, spp=1, aov_names=CACHE_AOVS,
-                    hooks=FrameHooks(warmup=index == 0,
-                                     on_frame=chain(tracker, frame_moments_hook(moments[eps][-1]))))
-                output.method_stats = {"snapshot": snap.key, "mask_fraction": float(mask.mean())}
-                outputs[eps].append(output)
-                curves[eps].append(tracker.result())
-                masks[eps].append(float(mask.mean()))
+                seed_render = render_seed(
+                    lambda hooks, seed=seed, integrator=integrator: run_frames(
+                        render_stage(self.prepared.scene, integrator, 1),
+                        seed_parts=(self.prepared.scene.fingerprint, method,
+                                    params.model_dump(mode="json"), "sweep", seed),
+                        frames=self.spec.frames, spp=1, aov_names=CACHE_AOVS, hooks=hooks),
+                    self.prepared.reference.mean, self.spec.metric_eps, warmup=index == 0)
+                seed_render.output.method_stats = {"snapshot": snap.key,
+                                                   "mask_fraction": float(mask.mean())}
+                rendered[point.eps].append(seed_render)
+                masks[point.eps].append(float(mask.mean()))
                 done += 1
                 self.report(stage, done, total)
         run_ids = {}
-        for eps, _, key in points:
-            extra = {"sweep": {"series": series, "eps": eps,
-                               "mask_fraction": float(np.mean(masks[eps])),
+        for point in points:
+            extra = {"sweep": {"series": series, "eps": point.eps,
+                               "mask_fraction": float(np.mean(masks[point.eps])),
                                "snapshots": [self.snapshot(method, s).key
                                              for s in range(self.spec.seeds)],
-                               **((extras or {}).get(eps, {}))}}
-            summary = store_run(self.point_spec(method, params), self.prepared, outputs[eps],
-                                curves[eps], self.store, self.settings, idempotency_key=key,
-                                extra=extra, frame_moments=moments[eps])
-            run_ids[eps] = summary.run_id
+                               **((extras or {}).get(point.eps, {}))}}
+            summary = store_run(self.point_spec(method, params), self.prepared,
+                                rendered[point.eps], self.store, self.settings,
+                                idempotency_key=point.key, extra=extra)
+            run_ids[point.eps] = summary.run_id
             self.work["points_rendered"] += 1
             self.advance()
         return run_ids
@@ -333,13 +371,13 @@ class _Sweep:
                                     extra={"bias_definition": self.spec.bias_definition})
                 for eps in self.spec.eps}
         runs = {eps: self.store.find_run_by_idempotency_key(key) for eps, key in keys.items()}
-        pending = [(eps, params, keys[eps]) for eps, run in runs.items() if run is None]
+        pending = [Point(eps, params, keys[eps]) for eps, run in runs.items() if run is None]
         self.work["points_reused"] += len(keys) - len(pending)
         self.advance(len(keys) - len(pending) + (0 if pending else self.spec.seeds))
         if pending:
             reason = self.skip_reason(method)
             if reason:
-                self.skipped.append({"method": method, "reason": reason})
+                self.skipped.append(Skipped(method=method, reason=reason))
                 return None
             for eps, run_id in self.render_points(method, method, pending).items():
                 runs[eps] = self.store.get_run(run_id)
@@ -355,7 +393,7 @@ class _Sweep:
         budget_points = [(matching_rbias2(run), run) for run in budget_runs.values()
                          if matching_rbias2(run) is not None]
         runs: dict[float, Any] = {}
-        plan: dict[int, list[tuple[float, Any, str]]] = {}
+        plan: dict[int, list[Point]] = {}
         extras: dict[int, dict[float, dict[str, Any]]] = {}
         for eps, run in own.items():
             rbias2 = matching_rbias2(run)
@@ -385,7 +423,7 @@ class _Sweep:
                 rounds=self.spec.calibration_rounds, max_spread=self.spec.time_max_spread)
             self.work["calibrations"] += 1
             plan.setdefault(record.chosen, []).append(
-                (eps, self.params(method, record.chosen), key))
+                Point(eps, self.params(method, record.chosen), key))
             extras.setdefault(record.chosen, {})[eps] = {
                 "calibration": record.to_json(), f"{knob}_v1": record.chosen,
                 f"matched_{against}_run": match.id}
@@ -455,30 +493,27 @@ def matching_rbias2(run: Any) -> float | None:
 # Rows, plots, storage
 # ---------------------------------------------------------------------------
 
-def point_row(series: str, eps: float | None, run: Any) -> dict[str, Any]:
+def point_row(series: str, eps: float | None, run: Any) -> SweepRow:
     """One line of the sweep table from a stored run."""
     m, stats = run.metrics, run.path_stats
     sweep = m.get("sweep", {})
     fractions = stats.get("cache_depth_fractions")
     background = stats.get("background_fraction")
     calibration = sweep.get("calibration")
-    return {
-        "series": SERIES_LABELS.get(series, series), "eps": eps, "run_id": run.id,
-        "nc": (run.params.get("nc") or [None])[0],
-        **row_values(m),   # the listed metrics (metrics.registry), e.g. mrse, mrse_ci95, flip
-        "ms_frame": 1e3 * run.timings["seconds_per_frame"], "rbias2_raw": m.get("rbias2_raw"),
-        "avg_path_length": stats.get("avg_path_vertices"),
-        "ir_bounces_pct": ir_bounces_pct(fractions),
-        "avg_path_length_authors": avg_path_length_authors(fractions, background),
-        "ir_bounces_pct_authors": ir_bounces_pct_authors(fractions, background),
-        "background_pct": 100.0 * background if background is not None else None,
-        "cache_at_v1_pct": 100.0 * v1_fraction(fractions) if fractions else None,
-        "mask_pct": 100.0 * sweep["mask_fraction"] if "mask_fraction" in sweep else None,
-        "calibration": calibration,
-        "calibration_capped": calibration.get("capped") if calibration else None,
-        "calibration_unstable": calibration.get("unstable") if calibration else None,
-        "finite": run.quality.get("finite", True),
-    }
+    return SweepRow.of(
+        run, series=SERIES_LABELS.get(series, series), eps=eps,
+        nc=(run.params.get("nc") or [None])[0], rbias2_raw=m.get("rbias2_raw"),
+        avg_path_length=stats.get("avg_path_vertices"),
+        ir_bounces_pct=ir_bounces_pct(fractions),
+        avg_path_length_authors=avg_path_length_authors(fractions, background),
+        ir_bounces_pct_authors=ir_bounces_pct_authors(fractions, background),
+        background_pct=100.0 * background if background is not None else None,
+        cache_at_v1_pct=100.0 * v1_fraction(fractions) if fractions else None,
+        mask_pct=100.0 * sweep["mask_fraction"] if "mask_fraction" in sweep else None,
+        calibration=calibration,
+        calibration_capped=calibration.get("capped") if calibration else None,
+        calibration_unstable=calibration.get("unstable") if calibration else None,
+        finite=run.quality.get("finite", True))
 
 
 def _convergence_curves(sweep: _Sweep) -> dict[str, dict[str, Any]]:
@@ -506,7 +541,7 @@ def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[di
     title = f"{sweep.prepared.scene.name} ({sweep.device_key})"
     files: dict[str, Path] = {}
     if result.kind == "eps":
-        files["fig13"] = plot_sweep(result.rows, out_dir / "sweep_fig13.png",
+        files["fig13"] = plot_sweep(result.to_json()["rows"], out_dir / "sweep_fig13.png",
                                     f"Adaptive equal-bias sweep: {title}")
         files["fig10"] = plot_convergence(_convergence_curves(sweep),
                                           out_dir / "convergence_fig10.png",
@@ -542,9 +577,9 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
             sweep_id=row.id, key=key, kind=spec.kind, scene=sweep.prepared.scene.name,
             device_key=sweep.device_key, rows=rows, skipped=sweep.skipped, work=sweep.work,
             stage_work=stage_work or {},
-            snapshots=[{"method": m, "seed": s, "key": snap.key, "id": snap.id,
-                        "train_s_per_frame": snap.stats["train_seconds_per_frame"],
-                        "v1_render_s": snap.stats["v1_render_s"]}
+            snapshots=[SweepSnapshot(method=m, seed=s, key=snap.key, id=snap.id,
+                                     train_s_per_frame=snap.stats["train_seconds_per_frame"],
+                                     v1_render_s=snap.stats["v1_render_s"])
                        for (m, s), snap in sorted(sweep.snapshots.items())])
         target = out_dir or settings.data_dir / "sweeps" / f"sweep-{row.id}"
         plots = _write_outputs(sweep, result, target)
@@ -557,7 +592,7 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
     return result
 
 
-def _eps_rows(sweep: _Sweep) -> list[dict[str, Any]]:
+def _eps_rows(sweep: _Sweep) -> list[SweepRow]:
     series = {method: sweep.series(method) for method in sweep.spec.methods}
     for method, runs in series.items():   # every cache's training curve goes into the plots
         for seed in range(sweep.spec.seeds if runs else 0):
@@ -570,13 +605,13 @@ def _eps_rows(sweep: _Sweep) -> list[dict[str, Any]]:
             rows += [point_row(method + EQUAL_TIME_SUFFIX, eps, run)
                      for eps, run in sorted(equal_time.items())]
         else:
-            sweep.skipped.append({"method": method + EQUAL_TIME_SUFFIX,
-                                  "reason": f"needs both the {series_label(method)} and the "
-                                            f"{series_label(against)} series"})
+            sweep.skipped.append(Skipped(method=method + EQUAL_TIME_SUFFIX,
+                                         reason=f"needs both the {series_label(method)} and "
+                                                f"the {series_label(against)} series"))
     return rows
 
 
-def _nc_rows(sweep: _Sweep) -> list[dict[str, Any]]:
+def _nc_rows(sweep: _Sweep) -> list[SweepRow]:
     """A sweep over N_c of biased NIRC (online training, ``train_frames`` pre-training)."""
     rows = []
     for nc in sweep.spec.nc or []:

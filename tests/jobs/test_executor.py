@@ -171,7 +171,7 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     PSNR (one registry entry) appears in each without code of its own there."""
     from rich.console import Console
 
-    from jobs.protocol.sweep import point_row
+    from jobs.protocol.sweep import SweepResult, point_row
     from metrics.registry import LISTED, METRICS, PER_SEED
     from service.api.schemas import RunOut
     from service.tables import metric_label, metrics_table, sweep_table
@@ -193,18 +193,18 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     assert row["psnr"] == run.metrics["psnr_mean"] and row["flip"] == run.metrics["flip_hdr_mean"]
 
     console = Console(width=250, record=True)
-    console.print(metrics_table(summary))
+    console.print(metrics_table(summary.result))
     text = console.export_text()
     for metric in METRICS:
         assert metric_label(metric) in text, metric.name
     assert "PSNR (dB, higher better)" in text and "MRSE (lower better)" in text
     sweep_row = point_row("nirc", 0.5, run)
-    assert {m.field for m in LISTED} <= set(sweep_row) and sweep_row["psnr"] == row["psnr"]
-    result = dataclasses.make_dataclass("Result", ["sweep_id", "scene", "device_key", "rows",
-                                                   "skipped", "work", "files"])(
-        1, "cornell-box", "dev", [sweep_row], [], dict.fromkeys(
-            ("reference_rendered", "snapshots_trained", "snapshots_reused", "points_rendered",
-             "points_reused", "calibrations"), 0), {})
+    assert {m.field for m in LISTED} <= set(sweep_row.model_dump()) \
+        and sweep_row.psnr == row["psnr"]
+    result = SweepResult(sweep_id=1, key="k", kind="eps", scene="cornell-box", device_key="dev",
+                         rows=[sweep_row], skipped=[], work=dict.fromkeys(
+        ("reference_rendered", "snapshots_trained", "snapshots_reused", "points_rendered",
+         "points_reused", "calibrations"), 0))
     console.print(sweep_table(result))
     text = console.export_text()
     assert all(metric.label in text for metric in LISTED) and "PSNR" in text

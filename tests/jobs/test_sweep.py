@@ -100,7 +100,7 @@ def sweep_env(tmp_path_factory, mi):
 
 
 def _series(result, name):
-    return [row for row in result.rows if row["series"] == name]
+    return [row for row in result.rows if row.series == name]
 
 
 def test_sweep_reports_every_series_and_point(sweep_env):
@@ -108,28 +108,28 @@ def test_sweep_reports_every_series_and_point(sweep_env):
     assert result.skipped == []
     for name in ("NIRC", "NRC", "NIRC equal time"):
         rows = _series(result, name)
-        assert [row["eps"] for row in rows] == [0.1, 0.3, 1.0]
+        assert [row.eps for row in rows] == [0.1, 0.3, 1.0]
         for row in rows:
-            assert row["finite"]
+            assert row.finite
             for key in ("mrse", "flip", "ms_frame", "rbias2", "rvar", "avg_path_length",
                         "ir_bounces_pct", "avg_path_length_authors", "ir_bounces_pct_authors"):
-                assert row[key] is not None and np.isfinite(row[key]), (name, key)
+                assert getattr(row, key) is not None and np.isfinite(getattr(row, key)), (name, key)
         # s <= the path's vertex count for every pixel; the camera of cornell-box sees
         # some background through the box's open side (s = 0 there).
         for row in rows:
-            foreground = 1 - row["background_pct"] / 100
-            assert 0 < row["background_pct"] < 20
-            assert row["avg_path_length_authors"] <= row["avg_path_length"] + 1e-9
-            assert row["avg_path_length_authors"] == pytest.approx(
-                foreground * (1 + row["ir_bounces_pct_authors"] / 100))
+            foreground = 1 - row.background_pct / 100
+            assert 0 < row.background_pct < 20
+            assert row.avg_path_length_authors <= row.avg_path_length + 1e-9
+            assert row.avg_path_length_authors == pytest.approx(
+                foreground * (1 + row.ir_bounces_pct_authors / 100))
     for row in _series(result, "NIRC equal time"):
-        calibration = row["calibration"]
-        assert calibration["knob"] == "nc" and calibration["chosen"] == row["nc"]
+        calibration = row.calibration
+        assert calibration["knob"] == "nc" and calibration["chosen"] == row.nc
         # Every candidate timed in 3 rounds, each round after a re-measured NRC budget.
         assert set(calibration["measured_s"]) == {"1", "2"} and calibration["rounds"] == 3
         assert calibration["order"][::3] == ["budget"] * 3
-        assert row["calibration_capped"] == (calibration["chosen"] == 2)
-        assert row["calibration_unstable"] == calibration["unstable"]
+        assert row.calibration_capped == (calibration["chosen"] == 2)
+        assert row.calibration_unstable == calibration["unstable"]
     work = result.work
     assert work["reference_rendered"] == 1 and work["snapshots_trained"] == 4
     assert work["points_rendered"] >= 6 and work["calibrations"] == 3
@@ -139,9 +139,9 @@ def test_masks_grow_and_ir_bounces_fall_with_eps(sweep_env):
     _, _, result = sweep_env
     for name in ("NIRC", "NRC"):
         rows = _series(result, name)
-        masks = [row["mask_pct"] for row in rows]
-        v1 = [row["cache_at_v1_pct"] for row in rows]
-        ir = [row["ir_bounces_pct"] for row in rows]
+        masks = [row.mask_pct for row in rows]
+        v1 = [row.cache_at_v1_pct for row in rows]
+        ir = [row.ir_bounces_pct for row in rows]
         assert masks == sorted(masks) and v1 == sorted(v1), name
         # Every eps renders with the same random numbers, so paths differ only where a
         # larger mask lets them stop at v1: the % IR bounces cannot rise.
@@ -162,7 +162,7 @@ def test_masks_use_the_noise_corrected_bias_of_the_snapshots(sweep_env):
     gained = 0
     for name in ("NIRC", "NRC"):
         for row in _series(result, name):
-            run = store.get_run(row["run_id"])
+            run = store.get_run(row.id)
             corrected, raw = [], []
             for key in run.metrics["sweep"]["snapshots"]:
                 snap = _load(store.find_snapshot(key), settings_)
@@ -172,9 +172,9 @@ def test_masks_use_the_noise_corrected_bias_of_the_snapshots(sweep_env):
                 corrected.append(passes(bias_map("relative-mse", *args,
                                                  v_variance=snap.v1_variance,
                                                  ref_variance=reference.variance),
-                                        row["eps"]).mean())
-                raw.append(passes(bias_map("relative-mse", *args), row["eps"]).mean())
-            assert row["mask_pct"] == pytest.approx(100 * np.mean(corrected)), (name, row["eps"])
+                                        row.eps).mean())
+                raw.append(passes(bias_map("relative-mse", *args), row.eps).mean())
+            assert row.mask_pct == pytest.approx(100 * np.mean(corrected)), (name, row.eps)
             gained += np.mean(corrected) > np.mean(raw)
     assert gained > 0
 
@@ -229,7 +229,7 @@ def test_a_second_identical_sweep_renders_nothing(sweep_env):
     assert second.work == {"reference_rendered": 0, "snapshots_trained": 0,
                            "snapshots_reused": 4, "points_rendered": 0, "points_reused": 9,
                            "calibrations": 0}
-    assert [r["run_id"] for r in second.rows] == [r["run_id"] for r in first.rows]
+    assert [r.id for r in second.rows] == [r.id for r in first.rows]
     assert second.snapshots == first.snapshots   # the re-drawn plots show every cache
 
 
@@ -268,7 +268,7 @@ def test_a_scene_without_usable_first_vertices_is_skipped_with_a_reason(tmp_path
     result = run_sweep(small_spec(scene=str(scene), resolution=8, train_frames=2, v1_spp=4,
                                   eps=[0.5]), store, settings_)
     assert result.rows == []
-    reasons = {s["method"]: s["reason"] for s in result.skipped}
+    reasons = {s.method: s.reason for s in result.skipped}
     assert set(reasons) == {"nirc", "nrc", "nirc-equal-time"}
     assert "first vertex" in reasons["nirc"]
     store.close()
@@ -314,4 +314,4 @@ def test_an_nc_sweep_run_as_stages_renders_its_points_in_the_stages(sweep_env):
     result = _run_staged(spec, store, settings_)
     assert result.work["points_rendered"] == 0 and result.work["points_reused"] == 2
     assert result.stage_work["points_rendered"] == 2
-    assert [row["nc"] for row in result.rows] == [1, 2]
+    assert [row.nc for row in result.rows] == [1, 2]

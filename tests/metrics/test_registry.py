@@ -78,16 +78,14 @@ def test_stored_keys_and_verdict_names_are_unchanged():
 
 
 def test_result_rows_and_api_fields_come_from_the_registry():
-    from dataclasses import fields
-
     from jobs.protocol.plots import _SWEEP_PANELS
-    from jobs.protocol.report import ReportRow
+    from jobs.protocol.results import ReportRow
     from service.api.schemas import RunOut
     from service.tables import SWEEP_COLUMNS
 
     served = {"mrse", "mrse_ci95", "rbias2", "rvar", "flip", "psnr"}
     assert served <= set(RunOut.model_fields)
-    assert served <= {f.name for f in fields(ReportRow)}   # the report's JSON keys stay
+    assert served <= set(ReportRow.model_fields)   # the report's JSON keys stay
     # The sweep figure keeps the paper's four panels (PSNR is not one of Fig. 13's).
     assert [(key, log) for key, _, log, _ in _SWEEP_PANELS] == [
         ("mrse", True), ("flip", False), ("rbias2", True), ("rvar", True)]
@@ -104,3 +102,17 @@ def test_the_registry_is_served_as_json():
     assert psnr["direction"] == "higher" and psnr["field"] == "psnr" and psnr["unit"] == "dB"
     mrse = next(m for m in served if m["name"] == "mrse")
     assert mrse["ci_field"] == "mrse_ci95" and mrse["log_axis"] and mrse["sweep_plot"]
+
+
+def test_readme_metric_table_is_generated_from_the_registry():
+    from pathlib import Path
+
+    from metrics.registry import METRICS, metric_table
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    begin, end = "<!-- metrics:begin -->\n", "\n<!-- metrics:end -->"
+    assert begin in readme and end in readme, "README.md lost the metric-table markers"
+    table = readme[readme.index(begin) + len(begin):readme.index(end)]
+    assert table == metric_table(), ("README.md's metric table is stale: replace it with "
+                                     "the output of `python -m metrics.registry`")
+    assert all(f"`{m.key}`" in table for m in METRICS)

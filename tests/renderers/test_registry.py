@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import subprocess
 import sys
+from datetime import UTC, datetime
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -159,6 +160,7 @@ def test_the_integrator_takes_its_parameters_only_from_the_methods_model(mi):
 def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
     """The report reads its runs from the registry; runs, labels and rows are today's."""
     import jobs.protocol.report as report_module
+    from jobs.protocol.results import RunResultDetail
 
     calls = []
 
@@ -169,9 +171,17 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
         if spec.time_budget is not None:
             metrics["calibration"] = {"chosen": 8, "fits": True}
         spp = 3 if spec.time_budget is not None and spec.method == "pt" else spec.spp
-        return SimpleNamespace(metrics=metrics, timings={"seconds_per_frame": 0.01, "stages": {}},
-                               run_id=len(calls), spec=spec.model_copy(update={"spp": spp}),
-                               device={"device_key": "dev"})
+        timings = {"seconds_per_frame": 0.01, "stages": {}}
+        result = RunResultDetail(
+            id=len(calls), created_at=datetime.now(UTC), scene="s", scene_fingerprint="f",
+            method=spec.method, params=dict(spec.params), resolution=[64, 64], spp=spp,
+            frames=1, seeds=1, seconds_per_frame=0.01, device_key="dev", quality={},
+            estimator_version=1, metric_version=1, current=True, mrse=1.0, flip=0.1,
+            metrics=metrics, timings=timings, path_stats={}, device={}, versions={},
+            git_commit=None, reference_id=None, per_seed=[])
+        return SimpleNamespace(metrics=metrics, timings=timings, run_id=len(calls),
+                               spec=spec.model_copy(update={"spp": spp}),
+                               device={"device_key": "dev"}, result=result)
 
     monkeypatch.setattr(report_module, "execute", fake_execute)
     report = report_module.comparison_report("s", None, None, max_depth=8, pretrain_frames=7)
@@ -190,3 +200,4 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
         "PT 2 spp (budget)", "NIRC biased (N_c 8)", "NRC", "PT 3 spp (= NRC time)",
         "NIRC unbiased", "PT 3 spp (= NIRC unbiased time)"]
     assert report.device == "dev" and report.skipped == []
+    assert [row.id for row in report.equal_spp] == [1, 2, 3, 4, 5]   # the runs' own results

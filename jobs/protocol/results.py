@@ -1,0 +1,177 @@
+"""The public result of a run: one model for the API, the CLI tables, the sweep and the report.
+
+A stored run (jobs.record.models.Run) is shown to users in one shape only,
+made by one function, :meth:`RunResult.of`:
+
+===========================  ===============================================
+model                        used by
+===========================  ===============================================
+:class:`RunResult`           ``GET /api/v1/results`` and ``/compare`` rows;
+                             the report's rows (:class:`ReportRow` adds a
+                             label); the sweep's rows
+                             (jobs.protocol.sweep.SweepRow adds its columns)
+:class:`RunResultDetail`     ``GET /api/v1/runs/{id}`` (the API adds artifact
+                             URLs); the table ``nirc-bench render`` prints,
+                             embedded or from a service
+===========================  ===============================================
+
+The metric fields (``mrse``, ``mrse_ci95``, ``rbias2``, ``rvar``, ``flip``,
+``psnr``, ...) are generated from metrics.registry; a metric the run's quality
+verdict withholds is null.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, create_model
+
+from jobs.protocol.versions import is_current
+from metrics.registry import LISTED, Metric, row_values
+
+
+def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
+    """``<field>`` per listed metric (and ``<field>_ci95``), with its description."""
+    fields: dict[str, Any] = {}
+    for m in metrics:
+        unit = f" [{m.unit}]" if m.unit else ""
+        fields[m.field] = (float | None, Field(
+            None, description=f"{m.description}{unit}; {m.direction} is better (stored as "
+                              f"metrics.{m.key}; null when withheld or not computed)"))
+        if m.ci_key:
+            fields[f"{m.field}_ci95"] = (list[float] | None, Field(
+                None, description=f"Student-t 95 % interval of {m.label} over the seeds"))
+    return fields
+
+
+#: The metric columns of a result, generated from metrics.registry.
+ResultMetrics = create_model("ResultMetrics", **_metric_fields(LISTED))
+
+
+def render_seconds(timings: dict[str, Any]) -> float | None:
+    """Median seconds of a frame's render stage (the frame time for a method without stages)."""
+    render = (timings.get("stages") or {}).get("render") or {}
+    return render.get("median_s", timings.get("seconds_per_frame"))
+
+
+class RunResult(ResultMetrics):
+    """A stored run as users see it: what ran, where, how fast, and its listed metrics."""
+
+    id: int
+    created_at: datetime
+    scene: str
+    scene_fingerprint: str
+    method: str
+    params: dict[str, Any]
+    resolution: list[int]
+    spp: int
+    frames: int
+    seeds: int
+    seconds_per_frame: float | None = Field(
+        description="median seconds per frame (a caching method's include its online training)")
+    render_seconds_per_frame: float | None = Field(
+        None, description="median seconds of a frame's render stage alone")
+    device_key: str
+    quality: dict[str, Any]
+    ref_floor_ratio_rbias2: float | None = Field(
+        None, description="reference noise floor mean Var[R]/(R^2+eps) over |rBias^2|")
+    ref_floor_ratio_mrse: float | None = Field(
+        None, description="reference noise floor over |MRSE less the floor|")
+    warnings: list[str] = Field(
+        default_factory=list, description="e.g. the reference floor is above 10 % of a metric")
+    verdict: str | None = Field(
+        None, description="quality verdict (ok, untrained-cache, nonfinite, negative-radiance, "
+                          "degenerate-reference, no-emitter); null for runs stored before verdicts")
+    withheld: list[str] = Field(
+        default_factory=list, description="metrics the verdict makes meaningless (null above)")
+    estimator_version: int
+    metric_version: int
+    current: bool = Field(description="computed by today's estimator and metric versions")
+
+    @classmethod
+    def fields_of(cls, run: Any) -> dict[str, Any]:
+        """The field values of the stored ``run`` (jobs.record.models.Run)."""
+        m, q = run.metrics, run.quality
+        return {
+            **row_values(m), "id": run.id, "created_at": run.created_at,
+            "scene": run.scene_name, "scene_fingerprint": run.scene_fingerprint,
+            "method": run.method, "params": {k: v for k, v in run.params.items() if k != "spec"},
+            "resolution": [run.width, run.height], "spp": run.spp, "frames": run.frames,
+            "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),
+            "render_seconds_per_frame": render_seconds(run.timings),
+            "device_key": run.device_key, "quality": q, "verdict": q.get("verdict"),
+            "withheld": q.get("withheld", []), "estimator_version": run.estimator_version,
+            "metric_version": run.metric_version,
+            "current": is_current(run.method, run.estimator_version, run.metric_version),
+            "ref_floor_ratio_rbias2": m.get("ref_floor_ratio_rbias2"),
+            "ref_floor_ratio_mrse": m.get("ref_floor_ratio_mrse"),
+            "warnings": m.get("warnings") or [],
+        }
+
+    @classmethod
+    def of(cls, run: Any, **extra: Any) -> RunResult:
+        """The public result of the stored ``run``; ``extra``: a subclass's own fields."""
+        return cls(**cls.fields_of(run), **extra)
+
+
+class SeedRow(BaseModel):
+    """One seed's metrics and timings (as stored)."""
+
+    seed: int
+    metrics: dict[str, Any]
+    timings: dict[str, Any]
+
+
+class ReferenceInfo(BaseModel):
+    """The converged reference a run was scored against."""
+
+    id: int
+    spp: int
+    key: str
+    split_half: dict[str, Any] = Field(
+        default_factory=dict, description="split-half estimate of the reference's own error")
+
+
+class RunResultDetail(RunResult):
+    """A run with every stored metric (per seed and aggregated), timings and provenance."""
+
+    metrics: dict[str, Any]
+    timings: dict[str, Any]
+    path_stats: dict[str, Any]
+    device: dict[str, Any]
+    versions: dict[str, Any]
+    git_commit: str | None
+    reference_id: int | None
+    reference: ReferenceInfo | None = None
+    per_seed: list[SeedRow]
+
+    @classmethod
+    def fields_of(cls, run: Any) -> dict[str, Any]:
+        ref = run.reference
+        return {
+            **RunResult.fields_of(run), "metrics": run.metrics, "timings": run.timings,
+            "path_stats": run.path_stats, "device": run.device, "versions": run.versions,
+            "git_commit": run.git_commit, "reference_id": run.reference_id,
+            "reference": None if ref is None else ReferenceInfo(
+                id=ref.id, spp=ref.spp, key=ref.key, split_half=ref.split_half or {}),
+            "per_seed": [SeedRow(seed=s.seed, metrics=s.metrics, timings=s.timings)
+                         for s in run.seed_results],
+        }
+
+
+class ReportRow(RunResult):
+    """A row of the method comparison (jobs.protocol.report): a run under its label."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    label: str
+    note: str = ""
+
+
+class Skipped(BaseModel):
+    """A method a scene rules out (its ``applies_to``), with the reason."""
+
+    method: str
+    reason: str
+    label: str | None = Field(None, description="the row it would have had (a report's)")

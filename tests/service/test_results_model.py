@@ -1,0 +1,53 @@
+"""One public result model (jobs.protocol.results): the API, the CLI's run table (embedded
+and from a service), the report's rows and the sweep's rows show a run the same way."""
+
+from __future__ import annotations
+
+from fastapi.testclient import TestClient
+from rich.console import Console
+
+from jobs.execution.apikeys import create_api_key
+from jobs.protocol.executor import execute
+from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
+from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.protocol.sweep import point_row
+from jobs.record.config import Settings
+from jobs.record.db import open_store
+from service.api.main import create_app
+from service.tables import metrics_table
+
+SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
+                  reference=ReferenceSpec(spp=64, spp_per_pass=8))
+
+
+def _text(renderable) -> str:
+    console = Console(width=250, record=True)
+    console.print(renderable)
+    return console.export_text()
+
+
+def test_every_view_of_a_run_is_the_one_result_model(mi, data_dir):
+    settings = Settings()
+    store = open_store(settings)
+    summary = execute(SPEC, store, settings)
+    run = store.get_run(summary.run_id)
+    row = RunResult.of(run)
+    assert summary.result == RunResultDetail.of(run)   # what the executor hands the CLI
+
+    _, key = create_api_key(store, "tests")
+    with TestClient(create_app(settings, None)) as client:
+        client.headers["X-API-Key"] = key
+        listed = client.get("/api/v1/results").json()
+        detail = client.get(f"/api/v1/runs/{run.id}").json()
+    assert [RunResult.model_validate(item) for item in listed] == [row]
+    served = RunResultDetail.model_validate(detail)
+    assert served == summary.result
+    # The CLI prints a run from a service exactly as it prints it embedded.
+    assert _text(metrics_table(served)) == _text(metrics_table(summary.result))
+
+    shared = set(RunResult.model_fields)
+    report_row = ReportRow.model_validate({**summary.result.model_dump(), "label": "PT"})
+    sweep_row = point_row("pt", None, run)
+    for view in (report_row, sweep_row):
+        assert view.model_dump(include=shared) == row.model_dump(include=shared)
+    assert row.render_seconds_per_frame is not None and row.seconds_per_frame is not None
