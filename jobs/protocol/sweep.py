@@ -158,11 +158,13 @@ class SweepResult(BaseModel):
 
 
 class Point(NamedTuple):
-    """A sweep point to render: its threshold, the method's parameters, its stored key."""
+    """A sweep point to render: its threshold, the method's parameters, its stored key, and
+    what is stored with it besides (an equal-time point's calibration and matched run)."""
 
     eps: float
     params: Any
     key: str
+    extra: dict[str, Any] | None = None
 
 
 # ---------------------------------------------------------------------------
@@ -318,8 +320,7 @@ class _Sweep:
 
     # ---- rendering points ----
 
-    def render_points(self, method: str, series: str, points: list[Point],
-                      extras: dict[float, dict[str, Any]] | None = None) -> dict[float, int]:
+    def render_points(self, method: str, series: str, points: list[Point]) -> dict[float, int]:
         """Render and store the points; all share one params value.
 
         Returns run ids by eps. One warm-up per seed; eps vary in the inner loop.
@@ -355,7 +356,7 @@ class _Sweep:
                                "mask_fraction": float(np.mean(masks[point.eps])),
                                "snapshots": [self.snapshot(method, s).key
                                              for s in range(self.spec.seeds)],
-                               **((extras or {}).get(point.eps, {}))}}
+                               **(point.extra or {})}}
             summary = store_run(self.point_spec(method, params), self.prepared,
                                 rendered[point.eps], self.store, self.settings,
                                 idempotency_key=point.key, extra=extra)
@@ -394,7 +395,6 @@ class _Sweep:
                          if matching_rbias2(run) is not None]
         runs: dict[float, Any] = {}
         plan: dict[int, list[Point]] = {}
-        extras: dict[int, dict[float, dict[str, Any]]] = {}
         for eps, run in own.items():
             rbias2 = matching_rbias2(run)
             if rbias2 is None or not budget_points:
@@ -422,23 +422,21 @@ class _Sweep:
                 tolerance_s=self.spec.time_tolerance_ms / 1e3, device_key=self.device_key,
                 rounds=self.spec.calibration_rounds, max_spread=self.spec.time_max_spread)
             self.work["calibrations"] += 1
-            plan.setdefault(record.chosen, []).append(
-                Point(eps, self.params(method, record.chosen), key))
-            extras.setdefault(record.chosen, {})[eps] = {
-                "calibration": record.to_json(), f"{knob}_v1": record.chosen,
-                f"matched_{against}_run": match.id}
+            plan.setdefault(record.chosen, []).append(Point(
+                eps, self.params(method, record.chosen), key,
+                extra={"calibration": record.to_json(), f"{knob}_v1": record.chosen,
+                       f"matched_{against}_run": match.id}))
         for nc, points in plan.items():
             if self.params(method, nc) == self.params(method):
                 # The method's own point (same parameters, same seeds): record, don't render.
-                for eps, _, key in points:
+                for point in points:
                     self.advance()
-                    runs[eps] = self.store.clone_run(
-                        own[eps].id, idempotency_key=key,
-                        metrics_update={"sweep": {**own[eps].metrics["sweep"],
-                                                  "series": series,
-                                                  **extras[nc][eps]}})
+                    runs[point.eps] = self.store.clone_run(
+                        own[point.eps].id, idempotency_key=point.key,
+                        metrics_update={"sweep": {**own[point.eps].metrics["sweep"],
+                                                  "series": series, **(point.extra or {})}})
                 continue
-            rendered = self.render_points(method, series, points, extras[nc])
+            rendered = self.render_points(method, series, points)
             runs.update({eps: self.store.get_run(run_id) for eps, run_id in rendered.items()})
         return runs
 

@@ -181,7 +181,7 @@ def test_masks_use_the_noise_corrected_bias_of_the_snapshots(sweep_env):
 
 def test_points_are_stored_with_seeds_snapshots_and_convergence(sweep_env):
     _, store, result = sweep_env
-    run = store.get_run(_series(result, "NRC")[0]["run_id"])
+    run = store.get_run(_series(result, "NRC")[0].id)
     assert run.params["termination"] == "adaptive" and run.seeds == 2
     assert len(run.seed_results) == 2
     assert len(run.metrics["sweep"]["snapshots"]) == 2
@@ -205,7 +205,7 @@ def test_a_snapshot_stored_without_its_variance_is_not_loaded(sweep_env):
     from jobs.protocol.snapshots import _load
 
     settings_, store, result = sweep_env
-    row = store.find_snapshot(result.snapshots[0]["key"])
+    row = store.find_snapshot(result.snapshots[0].key)
     assert _load(row, settings_).v1_variance.shape == (16, 16, 3)
     old = SimpleNamespace(key=row.key, id=row.id, stats=row.stats,
                           artifacts=[a for a in row.artifacts if a.kind != "v1_variance"])
@@ -304,8 +304,8 @@ def test_a_sweep_run_as_stages_gives_the_same_points(sweep_env, tmp_path):
     assert len(staged.snapshots) == 4     # every cache's training curve is in the plot
     for name in ("NIRC", "NRC"):
         for a, b in zip(_series(direct, name), _series(staged, name), strict=True):
-            assert (a["eps"], a["mask_pct"]) == (b["eps"], b["mask_pct"])
-            assert b["mrse"] == pytest.approx(a["mrse"], rel=1e-4), name
+            assert (a.eps, a.mask_pct) == (b.eps, b.mask_pct)
+            assert b.mrse == pytest.approx(a.mrse, rel=1e-4), name
 
 
 def test_an_nc_sweep_run_as_stages_renders_its_points_in_the_stages(sweep_env):
