@@ -39,3 +39,31 @@ def random_points(mi: Any, scene: Any, count: int = 64, seed: int = 3) -> tuple[
     si = dr.zeros(mi.SurfaceInteraction3f, count)
     si.p = mi.Point3f(*(mi.Float(p[:, k]) for k in range(3)))
     return si, rng
+
+
+#: A constant environment and a spherical area light over a floor and a rough metal sphere.
+ENV_AND_SPHERE = """<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="45"/>
+        <transform name="to_world"><lookat origin="0, 1, 4" target="0, 0.5, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm">
+            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
+            <rfilter type="box"/>
+        </film>
+        <sampler type="independent"/>
+    </sensor>
+    <shape type="rectangle">
+        <transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/></transform>
+        <bsdf type="diffuse"/>
+    </shape>
+    <shape type="sphere">
+        <point name="center" value="0, 0.5, 0"/><float name="radius" value="0.5"/>
+        <bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf>
+    </shape>
+    <shape type="sphere">
+        <point name="center" value="1, 2.5, 1"/><float name="radius" value="0.3"/>
+        <emitter type="area"><rgb name="radiance" value="20, 18, 15"/></emitter>
+    </shape>
+    <emitter type="constant"><rgb name="radiance" value="0.1, 0.12, 0.2"/></emitter>
+</scene>
+"""

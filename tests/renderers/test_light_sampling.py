@@ -21,7 +21,14 @@ import pytest
 
 from metrics.statistics import agreement_test
 from renderers.moments import render_moments
-from tests.renderers.lighting import RES, SPP, luminance_moments, pt_integrator, random_points
+from tests.renderers.lighting import (
+    ENV_AND_SPHERE,
+    RES,
+    SPP,
+    luminance_moments,
+    pt_integrator,
+    random_points,
+)
 
 MAX_DEPTH = 4
 PLANTED = 1.03  # a 3 % brighter reference
@@ -195,30 +202,3 @@ def test_spatial_selection_with_an_environment_matches_mitsuba_path(mi):
                                   seed=1005))
     result = agreement_test(*test, *reference, alpha=0.01)
     assert result.passed, result.summary()
-
-
-ENV_AND_SPHERE = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="45"/>
-        <transform name="to_world"><lookat origin="0, 1, 4" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm">
-            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-            <rfilter type="box"/>
-        </film>
-        <sampler type="independent"/>
-    </sensor>
-    <shape type="rectangle">
-        <transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/></transform>
-        <bsdf type="diffuse"/>
-    </shape>
-    <shape type="sphere">
-        <point name="center" value="0, 0.5, 0"/><float name="radius" value="0.5"/>
-        <bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf>
-    </shape>
-    <shape type="sphere">
-        <point name="center" value="1, 2.5, 1"/><float name="radius" value="0.3"/>
-        <emitter type="area"><rgb name="radiance" value="20, 18, 15"/></emitter>
-    </shape>
-    <emitter type="constant"><rgb name="radiance" value="0.1, 0.12, 0.2"/></emitter>
-</scene>
-"""
