@@ -128,8 +128,8 @@ def render(scene: Any, params: NVCLightsParams, *, seed_parts: tuple[Any, ...], 
 def applies(features: Any) -> tuple[bool, str]:
     """2 to 32 emitters and a surface for the cache to live on."""
     if features.emitter_count < 2:
-        return False, "one emitter: nothing to select" if features.emitter_count else \
-            "no emitter: nothing to select"
+        count = "one emitter" if features.emitter_count == 1 else "no emitter"
+        return False, f"{count}: nothing to select"
     if features.emitter_count > MAX_LIGHTS:
         return False, f"more than {MAX_LIGHTS} emitters: needs the clustered NVC"
     return has_surface(features)
