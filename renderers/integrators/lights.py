@@ -33,6 +33,10 @@ Selectors:
   with c_i and r_i the centre and half diagonal of the emitter's bounding
   box — the distance part of pbrt-v4's ``BVHLightSampler`` importance, without
   the tree and the orientation bounds (cost O(number of emitters) per query).
+* :class:`WeightedLightSampler`: the base of selectors with per-point
+  weights, p(i | x) = w_i(x) / sum_j w_j(x); the spatial selector above and
+  the neural-visibility selector of `nvc-lights`
+  (``renderers.integrators.nvc_lights``) define only ``weights``.
 
 Power Φ_i (computed once per scene, :func:`emitter_powers`): an area emitter
 π · A · mean luminance of its radiance over POWER_SAMPLES points of its shape;
@@ -189,7 +193,52 @@ class PowerLightSampler(LightSampler):
         return self.distribution.eval_pmf_normalized(index, active)
 
 
-class SpatialLightSampler(LightSampler):
+class WeightedLightSampler(LightSampler):
+    """p(i | x) = w_i(x) / sum_j w_j(x) for per-point weights ``weights(si)`` (one Float per emitter).
+
+    ``sample`` inverts the CDF of the weights in one pass over the emitters
+    (the same distribution weighted reservoir sampling draws from; the pass
+    also rescales ``u`` for reuse); ``pmf`` recomputes the weights at the
+    given point and picks one. Where every weight is 0 (no emitter can
+    contribute) both give pmf 0 and NEE does nothing.
+    """
+
+    def weights(self, si: mi.SurfaceInteraction3f, active: mi.Bool) -> list[mi.Float]:
+        """w_i(x) >= 0 of every emitter, in ``scene.emitters()`` order."""
+        raise NotImplementedError
+
+    def sample(self, si, u, active):
+        weights = self.weights(si, active)
+        total = sum(weights[1:], weights[0])
+        # Inverse CDF: the first i whose running sum exceeds u * total.
+        target = u * total
+        index = mi.UInt32(self.count - 1)
+        chosen_weight = weights[-1]
+        below = mi.Float(0)      # running sum before the chosen emitter
+        running = mi.Float(0)
+        found = mi.Bool(False)
+        for i, weight in enumerate(weights):
+            hit = ~found & (target < running + weight)
+            index = dr.select(hit, i, index)
+            chosen_weight = dr.select(hit, weight, chosen_weight)
+            below = dr.select(hit, running, below)
+            found |= hit
+            running += weight
+        pmf = dr.select(total > 0, chosen_weight / total, 0)
+        u_x = dr.clip(dr.select(chosen_weight > 0, (target - below) / chosen_weight, 0), 0,
+                      dr.one_minus_epsilon(mi.Float))
+        return index, pmf, u_x
+
+    def pmf(self, si, index, active):
+        weights = self.weights(si, active)
+        total = sum(weights[1:], weights[0])
+        chosen = mi.Float(0)
+        for i, weight in enumerate(weights):
+            chosen = dr.select(index == i, weight, chosen)
+        return dr.select(total > 0, chosen / total, 0)
+
+
+class SpatialLightSampler(WeightedLightSampler):
     """p(i | x) ∝ Φ_i / max(|x - c_i|^2, r_i^2): near, bright emitters first.
 
     Environment emitters have no centre: their weight is Φ / R^2 at every
@@ -212,11 +261,6 @@ class SpatialLightSampler(LightSampler):
                 centre = [float(c) for c in box.center()]
                 r2 = max(float(dr.squared_norm(box.extents())) / 4, 1e-8)
                 self.terms.append((float(power), centre, r2))
-        self.power_table = mi.Float([t[0] for t in self.terms])
-        self.centre_table = mi.Point3f(*(mi.Float([t[1][k] if t[1] else 0.0 for t in self.terms])
-                                         for k in range(3)))
-        self.r2_table = mi.Float([t[2] for t in self.terms])
-        self.finite_table = mi.Bool([t[1] is not None for t in self.terms])
 
     def _weight(self, p: mi.Point3f, term: tuple[float, Any, float]) -> mi.Float:
         power, centre, r2 = term
@@ -224,37 +268,5 @@ class SpatialLightSampler(LightSampler):
             return mi.Float(power)
         return power * dr.rcp(dr.maximum(dr.squared_norm(p - mi.Point3f(*centre)), r2))
 
-    def _total(self, p: mi.Point3f) -> mi.Float:
-        total = mi.Float(0)
-        for term in self.terms:
-            total += self._weight(p, term)
-        return total
-
-    def sample(self, si, u, active):
-        # Inverse CDF over the emitters: the first i whose running sum exceeds u * total.
-        target = u * self._total(si.p)
-        index = mi.UInt32(self.count - 1)
-        chosen_weight = self._weight(si.p, self.terms[-1])
-        below = mi.Float(0)      # running sum before the chosen emitter
-        running = mi.Float(0)
-        found = mi.Bool(False)
-        for i, term in enumerate(self.terms):
-            weight = self._weight(si.p, term)
-            hit = ~found & (target < running + weight)
-            index[hit] = i
-            chosen_weight[hit] = weight
-            below[hit] = running
-            found |= hit
-            running += weight
-        pmf = chosen_weight / running
-        u_x = dr.clip((target - below) * dr.rcp(chosen_weight), 0, dr.one_minus_epsilon(mi.Float))
-        return index, pmf, u_x
-
-    def pmf(self, si, index, active):
-        power = dr.gather(mi.Float, self.power_table, index, active)
-        centre = dr.gather(mi.Point3f, self.centre_table, index, active)
-        r2 = dr.gather(mi.Float, self.r2_table, index, active)
-        finite = dr.gather(mi.Bool, self.finite_table, index, active)
-        weight = dr.select(finite, power * dr.rcp(dr.maximum(dr.squared_norm(si.p - centre), r2)),
-                           power)
-        return weight / self._total(si.p)
+    def weights(self, si, active):
+        return [self._weight(si.p, term) for term in self.terms]

@@ -21,26 +21,22 @@ import pytest
 
 from metrics.statistics import agreement_test
 from renderers.moments import render_moments
+from tests.renderers.lighting import (
+    ENV_AND_SPHERE,
+    RES,
+    SPP,
+    luminance_moments,
+    pt_integrator,
+    random_points,
+)
 
-RES = 16
-SPP = 4096
 MAX_DEPTH = 4
 PLANTED = 1.03  # a 3 % brighter reference
 
 
 def _integrator(mi, sampler_type=None, max_depth=MAX_DEPTH):
-    from renderers.integrators import path
+    return pt_integrator(mi, sampler_type, max_depth)
 
-    path.register()
-    integrator = mi.load_dict({"type": path.PLUGIN_NAME, "max_depth": max_depth})
-    if sampler_type is not None:
-        integrator.light_sampler_type = sampler_type
-    return integrator
-
-
-def _y(moments):
-    mean, var = moments
-    return mean[..., 1], var[..., 1]
 
 
 @pytest.fixture(scope="module")
@@ -48,19 +44,6 @@ def many_lights(mi):
     from renderers.scenes import load_scene
 
     return load_scene("many-lights", RES).scene
-
-
-def _points(mi, scene, count=64, seed=3):
-    """Random points inside the scene's bounding box, as a surface interaction."""
-    import drjit as dr
-
-    rng = np.random.default_rng(seed)
-    box = scene.bbox()
-    lo, hi = np.array(box.min), np.array(box.max)
-    p = lo + rng.uniform(size=(count, 3)) * (hi - lo)
-    si = dr.zeros(mi.SurfaceInteraction3f, count)
-    si.p = mi.Point3f(*(mi.Float(p[:, k]) for k in range(3)))
-    return si, rng
 
 
 # ---------------------------------------------------------------------------
@@ -76,7 +59,7 @@ def _selectors():
 @pytest.mark.parametrize("index", range(3), ids=["uniform", "power", "spatial"])
 def test_pmfs_sum_to_one_and_sample_returns_its_pmf(mi, many_lights, index):
     sampler = _selectors()[index](many_lights)
-    si, rng = _points(mi, many_lights)
+    si, rng = random_points(mi, many_lights)
     count = len(many_lights.emitters())
     total = sum(sampler.pmf(si, mi.UInt32(i), True).numpy() for i in range(count))
     np.testing.assert_allclose(total, 1.0, rtol=1e-5)
@@ -102,7 +85,7 @@ def test_spatial_selector_prefers_the_light_overhead(mi, many_lights):
     from renderers.integrators.lights import SpatialLightSampler
 
     sampler = SpatialLightSampler(many_lights)
-    si, _ = _points(mi, many_lights, count=1)
+    si, _ = random_points(mi, many_lights, count=1)
     for index, emitter in enumerate(many_lights.emitters()):
         centre = emitter.bbox().center()
         si.p = mi.Point3f(centre[0], centre[1] - 0.3, centre[2])
@@ -118,7 +101,7 @@ def test_environment_emitters_are_selectable(mi):
     powers = emitter_powers(scene)
     assert powers.shape == (2,) and np.all(powers > 0)
     sampler = SpatialLightSampler(scene)
-    si, _ = _points(mi, scene)
+    si, _ = random_points(mi, scene)
     pmfs = np.stack([sampler.pmf(si, mi.UInt32(i), True).numpy() for i in range(2)])
     assert np.all(pmfs > 0)
     np.testing.assert_allclose(pmfs.sum(axis=0), 1.0, rtol=1e-5)
@@ -149,7 +132,7 @@ def test_default_selector_is_mitsubas(mi, many_lights):
 
 @pytest.fixture(scope="module")
 def reference(mi, many_lights):
-    return _y(render_moments(many_lights, {"type": "path", "max_depth": MAX_DEPTH}, SPP,
+    return luminance_moments(render_moments(many_lights, {"type": "path", "max_depth": MAX_DEPTH}, SPP,
                              seed=1000))
 
 
@@ -157,14 +140,14 @@ def reference(mi, many_lights):
 def spatial(mi, many_lights):
     from renderers.integrators.lights import SpatialLightSampler
 
-    return _y(render_moments(many_lights, _integrator(mi, SpatialLightSampler), SPP, seed=1))
+    return luminance_moments(render_moments(many_lights, _integrator(mi, SpatialLightSampler), SPP, seed=1))
 
 
 @pytest.mark.slow
 def test_power_selection_matches_mitsuba_path(mi, many_lights, reference):
     from renderers.integrators.lights import PowerLightSampler
 
-    test = _y(render_moments(many_lights, _integrator(mi, PowerLightSampler), SPP, seed=2))
+    test = luminance_moments(render_moments(many_lights, _integrator(mi, PowerLightSampler), SPP, seed=2))
     result = agreement_test(*test, *reference, alpha=0.01)
     assert result.passed, result.summary()
 
@@ -193,7 +176,7 @@ def test_spatial_nee_with_uniform_mis_pmf_is_rejected(mi, many_lights, reference
         def pdf_emitter_direction(self, prev_si, ds, active):
             return self.scene.pdf_emitter_direction(prev_si, ds, active)
 
-    test = _y(render_moments(many_lights, _integrator(mi, UniformPdfForMIS), SPP, seed=3))
+    test = luminance_moments(render_moments(many_lights, _integrator(mi, UniformPdfForMIS), SPP, seed=3))
     result = agreement_test(*test, *reference, alpha=0.01)
     assert not result.passed, result.summary()
 
@@ -202,7 +185,7 @@ def test_spatial_nee_with_uniform_mis_pmf_is_rejected(mi, many_lights, reference
 def test_spatial_selection_lowers_per_pixel_variance(mi, many_lights, spatial):
     """The point of light selection: at equal spp, the median per-pixel variance
     of `pt-spatial` is well below that of uniform selection (measured ~0.25)."""
-    uniform = _y(render_moments(many_lights, _integrator(mi), SPP, seed=4))
+    uniform = luminance_moments(render_moments(many_lights, _integrator(mi), SPP, seed=4))
     ratio = float(np.median(spatial[1] / uniform[1]))
     print(f"median per-pixel variance ratio spatial / uniform: {ratio:.3f}")
     assert ratio < 0.5, ratio
@@ -214,35 +197,8 @@ def test_spatial_selection_with_an_environment_matches_mitsuba_path(mi):
     from renderers.integrators.lights import SpatialLightSampler
 
     scene = mi.load_string(ENV_AND_SPHERE.format(res=RES))
-    test = _y(render_moments(scene, _integrator(mi, SpatialLightSampler), 1024, seed=5))
-    reference = _y(render_moments(scene, {"type": "path", "max_depth": MAX_DEPTH}, 1024,
+    test = luminance_moments(render_moments(scene, _integrator(mi, SpatialLightSampler), 1024, seed=5))
+    reference = luminance_moments(render_moments(scene, {"type": "path", "max_depth": MAX_DEPTH}, 1024,
                                   seed=1005))
     result = agreement_test(*test, *reference, alpha=0.01)
     assert result.passed, result.summary()
-
-
-ENV_AND_SPHERE = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="45"/>
-        <transform name="to_world"><lookat origin="0, 1, 4" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm">
-            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-            <rfilter type="box"/>
-        </film>
-        <sampler type="independent"/>
-    </sensor>
-    <shape type="rectangle">
-        <transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/></transform>
-        <bsdf type="diffuse"/>
-    </shape>
-    <shape type="sphere">
-        <point name="center" value="0, 0.5, 0"/><float name="radius" value="0.5"/>
-        <bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf>
-    </shape>
-    <shape type="sphere">
-        <point name="center" value="1, 2.5, 1"/><float name="radius" value="0.3"/>
-        <emitter type="area"><rgb name="radiance" value="20, 18, 15"/></emitter>
-    </shape>
-    <emitter type="constant"><rgb name="radiance" value="0.1, 0.12, 0.2"/></emitter>
-</scene>
-"""

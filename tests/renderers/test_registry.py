@@ -93,30 +93,40 @@ def test_sweep_roles_keep_todays_series_and_labels():
 
 
 def _features(**values):
-    base = dict(shape_count=3, emitter_count=1, area_emitter_count=1, has_envmap=False,
+    base = dict(shape_count=3, emitter_count=2, area_emitter_count=2, has_envmap=False,
                 has_many_lights=False, has_glossy=False, has_delta=False)
     return SimpleNamespace(**{**base, **values})
+
+
+#: Methods with a cache that are not caching methods (no ``build``): the visibility
+#: cache of `nvc-lights` lives on positions too (its emitter limits: test_nvc_lights.py).
+POSITION_CACHES = {"nvc-lights"}
 
 
 def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
     for name, method in METHODS.items():
         assert method.applies_to(_features()) == (True, "")
         applies, reason = method.applies_to(_features(shape_count=0))
-        assert applies == (method.build is None), name
+        assert applies == (method.build is None and name not in POSITION_CACHES), name
         assert applies or "surface" in reason
     with pytest.raises(MethodError, match="does not apply"):
         check_applies("nrc", _features(shape_count=0))
 
 
 def test_every_method_applies_to_every_built_in_scene(mi):
-    """Today's behaviour: no built-in scene is skipped by any method."""
+    """Today's behaviour: no built-in scene is skipped by any method, except by
+    `nvc-lights` the scenes with one emitter (nothing to select)."""
     from renderers.scenes import load_scene
     from renderers.scenes.library import builtin_names
 
     for scene_name in builtin_names():
         features = load_scene(scene_name, 8).features
         for name in METHODS:
-            check_applies(name, features)
+            if name == "nvc-lights" and features.emitter_count == 1:
+                assert METHODS[name].applies_to(features) == \
+                    (False, "one emitter: nothing to select")
+            else:
+                check_applies(name, features)
 
 
 def test_integrators_receive_the_validated_model(mi):

@@ -1,0 +1,142 @@
+"""`nvc-lights`: the PT core with lights selected by a neural visibility cache.
+
+At every shading vertex (NEE of full global illumination, not only at the
+primary hit) light l is picked with p(l | x) ∝ U_l(x) * max(V_l(x), clamp):
+U_l the unshadowed contribution (power / squared distance times a cosine
+bound), V_l the visibility the cache predicts (Neural Visibility Cache paper,
+Sec. 3.1). The selector, :class:`renderers.integrators.nvc_lights.NVCLightSampler`,
+drives NEE and the MIS weight of BSDF-sampled emitter hits alike, so each
+frame is unbiased for any cache (docs/estimators.md, "nvc-lights").
+
+Every frame first trains the cache (one Adam step on ``world_points`` +
+``camera_points`` positions with one shadow ray per light each, stage
+``training_paths`` for the shadow rays, ``training`` for the step), then
+renders with it; ``pretrain_frames`` frames of training may come first.
+
+==================  ========  =====================================================
+parameter           default   meaning
+==================  ========  =====================================================
+max_depth, rr_*     as `pt`   the PT core (renders and nothing else: training
+                              traces shadow rays only)
+clamp               0.001     floor of the predicted visibility (paper Sec. 3.1,
+                              Fig. 5); 0 lets a light the cache wrongly calls
+                              occluded get pmf ~0
+world_points        4096      training positions per frame uniform in the scene's
+                              bounding box (paper Sec. 3.3)
+camera_points       4096      training positions per frame at first hits of random
+                              camera rays (paper Sec. 3.3)
+pretrain_frames     0         training frames before the first (warm-up) frame
+cache               {}        overrides of the cache preset
+                              (``renderers.caches.visibility_config``: hash grid
+                              10 levels x 4 features, base resolution 16; MLP
+                              2 x 32 leaky ReLU 0.01; sigmoid outputs; L2; Adam
+                              lr 0.05 -> 0.001 over 200 steps; batch 8192, 1 step
+                              per frame)
+==================  ========  =====================================================
+
+Applies to scenes with 2 to 32 emitters (one output per emitter; environment
+and delta emitters included) and a surface.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from typing import Any
+
+from pydantic import Field
+
+from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
+from renderers.methods.cached import has_surface, make_cache
+from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
+from renderers.seeding import derive_seed
+from renderers.timing import StageTimer
+
+#: One output per light; more needs the clustered NVC (paper Sec. 3.4).
+MAX_LIGHTS = 32
+
+
+class NVCLightsParams(PTParams):
+    """The PT core's parameters plus the visibility cache's (module docstring)."""
+
+    clamp: float = Field(1e-3, ge=0.0, le=1.0, description="floor of the predicted visibility")
+    world_points: int = Field(4096, ge=0, le=1 << 20,
+                              description="training points per frame in the scene's box")
+    camera_points: int = Field(4096, ge=0, le=1 << 20,
+                               description="training points per frame at camera first hits")
+    pretrain_frames: int = Field(0, ge=0, le=100_000)
+    cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
+
+    def core(self) -> PTParams:
+        """The PT core's parameters."""
+        return PTParams(**self.model_dump(include=set(PTParams.model_fields)))
+
+
+def build(scene: Any, params: NVCLightsParams, seed: int) -> tuple[Any, Any]:
+    """(integrator, visibility cache): the PT core selecting lights with an untrained cache."""
+    from renderers.caches import visibility_config
+    from renderers.integrators.nvc_lights import NVCLightSampler
+
+    count = len(scene.scene.emitters())
+    cache = make_cache(scene, functools.partial(visibility_config, count), params, seed)
+    integrator = path_integrator(params.core())
+    integrator.light_sampler_type = NVCLightSampler.bound_to(cache, params.clamp)
+    return integrator, cache
+
+
+def train_frame(scene: Any, cache: Any, params: NVCLightsParams, seed: int,
+                timer: StageTimer) -> None:
+    """One frame of online training: shadow rays to every light, then the cache's step."""
+    from renderers.integrators.nvc_lights import visibility_records
+
+    with timer.stage("training_paths"):
+        records = visibility_records(scene.scene, params.world_points, params.camera_points,
+                                     seed)
+    with timer.stage("training"):
+        cache.train(records)
+
+
+def render(scene: Any, params: NVCLightsParams, *, seed_parts: tuple[Any, ...], spp: int,
+           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
+    """Pre-train, then train and render every frame (the caching methods' frame loop)."""
+    integrator, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
+
+    pretrain_start = time.perf_counter()
+    for index in range(params.pretrain_frames):
+        train_frame(scene, cache, params, derive_seed(*seed_parts, "pretrain", index),
+                    StageTimer())
+    pretrain_s = time.perf_counter() - pretrain_start
+
+    render_only = render_stage(scene, integrator, spp)
+
+    def render_frame(index: int, seed: int, timer: StageTimer):
+        train_frame(scene, cache, params, derive_seed(seed, "train"), timer)
+        return render_only(index, seed, timer)
+
+    output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
+                        hooks=hooks)
+    output.method_stats = {
+        "pretrain_frames": params.pretrain_frames,
+        "pretrain_s": pretrain_s,
+        "loss_history": list(cache.loss_history),
+        "cache_stats": dict(cache.stats),
+        "cache_config": cache.config.model_dump(mode="json"),
+    }
+    return output
+
+
+def applies(features: Any) -> tuple[bool, str]:
+    """2 to 32 emitters and a surface for the cache to live on."""
+    if features.emitter_count < 2:
+        count = "one emitter" if features.emitter_count == 1 else "no emitter"
+        return False, f"{count}: nothing to select"
+    if features.emitter_count > MAX_LIGHTS:
+        return False, f"more than {MAX_LIGHTS} emitters: needs the clustered NVC"
+    return has_surface(features)
+
+
+METHOD = Method("nvc-lights",
+                "path tracing with lights selected by a neural visibility cache "
+                "(power / distance^2 x cosine bound x max(V, clamp)) at every vertex",
+                NVCLightsParams, render, version=1, integrators=PATH_INTEGRATORS,
+                requires=applies, label="NVC lights")

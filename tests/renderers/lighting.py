@@ -1,0 +1,69 @@
+"""Helpers of the light-selection tests (test_light_sampling.py, test_nvc_lights.py)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+#: Film resolution and samples per pixel of the statistical tests on `many-lights`.
+RES = 16
+SPP = 4096
+
+
+def pt_integrator(mi: Any, sampler_type: Any = None, max_depth: int = 4) -> Any:
+    """The PT core with ``max_depth``, selecting emitters with ``sampler_type`` (None: Mitsuba's)."""
+    from renderers.integrators import path
+
+    path.register()
+    integrator = mi.load_dict({"type": path.PLUGIN_NAME, "max_depth": max_depth})
+    if sampler_type is not None:
+        integrator.light_sampler_type = sampler_type
+    return integrator
+
+
+def luminance_moments(moments: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, variance) of the Y channel of render_moments' XYZ moments."""
+    mean, var = moments
+    return mean[..., 1], var[..., 1]
+
+
+def random_points(mi: Any, scene: Any, count: int = 64, seed: int = 3) -> tuple[Any, Any]:
+    """Random points inside the scene's bounding box, as a surface interaction (and the rng)."""
+    import drjit as dr
+
+    rng = np.random.default_rng(seed)
+    box = scene.bbox()
+    lo, hi = np.array(box.min), np.array(box.max)
+    p = lo + rng.uniform(size=(count, 3)) * (hi - lo)
+    si = dr.zeros(mi.SurfaceInteraction3f, count)
+    si.p = mi.Point3f(*(mi.Float(p[:, k]) for k in range(3)))
+    return si, rng
+
+
+#: A constant environment and a spherical area light over a floor and a rough metal sphere.
+ENV_AND_SPHERE = """<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="45"/>
+        <transform name="to_world"><lookat origin="0, 1, 4" target="0, 0.5, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm">
+            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
+            <rfilter type="box"/>
+        </film>
+        <sampler type="independent"/>
+    </sensor>
+    <shape type="rectangle">
+        <transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/></transform>
+        <bsdf type="diffuse"/>
+    </shape>
+    <shape type="sphere">
+        <point name="center" value="0, 0.5, 0"/><float name="radius" value="0.5"/>
+        <bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf>
+    </shape>
+    <shape type="sphere">
+        <point name="center" value="1, 2.5, 1"/><float name="radius" value="0.3"/>
+        <emitter type="area"><rgb name="radiance" value="20, 18, 15"/></emitter>
+    </shape>
+    <emitter type="constant"><rgb name="radiance" value="0.1, 0.12, 0.2"/></emitter>
+</scene>
+"""
