@@ -301,6 +301,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, outputs: list[RenderOutput],
         "warmup_s": seed_timings[0]["warmup_s"],
         "compile_s_estimate": seed_timings[0]["compile_s_estimate"],
         "stages": seed_timings[0]["stages"],
+        "breakdown": seed_timings[0]["breakdown"],
     }
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
     verdict, quality = judge_run([o.accumulated for o in outputs], reference.mean,
