@@ -53,6 +53,21 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
         assert (settings.artifacts_dir / artifact.path).is_file()
 
 
+def test_a_cached_run_stores_its_time_breakdown_and_training_budget(env):
+    settings, store = env
+    spec = SPEC.model_copy(update={"method": "nirc", "seeds": 1,
+                                   "params": {"cache": {"batch_size": 256}}})
+    run = store.get_run(execute(spec, store, settings).run_id)
+    parts = run.timings["breakdown"]["parts_s"]
+    assert {"render", "training_paths", "training", "other"} <= set(parts)
+    assert all(seconds >= 0 for seconds in parts.values())
+    assert run.timings["breakdown"]["inference_in_render"] == ("inference" not in parts)
+    assert run.seed_results[0].timings["breakdown"] == run.timings["breakdown"]
+    # 8x8 pixels: the 4096-record floor, capped by the 256-record batch.
+    budget = run.seed_results[0].metrics["method_stats"]["training_budget"]
+    assert (budget["mode"], budget["steps"], budget["batch_size"]) == ("scaled", 4, 256)
+
+
 def test_the_reference_is_rendered_once_and_reused(env):
     settings, store = env
     first = execute(SPEC, store, settings)
