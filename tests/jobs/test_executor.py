@@ -162,6 +162,18 @@ def test_a_time_budget_needs_a_knob(env):
         TimeBudget(ms=1, pt_spp=2)
 
 
+def test_path_histograms_average_over_the_union_of_the_seeds_bins():
+    from jobs.protocol.executor import mean_over_seeds
+
+    seeds = [{"avg_path_vertices": 2.0, "cache_depth_fractions": {"0": 0.5, "1": 0.5}},
+             {"avg_path_vertices": 3.0, "cache_depth_fractions": {"0": 0.5, "2": 0.5}}]
+    mean = mean_over_seeds(seeds)
+    assert mean["avg_path_vertices"] == 2.5
+    # A bin one seed never hit counts 0 there (it used to be dropped, or averaged
+    # over the seeds that hit it only).
+    assert mean["cache_depth_fractions"] == {"0": 0.5, "1": 0.25, "2": 0.25}
+
+
 def test_per_cache_metrics_say_why_they_are_missing():
     from pathlib import Path
 
