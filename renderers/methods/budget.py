@@ -88,7 +88,7 @@ def frame_training_budget(pixels: int, params: CacheTrainingParams,
     The floor keeps a batch at >= 1024 records: below that the gradient noise
     of the relative L2 loss grows while a step's time hardly falls (its fixed
     cost, kernel launches and the Adam update of the whole hash grid, does
-    not scale with the batch: 4 steps of 256 take ~0.75x the time of 4 of
+    not scale with the batch: 4 steps of 256 take 0.7-1x the time of 4 of
     1024 on the 2-core CPU). The cap B keeps the papers' batch as the
     largest, so a frame never trains more than the papers' 65536 records.
     ``steps_per_frame`` 0 (no training) keeps B.
