@@ -2,7 +2,7 @@
 
 Prints the render-stage time of one 1-spp frame of biased NIRC (BTH) for
 N_c = 1, 2, 4, 8, 16, 32 and of unbiased NIRC (3,1,1), the training-stage
-times (training paths, 4 Adam steps), and PT 1 spp — all measured in this run,
+times (training paths, the Adam steps of the frame's training budget), and PT 1 spp — all measured in this run,
 medians over repeats, warm-up excluded, device synchronised before each clock
 read. The per-shading-point cost of sharing the surface encoding across N_c
 directions is in ``benchmarks.bench_cache``.
@@ -11,6 +11,7 @@ directions is in ``benchmarks.bench_cache``.
 from __future__ import annotations
 
 import argparse
+import math
 from statistics import median
 
 from renderers.backend import device_info, init_backend
@@ -26,6 +27,7 @@ def main() -> None:
     mi = init_backend()
     from renderers.methods import nirc as nirc_method
     from renderers.methods import parse_params
+    from renderers.methods.budget import frame_training_budget
     from renderers.methods.cached import train_once
     from renderers.methods.pt import path_integrator
     from renderers.scenes import load_scene
@@ -54,9 +56,10 @@ def main() -> None:
     for estimator, nc in configs:
         params = parse_params("nirc", {"estimator": estimator, "nc": nc})
         integrator, trainer, cache = nirc_method.build(scene, params, seed=1)
+        budget = frame_training_budget(math.prod(scene.resolution), params, cache.config)
         for frame in range(3):  # a little training so the cache is not all zeros
             timer = StageTimer()
-            train_once(cache, trainer, scene, 4096, seed=frame, timer=timer)
+            train_once(cache, trainer, scene, budget, seed=frame, timer=timer)
             if frame:
                 for stage, seconds in timer.seconds.items():
                     training.setdefault(stage, []).append(seconds)
@@ -65,7 +68,8 @@ def main() -> None:
         label = f"NIRC {estimator} N_c={','.join(map(str, nc))}"
         print(f"{label:<28}{1e3 * seconds:>18.2f}{seconds / pt_s:>8.2f}")
     for stage, values in training.items():
-        print(f"training stage {stage:<16}{1e3 * median(values):>12.2f} ms per frame (4096 paths)")
+        print(f"training stage {stage:<16}{1e3 * median(values):>12.2f} ms per frame "
+              f"({budget.paths} paths, {budget.steps} x {budget.batch_size} records)")
 
 
 if __name__ == "__main__":

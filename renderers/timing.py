@@ -6,6 +6,11 @@ stage therefore evaluates its outputs and calls ``dr.sync_thread()`` before the
 clock is read. The first call of a kernel JIT-compiles it (0.3-5 s; later
 processes hit the kernel cache in ``~/.drjit``): frame loops run one warm-up
 frame that is excluded from the timings and reported separately.
+
+Every frame is timed twice: per stage, and as a whole (``StageTimer.frame``).
+The frame time proper (``frame_median_s``) is the sum of the stages; the whole
+frame also holds what runs between them (Python, building the records), which
+the breakdown reports as 'other'.
 """
 
 from __future__ import annotations
@@ -37,6 +42,16 @@ class StageTimer:
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
+        self.frame_s = 0.0
+
+    @contextmanager
+    def frame(self) -> Iterator[None]:
+        """Time a whole frame (its stages and everything between them) as ``frame_s``."""
+        synchronize()
+        start = time.perf_counter()
+        yield
+        synchronize()
+        self.frame_s = time.perf_counter() - start
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
@@ -49,8 +64,39 @@ class StageTimer:
         self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
 
 
-def summarize(frames: list[dict[str, float]], warmup_s: float) -> dict[str, Any]:
-    """Per-stage mean/median/min over frames, frame totals, and the warm-up time."""
+#: The columns of the NIRC paper's Table 1 (Sec. 6.2) as stage names, in its order:
+#: render paths, training paths, model training, model inference.
+TABLE_1_STAGES = ("render", "training_paths", "training", "inference")
+
+
+def breakdown(frames: list[dict[str, float]], whole_s: list[float]) -> dict[str, Any]:
+    """Table-1-style time breakdown: the median seconds of every stage, and of 'other'.
+
+    ``frames``: each frame's seconds per stage; ``whole_s``: each frame's whole
+    time (:meth:`StageTimer.frame`). 'other' is a frame's whole time minus its
+    stages. Stages come in Table 1's order, then any others by name. Without an
+    ``inference`` stage the cache queries run inside ``render`` (one fused
+    kernel) and ``inference_in_render`` says so. Medians do not add up: the
+    parts sum to ``frame_s`` (the median whole frame) up to the frames' spread.
+    """
+    order = {name: index for index, name in enumerate(TABLE_1_STAGES)}
+    names = sorted({name for frame in frames for name in frame},
+                   key=lambda name: (order.get(name, len(order)), name))
+    parts = {name: median(frame.get(name, 0.0) for frame in frames) for name in names}
+    parts["other"] = median(max(whole - sum(frame.values()), 0.0)
+                            for frame, whole in zip(frames, whole_s, strict=True))
+    return {
+        "statistic": "median over the timed frames, seconds",
+        "parts_s": parts,
+        "frame_s": median(whole_s),
+        "inference_in_render": "inference" not in parts,
+    }
+
+
+def summarize(frames: list[dict[str, float]], warmup_s: float,
+              whole_s: list[float]) -> dict[str, Any]:
+    """Per-stage mean/median/min over frames, frame totals, the warm-up time and
+    the breakdown (``whole_s``: each frame's whole time, see :func:`breakdown`)."""
     stages = sorted({name for frame in frames for name in frame})
     per_stage = {}
     for name in stages:
@@ -71,5 +117,6 @@ def summarize(frames: list[dict[str, float]], warmup_s: float) -> dict[str, Any]
         "warmup_s": warmup_s,
         # The warm-up frame = compilation + one steady-state frame.
         "compile_s_estimate": max(warmup_s - frame_median, 0.0),
+        "breakdown": breakdown(frames, whole_s),
         "per_frame": frames,
     }

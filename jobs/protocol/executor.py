@@ -121,12 +121,16 @@ def _export(out_dir: Path, summary: RunSummary, reference: LoadedReference,
 
 
 def mean_over_seeds(stats: list[dict[str, Any]]) -> dict[str, Any]:
-    """Mean of every numeric statistic (and of nested per-key statistics) over seeds."""
+    """Mean of every numeric statistic over seeds. A nested dict is a histogram
+    (``cache_depth_fractions``): its mean is over the union of the seeds' bins,
+    a bin a seed never hit counting 0 for that seed."""
     result: dict[str, Any] = {}
     for key, first in stats[0].items():
         values = [s.get(key) for s in stats]
         if isinstance(first, dict):
-            result[key] = mean_over_seeds([v or {} for v in values])
+            histograms = [v or {} for v in values]
+            bins = dict.fromkeys(b for histogram in histograms for b in histogram)
+            result[key] = {b: float(np.mean([h.get(b, 0.0) for h in histograms])) for b in bins}
         elif isinstance(first, int | float):
             result[key] = float(np.mean([v for v in values if v is not None]))
     return result
@@ -326,6 +330,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
         "warmup_s": seed_timings[0]["warmup_s"],
         "compile_s_estimate": seed_timings[0]["compile_s_estimate"],
         "stages": seed_timings[0]["stages"],
+        "breakdown": seed_timings[0]["breakdown"],
     }
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
     verdict, quality = judge_run([o.accumulated for o in outputs], reference.mean,

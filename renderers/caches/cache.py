@@ -124,8 +124,9 @@ class NeuralCache:
         stats: counters — ``records_seen`` (usable records given to
             :meth:`train`), ``dropped_invalid`` (``valid`` False),
             ``dropped_nonfinite_targets``, ``dropped_nonfinite_inputs``,
-            ``steps`` (steps taken), ``skipped_steps`` (steps whose loss or
-            gradients were non-finite: weights left unchanged).
+            ``steps`` (steps taken), ``records_trained`` (records in the
+            batches of the steps taken), ``skipped_steps`` (steps whose loss
+            or gradients were non-finite: weights left unchanged).
     """
 
     def __init__(self, config: CacheConfig, bbox_min: Vec3, bbox_max: Vec3,
@@ -172,6 +173,7 @@ class NeuralCache:
             "dropped_nonfinite_targets": 0,
             "dropped_nonfinite_inputs": 0,
             "steps": 0,
+            "records_trained": 0,
             "skipped_steps": 0,
         }
         self._refresh_inference()
@@ -498,6 +500,7 @@ class NeuralCache:
             self._ema_steps += 1
         dr.eval()
         self.stats["steps"] += 1
+        self.stats["records_trained"] += len(batch)
         return loss_value
 
 

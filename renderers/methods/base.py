@@ -246,10 +246,14 @@ def run_frames(
     path_stats = PathStats(aov_names)
     kept: list[np.ndarray] = []
     frame_timings: list[dict[str, float]] = []
+    whole_s: list[float] = []
     for index in range(frames):
         timer = StageTimer()
-        film = np.asarray(render_frame(index, derive_seed(*seed_parts, index), timer))
+        with timer.frame():
+            film = render_frame(index, derive_seed(*seed_parts, index), timer)
+        film = np.asarray(film)
         frame_timings.append(timer.seconds)
+        whole_s.append(timer.frame_s)
         rgb = film[..., :3].astype(np.float32)
         # Running mean keeps memory constant however many frames run.
         accumulated = rgb.copy() if accumulated is None else accumulated + (rgb - accumulated) / (index + 1)
@@ -265,6 +269,6 @@ def run_frames(
     return RenderOutput(
         accumulated=accumulated,
         frames=kept if hooks.keep_frames else None,
-        timings=summarize(frame_timings, warmup_s),
+        timings=summarize(frame_timings, warmup_s, whole_s),
         path_stats=path_stats.result(),
     )

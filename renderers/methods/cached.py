@@ -1,9 +1,9 @@
 """The frame loop of the caching methods: online training every frame, then render.
 
-Real-time semantics: every frame first traces training paths (a few % of the
-pixel count, at least ``min_train_paths``; the same PT core, Russian roulette
-and ``max_depth`` as the render paths, see docs/training.md) and takes the
-cache's training steps on their records, then
+Real-time semantics: every frame first traces training paths (the same PT
+core, Russian roulette and ``max_depth`` as the render paths, see
+docs/training.md) and takes the cache's training steps on their records, as
+many as the frame's training budget (:mod:`renderers.methods.budget`) says, then
 renders the frame with the updated cache — frame f uses a cache trained on
 frames 0..f. Static scenes may pre-train for ``pretrain_frames`` frames before
 the first timed frame. Stages timed per frame: ``training_paths``,
@@ -13,7 +13,6 @@ kernel and are timed together). The warm-up frame trains too.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -21,6 +20,13 @@ from typing import Any
 from pydantic import Field, model_validator
 
 from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
+from renderers.methods.budget import (
+    MIN_RECORDS,
+    RECORD_FRACTION,
+    BudgetMode,
+    TrainingBudget,
+    frame_training_budget,
+)
 from renderers.methods.pt import PTParams
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
@@ -35,6 +41,13 @@ class CacheTrainingParams(PTParams):
     train_fraction: float = Field(0.03, gt=0.0, le=1.0, description="training paths / pixels")
     min_train_paths: int = Field(4096, ge=1, le=1 << 22)
     record_depth: int = Field(3, ge=1, le=16, description="vertices recorded per training path")
+    training_budget: BudgetMode = Field(
+        "scaled", description="records per frame: 'scaled' with the pixel count, or the "
+                              "papers' fixed steps_per_frame x batch_size ('paper')")
+    train_record_fraction: float = Field(RECORD_FRACTION, gt=0.0, le=16.0,
+                                         description="training records / pixels ('scaled')")
+    min_train_records: int = Field(MIN_RECORDS, ge=1, le=1 << 24,
+                                   description="floor of training records per frame ('scaled')")
     pretrain_frames: int = Field(0, ge=0, le=100_000)
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
 
@@ -50,6 +63,17 @@ class CacheTrainingParams(PTParams):
             raise ValueError("train_max_depth was removed: training paths now stop at "
                              "max_depth like render paths (set max_depth instead)")
         return values
+
+    @model_validator(mode="after")
+    def _scaled_only_fields(self) -> CacheTrainingParams:
+        # Defaults pass, so that a dumped 'paper' parameter set validates again.
+        changed = [name for name in ("train_record_fraction", "min_train_records")
+                   if getattr(self, name) != type(self).model_fields[name].default]
+        if self.training_budget == "paper" and changed:
+            raise ValueError(f"{', '.join(changed)} only apply to training_budget='scaled'; "
+                             "'paper' trains cache.steps_per_frame x cache.batch_size "
+                             "records per frame")
+        return self
 
     def core(self) -> dict[str, Any]:
         """The PT core's plugin properties."""
@@ -88,15 +112,15 @@ def make_cache(scene: Any, config_fn: Callable[..., Any], params: CacheTrainingP
     return NeuralCache(config_fn(**params.cache), list(bbox.min), list(bbox.max), seed=seed)
 
 
-def train_once(cache: Any, trainer: Any, scene: Any, n_paths: int, seed: int,
+def train_once(cache: Any, trainer: Any, scene: Any, budget: TrainingBudget, seed: int,
                timer: StageTimer) -> None:
-    """One frame of online training: trace training paths, take the cache's steps."""
+    """One frame of online training: trace the budget's training paths, take its steps."""
     from renderers.caches import TrainingRecords
 
     with timer.stage("training_paths"):
-        records = trainer.trace_records(scene.scene, n_paths, seed)
+        records = trainer.trace_records(scene.scene, budget.paths, seed)
     with timer.stage("training"):
-        cache.train(TrainingRecords(**records))
+        cache.train(TrainingRecords(**records), steps=budget.steps, batch_size=budget.batch_size)
 
 
 def render_with_cache(
@@ -106,24 +130,25 @@ def render_with_cache(
     """Pre-train, then run the frame loop with training before every frame."""
     # Self-training paths query the cache too.
     integrator.cache = trainer.cache = cache
-    n_train = training_paths_per_frame(scene, params)
+    width, height = scene.resolution
+    budget = frame_training_budget(width * height, params, cache.config)
 
     pretrain_start = time.perf_counter()
     for index in range(params.pretrain_frames):
-        train_once(cache, trainer, scene, n_train, derive_seed(*seed_parts, "pretrain", index),
+        train_once(cache, trainer, scene, budget, derive_seed(*seed_parts, "pretrain", index),
                    StageTimer())
     pretrain_s = time.perf_counter() - pretrain_start
 
     render = render_stage(scene, integrator, spp)
 
     def render_frame(index: int, seed: int, timer: StageTimer):
-        train_once(cache, trainer, scene, n_train, derive_seed(seed, "train"), timer)
+        train_once(cache, trainer, scene, budget, derive_seed(seed, "train"), timer)
         return render(index, seed, timer)
 
     output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
     output.method_stats = {
-        "train_paths_per_frame": n_train,
+        "training_budget": budget.describe(),
         "pretrain_frames": params.pretrain_frames,
         "pretrain_s": pretrain_s,
         "loss_history": list(cache.loss_history),
@@ -131,12 +156,6 @@ def render_with_cache(
         "cache_config": cache.config.model_dump(mode="json"),
     }
     return output
-
-
-def training_paths_per_frame(scene: Any, params: CacheTrainingParams) -> int:
-    """Training paths traced per frame: a fraction of the pixels, at least a minimum."""
-    width, height = scene.resolution
-    return max(params.min_train_paths, math.ceil(params.train_fraction * width * height))
 
 
 def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Callable[..., RenderOutput]:

@@ -53,6 +53,21 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
         assert (settings.artifacts_dir / artifact.path).is_file()
 
 
+def test_a_cached_run_stores_its_time_breakdown_and_training_budget(env):
+    settings, store = env
+    spec = SPEC.model_copy(update={"method": "nirc", "seeds": 1,
+                                   "params": {"cache": {"batch_size": 256}}})
+    run = store.get_run(execute(spec, store, settings).run_id)
+    parts = run.timings["breakdown"]["parts_s"]
+    assert {"render", "training_paths", "training", "other"} <= set(parts)
+    assert all(seconds >= 0 for seconds in parts.values())
+    assert run.timings["breakdown"]["inference_in_render"] == ("inference" not in parts)
+    assert run.seed_results[0].timings["breakdown"] == run.timings["breakdown"]
+    # 8x8 pixels: the 4096-record floor, capped by the 256-record batch.
+    budget = run.seed_results[0].metrics["method_stats"]["training_budget"]
+    assert (budget["mode"], budget["steps"], budget["batch_size"]) == ("scaled", 4, 256)
+
+
 def test_the_reference_is_rendered_once_and_reused(env):
     settings, store = env
     first = execute(SPEC, store, settings)
@@ -145,6 +160,18 @@ def test_a_time_budget_needs_a_knob(env):
         execute(spec, store, settings)
     with pytest.raises(ValueError, match="exactly one"):
         TimeBudget(ms=1, pt_spp=2)
+
+
+def test_path_histograms_average_over_the_union_of_the_seeds_bins():
+    from jobs.protocol.executor import mean_over_seeds
+
+    seeds = [{"avg_path_vertices": 2.0, "cache_depth_fractions": {"0": 0.5, "1": 0.5}},
+             {"avg_path_vertices": 3.0, "cache_depth_fractions": {"0": 0.5, "2": 0.5}}]
+    mean = mean_over_seeds(seeds)
+    assert mean["avg_path_vertices"] == 2.5
+    # A bin one seed never hit counts 0 there (it used to be dropped, or averaged
+    # over the seeds that hit it only).
+    assert mean["cache_depth_fractions"] == {"0": 0.5, "1": 0.25, "2": 0.25}
 
 
 def test_per_cache_metrics_say_why_they_are_missing():

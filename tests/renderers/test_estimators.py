@@ -202,6 +202,7 @@ def test_no_method_produces_nonfinite_values(mi, tmp_path, monkeypatch):
     from renderers.methods import nirc as nirc_method
     from renderers.methods import nrc as nrc_method
     from renderers.methods import parse_params
+    from renderers.methods.budget import frame_training_budget
     from renderers.methods.cached import train_once
     from renderers.scenes import load_scene
     from renderers.timing import StageTimer
@@ -225,7 +226,8 @@ def test_no_method_produces_nonfinite_values(mi, tmp_path, monkeypatch):
                               {"max_depth": max_depth, "min_train_paths": 1024, **values})
         integrator, trainer, cache = module.build(loaded, params, seed=1)
         trainer.cache = cache  # NRC's self-training paths query it
-        train_once(cache, trainer, loaded, 1024, seed=0, timer=StageTimer())
+        budget = frame_training_budget(RES * RES, params, cache.config)
+        train_once(cache, trainer, loaded, budget, seed=0, timer=StageTimer())
         integrator.cache = cache
         integrators[name] = integrator
 
