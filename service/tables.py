@@ -116,6 +116,7 @@ def metrics_table(run: RunResultDetail) -> Group:
         **_metric_rows(m),
         "ms per frame": _ms(run.seconds_per_frame),
         "ms render stage": _ms(run.render_seconds_per_frame),
+        "ms per part (Table 1)": _breakdown_text(run.time_breakdown_ms),
         "warm-up / compile (s)": f"{t['warmup_s']:.3g} / {t['compile_s_estimate']:.3g}",
         "avg path vertices": run.path_stats.get("avg_path_vertices"),
         "non-finite pixels": run.quality.get("nonfinite_pixels"),
@@ -134,6 +135,23 @@ def metrics_table(run: RunResultDetail) -> Group:
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
     return Group(*parts)
+
+
+def _breakdown_text(parts: dict[str, float] | None) -> str:
+    return "-" if not parts else ", ".join(f"{name} {ms:.3g}" for name, ms in parts.items())
+
+
+def breakdown_table(title: str, rows: list[ReportRow]) -> Table:
+    """Milliseconds per frame of each part of the rows' frames (the NIRC paper's Table 1)."""
+    parts = list(dict.fromkeys(name for r in rows for name in (r.time_breakdown_ms or {})))
+    table = Table(title=title)
+    for column in ("method", *parts, "total"):
+        table.add_column(column, justify="left" if column == "method" else "right")
+    for r in rows:
+        ms = r.time_breakdown_ms or {}
+        table.add_row(r.label, *(_fmt(ms[name]) if name in ms else "-" for name in parts),
+                      _fmt(_ms(r.seconds_per_frame)))
+    return table
 
 
 def _ms(seconds: float | None) -> float | None:
@@ -166,6 +184,8 @@ def comparison_tables(report: Report) -> Group:
 
     return Group(table(f"{report.scene}: equal spp ({report.device})", report.equal_spp),
                  table(f"{report.scene}: equal time ({report.device})", report.equal_time),
+                 breakdown_table(f"{report.scene}: ms per frame by part (median; render "
+                                 "includes cache inference unless listed)", report.equal_spp),
                  calibration_table("N_c calibration (NIRC biased)", report.calibration),
                  *(f"skipped {s.label or s.method}: {s.reason}" for s in report.skipped))
 

@@ -49,6 +49,13 @@ def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
 ResultMetrics = create_model("ResultMetrics", **_metric_fields(LISTED))
 
 
+def breakdown_ms(timings: dict[str, Any]) -> dict[str, float] | None:
+    """The Table-1-style breakdown of a frame in milliseconds (median per part: render,
+    training_paths, training, inference, ..., other); None for runs stored before it."""
+    parts = (timings.get("breakdown") or {}).get("parts_s")
+    return None if parts is None else {name: 1e3 * s for name, s in parts.items()}
+
+
 def render_seconds(timings: dict[str, Any]) -> float | None:
     """Median seconds of a frame's render stage (the frame time for a method without stages)."""
     render = (timings.get("stages") or {}).get("render") or {}
@@ -72,6 +79,9 @@ class RunResult(ResultMetrics):
         description="median seconds per frame (a caching method's include its online training)")
     render_seconds_per_frame: float | None = Field(
         None, description="median seconds of a frame's render stage alone")
+    time_breakdown_ms: dict[str, float] | None = Field(
+        None, description="median milliseconds per frame of each part (render, training_paths, "
+                          "training, inference, other), as in the NIRC paper's Table 1")
     device_key: str
     quality: dict[str, Any]
     ref_floor_ratio_rbias2: float | None = Field(
@@ -100,6 +110,7 @@ class RunResult(ResultMetrics):
             "resolution": [run.width, run.height], "spp": run.spp, "frames": run.frames,
             "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),
             "render_seconds_per_frame": render_seconds(run.timings),
+            "time_breakdown_ms": breakdown_ms(run.timings),
             "device_key": run.device_key, "quality": q, "verdict": q.get("verdict"),
             "withheld": q.get("withheld", []), "estimator_version": run.estimator_version,
             "metric_version": run.metric_version,

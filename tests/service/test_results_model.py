@@ -14,7 +14,7 @@ from jobs.protocol.sweep import point_row
 from jobs.record.config import Settings
 from jobs.record.db import open_store
 from service.api.main import create_app
-from service.tables import metrics_table
+from service.tables import breakdown_table, metrics_table
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
                   reference=ReferenceSpec(spp=64, spp_per_pass=8))
@@ -51,3 +51,8 @@ def test_every_view_of_a_run_is_the_one_result_model(mi, data_dir):
     for view in (report_row, sweep_row):
         assert view.model_dump(include=shared) == row.model_dump(include=shared)
     assert row.render_seconds_per_frame is not None and row.seconds_per_frame is not None
+    # The Table-1 breakdown reaches the run table and the report's breakdown table.
+    assert set(row.time_breakdown_ms) == {"render", "other"}
+    assert "ms per part (Table 1)" in _text(metrics_table(summary.result))
+    report_text = _text(breakdown_table("parts", [report_row]))
+    assert "render" in report_text and "other" in report_text and "PT" in report_text
