@@ -7,8 +7,11 @@ cache's training steps on their records, then
 renders the frame with the updated cache — frame f uses a cache trained on
 frames 0..f. Static scenes may pre-train for ``pretrain_frames`` frames before
 the first timed frame. Stages timed per frame: ``training_paths``,
-``training``, ``render`` (path tracing and cache inference run in one fused
-kernel and are timed together). The warm-up frame trains too.
+``training``, ``render`` (path tracing, recording the cache queries it uses)
+and ``inference`` (the deferred cache queries, renderers/integrators/deferred.py).
+The warm-up frame trains too. ``method_stats`` reports the cache queries
+evaluated: ``cache_queries_per_frame`` (mean over the timed frames) and
+``cache_query_fraction`` (queries / (lanes x the buffer's slots per lane)).
 """
 
 from __future__ import annotations
@@ -116,13 +119,20 @@ def render_with_cache(
 
     render = render_stage(scene, integrator, spp)
 
+    frame_queries: list[list[Any]] = []  # the QueryCounts of each timed frame
+
     def render_frame(index: int, seed: int, timer: StageTimer):
         train_once(cache, trainer, scene, n_train, derive_seed(seed, "train"), timer)
-        return render(index, seed, timer)
+        integrator.query_counts.clear()
+        image = render(index, seed, timer)
+        if index >= 0:  # not the warm-up frame
+            frame_queries.append(list(integrator.query_counts))
+        return image
 
     output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
     output.method_stats = {
+        **query_stats(frame_queries),
         "train_paths_per_frame": n_train,
         "pretrain_frames": params.pretrain_frames,
         "pretrain_s": pretrain_s,
@@ -131,6 +141,18 @@ def render_with_cache(
         "cache_config": cache.config.model_dump(mode="json"),
     }
     return output
+
+
+def query_stats(frames: list[list[Any]]) -> dict[str, float]:
+    """Mean cache queries evaluated per frame, and the mean fraction of the query
+    buffer's slots they filled (``QueryCount``s of renderers.integrators.deferred)."""
+    if not frames:
+        return {}
+    queries = [sum(c.queries for c in counts) for counts in frames]
+    slots = [sum(c.lanes * c.slots_per_lane for c in counts) for counts in frames]
+    return {"cache_queries_per_frame": sum(queries) / len(frames),
+            "cache_query_fraction": sum(q / max(s, 1) for q, s in zip(queries, slots, strict=True))
+                                    / len(frames)}
 
 
 def training_paths_per_frame(scene: Any, params: CacheTrainingParams) -> int:
