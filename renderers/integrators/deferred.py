@@ -21,7 +21,8 @@ factor. The random numbers (the N_c directions) are drawn in the loop as
 before, so the estimator is the same; only the summation order differs.
 
 Buffer bound: fixed slots per lane, K vertices x Q queries (a
-:class:`QueryLayout`), ``lanes * K * Q`` query slots. K is an exact bound for
+:class:`QueryLayout`), ``lanes * K * Q`` query slots (25 bytes each, +12 in
+the deferred pass) and ``lanes * K`` vertex slots (52 bytes, NRC 64). K is an exact bound for
 NRC (1: the path ends at its cache vertex) and unbiased NIRC (len(nc)); a
 biased NIRC path ends at its cache vertex unless the continuation is a delta
 lobe, so it has no finite bound with unbounded depth: K starts at 1, and a

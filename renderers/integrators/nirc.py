@@ -111,6 +111,9 @@ class NIRCIntegrator(CachedPathIntegrator):
     def query_layout(self) -> QueryLayout:
         """Unbiased: len(nc) vertices of N_c + 1 queries (the residual), an exact bound.
         Biased: N_c queries at each vertex where the path terminated into the cache."""
+        if not self.nc:
+            raise RuntimeError("the nirc integrator needs configure(params) before it renders "
+                               "(renderers.methods.nirc.build does it)")
         if self.estimator == "unbiased":
             return QueryLayout(len(self.nc), max(self.nc) + 1)
         return QueryLayout(self.vertex_slots, max(self.nc))
@@ -137,9 +140,6 @@ class NIRCIntegrator(CachedPathIntegrator):
         return -vertex.bsdf_weight
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
-        if not self.nc:
-            raise RuntimeError("the nirc integrator needs configure(params) before it renders "
-                               "(renderers.methods.nirc.build does it)")
         smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
         usable = vertex.active_next & smooth
         if self.estimator == "unbiased":
