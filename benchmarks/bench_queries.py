@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from statistics import median
 from typing import Any
 
@@ -89,7 +90,7 @@ def render_once(mi, scene, integrator, seed: int) -> dict[str, float]:
 
 def frame_table(mi, scene, integrators: dict[str, Any], repeats: int) -> None:
     samples: dict[str, list[dict[str, float]]] = {label: [] for label in integrators}
-    for label, integrator in integrators.items():   # warm-up: JIT compilation
+    for integrator in integrators.values():   # warm-up: JIT compilation
         render_once(mi, scene, integrator, seed=10_000)
     for repeat in range(repeats):
         for label, integrator in integrators.items():
@@ -108,11 +109,35 @@ def frame_table(mi, scene, integrators: dict[str, Any], repeats: int) -> None:
               f"{render / pt:>7.2f}{1e3 * med(label, 'inference'):>14.2f}{queries:>10}")
 
 
+def sharing_variants(mi, dr, cache: Any, points: int, nc: int) -> dict[str, Callable[[], Any]]:
+    """The deferred pass on ``points`` shading points with ``nc`` queries each, with the
+    per-surface features recomputed per query or computed per point and gathered."""
+    from benchmarks.bench_cache import _inputs
+
+    values = _inputs(mi, dr, points * nc, seed=nc)
+    direction = values.pop("direction")
+    vertex = dr.arange(mi.UInt32, points * nc) // nc
+    surface_in = {k: dr.gather(type(v), v, dr.arange(mi.UInt32, points) * nc)
+                  for k, v in values.items()}
+    dr.eval(vertex, surface_in)
+
+    def recompute() -> Any:
+        inputs = {k: dr.gather(type(v), v, vertex) for k, v in surface_in.items()}
+        return cache.query(cache.surface_features(**inputs), direction)
+
+    def shared() -> Any:
+        rows = cache.surface_features(**surface_in)
+        dr.eval(rows)
+        return cache.query([dr.gather(type(r), r, vertex) for r in rows], direction)
+
+    return {"recompute": recompute, "shared": shared}
+
+
 def surface_sharing(mi, scene, points: int, repeats: int) -> None:
     """The deferred pass with per-surface features recomputed per query vs gathered."""
     import drjit as dr
 
-    from benchmarks.bench_cache import _inputs, timed_interleaved
+    from benchmarks.bench_cache import timed_interleaved
     from renderers.methods import nirc as nirc_method
     from renderers.methods import parse_params
 
@@ -120,23 +145,7 @@ def surface_sharing(mi, scene, points: int, repeats: int) -> None:
     print(f"\ndeferred pass, {points} shading points, ms (median of {repeats}, interleaved)")
     print(f"{'N_c':>4}{'recompute per query':>22}{'shared + gather':>18}")
     for nc in (1, 2, 4, 8):
-        values = _inputs(mi, dr, points * nc, seed=nc)
-        vertex = dr.arange(mi.UInt32, points * nc) // nc
-        surface_in = {k: dr.gather(type(v), v, dr.arange(mi.UInt32, points) * nc)
-                      for k, v in values.items() if k != "direction"}
-        dr.eval(vertex, surface_in)
-
-        def recompute():
-            inputs = {k: dr.gather(type(v), v, vertex) for k, v in surface_in.items()}
-            return cache.query(cache.surface_features(**inputs), values["direction"])
-
-        def shared():
-            rows = cache.surface_features(**surface_in)
-            dr.eval(rows)
-            gathered = [dr.gather(type(r), r, vertex) for r in rows]
-            return cache.query(gathered, values["direction"])
-
-        times = timed_interleaved({"recompute": recompute, "shared": shared}, repeats)
+        times = timed_interleaved(sharing_variants(mi, dr, cache, points, nc), repeats)
         print(f"{nc:>4}{1e3 * times['recompute']:>22.2f}{1e3 * times['shared']:>18.2f}")
 
 
