@@ -27,13 +27,17 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from renderers.integrators.deferred import QueryBuffer, QueryCount, QueryLayout
+from renderers.integrators.deferred import InlineQueries, QueryBuffer, QueryCount, QueryLayout
 from renderers.integrators.path import PathIntegrator, Vertex
 from renderers.integrators.spread import SPREAD_C, primary_footprint, spread_increment
 from renderers.timing import StageTimer, synchronize
 
 #: Floor of NRC's albedo demodulation factor: black surfaces would divide by 0.
 MIN_DEMODULATION = 0.01
+#: Query slots (lanes x slots per lane) above which a frame does not allocate the
+#: deferred buffer (~37 bytes a slot with the deferred pass's temporaries: 1.2 GB)
+#: and evaluates its queries in the loop instead, masked, as before deferral.
+MAX_QUERY_SLOTS = 1 << 25
 
 
 def cache_inputs(si: mi.SurfaceInteraction3f, bsdf: mi.BSDF,
@@ -105,9 +109,10 @@ class CachedPathIntegrator(PathIntegrator):
 
     Deferred queries (module doc): a subclass gives the buffer's
     :meth:`query_layout`; each :meth:`sample` appends a :class:`QueryCount` to
-    ``query_counts`` and, if ``timer`` is set, times the deferred pass as the
-    stage ``inference`` (nested in the caller's ``render`` stage, which then
-    excludes it).
+    ``query_counts`` (None for a frame above ``MAX_QUERY_SLOTS``, whose
+    queries were evaluated in the loop) and, if ``timer`` is set, times the
+    deferred pass as the stage ``inference`` (nested in the caller's
+    ``render`` stage, which then excludes it).
     """
 
     def __init__(self, props: mi.Properties) -> None:
@@ -115,8 +120,8 @@ class CachedPathIntegrator(PathIntegrator):
         self.sph_c = float(props.get("sph_c", SPREAD_C))
         self.cache: Any = None
         self.v1_mask: mi.Bool | None = None
-        self.queries: QueryBuffer | None = None   # the frame's buffer, while it is traced
-        self.query_counts: list[QueryCount] = []
+        self.queries: QueryBuffer | InlineQueries | None = None   # while a frame is traced
+        self.query_counts: list[QueryCount | None] = []
         self.timer: StageTimer | None = None
         # Cache vertices per lane a buffer holds where no exact bound exists
         # (biased NIRC); raised to what a frame needed, kept for later frames.
@@ -150,11 +155,12 @@ class CachedPathIntegrator(PathIntegrator):
         replay = sampler.clone()  # the same random numbers, should the buffer be too small
         layout = self.query_layout()
         while True:
-            self.queries = QueryBuffer(lanes, layout)
+            deferred = lanes * layout.slots <= MAX_QUERY_SLOTS
+            self.queries = QueryBuffer(lanes, layout) if deferred else InlineQueries(self.cache)
             L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
             synchronize(L, valid_ray, depth, state)
             needed = int(dr.max(state.cache_vertices, axis=None)[0])
-            if needed <= layout.vertices:
+            if not deferred or needed <= layout.vertices:
                 break
             # Some lane had more cache vertices than slots: trace the frame again
             # with the same random numbers and room for all of them.
@@ -164,12 +170,15 @@ class CachedPathIntegrator(PathIntegrator):
                 raise RuntimeError(f"a path used the cache at {needed} vertices, more than the "
                                    f"bound {layout.vertices} of {type(self).__name__}")
             sampler = replay.clone()
-        with self._stage("inference"):
-            cached, count = self.queries.evaluate(self.cache)
-            L = mi.Spectrum(L) + cached
-            synchronize(L)
+        count = None
+        if deferred:
+            with self._stage("inference"):
+                cached, queries = self.queries.evaluate(self.cache)
+                L = mi.Spectrum(L) + cached
+                synchronize(L)
+            count = QueryCount(queries, lanes, layout.slots)
         self.queries = None
-        self.query_counts.append(QueryCount(count, lanes, layout.slots))
+        self.query_counts.append(count)
         return L, valid_ray, [mi.Float(depth), mi.Float(state.cache_depth),
                               mi.Float(state.cache_vertices)]
 

@@ -30,6 +30,9 @@ frame in which some lane had more cache vertices (the ``cache_vertices``
 state counts them all, recorded or not) is traced again with K = that count
 and the same random numbers (a clone of the sampler taken before the loop),
 so no query is ever dropped. Q is the largest N_c (+1 for the residual).
+A frame whose buffer would exceed ``cached.MAX_QUERY_SLOTS`` query slots
+allocates none: it evaluates its queries in the loop (:class:`InlineQueries`,
+masked, the cost before deferral).
 
 Fixed per-lane slots (rather than an atomic append counter) keep the result
 bit-reproducible: the per-lane sum over slots runs in slot order
@@ -161,7 +164,8 @@ class QueryBuffer:
 
 class InlineQueries:
     """The same interface, evaluated where the query is made, inside the loop: for
-    training paths (NRC self-training), whose targets need the value in the loop."""
+    training paths (NRC self-training), whose targets need the value in the loop,
+    and for render frames too large for a buffer."""
 
     def __init__(self, cache: Any) -> None:
         self.cache = cache

@@ -11,7 +11,9 @@ the first timed frame. Stages timed per frame: ``training_paths``,
 and ``inference`` (the deferred cache queries, renderers/integrators/deferred.py).
 The warm-up frame trains too. ``method_stats`` reports the cache queries
 evaluated: ``cache_queries_per_frame`` (mean over the timed frames) and
-``cache_query_fraction`` (queries / (lanes x the buffer's slots per lane)).
+``cache_query_fraction`` (queries / (lanes x the buffer's slots per lane)), and
+``cache_inline_frames``, frames too large for the buffer that evaluated their
+queries in the loop (renderers.integrators.cached.MAX_QUERY_SLOTS).
 """
 
 from __future__ import annotations
@@ -144,15 +146,19 @@ def render_with_cache(
 
 
 def query_stats(frames: list[list[Any]]) -> dict[str, float]:
-    """Mean cache queries evaluated per frame, and the mean fraction of the query
-    buffer's slots they filled (``QueryCount``s of renderers.integrators.deferred)."""
-    if not frames:
-        return {}
-    queries = [sum(c.queries for c in counts) for counts in frames]
-    slots = [sum(c.lanes * c.slots_per_lane for c in counts) for counts in frames]
-    return {"cache_queries_per_frame": sum(queries) / len(frames),
-            "cache_query_fraction": sum(q / max(s, 1) for q, s in zip(queries, slots, strict=True))
-                                    / len(frames)}
+    """Over the frames that deferred their cache queries: the mean queries evaluated
+    per frame and the mean fraction of the buffer's slots they filled (``QueryCount``s
+    of renderers.integrators.deferred); and how many frames evaluated them in the
+    loop instead (a count of None: the buffer would have been too large)."""
+    deferred = [counts for counts in frames if None not in counts]
+    stats: dict[str, float] = {"cache_inline_frames": len(frames) - len(deferred)}
+    if deferred:
+        queries = [sum(c.queries for c in counts) for counts in deferred]
+        slots = [sum(c.lanes * c.slots_per_lane for c in counts) for counts in deferred]
+        stats["cache_queries_per_frame"] = sum(queries) / len(deferred)
+        stats["cache_query_fraction"] = sum(
+            q / max(s, 1) for q, s in zip(queries, slots, strict=True)) / len(deferred)
+    return stats
 
 
 def training_paths_per_frame(scene: Any, params: CacheTrainingParams) -> int:

@@ -147,4 +147,28 @@ def test_method_stats_report_the_queries(mi, tmp_path):
     assert stats["cache_queries_per_frame"] == pytest.approx(
         2 * RES * RES * path_stats["avg_cache_vertices"])
     assert stats["cache_query_fraction"] == pytest.approx(path_stats["avg_cache_vertices"])
+    assert stats["cache_inline_frames"] == 0
     assert out.timings["stages"]["inference"]["mean_s"] > 0
+
+
+@pytest.mark.parametrize("estimator", ["biased", "unbiased"])
+def test_a_frame_too_large_for_the_buffer_evaluates_its_queries_in_the_loop(
+        mi, tmp_path, monkeypatch, estimator):
+    """Above MAX_QUERY_SLOTS no buffer is allocated: the queries are evaluated in the
+    loop (masked, as before deferral), with the same random numbers, so the image
+    equals the deferred one up to float summation order."""
+    from renderers.caches.oracle import ZeroCache
+    from renderers.integrators import cached
+
+    scene = _scene(mi, tmp_path, PLASTIC)
+    integrator = _integrator(scene, "nirc", estimator=estimator, nc=[3], max_depth=8)
+    deferred, queries = _render(mi, scene, integrator, seed=4)
+    assert queries > 0
+    monkeypatch.setattr(cached, "MAX_QUERY_SLOTS", 0)
+    integrator.query_counts.clear()
+    inline = np.asarray(mi.render(scene.scene, integrator=integrator, spp=1, seed=4))
+    assert integrator.query_counts == [None]
+    np.testing.assert_allclose(inline, deferred, rtol=1e-4, atol=1e-6)
+    integrator.cache = ZeroCache()   # the cache term is not 0 (else the test says nothing)
+    without = np.asarray(mi.render(scene.scene, integrator=integrator, spp=1, seed=4))
+    assert not np.allclose(without[..., :3], deferred[..., :3], rtol=1e-3)
