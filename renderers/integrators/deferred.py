@@ -22,9 +22,9 @@ before, so the estimator is the same; only the summation order differs.
 
 Buffer bound: fixed slots per lane, K vertices x Q queries (a
 :class:`QueryLayout`), ``lanes * K * Q`` query slots (25 bytes each, +12 in
-the deferred pass) and ``lanes * K`` vertex slots (52 bytes, NRC 64). K is an exact bound for
-NRC (1: the path ends at its cache vertex) and unbiased NIRC (len(nc)); a
-biased NIRC path ends at its cache vertex unless the continuation is a delta
+the deferred pass) and ``lanes * K`` vertex slots (52 bytes, NRC 64). K is
+an exact bound for NRC (1: the path ends at its cache vertex) and unbiased
+NIRC (len(nc)); a biased NIRC path ends at its cache vertex unless the continuation is a delta
 lobe, so it has no finite bound with unbounded depth: K starts at 1, and a
 frame in which some lane had more cache vertices (the ``cache_vertices``
 state counts them all, recorded or not) is traced again with K = that count
@@ -40,10 +40,10 @@ bit-reproducible: the per-lane sum over slots runs in slot order
 order. The surface inputs are stored once per vertex. The per-surface
 features (Sec. 4.5: hash grid, other surface encodings, the first layer's
 surface columns) are computed once per used vertex and gathered per query:
-measured with benchmarks/bench_queries.py (16384 points, 2 cores), 1.0x,
-1.4x, 1.3x faster than recomputing them per query for N_c = 2, 4, 8; slower
-(1.4x) at N_c = 1, where a vertex is a query, so one-slot layouts (NRC,
-biased N_c = 1) compute them per query.
+measured with benchmarks/bench_queries.py (16384 points, 2 shared cores, two
+runs), 1.0-1.1x, 1.2-1.4x, 1.3x faster than recomputing them per query for
+N_c = 2, 4, 8; 1.4-1.6x slower at N_c = 1, where a vertex is a query, so
+one-slot layouts (NRC, biased N_c = 1) compute them per query.
 """
 
 from __future__ import annotations
