@@ -38,11 +38,17 @@ def synchronize(*values: Any) -> None:
 
 
 class StageTimer:
-    """Accumulates synchronised wall time per named stage within one frame."""
+    """Accumulates synchronised wall time per named stage within one frame.
+
+    Stages may nest (the deferred cache ``inference`` runs inside
+    ``mi.render``, timed as ``render``): a stage's time excludes the time of
+    the stages nested in it, so the stages of a frame add up to its wall time.
+    """
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
         self.frame_s = 0.0
+        self._nested: list[float] = []   # per open stage: seconds spent in its inner stages
 
     @contextmanager
     def frame(self) -> Iterator[None]:
@@ -59,9 +65,16 @@ class StageTimer:
         before it ends; the device is synchronised again before the clock is read."""
         synchronize()
         start = time.perf_counter()
-        yield
-        synchronize()
-        self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+        self._nested.append(0.0)
+        try:
+            yield
+            synchronize()
+        finally:
+            elapsed = time.perf_counter() - start
+            inner = self._nested.pop()
+            if self._nested:
+                self._nested[-1] += elapsed
+        self.seconds[name] = self.seconds.get(name, 0.0) + elapsed - inner
 
 
 #: The columns of the NIRC paper's Table 1 (Sec. 6.2) as stage names, in its order:

@@ -174,7 +174,7 @@ def comparison_tables(report: Report) -> Group:
     def table(title: str, rows: list[ReportRow]) -> Table:
         t = Table(title=title)
         for column in ("method", "run", "spp", *(m.label for m in LISTED), "ms/frame",
-                       "ms render", "note"):
+                       "ms render stage", "note"):
             t.add_column(column, justify="left" if column in ("method", "note") else "right")
         for r in rows:
             t.add_row(r.label, str(r.id), str(r.spp), *_metric_cells(r),

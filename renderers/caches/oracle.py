@@ -25,9 +25,12 @@ of the query (position, direction) and ``seed``, so the oracle needs no access
 to the caller's sampler and stays independent of it.
 
 Interface of :class:`~renderers.caches.cache.NeuralCache` as the integrators
-use it: ``surface_features(**inputs)`` then ``query(surface, direction)``. A
-zero ``direction`` marks a lane whose value the caller discards; no path is
-traced for it (a neural cache evaluates every lane, an oracle cannot afford to).
+use it: ``surface_features(**inputs)`` then ``query(surface, direction)``. The
+render integrators call it in their deferred pass after the path loop, on the
+used queries only (renderers/integrators/deferred.py); the stream of a query
+depends only on the query, so it is the same value as if it were evaluated in
+the loop. A zero ``direction`` marks a lane whose value the caller discards
+(training paths that query in the loop); no path is traced for it.
 
 ``max_depth`` bounds the nested path (segments from x); a finite bound
 matches a finite ``max_depth`` of the render only at one vertex depth, so the

@@ -10,21 +10,34 @@ integrator no pixel coordinates, but its wavefront is laid out pixel-major
 (the spp samples of a pixel are consecutive lanes, pixels in row-major order;
 ``tests/renderers/test_adaptive.py`` checks this layout), so the pixel of a
 lane is ``lane // spp``.
+
+Cache queries are deferred (deferred.py): the loop records the queries whose
+value is used in a per-frame :class:`~renderers.integrators.deferred.QueryBuffer`
+(``self.queries``), and :meth:`CachedPathIntegrator.sample` evaluates only
+those after the loop and adds them to each lane's radiance before Mitsuba
+splats it to the film.
 """
 
 from __future__ import annotations
 
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from renderers.integrators.deferred import InlineQueries, QueryBuffer, QueryCount, QueryLayout
 from renderers.integrators.path import PathIntegrator, Vertex
 from renderers.integrators.spread import SPREAD_C, primary_footprint, spread_increment
+from renderers.timing import StageTimer, synchronize
 
 #: Floor of NRC's albedo demodulation factor: black surfaces would divide by 0.
 MIN_DEMODULATION = 0.01
+#: Query slots (lanes x slots per lane) above which a frame does not allocate the
+#: deferred buffer (~37 bytes a slot with the deferred pass's temporaries: 1.2 GB)
+#: and evaluates its queries in the loop instead, masked, as before deferral.
+MAX_QUERY_SLOTS = 1 << 25
 
 
 def cache_inputs(si: mi.SurfaceInteraction3f, bsdf: mi.BSDF,
@@ -93,6 +106,13 @@ class CachedPathIntegrator(PathIntegrator):
     (default: every pixel may use the cache at v1). AOVs: ``depth``,
     ``cache_depth`` (1 + index of the vertex a path terminated into the cache,
     0 for none) and ``cache_vertices``.
+
+    Deferred queries (module doc): a subclass gives the buffer's
+    :meth:`query_layout`; each :meth:`sample` appends a :class:`QueryCount` to
+    ``query_counts`` (None for a frame above ``MAX_QUERY_SLOTS``, whose
+    queries were evaluated in the loop) and, if ``timer`` is set, times the
+    deferred pass as the stage ``inference`` (nested in the caller's
+    ``render`` stage, which then excludes it).
     """
 
     def __init__(self, props: mi.Properties) -> None:
@@ -100,6 +120,12 @@ class CachedPathIntegrator(PathIntegrator):
         self.sph_c = float(props.get("sph_c", SPREAD_C))
         self.cache: Any = None
         self.v1_mask: mi.Bool | None = None
+        self.queries: QueryBuffer | InlineQueries | None = None   # while a frame is traced
+        self.query_counts: list[QueryCount | None] = []
+        self.timer: StageTimer | None = None
+        # Cache vertices per lane a buffer holds where no exact bound exists
+        # (biased NIRC); raised to what a frame needed, kept for later frames.
+        self.vertex_slots = 1
 
     def set_v1_mask(self, mask: np.ndarray | None) -> None:
         """Per-pixel (H, W) booleans: where paths may terminate into the cache at v1.
@@ -119,10 +145,45 @@ class CachedPathIntegrator(PathIntegrator):
     def aov_names(self) -> list[str]:
         return ["depth", "cache_depth", "cache_vertices"]
 
+    def query_layout(self) -> QueryLayout:
+        """Slots per lane of the frame's query buffer (deferred.py)."""
+        raise NotImplementedError
+
     def sample(self, scene, sampler, ray, medium=None, active=True):
-        L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
+        """Trace the paths, recording cache queries; then evaluate the recorded ones."""
+        lanes = dr.width(ray.d.x)
+        replay = sampler.clone()  # the same random numbers, should the buffer be too small
+        layout = self.query_layout()
+        while True:
+            deferred = lanes * layout.slots <= MAX_QUERY_SLOTS
+            self.queries = QueryBuffer(lanes, layout) if deferred else InlineQueries(self.cache)
+            L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
+            synchronize(L, valid_ray, depth, state)
+            needed = int(dr.max(state.cache_vertices, axis=None)[0])
+            if not deferred or needed <= layout.vertices:
+                break
+            # Some lane had more cache vertices than slots: trace the frame again
+            # with the same random numbers and room for all of them.
+            self.vertex_slots = needed
+            layout = self.query_layout()
+            if layout.vertices < needed:
+                raise RuntimeError(f"a path used the cache at {needed} vertices, more than the "
+                                   f"bound {layout.vertices} of {type(self).__name__}")
+            sampler = replay.clone()
+        count = None
+        if deferred:
+            with self._stage("inference"):
+                cached, queries = self.queries.evaluate(self.cache)
+                L = mi.Spectrum(L) + cached
+                synchronize(L)
+            count = QueryCount(queries, lanes, layout.slots)
+        self.queries = None
+        self.query_counts.append(count)
         return L, valid_ray, [mi.Float(depth), mi.Float(state.cache_depth),
                               mi.Float(state.cache_vertices)]
+
+    def _stage(self, name: str) -> AbstractContextManager[None]:
+        return self.timer.stage(name) if self.timer is not None else nullcontext()
 
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> CacheState:
         state = new_cache_state()

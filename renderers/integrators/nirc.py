@@ -51,21 +51,24 @@ Two estimators use it:
   L_ind(x, w), so the residual term has expectation E[L_ind - n] and the whole
   estimator has exactly PT's expectation, whatever the cache has learned.
 
-The position encoding is computed once per shading point and shared by its N_c
-directions (Sec. 4.5), through ``NeuralCache.surface_features``. Directions of
-lanes whose value is not used are passed as 0 (an oracle cache skips them).
+The network is evaluated after the path loop, on the used queries only
+(deferred.py): at a cache vertex the loop records its inputs and, per query,
+the direction and the factor that multiplies n(x, w) in the estimate (f_s cos
+/ (p_s N_c) for L_c, -f cos / p for the residual); the directions' random
+numbers are drawn in the loop as before.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Protocol
+from typing import Any, Protocol
 
 import drjit as dr
 import mitsuba as mi
 
 from renderers.integrators import path
 from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs
+from renderers.integrators.deferred import QueryLayout
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import spread_exceeded
 
@@ -105,25 +108,38 @@ class NIRCIntegrator(CachedPathIntegrator):
         self.termination = params.termination
         self.nc = params.sample_counts()
 
-    # ---- Cache term L_c over the smooth lobes (Eq. 12), one surface encoding for N_c ----
-    def cache_term(self, vertex: Vertex, surface: list, nc_lane: mi.UInt32, max_nc: int,
+    def query_layout(self) -> QueryLayout:
+        """Unbiased: len(nc) vertices of N_c + 1 queries (the residual), an exact bound.
+        Biased: N_c queries at each vertex where the path terminated into the cache."""
+        if not self.nc:
+            raise RuntimeError("the nirc integrator needs configure(params) before it renders "
+                               "(renderers.methods.nirc.build does it)")
+        if self.estimator == "unbiased":
+            return QueryLayout(len(self.nc), max(self.nc) + 1)
+        return QueryLayout(self.vertex_slots, max(self.nc))
+
+    # ---- Cache term L_c over the smooth lobes (Eq. 12), queries of one vertex ----
+    def cache_term(self, vertex: Vertex, handle: Any, nc_lane: mi.UInt32, max_nc: int,
                    active: mi.Bool) -> mi.Spectrum:
+        """L_c = 1/N_c sum_i n(x, w_i) f_s cos / p_s: N_c fresh smooth samples, each
+        a query (slots 0 .. N_c - 1 of the vertex ``handle``)."""
         si, bsdf = vertex.si, vertex.bsdf
         ctx = smooth_context()
+        inv_nc = dr.rcp(mi.Float(dr.maximum(nc_lane, 1)))
         total = mi.Spectrum(0)
         for slot in range(max_nc):
             use = active & (slot < nc_lane)
             bs, weight = bsdf.sample(ctx, si, vertex.sampler.next_1d(use),
                                      vertex.sampler.next_2d(use), use)
             use &= bs.pdf > 0
-            n_i = self.cache.query(surface, used_direction(si, bs.wo, use))
-            total += dr.select(use, n_i * weight, 0)
-        return total / mi.Float(dr.maximum(nc_lane, 1))
+            total += self.queries.add(handle, slot, si.to_world(bs.wo), weight * inv_nc, use)
+        return total
+
+    def residual_weight(self, vertex: Vertex) -> mi.Spectrum:
+        """The factor of n(x, w) in the residual along the continuation w (Eq. 11): -f cos / p."""
+        return -vertex.bsdf_weight
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
-        if not self.nc:
-            raise RuntimeError("the nirc integrator needs configure(params) before it renders "
-                               "(renderers.methods.nirc.build does it)")
         smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
         usable = vertex.active_next & smooth
         if self.estimator == "unbiased":
@@ -137,16 +153,17 @@ class NIRCIntegrator(CachedPathIntegrator):
         nc_lane = mi.UInt32(self.nc[-1])
         for index in reversed(range(len(self.nc) - 1)):
             nc_lane = dr.select(state.cache_vertices == index, self.nc[index], nc_lane)
-        surface = self.cache.surface_features(**cache_inputs(vertex.si, vertex.bsdf))
-        L_c = self.cache_term(vertex, surface, nc_lane, max(self.nc), use)
+        handle = self.queries.vertex(state.cache_vertices, vertex,
+                                     cache_inputs(vertex.si, vertex.bsdf), use)
+        L_c = self.cache_term(vertex, handle, nc_lane, max(self.nc), use)
         # The continuation sample was drawn independently of the N_c cache samples;
         # only a smooth one estimates what L_c integrates (I_s).
         bs = vertex.bsdf_sample
         smooth_cont = use & (bs.pdf > 0) & ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        n_cont = self.cache.query(surface, used_direction(vertex.si, bs.wo, smooth_cont))
-        residual_cache = dr.select(smooth_cont, n_cont * vertex.bsdf_weight, 0)
+        residual = self.queries.add(handle, max(self.nc), vertex.si.to_world(bs.wo),
+                                    self.residual_weight(vertex), smooth_cont)
         state.cache_vertices = dr.select(use, state.cache_vertices + 1, state.cache_vertices)
-        terms = VertexTerms(L_add=dr.select(use, L_c - residual_cache, 0), stop=mi.Bool(False),
+        terms = VertexTerms(L_add=dr.select(use, L_c + residual, 0), stop=mi.Bool(False),
                             stop_indirect=mi.Bool(False), skip_nee=mi.Bool(False))
         return terms, state
 
@@ -180,8 +197,9 @@ class NIRCIntegrator(CachedPathIntegrator):
         stop &= usable
         # ---- Shade the terminal vertex: L_e (done) + L_nee (core) + L_c (Eq. 13) ----
         nc_lane = dr.select(vertex.depth == 0, mi.UInt32(nc), mi.UInt32(nc_later))
-        surface = self.cache.surface_features(**cache_inputs(vertex.si, vertex.bsdf))
-        L_c = self.cache_term(vertex, surface, nc_lane, max(nc, nc_later), stop)
+        handle = self.queries.vertex(state.cache_vertices, vertex,
+                                     cache_inputs(vertex.si, vertex.bsdf), stop)
+        L_c = self.cache_term(vertex, handle, nc_lane, max(nc, nc_later), stop)
         # A delta continuation carries I_delta, which L_c leaves out: it goes on as a path.
         delta_cont = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
         state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
@@ -196,12 +214,6 @@ def smooth_context() -> mi.BSDFContext:
     ctx = mi.BSDFContext()
     ctx.type_mask = int(mi.BSDFFlags.Smooth)
     return ctx
-
-
-def used_direction(si: mi.SurfaceInteraction3f, wo_local: mi.Vector3f,
-                   used: mi.Bool) -> mi.Vector3f:
-    """World direction of a cache query, 0 on lanes whose value is discarded."""
-    return dr.select(used, si.to_world(wo_local), mi.Vector3f(0))
 
 
 # ---- Registration (per Mitsuba variant: the `nirc` method calls it when a render starts) ----

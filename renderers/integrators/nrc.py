@@ -15,8 +15,11 @@ never terminate. The decision does not look at the lobe the continuation
 sample picked: L_r contains the light of every lobe, delta lobes included, so
 continuing only where a delta lobe was sampled would bias it. One cache query
 per path, as
-in the NIRC paper's NRC baseline (Sec. 6.2). Training uses NRC's self-training
-(``NRCSelfTrainingIntegrator``) by default.
+in the NIRC paper's NRC baseline (Sec. 6.2); the render integrator records it
+in the loop and evaluates it after (deferred.py; the buffer bound is exact:
+one query per lane). Training uses NRC's self-training
+(``NRCSelfTrainingIntegrator``) by default, whose paths evaluate the query in
+the loop (their targets need its value there).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from renderers.integrators.cached import (
     new_cache_state,
     update_spread,
 )
+from renderers.integrators.deferred import InlineQueries, QueryBuffer, QueryLayout
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import SPREAD_C, spread_exceeded
 from renderers.integrators.training import TrainingPathIntegrator, training_plugin
@@ -55,13 +59,14 @@ NRC_PLUGIN = "nirc_nrc"
 MIN_V1_ROUGHNESS = 0.0625
 
 
-def nrc_terms(cache: Any, sph_c: float, vertex: Vertex, state: CacheState,
-              may_terminate: mi.Bool | bool = True,
+def nrc_terms(queries: QueryBuffer | InlineQueries, sph_c: float, vertex: Vertex,
+              state: CacheState, may_terminate: mi.Bool | bool = True,
               adaptive: bool = False) -> tuple[VertexTerms, CacheState]:
     """Terminate into the outgoing-radiance cache (see module doc): by the spread
     heuristic, never at the first vertex; with ``adaptive`` (NIRC paper Sec. 6.3)
     also at v1 where the pixel's v1 mask allows and the surface is not too
-    glossy (roughness >= ``MIN_V1_ROUGHNESS``)."""
+    glossy (roughness >= ``MIN_V1_ROUGHNESS``). The query goes to ``queries``
+    (deferred, or evaluated in the loop for training paths)."""
     smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
     inputs = cache_inputs(vertex.si, vertex.bsdf, specular=True)
     # ---- Termination by the spread heuristic (Eq. 21) ----
@@ -71,10 +76,8 @@ def nrc_terms(cache: Any, sph_c: float, vertex: Vertex, state: CacheState,
         stop = dr.select(vertex.depth == 0, at_v1, stop)
     stop &= vertex.active_next & smooth & may_terminate
     # ---- Shade the terminal vertex with the cache: L_e (done) + L_r(x, w_o) ----
-    surface = cache.surface_features(**inputs)
-    # Directions of unused lanes are 0 (an oracle cache skips them).
-    w_o = dr.select(stop, -vertex.ray.d, mi.Vector3f(0))
-    L_r = cache.query(surface, w_o) * demodulation(inputs)
+    handle = queries.vertex(state.cache_vertices, vertex, inputs, stop)
+    L_r = queries.add(handle, 0, -vertex.ray.d, demodulation(inputs), stop)
     state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
     state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
     terms = VertexTerms(L_add=dr.select(stop, L_r, 0), stop=stop,
@@ -100,8 +103,12 @@ class NRCIntegrator(CachedPathIntegrator):
         self.sph_c = params.sph_c
         self.termination = params.termination
 
+    def query_layout(self) -> QueryLayout:
+        """One query per lane, an exact bound: the path ends where it queries."""
+        return QueryLayout(1, 1, specular=True)
+
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
-        return nrc_terms(self.cache, self.sph_c, vertex, state,
+        return nrc_terms(self.queries, self.sph_c, vertex, state,
                          adaptive=self.termination == "adaptive")
 
 
@@ -141,7 +148,8 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
         _, state = super().vertex_terms(vertex, state)
         may_terminate = self.path_index() % self.unbiased_every != 0
-        terms, state = nrc_terms(self.cache, self.sph_c, vertex, state, may_terminate)
+        terms, state = nrc_terms(InlineQueries(self.cache), self.sph_c, vertex, state,
+                                 may_terminate)
         own_prediction = terms.stop & (vertex.depth < self.record_depth)
         dr.scatter(self.buffers["valid"], False, self._slot(vertex.depth), own_prediction)
         return terms, state

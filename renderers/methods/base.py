@@ -166,10 +166,16 @@ class FrameHooks:
 
 
 def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:
-    """A frame that is one ``mi.render`` of ``scene`` with ``integrator``, timed as 'render'."""
+    """A frame that is one ``mi.render`` of ``scene`` with ``integrator``, timed as 'render'.
+
+    A caching integrator (renderers.integrators.cached) times its deferred cache
+    inference as the nested stage 'inference'; 'render' is then path tracing only.
+    """
     import mitsuba as mi
 
     def render_frame(_index: int, seed: int, timer: StageTimer):
+        if hasattr(integrator, "timer"):
+            integrator.timer = timer
         with timer.stage("render"):
             image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
             synchronize(image)

@@ -7,8 +7,13 @@ many as the frame's training budget (:mod:`renderers.methods.budget`) says, then
 renders the frame with the updated cache — frame f uses a cache trained on
 frames 0..f. Static scenes may pre-train for ``pretrain_frames`` frames before
 the first timed frame. Stages timed per frame: ``training_paths``,
-``training``, ``render`` (path tracing and cache inference run in one fused
-kernel and are timed together). The warm-up frame trains too.
+``training``, ``render`` (path tracing, recording the cache queries it uses)
+and ``inference`` (the deferred cache queries, renderers/integrators/deferred.py).
+The warm-up frame trains too. ``method_stats`` reports the cache queries
+evaluated: ``cache_queries_per_frame`` (mean over the timed frames) and
+``cache_query_fraction`` (queries / (lanes x the buffer's slots per lane)), and
+``cache_inline_frames``, frames too large for the buffer that evaluated their
+queries in the loop (renderers.integrators.cached.MAX_QUERY_SLOTS).
 """
 
 from __future__ import annotations
@@ -141,14 +146,21 @@ def render_with_cache(
 
     render = render_stage(scene, integrator, spp)
 
+    frame_queries: list[list[Any]] = []  # the QueryCounts of each timed frame
+
     def render_frame(index: int, seed: int, timer: StageTimer):
         train_once(cache, trainer, scene, budget, derive_seed(seed, "train"), timer)
-        return render(index, seed, timer)
+        integrator.query_counts.clear()
+        image = render(index, seed, timer)
+        if index >= 0:  # not the warm-up frame
+            frame_queries.append(list(integrator.query_counts))
+        return image
 
     output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
     output.method_stats = {
         "training_budget": budget.describe(),
+        **query_stats(frame_queries),
         "pretrain_frames": params.pretrain_frames,
         "pretrain_s": pretrain_s,
         "loss_history": list(cache.loss_history),
@@ -156,6 +168,22 @@ def render_with_cache(
         "cache_config": cache.config.model_dump(mode="json"),
     }
     return output
+
+
+def query_stats(frames: list[list[Any]]) -> dict[str, float]:
+    """Over the frames that deferred their cache queries: the mean queries evaluated
+    per frame and the mean fraction of the buffer's slots they filled (``QueryCount``s
+    of renderers.integrators.deferred); and how many frames evaluated them in the
+    loop instead (a count of None: the buffer would have been too large)."""
+    deferred = [counts for counts in frames if None not in counts]
+    stats: dict[str, float] = {"cache_inline_frames": len(frames) - len(deferred)}
+    if deferred:
+        queries = [sum(c.queries for c in counts) for counts in deferred]
+        slots = [sum(c.lanes * c.slots_per_lane for c in counts) for counts in deferred]
+        stats["cache_queries_per_frame"] = sum(queries) / len(deferred)
+        stats["cache_query_fraction"] = sum(
+            q / max(s, 1) for q, s in zip(queries, slots, strict=True)) / len(deferred)
+    return stats
 
 
 def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Callable[..., RenderOutput]:

@@ -366,6 +366,28 @@ def test_estimator_with_a_perfect_cache_agrees_with_pt(mi, room_reference, case,
 
 
 @pytest.mark.slow
+def test_unbiased_test_rejects_a_residual_of_the_wrong_sign(mi, room_reference):
+    """Twin of nirc-unbiased-oracle with the deferred queries: the residual enters
+    with +n f cos / p instead of -n f cos / p (Eq. 11), so the estimate is PT plus
+    twice the cache's indirect light: rejected."""
+    from renderers.caches.oracle import OracleCache
+    from renderers.integrators import nirc, path
+
+    _plugins()
+
+    class WrongSign(nirc.NIRCIntegrator):
+        def residual_weight(self, vertex):
+            return vertex.bsdf_weight
+
+    path.register("nirc_test_residual_sign", WrongSign)
+    scene, reference = room_reference("plastic")
+    twin = _integrator(mi, "nirc_test_residual_sign", OracleCache(scene), max_depth=-1,
+                       estimator="unbiased", nc="1,1")
+    result = _agree(_y(render_moments(scene, twin, 2048, 2)), reference)
+    assert not result.passed, result.summary()
+
+
+@pytest.mark.slow
 def test_bth_with_a_perfect_cache_in_the_furnace(mi):
     """BTH + oracle in the furnace (uniform indirect radiance: BTH's direction-
     dependent stop is unbiased there) matches the known Le / (1 - rho) in every

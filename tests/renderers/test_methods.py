@@ -75,3 +75,18 @@ def test_timing_summary_excludes_the_warmup():
     assert summary["warmup_s"] == 2.5
     assert summary["compile_s_estimate"] == pytest.approx(2.5 - 0.011)
     assert "sync" in summary["protocol"]
+
+
+def test_a_nested_stage_is_not_counted_in_the_outer_one(mi):
+    """The deferred cache inference runs inside mi.render: 'render' excludes it."""
+    import time
+
+    from renderers.timing import StageTimer
+
+    timer = StageTimer()
+    with timer.stage("render"):
+        time.sleep(0.02)
+        with timer.stage("inference"):
+            time.sleep(0.05)
+    assert timer.seconds["inference"] >= 0.05
+    assert 0.02 <= timer.seconds["render"] < 0.05

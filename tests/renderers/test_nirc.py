@@ -113,7 +113,7 @@ def test_nirc_render_is_reproducible_and_reports_training(mi, cornell):
     np.testing.assert_array_equal(a.accumulated, b.accumulated)
     assert a.method_stats["loss_history"] == b.method_stats["loss_history"]
     assert len(a.method_stats["loss_history"]) > 0
-    assert set(a.timings["stages"]) == {"training_paths", "training", "render"}
+    assert set(a.timings["stages"]) == {"training_paths", "training", "render", "inference"}
     assert a.path_stats["avg_cache_vertices"] > 0
 
 
