@@ -435,8 +435,7 @@ def _parse_knob_values(texts: list[str]) -> dict[str, list[int]]:
             raise RangeError(f"--knob-values: {err}") from None
         if min(parsed) < 1:
             raise RangeError(f"--knob-values: '{text}': knob values must be >= 1")
-        names = [name.strip()] if name else [m for m, method in METHODS.items()
-                                             if method.knob is not None and m != BASELINE]
+        names = [name.strip()] if name else knob_methods()
         values.update(dict.fromkeys(names, parsed))
     return values
 

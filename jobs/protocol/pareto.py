@@ -103,6 +103,12 @@ class ParetoResult:
         return asdict(self)
 
 
+def knob_methods() -> list[str]:
+    """The methods other than the baseline with an equal-time knob (``knob_values`` keys)."""
+    return [name for name, method in METHODS.items()
+            if method.knob is not None and name != BASELINE]
+
+
 def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
     """The series to render (each a list of points) and the methods skipped for want of
     a knob or comparison runs; MethodError for options the registry contradicts."""
