@@ -424,6 +424,7 @@ def sweep(
 def _parse_knob_values(texts: list[str]) -> dict[str, list[int]]:
     """``--knob-values``: 'METHOD=1,4,16' for one method, or '1,4,16' for every method
     with an equal-time knob other than the baseline (the registry's)."""
+    from jobs.protocol.pareto import knob_methods
     from jobs.protocol.ranges import RangeError, parse_range
 
     values: dict[str, list[int]] = {}

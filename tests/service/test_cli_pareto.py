@@ -59,3 +59,11 @@ def test_bad_pareto_arguments_are_clear_errors(tmp_path, args, fragment):
     proc = run_cli("pareto", "--scene", "cornell-box", *args, data_dir=tmp_path)
     assert_clean_error(proc, fragment)
     assert proc.returncode == 2
+
+
+def test_knob_values_name_one_method_or_every_method_with_a_knob():
+    from jobs.protocol.pareto import knob_methods
+    from service.cli import _parse_knob_values
+
+    assert _parse_knob_values(["1,4"]) == dict.fromkeys(knob_methods(), [1, 4])
+    assert _parse_knob_values(["nirc=2:8:2"]) == {"nirc": [2, 4, 6, 8]}
