@@ -21,6 +21,7 @@ baseline with a bootstrap interval over seeds and timing samples
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from itertools import zip_longest
@@ -37,6 +38,7 @@ from jobs.protocol.tradeoff import (
     BOOTSTRAP_METHOD,
     RESAMPLES,
     Sample,
+    Speedup,
     bootstrap_speedup,
     pareto_front,
 )
@@ -275,15 +277,13 @@ def _evaluate(points: list[dict[str, Any]], resamples: int) -> None:
             if point["baseline"]:
                 continue
             if point[key] is None:
-                point[f"speedup_{key}"] = {"value": None, "relation": "n/a", "ci95": None,
-                                           "note": f"no {metric.label} (withheld or not finite)"}
+                found = Speedup(None, "n/a", note=f"no {metric.label} (withheld or not finite)")
             elif len(baseline) < 2:
-                point[f"speedup_{key}"] = {"value": None, "relation": "n/a", "ci95": None,
-                                           "note": f"fewer than two {BASELINE} points with "
-                                                   f"a {metric.label}"}
+                found = Speedup(None, "n/a", note=f"fewer than two {BASELINE} points with "
+                                                  f"a {metric.label}")
             else:
-                point[f"speedup_{key}"] = bootstrap_speedup(
-                    baseline, _sample(point, key), resamples=resamples).to_json()
+                found = bootstrap_speedup(baseline, _sample(point, key), resamples=resamples)
+            point[f"speedup_{key}"] = found.to_json()
 
 
 def _sample(point: dict[str, Any], key: str) -> Sample:
@@ -292,8 +292,6 @@ def _sample(point: dict[str, Any], key: str) -> Sample:
 
 def write_outputs(result: ParetoResult, out_dir: Path) -> dict[str, str]:
     """pareto.json and one plot per metric (pareto_<field>.png) in ``out_dir``."""
-    import json
-
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {}
     for metric in PARETO_METRICS:
