@@ -114,7 +114,7 @@ def knob_methods() -> list[str]:
 def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
     """The series to render (each a list of points) and the methods skipped for want of
     a knob or comparison runs; MethodError for options the registry contradicts."""
-    names = spec.methods if spec.methods is not None else list(METHODS)
+    names = list(dict.fromkeys(spec.methods if spec.methods is not None else METHODS))
     for name in [*names, *spec.knob_values]:
         if name not in METHODS:
             raise MethodError(f"unknown method '{name}'; available: {', '.join(METHODS)}")

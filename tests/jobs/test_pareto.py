@@ -39,7 +39,8 @@ def test_the_plan_reads_knobs_and_comparison_runs_from_the_registry():
 
 
 def test_points_are_run_round_robin_over_the_series():
-    series, _ = plan(ParetoSpec(scene="cornell-box", pt_spp=[1, 2, 4], methods=["pt", "nirc"],
+    series, _ = plan(ParetoSpec(scene="cornell-box", pt_spp=[4, 1, 2, 2],
+                                methods=["pt", "nirc", "pt"],
                                 knob_values={"nirc": [1, 2]}))
     assert [p.label for p in interleave(series)] == [
         "PT spp=1", "NIRC nc=1", "NIRC unbiased", "PT spp=2", "NIRC nc=2", "PT spp=4"]
