@@ -229,9 +229,10 @@ def _shortcut_help(field: str, what: str) -> str:
     return f"{', '.join(names)}: {what} (same as -p {field}=...)"
 
 
-def _knob_help() -> str:
+def _knob_help(baseline: bool = True) -> str:
     return ", ".join(f"{m.knob.name} ({m.knob.requirement or name})"
-                     for name, m in METHODS.items() if m.knob is not None)
+                     for name, m in METHODS.items()
+                     if m.knob is not None and (baseline or name != BASELINE))
 
 
 def _parse_nc(text: str) -> list[int]:
@@ -454,7 +455,7 @@ def pareto(
         = "1,2,4,8,16",
     knob_values: Annotated[list[str] | None, typer.Option(
         "--knob-values", help=f"equal-time knob values, METHOD=LIST (repeatable) or LIST for "
-                              f"every method with a knob: {_knob_help()} (default: the "
+                              f"every method with a knob: {_knob_help(baseline=False)} (default: the "
                               "registry's candidates)")] = None,
     methods: Annotated[str | None, typer.Option(
         "--methods", help=f"comma list of methods (default: all of {', '.join(METHODS)})")]
