@@ -31,7 +31,7 @@ def main() -> None:
                         help="values of every caching method's equal-time knob")
     parser.add_argument("--pretrain-frames", type=int, default=8)
     parser.add_argument("--ref-spp", type=int, default=1024)
-    parser.add_argument("--timing-rounds", type=int, default=2)
+    parser.add_argument("--timing-rounds", type=int, default=3)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
 

@@ -467,8 +467,8 @@ def pareto(
     ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 1024,
     timing_rounds: Annotated[int, typer.Option(
         "--timing-rounds", min=0, max=100,
-        help="interleaved timing rounds after the runs (each point's time is the median "
-             "of its run and these)")] = 2,
+        help="interleaved timing rounds after the runs (each point's time is their median; "
+             "0: the run's own per-seed frame times)")] = 3,
     probe_frames: Annotated[int, typer.Option("--probe-frames", min=1, max=1000,
                                               help="timed frames per timing probe")] = 3,
     resamples: Annotated[int, typer.Option("--resamples", min=100, max=100_000,

@@ -56,7 +56,7 @@ def pareto_table(result: Any) -> Group:
                 notes.setdefault((point["label"], note), []).append(metric.label)
         table.add_row(*cells)
     lines = ["* on the Pareto front of that error against time. ms/frame includes online "
-             "training (median of the run and the interleaved timing rounds).",
+             "training (median of the interleaved timing rounds; spread: their min–max).",
              f"x PT: PT's time at equal error (log-log interpolation of its curve, never "
              f"extrapolated: '>' / '<' are bounds) / the point's time; 95% CI: percentile "
              f"bootstrap over seeds and timing samples ({result.bootstrap['resamples']} "

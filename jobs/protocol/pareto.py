@@ -9,11 +9,12 @@ through the executor, stored against the same reference.
 
 Each point's seconds per frame, online training included (the caches' frame
 loop trains before every frame; one-off pre-training is not per-frame time),
-is the median of its timing samples: the run's own (its stored
-``seconds_per_frame``, the median over seeds and frames) and ``timing_rounds``
-more, measured after all runs in interleaved rounds (jobs.protocol.calibration)
-so that a drift of a shared machine hits every point alike; [min, max] of the
-samples is its spread. Then, for MRSE and FLIP: the Pareto front over all
+is the median of its timing samples: ``timing_rounds`` probes measured after
+all runs in interleaved rounds (jobs.protocol.calibration), so that a drift or
+a load spike of a shared machine hits every point alike, not the points that
+happened to run then; with no rounds, the run's per-seed frame times (their
+median is the run's stored ``seconds_per_frame``, kept with every point). [min,
+max] of the samples is its spread. Then, for MRSE and FLIP: the Pareto front over all
 points, and for every non-baseline point its speed-up at equal error over the
 baseline with a bootstrap interval over seeds and timing samples
 (jobs.protocol.tradeoff; docs/pareto.md).
@@ -30,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from jobs.protocol.calibration import interleaved_rounds, probe_seconds
+from jobs.protocol.calibration import DEFAULT_ROUNDS, interleaved_rounds, probe_seconds
 from jobs.protocol.executor import RunSummary, execute, prepare
 from jobs.protocol.plots import plot_pareto
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
@@ -85,7 +86,7 @@ class ParetoSpec:
     pretrain_frames: int = 16
     max_depth: int = -1
     ref_spp: int = 1024
-    timing_rounds: int = 2
+    timing_rounds: int = DEFAULT_ROUNDS
     probe_frames: int = 3
     resamples: int = RESAMPLES
 
@@ -213,7 +214,8 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
         spec=spec, device=prepared.device["device_key"], reference_id=prepared.reference.id,
         points=points, skipped=skipped,
         timing={"rounds": spec.timing_rounds, "probe_frames": spec.probe_frames,
-                "samples": "the run's seconds_per_frame, then one per interleaved round",
+                "samples": ("one per interleaved round" if spec.timing_rounds else
+                            "the run's per-seed frame times"),
                 "run_order": [planned.label for planned, _ in runs], "round_order": order},
         bootstrap={"method": BOOTSTRAP_METHOD, "resamples": spec.resamples,
                    "confidence": 0.95})
@@ -224,8 +226,8 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
 
 def _timing_samples(runs: list[tuple[Planned, RunSummary]], scene: Any, spec: ParetoSpec,
                     progress: Progress | None) -> tuple[list[list[float]], list[str]]:
-    """Per run: its stored seconds per frame, then ``timing_rounds`` interleaved probes;
-    and the order of the probes."""
+    """Per run: its ``timing_rounds`` interleaved probes (without rounds, its per-seed
+    frame times); and the order of the probes."""
     total, done = spec.timing_rounds * len(runs), 0
 
     def measure(index: int) -> float:
@@ -240,7 +242,7 @@ def _timing_samples(runs: list[tuple[Planned, RunSummary]], scene: Any, spec: Pa
 
     timed = interleaved_rounds(list(range(len(runs))), measure, spec.timing_rounds,
                                name=lambda i: runs[i][0].label)
-    return ([[summary.timings["seconds_per_frame"], *timed.times[i]]
+    return ([timed.times[i] or [s["seconds_per_frame"] for s in summary.per_seed]
              for i, (_, summary) in enumerate(runs)], timed.order)
 
 
