@@ -30,6 +30,7 @@ bench: bootstrap
 	$(PY) -m benchmarks.bench_cache
 	$(PY) -m benchmarks.bench_nirc
 	$(PY) -m benchmarks.bench_sweep
+	$(PY) -m benchmarks.bench_pareto
 	$(PY) -m benchmarks.bench_service
 
 # Every image of docker/Dockerfile (needs a Docker engine; BASE_IMAGE=... to override).

@@ -6,7 +6,9 @@ the frame time (``mi.render``: path tracing + cache inference) of
 - PT 1 spp (the reference of every ratio),
 - biased NIRC (BTH) for N_c = 1, 2, 4, 8,
 - adaptive NIRC with an empty v1 mask (no pixel terminates into the cache at
-  v1; later vertices by the spread heuristic): the goal is <= 1.1x PT,
+  v1; later vertices by the spread heuristic),
+- the same with the spread heuristic off (``sph_c`` 1e6): no lane uses the
+  cache, so no query is evaluated: the goal is <= 1.1x PT,
 
 split, where the integrator defers its queries (renderers/integrators/
 deferred.py), into the stages ``render`` (path tracing, recording the queries)
@@ -41,7 +43,10 @@ def configurations() -> list[tuple[str, dict[str, Any] | None, bool]]:
               for nc in (1, 2, 4, 8)]
     adaptive = ("NIRC adaptive, empty mask", {"estimator": "biased", "termination": "adaptive"},
                 True)
-    return [("PT 1 spp", None, False), *biased, adaptive]
+    # sph_c = 1e6: the spread heuristic never stops a path, so no lane uses the cache.
+    unused = ("NIRC adaptive, no cache use", {"estimator": "biased", "termination": "adaptive",
+                                              "sph_c": 1e6}, True)
+    return [("PT 1 spp", None, False), *biased, adaptive, unused]
 
 
 def build_integrators(mi, scene, train_frames: int) -> dict[str, Any]:
@@ -50,6 +55,7 @@ def build_integrators(mi, scene, train_frames: int) -> dict[str, Any]:
 
     from renderers.methods import nirc as nirc_method
     from renderers.methods import parse_params
+    from renderers.methods.budget import frame_training_budget
     from renderers.methods.cached import train_once
     from renderers.methods.pt import path_integrator
     from renderers.timing import StageTimer
@@ -59,9 +65,11 @@ def build_integrators(mi, scene, train_frames: int) -> dict[str, Any]:
         if params is None:
             integrators[label] = path_integrator(parse_params("pt", {}))
             continue
-        integrator, trainer, cache = nirc_method.build(scene, parse_params("nirc", params), 1)
+        nirc_params = parse_params("nirc", params)
+        integrator, trainer, cache = nirc_method.build(scene, nirc_params, 1)
+        budget = frame_training_budget(int(np.prod(scene.resolution)), nirc_params, cache.config)
         for frame in range(train_frames):  # so that the cache is not all zeros
-            train_once(cache, trainer, scene, 4096, seed=frame, timer=StageTimer())
+            train_once(cache, trainer, scene, budget, seed=frame, timer=StageTimer())
         integrator.cache = cache
         if empty_mask:
             width, height = scene.resolution

@@ -228,9 +228,10 @@ def _shortcut_help(field: str, what: str) -> str:
     return f"{', '.join(names)}: {what} (same as -p {field}=...)"
 
 
-def _knob_help() -> str:
+def _knob_help(baseline: bool = True) -> str:
     return ", ".join(f"{m.knob.name} ({m.knob.requirement or name})"
-                     for name, m in METHODS.items() if m.knob is not None)
+                     for name, m in METHODS.items()
+                     if m.knob is not None and (baseline or name != BASELINE))
 
 
 def _parse_nc(text: str) -> list[int]:
@@ -416,6 +417,89 @@ def sweep(
          lambda store, settings, report: run_sweep(spec, store, settings, progress=report,
                                                    out_dir=out),
          lambda r: r.to_json(), sweep_table, out)
+
+
+def _parse_knob_values(texts: list[str]) -> dict[str, list[int]]:
+    """``--knob-values``: 'METHOD=1,4,16' for one method, or '1,4,16' for every method
+    with an equal-time knob other than the baseline (the registry's)."""
+    from jobs.protocol.pareto import knob_methods
+    from jobs.protocol.ranges import RangeError, parse_range
+
+    values: dict[str, list[int]] = {}
+    for text in texts:
+        name, _, listed = text.rpartition("=")
+        try:
+            parsed = parse_range(listed, integer=True)
+        except RangeError as err:
+            raise RangeError(f"--knob-values: {err}") from None
+        if min(parsed) < 1:
+            raise RangeError(f"--knob-values: '{text}': knob values must be >= 1")
+        names = [name.strip()] if name else knob_methods()
+        values.update(dict.fromkeys(names, parsed))
+    return values
+
+
+@app.command()
+def pareto(
+    scene: Scene,
+    res: Res = 32,
+    frames: Annotated[int, typer.Option("--frames", min=1, max=100_000,
+                                        help="timed frames per seed")] = 8,
+    seeds: Annotated[int, typer.Option("--seeds", min=2, max=1000,
+                                       help="K independent renders (the CI resamples them)")] = 2,
+    pt_spp: Annotated[str, typer.Option(
+        "--pt-spp", help=f"spp values of the baseline ({BASELINE}): '1,2,4,8,16' or '1:16'")]
+        = "1,2,4,8,16",
+    knob_values: Annotated[list[str] | None, typer.Option(
+        "--knob-values", help=f"equal-time knob values, METHOD=LIST (repeatable) or LIST for "
+                              f"every method with a knob: {_knob_help(baseline=False)} (default: the "
+                              "registry's candidates)")] = None,
+    methods: Annotated[str | None, typer.Option(
+        "--methods", help=f"comma list of methods (default: all of {', '.join(METHODS)})")]
+        = None,
+    pretrain: Annotated[int, typer.Option(
+        "--pretrain-frames", min=0, max=100_000,
+        help="cache training frames before the timed frames (not per-frame time)")] = 16,
+    max_depth: MaxDepth = -1,
+    ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 1024,
+    timing_rounds: Annotated[int, typer.Option(
+        "--timing-rounds", min=0, max=100,
+        help="interleaved timing rounds after the runs (each point's time is their median; "
+             "0: the run's own per-seed frame times)")] = 3,
+    probe_frames: Annotated[int, typer.Option("--probe-frames", min=1, max=1000,
+                                              help="timed frames per timing probe")] = 3,
+    resamples: Annotated[int, typer.Option("--resamples", min=100, max=100_000,
+                                           help="bootstrap resamples of the speed-up CI")]
+        = 2000,
+    out: Annotated[Path | None, typer.Option(
+        "--out", help="write pareto.json, pareto_mrse.png and pareto_flip.png here")] = None,
+    as_json: JsonOut = False,
+    data_dir: DataDir = None,
+) -> None:
+    """Error against seconds per frame (online training included): PT at several spp and
+    every caching method at several knob values, the Pareto front, and each method's
+    speed-up at equal MRSE / FLIP over PT with a bootstrap CI (docs/pareto.md)."""
+    from jobs.protocol.pareto import ParetoSpec, plan, run_pareto
+    from jobs.protocol.ranges import RangeError, parse_range
+    from service.pareto_table import pareto_table
+
+    try:
+        spp_values = parse_range(pt_spp, integer=True)
+    except RangeError as err:
+        raise RangeError(f"--pt-spp: {err}") from None
+    if min(spp_values) < 1:
+        raise RangeError(f"--pt-spp: '{pt_spp}': spp values must be >= 1")
+    spec = ParetoSpec(
+        scene=scene, resolution=res, frames=frames, seeds=seeds, pt_spp=spp_values,
+        knob_values=_parse_knob_values(knob_values or []),
+        methods=[m.strip() for m in methods.split(",") if m.strip()] if methods else None,
+        pretrain_frames=pretrain, max_depth=max_depth, ref_spp=ref_spp,
+        timing_rounds=timing_rounds, probe_frames=probe_frames, resamples=resamples)
+    plan(spec)      # bad options fail before anything renders
+    _run_embedded(
+        lambda store, settings, report: run_pareto(spec, store, settings, progress=report,
+                                                   out_dir=out),
+        data_dir, as_json, lambda r: r.to_json(), pareto_table)
 
 
 TlsCaFile = Annotated[Path | None, typer.Option(

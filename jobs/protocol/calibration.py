@@ -66,6 +66,33 @@ class Calibration:
         return data
 
 
+@dataclass
+class Rounds:
+    """Timings of :func:`interleaved_rounds`: per value, of the lead, and their order."""
+
+    times: dict[Any, list[float]]
+    lead: list[float]
+    order: list[str]
+
+
+def interleaved_rounds(values: Sequence[Any], measure: Callable[[Any], float], rounds: int, *,
+                       name: Callable[[Any], str] = str,
+                       lead: Callable[[], float] | None = None) -> Rounds:
+    """Time every value (``measure(value)``: seconds) in ``rounds`` rounds, ascending
+    in even rounds and descending in odd ones, so a slow drift of the machine affects
+    every value alike; ``lead`` (e.g. a measured budget) is timed first in each round.
+    ``order`` records the measurements ('budget' for the lead, ``name(value)``)."""
+    timed = Rounds(times={v: [] for v in values}, lead=[], order=[])
+    for index in range(rounds):
+        if lead is not None:
+            timed.lead.append(float(lead()))
+            timed.order.append("budget")
+        for value in values if index % 2 == 0 else reversed(values):
+            timed.times[value].append(float(measure(value)))
+            timed.order.append(name(value))
+    return timed
+
+
 def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], float],
               budget: float | Callable[[], float], *, budget_source: str,
               tolerance_s: float = 0.0, device_key: str = "", rounds: int = DEFAULT_ROUNDS,
@@ -83,16 +110,9 @@ def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], flo
     fixed = not callable(budget)
     if fixed and not budget > 0:
         raise ValueError(f"the time budget must be positive, got {budget}")
-    times: dict[int, list[float]] = {v: [] for v in values}
-    budgets: list[float] = []
-    order: list[str] = []
-    for index in range(rounds):
-        if not fixed:
-            budgets.append(float(budget()))
-            order.append("budget")
-        for value in values if index % 2 == 0 else reversed(values):
-            times[value].append(float(measure(value)))
-            order.append(f"{knob}={value}")
+    timed = interleaved_rounds(values, measure, rounds, name=lambda v: f"{knob}={v}",
+                               lead=None if fixed else budget)
+    times, budgets, order = timed.times, timed.lead, timed.order
     budget_s = float(budget) if fixed else float(np.median(budgets))
     if not budget_s > 0:
         raise ValueError(f"the measured time budget must be positive, got {budget_s}")
@@ -129,6 +149,22 @@ def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], flo
     return record
 
 
+def probe_seconds(scene: Any, method: str, params: dict[str, Any], spp: int,
+                  frames: int) -> float:
+    """Median seconds per frame of one seed of ``method`` rendering ``frames`` frames
+    of ``scene`` (online training included; caches without pre-training: the
+    per-frame cost does not depend on how trained the cache is)."""
+    from renderers.methods import get_method, parse_params
+
+    values = parse_params(method, params)
+    if "pretrain_frames" in type(values).model_fields:
+        values = values.model_copy(update={"pretrain_frames": 0})
+    output = get_method(method).render(
+        scene, values, seed_parts=("calibration", method, values.model_dump(mode="json")),
+        spp=spp, frames=frames)
+    return output.timings["frame_median_s"]
+
+
 def knob_of(spec: Any) -> Any:
     """The equal-time knob of ``spec``'s method with its parameters (MethodError if none)."""
     from renderers.methods import METHODS, MethodError
@@ -153,20 +189,14 @@ def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibrat
     included, does not depend on how trained the cache is). A PT budget is
     re-measured in every round, interleaved with the candidates.
     """
-    from renderers.methods import BASELINE, get_method, parse_params
+    from renderers.methods import BASELINE
 
     budget = spec.time_budget
     spec_knob = knob_of(spec)
     knob, default_candidates = spec_knob.name, list(spec_knob.candidates)
 
     def frame_seconds(method: str, params: dict[str, Any], spp: int) -> float:
-        values = parse_params(method, params)
-        if "pretrain_frames" in type(values).model_fields:
-            values = values.model_copy(update={"pretrain_frames": 0})
-        output = get_method(method).render(
-            scene, values, seed_parts=("calibration", method, values.model_dump(mode="json")),
-            spp=spp, frames=budget.probe_frames)
-        return output.timings["frame_median_s"]
+        return probe_seconds(scene, method, params, spp, budget.probe_frames)
 
     budget_value: float | Callable[[], float]
     if budget.ms is not None:

@@ -9,6 +9,8 @@ paper):
   indirect radiance, one line per method.
 * ``plot_convergence`` is the error-over-frames plot of Figure 10: MRSE of each
   single frame and, optionally, of the running mean of the frames so far.
+* ``plot_pareto`` is error against seconds per frame (``nirc-bench pareto``),
+  log-log, one series per method, the Pareto front highlighted.
 
 Plotting is headless: figures are ``matplotlib.figure.Figure`` objects drawn by
 the Agg canvas, never registered with pyplot, so no display is needed, no global
@@ -130,6 +132,57 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
         ax.legend(fontsize="small")
     _annotate(ax, plotted, hidden)
     return _save_png(figure, path)
+
+
+def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
+                title: str) -> Path:
+    """Plot error ``key`` against seconds per frame, log-log, to a PNG at ``path``.
+
+    Each point (jobs.protocol.pareto) has ``series``, ``seconds_per_frame``,
+    ``seconds_spread`` = [min, max] (drawn as a horizontal bar), ``key`` and
+    ``front_<key>``. One line per series, through its points in the given (knob)
+    order; the front is a black
+    step line with ringed points. Points without a finite value are left out,
+    and those <= 0 (off the log axis) are counted in a note.
+    """
+    series = list(dict.fromkeys(str(p["series"]) for p in points))
+    colours = _series_colours(series)
+    figure, (ax,) = _new_figure(1, 1, title, figsize=(7.5, 5.0))
+    plotted, hidden = False, 0
+    for name in series:
+        members = [p for p in points if str(p["series"]) == name]
+        drawn = [p for p in members if _positive(p.get(key)) and _positive(p["seconds_per_frame"])]
+        hidden += sum(1 for p in members if _finite(p.get(key)) is not None
+                      and not _positive(p.get(key)))
+        if not drawn:
+            continue
+        xs = [p["seconds_per_frame"] for p in drawn]
+        ax.errorbar(xs, [p[key] for p in drawn], fmt="o-", color=colours[name], label=name,
+                    markersize=5, capsize=2,
+                    xerr=[[x - p["seconds_spread"][0] for x, p in zip(xs, drawn, strict=True)],
+                          [p["seconds_spread"][1] - x for x, p in zip(xs, drawn, strict=True)]])
+        plotted = True
+    front = sorted((p["seconds_per_frame"], p[key]) for p in points
+                   if p.get(f"front_{key}") and _positive(p.get(key)))
+    if front:
+        ax.step([x for x, _ in front], [y for _, y in front], where="post", color="black",
+                linewidth=1.0, alpha=0.6, zorder=1)
+        ax.plot([x for x, _ in front], [y for _, y in front], "o", markersize=11,
+                fillstyle="none", color="black", label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("seconds per frame (online training included)")
+    ax.set_ylabel(label)
+    ax.grid(True, which="both", alpha=0.3)
+    if plotted:
+        ax.legend(fontsize="small")
+    _annotate(ax, plotted, hidden)
+    return _save_png(figure, path)
+
+
+def _positive(value: Any) -> bool:
+    number = _finite(value)
+    return number is not None and number > 0
 
 
 def _finite(value: Any) -> float | None:

@@ -14,6 +14,8 @@ const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<
 const num = (v, d = 3) => (v === null || v === undefined ? "–" : Number(v).toPrecision(d));
 const DEVICE_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b"];
 const SERIES_COLORS = { "NIRC": "#d62728", "NRC": "#1f77b4", "NIRC equal time": "#8c564b" };
+// The errors of the error-vs-time plots (registry fields), as `nirc-bench pareto` plots them.
+const PARETO_FIELDS = ["mrse", "flip"];
 let timer = null;
 // Results of older estimator or metric versions are hidden unless the header's box is ticked.
 const old = () => (document.getElementById("include-old").checked ? "&include_old=true" : "");
@@ -65,7 +67,7 @@ async function overview() {
 }
 
 function paretoFront(points) {
-  const sorted = [...points].sort((a, b) => a[0] - b[0]);
+  const sorted = [...points].sort((a, b) => a[0] - b[0] || a[1] - b[1]);
   const front = [];
   for (const p of sorted) if (!front.length || p[1] < front[front.length - 1][1]) front.push(p);
   return front;
@@ -75,21 +77,27 @@ async function scenePage(scene, runId) {
   const runs = await api(`/results?scene=${encodeURIComponent(scene)}&limit=1000${old()}`);
   const sweeps = await api(`/sweeps?scene=${encodeURIComponent(scene)}&limit=1${old()}`);
   const v = view();
-  v.innerHTML = `<h2>${esc(scene)}</h2><h3>Error vs time (per device)</h3><div class="plots" id="pareto"></div>
+  v.innerHTML = `<h2>${esc(scene)}</h2><h3>Error vs time (per device; <code>nirc-bench pareto</code> adds speed-ups)</h3><div class="plots" id="pareto"></div>
     <h3>Adaptive equal-bias sweep</h3><div class="plots" id="sweep"></div>
     <h3>Run</h3><p><select id="run"></select></p><p id="verdict"></p>
     <h3>Convergence over frames</h3><div class="plots" id="convergence"></div>
     <h3>Images (click to crop)</h3><div class="images" id="images"></div>`;
-  const devices = [...new Set(runs.map((r) => r.device_key))];
-  const series = [];
-  devices.forEach((d, i) => {
-    const pts = runs.filter((r) => r.device_key === d && r.mrse > 0)
-      .map((r) => [r.seconds_per_frame * 1e3, r.mrse]);
-    series.push({ name: d, color: DEVICE_COLORS[i % 5], points: pts, scatter: true });
-    series.push({ name: `${d} Pareto front`, color: DEVICE_COLORS[i % 5], points: paretoFront(pts), dashed: true });
-  });
-  linePlot(document.getElementById("pareto"), { title: "MRSE vs ms per frame", xlabel: "ms per frame",
-    ylabel: "MRSE", logx: true, logy: true, series, width: 560, height: 320 });
+  // Error vs time (nirc-bench pareto's view): times compare only on one device, so one plot per
+  // device and error (MRSE, FLIP), one series per method (and estimator), the Pareto front dashed.
+  const variant = (r) => [r.method, (r.params || {}).estimator].filter(Boolean).join(" ");
+  const errors = (await metricRegistry()).filter((m) => PARETO_FIELDS.includes(m.field));
+  for (const d of [...new Set(runs.map((r) => r.device_key))]) {
+    for (const m of errors) {
+      const mine = runs.filter((r) => r.device_key === d && r[m.field] > 0);
+      const point = (r) => [r.seconds_per_frame * 1e3, r[m.field]];
+      const series = [...new Set(mine.map(variant))].map((name, i) => ({ name, scatter: true,
+        color: DEVICE_COLORS[i % 5], points: mine.filter((r) => variant(r) === name).map(point) }));
+      series.push({ name: "Pareto front", color: "#000", dashed: true, points: paretoFront(mine.map(point)) });
+      linePlot(document.getElementById("pareto"), { title: `${m.label} vs ms per frame (${d})`,
+        xlabel: "ms per frame (online training included)", ylabel: unitLabel(m), logx: true, logy: true,
+        series, width: 560, height: 320 });
+    }
+  }
 
   const sweepEl = document.getElementById("sweep");
   if (!sweeps.length) sweepEl.innerHTML = "<p class='muted'>No sweep of this scene yet (<code>nirc-bench sweep --scene NAME --eps 0.05:1.0</code>).</p>";

@@ -76,9 +76,13 @@ def test_overview_lists_the_latest_results(chromium, site):
 
 def test_scene_page_draws_plots_and_images(chromium, site):
     page, errors = open_page(chromium, f"{site}/#/scene/cornell-box")
-    page.wait_for_function("document.querySelectorAll('svg.plot').length >= 6")
+    page.wait_for_function("document.querySelectorAll('svg.plot').length >= 7")
     plots = page.locator("svg.plot")
-    # Pareto, 4 sweep panels, convergence: each has drawn points, not "no data".
+    # Error vs time (MRSE and FLIP, one device), 4 sweep panels, convergence: each has
+    # drawn points, not "no data"; the error-vs-time plots mark the Pareto front.
+    pareto = page.locator("#pareto svg.plot")
+    assert pareto.count() == 2
+    assert all("Pareto front" in pareto.nth(i).text_content() for i in range(2))
     for i in range(plots.count()):
         assert plots.nth(i).locator("circle").count() > 0, plots.nth(i).inner_text()
     page.wait_for_function(

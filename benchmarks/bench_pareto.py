@@ -1,0 +1,64 @@
+"""Benchmark: error against time per frame, with each method's speed-up at equal error over PT.
+
+Runs a small ``nirc-bench pareto`` (jobs/protocol/pareto.py) on a fresh data
+folder: PT at several spp, every caching method of the registry at a few values
+of its equal-time knob and its comparison runs, each a stored run against the
+same reference, timed in interleaved rounds (online training included in
+seconds per frame). Prints the table (Pareto front marked, speed-up at equal
+MRSE and FLIP with its bootstrap CI; docs/pareto.md) and the wall time.
+``--out`` also keeps pareto.json and the two plots.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from jobs.protocol.ranges import parse_range
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", default="cornell-box")
+    parser.add_argument("--res", type=int, default=32)
+    parser.add_argument("--frames", type=int, default=8)
+    parser.add_argument("--seeds", type=int, default=2)
+    parser.add_argument("--pt-spp", default="1,2,4,8,16")
+    parser.add_argument("--knob-values", default="1,4,16",
+                        help="values of every caching method's equal-time knob")
+    parser.add_argument("--pretrain-frames", type=int, default=8)
+    parser.add_argument("--ref-spp", type=int, default=1024)
+    parser.add_argument("--timing-rounds", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+
+    from rich.console import Console
+
+    from jobs.protocol.pareto import ParetoSpec, knob_methods, run_pareto
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from service.pareto_table import pareto_table
+
+    knob_values = parse_range(args.knob_values, integer=True)
+    spec = ParetoSpec(scene=args.scene, resolution=args.res, frames=args.frames,
+                      seeds=args.seeds, pt_spp=parse_range(args.pt_spp, integer=True),
+                      knob_values=dict.fromkeys(knob_methods(), knob_values),
+                      pretrain_frames=args.pretrain_frames, ref_spp=args.ref_spp,
+                      timing_rounds=args.timing_rounds)
+    with tempfile.TemporaryDirectory() as folder:
+        settings = Settings(data_dir=Path(folder))
+        store = open_store(settings)
+        start = time.perf_counter()
+        result = run_pareto(spec, store, settings, out_dir=args.out)
+        wall = time.perf_counter() - start
+        store.close()
+    Console(width=220 if not sys.stdout.isatty() else None).print(pareto_table(result))
+    print(f"{len(result.points)} points, {args.res}x{args.res}, {args.frames} frames x "
+          f"K={args.seeds}, {args.timing_rounds} timing rounds: {wall:.1f} s wall")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,308 @@
+"""Time against error as the headline: every method's points on one error-vs-time plane.
+
+``nirc-bench pareto`` renders the baseline (PT) at several spp and every other
+method of the registry at several values of its equal-time knob (biased NIRC's
+N_c), plus its comparison runs that are not on that knob's curve (NRC, NIRC
+unbiased); a method with neither is skipped, and so is one whose
+``applies_to`` rules the scene out (with the reason). Every point is a run
+through the executor, stored against the same reference.
+
+Each point's seconds per frame, online training included (the caches' frame
+loop trains before every frame; one-off pre-training is not per-frame time),
+is the median of its timing samples: ``timing_rounds`` probes measured after
+all runs in interleaved rounds (jobs.protocol.calibration), so that a drift or
+a load spike of a shared machine hits every point alike, not the points that
+happened to run then; with no rounds, the run's per-seed frame times (their
+median is the run's stored ``seconds_per_frame``, kept with every point). [min,
+max] of the samples is its spread. Then, for MRSE and FLIP: the Pareto front over all
+points, and for every non-baseline point its speed-up at equal error over the
+baseline with a bootstrap interval over seeds and timing samples
+(jobs.protocol.tradeoff; docs/pareto.md).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from itertools import zip_longest
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jobs.protocol.calibration import DEFAULT_ROUNDS, interleaved_rounds, probe_seconds
+from jobs.protocol.executor import RunSummary, execute, prepare
+from jobs.protocol.plots import plot_pareto
+from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.protocol.tradeoff import (
+    BOOTSTRAP_METHOD,
+    RESAMPLES,
+    Sample,
+    Speedup,
+    bootstrap_speedup,
+    pareto_front,
+)
+from jobs.record.config import Settings
+from jobs.record.store import Store
+from metrics.registry import BY_NAME, Metric
+from renderers.methods import (
+    BASELINE,
+    METHODS,
+    Method,
+    MethodError,
+    NotApplicable,
+    parse_params,
+)
+
+#: The errors plotted against time, and the speed-up measured at (their ``field`` names).
+PARETO_METRICS: tuple[Metric, ...] = (BY_NAME["mrse"], BY_NAME["flip_hdr"])
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class Planned:
+    """A point to render: a method with parameters and spp, in a series."""
+
+    series: str
+    label: str
+    method: str
+    params: dict[str, Any]
+    spp: int
+
+
+@dataclass
+class ParetoSpec:
+    """What ``nirc-bench pareto`` runs (CLI options, validated by :func:`plan`)."""
+
+    scene: str
+    resolution: int = 32
+    frames: int = 8
+    seeds: int = 2
+    pt_spp: list[int] = field(default_factory=lambda: [1, 2, 4, 8, 16])
+    knob_values: dict[str, list[int]] = field(default_factory=dict)
+    methods: list[str] | None = None
+    pretrain_frames: int = 16
+    max_depth: int = -1
+    ref_spp: int = 1024
+    timing_rounds: int = DEFAULT_ROUNDS
+    probe_frames: int = 3
+    resamples: int = RESAMPLES
+
+
+@dataclass
+class ParetoResult:
+    spec: ParetoSpec
+    device: str
+    reference_id: int
+    points: list[dict[str, Any]]
+    skipped: list[dict[str, str]]
+    timing: dict[str, Any]
+    bootstrap: dict[str, Any]
+    files: dict[str, str] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def knob_methods() -> list[str]:
+    """The methods other than the baseline with an equal-time knob (``knob_values`` keys)."""
+    return [name for name, method in METHODS.items()
+            if method.knob is not None and name != BASELINE]
+
+
+def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
+    """The series to render (each a list of points) and the methods skipped for want of
+    a knob or comparison runs; MethodError for options the registry contradicts."""
+    names = list(dict.fromkeys(spec.methods if spec.methods is not None else METHODS))
+    for name in [*names, *spec.knob_values]:
+        if name not in METHODS:
+            raise MethodError(f"unknown method '{name}'; available: {', '.join(METHODS)}")
+    if BASELINE not in names:
+        raise MethodError(f"the baseline '{BASELINE}' must be among the methods: the "
+                          "speed-ups are measured against it")
+    if len(set(spec.pt_spp)) < 2:
+        raise MethodError(f"give at least two {BASELINE} spp values: its error-vs-time curve "
+                          "is interpolated between them")
+    series, skipped = [], []
+    for name in names:
+        if name in spec.knob_values and (METHODS[name].knob is None or name == BASELINE):
+            raise MethodError(f"method '{name}' has no equal-time knob to give values for"
+                              + (" (its spp values are --pt-spp)" if name == BASELINE else ""))
+        found = _method_series(name, METHODS[name], spec)
+        if not found:
+            skipped.append({"method": name, "reason": "declares neither an equal-time knob "
+                                                      "nor comparison runs"})
+        series += found
+    for point in (p for points in series for p in points):
+        parse_params(point.method, point.params)
+        run_spec(spec, point)
+    return series, skipped
+
+
+def run_spec(spec: ParetoSpec, point: Planned) -> RenderSpec:
+    """The render job of ``point`` (validated: a bad value is an error before any render)."""
+    return RenderSpec(scene=spec.scene, method=point.method, params=point.params,
+                      resolution=spec.resolution, spp=point.spp, frames=spec.frames,
+                      seeds=spec.seeds, reference=ReferenceSpec(spp=spec.ref_spp))
+
+
+def _shared(method: Method, spec: ParetoSpec) -> dict[str, Any]:
+    """The parameters every point of a method shares: depth, and pre-training if it has it."""
+    shared: dict[str, Any] = {"max_depth": spec.max_depth}
+    if "pretrain_frames" in method.params.model_fields:
+        shared["pretrain_frames"] = spec.pretrain_frames
+    return shared
+
+
+def _method_series(name: str, method: Method, spec: ParetoSpec) -> list[list[Planned]]:
+    """The baseline over ``pt_spp``; another method over its knob's values, plus each of
+    its comparison runs not on that knob's curve as a series of one point."""
+    label = method.label or name
+    shared = _shared(method, spec)
+    knob = method.knob
+    on_knob = knob is not None and knob.usable(shared)
+    found = []
+    if on_knob:
+        values = spec.pt_spp if name == BASELINE else spec.knob_values.get(name, knob.candidates)
+        found.append([Planned(label, f"{label} {knob.name}={v}", name,
+                              shared if knob.name == "spp" else knob.apply(shared, v),
+                              v if knob.name == "spp" else 1)
+                      for v in sorted(set(values))])
+    for entry in method.comparison:
+        params = {**shared, **entry.params}
+        if not (knob is not None and knob.usable(params)):
+            found.append([Planned(entry.label, entry.label, name, params, entry.spp)])
+    return found
+
+
+def interleave(series: list[list[Planned]]) -> list[Planned]:
+    """The points in round-robin order over the series (first of each, then second ...)."""
+    return [p for group in zip_longest(*series) for p in group if p is not None]
+
+
+def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
+               progress: Progress | None = None, out_dir: Path | None = None) -> ParetoResult:
+    """Render, time and evaluate every planned point (module docstring)."""
+    series, skipped = plan(spec)
+    prepared = prepare(run_spec(spec, series[0][0]), store, settings, progress)
+    runs: list[tuple[Planned, RunSummary]] = []
+    not_applicable: set[str] = set()
+    ordered = interleave(series)
+    for index, point in enumerate(ordered):
+        if point.method in not_applicable:
+            continue
+        if progress:
+            progress("points", index, len(ordered))
+        step = (lambda stage, done, total, label=point.label:
+                progress(f"{label}: {stage}", done, total)) if progress else None
+        try:
+            runs.append((point, execute(run_spec(spec, point), store, settings, progress=step)))
+        except NotApplicable as err:
+            not_applicable.add(point.method)
+            skipped.append({"method": point.method, "reason": str(err)})
+    if progress:
+        progress("points", len(ordered), len(ordered))
+
+    samples, order = _timing_samples(runs, prepared.scene, spec, progress)
+    rank = {id(p): i for i, p in enumerate(p for points in series for p in points)}
+    points = [_point(planned, summary, samples[i]) for i, (planned, summary)
+              in sorted(enumerate(runs), key=lambda item: rank[id(item[1][0])])]
+    _evaluate(points, spec.resamples)
+    result = ParetoResult(
+        spec=spec, device=prepared.device["device_key"], reference_id=prepared.reference.id,
+        points=points, skipped=skipped,
+        timing={"rounds": spec.timing_rounds, "probe_frames": spec.probe_frames,
+                "samples": ("one per interleaved round" if spec.timing_rounds else
+                            "the run's per-seed frame times"),
+                "run_order": [planned.label for planned, _ in runs], "round_order": order},
+        bootstrap={"method": BOOTSTRAP_METHOD, "resamples": spec.resamples,
+                   "confidence": 0.95})
+    if out_dir is not None:
+        result.files = write_outputs(result, out_dir)
+    return result
+
+
+def _timing_samples(runs: list[tuple[Planned, RunSummary]], scene: Any, spec: ParetoSpec,
+                    progress: Progress | None) -> tuple[list[list[float]], list[str]]:
+    """Per run: its ``timing_rounds`` interleaved probes (without rounds, its per-seed
+    frame times); and the order of the probes."""
+    total, done = spec.timing_rounds * len(runs), 0
+
+    def measure(index: int) -> float:
+        nonlocal done
+        planned = runs[index][0]
+        seconds = probe_seconds(scene, planned.method, planned.params, planned.spp,
+                                spec.probe_frames)
+        done += 1
+        if progress:
+            progress("timing rounds", done, total)
+        return seconds
+
+    timed = interleaved_rounds(list(range(len(runs))), measure, spec.timing_rounds,
+                               name=lambda i: runs[i][0].label)
+    return ([timed.times[i] or [s["seconds_per_frame"] for s in summary.per_seed]
+             for i, (_, summary) in enumerate(runs)], timed.order)
+
+
+def _point(planned: Planned, summary: RunSummary, seconds: list[float]) -> dict[str, Any]:
+    """A point's row: what it is, its timing and, per metric, value, CI and per-seed values."""
+    row: dict[str, Any] = {
+        "series": planned.series, "label": planned.label, "method": planned.method,
+        "params": planned.params, "spp": planned.spp, "run_id": summary.run_id,
+        "baseline": planned.method == BASELINE,
+        "seconds_per_frame": float(np.median(seconds)),
+        "seconds_spread": [min(seconds), max(seconds)], "timing_samples": seconds,
+        "run_seconds_per_frame": summary.timings["seconds_per_frame"],
+        "quality": summary.quality.get("verdict"),
+    }
+    for metric in PARETO_METRICS:
+        values = [s.get(metric.seed_key) for s in summary.per_seed]
+        usable = all(v is not None and np.isfinite(v) for v in values)
+        row[metric.field] = float(np.mean(values)) if usable else None
+        row[f"{metric.field}_per_seed"] = values
+        if metric.ci_key:
+            row[f"{metric.field}_ci95"] = summary.metrics.get(metric.ci_key)
+    return row
+
+
+def _evaluate(points: list[dict[str, Any]], resamples: int) -> None:
+    """Mark each metric's front and add the speed-ups at equal error over the baseline."""
+    for metric in PARETO_METRICS:
+        key = metric.field
+        front = pareto_front([p["seconds_per_frame"] for p in points], [p[key] for p in points])
+        for point, on in zip(points, front, strict=True):
+            point[f"front_{key}"] = on
+        baseline = [_sample(p, key) for p in points if p["baseline"] and p[key] is not None]
+        for point in points:
+            if point["baseline"]:
+                continue
+            if point[key] is None:
+                found = Speedup(None, "n/a", note=f"no {metric.label} (withheld or not finite)")
+            elif len(baseline) < 2:
+                found = Speedup(None, "n/a", note=f"fewer than two {BASELINE} points with "
+                                                  f"a {metric.label}")
+            else:
+                found = bootstrap_speedup(baseline, _sample(point, key), resamples=resamples)
+            point[f"speedup_{key}"] = found.to_json()
+
+
+def _sample(point: dict[str, Any], key: str) -> Sample:
+    return Sample(errors=point[f"{key}_per_seed"], seconds=point["timing_samples"])
+
+
+def write_outputs(result: ParetoResult, out_dir: Path) -> dict[str, str]:
+    """pareto.json and one plot per metric (pareto_<field>.png) in ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for metric in PARETO_METRICS:
+        path = out_dir / f"pareto_{metric.field}.png"
+        plot_pareto(result.points, metric.field, metric.label, path,
+                    f"{metric.label} against time per frame on {result.spec.scene} "
+                    f"({result.spec.resolution}x{result.spec.resolution}, {result.device})")
+        files[f"pareto_{metric.field}"] = str(path)
+    files["json"] = str(out_dir / "pareto.json")
+    Path(files["json"]).write_text(json.dumps({**result.to_json(), "files": files}, indent=2,
+                                              default=str))
+    return files

@@ -1,0 +1,69 @@
+"""``nirc-bench pareto`` end to end, in subprocesses: the JSON, the files, the errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests.service.test_cli import assert_clean_error, run_cli
+
+SMALL = ("pareto", "--scene", "cornell-box", "--res", "16", "--frames", "2", "--seeds", "2",
+         "--ref-spp", "256", "--pretrain-frames", "0", "--timing-rounds", "2",
+         "--resamples", "200")
+
+
+def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
+    out = tmp_path / "out"
+    proc = run_cli(*SMALL, "--methods", "pt,nirc", "--pt-spp", "1,2,4",
+                   "--knob-values", "nirc=1,2", "--out", str(out), "--json",
+                   data_dir=tmp_path / "data")
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert json.loads((out / "pareto.json").read_text())["points"] == result["points"]
+    for name in ("pareto_mrse.png", "pareto_flip.png"):
+        assert (out / name).read_bytes()[:4] == b"\x89PNG"
+    points = {p["label"]: p for p in result["points"]}
+    assert set(points) == {"PT spp=1", "PT spp=2", "PT spp=4", "NIRC nc=1", "NIRC nc=2",
+                           "NIRC unbiased"}
+    assert len({p["run_id"] for p in points.values()}) == 6       # one stored run each
+    for point in points.values():
+        # Two interleaved timing rounds; the time is their median.
+        assert len(point["timing_samples"]) == 2
+        lo, hi = point["seconds_spread"]
+        assert lo <= point["seconds_per_frame"] <= hi
+        assert len(point["mrse_per_seed"]) == 2 and point["mrse"] > 0
+        assert isinstance(point["front_mrse"], bool) and isinstance(point["front_flip"], bool)
+        if point["baseline"]:
+            assert "speedup_mrse" not in point
+        else:
+            speedup = point["speedup_mrse"]
+            assert speedup["relation"] in ("=", ">", "<")
+            assert speedup["value"] > 0 and len(speedup["ci95"]) == 2
+    assert any(p["front_mrse"] for p in points.values())
+    assert result["bootstrap"]["resamples"] == 200 and "percentile" in result["bootstrap"]["method"]
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (("--pt-spp", "4"), "at least two"),
+    (("--pt-spp", "0,2"), ">= 1"),
+    (("--pt-spp", "a,b"), "not a number"),
+    (("--methods", "nirc"), "baseline"),
+    (("--methods", "pt,bogus"), "unknown method"),
+    (("--knob-values", "nrc=1,2"), "no equal-time knob"),
+    (("--knob-values", "nirc=0,2"), ">= 1"),
+    (("--knob-values", "nirc=300"), "nc"),
+    (("--seeds", "1"), "seeds"),
+])
+def test_bad_pareto_arguments_are_clear_errors(tmp_path, args, fragment):
+    proc = run_cli("pareto", "--scene", "cornell-box", *args, data_dir=tmp_path)
+    assert_clean_error(proc, fragment)
+    assert proc.returncode == 2
+
+
+def test_knob_values_name_one_method_or_every_method_with_a_knob():
+    from jobs.protocol.pareto import knob_methods
+    from service.cli import _parse_knob_values
+
+    assert _parse_knob_values(["1,4"]) == dict.fromkeys(knob_methods(), [1, 4])
+    assert _parse_knob_values(["nirc=2:8:2"]) == {"nirc": [2, 4, 6, 8]}
