@@ -148,19 +148,11 @@ def run_spec(spec: ParetoSpec, point: Planned) -> RenderSpec:
                       seeds=spec.seeds, reference=ReferenceSpec(spp=spec.ref_spp))
 
 
-def _shared(method: Method, spec: ParetoSpec) -> dict[str, Any]:
-    """The parameters every point of a method shares: depth, and pre-training if it has it."""
-    shared: dict[str, Any] = {"max_depth": spec.max_depth}
-    if "pretrain_frames" in method.params.model_fields:
-        shared["pretrain_frames"] = spec.pretrain_frames
-    return shared
-
-
 def _method_series(name: str, method: Method, spec: ParetoSpec) -> list[list[Planned]]:
     """The baseline over ``pt_spp``; another method over its knob's values, plus each of
     its comparison runs not on that knob's curve as a series of one point."""
     label = method.label or name
-    shared = _shared(method, spec)
+    shared = method.shared_params(spec.max_depth, spec.pretrain_frames)
     knob = method.knob
     on_knob = knob is not None and knob.usable(shared)
     found = []

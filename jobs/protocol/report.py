@@ -56,7 +56,6 @@ def comparison_report(
     """Run the Fig. 7 comparison on ``scene`` (see the module docstring)."""
     base = RenderSpec(scene=scene, resolution=resolution, frames=frames, seeds=seeds,
                       reference=ReferenceSpec(spp=ref_spp))
-    cache_params = {"max_depth": max_depth, "pretrain_frames": pretrain_frames}
 
     def run(label: str, method: str, params: dict[str, Any], spp: int = 1,
             budget: TimeBudget | None = None) -> RunSummary | None:
@@ -71,8 +70,7 @@ def comparison_report(
             return None
 
     def shared(method: str) -> dict[str, Any]:
-        return (cache_params if "pretrain_frames" in METHODS[method].params.model_fields
-                else {"max_depth": max_depth})
+        return METHODS[method].shared_params(max_depth, pretrain_frames)
 
     entries = sorted(((name, entry) for name, method in METHODS.items()
                       for entry in method.comparison), key=lambda item: item[1].rank)

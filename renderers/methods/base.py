@@ -123,6 +123,14 @@ class Method:
         """Whether the method can render a scene with ``features``, and why not."""
         return self.requires(features)
 
+    def shared_params(self, max_depth: int, pretrain_frames: int) -> dict[str, Any]:
+        """The parameters all of a comparison's runs of this method share: the depth, and
+        the pre-training frames where the method has them (report, pareto)."""
+        shared: dict[str, Any] = {"max_depth": max_depth}
+        if "pretrain_frames" in self.params.model_fields:
+            shared["pretrain_frames"] = pretrain_frames
+        return shared
+
     def register_integrators(self) -> None:
         """Register the method's integrators for the current Mitsuba variant."""
         for module in self.integrators:
