@@ -8,6 +8,7 @@ frames of training and queries reuse their compiled kernels.
 from __future__ import annotations
 
 import drjit as dr
+import mitsuba as mi
 import pytest
 from pydantic import ValidationError
 
@@ -119,3 +120,23 @@ def test_consecutive_frames_reuse_their_kernels():
         dr.set_flag(dr.JitFlag.KernelHistory, False)
         dr.kernel_history()
     assert new[-2:] == [0, 0], new
+
+
+@pytest.mark.parametrize("poison", [False, True])
+def test_fixed_point_grid_gradient_is_finite_everywhere_or_nowhere(poison):
+    """The training step's guard reads one entry of the table gradient (cache.py,
+    _step): that is exact only because a non-finite incoming gradient makes
+    every entry NaN and a finite one none."""
+    import numpy as np
+
+    cache = caches.NeuralCache(small_config(), [0, 0, 0], [1, 1, 1], seed=0)
+    rec = synthetic_records(1024, seed=2)
+    data = dr.detach(cache.encoder.position.grid.data)
+    dr.enable_grad(data)
+    rows = cache.encoder.position.with_data(data).encode(rec.position)
+    weight = dr.full(mi.Float, 1.0, 1024)
+    if poison:
+        dr.scatter(weight, dr.nan, mi.UInt32(17))
+    dr.backward(dr.sum(sum(r * weight for r in rows)))
+    grad = np.asarray(dr.grad(data))
+    assert (np.isnan(grad).all() if poison else np.isfinite(grad).all())
