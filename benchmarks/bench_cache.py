@@ -10,9 +10,15 @@ Reports, measured in one run (docs/design.md, "Performance goals"):
   with the surface part of the first layer (the default), each as a symbolic
   loop over the N_c directions like an integrator would run it;
 - CoopVec vs tensor-mode inference;
-- one training step at batch 16384 (tensor mode), with the reproducible
-  fixed-point hash-grid gradient and with Dr.Jit's float atomics;
-- for scale, one path-traced sample of the Cornell box (Mitsuba ``path``).
+- one path-traced sample of the Cornell box (Mitsuba ``path``), timed
+  interleaved with the queries, and one query (default and the ``small``
+  preset's 2x32 MLP) as a multiple of it (goal: <= 0.5); the same query and
+  PT sample on 1 thread; the LLVM vector width of the query kernels;
+- one training step (tensor mode) at batch 16384 and at the training
+  budget's small-frame batch 1024, with the reproducible fixed-point
+  hash-grid gradient, with Dr.Jit's float atomics and with the small preset,
+  interleaved per batch size (docs/training.md, "Speed of the neural work").
+  ``--skip-nc`` leaves out the N_c table.
 
 Protocol: every measurement is preceded by a warm-up call (JIT compilation
 excluded); inputs are evaluated before the clock starts; outputs are
