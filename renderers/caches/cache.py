@@ -506,14 +506,16 @@ class NeuralCache:
 
         # ---- Guard: skip the step if anything is non-finite ----
         bad = dr.count(~dr.isfinite(loss.array))
+        lookup = position.lookup
         for key in self._keys:
-            grad = _flat(dr.grad(self._opt[key]))
-            if key == GRID_KEY and self.deterministic:
+            if key == GRID_KEY and lookup is not None and lookup.finite is not None:
                 # The fixed-point table gradient is NaN everywhere or finite
-                # everywhere (grid_grad.py), so its first entry decides; this
-                # saves a reduction over the whole table (~1.3M entries) per step.
-                grad = dr.gather(mi.Float, grad, mi.UInt32(0))
-            bad += dr.count(~dr.isfinite(grad))
+                # everywhere (grid_grad.py) and its lookup says which: no
+                # reduction over the whole table (~1.3M entries) per step, and
+                # the gradient stays lazy, computed inside Adam's kernel.
+                bad += dr.select(lookup.finite, mi.UInt32(0), mi.UInt32(1))
+                continue
+            bad += dr.count(~dr.isfinite(_flat(dr.grad(self._opt[key]))))
         dr.eval(loss, bad)
         loss_value = float(loss.array[0])
         if int(bad[0]) != 0:

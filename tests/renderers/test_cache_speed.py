@@ -124,9 +124,10 @@ def test_consecutive_frames_reuse_their_kernels():
 
 @pytest.mark.parametrize("poison", [False, True])
 def test_fixed_point_grid_gradient_is_finite_everywhere_or_nowhere(poison):
-    """The training step's guard reads one entry of the table gradient (cache.py,
-    _step): that is exact only because a non-finite incoming gradient makes
-    every entry NaN and a finite one none."""
+    """The training step's guard takes the table gradient's finiteness from the
+    lookup's flag instead of reading the table (cache.py, _step): that is exact
+    only because a non-finite incoming gradient makes every entry NaN and a
+    finite one none."""
     import numpy as np
 
     cache = caches.NeuralCache(small_config(), [0, 0, 0], [1, 1, 1], seed=0)
@@ -140,3 +141,29 @@ def test_fixed_point_grid_gradient_is_finite_everywhere_or_nowhere(poison):
     dr.backward(dr.sum(sum(r * weight for r in rows)))
     grad = np.asarray(dr.grad(data))
     assert (np.isnan(grad).all() if poison else np.isfinite(grad).all())
+    lookup = cache.encoder.position.with_data(data).lookup   # not the training copy
+    assert lookup is None
+
+
+def test_a_step_with_a_non_finite_grid_gradient_is_skipped(monkeypatch):
+    """The guard sees a NaN table gradient through the lookup's flag alone."""
+    import numpy as np
+
+    import renderers.caches.grid_grad as grid_grad
+
+    cache = caches.NeuralCache(small_config(), [0, 0, 0], [1, 1, 1], seed=1)
+    rec = synthetic_records(2048, seed=3)
+    cache.train(rec, steps=1)
+    before = cache.parameters()
+    backward = grid_grad.DeterministicGridLookup.backward
+
+    def poisoned(self):
+        backward(self)
+        self.handle.finite = mi.Bool(False)
+
+    monkeypatch.setattr(grid_grad.DeterministicGridLookup, "backward", poisoned)
+    assert cache.train(rec, steps=2) == []
+    assert cache.stats["skipped_steps"] == 2
+    after = cache.parameters()
+    for key, value in before.items():
+        np.testing.assert_array_equal(value, after[key])
