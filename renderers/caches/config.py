@@ -298,7 +298,7 @@ def _preset(base: dict[str, Any], overrides: dict[str, Any]) -> CacheConfig:
     if unknown:
         raise ValueError(
             f"unknown cache config field(s) {sorted(unknown)}; "
-            f"valid fields are {sorted(CacheConfig.model_fields)}"
+            f"valid fields are {sorted(CacheConfig.model_fields)} and 'preset'"
         )
     return CacheConfig.model_validate(_deep_merge(base, overrides))
 
