@@ -10,9 +10,15 @@ Reports, measured in one run (docs/design.md, "Performance goals"):
   with the surface part of the first layer (the default), each as a symbolic
   loop over the N_c directions like an integrator would run it;
 - CoopVec vs tensor-mode inference;
-- one training step at batch 16384 (tensor mode), with the reproducible
-  fixed-point hash-grid gradient and with Dr.Jit's float atomics;
-- for scale, one path-traced sample of the Cornell box (Mitsuba ``path``).
+- one path-traced sample of the Cornell box (Mitsuba ``path``), timed
+  interleaved with the queries, and one query (default and the ``small``
+  preset's 2x32 MLP) as a multiple of it (goal: <= 0.5); the same query and
+  PT sample on 1 thread; the LLVM vector width of the query kernels;
+- one training step (tensor mode) at batch 16384 and at the training
+  budget's small-frame batch 1024, with the reproducible fixed-point
+  hash-grid gradient, with Dr.Jit's float atomics and with the small preset,
+  interleaved per batch size (docs/training.md, "Speed of the neural work").
+  ``--skip-nc`` leaves out the N_c table.
 
 Protocol: every measurement is preceded by a warm-up call (JIT compilation
 excluded); inputs are evaluated before the clock starts; outputs are
@@ -120,9 +126,10 @@ def nc_samples(mi, dr, cache, inputs: dict[str, Any], nc: int,
 
 
 def bench_training(mi, dr, caches, config, batch: int, steps: int,
-                   repeats: int) -> dict[str, float]:
+                   repeats: int, small_config: Any = None) -> dict[str, float]:
     """Median seconds per training step (tensor mode) at ``batch``, with the
-    reproducible grid gradient and with Dr.Jit's float atomics."""
+    reproducible grid gradient and with Dr.Jit's float atomics (and, given
+    ``small_config``, with that network), interleaved in one run."""
     x = _inputs(mi, dr, batch * 4, seed=1)
     p, d = x["position"], x["direction"]
     target = mi.Color3f(1 + 0.5 * dr.sin(3 * p.x) + 0.3 * d.z, 1 + p.y * d.x, 0.5 + p.z)
@@ -133,6 +140,8 @@ def bench_training(mi, dr, caches, config, batch: int, steps: int,
     for name, deterministic in (("fixed-point", True), ("atomics", False)):
         variants[name] = caches.NeuralCache(config, [0, 0, 0], [1, 1, 1], seed=0,
                                             deterministic=deterministic)
+    if small_config is not None:
+        variants["small"] = caches.NeuralCache(small_config, [0, 0, 0], [1, 1, 1], seed=0)
 
     def train(cache: Any) -> Callable[[], None]:
         def run() -> None:
@@ -143,13 +152,53 @@ def bench_training(mi, dr, caches, config, batch: int, steps: int,
     return {k: t / steps for k, t in times.items()}
 
 
-def bench_path_sample(mi, repeats: int, spp: int = 4) -> float:
-    """Seconds per path-traced sample of the Cornell box (Mitsuba path, max_depth 8)."""
+def path_sample_fn(mi, spp: int = 4) -> tuple[Callable[[], Any], int]:
+    """A render of the Cornell box (Mitsuba path, max_depth 8) and its sample count."""
     scene = mi.load_dict(mi.cornell_box())
     integrator = mi.load_dict({"type": "path", "max_depth": 8})
     width, height = scene.sensors()[0].film().size()
-    t = timed(lambda: mi.render(scene, integrator=integrator, spp=spp, seed=1), repeats)
-    return t / (width * height * spp)
+    return (lambda: mi.render(scene, integrator=integrator, spp=spp, seed=1),
+            width * height * spp)
+
+
+def bench_path_sample(mi, repeats: int, spp: int = 4) -> float:
+    """Seconds per path-traced sample of the Cornell box (Mitsuba path, max_depth 8)."""
+    fn, samples = path_sample_fn(mi, spp)
+    return timed(fn, repeats) / samples
+
+
+def with_threads(dr, count: int, fn: Callable[[], Any]) -> Callable[[], Any]:
+    """``fn`` run on ``count`` worker threads (evaluated inside; the pool restored)."""
+    def run() -> Any:
+        previous = dr.thread_count()
+        dr.set_thread_count(count)
+        try:
+            out = fn()
+            dr.eval(out)
+            dr.sync_thread()
+        finally:
+            dr.set_thread_count(previous)
+        return out
+    return run
+
+
+def vector_width(dr, fn: Callable[[], Any]) -> str:
+    """The float vector widths in the LLVM IR of the kernels ``fn`` launches."""
+    import re
+
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    try:
+        dr.eval(fn())
+        dr.sync_thread()
+        widths: set[int] = set()
+        for k in dr.kernel_history():
+            if k["type"] == dr.KernelType.JIT and "ir" in k:
+                ir = k["ir"].getvalue() if hasattr(k["ir"], "getvalue") else str(k["ir"])
+                widths |= {int(w) for w in re.findall(r"<(\d+) x float>", ir)}
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return f"max <{max(widths)} x float>" if widths else "unknown"
 
 
 def main() -> None:
@@ -160,7 +209,10 @@ def main() -> None:
                         help="shading points in the N_c table (default 2^14)")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--train-batch", type=int, default=16384)
+    parser.add_argument("--small-train-batch", type=int, default=1024,
+                        help="second batch size, the training budget's at small frames")
     parser.add_argument("--train-steps", type=int, default=8)
+    parser.add_argument("--skip-nc", action="store_true", help="skip the N_c table")
     args = parser.parse_args()
 
     mi = init_backend()
@@ -171,7 +223,9 @@ def main() -> None:
     from renderers.caches.inference import PackedMLP
 
     config = caches.nirc_config()
+    small = caches.nirc_config(preset="small")
     cache = caches.NeuralCache(config, [0, 0, 0], [1, 1, 1], seed=0)
+    cache_small = caches.NeuralCache(small, [0, 0, 0], [1, 1, 1], seed=0)
     # Same weights (same seed), first layer not split: encodings-only sharing.
     cache_concat = caches.NeuralCache(config, [0, 0, 0], [1, 1, 1], seed=0,
                                       split_first_layer=False)
@@ -199,7 +253,12 @@ def main() -> None:
                                      normal=x["normal"], roughness=x["roughness"],
                                      albedo=x["albedo"], direction=x["direction"])
     args5 = (x["position"], x["normal"], x["roughness"], x["albedo"], x["direction"])
+    path_fn, path_samples = path_sample_fn(mi)
     t = timed_interleaved({
+        "path": path_fn,
+        "small_split": lambda: cache_small.query_unshared(*args5),
+        "full_split_1thread": with_threads(dr, 1, lambda: cache.query_unshared(*args5)),
+        "path_1thread": with_threads(dr, 1, path_fn),
         "full": lambda: cache_concat.query_unshared(*args5),
         "full_split": lambda: cache.query_unshared(*args5),
         "grid": lambda: cache.encoder.position.encode(x["position"]),
@@ -222,40 +281,54 @@ def main() -> None:
         print(f"{label:<50}{seconds * us:>10.3f}")
     print(f"CoopVec vs tensor-mode inference: full query {full_tensor / full:.2f}x faster, "
           f"MLP alone {mlp_tensor / mlp_only:.2f}x faster")
+    t_path = t["path"] / path_samples
+    q_default, q_small = t["full_split"] / n, t["small_split"] / n
+    print(f"\nagainst one path-traced sample of mi.cornell_box() (Mitsuba path, max_depth 8; "
+          f"same run): {t_path * 1e6:.3f} us/sample (goal: a query <= 0.5 sample)")
+    print(f"  default query (64x4, split)  {q_default * 1e6:7.3f} us = "
+          f"{q_default / t_path:.2f} PT samples")
+    print(f"  small preset (32x2, split)   {q_small * 1e6:7.3f} us = "
+          f"{q_small / t_path:.2f} PT samples")
+    print(f"  1 thread instead of {dr.thread_count()}: query {t['full_split_1thread'] / n * 1e6:.3f}"
+          f" us ({t['full_split_1thread'] / t['full_split']:.2f}x), PT sample "
+          f"{t['path_1thread'] / path_samples * 1e6:.3f} us "
+          f"({t['path_1thread'] / t['path']:.2f}x)")
+    print(f"  LLVM vector width of the query kernels: "
+          f"{vector_width(dr, lambda: cache.query_unshared(*args5))}")
 
     # ---- N_c directions per shading point: shared vs recomputed surface features ----
     m = 1 << args.log2_shading_points
     xs = _inputs(mi, dr, m, seed=2)
-    print(f"\nN_c directions per shading point ({m} shading points, symbolic loop over N_c;"
-          " us per shading point)")
-    print("  recomputed: query_unshared per direction; shared enc: encodings once per point;"
-          "\n  shared enc+L1: encodings and first-layer surface part once per point (default)")
-    print(f"{'N_c':>4}{'recomputed':>12}{'shared enc':>12}{'shared enc+L1':>15}"
-          f"{'recomp/default':>16}{'default us/query':>18}{'vs N_c x unshared N_c=1':>25}")
-    base = None
-    for nc in (1, 2, 4, 8, 16, 32):
-        tn = timed_interleaved({
-            "recomputed": nc_samples(mi, dr, cache_concat, xs, nc, shared=False),
-            "shared_enc": nc_samples(mi, dr, cache_concat, xs, nc, shared=True),
-            "shared_l1": nc_samples(mi, dr, cache, xs, nc, shared=True),
-        }, args.repeats)
-        t_un, t_enc, t_l1 = tn["recomputed"], tn["shared_enc"], tn["shared_l1"]
-        base = base or t_un
-        print(f"{nc:>4}{t_un / m * 1e6:>12.3f}{t_enc / m * 1e6:>12.3f}{t_l1 / m * 1e6:>15.3f}"
-              f"{t_un / t_l1:>16.2f}{t_l1 / m / nc * 1e6:>18.3f}{t_l1 / (nc * base):>25.2f}")
+    if not args.skip_nc:
+        print(f"\nN_c directions per shading point ({m} shading points, symbolic loop over N_c;"
+              " us per shading point)")
+        print("  recomputed: query_unshared per direction; shared enc: encodings once per point;"
+              "\n  shared enc+L1: encodings and first-layer surface part once per point (default)")
+        print(f"{'N_c':>4}{'recomputed':>12}{'shared enc':>12}{'shared enc+L1':>15}"
+              f"{'recomp/default':>16}{'default us/query':>18}{'vs N_c x unshared N_c=1':>25}")
+        base = None
+        for nc in (1, 2, 4, 8, 16, 32):
+            tn = timed_interleaved({
+                "recomputed": nc_samples(mi, dr, cache_concat, xs, nc, shared=False),
+                "shared_enc": nc_samples(mi, dr, cache_concat, xs, nc, shared=True),
+                "shared_l1": nc_samples(mi, dr, cache, xs, nc, shared=True),
+            }, args.repeats)
+            t_un, t_enc, t_l1 = tn["recomputed"], tn["shared_enc"], tn["shared_l1"]
+            base = base or t_un
+            print(f"{nc:>4}{t_un / m * 1e6:>12.3f}{t_enc / m * 1e6:>12.3f}{t_l1 / m * 1e6:>15.3f}"
+                  f"{t_un / t_l1:>16.2f}{t_l1 / m / nc * 1e6:>18.3f}{t_l1 / (nc * base):>25.2f}")
 
     # ---- Training ----
-    b = args.train_batch
-    tt = bench_training(mi, dr, caches, config, b, args.train_steps, repeats=3)
-    t_det, t_atomic = tt["fixed-point"], tt["atomics"]
-    print(f"\ntraining step, batch {b} (tensor mode, Adam over MLP + hash grid, EMA):")
-    print(f"  reproducible fixed-point grid gradient (default): {t_det * 1e3:8.1f} ms/step")
-    print(f"  Dr.Jit float-atomic grid gradient:               {t_atomic * 1e3:8.1f} ms/step")
-
-    # ---- Scale: one path-traced sample ----
-    t_path = bench_path_sample(mi, args.repeats)
-    print(f"\nfor scale: one path-traced sample of mi.cornell_box() (path, max_depth 8): "
-          f"{t_path * 1e6:.3f} us; one neural query = {full / n / t_path:.2f} PT samples")
+    for b in (args.train_batch, args.small_train_batch):
+        tt = bench_training(mi, dr, caches, config, b, args.train_steps, repeats=3,
+                            small_config=small)
+        t_det, t_atomic, t_small = tt["fixed-point"], tt["atomics"], tt["small"]
+        print(f"\ntraining step, batch {b} (tensor mode, Adam over MLP + hash grid, EMA; "
+              f"one interleaved run):")
+        print(f"  reproducible fixed-point grid gradient (default): {t_det * 1e3:8.1f} ms/step")
+        print(f"  Dr.Jit float-atomic grid gradient:               {t_atomic * 1e3:8.1f} ms/step")
+        print(f"  small preset (32x2 MLP), fixed-point:            {t_small * 1e3:8.1f} ms/step"
+              f"  ({t_det / t_small:.2f}x faster than default)")
 
 
 if __name__ == "__main__":

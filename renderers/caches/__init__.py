@@ -11,7 +11,9 @@ Import after ``renderers.backend.init_backend()`` has selected the variant.
 
 from renderers.caches.cache import NeuralCache, build_mlp
 from renderers.caches.config import (
+    NETWORK_PRESETS,
     CacheConfig,
+    ConvergedTrainingConfig,
     DirectionEncodingConfig,
     HashGridConfig,
     LossConfig,
@@ -26,7 +28,9 @@ from renderers.caches.config import (
 from renderers.caches.records import TrainingRecords
 
 __all__ = [
+    "NETWORK_PRESETS",
     "CacheConfig",
+    "ConvergedTrainingConfig",
     "DirectionEncodingConfig",
     "HashGridConfig",
     "LossConfig",

@@ -126,7 +126,12 @@ class NeuralCache:
             ``dropped_nonfinite_targets``, ``dropped_nonfinite_inputs``,
             ``steps`` (steps taken), ``records_trained`` (records in the
             batches of the steps taken), ``skipped_steps`` (steps whose loss
-            or gradients were non-finite: weights left unchanged).
+            or gradients were non-finite: weights left unchanged),
+            ``reduced_frames`` (calls of :meth:`train` that took fewer steps
+            because ``config.converged_training`` judged the loss converged).
+        frame_loss_ema: the converged-training rule's moving average of the
+            loss after every :meth:`train` call that took steps (empty when
+            the rule is off).
     """
 
     def __init__(self, config: CacheConfig, bbox_min: Vec3, bbox_max: Vec3,
@@ -175,7 +180,9 @@ class NeuralCache:
             "steps": 0,
             "records_trained": 0,
             "skipped_steps": 0,
+            "reduced_frames": 0,
         }
+        self.frame_loss_ema: list[float] = []
         self._refresh_inference()
 
     # ------------------------------------------------------------------
@@ -349,11 +356,18 @@ class NeuralCache:
         ``config.batch_size``, at most the number of usable records) are
         consecutive slices of seeded random permutations of the usable
         records, so one frame's records are each used once before any repeats
-        (as NRC does); a frame with fewer records than a batch repeats them. A step whose loss or gradients are not finite is
-        skipped and counted. Afterwards the inference network is refreshed.
-        Returns the losses of the steps taken.
+        (as NRC does); a frame with fewer records than a batch repeats them.
+        A step whose loss or gradients are not finite is skipped and counted.
+        With ``config.converged_training`` set, a call after a converged loss
+        takes at most its ``steps`` steps (:meth:`loss_converged`).
+        Afterwards the inference network is refreshed. Returns the losses of
+        the steps taken.
         """
         steps = self.config.steps_per_frame if steps is None else int(steps)
+        rule = self.config.converged_training
+        if rule is not None and steps > rule.steps and self.loss_converged():
+            steps = rule.steps
+            self.stats["reduced_frames"] += 1
         batch_size = self.config.batch_size if batch_size is None else int(batch_size)
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
@@ -374,8 +388,24 @@ class NeuralCache:
             if loss is not None:
                 losses.append(loss)
         self.loss_history += losses
+        if rule is not None and losses:
+            mean = sum(losses) / len(losses)
+            ema = self.frame_loss_ema
+            ema.append(mean if not ema else rule.ema_decay * ema[-1] + (1 - rule.ema_decay) * mean)
         self._refresh_inference()
         return losses
+
+    def loss_converged(self) -> bool:
+        """Whether the converged-training rule (``config.converged_training``)
+        holds now: the moving average of the per-frame loss changed by less
+        than ``tolerance`` (relative) over the last ``window`` training frames.
+        Always False when the rule is off."""
+        rule = self.config.converged_training
+        ema = self.frame_loss_ema
+        if rule is None or len(ema) <= rule.window:
+            return False
+        before, now = ema[-1 - rule.window], ema[-1]
+        return abs(now - before) < rule.tolerance * abs(before)
 
     def evaluate_loss(self, records: TrainingRecords) -> float:
         """The configured loss of the inference network on ``records`` (no update)."""
@@ -476,7 +506,15 @@ class NeuralCache:
 
         # ---- Guard: skip the step if anything is non-finite ----
         bad = dr.count(~dr.isfinite(loss.array))
+        lookup = position.lookup
         for key in self._keys:
+            if key == GRID_KEY and lookup is not None and lookup.finite is not None:
+                # The fixed-point table gradient is NaN everywhere or finite
+                # everywhere (grid_grad.py) and its lookup says which: no
+                # reduction over the whole table (~1.3M entries) per step, and
+                # the gradient stays lazy, computed inside Adam's kernel.
+                bad += dr.select(lookup.finite, mi.UInt32(0), mi.UInt32(1))
+                continue
             bad += dr.count(~dr.isfinite(_flat(dr.grad(self._opt[key]))))
         dr.eval(loss, bad)
         loss_value = float(loss.array[0])

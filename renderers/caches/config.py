@@ -162,6 +162,29 @@ class OptimizerConfig(_Frozen):
         return self.lr + (self.lr_end - self.lr) * t
 
 
+class ConvergedTrainingConfig(_Frozen):
+    """Optional rule: fewer optimizer steps per frame once the loss has converged.
+
+    After every frame that trained, the mean loss of its steps m_f enters an
+    exponential moving average over frames, E_f = d E_{f-1} + (1 - d) m_f
+    (E_0 = m_0, d = ``ema_decay``). A frame is *converged* when at least
+    ``window`` + 1 frames have trained and |E_f - E_{f-window}| <
+    ``tolerance`` x E_{f-window}: the smoothed loss moved by less than
+    ``tolerance`` (relative) over the last ``window`` frames. The next frame
+    then takes min(steps, ``steps``) steps instead of its budget. ``steps`` >=
+    1, so the loss keeps being measured: when it moves again (a dynamic
+    scene, a light switched on) the full budget resumes at the next frame.
+
+    Off by default (``CacheConfig.converged_training = None``): the papers
+    train every frame's full budget, and results stay comparable with it.
+    """
+
+    window: int = Field(8, ge=1, le=10_000)
+    tolerance: float = Field(0.02, gt=0.0, lt=1.0)
+    ema_decay: float = Field(0.8, ge=0.0, lt=1.0)
+    steps: int = Field(1, ge=1, le=1024)
+
+
 class CacheConfig(_Frozen):
     """One neural cache: input encodings, MLP, output, loss, optimizer, schedule.
 
@@ -175,6 +198,10 @@ class CacheConfig(_Frozen):
     ``ema_decay``: when set, inference uses an exponential moving average of
     the weights (debiased like Adam's moments), which cuts the noise of online
     training; None uses the latest weights.
+
+    ``converged_training``: optional rule that takes fewer steps per frame
+    once the loss has converged (:class:`ConvergedTrainingConfig`); None
+    (default) always trains the full budget.
     """
 
     position: HashGridConfig = HashGridConfig()
@@ -190,6 +217,7 @@ class CacheConfig(_Frozen):
     ema_decay: float | None = 0.99
     batch_size: int = Field(16384, ge=1, le=1 << 22)
     steps_per_frame: int = Field(4, ge=0, le=1024)
+    converged_training: ConvergedTrainingConfig | None = None
 
     @model_validator(mode="after")
     def _check(self) -> CacheConfig:
@@ -247,12 +275,30 @@ def _deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, An
     return merged
 
 
+#: Named network sizes, applied by every preset function through the
+#: ``preset`` keyword (``nirc_config(preset="small")``, or ``cache={"preset":
+#: "small"}`` in a method's parameters) before the other overrides.
+#: ``small``: the visibility-cache paper's 2 x 32 MLP (same inputs, grid and
+#: training); ~6x fewer MLP FLOPs per query than 64 x 4, at some accuracy
+#: (docs/training.md, "Speed of the neural work").
+NETWORK_PRESETS: dict[str, dict[str, Any]] = {
+    "small": {"mlp": {"width": 32, "hidden_layers": 2}},
+}
+
+
 def _preset(base: dict[str, Any], overrides: dict[str, Any]) -> CacheConfig:
+    overrides = dict(overrides)
+    preset = overrides.pop("preset", None)
+    if preset is not None:
+        if preset not in NETWORK_PRESETS:
+            raise ValueError(f"unknown cache preset {preset!r}; choose one of "
+                             f"{sorted(NETWORK_PRESETS)}")
+        base = _deep_merge(base, NETWORK_PRESETS[preset])
     unknown = set(overrides) - set(CacheConfig.model_fields)
     if unknown:
         raise ValueError(
             f"unknown cache config field(s) {sorted(unknown)}; "
-            f"valid fields are {sorted(CacheConfig.model_fields)}"
+            f"valid fields are {sorted(CacheConfig.model_fields)} and 'preset'"
         )
     return CacheConfig.model_validate(_deep_merge(base, overrides))
 

@@ -43,7 +43,7 @@ from renderers.caches.config import (
     HashGridConfig,
     ScalarEncodingConfig,
 )
-from renderers.caches.grid_grad import grid_lookup
+from renderers.caches.grid_grad import GridHandle, grid_lookup
 
 #: A 3-vector given as a Dr.Jit 3-array (Point3f, Vector3f, Color3f) or 3 Floats.
 Vec3 = Any
@@ -201,6 +201,8 @@ class PositionEncoding(Encoding):
     """
 
     deterministic_grad: bool = True
+    #: The handle of the last training lookup (its ``finite`` is set by backward).
+    lookup: GridHandle | None = None
 
     def __init__(self, config: HashGridConfig, bbox_min: Sequence[float],
                  bbox_max: Sequence[float], rng: Any) -> None:
@@ -255,7 +257,8 @@ class PositionEncoding(Encoding):
         if self.deterministic_grad and dr.grad_enabled(self.grid.data):
             # Training: same values, but an order-independent table gradient
             # (float atomics would make same-seed runs differ, see grid_grad).
-            return list(grid_lookup(self.grid, u))
+            self.lookup = GridHandle(None)
+            return list(grid_lookup(self.grid, u, self.lookup))
         return list(self.grid(u))
 
 

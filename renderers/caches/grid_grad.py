@@ -13,8 +13,9 @@ associative, so the sum no longer depends on the order; the fixed-point
 scale is a power of two chosen from max |grad| so that no sum can overflow
 (at most N * 2^D contributions per entry) while a contribution keeps ~45
 fractional bits, more than float32 atomics keep. A non-finite incoming
-gradient yields a NaN table gradient, so the cache's non-finite-step guard
-still sees it.
+gradient yields a NaN table gradient (every entry; otherwise every entry is
+finite), and the lookup's :class:`GridHandle` records which in ``finite``: the
+cache's non-finite-step guard reads that flag instead of the whole table.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ class GridHandle:
 
     def __init__(self, grid: Any) -> None:
         self.grid = grid
+        #: After the backward pass: a width-1 Bool, whether the table gradient
+        #: is finite (it is then finite everywhere, otherwise NaN everywhere).
+        self.finite: Any = None
 
 
 def _types() -> tuple[type, type, type, type]:
@@ -67,6 +71,7 @@ class DeterministicGridLookup(dr.CustomOp):
 
     def eval(self, handle: GridHandle, data: mi.Float, p: list[mi.Float]) -> Any:
         self.grid = handle.grid
+        self.handle = handle
         self.p = p
         self.n_data = dr.width(data)
         grid = _with_data(self.grid, data)
@@ -105,6 +110,7 @@ class DeterministicGridLookup(dr.CustomOp):
 
         grad = mi.Float(Float64(acc) / scale)
         grad = dr.select(finite, grad, dr.nan)
+        self.handle.finite = finite
         self.set_grad_in("data", grad)
 
     def name(self) -> str:
@@ -119,7 +125,15 @@ def _with_data(grid: Any, data: mi.Float) -> Any:
     return other
 
 
-def grid_lookup(grid: Any, p: list[mi.Float]) -> Any:
-    """``grid(p)``, differentiable w.r.t. ``grid.data`` with a reproducible gradient."""
-    return dr.custom(DeterministicGridLookup, GridHandle(_with_data(grid, dr.detach(grid.data))),
-                     grid.data, p)
+def grid_lookup(grid: Any, p: list[mi.Float], handle: GridHandle | None = None) -> Any:
+    """``grid(p)``, differentiable w.r.t. ``grid.data`` with a reproducible gradient.
+
+    ``handle``: a :class:`GridHandle` (its grid is replaced) whose ``finite``
+    the backward pass sets, so that a caller can check the table gradient
+    without reading it (which would force it to be evaluated on its own
+    instead of inside the optimizer's kernel).
+    """
+    if handle is None:
+        handle = GridHandle(None)
+    handle.grid = _with_data(grid, dr.detach(grid.data))
+    return dr.custom(DeterministicGridLookup, handle, grid.data, p)
