@@ -40,16 +40,14 @@ a surface.
 
 from __future__ import annotations
 
-import functools
-import time
 from typing import Any, Literal
 
 from pydantic import Field
 
-from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
+from renderers.methods.base import Method
 from renderers.methods.cached import has_surface, make_cache
+from renderers.methods.nvc_lights import visibility_cache_render
 from renderers.methods.pt import PTParams
-from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
 
 #: NIRC's direction encoding (nirc_config): spherical harmonics, 5 bands.
@@ -102,33 +100,7 @@ def train_frame(scene: Any, cache: Any, params: NVCEnvParams, seed: int,
         cache.train(records)
 
 
-def render(scene: Any, params: NVCEnvParams, *, seed_parts: tuple[Any, ...], spp: int,
-           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
-    """Pre-train, then train and render every frame (the caching methods' frame loop)."""
-    integrator, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
-
-    pretrain_start = time.perf_counter()
-    for index in range(params.pretrain_frames):
-        train_frame(scene, cache, params, derive_seed(*seed_parts, "pretrain", index),
-                    StageTimer())
-    pretrain_s = time.perf_counter() - pretrain_start
-
-    render_only = render_stage(scene, integrator, spp)
-
-    def render_frame(index: int, seed: int, timer: StageTimer):
-        train_frame(scene, cache, params, derive_seed(seed, "train"), timer)
-        return render_only(index, seed, timer)
-
-    output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
-                        hooks=hooks)
-    output.method_stats = {
-        "pretrain_frames": params.pretrain_frames,
-        "pretrain_s": pretrain_s,
-        "loss_history": list(cache.loss_history),
-        "cache_stats": dict(cache.stats),
-        "cache_config": cache.config.model_dump(mode="json"),
-    }
-    return output
+render = visibility_cache_render(build, train_frame)
 
 
 def applies(features: Any) -> tuple[bool, str]:
