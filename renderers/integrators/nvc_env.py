@@ -33,10 +33,14 @@ it reports for the MIS weight of BSDF-sampled hits stays p_L. Where the
 environment is the only emitter the core's NEE is skipped altogether
 (``skip_nee``), saving its shadow ray.
 
-The cache is queried inside the path loop (the deferred pass of deferred.py
-stores the radiance caches' surface inputs and Spectrum outputs; this cache
-has a position-only surface and one scalar output), so masked lanes pay the
-query too.
+The cache is evaluated after the path loop, on the used queries only
+(deferred.py, through :class:`CachedPathIntegrator`): at a vertex the loop
+records the position and, per query, the direction and the factor that
+multiplies V_c in the estimate (g / N_c for the cache level, -g for the
+residual); the residual's g V is added in the loop. Every NEE vertex is a
+cache vertex, so a path has no bound on them but its depth: the buffer starts
+with one vertex slot per lane and a frame that needed more is traced again
+with the same random numbers (cached.py), keeping the count for later frames.
 
 Training data (:func:`visibility_records`): every frame, first hits of
 camera rays through random film positions and the vertex one cosine-sampled
@@ -53,8 +57,10 @@ import mitsuba as mi
 
 from renderers.caches import TrainingRecords
 from renderers.integrators import path
+from renderers.integrators.cached import CachedPathIntegrator, CacheState
+from renderers.integrators.deferred import QueryLayout
 from renderers.integrators.lights import UniformLightSampler
-from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms, mis_weight
+from renderers.integrators.path import Vertex, VertexTerms, mis_weight
 from renderers.seeding import derive_seed
 
 NVC_ENV_PLUGIN = "nirc_nvc_env"
@@ -85,24 +91,48 @@ class WithoutEnvironmentNEE(UniformLightSampler):
         return ds, weight
 
 
-class NVCEnvIntegrator(PathIntegrator):
+class OneOutput:
+    """A one-output (visibility) cache seen as the deferred pass expects a cache: its
+    ``query`` returns a Spectrum (the value on every channel), not a list."""
+
+    def __init__(self, cache: Any) -> None:
+        self.cache = cache
+
+    def surface_features(self, position: mi.Point3f, normal: mi.Vector3f | None = None,
+                         **_: Any) -> list[mi.Float]:
+        return self.cache.surface_features(position, normal)
+
+    def query(self, surface: list[mi.Float], direction: mi.Vector3f) -> mi.Spectrum:
+        return mi.Spectrum(self.cache.query(surface, direction)[0])
+
+
+def surface_inputs(si: mi.SurfaceInteraction3f) -> dict[str, Any]:
+    """A vertex's inputs as the query buffer stores them: the visibility cache reads
+    the position (and a test oracle the normal); roughness and albedo are unused."""
+    return {"position": si.p, "normal": si.n, "roughness": mi.Float(0),
+            "albedo": mi.Color3f(0)}
+
+
+class NVCEnvIntegrator(CachedPathIntegrator):
     """PT core whose environment NEE is the two-level estimator of the module docstring."""
 
     light_sampler_type = WithoutEnvironmentNEE
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.cache: Any = None
         self.estimator = "unbiased"
-        self.nc = 0
+        self.nc = 0          # N_c: set by configure
 
     def configure(self, params: NVCEnvSettings, cache: Any) -> None:
         """Take the method's parameters (validated by its model) and the visibility cache."""
-        self.estimator, self.nc, self.cache = params.estimator, params.nc, cache
+        self.estimator, self.nc, self.cache = params.estimator, params.nc, OneOutput(cache)
 
-    def visibility_cache(self, si: mi.SurfaceInteraction3f, d: mi.Vector3f) -> mi.Float:
-        """V_c(x, w): the cache's sigmoid output (the normal is for caches that use it)."""
-        return self.cache.query(self.cache.surface_features(si.p, si.n), d)[0]
+    def query_layout(self) -> QueryLayout:
+        """N_c queries per NEE vertex, + 1 (the residual's V_c) when unbiased."""
+        if not self.nc:
+            raise RuntimeError("the nvc-env integrator needs configure(params, cache) before "
+                               "it renders (renderers.methods.nvc_env.build does it)")
+        return QueryLayout(self.vertex_slots, self.nc + (self.estimator == "unbiased"))
 
     def env_sample(self, vertex: Vertex, active: mi.Bool) -> tuple[mi.DirectionSample3f,
                                                                   mi.Spectrum]:
@@ -116,23 +146,24 @@ class NVCEnvIntegrator(PathIntegrator):
         g = env_weight * f * mis_weight(pdf_light, pdf_f)
         return ds, dr.select(active, g, 0)
 
-    def vertex_terms(self, vertex: Vertex, state: Any) -> tuple[VertexTerms, Any]:
+    def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
         # Where the core does NEE (path.py): a smooth BSDF at a vertex that may extend.
         active = vertex.active_next & mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
         si = vertex.si
+        handle = self.queries.vertex(state.cache_vertices, vertex, surface_inputs(si), active)
         # ---- Cache level: I_c = 1/N_c sum_i g(w_i) V_c(x, w_i) (NIRC Eq. 10) ----
-        I_c = mi.Spectrum(0)
-        for _ in range(self.nc):
+        L_add = mi.Spectrum(0)
+        for slot in range(self.nc):
             ds, g = self.env_sample(vertex, active)
-            I_c += g * self.visibility_cache(si, ds.d)
-        L_add = I_c / self.nc
+            L_add += self.queries.add(handle, slot, ds.d, g / self.nc, active)
         # ---- Residual: g(w) (V(x, w) - V_c(x, w)), one shadow ray (NIRC Eq. 11) ----
         if self.estimator == "unbiased":
             ds, g = self.env_sample(vertex, active)
             use = active & (dr.max(g) != 0)
-            visible = ~vertex.scene.ray_test(si.spawn_ray_to(ds.p), use)
-            V = dr.select(visible, 1.0, 0.0)
-            L_add += dr.select(use, g * (V - self.visibility_cache(si, ds.d)), 0)
+            visible = use & ~vertex.scene.ray_test(si.spawn_ray_to(ds.p), use)
+            L_add += dr.select(visible, g, 0)
+            L_add += self.queries.add(handle, self.nc, ds.d, -g, use)
+        state.cache_vertices = dr.select(active, state.cache_vertices + 1, state.cache_vertices)
         only_env = mi.Bool(len(vertex.scene.emitters()) == 1)
         terms = VertexTerms(L_add=dr.select(active, L_add, 0), stop=mi.Bool(False),
                             stop_indirect=mi.Bool(False), skip_nee=only_env)

@@ -48,7 +48,7 @@ from typing import Any
 from pydantic import Field
 
 from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
-from renderers.methods.cached import has_surface, make_cache
+from renderers.methods.cached import has_surface, make_cache, query_stats
 from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
@@ -115,14 +115,23 @@ def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
         pretrain_s = time.perf_counter() - pretrain_start
 
         render_only = render_stage(scene, integrator, spp)
+        # A deferred-query integrator (renderers.integrators.cached) counts its queries.
+        counts = getattr(integrator, "query_counts", None)
+        frame_queries: list[list[Any]] = []
 
         def render_frame(index: int, seed: int, timer: StageTimer):
             train_frame(scene, cache, params, derive_seed(seed, "train"), timer)
-            return render_only(index, seed, timer)
+            if counts is not None:
+                counts.clear()
+            image = render_only(index, seed, timer)
+            if counts is not None and index >= 0:  # not the warm-up frame
+                frame_queries.append(list(counts))
+            return image
 
         output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
-                            hooks=hooks)
+                            aov_names=tuple(integrator.aov_names()), hooks=hooks)
         output.method_stats = {
+            **(query_stats(frame_queries) if frame_queries else {}),
             "pretrain_frames": params.pretrain_frames,
             "pretrain_s": pretrain_s,
             "loss_history": list(cache.loss_history),
