@@ -38,9 +38,10 @@ The cache is evaluated after the path loop, on the used queries only
 records the position and, per query, the direction and the factor that
 multiplies V_c in the estimate (g / N_c for the cache level, -g for the
 residual); the residual's g V is added in the loop. Every NEE vertex is a
-cache vertex, so a path has no bound on them but its depth: the buffer starts
-with one vertex slot per lane and a frame that needed more is traced again
-with the same random numbers (cached.py), keeping the count for later frames.
+cache vertex, so a path has up to max_depth - 1 of them (the buffer's bound);
+with unbounded depth the buffer starts with one vertex slot per lane and a
+frame that needed more is traced again with the same random numbers
+(cached.py), keeping the count for later frames.
 
 Training data (:func:`visibility_records`): every frame, first hits of
 camera rays through random film positions and the vertex one cosine-sampled
@@ -128,11 +129,13 @@ class NVCEnvIntegrator(CachedPathIntegrator):
         self.estimator, self.nc, self.cache = params.estimator, params.nc, OneOutput(cache)
 
     def query_layout(self) -> QueryLayout:
-        """N_c queries per NEE vertex, + 1 (the residual's V_c) when unbiased."""
+        """N_c queries per NEE vertex, + 1 (the residual's V_c) when unbiased; a path
+        has at most max_depth - 1 NEE vertices (exact), else as many as seen so far."""
         if not self.nc:
             raise RuntimeError("the nvc-env integrator needs configure(params, cache) before "
                                "it renders (renderers.methods.nvc_env.build does it)")
-        return QueryLayout(self.vertex_slots, self.nc + (self.estimator == "unbiased"))
+        vertices = self.max_depth - 1 if self.max_depth > 0 else self.vertex_slots
+        return QueryLayout(vertices, self.nc + (self.estimator == "unbiased"))
 
     def env_sample(self, vertex: Vertex, active: mi.Bool) -> tuple[mi.DirectionSample3f,
                                                                   mi.Spectrum]:

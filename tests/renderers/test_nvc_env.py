@@ -130,8 +130,12 @@ def test_training_targets_are_shadow_ray_outcomes(mi, sky):
 @pytest.mark.slow
 @pytest.mark.parametrize("max_depth", [2, -1], ids=["direct", "global"])
 def test_unbiased_with_a_trained_cache_matches_path(mi, sky, max_depth):
-    result = _agreement(sky.scene, _integrator(sky, max_depth=max_depth), max_depth)
+    integrator = _integrator(sky, max_depth=max_depth)
+    result = _agreement(sky.scene, integrator, max_depth)
     assert result.passed, result.summary()
+    # The queries were deferred (not evaluated in the loop) and some were used.
+    count = integrator.query_counts[-1]
+    assert count is not None and 0 < count.queries < count.lanes * count.slots_per_lane
 
 
 @pytest.mark.slow
