@@ -133,9 +133,12 @@ def test_unbiased_with_a_trained_cache_matches_path(mi, sky, max_depth):
     integrator = _integrator(sky, max_depth=max_depth)
     result = _agreement(sky.scene, integrator, max_depth)
     assert result.passed, result.summary()
-    # The queries were deferred (not evaluated in the loop) and some were used.
+    # Direct light: the queries were deferred (not evaluated in the loop), some used.
+    # (Full GI at 1024 spp: the longest of 262144 paths needs so many vertex slots
+    # that the buffer would pass cached.MAX_QUERY_SLOTS; that frame queries inline.)
     count = integrator.query_counts[-1]
-    assert count is not None and 0 < count.queries < count.lanes * count.slots_per_lane
+    if max_depth == 2:
+        assert count is not None and 0 < count.queries < count.lanes * count.slots_per_lane
 
 
 @pytest.mark.slow
