@@ -16,7 +16,10 @@ only by its environment map) against Mitsuba's ``path`` with the per-pixel
 
 The two oracle tests also check the MIS bookkeeping: the env NEE term carries
 w_L, the core's BSDF-sampled environment hits keep w_bsdf = 1 - w_L; counting
-either fully would add light and fail.
+either fully would add light and fail. With a constant environment and an area
+light (lighting.ENV_AND_SPHERE) only the environment's NEE is replaced: the
+unbiased estimator with a zero cache and the biased one with the oracle agree
+with `path`, and keeping the core's env NEE as well (counted twice) is rejected.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import pytest
 
 from metrics.statistics import agreement_test
 from renderers.moments import render_moments
-from tests.renderers.lighting import luminance_moments
+from tests.renderers.lighting import ENV_AND_SPHERE, luminance_moments
 
 RES = 16
 SPP = 1024
@@ -176,3 +179,30 @@ def test_biased_with_a_zero_cache_drops_exactly_the_env_nee(mi, sky):
     assert result.passed, result.summary()
     # ... and it is far from path: the env NEE is most of the direct light.
     assert not _agreement(sky.scene, integrator, 2).passed
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("estimator", ["unbiased", "biased"])
+def test_with_another_emitter_only_the_env_nee_is_replaced(mi, estimator):
+    """A constant environment and a spherical area light: the core's NEE keeps the area
+    light (uniform selection, env-selected samples dropped) and both MIS weights. The
+    unbiased estimator with a zero cache (all of I_env from the residual) and the
+    biased one with the oracle agree with `path`."""
+    scene = mi.load_string(ENV_AND_SPHERE.format(res=RES))
+    cache = ShadowRayOracle(scene, zero=estimator == "unbiased")
+    integrator = _integrator(SimpleNamespace(scene=scene), cache, max_depth=2,
+                             estimator=estimator)
+    assert _agreement(scene, integrator, 2).passed
+
+
+@pytest.mark.slow
+def test_counting_the_env_nee_twice_is_rejected(mi):
+    """Power of the check above: the same biased oracle with the core's own selector
+    (its env NEE kept as well) adds the environment's light twice."""
+    from renderers.integrators.lights import UniformLightSampler
+
+    scene = mi.load_string(ENV_AND_SPHERE.format(res=RES))
+    integrator = _integrator(SimpleNamespace(scene=scene), ShadowRayOracle(scene),
+                             max_depth=2, estimator="biased")
+    integrator.light_sampler_type = UniformLightSampler
+    assert not _agreement(scene, integrator, 2).passed
