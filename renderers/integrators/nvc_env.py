@@ -19,12 +19,12 @@ direction). Directions are drawn from the environment's importance sampling
 p_env (``emitter.sample_direction``), never from the BSDF. Writing
 g(w) = L_env f cos w_L / p_env:
 
-* cache level (NIRC Eq. 10 with V for the incident radiance):
+* cache level (NIRC Eq. 12 with V L_env in place of the cached radiance):
   I_c = 1/N_c sum_i g(w_i) V_c(x, w_i), w_i ~ p_env — no shadow rays;
-* unbiased (two-level MC, NIRC Eq. 10-11): I_c + g(w) (V(x, w) - V_c(x, w))
+* unbiased (two-level MC, NIRC Eq. 10-12): I_c + g(w) (V(x, w) - V_c(x, w))
   along one independent w ~ p_env, V from one shadow ray: expectation
   I_env(x) for any cache;
-* biased (``estimator='biased'``): I_c alone; exact where V_c = V.
+* biased (``estimator='biased'``, NIRC Eq. 13): I_c alone; exact where V_c = V.
 
 The core must not estimate I_env as well: its selector is wrapped
 (:class:`WithoutEnvironmentNEE`) so that NEE samples that picked the
@@ -154,7 +154,7 @@ class NVCEnvIntegrator(CachedPathIntegrator):
         active = vertex.active_next & mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
         si = vertex.si
         handle = self.queries.vertex(state.cache_vertices, vertex, surface_inputs(si), active)
-        # ---- Cache level: I_c = 1/N_c sum_i g(w_i) V_c(x, w_i) (NIRC Eq. 10) ----
+        # ---- Cache level: I_c = 1/N_c sum_i g(w_i) V_c(x, w_i) (NIRC Eq. 12) ----
         L_add = mi.Spectrum(0)
         for slot in range(self.nc):
             ds, g = self.env_sample(vertex, active)

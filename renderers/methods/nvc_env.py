@@ -18,7 +18,8 @@ parameter           default     meaning
 ==================  ==========  ===================================================
 max_depth, rr_*     as `pt`     the PT core
 estimator           unbiased    ``unbiased``: cache level + residual with one shadow
-                                ray (NIRC Eq. 10-11); ``biased``: cache level alone
+                                ray (NIRC Eq. 10-12); ``biased``: the cache level
+                                alone (Eq. 13)
 nc                  7           N_c, cache directions per vertex (NIRC Fig. 11)
 camera_points       4096        training points per frame: camera first hits, plus
                                 as many vertices one cosine bounce further
