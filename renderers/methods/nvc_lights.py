@@ -42,12 +42,13 @@ from __future__ import annotations
 
 import functools
 import time
+from collections.abc import Callable
 from typing import Any
 
 from pydantic import Field
 
 from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
-from renderers.methods.cached import has_surface, make_cache
+from renderers.methods.cached import has_surface, make_cache, query_stats
 from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
@@ -96,33 +97,53 @@ def train_frame(scene: Any, cache: Any, params: NVCLightsParams, seed: int,
         cache.train(records)
 
 
-def render(scene: Any, params: NVCLightsParams, *, seed_parts: tuple[Any, ...], spp: int,
-           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
-    """Pre-train, then train and render every frame (the caching methods' frame loop)."""
-    integrator, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
+def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
+                            train_frame: Callable[[Any, Any, Any, int, StageTimer], None],
+                            ) -> Callable[..., RenderOutput]:
+    """The frame loop of a visibility-cache method (`nvc-lights`, `nvc-env`) from its
+    ``build(scene, params, seed) -> (integrator, cache)`` and its ``train_frame``."""
 
-    pretrain_start = time.perf_counter()
-    for index in range(params.pretrain_frames):
-        train_frame(scene, cache, params, derive_seed(*seed_parts, "pretrain", index),
-                    StageTimer())
-    pretrain_s = time.perf_counter() - pretrain_start
+    def render(scene: Any, params: Any, *, seed_parts: tuple[Any, ...], spp: int,
+               frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
+        """Pre-train, then train and render every frame (the caching methods' frame loop)."""
+        integrator, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
 
-    render_only = render_stage(scene, integrator, spp)
+        pretrain_start = time.perf_counter()
+        for index in range(params.pretrain_frames):
+            train_frame(scene, cache, params, derive_seed(*seed_parts, "pretrain", index),
+                        StageTimer())
+        pretrain_s = time.perf_counter() - pretrain_start
 
-    def render_frame(index: int, seed: int, timer: StageTimer):
-        train_frame(scene, cache, params, derive_seed(seed, "train"), timer)
-        return render_only(index, seed, timer)
+        render_only = render_stage(scene, integrator, spp)
+        # A deferred-query integrator (renderers.integrators.cached) counts its queries.
+        counts = getattr(integrator, "query_counts", None)
+        frame_queries: list[list[Any]] = []
 
-    output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
-                        hooks=hooks)
-    output.method_stats = {
-        "pretrain_frames": params.pretrain_frames,
-        "pretrain_s": pretrain_s,
-        "loss_history": list(cache.loss_history),
-        "cache_stats": dict(cache.stats),
-        "cache_config": cache.config.model_dump(mode="json"),
-    }
-    return output
+        def render_frame(index: int, seed: int, timer: StageTimer):
+            train_frame(scene, cache, params, derive_seed(seed, "train"), timer)
+            if counts is not None:
+                counts.clear()
+            image = render_only(index, seed, timer)
+            if counts is not None and index >= 0:  # not the warm-up frame
+                frame_queries.append(list(counts))
+            return image
+
+        output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
+                            aov_names=tuple(integrator.aov_names()), hooks=hooks)
+        output.method_stats = {
+            **(query_stats(frame_queries) if frame_queries else {}),
+            "pretrain_frames": params.pretrain_frames,
+            "pretrain_s": pretrain_s,
+            "loss_history": list(cache.loss_history),
+            "cache_stats": dict(cache.stats),
+            "cache_config": cache.config.model_dump(mode="json"),
+        }
+        return output
+
+    return render
+
+
+render = visibility_cache_render(build, train_frame)
 
 
 def applies(features: Any) -> tuple[bool, str]:

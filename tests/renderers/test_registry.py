@@ -93,14 +93,15 @@ def test_sweep_roles_keep_todays_series_and_labels():
 
 
 def _features(**values):
-    base = dict(shape_count=3, emitter_count=2, area_emitter_count=2, has_envmap=False,
+    base = dict(shape_count=3, emitter_count=2, area_emitter_count=2, has_envmap=True,
                 has_many_lights=False, has_glossy=False, has_delta=False)
     return SimpleNamespace(**{**base, **values})
 
 
 #: Methods with a cache that are not caching methods (no ``build``): the visibility
-#: cache of `nvc-lights` lives on positions too (its emitter limits: test_nvc_lights.py).
-POSITION_CACHES = {"nvc-lights"}
+#: caches of `nvc-lights` and `nvc-env` live on positions too (their other limits:
+#: test_nvc_lights.py, test_nvc_env.py).
+POSITION_CACHES = {"nvc-lights", "nvc-env"}
 
 
 def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
@@ -115,7 +116,8 @@ def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
 
 def test_every_method_applies_to_every_built_in_scene(mi):
     """Today's behaviour: no built-in scene is skipped by any method, except by
-    `nvc-lights` the scenes with one emitter (nothing to select)."""
+    `nvc-lights` the scenes with one emitter (nothing to select) and by `nvc-env`
+    those without an environment map."""
     from renderers.scenes import load_scene
     from renderers.scenes.library import builtin_names
 
@@ -125,6 +127,8 @@ def test_every_method_applies_to_every_built_in_scene(mi):
             if name == "nvc-lights" and features.emitter_count == 1:
                 assert METHODS[name].applies_to(features) == \
                     (False, "one emitter: nothing to select")
+            elif name == "nvc-env" and not features.has_envmap:
+                assert METHODS[name].applies_to(features) == (False, "no environment map")
             else:
                 check_applies(name, features)
 

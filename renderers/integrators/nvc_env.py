@@ -1,0 +1,209 @@
+"""Direct environment light through a neural visibility cache (`nvc-env`).
+
+NIRC paper, Sec. 5 (Fig. 11): a cache V_c(x, w) in [0, 1] predicts whether a
+ray from x toward w escapes to the environment map (NIRC's position and
+direction encodings, one sigmoid output), trained online on shadow-ray
+outcomes. It replaces the shadow rays of the environment's next-event
+estimation at every shading vertex of the PT core (path.py); other emitters
+and indirect light stay the core's.
+
+The environment's NEE term at a vertex x is, with the core's MIS weights
+(power heuristic, path.py) kept for BSDF-sampled hits of the environment,
+
+    I_env(x) = ∫ L_env(w) f(x, w) cos V(x, w) w_L(w) dw,
+    w_L(w) = p_L^2 / (p_L^2 + p_f^2),  p_L = p(env | x) p_env(w),  p_f = the BSDF pdf
+
+(p(env | x) the light selector's pmf of the environment: what the core's
+weight of a BSDF-sampled environment hit uses, so w_L + w_bsdf = 1 for every
+direction). Directions are drawn from the environment's importance sampling
+p_env (``emitter.sample_direction``), never from the BSDF. Writing
+g(w) = L_env f cos w_L / p_env:
+
+* cache level (NIRC Eq. 12 with V L_env in place of the cached radiance):
+  I_c = 1/N_c sum_i g(w_i) V_c(x, w_i), w_i ~ p_env — no shadow rays;
+* unbiased (two-level MC, NIRC Eq. 10-12): I_c + g(w) (V(x, w) - V_c(x, w))
+  along one independent w ~ p_env, V from one shadow ray: expectation
+  I_env(x) for any cache;
+* biased (``estimator='biased'``, NIRC Eq. 13): I_c alone; exact where V_c = V.
+
+The core must not estimate I_env as well: its selector is wrapped
+(:class:`WithoutEnvironmentNEE`) so that NEE samples that picked the
+environment contribute 0 (their expectation is exactly I_env), while the pdf
+it reports for the MIS weight of BSDF-sampled hits stays p_L. Where the
+environment is the only emitter the core's NEE is skipped altogether
+(``skip_nee``), saving its shadow ray.
+
+The cache is evaluated after the path loop, on the used queries only
+(deferred.py, through :class:`CachedPathIntegrator`): at a vertex the loop
+records the position and, per query, the direction and the factor that
+multiplies V_c in the estimate (g / N_c for the cache level, -g for the
+residual); the residual's g V is added in the loop. Every NEE vertex is a
+cache vertex, so a path has up to max_depth - 1 of them (the buffer's bound);
+with unbounded depth the buffer starts with one vertex slot per lane and a
+frame that needed more is traced again with the same random numbers
+(cached.py), keeping the count for later frames.
+
+Training data (:func:`visibility_records`): every frame, first hits of
+camera rays through random film positions and the vertex one cosine-sampled
+bounce further (where GI paths shade), each with one direction drawn as the
+estimator draws it (p_env); the target is 1 if the shadow ray escapes.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import drjit as dr
+import mitsuba as mi
+
+from renderers.caches import TrainingRecords
+from renderers.integrators import path
+from renderers.integrators.cached import CachedPathIntegrator, CacheState
+from renderers.integrators.deferred import QueryLayout
+from renderers.integrators.lights import UniformLightSampler
+from renderers.integrators.path import Vertex, VertexTerms, mis_weight
+from renderers.seeding import derive_seed
+
+NVC_ENV_PLUGIN = "nirc_nvc_env"
+
+
+class NVCEnvSettings(Protocol):
+    """What the integrator reads of the `nvc-env` method's validated parameters."""
+
+    estimator: str
+    nc: int
+
+
+def is_environment(scene: mi.Scene, emitter: mi.EmitterPtr) -> mi.Bool:
+    """Lanes whose ``emitter`` is the scene's environment emitter."""
+    env = mi.EmitterPtr(scene.environment())
+    return dr.reinterpret_array(mi.UInt32, emitter) == dr.reinterpret_array(mi.UInt32, env)
+
+
+class WithoutEnvironmentNEE(UniformLightSampler):
+    """Mitsuba's selection, with NEE samples that picked the environment set to 0;
+    ``pdf_emitter_direction`` (the MIS weight of BSDF-sampled hits) is unchanged."""
+
+    def sample_emitter_direction(self, si, u, active):
+        ds, weight = super().sample_emitter_direction(si, u, active)
+        env = is_environment(self.scene, ds.emitter)
+        ds.pdf[env] = 0
+        weight[env] = 0
+        return ds, weight
+
+
+class OneOutput:
+    """A one-output (visibility) cache seen as the deferred pass expects a cache: its
+    ``query`` returns a Spectrum (the value on every channel), not a list."""
+
+    def __init__(self, cache: Any) -> None:
+        self.cache = cache
+
+    def surface_features(self, position: mi.Point3f, normal: mi.Vector3f | None = None,
+                         **_: Any) -> list[mi.Float]:
+        return self.cache.surface_features(position, normal)
+
+    def query(self, surface: list[mi.Float], direction: mi.Vector3f) -> mi.Spectrum:
+        return mi.Spectrum(self.cache.query(surface, direction)[0])
+
+
+def surface_inputs(si: mi.SurfaceInteraction3f) -> dict[str, Any]:
+    """A vertex's inputs as the query buffer stores them: the visibility cache reads
+    the position (and a test oracle the normal); roughness and albedo are unused."""
+    return {"position": si.p, "normal": si.n, "roughness": mi.Float(0),
+            "albedo": mi.Color3f(0)}
+
+
+class NVCEnvIntegrator(CachedPathIntegrator):
+    """PT core whose environment NEE is the two-level estimator of the module docstring."""
+
+    light_sampler_type = WithoutEnvironmentNEE
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self.estimator = "unbiased"
+        self.nc = 0          # N_c: set by configure
+
+    def configure(self, params: NVCEnvSettings, cache: Any) -> None:
+        """Take the method's parameters (validated by its model) and the visibility cache."""
+        self.estimator, self.nc, self.cache = params.estimator, params.nc, OneOutput(cache)
+
+    def query_layout(self) -> QueryLayout:
+        """N_c queries per NEE vertex, + 1 (the residual's V_c) when unbiased; a path
+        has at most max_depth - 1 NEE vertices (exact), else as many as seen so far."""
+        if not self.nc:
+            raise RuntimeError("the nvc-env integrator needs configure(params, cache) before "
+                               "it renders (renderers.methods.nvc_env.build does it)")
+        vertices = self.max_depth - 1 if self.max_depth > 0 else self.vertex_slots
+        return QueryLayout(vertices, self.nc + (self.estimator == "unbiased"))
+
+    def env_sample(self, vertex: Vertex, active: mi.Bool) -> tuple[mi.DirectionSample3f,
+                                                                  mi.Spectrum]:
+        """One w ~ p_env and g(w) = L_env f cos w_L / p_env (0 where p_env or f is 0)."""
+        si, scene = vertex.si, vertex.scene
+        ds, env_weight = scene.environment().sample_direction(
+            si, vertex.sampler.next_2d(active), active)
+        active &= ds.pdf > 0
+        f, pdf_f = vertex.bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), active)
+        pdf_light = self.light_sampler(scene).pdf_emitter_direction(si, ds, active)
+        g = env_weight * f * mis_weight(pdf_light, pdf_f)
+        return ds, dr.select(active, g, 0)
+
+    def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
+        # Where the core does NEE (path.py): a smooth BSDF at a vertex that may extend.
+        active = vertex.active_next & mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
+        si = vertex.si
+        handle = self.queries.vertex(state.cache_vertices, vertex, surface_inputs(si), active)
+        # ---- Cache level: I_c = 1/N_c sum_i g(w_i) V_c(x, w_i) (NIRC Eq. 12) ----
+        L_add = mi.Spectrum(0)
+        for slot in range(self.nc):
+            ds, g = self.env_sample(vertex, active)
+            L_add += self.queries.add(handle, slot, ds.d, g / self.nc, active)
+        # ---- Residual: g(w) (V(x, w) - V_c(x, w)), one shadow ray (NIRC Eq. 11) ----
+        if self.estimator == "unbiased":
+            ds, g = self.env_sample(vertex, active)
+            use = active & (dr.max(g) != 0)
+            visible = use & ~vertex.scene.ray_test(si.spawn_ray_to(ds.p), use)
+            L_add += dr.select(visible, g, 0)
+            L_add += self.queries.add(handle, self.nc, ds.d, -g, use)
+        state.cache_vertices = dr.select(active, state.cache_vertices + 1, state.cache_vertices)
+        only_env = mi.Bool(len(vertex.scene.emitters()) == 1)
+        terms = VertexTerms(L_add=dr.select(active, L_add, 0), stop=mi.Bool(False),
+                            stop_indirect=mi.Bool(False), skip_nee=only_env)
+        return terms, state
+
+
+def visibility_records(scene: mi.Scene, points: int, seed: int) -> TrainingRecords:
+    """One frame of training data (module docstring): ``points`` camera first hits and as
+    many second vertices, each with one p_env direction and its 0/1 shadow-ray outcome."""
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(dr.opaque(mi.UInt32, seed), points)
+    ray, _ = scene.sensors()[0].sample_ray(time=0.0, sample1=sampler.next_1d(),
+                                           sample2=sampler.next_2d(), sample3=sampler.next_2d())
+    first = scene.ray_intersect(ray)
+    bounce = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())
+    second = scene.ray_intersect(first.spawn_ray(first.to_world(bounce)), first.is_valid())
+
+    # Lanes 0 .. points - 1: the first hits; points .. 2 points - 1: the second vertices.
+    index = dr.arange(mi.UInt32, 2 * points) % points
+    is_first = dr.arange(mi.UInt32, 2 * points) < points
+
+    def both(a: Any, b: Any) -> Any:
+        return dr.select(is_first, dr.gather(type(a), a, index), dr.gather(type(b), b, index))
+
+    si = dr.zeros(mi.SurfaceInteraction3f, 2 * points)
+    si.p, si.n = both(first.p, second.p), both(first.n, second.n)  # what the rays read
+    valid = both(first.is_valid(), second.is_valid())
+
+    sampler.seed(dr.opaque(mi.UInt32, derive_seed(seed, "shadow rays")), 2 * points)
+    ds, _ = scene.environment().sample_direction(si, sampler.next_2d(), valid)
+    escapes = valid & (ds.pdf > 0) & ~scene.ray_test(si.spawn_ray_to(ds.p), valid)
+    records = TrainingRecords(position=si.p, target=[dr.select(escapes, 1.0, 0.0)],
+                              direction=ds.d, valid=valid)
+    dr.eval(records.position, records.target, records.direction, records.valid)
+    return records
+
+
+# ---- Registration (per Mitsuba variant: the `nvc-env` method calls it when a render starts) ----
+def register() -> None:
+    path.register(NVC_ENV_PLUGIN, NVCEnvIntegrator)
