@@ -419,21 +419,28 @@ def sweep(
          lambda r: r.to_json(), sweep_table, out)
 
 
+def _counts(text: str, option: str, what: str) -> list[int]:
+    """The integers >= 1 of a range like '1,2,4' or '1:32' given to ``option``."""
+    from jobs.protocol.ranges import RangeError, parse_range
+
+    try:
+        values = parse_range(text, integer=True)
+    except RangeError as err:
+        raise RangeError(f"{option}: {err}") from None
+    if min(values) < 1:
+        raise RangeError(f"{option}: '{text}': {what} must be >= 1")
+    return values
+
+
 def _parse_knob_values(texts: list[str]) -> dict[str, list[int]]:
     """``--knob-values``: 'METHOD=1,4,16' for one method, or '1,4,16' for every method
     with an equal-time knob other than the baseline (the registry's)."""
     from jobs.protocol.pareto import knob_methods
-    from jobs.protocol.ranges import RangeError, parse_range
 
     values: dict[str, list[int]] = {}
     for text in texts:
         name, _, listed = text.rpartition("=")
-        try:
-            parsed = parse_range(listed, integer=True)
-        except RangeError as err:
-            raise RangeError(f"--knob-values: {err}") from None
-        if min(parsed) < 1:
-            raise RangeError(f"--knob-values: '{text}': knob values must be >= 1")
+        parsed = _counts(listed, "--knob-values", "knob values")
         names = [name.strip()] if name else knob_methods()
         values.update(dict.fromkeys(names, parsed))
     return values
@@ -480,15 +487,9 @@ def pareto(
     every caching method at several knob values, the Pareto front, and each method's
     speed-up at equal MRSE / FLIP over PT with a bootstrap CI (docs/pareto.md)."""
     from jobs.protocol.pareto import ParetoSpec, plan, run_pareto
-    from jobs.protocol.ranges import RangeError, parse_range
     from service.pareto_table import pareto_table
 
-    try:
-        spp_values = parse_range(pt_spp, integer=True)
-    except RangeError as err:
-        raise RangeError(f"--pt-spp: {err}") from None
-    if min(spp_values) < 1:
-        raise RangeError(f"--pt-spp: '{pt_spp}': spp values must be >= 1")
+    spp_values = _counts(pt_spp, "--pt-spp", "spp values")
     spec = ParetoSpec(
         scene=scene, resolution=res, frames=frames, seeds=seeds, pt_spp=spp_values,
         knob_values=_parse_knob_values(knob_values or []),

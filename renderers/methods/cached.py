@@ -158,16 +158,22 @@ def render_with_cache(
 
     output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
-    output.method_stats = {
-        "training_budget": budget.describe(),
-        **query_stats(frame_queries),
+    output.method_stats = {"training_budget": budget.describe(),
+                           **cache_method_stats(cache, params, pretrain_s, frame_queries)}
+    return output
+
+
+def cache_method_stats(cache: Any, params: Any, pretrain_s: float,
+                       frame_queries: list[list[Any]]) -> dict[str, Any]:
+    """What a run stores of its cache: queries per frame, pre-training, losses, config."""
+    return {
+        **(query_stats(frame_queries) if frame_queries else {}),
         "pretrain_frames": params.pretrain_frames,
         "pretrain_s": pretrain_s,
         "loss_history": list(cache.loss_history),
         "cache_stats": dict(cache.stats),
         "cache_config": cache.config.model_dump(mode="json"),
     }
-    return output
 
 
 def query_stats(frames: list[list[Any]]) -> dict[str, float]:

@@ -48,7 +48,7 @@ from typing import Any
 from pydantic import Field
 
 from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
-from renderers.methods.cached import has_surface, make_cache, query_stats
+from renderers.methods.cached import cache_method_stats, has_surface, make_cache
 from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
@@ -130,14 +130,7 @@ def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
 
         output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
                             aov_names=tuple(integrator.aov_names()), hooks=hooks)
-        output.method_stats = {
-            **(query_stats(frame_queries) if frame_queries else {}),
-            "pretrain_frames": params.pretrain_frames,
-            "pretrain_s": pretrain_s,
-            "loss_history": list(cache.loss_history),
-            "cache_stats": dict(cache.stats),
-            "cache_config": cache.config.model_dump(mode="json"),
-        }
+        output.method_stats = cache_method_stats(cache, params, pretrain_s, frame_queries)
         return output
 
     return render
