@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, Protocol
 
 if TYPE_CHECKING:
     from renderers.caches.config import CacheConfig
-    from renderers.methods.cached import CacheTrainingParams
 
 #: The papers' frame and per-frame training (NRC [MRNK21]; NIRC Sec. 6.2).
 PAPER_PIXELS = 1920 * 1080
@@ -32,6 +31,18 @@ RECORD_FRACTION = PAPER_STEPS * PAPER_BATCH / PAPER_PIXELS
 MIN_RECORDS = 4096
 
 BudgetMode = Literal["scaled", "paper"]
+
+
+class BudgetSettings(Protocol):
+    """What the rule reads of a caching method's parameters
+    (renderers.methods.cached.CacheTrainingParams)."""
+
+    training_budget: BudgetMode
+    train_record_fraction: float
+    min_train_records: int
+    train_fraction: float
+    min_train_paths: int
+    record_depth: int
 
 
 @dataclass(frozen=True)
@@ -54,7 +65,7 @@ class TrainingBudget:
         return {**asdict(self), "records": self.records}
 
 
-def frame_training_budget(pixels: int, params: CacheTrainingParams,
+def frame_training_budget(pixels: int, params: BudgetSettings,
                           config: CacheConfig) -> TrainingBudget:
     """The training budget of a frame of ``pixels`` pixels.
 
