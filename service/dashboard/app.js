@@ -13,7 +13,6 @@ const view = () => document.getElementById("view");
 const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 const num = (v, d = 3) => (v === null || v === undefined ? "–" : Number(v).toPrecision(d));
 const DEVICE_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b"];
-const SERIES_COLORS = { "NIRC": "#d62728", "NRC": "#1f77b4", "NIRC equal time": "#8c564b" };
 // The errors of the error-vs-time plots (registry fields), as `nirc-bench pareto` plots them.
 const PARETO_FIELDS = ["mrse", "flip"];
 let timer = null;
@@ -110,7 +109,7 @@ async function scenePage(scene, runId) {
       .map((m) => [m.field, unitLabel(m), m.log_axis]);
     for (const [key, title, log] of panels) {
       linePlot(sweepEl, { title: `${title} (sweep ${sweeps[0].id}${stale})`, xlabel: "% indirect-radiance bounces", ylabel: title,
-        logy: log, series: names.map((n) => ({ name: n, color: SERIES_COLORS[n], dashed: n.includes("equal time"),
+        logy: log, series: names.map((n) => ({ name: n, dashed: n.includes("equal time"),
           points: rows.filter((r) => r.series === n).map((r) => [r.ir_bounces_pct, r[key]]) })) });
     }
   }
