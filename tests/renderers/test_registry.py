@@ -99,15 +99,16 @@ def _features(**values):
 
 
 #: Methods with a cache that are not caching methods (no ``build``): the visibility
-#: cache of `nvc-lights` lives on positions too (its emitter limits: test_nvc_lights.py).
-POSITION_CACHES = {"nvc-lights"}
+#: cache of `nvc-lights` lives on positions too (its emitter limits: test_nvc_lights.py);
+#: `restir-di` shades surface points (it also skips scenes with an environment).
+NEED_A_SURFACE = {"nvc-lights", "restir-di"}
 
 
 def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
     for name, method in METHODS.items():
         assert method.applies_to(_features()) == (True, "")
         applies, reason = method.applies_to(_features(shape_count=0))
-        assert applies == (method.build is None and name not in POSITION_CACHES), name
+        assert applies == (method.build is None and name not in NEED_A_SURFACE), name
         assert applies or "surface" in reason
     with pytest.raises(MethodError, match="does not apply"):
         check_applies("nrc", _features(shape_count=0))
@@ -115,7 +116,8 @@ def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
 
 def test_every_method_applies_to_every_built_in_scene(mi):
     """Today's behaviour: no built-in scene is skipped by any method, except by
-    `nvc-lights` the scenes with one emitter (nothing to select)."""
+    `nvc-lights` the scenes with one emitter (nothing to select) and by `restir-di`
+    the scene lit by an environment (`sky`)."""
     from renderers.scenes import load_scene
     from renderers.scenes.library import builtin_names
 
@@ -125,6 +127,10 @@ def test_every_method_applies_to_every_built_in_scene(mi):
             if name == "nvc-lights" and features.emitter_count == 1:
                 assert METHODS[name].applies_to(features) == \
                     (False, "one emitter: nothing to select")
+            elif name == "restir-di" and features.has_envmap:
+                assert METHODS[name].applies_to(features) == \
+                    (False, "an environment emitter: restir-di samples points on area "
+                            "emitters only")
             else:
                 check_applies(name, features)
 
