@@ -13,7 +13,8 @@ z-test and aggregate block test, luminance only):
   block test's independence does not hold) every pixel passes the z-test and
   the image mean agrees over the replicas;
 * planted: the source pdf of the power-sampled candidates taken as uniform
-  (1/32 instead of the power pmf) is rejected.
+  (1/32 instead of the power pmf) is rejected, and so are spatial reuse's MIS
+  weights with the other pixels' targets taken without their shadow rays.
 
 Temporal reuse must also do its job: on a static scene the error of frame 8 is
 well below frame 1's with reuse, and not without.
@@ -143,6 +144,31 @@ def test_temporal_and_spatial_reuse_match_path(mi, many_lights, reference):
     z = (image_means.mean() - ref_mean.mean()) / np.sqrt(
         image_means.var(ddof=1) / len(image_means) + ref_variance.sum() / ref_mean.size**2)
     assert abs(z) < 3.3, z  # two-sided p = 0.001
+
+
+@pytest.mark.slow
+def test_spatial_mis_weights_without_visibility_are_rejected(mi, many_lights, reference,
+                                                             monkeypatch):
+    """The shortcut of taking the other pixels' targets p̂_{x_k}(y_j) without their
+    shadow rays in the MIS weights: a neighbour that cannot see y_j still takes a share,
+    so the weights of the samples it could have produced no longer sum to 1 (measured:
+    86 of 256 pixels flagged, image mean 2.3 % dark)."""
+    from renderers.integrators import restir
+
+    combine, visible = restir.combine, restir.visible
+
+    def blind_combine(*args):
+        monkeypatch.setattr(restir, "visible", lambda scene, si, r, active: active)
+        try:
+            return combine(*args)
+        finally:
+            monkeypatch.setattr(restir, "visible", visible)
+
+    monkeypatch.setattr(restir, "combine", blind_combine)
+    mean, variance, _ = _moments(_restir(many_lights, temporal=True, spatial=True),
+                                 frames=4, seed=4)
+    result = z_test(mean, variance, *reference, alpha=0.01)
+    assert not result.passed, result.summary()
 
 
 def _floor_view(mi, resolution: int):
