@@ -11,35 +11,37 @@ pixel's integral (the identity shift, Jacobian 1).
 Per lane (one per pixel and replica) and frame, with x the pixel's first hit:
 
     target      p̂_x(y) = lum(f(x, ω_o, x→y) |cos θ_x| · Le(y → x) · |cos θ_y| / |x - y|²)
-                (unshadowed: no visibility)
+                (unshadowed), and p̂V_x(y) = p̂_x(y) V(x, y) once a shadow ray was cast
     candidates  y_i ~ p(y) = P(e) · pdf_A(y | e), P the power-proportional light
                 selection (renderers.integrators.lights.PowerLightSampler), pdf_A the
                 emitter's position pdf (area measure); i = 1..C
     RIS         w_i = p̂_x(y_i) / (C p(y_i)),  pick y_s with prob w_s / Σ w,
-                W = Σ w / p̂_x(y_s),  M = C
+                W = Σ w / p̂_x(y_s) · V(x, y_s),  M = C   (the one shadow ray: an
+                occluded choice keeps M and gets W = 0, so the reservoir's target
+                is p̂V)
     reuse       GRIS (Lin et al. 2022) over reservoirs (y_j, W_j, M_j) of shading
                 points x_j (the pixel's own, the previous frame's, neighbours'):
-                w_j = m_j(y_j) p̂_x(y_j) W_j with the generalised balance
-                heuristic m_j(y) = M_j p̂_{x_j}(y) / Σ_k M_k p̂_{x_k}(y) (Talbot),
+                w_j = m_j(y_j) p̂V_x(y_j) W_j with the generalised balance
+                heuristic m_j(y) = M_j p̂V_{x_j}(y) / Σ_k M_k p̂V_{x_k}(y) (Talbot),
                 W = Σ w / p̂_x(y_s),  M = Σ M_j
-    shading     L = Le(x) + f(x, x→y) Le(y) G(x, y) V(x, y) · W    (one shadow ray)
+    shading     L = Le(x) + f(x, x→y) Le(y) G(x, y) · W   (W > 0: y visible from x)
 
-The m_j sum to 1 over the inputs for every y, and an input whose target
-is 0 at y gets m = 0, so each reservoir's W stays an unbiased contribution
-weight of its target at its own x: the image is unbiased with reuse on
-(docs/estimators.md, "restir-di"). Because p̂ has no visibility, no shadow
-ray is needed for the MIS weights; the price is that reuse does not learn
-visibility (an occluded light keeps its weight). The confidence weights M
-are clamped before temporal reuse (M_prev <= m_clamp · C), which changes
-the weights, not their sum. The path ends at the first hit: the image is
-the emission seen by the camera plus direct light there (Mitsuba's ``path``
-at max_depth 2). Emitters must be area emitters (a point on a surface).
+The m_j sum to 1 over the inputs for every y, and an input that cannot hold
+y (p̂V_{x_j}(y) = 0) gets m = 0, so each reservoir's W stays an unbiased
+contribution weight of its target at its own x: the image is unbiased with
+reuse on (docs/estimators.md, "restir-di"). The visibility in the weights
+costs one shadow ray per pair of inputs (j, k), k != j (a kept sample is
+visible from its own x_j). The confidence weights M are clamped before
+temporal reuse (M_prev <= m_clamp · C), which changes the weights, not their
+sum. The path ends at the first hit: the image is the emission seen by the
+camera plus direct light there (Mitsuba's ``path`` at max_depth 2). Emitters
+must be area emitters (a point on a surface).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 import drjit as dr
 import mitsuba as mi
