@@ -112,6 +112,12 @@ def finish(scene: mi.Scene, si: mi.SurfaceInteraction3f, chosen: Reservoir, w_su
     return chosen
 
 
+def visible(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
+            active: mi.Bool) -> mi.Bool:
+    """V(x, y): one shadow ray from ``si`` to the reservoir's light point (False where inactive)."""
+    return active & ~scene.ray_test(si.spawn_ray_to(r.p), active)
+
+
 def initial(scene: mi.Scene, lights: PowerLightSampler, si: mi.SurfaceInteraction3f,
             sampler: mi.Sampler, candidates: int) -> Reservoir:
     """RIS of ``candidates`` light samples y ~ P(e) pdf_A(y | e) toward p̂_x."""
@@ -130,12 +136,6 @@ def initial(scene: mi.Scene, lights: PowerLightSampler, si: mi.SurfaceInteractio
     # The one shadow ray: an occluded choice keeps its M but gets W = 0 (visibility reuse).
     chosen.W = dr.select(visible(scene, si, chosen, active & (chosen.W > 0)), chosen.W, 0)
     return chosen
-
-
-def visible(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
-            active: mi.Bool) -> mi.Bool:
-    """V(x, y): one shadow ray from ``si`` to the reservoir's light point (False where inactive)."""
-    return active & ~scene.ray_test(si.spawn_ray_to(r.p), active)
 
 
 def combine(scene: mi.Scene, si: mi.SurfaceInteraction3f,
@@ -199,8 +199,10 @@ class ReSTIRDI:
         """Forget the previous frame (no temporal reuse in the next one)."""
         self.history = None
 
-    def first_hits(self, sampler: mi.Sampler, lane: mi.UInt32) -> tuple[mi.SurfaceInteraction3f, mi.Spectrum]:
-        """Each lane's camera ray through a uniform point of its pixel (box filter): (hit, weight)."""
+    def first_hits(self, sampler: mi.Sampler,
+                   lane: mi.UInt32) -> tuple[mi.SurfaceInteraction3f, mi.Spectrum]:
+        """Each lane's camera ray through a uniform point of its pixel (box filter):
+        (first hit, sensor weight)."""
         width, height = self.size
         pixel = lane % (width * height)
         film = (mi.Point2f(mi.Float(pixel % width), mi.Float(pixel // width))
