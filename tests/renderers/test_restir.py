@@ -172,15 +172,12 @@ def test_spatial_mis_weights_without_visibility_are_rejected(mi, many_lights, re
 
 
 def _floor_view(mi, resolution: int):
-    """`many-lights` seen from below the lights, looking down at the floor: no emitter in
-    view, so a frame's error is light sampling's (in the default view a pixel that partly
-    covers a light dominates the MRSE of any 1-spp frame, reuse or not)."""
-    from renderers.scenes.many_lights import many_lights
-    from renderers.scenes.parts import sensor, set_film_resolution
+    """`many-lights` from below the lights (renderers.scenes.many_lights.floor_view)."""
+    from renderers.scenes.many_lights import floor_view
+    from renderers.scenes.parts import set_film_resolution
 
-    definition = many_lights()
-    definition["sensor"] = sensor(origin=(3.5, 1.6, 3.5), target=(-1.0, -1.4, -1.0), fov=45)
-    return mi.load_dict(set_film_resolution(definition, resolution, resolution), optimize=False)
+    return mi.load_dict(set_film_resolution(floor_view(), resolution, resolution),
+                        optimize=False)
 
 
 def _frame_errors(scene, reference: np.ndarray, frames: int, **params) -> list[float]:
