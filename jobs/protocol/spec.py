@@ -118,8 +118,12 @@ class RenderSpec(BaseModel):
     _check_params = field_validator("params")(finite_params)
 
     def max_depth(self) -> int:
-        """The method's path depth, which its reference must share."""
-        return int(self.params.get("max_depth", DEFAULT_MAX_DEPTH))
+        """The method's path depth, which its reference must share: the params' or the
+        default of the method's parameter model (`restir-di`: 2, direct light only)."""
+        field = METHODS[self.method].params.model_fields.get("max_depth") \
+            if self.method in METHODS else None
+        default = DEFAULT_MAX_DEPTH if field is None else field.default
+        return int(self.params.get("max_depth", default))
 
     def versions(self) -> dict[str, int]:
         """The estimator version of the method and the metric version, as of today."""

@@ -21,7 +21,16 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from renderers.methods import nirc, nrc, nvc_env, nvc_lights, pt, pt_power, pt_spatial
+from renderers.methods import (
+    nirc,
+    nrc,
+    nvc_env,
+    nvc_lights,
+    pt,
+    pt_power,
+    pt_spatial,
+    restir_di,
+)
 from renderers.methods.base import Knob, Method, MethodParams, SweepRole
 
 __all__ = ["BASELINE", "METHODS", "Knob", "Method", "MethodError", "MethodParams", "NotApplicable", "SweepRole",
@@ -37,8 +46,8 @@ class NotApplicable(MethodError):
 
 
 METHODS: dict[str, Method] = {module.METHOD.name: module.METHOD
-                              for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env, nirc,
-                                               nrc)}
+                              for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
+                                             restir_di, nirc, nrc)}
 
 #: The baseline: the method a time budget's ``pt_spp`` and a sweep's reference-sharing
 #: base render name, and the one calibrated when nothing else is (unbiased path tracing).

@@ -85,3 +85,13 @@ def many_lights() -> SceneDict:
 
     scene["sensor"] = sensor(origin=(3.7, 2.7, 3.7), target=(-1.0, 0.2, -1.0), fov=75)
     return scene
+
+
+def floor_view() -> SceneDict:
+    """The same room seen from below the lights, looking down at the floor and desks: no
+    light in view, so the error of a 1-spp frame is light sampling's (in the default view
+    a pixel that partly covers a light dominates it). Used by tests/renderers/test_restir.py
+    and benchmarks/bench_restir.py; not a built-in scene."""
+    scene = many_lights()
+    scene["sensor"] = sensor(origin=(3.5, 1.6, 3.5), target=(-1.0, -1.4, -1.0), fov=45)
+    return scene

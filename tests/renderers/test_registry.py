@@ -100,15 +100,18 @@ def _features(**values):
 
 #: Methods with a cache that are not caching methods (no ``build``): the visibility
 #: caches of `nvc-lights` and `nvc-env` live on positions too (their other limits:
-#: test_nvc_lights.py, test_nvc_env.py).
-POSITION_CACHES = {"nvc-lights", "nvc-env"}
+#: test_nvc_lights.py, test_nvc_env.py); `restir-di` shades surface points.
+NEED_A_SURFACE = {"nvc-lights", "nvc-env", "restir-di"}
+#: Lighting each method needs besides (nvc-env: an environment map; restir-di: area
+#: emitters only, so none).
+ENVMAP = {"nvc-env": True, "restir-di": False}
 
 
 def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
     for name, method in METHODS.items():
         assert method.applies_to(_features()) == (True, "")
         applies, reason = method.applies_to(_features(shape_count=0))
-        assert applies == (method.build is None and name not in POSITION_CACHES), name
+        assert applies == (method.build is None and name not in NEED_A_SURFACE), name
         assert applies or "surface" in reason
     with pytest.raises(MethodError, match="does not apply"):
         check_applies("nrc", _features(shape_count=0))
@@ -116,8 +119,9 @@ def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
 
 def test_every_method_applies_to_every_built_in_scene(mi):
     """Today's behaviour: no built-in scene is skipped by any method, except by
-    `nvc-lights` the scenes with one emitter (nothing to select) and by `nvc-env`
-    those without an environment map."""
+    `nvc-lights` the scenes with one emitter (nothing to select), by `nvc-env`
+    those without an environment map and by `restir-di` the scene lit by an
+    environment (`sky`)."""
     from renderers.scenes import load_scene
     from renderers.scenes.library import builtin_names
 
@@ -129,6 +133,10 @@ def test_every_method_applies_to_every_built_in_scene(mi):
                     (False, "one emitter: nothing to select")
             elif name == "nvc-env" and not features.has_envmap:
                 assert METHODS[name].applies_to(features) == (False, "no environment map")
+            elif name == "restir-di" and features.has_envmap:
+                assert METHODS[name].applies_to(features) == \
+                    (False, "an environment emitter: restir-di samples points on area "
+                            "emitters only")
             else:
                 check_applies(name, features)
 

@@ -1,0 +1,256 @@
+"""Screen-space ReSTIR DI at primary hits (`restir-di`), one reservoir per pixel.
+
+Spatiotemporal reservoir resampling (Bitterli et al. 2020) for the direct
+light at the camera rays' first hits, as the Neural Visibility Cache paper's
+baseline (Sec. 4.1): 8 initial candidates, temporal reuse of the same
+pixel's previous reservoir with its confidence clamped at 20x the candidates,
+spatial reuse within 32 px. Everything is in the area measure on the lights:
+a sample is a point y on emitter e, and the same y is a sample of every
+pixel's integral (the identity shift, Jacobian 1).
+
+Per lane (one per pixel and replica) and frame, with x the pixel's first hit:
+
+    target      p̂_x(y) = lum(f(x, ω_o, x→y) |cos θ_x| · Le(y → x) · |cos θ_y| / |x - y|²)
+                (unshadowed), and p̂V_x(y) = p̂_x(y) V(x, y) once a shadow ray was cast
+    candidates  y_i ~ p(y) = P(e) · pdf_A(y | e), P the power-proportional light
+                selection (renderers.integrators.lights.PowerLightSampler), pdf_A the
+                emitter's position pdf (area measure); i = 1..C
+    RIS         w_i = p̂_x(y_i) / (C p(y_i)),  pick y_s with prob w_s / Σ w,
+                W = Σ w / p̂_x(y_s) · V(x, y_s),  M = C   (the one shadow ray: an
+                occluded choice keeps M and gets W = 0, so the reservoir's target
+                is p̂V)
+    reuse       GRIS (Lin et al. 2022) over reservoirs (y_j, W_j, M_j) of shading
+                points x_j (the pixel's own, the previous frame's, neighbours'):
+                w_j = m_j(y_j) p̂V_x(y_j) W_j with the generalised balance
+                heuristic m_j(y) = M_j p̂V_{x_j}(y) / Σ_k M_k p̂V_{x_k}(y) (Talbot),
+                W = Σ w / p̂_x(y_s),  M = Σ M_j
+    shading     L = Le(x) + f(x, x→y) Le(y) G(x, y) · W   (W > 0: y visible from x)
+
+The m_j sum to 1 over the inputs for every y, and an input that cannot hold
+y (p̂V_{x_j}(y) = 0) gets m = 0, so each reservoir's W stays an unbiased
+contribution weight of its target at its own x: the image is unbiased with
+reuse on (docs/estimators.md, "restir-di"). The visibility in the weights
+costs one shadow ray per pair of inputs (j, k), k != j (a kept sample is
+visible from its own x_j). The confidence weights M are clamped before
+temporal reuse (M_prev <= m_clamp · C), which changes the weights, not their
+sum. The path ends at the first hit: the image is the emission seen by the
+camera plus direct light there (Mitsuba's ``path`` at max_depth 2). Emitters
+must be area emitters (a point on a surface).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from renderers.integrators.lights import PowerLightSampler
+
+
+class ReSTIRParams(Protocol):
+    """What the estimator reads of the method's parameters."""
+
+    candidates: int
+    temporal: bool
+    m_clamp: float
+    spatial: bool
+    spatial_neighbours: int
+    spatial_radius: float
+
+
+class Reservoir:
+    """One light sample per lane: emitter index, point y on it, its weight W and confidence M."""
+
+    DRJIT_STRUCT = {"emitter": mi.UInt32, "p": mi.Point3f, "n": mi.Normal3f,
+                    "uv": mi.Point2f, "W": mi.Float, "M": mi.Float}
+
+    def __init__(self, emitter=None, p=None, n=None, uv=None, W=None, M=None) -> None:
+        self.emitter, self.p, self.n, self.uv, self.W, self.M = emitter, p, n, uv, W, M
+
+
+@dataclass
+class Frame:
+    """What the next frame reuses: the final reservoirs and the first hits they belong to."""
+
+    reservoirs: Reservoir
+    si: mi.SurfaceInteraction3f
+
+
+def target(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
+           active: mi.Bool) -> tuple[mi.Spectrum, mi.Float]:
+    """(unshadowed contribution f · Le · G in the area measure, its luminance p̂) at ``si``."""
+    to_light = r.p - si.p
+    dist2 = dr.squared_norm(to_light)
+    ds = dr.zeros(mi.DirectionSample3f)
+    ds.p, ds.n, ds.uv = r.p, r.n, r.uv
+    ds.dist = dr.sqrt(dist2)
+    ds.d = to_light / ds.dist
+    ds.emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), r.emitter, active)
+    active &= si.is_valid() & (dist2 > 0)
+    Le = ds.emitter.eval_direction(si, ds, active)  # 0 on the emitter's back side
+    f = si.bsdf().eval(mi.BSDFContext(), si, si.to_local(ds.d), active)  # includes |cos θ_x|
+    value = dr.select(active, f * Le * dr.abs(dr.dot(ds.n, ds.d)) / dist2, 0)
+    return value, mi.luminance(value)
+
+
+def stream(chosen: Reservoir, w_sum: mi.Float, candidate: Reservoir, w: mi.Float,
+           u: mi.Float) -> tuple[Reservoir, mi.Float]:
+    """Weighted reservoir sampling: keep ``candidate`` with probability w / (w_sum + w)."""
+    w_sum = w_sum + w
+    return dr.select(u * w_sum < w, candidate, chosen), w_sum
+
+
+def finish(scene: mi.Scene, si: mi.SurfaceInteraction3f, chosen: Reservoir, w_sum: mi.Float,
+           M: mi.Float, active: mi.Bool) -> Reservoir:
+    """The reservoir's unbiased contribution weight W = Σ w / p̂_x(y_s) (0 where p̂ = 0)."""
+    _, p_hat = target(scene, si, chosen, active)
+    chosen.W = dr.select(active & (p_hat > 0), w_sum / p_hat, 0)
+    chosen.M = dr.select(active, M, 0)
+    return chosen
+
+
+def visible(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
+            active: mi.Bool) -> mi.Bool:
+    """V(x, y): one shadow ray from ``si`` to the reservoir's light point (False where inactive)."""
+    return active & ~scene.ray_test(si.spawn_ray_to(r.p), active)
+
+
+def initial(scene: mi.Scene, lights: PowerLightSampler, si: mi.SurfaceInteraction3f,
+            sampler: mi.Sampler, candidates: int) -> Reservoir:
+    """RIS of ``candidates`` light samples y ~ P(e) pdf_A(y | e) toward p̂_x."""
+    active = si.is_valid()
+    chosen, w_sum = dr.zeros(Reservoir, dr.width(active)), mi.Float(0)
+    for _ in range(candidates):
+        index, pmf, _ = lights.sample(si, sampler.next_1d(active), active)
+        emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), index, active)
+        ps, _ = emitter.sample_position(0.0, sampler.next_2d(active), active)
+        candidate = Reservoir(index, ps.p, ps.n, ps.uv, mi.Float(0), mi.Float(0))
+        _, p_hat = target(scene, si, candidate, active)
+        source = pmf * ps.pdf  # area measure
+        w = dr.select(active & (source > 0), p_hat / (candidates * source), 0)
+        chosen, w_sum = stream(chosen, w_sum, candidate, w, sampler.next_1d(active))
+    chosen = finish(scene, si, chosen, w_sum, mi.Float(candidates), active)
+    # The one shadow ray: an occluded choice keeps its M but gets W = 0 (visibility reuse).
+    chosen.W = dr.select(visible(scene, si, chosen, active & (chosen.W > 0)), chosen.W, 0)
+    return chosen
+
+
+def combine(scene: mi.Scene, si: mi.SurfaceInteraction3f,
+            inputs: list[tuple[Reservoir, mi.SurfaceInteraction3f]],
+            sampler: mi.Sampler) -> Reservoir:
+    """GRIS of ``inputs`` (reservoir, its shading point; the pixel's own first) toward
+    p̂V at ``si``, with Talbot MIS m_j(y) = M_j p̂V_{x_j}(y) / Σ_k M_k p̂V_{x_k}(y).
+
+    A kept sample is visible from its own x_j (W_j > 0 only then), so V_{x_j}(y_j) = 1
+    needs no ray; every other pair (j, k) costs one shadow ray."""
+    active = si.is_valid()
+    chosen, w_sum = dr.zeros(Reservoir, dr.width(active)), mi.Float(0)
+    for j, (r, _) in enumerate(inputs):
+        # p̂V_{x_k}(y_j) of this input's sample y_j at every input's shading point x_k
+        targets = []
+        for k, (r_k, si_k) in enumerate(inputs):
+            live = active & (r_k.M > 0) & (r.W > 0)
+            _, p_hat = target(scene, si_k, r, live)
+            if k != j:
+                p_hat = dr.select(visible(scene, si_k, r, live & (p_hat > 0)), p_hat, 0)
+            targets.append(p_hat)
+        mis = [r_k.M * p_hat for (r_k, _), p_hat in zip(inputs, targets, strict=True)]
+        total = sum(mis[1:], mis[0])
+        m = dr.select(total > 0, mis[j] / total, 0)
+        w = m * targets[0] * r.W
+        chosen, w_sum = stream(chosen, w_sum, r, w, sampler.next_1d(active))
+    M = sum((r.M for r, _ in inputs[1:]), inputs[0][0].M)
+    # A chosen sample has w > 0, so it is visible from x: W = Σ w / p̂_x(y_s).
+    return finish(scene, si, chosen, w_sum, M, active)
+
+
+def neighbour_lanes(sampler: mi.Sampler, lane: mi.UInt32, size: tuple[int, int],
+                    radius: float) -> mi.UInt32:
+    """A pixel uniform in the disk of ``radius`` px around each lane's (clamped to the
+    film), in the same replica."""
+    width, height = size
+    pixel = lane % (width * height)
+    base = lane - pixel
+    offset = mi.warp.square_to_uniform_disk(sampler.next_2d()) * radius
+    x = dr.clip(mi.Int32(dr.round(mi.Float(pixel % width) + offset.x)), 0, width - 1)
+    y = dr.clip(mi.Int32(dr.round(mi.Float(pixel // width) + offset.y)), 0, height - 1)
+    return base + mi.UInt32(y) * width + mi.UInt32(x)
+
+
+class ReSTIRDI:
+    """The estimator's frame: G-buffer, candidates, temporal and spatial reuse, shading.
+
+    ``replicas`` independent images of the film's size are rendered side by side
+    (lane = replica · pixels + pixel), each with its own reservoirs: the method's
+    spp, and what the statistical tests average over.
+    """
+
+    def __init__(self, scene: mi.Scene, params: ReSTIRParams, replicas: int = 1) -> None:
+        self.scene, self.params, self.replicas = scene, params, replicas
+        self.sensor = scene.sensors()[0]
+        self.size = tuple(int(s) for s in self.sensor.film().crop_size())
+        self.lights = PowerLightSampler(scene)
+        self.history: Frame | None = None
+
+    def reset(self) -> None:
+        """Forget the previous frame (no temporal reuse in the next one)."""
+        self.history = None
+
+    def first_hits(self, sampler: mi.Sampler,
+                   lane: mi.UInt32) -> tuple[mi.SurfaceInteraction3f, mi.Spectrum]:
+        """Each lane's camera ray through a uniform point of its pixel (box filter):
+        (first hit, sensor weight)."""
+        width, height = self.size
+        pixel = lane % (width * height)
+        film = (mi.Point2f(mi.Float(pixel % width), mi.Float(pixel // width))
+                + sampler.next_2d()) / mi.ScalarVector2f(width, height)
+        ray, weight = self.sensor.sample_ray(0.0, sampler.next_1d(), film, sampler.next_2d())
+        return self.scene.ray_intersect(ray), weight
+
+    def render(self, seed: int) -> np.ndarray:
+        """One frame: (replicas, height, width, 4) RGB and whether a surface was hit."""
+        width, height = self.size
+        n = self.replicas * width * height
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(dr.opaque(mi.UInt32, seed), n)
+        lane = dr.arange(mi.UInt32, n)
+        si, weight = self.first_hits(sampler, lane)
+        valid = si.is_valid()
+        reservoir = initial(self.scene, self.lights, si, sampler, self.params.candidates)
+
+        if self.params.temporal and self.history is not None:
+            previous = dr.gather(Reservoir, self.history.reservoirs, lane)
+            previous.M = dr.minimum(previous.M, self.params.m_clamp * self.params.candidates)
+            reservoir = combine(self.scene, si, [(reservoir, si), (previous, self.history.si)],
+                                sampler)
+        if self.params.spatial:
+            dr.eval(reservoir)
+            inputs = [(reservoir, si)]
+            for _ in range(self.params.spatial_neighbours):
+                other = neighbour_lanes(sampler, lane, self.size, self.params.spatial_radius)
+                inputs.append((dr.gather(Reservoir, reservoir, other),
+                               dr.gather(mi.SurfaceInteraction3f, si, other)))
+            reservoir = combine(self.scene, si, inputs, sampler)
+
+        dr.eval(reservoir, si)
+        self.history = Frame(reservoir, si)
+        # W > 0 only for a sample visible from x: shading needs no further ray.
+        value, _ = target(self.scene, si, reservoir, valid & (reservoir.W > 0))
+        L = si.emitter(self.scene).eval(si, valid) + value * reservoir.W
+        rgb = mi.Color3f(L * weight)
+        image = np.stack([rgb.x.numpy(), rgb.y.numpy(), rgb.z.numpy(),
+                          dr.select(valid, 1.0, 0.0).numpy()], axis=-1)
+        return image.reshape(self.replicas, height, width, 4)
+
+
+def check_scene(scene: mi.Scene) -> None:
+    """Raise ValueError unless every emitter is an area emitter (a point y on a surface)."""
+    if not scene.emitters():
+        raise ValueError("restir-di needs at least one emitter")
+    for emitter in scene.emitters():
+        if emitter.get_shape() is None:
+            raise ValueError("restir-di samples points on area emitters; environment and "
+                             "delta emitters have none")
