@@ -6,6 +6,8 @@ from typing import Any
 
 import numpy as np
 
+from tests.renderers.scene_xml import perspective_sensor
+
 #: Film resolution and samples per pixel of the statistical tests on `many-lights`.
 RES = 16
 SPP = 4096
@@ -43,15 +45,7 @@ def random_points(mi: Any, scene: Any, count: int = 64, seed: int = 3) -> tuple[
 
 #: A constant environment and a spherical area light over a floor and a rough metal sphere.
 ENV_AND_SPHERE = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="45"/>
-        <transform name="to_world"><lookat origin="0, 1, 4" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm">
-            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-            <rfilter type="box"/>
-        </film>
-        <sampler type="independent"/>
-    </sensor>
+    """ + perspective_sensor("45", "0, 1, 4", "0, 0.5, 0") + """
     <shape type="rectangle">
         <transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/></transform>
         <bsdf type="diffuse"/>

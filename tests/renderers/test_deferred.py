@@ -15,19 +15,12 @@ import numpy as np
 import pytest
 
 from renderers.methods import parse_params
+from tests.renderers.scene_xml import perspective_sensor
 
 RES = 24
 
 BOX = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="60"/>
-        <transform name="to_world"><lookat origin="0, 0, 0" target="0, 0, 1" up="0, 1, 0"/></transform>
-        <film type="hdrfilm">
-            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-            <rfilter type="box"/>
-        </film>
-        <sampler type="independent"/>
-    </sensor>
+    """ + perspective_sensor("60", "0, 0, 0", "0, 0, 1") + """
     <shape type="cube">
         <transform name="to_world"><scale value="2"/></transform>
         <bsdf type="twosided">{bsdf}</bsdf>

@@ -29,6 +29,7 @@ import pytest
 
 from metrics.statistics import agreement_test
 from renderers.moments import render_moments
+from tests.renderers.scene_xml import perspective_sensor
 
 RES = 16
 PLANTED = 1.03  # a 3 % brighter emitter
@@ -39,15 +40,7 @@ PLANTED = 1.03  # a 3 % brighter emitter
 # sampling carries a large share of (MIS weights near 1 where the light
 # subtends a large solid angle).
 PLANE_LIGHT = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="{fov}"/>
-        <transform name="to_world"><lookat origin="{eye}" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm">
-            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-            <rfilter type="box"/>
-        </film>
-        <sampler type="independent"/>
-    </sensor>
+    """ + perspective_sensor("{fov}", "{eye}", "0, 0, 0") + """
     <shape type="rectangle">
         <transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/></transform>
         <bsdf type="{floor}"/>
@@ -71,17 +64,7 @@ MIRROR_MIX = """<bsdf type="blendbsdf">
             <bsdf type="conductor"/>
         </bsdf>"""
 ROOM = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="75"/>
-        <transform name="to_world">
-            <lookat origin="0.2, -0.3, 0.9" target="-0.2, 0, -1" up="0, 1, 0"/>
-        </transform>
-        <film type="hdrfilm">
-            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-            <rfilter type="box"/>
-        </film>
-        <sampler type="independent"/>
-    </sensor>
+    """ + perspective_sensor("75", "0.2, -0.3, 0.9", "-0.2, 0, -1") + """
     <shape type="cube">
         <boolean name="flip_normals" value="true"/>
         <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf>
@@ -103,16 +86,8 @@ ROOM = """<scene version="3.0.0">
 # albedo rho, so the radiance is Le / (1 - rho) everywhere, in every direction
 # (and the indirect incident radiance is uniform: where BTH is unbiased).
 FURNACE_LE, FURNACE_RHO = 1.0, 0.5
-FURNACE = f"""<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="80"/>
-        <transform name="to_world"><lookat origin="0.3, 0.1, 0.2" target="-1, -0.2, -0.5" up="0, 1, 0"/></transform>
-        <film type="hdrfilm">
-            <integer name="width" value="{{res}}"/><integer name="height" value="{{res}}"/>
-            <rfilter type="box"/>
-        </film>
-        <sampler type="independent"/>
-    </sensor>
+FURNACE = """<scene version="3.0.0">
+    """ + perspective_sensor("80", "0.3, 0.1, 0.2", "-1, -0.2, -0.5") + f"""
     <shape type="cube">
         <boolean name="flip_normals" value="true"/>
         <bsdf type="diffuse"><rgb name="reflectance" value="{FURNACE_RHO}"/></bsdf>

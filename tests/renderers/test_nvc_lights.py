@@ -25,6 +25,7 @@ import pytest
 from metrics.statistics import agreement_test
 from renderers.moments import render_moments
 from tests.renderers.lighting import ENV_AND_SPHERE, RES, SPP, luminance_moments, random_points
+from tests.renderers.scene_xml import perspective_sensor
 
 TRAIN_FRAMES = 8
 
@@ -162,15 +163,7 @@ def test_nvc_selection_with_an_environment_matches_mitsuba_path(mi):
 #: A floor, a wall, a point light close to the floor on one side of the wall (the
 #: other side is fully shadowed from it) and a dim, distant area light over everything.
 SHADOWED_FLOOR = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="60"/>
-        <transform name="to_world"><lookat origin="0, 4, 0.01" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm">
-            <integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-            <rfilter type="box"/>
-        </film>
-        <sampler type="independent"/>
-    </sensor>
+    """ + perspective_sensor("60", "0, 4, 0.01", "0, 0, 0") + """
     <shape type="rectangle">
         <transform name="to_world"><rotate x="1" angle="-90"/><scale value="2"/></transform>
         <bsdf type="diffuse"/>
