@@ -16,3 +16,19 @@ def perspective_sensor(fov: str, origin: str, target: str, *, res: str = "{res}"
         </film>
         <sampler type="independent"/>
     </sensor>"""
+
+
+#: A closed box (its BSDF: ``{bsdf}``, e.g. DIFFUSE) lit by a point light, seen from inside.
+CLOSED_BOX = """<scene version="3.0.0">
+    """ + perspective_sensor("60", "0, 0, 0", "0, 0, 1") + """
+    <shape type="cube">
+        <transform name="to_world"><scale value="2"/></transform>
+        <bsdf type="twosided">{bsdf}</bsdf>
+    </shape>
+    <emitter type="point">
+        <point name="position" value="0.5, 0.5, 0.5"/>
+        <rgb name="intensity" value="5, 5, 5"/>
+    </emitter>
+</scene>
+"""
+DIFFUSE = '<bsdf type="diffuse"/>'

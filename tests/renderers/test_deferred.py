@@ -15,23 +15,10 @@ import numpy as np
 import pytest
 
 from renderers.methods import parse_params
-from tests.renderers.scene_xml import perspective_sensor
+from tests.renderers.scene_xml import CLOSED_BOX, DIFFUSE
 
 RES = 24
 
-BOX = """<scene version="3.0.0">
-    """ + perspective_sensor("60", "0, 0, 0", "0, 0, 1") + """
-    <shape type="cube">
-        <transform name="to_world"><scale value="2"/></transform>
-        <bsdf type="twosided">{bsdf}</bsdf>
-    </shape>
-    <emitter type="point">
-        <point name="position" value="0.5, 0.5, 0.5"/>
-        <rgb name="intensity" value="5, 5, 5"/>
-    </emitter>
-</scene>
-"""
-DIFFUSE = '<bsdf type="diffuse"/>'
 # Plastic: a delta coating over a diffuse base. A biased path whose continuation
 # picks the coating goes on after terminating its smooth part into the cache,
 # and may terminate again at a later vertex.
@@ -42,7 +29,7 @@ def _scene(mi, tmp_path, bsdf: str):
     from renderers.scenes import load_scene
 
     xml = tmp_path / "box.xml"
-    xml.write_text(BOX.format(res=RES, bsdf=bsdf))
+    xml.write_text(CLOSED_BOX.format(res=RES, bsdf=bsdf))
     return load_scene(str(xml), RES)
 
 

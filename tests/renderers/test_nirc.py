@@ -14,6 +14,7 @@ import pytest
 from metrics.statistics import z_test
 from renderers.methods import get_method, parse_params
 from renderers.moments import render_moments
+from tests.renderers.scene_xml import CLOSED_BOX, DIFFUSE
 
 RES = 24
 MAX_DEPTH = 8
@@ -94,7 +95,7 @@ def test_bth_first_vertex_termination_matches_eq_22(mi, tmp_path, nc, expected):
     from renderers.scenes import load_scene
 
     xml = tmp_path / "closed-box.xml"
-    xml.write_text(CLOSED_BOX)
+    xml.write_text(CLOSED_BOX.format(res=32, bsdf=DIFFUSE))
     scene = load_scene(str(xml), 32)
     method = get_method("nirc")
     params = parse_params("nirc", {"estimator": "biased", "nc": [nc], "max_depth": MAX_DEPTH,
@@ -130,19 +131,3 @@ def test_invalid_nirc_parameters(values, fragment):
         parse_params("nirc", values)
 
 
-CLOSED_BOX = """<scene version="3.0.0">
-    <sensor type="perspective">
-        <float name="fov" value="60"/>
-        <transform name="to_world"><lookat origin="0, 0, 0" target="0, 0, 1" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><rfilter type="box"/></film>
-    </sensor>
-    <shape type="cube">
-        <transform name="to_world"><scale value="2"/></transform>
-        <bsdf type="twosided"><bsdf type="diffuse"/></bsdf>
-    </shape>
-    <emitter type="point">
-        <point name="position" value="0.5, 0.5, 0.5"/>
-        <rgb name="intensity" value="5, 5, 5"/>
-    </emitter>
-</scene>
-"""
