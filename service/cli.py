@@ -228,10 +228,13 @@ def _shortcut_help(field: str, what: str) -> str:
     return f"{', '.join(names)}: {what} (same as -p {field}=...)"
 
 
-def _knob_help(baseline: bool = True) -> str:
-    return ", ".join(f"{m.knob.name} ({m.knob.requirement or name})"
-                     for name, m in METHODS.items()
-                     if m.knob is not None and (baseline or name != BASELINE))
+def _knob_help(spp: bool = True) -> str:
+    """The knobs of the registry, each with the methods that have it ('spp (pt, ...)')."""
+    owners: dict[str, list[str]] = {}
+    for name, method in METHODS.items():
+        if method.knob is not None and (spp or method.knob.name != "spp"):
+            owners.setdefault(method.knob.name, []).append(method.knob.requirement or name)
+    return ", ".join(f"{knob} ({', '.join(names)})" for knob, names in owners.items())
 
 
 def _parse_nc(text: str) -> list[int]:
@@ -459,8 +462,9 @@ def pareto(
         = "1,2,4,8,16",
     knob_values: Annotated[list[str] | None, typer.Option(
         "--knob-values", help=f"equal-time knob values, METHOD=LIST (repeatable) or LIST for "
-                              f"every method with a knob: {_knob_help(baseline=False)} (default: the "
-                              "registry's candidates)")] = None,
+                              f"every method with a knob other than spp: {_knob_help(spp=False)} "
+                              "(default: the registry's candidates; spp knobs take --pt-spp)")]
+        = None,
     methods: Annotated[str | None, typer.Option(
         "--methods", help=f"comma list of methods (default: all of {', '.join(METHODS)})")]
         = None,

@@ -107,9 +107,11 @@ class ParetoResult:
 
 
 def knob_methods() -> list[str]:
-    """The methods other than the baseline with an equal-time knob (``knob_values`` keys)."""
+    """The methods whose knob values a bare ``--knob-values LIST`` sets: those other than
+    the baseline with an equal-time knob that is not spp (an spp knob runs on the
+    baseline's ``pt_spp`` grid unless given by name)."""
     return [name for name, method in METHODS.items()
-            if method.knob is not None and name != BASELINE]
+            if method.knob is not None and method.knob.name != "spp" and name != BASELINE]
 
 
 def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
@@ -134,11 +136,30 @@ def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
         if not found:
             skipped.append({"method": name, "reason": "declares neither an equal-time knob "
                                                       "nor comparison runs"})
+            continue
+        # A method the user did not name (in methods or knob values) that cannot render
+        # at the comparison's shared settings (a direct-light method at unbounded depth)
+        # is skipped, saying why; a named one is validated below, so the error says what.
+        named = name in (spec.methods or ()) or name in spec.knob_values
+        misfit = "" if named else _misfit_reason(found)
+        if misfit:
+            skipped.append({"method": name, "reason": misfit})
+            continue
         series += found
     for point in (p for points in series for p in points):
         parse_params(point.method, point.params)
         run_spec(spec, point)
     return series, skipped
+
+
+def _misfit_reason(found: list[list[Planned]]) -> str:
+    """Why a method's points do not validate (empty when they all do)."""
+    for point in (p for points in found for p in points):
+        try:
+            parse_params(point.method, point.params)
+        except MethodError as err:
+            return f"not comparable at these settings: {err}"
+    return ""
 
 
 def run_spec(spec: ParetoSpec, point: Planned) -> RenderSpec:
@@ -157,7 +178,9 @@ def _method_series(name: str, method: Method, spec: ParetoSpec) -> list[list[Pla
     on_knob = knob is not None and knob.usable(shared)
     found = []
     if on_knob:
-        values = spec.pt_spp if name == BASELINE else spec.knob_values.get(name, knob.candidates)
+        # An spp knob runs on the baseline's spp grid, so the curves share their x values.
+        grid = spec.pt_spp if knob.name == "spp" else knob.candidates
+        values = spec.pt_spp if name == BASELINE else spec.knob_values.get(name, grid)
         found.append([Planned(label, f"{label} {knob.name}={v}", name,
                               shared if knob.name == "spp" else knob.apply(shared, v),
                               v if knob.name == "spp" else 1)

@@ -45,10 +45,10 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from renderers.methods.base import Method
+from renderers.methods.base import Knob, Method
 from renderers.methods.cached import has_surface, make_cache
 from renderers.methods.nvc_lights import visibility_cache_render
-from renderers.methods.pt import PTParams
+from renderers.methods.pt import SPP_CANDIDATES, PTParams
 from renderers.timing import StageTimer
 
 #: NIRC's direction encoding (nirc_config): spherical harmonics, 5 bands.
@@ -115,4 +115,4 @@ METHOD = Method("nvc-env",
                 "direct environment light as a two-level estimator: N_c env-map samples "
                 "weighted by a neural visibility cache + a one-shadow-ray residual",
                 NVCEnvParams, render, version=1, integrators=("renderers.integrators.nvc_env",),
-                requires=applies, label="NVC env")
+                requires=applies, label="NVC env", knob=Knob("spp", SPP_CANDIDATES))

@@ -47,9 +47,9 @@ from typing import Any
 
 from pydantic import Field
 
-from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
+from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput, render_stage, run_frames
 from renderers.methods.cached import cache_method_stats, has_surface, make_cache
-from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
+from renderers.methods.pt import PATH_INTEGRATORS, SPP_CANDIDATES, PTParams, path_integrator
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
 
@@ -153,4 +153,4 @@ METHOD = Method("nvc-lights",
                 "path tracing with lights selected by a neural visibility cache "
                 "(power / distance^2 x cosine bound x max(V, clamp)) at every vertex",
                 NVCLightsParams, render, version=1, integrators=PATH_INTEGRATORS,
-                requires=applies, label="NVC lights")
+                requires=applies, label="NVC lights", knob=Knob("spp", SPP_CANDIDATES))

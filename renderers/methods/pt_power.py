@@ -10,8 +10,8 @@ emitter hits alike, so the estimator stays unbiased (docs/estimators.md,
 
 from __future__ import annotations
 
-from renderers.methods.base import Method
-from renderers.methods.pt import PATH_INTEGRATORS, PTParams, render_with_lights
+from renderers.methods.base import Knob, Method
+from renderers.methods.pt import PATH_INTEGRATORS, SPP_CANDIDATES, PTParams, render_with_lights
 
 
 class PTPowerParams(PTParams):
@@ -22,4 +22,5 @@ render = render_with_lights("PowerLightSampler")
 
 
 METHOD = Method("pt-power", "path tracing with emitters selected in proportion to power",
-                PTPowerParams, render, version=1, integrators=PATH_INTEGRATORS)
+                PTPowerParams, render, version=1, integrators=PATH_INTEGRATORS,
+                knob=Knob("spp", SPP_CANDIDATES))

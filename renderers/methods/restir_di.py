@@ -42,7 +42,8 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from renderers.methods.base import FrameHooks, Method, MethodParams, RenderOutput, run_frames
+from renderers.methods.base import FrameHooks, Knob, Method, MethodParams, RenderOutput, run_frames
+from renderers.methods.pt import SPP_CANDIDATES
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
 
@@ -106,4 +107,5 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = Method("restir-di",
                 "screen-space ReSTIR DI (8 candidates, temporal + spatial reuse, unbiased "
                 "Talbot MIS): direct light at primary hits only (max_depth 2)",
-                ReSTIRDIParams, render, version=1, requires=applies, label="ReSTIR DI")
+                ReSTIRDIParams, render, version=1, requires=applies, label="ReSTIR DI",
+                knob=Knob("spp", SPP_CANDIDATES))

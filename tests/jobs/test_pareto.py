@@ -24,8 +24,12 @@ def test_the_plan_reads_knobs_and_comparison_runs_from_the_registry():
         if name == BASELINE:
             continue
         knob_series = [s for s in series if s[0].method == name and len(s) > 1]
-        if method.knob is not None:
-            assert len(knob_series) == 1 and len(knob_series[0]) == len(method.knob.candidates)
+        misfit = [entry for entry in skipped if entry["method"] == name
+                  and entry["reason"].startswith("not comparable")]
+        if method.knob is not None and not misfit:
+            # an spp knob runs on PT's spp grid, another knob over its candidates
+            grid = [1, 2, 4, 8, 16] if method.knob.name == "spp" else method.knob.candidates
+            assert len(knob_series) == 1 and len(knob_series[0]) == len(grid)
         if method.knob is None and not method.comparison:
             assert name not in planned
             assert {"method": name, "reason": "declares neither an equal-time knob nor "
@@ -36,6 +40,21 @@ def test_the_plan_reads_knobs_and_comparison_runs_from_the_registry():
     assert by_name["NIRC unbiased"][0].params["estimator"] == "unbiased"
     assert len(by_name["NRC"]) == 1 and by_name["NRC"][0].params["pretrain_frames"] == 16
     assert "pretrain_frames" not in by_name["PT"][0].params
+
+
+def test_a_method_that_cannot_render_at_the_shared_depth_is_skipped_saying_why():
+    # restir-di renders direct light only (max_depth 2); the default depth is unbounded.
+    series, skipped = plan(ParetoSpec(scene="many-lights"))
+    assert "restir-di" not in {p.method for points in series for p in points}
+    reason = next(e["reason"] for e in skipped if e["method"] == "restir-di")
+    assert reason.startswith("not comparable at these settings") and "max_depth" in reason
+    # at its depth it is planned on PT's spp grid, like the other spp-knob methods
+    by_name = _series_by_name(ParetoSpec(scene="many-lights", max_depth=2, pt_spp=[1, 4]))
+    assert [p.spp for p in by_name["ReSTIR DI"]] == [1, 4]
+    assert [p.spp for p in by_name["NVC lights"]] == [1, 4]
+    # named explicitly, the mismatch is an error that says what is wrong
+    with pytest.raises(ValueError, match="max_depth"):
+        plan(ParetoSpec(scene="many-lights", methods=["pt", "restir-di"]))
 
 
 def test_points_are_run_round_robin_over_the_series():

@@ -71,7 +71,11 @@ def test_knobs_keep_todays_candidates():
     assert nirc.name == "nc" and list(nirc.candidates) == [1, 2, 4, 8, 16, 32]
     assert nirc.usable({}) and not nirc.usable({"estimator": "unbiased"})
     assert nirc.apply({"nc": [8, 1], "x": 1}, 4) == {"nc": [4, 1], "x": 1}
-    assert [name for name, m in METHODS.items() if m.knob] == ["pt", "nirc"]
+    # the light-selection and direct-light methods calibrate spp, like PT; NRC has no knob
+    assert [name for name, m in METHODS.items() if m.knob and m.knob.name == "nc"] == ["nirc"]
+    assert METHODS["nrc"].knob is None
+    for name in ("pt-power", "pt-spatial", "nvc-lights", "nvc-env", "restir-di"):
+        assert METHODS[name].knob.candidates == METHODS[BASELINE].knob.candidates
 
 
 def test_sweep_roles_keep_todays_series_and_labels():
