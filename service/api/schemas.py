@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from jobs.protocol.history import History
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import is_current
 
@@ -75,6 +76,8 @@ class ArtifactOut(BaseModel):
 
 #: A result row (jobs.protocol.results: the one public model of a run).
 RunOut = RunResult
+#: A metric over commits with its step changes (jobs.protocol.history).
+HistoryOut = History
 
 
 class RunDetail(RunResultDetail):
