@@ -129,6 +129,24 @@ class SweepOut(BaseModel):
                    artifacts=[ArtifactOut.of(a) for a in sweep.artifacts])
 
 
+class MethodOut(BaseModel):
+    """A registered render method (renderers/methods)."""
+
+    name: str
+    label: str
+    description: str
+    version: int = Field(description="its estimator version, stored with its results")
+    knob: str | None = Field(description="what equal-time calibration varies (null: none)")
+    sweep: str | None = Field(description="its series label in sweeps (null: not swept)")
+    source: str = Field(description="'built-in', or the entry point and package it came from")
+
+
+class MethodsOut(BaseModel):
+    methods: list[MethodOut]
+    skipped_plugins: dict[str, str] = Field(
+        description="entry points of nirc_bench.methods left out ('name = value' -> why)")
+
+
 class SceneOut(BaseModel):
     name: str
     description: str
