@@ -118,9 +118,9 @@ class History(BaseModel):
 
 
 def branch_of(run: Any) -> str | None:
-    """The git branch a run was made on, when its provenance records one."""
-    branch = (run.versions or {}).get("git_branch")
-    return branch if isinstance(branch, str) and branch else None
+    """The git branch a run was made on, when its provenance records one (runs stored
+    before branches were recorded have none)."""
+    return getattr(run, "git_branch", None) or None
 
 
 def run_values(run: Any, metric: Metric) -> list[Any] | None:

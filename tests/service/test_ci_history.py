@@ -12,6 +12,7 @@ from fastapi.testclient import TestClient
 
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from jobs.record.models import Run
 from service.api.main import create_app
 from tests.jobs.factories import run_fields
 
@@ -90,20 +91,34 @@ def test_settings_are_series_and_filters_apply(client):
     assert len(http.get(URL + "&limit=2").json()["series"][0]["points"]) == 2
 
 
-def test_branches_dirty_commits_and_withheld_values(client):
+def test_dirty_commits_nonfinite_and_withheld_values_are_counted_not_pooled(client):
     http, store = client
-    store.add_run(run_fields(git_commit="c0ffee1", versions={"git_branch": "main"},
-                             metrics={"mrse_mean": 0.1}), [])
-    store.add_run(run_fields(git_commit="c0ffee2", versions={"git_branch": "topic"},
-                             metrics={"mrse_mean": 0.2}), [])
+    store.add_run(run_fields(git_commit="c0ffee1", metrics={"mrse_mean": 0.1}), [])
+    store.add_run(run_fields(git_commit="c0ffee2", metrics={"mrse_mean": 0.2}),
+                  [{"seed": 0, "metrics": {"mrse": 0.2}, "timings": {}},
+                   {"seed": 1, "metrics": {"mrse": "Infinity"}, "timings": {}}])
     store.add_run(run_fields(git_commit="c0ffee3-dirty", metrics={"mrse_mean": 0.3}), [])
+    store.add_run(run_fields(git_commit="unknown", metrics={"mrse_mean": 0.3}), [])
     store.add_run(run_fields(git_commit="c0ffee4", quality={"withheld": ["mrse"]},
                              metrics={"mrse_mean": 0.4}), [])
     body = http.get(URL).json()
-    assert body["skipped_runs"] == 1
+    assert body["skipped_runs"] == 2
     points = body["series"][0]["points"]
     assert [p["commit"] for p in points] == ["c0ffee1", "c0ffee2", "c0ffee4"]
+    assert (points[1]["n"], points[1]["nonfinite"], points[1]["median"]) == (1, 1, 0.2)
     assert points[2]["withheld"] == 1 and points[2]["median"] is None
+
+
+@pytest.mark.skipif(not hasattr(Run, "git_branch"),
+                    reason="runs record their branch from the ci-gate change on")
+def test_the_branch_filter_keeps_the_runs_of_that_branch(client):
+    http, store = client
+    store.add_run(run_fields(git_commit="c0ffee1", git_branch="main",
+                             metrics={"mrse_mean": 0.1}), [])
+    store.add_run(run_fields(git_commit="c0ffee2", git_branch="topic",
+                             metrics={"mrse_mean": 0.2}), [])
+    store.add_run(run_fields(git_commit="c0ffee3", metrics={"mrse_mean": 0.3}), [])
+    assert len(http.get(URL).json()["series"][0]["points"]) == 3
     main = http.get(URL + "&branch=main").json()["series"][0]["points"]
     assert [(p["commit"], p["branches"], p["median"]) for p in main] == [
         ("c0ffee1", ["main"], 0.1)]
