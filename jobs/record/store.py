@@ -216,6 +216,27 @@ class Store:
         with self.session() as session:
             return list(session.scalars(query))
 
+    def list_history_runs(self, scene: str, method: str, *, limit: int) -> list[Run]:
+        """The newest ``limit`` succeeded runs of ``method`` on the scene named ``scene``,
+        newest first, with their seed results loaded (the CI history,
+        jobs/protocol/history.py)."""
+        query = (select(Run).where(Run.scene_name == scene, Run.method == method,
+                                   Run.status == "succeeded")
+                 .order_by(Run.created_at.desc(), Run.id.desc()).limit(limit)
+                 .options(selectinload(Run.seed_results)))
+        with self.session() as session:
+            return list(session.scalars(query))
+
+    def has_runs(self, *, scene: str | None = None, method: str | None = None) -> bool:
+        """Whether any stored run has this scene name and/or method."""
+        query = select(Run.id).limit(1)
+        if scene is not None:
+            query = query.where(Run.scene_name == scene)
+        if method is not None:
+            query = query.where(Run.method == method)
+        with self.session() as session:
+            return session.scalars(query).first() is not None
+
     # ---- Cache snapshots (the sweep's trained caches and cache-at-v1 images) ----
 
     def find_snapshot(self, key: str) -> CacheSnapshot | None:

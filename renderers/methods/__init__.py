@@ -13,10 +13,20 @@ without it. Bump ``version`` whenever a change alters what the
 method's images converge to or how noisy they are: stored results record it,
 and results of another version are neither reused nor compared as equals
 (version 1 is everything stored before versions were recorded).
+
+A package outside this repository adds methods through the entry-point group
+``nirc_bench.methods`` (:data:`ENTRY_POINT_GROUP`): each entry point names a
+``Method`` (``example-pt = my_package.methods:METHOD``) whose ``name`` is the
+entry point's name. They are loaded with the registry and are then run like the
+built-in ones; one that fails to load, is no ``Method``, or takes a name already
+registered is left out, logged, and listed in :data:`SKIPPED_PLUGINS` with the
+reason (docs/architecture.md, "A method from outside the repository").
 """
 
 from __future__ import annotations
 
+import logging
+from importlib.metadata import entry_points
 from typing import Any
 
 from pydantic import ValidationError
@@ -33,7 +43,7 @@ from renderers.methods import (
 )
 from renderers.methods.base import Knob, Method, MethodParams, SweepRole
 
-__all__ = ["BASELINE", "METHODS", "Knob", "Method", "MethodError", "MethodParams", "NotApplicable", "SweepRole",
+__all__ = ["BASELINE", "BUILTIN", "ENTRY_POINT_GROUP", "METHODS", "METHOD_SOURCES", "SKIPPED_PLUGINS", "Knob", "Method", "MethodError", "MethodParams", "NotApplicable", "SweepRole",
            "check_applies", "equal_time_pairs", "get_method", "method_table", "parse_params", "sweep_methods", "sweep_series", "series_label"]
 
 
@@ -45,9 +55,59 @@ class NotApplicable(MethodError):
     """A method that cannot render a scene (its ``applies_to`` says why)."""
 
 
-METHODS: dict[str, Method] = {module.METHOD.name: module.METHOD
+#: The methods of this repository.
+BUILTIN: dict[str, Method] = {module.METHOD.name: module.METHOD
                               for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
                                              restir_di, nirc, nrc)}
+
+#: The entry-point group other packages register methods under.
+ENTRY_POINT_GROUP = "nirc_bench.methods"
+
+
+def load_plugins(taken: dict[str, Method]) -> tuple[dict[str, Method], dict[str, str],
+                                                    dict[str, str]]:
+    """The methods of the entry-point group, the entry points left out
+    (``'name = value'`` -> why) and, per loaded method, where it comes from.
+
+    An entry point is left out, never fatal, when importing it raises, it is not a
+    :class:`Method`, its ``Method.name`` differs from its own name, or the name is
+    in ``taken`` (the built-ins win) or was loaded from another entry point first.
+    """
+    loaded: dict[str, Method] = {}
+    skipped: dict[str, str] = {}
+    sources: dict[str, str] = {}
+    for point in entry_points(group=ENTRY_POINT_GROUP):
+        where = f"{point.name} = {point.value}"
+        try:
+            method = point.load()
+        except Exception as err:  # noqa: BLE001 - any error of foreign code skips it
+            skipped[where] = f"could not be loaded: {type(err).__name__}: {err}"
+            continue
+        if not isinstance(method, Method):
+            reason = f"it is a {type(method).__name__}, not a renderers.methods.Method"
+        elif method.name != point.name:
+            reason = f"it declares the method '{method.name}' under the name '{point.name}'"
+        elif point.name in taken:
+            reason = f"'{point.name}' is a built-in method's name"
+        elif point.name in loaded:
+            reason = f"'{point.name}' was registered by another entry point first"
+        else:
+            loaded[point.name] = method
+            dist = point.dist
+            sources[point.name] = (f"entry point {where}"
+                                   + (f" ({dist.name} {dist.version})" if dist else ""))
+            continue
+        skipped[where] = reason
+    for where, reason in skipped.items():
+        logging.getLogger(__name__).warning("method entry point %s left out: %s", where, reason)
+    return loaded, skipped, sources
+
+
+_PLUGINS, SKIPPED_PLUGINS, _PLUGIN_SOURCES = load_plugins(BUILTIN)
+#: Every method a spec may name: the built-ins, then those of other packages.
+METHODS: dict[str, Method] = {**BUILTIN, **_PLUGINS}
+#: Method name -> 'built-in' or the entry point (and package) it came from.
+METHOD_SOURCES: dict[str, str] = {**dict.fromkeys(BUILTIN, "built-in"), **_PLUGIN_SOURCES}
 
 #: The baseline: the method a time budget's ``pt_spp`` and a sweep's reference-sharing
 #: base render name, and the one calibrated when nothing else is (unbiased path tracing).
@@ -107,11 +167,11 @@ def check_applies(method: str, features: Any) -> None:
 
 
 def method_table() -> str:
-    """The Markdown table of registered methods (README.md, "Methods"; checked by
+    """The Markdown table of the built-in methods (README.md, "Methods"; checked by
     tests/renderers/test_registry.py; print it with ``python -m renderers.methods``)."""
     lines = ["| method | what it is | equal-time knob | in sweeps |",
              "|---|---|---|---|"]
-    for name, method in METHODS.items():
+    for name, method in BUILTIN.items():
         knob = f"`{method.knob.name}`" if method.knob else "—"
         sweep = method.sweep.label if method.sweep else "—"
         lines.append(f"| `{name}` | {method.description} | {knob} | {sweep} |")

@@ -33,7 +33,7 @@ from jobs.record.config import Settings
 from jobs.record.db import open_store
 from service.api.deps import ReadAccess
 from service.api.limits import BodySizeLimit, bounded_json_body, truncate_echo
-from service.api.routes import auth, jobs, results, scenes
+from service.api.routes import auth, ci, jobs, results, scenes
 
 #: The dashboard's files (HTML, CSS, JavaScript with its own SVG plots): served from
 #: here, never from a CDN.
@@ -107,6 +107,7 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
         guards.append(ReadAccess)
     app.include_router(jobs.router, dependencies=guards)
     app.include_router(results.router, dependencies=guards)
+    app.include_router(ci.router, dependencies=guards)
     app.include_router(auth.router, dependencies=[Depends(bounded_json_body)])
     app.include_router(scenes.router)
     _write_operations_need_the_header(app)

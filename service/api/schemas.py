@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from jobs.protocol.history import History
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import is_current
 
@@ -75,6 +76,8 @@ class ArtifactOut(BaseModel):
 
 #: A result row (jobs.protocol.results: the one public model of a run).
 RunOut = RunResult
+#: A metric over commits with its step changes (jobs.protocol.history).
+HistoryOut = History
 
 
 class RunDetail(RunResultDetail):
@@ -124,6 +127,24 @@ class SweepOut(BaseModel):
                    estimator_versions=versions, metric_version=sweep.metric_version,
                    current=current, created_at=sweep.created_at, finished_at=sweep.finished_at,
                    artifacts=[ArtifactOut.of(a) for a in sweep.artifacts])
+
+
+class MethodOut(BaseModel):
+    """A registered render method (renderers/methods)."""
+
+    name: str
+    label: str
+    description: str
+    version: int = Field(description="its estimator version, stored with its results")
+    knob: str | None = Field(description="what equal-time calibration varies (null: none)")
+    sweep: str | None = Field(description="its series label in sweeps (null: not swept)")
+    source: str = Field(description="'built-in', or the entry point and package it came from")
+
+
+class MethodsOut(BaseModel):
+    methods: list[MethodOut]
+    skipped_plugins: dict[str, str] = Field(
+        description="entry points of nirc_bench.methods left out ('name = value' -> why)")
 
 
 class SceneOut(BaseModel):

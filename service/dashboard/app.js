@@ -1,4 +1,4 @@
-// The nirc-bench dashboard: results overview, per-scene plots and images, live jobs.
+// The nirc-bench dashboard: results overview, per-scene plots and images, history over commits, live jobs.
 // Plain JavaScript against the REST API (/api/v1); plots by plot.js (bundled here).
 "use strict";
 
@@ -53,7 +53,7 @@ async function overview() {
   let html = "<h2>Latest results</h2>";
   if (!scenes.length) html += "<p class='muted'>No results yet: submit a job (POST /api/v1/jobs) or run <code>nirc-bench render</code>.</p>";
   for (const scene of scenes) {
-    html += `<h3><a href="#/scene/${encodeURIComponent(scene)}">${esc(scene)}</a></h3><table><tr>
+    html += `<h3><a href="#/scene/${encodeURIComponent(scene)}">${esc(scene)}</a> <a class="muted" href="#/history/${encodeURIComponent(scene)}">history</a></h3><table><tr>
       <th class="text">method</th><th class="text">device</th><th class="text">verdict</th>${heads}
       <th>ms/frame</th><th>run</th></tr>`;
     for (const r of [...latest.values()].filter((r) => r.scene === scene)) {
@@ -152,6 +152,50 @@ async function runDetail(runId) {
   }));
 }
 
+// History over commits (GET /api/v1/ci/history): one plot per listed metric of the registry,
+// one line per setting (median over the seeds of a commit's runs, with its interval);
+// detected steps are red lines, version changes (never compared) grey dashed ones.
+async function historyPage(scene, method) {
+  const runs = await api(`/results?limit=1000${old()}`);
+  const scenes = [...new Set([...(await api("/scenes")).map((s) => s.name), ...runs.map((r) => r.scene)])];
+  const methods = (await api("/methods")).methods.map((m) => m.name);
+  scene = scene || runs[0]?.scene || scenes[0];
+  method = method || runs.find((r) => r.scene === scene)?.method || methods[0];
+  const options = (names, chosen) => names.map((n) => `<option${n === chosen ? " selected" : ""}>${esc(n)}</option>`).join("");
+  view().innerHTML = `<h2>History over commits</h2>
+    <p><select id="history-scene">${options(scenes, scene)}</select> <select id="history-method">${options(methods, method)}</select></p>
+    <p class="muted">Median over the seeds of each commit's runs, with an interval for it. Red: a detected step
+    (Welch t-test between consecutive commits, Holm-adjusted); grey dashed: a version change, never compared across.</p>
+    <div class="plots" id="history"></div><h3>Detected steps</h3><div id="steps"></div>`;
+  const go = () => { location.hash = `#/history/${encodeURIComponent(document.getElementById("history-scene").value)}/${encodeURIComponent(document.getElementById("history-method").value)}`; };
+  document.getElementById("history-scene").onchange = go;
+  document.getElementById("history-method").onchange = go;
+  const steps = [];
+  for (const m of (await metricRegistry()).filter((m) => m.field)) {
+    const h = await api(`/ci/history?metric=${encodeURIComponent(m.name)}&scene=${encodeURIComponent(scene)}&method=${encodeURIComponent(method)}`);
+    const points = h.series.flatMap((s) => s.points).sort((a, b) => (a.time < b.time ? -1 : a.time > b.time ? 1 : 0));
+    const commits = [...new Set(points.map((p) => p.commit))];
+    const x = new Map(commits.map((c, i) => [c, i]));
+    const every = Math.ceil(commits.length / 8);
+    const setting = (s) => `${s.resolution.join("×")}, ${s.spp} spp, ${s.frames} frames`;
+    const series = h.series.map((s) => ({ name: setting(s),
+      points: s.points.filter((p) => p.median !== null).map((p) => [x.get(p.commit), p.median]),
+      ranges: s.points.filter((p) => p.ci).map((p) => [x.get(p.commit), p.ci[0], p.ci[1]]) }));
+    const markers = h.series.flatMap((s) => s.points.flatMap((p) => (p.step
+      ? [{ x: x.get(p.commit) - 0.5, label: "step", color: "#d62728" }]
+      : p.break_before ? [{ x: x.get(p.commit) - 0.5, label: "version", color: "#888", dashed: true }] : [])));
+    linePlot(document.getElementById("history"), { title: `${unitLabel(m)} over commits (${m.direction} is better)`,
+      xlabel: "commit, oldest to newest", ylabel: unitLabel(m), logy: m.log_axis, series, markers, width: 560, height: 320,
+      xticks: commits.map((c, i) => [i, c.slice(0, 7)]).filter((_, i) => i % every === 0) });
+    for (const s of h.series) for (const p of s.points.filter((p) => p.step)) steps.push([m, s, p, setting(s)]);
+  }
+  document.getElementById("steps").innerHTML = steps.length
+    ? `<table><tr><th class="text">metric</th><th class="text">commit</th><th class="text">setting</th><th>change of the median</th><th>p (Holm)</th><th>runs</th></tr>${
+      steps.map(([m, , p, name]) => `<tr class="step"><td class="text">${esc(unitLabel(m))}</td><td class="text"><code>${esc(p.commit.slice(0, 12))}</code></td>
+        <td class="text">${esc(name)}</td><td>${num(p.change)}</td><td>${num(p.p_holm, 2)}</td><td>${p.runs.join(", ")}</td></tr>`).join("")}</table>`
+    : "<p class='muted'>No step detected.</p>";
+}
+
 async function jobsPage() {
   const jobs = await api("/jobs?limit=100");
   let html = `<h2>Jobs</h2><table><tr><th>id</th><th class="text">kind</th><th class="text">status</th>
@@ -193,6 +237,7 @@ async function route() {
   try {
     if (parts[0] === "jobs") { await jobsPage(); timer = setTimeout(route, 2000); }
     else if (parts[0] === "scene" && parts[1]) await scenePage(parts[1], parts[2]);
+    else if (parts[0] === "history") await historyPage(parts[1], parts[2]);
     else await overview();
   } catch (err) {
     if (err instanceof NeedsKey) loginForm(err.message);

@@ -1,6 +1,8 @@
 // Minimal SVG plots for the dashboard (no external libraries, no network).
 // linePlot(container, {title, xlabel, ylabel, logx, logy, series: [{name, color,
-// points: [[x, y], ...], dashed, scatter}]}) draws axes, ticks, lines/points, legend.
+// points: [[x, y], ...], dashed, scatter, ranges: [[x, lo, hi], ...]}], xticks: [[x, label], ...],
+// markers: [{x, label, color, dashed}]}) draws axes, ticks (or the given x tick labels),
+// lines/points with vertical interval bars, vertical markers, legend.
 "use strict";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
@@ -40,7 +42,8 @@ function linePlot(container, opts) {
   const usable = (p) => Number.isFinite(p[0]) && Number.isFinite(p[1]) &&
     (!opts.logx || p[0] > 0) && (!opts.logy || p[1] > 0);
   const series = opts.series.map((s) => ({ ...s, points: s.points.filter(usable) }));
-  const all = series.flatMap((s) => s.points);
+  const all = series.flatMap((s) => [...s.points,
+    ...(s.ranges || []).flatMap(([x, lo, hi]) => [[x, lo], [x, hi]]).filter(usable)]);
   const svg = svgEl("svg", { width: W, height: H, class: "plot", role: "img" }, container);
   svgEl("text", { x: W / 2, y: 15, "text-anchor": "middle", "font-weight": "bold" }, svg)
     .textContent = opts.title || "";
@@ -60,9 +63,14 @@ function linePlot(container, opts) {
   };
   const X = (v) => tr(v, x0, x1, opts.logx, L, W - R), Y = (v) => tr(v, y0, y1, opts.logy, H - B, T);
   svgEl("rect", { x: L, y: T, width: W - L - R, height: H - T - B, fill: "none", stroke: "#999" }, svg);
-  for (const t of niceTicks(x0, x1, opts.logx)) {
+  for (const [t, text] of opts.xticks || niceTicks(x0, x1, opts.logx).map((t) => [t, fmt(t)])) {
     svgEl("line", { x1: X(t), x2: X(t), y1: T, y2: H - B, stroke: "#eee" }, svg);
-    svgEl("text", { x: X(t), y: H - B + 14, "text-anchor": "middle" }, svg).textContent = fmt(t);
+    svgEl("text", { x: X(t), y: H - B + 14, "text-anchor": "middle" }, svg).textContent = text;
+  }
+  for (const m of opts.markers || []) {
+    svgEl("line", { x1: X(m.x), x2: X(m.x), y1: T, y2: H - B, stroke: m.color || "#000", class: "marker",
+      "stroke-width": 1.5, "stroke-dasharray": m.dashed ? "4,3" : "none" }, svg);
+    svgEl("text", { x: X(m.x) + 3, y: T + 11, fill: m.color || "#000" }, svg).textContent = m.label || "";
   }
   for (const t of niceTicks(y0, y1, opts.logy)) {
     svgEl("line", { x1: L, x2: W - R, y1: Y(t), y2: Y(t), stroke: "#eee" }, svg);
@@ -78,6 +86,8 @@ function linePlot(container, opts) {
       svgEl("polyline", { points: pts.map((p) => `${X(p[0])},${Y(p[1])}`).join(" "), fill: "none",
         stroke: color, "stroke-width": 1.5, "stroke-dasharray": s.dashed ? "5,3" : "none" }, svg);
     }
+    for (const [x, lo, hi] of (s.ranges || []).filter((r) => usable([r[0], r[1]]) && usable([r[0], r[2]])))
+      svgEl("line", { x1: X(x), x2: X(x), y1: Y(lo), y2: Y(hi), stroke: color, "stroke-width": 1 }, svg);
     for (const p of pts) svgEl("circle", { cx: X(p[0]), cy: Y(p[1]), r: 3, fill: color }, svg);
     const lx = L + (i % 3) * 120, ly = H - 12 - Math.floor(i / 3) * 14;
     svgEl("rect", { x: lx, y: ly - 8, width: 10, height: 10, fill: color }, svg);

@@ -3,9 +3,15 @@ the database of a test run on both SQLite and PostgreSQL."""
 
 from __future__ import annotations
 
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+import uvicorn
 
 from tests.pg import postgres_database
 from tests.setup_services import chromium_path
@@ -36,6 +42,25 @@ def open_page(chromium, url: str):
     page.on("pageerror", lambda err: errors.append(str(err)))
     page.goto(url)
     return page, errors
+
+
+@contextmanager
+def serve(app) -> Iterator[str]:
+    """``app`` served on a free loopback port in a thread; yields its base URL."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
+                                           log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    while not server.started:
+        time.sleep(0.05)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(timeout=10)
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

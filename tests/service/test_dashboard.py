@@ -4,12 +4,7 @@ no console errors; screenshots are kept in test-artifacts/."""
 
 from __future__ import annotations
 
-import socket
-import threading
-import time
-
 import pytest
-import uvicorn
 
 from jobs.execution.queue import JobQueue
 from jobs.protocol.executor import execute
@@ -19,7 +14,7 @@ from jobs.record.config import Settings
 from jobs.record.db import open_store
 from metrics import METRIC_VERSION
 from service.api.main import create_app
-from tests.service.conftest import ARTIFACTS, open_page
+from tests.service.conftest import ARTIFACTS, open_page, serve
 
 SWEEP_ROWS = [{"series": series, "eps": eps, "ir_bounces_pct": 100 * (1 - eps),
                "mrse": 0.1 * scale * (1 + eps), "mrse_ci95": None, "flip": 0.3 + eps / 10,
@@ -44,18 +39,8 @@ def site(tmp_path_factory, mi):
     store.finish_sweep(sweep.id, status="succeeded", result={"rows": SWEEP_ROWS},
                        finished_at=None)
     JobQueue(store).submit("render", spec.model_dump(mode="json"), "queued-job")
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port,
-                                           log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    while not server.started:
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}"
-    server.should_exit = True
-    thread.join(timeout=10)
+    with serve(create_app(settings)) as url:
+        yield url
     store.close()
 
 

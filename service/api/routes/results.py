@@ -14,9 +14,18 @@ from metrics import METRIC_VERSION
 from metrics.imageio import ImageReadError, png_bytes, read_exr
 from metrics.preview import tonemap_preview
 from metrics.registry import METRICS
+from renderers.methods import METHOD_SOURCES, METHODS, SKIPPED_PLUGINS
 from renderers.scenes import builtin_names, describe
 from service.api.deps import RowId, SettingsDep, StoreDep
-from service.api.schemas import Comparison, RunDetail, RunOut, SceneOut, SweepOut
+from service.api.schemas import (
+    Comparison,
+    MethodOut,
+    MethodsOut,
+    RunDetail,
+    RunOut,
+    SceneOut,
+    SweepOut,
+)
 
 router = APIRouter(prefix="/api/v1", tags=["results"])
 
@@ -57,6 +66,19 @@ def list_metrics() -> list[dict[str, Any]]:
     / ``ci_field`` (null: run details only), ``log_axis``, ``needs_k2``, ``sweep_plot`` and
     the ``verdict_name`` a quality verdict withholds it under."""
     return [m.to_json() for m in METRICS]
+
+
+@router.get("/methods", response_model=MethodsOut)
+def list_methods() -> MethodsOut:
+    """The method registry (renderers/methods): the built-in methods, then those other
+    packages register under the entry-point group ``nirc_bench.methods``, each with where
+    it comes from; and the entry points that were left out, with why."""
+    return MethodsOut(
+        methods=[MethodOut(name=name, label=m.label or name, description=m.description,
+                           version=m.version, knob=m.knob.name if m.knob else None,
+                           sweep=m.sweep.label if m.sweep else None,
+                           source=METHOD_SOURCES[name]) for name, m in METHODS.items()],
+        skipped_plugins=SKIPPED_PLUGINS)
 
 
 @router.get("/runs/{run_id}", response_model=RunDetail)
