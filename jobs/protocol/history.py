@@ -23,7 +23,7 @@ Step test, per compared pair of consecutive points (a, b)::
 
 (s² the unbiased sample variances) and the Welch-Satterthwaite degrees of freedom
 ``(s_a²/n_a + s_b²/n_b)² / ((s_a²/n_a)² / (n_a - 1) + (s_b²/n_b)² / (n_b - 1))``,
-two-sided. A pair with fewer than two values on a side is
+two-sided (SciPy's ``ttest_ind(equal_var=False)``). A pair with fewer than two values on a side is
 not tested; a pair whose two samples are both constant has p = 1 if they are
 equal and p = 0 otherwise. The p-values of all pairs tested in one answer are
 adjusted by Holm's step-down procedure (Holm 1979)::
@@ -161,7 +161,7 @@ def median_interval(values: Sequence[float], level: float = 0.95
         return median, None, None
 
     def covers(k: int) -> float:   # 1 - 2 P(Binomial(n, 1/2) <= k - 1)
-        return 1.0 - 2.0 * sum(math.comb(n, i) for i in range(k)) / 2.0**n
+        return float(1.0 - 2.0 * stats.binom.cdf(k - 1, n, 0.5))
 
     k = 1
     while k + 1 <= n // 2 and covers(k + 1) >= level:
@@ -171,16 +171,14 @@ def median_interval(values: Sequence[float], level: float = 0.95
 
 
 def welch_p(a: Sequence[float], b: Sequence[float]) -> float | None:
-    """Two-sided p-value of Welch's t-test between ``a`` and ``b`` (None: n < 2 on a side)."""
+    """Two-sided p-value of Welch's t-test between ``a`` and ``b`` (SciPy's
+    ``ttest_ind(equal_var=False)``; None: n < 2 on a side). Two constant sides are
+    equal (p 1) or a certain step (p 0): the t statistic is undefined there."""
     if len(a) < 2 or len(b) < 2:
         return None
-    se2_a, se2_b = np.var(a, ddof=1) / len(a), np.var(b, ddof=1) / len(b)
-    if se2_a == 0.0 and se2_b == 0.0:
-        return 1.0 if np.mean(a) == np.mean(b) else 0.0
-    t = (np.mean(b) - np.mean(a)) / math.sqrt(se2_a + se2_b)
-    # Welch-Satterthwaite degrees of freedom.
-    df = (se2_a + se2_b) ** 2 / (se2_a**2 / (len(a) - 1) + se2_b**2 / (len(b) - 1))
-    return float(2.0 * stats.t.sf(abs(t), df))
+    if np.ptp(a) == 0.0 and np.ptp(b) == 0.0:
+        return 1.0 if a[0] == b[0] else 0.0
+    return float(stats.ttest_ind(b, a, equal_var=False).pvalue)
 
 
 def holm(pvalues: Sequence[float]) -> list[float]:
