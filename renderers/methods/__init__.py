@@ -22,8 +22,10 @@ from typing import Any
 from pydantic import ValidationError
 
 from renderers.methods import (
+    neural_di,
     nirc,
     nrc,
+    nrc_di,
     nvc_env,
     nvc_lights,
     pt,
@@ -47,7 +49,7 @@ class NotApplicable(MethodError):
 
 METHODS: dict[str, Method] = {module.METHOD.name: module.METHOD
                               for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
-                                             restir_di, nirc, nrc)}
+                                             restir_di, neural_di, nrc_di, nirc, nrc)}
 
 #: The baseline: the method a time budget's ``pt_spp`` and a sweep's reference-sharing
 #: base render name, and the one calibrated when nothing else is (unbiased path tracing).
