@@ -38,8 +38,9 @@ def build(scene: Any, params: NeuralDIParams, seed: int) -> tuple[Any, Any]:
     import mitsuba as mi
 
     from renderers.caches import visibility_config
-    from renderers.integrators.neural_di import PLUGIN_NAME, CacheVisibility
+    from renderers.integrators.neural_di import PLUGIN_NAME, CacheVisibility, register
 
+    register()
     integrator = mi.load_dict({"type": PLUGIN_NAME})
     integrator.lights(scene.scene)  # a scene it cannot shade fails here, before training
     cache = make_cache(scene, functools.partial(visibility_config, len(scene.scene.emitters())),

@@ -33,8 +33,9 @@ def build(scene: Any, params: NRCDIParams, seed: int) -> tuple[Any, Any]:
     import mitsuba as mi
 
     from renderers.caches import direct_light_config
-    from renderers.integrators.nrc_di import PLUGIN_NAME
+    from renderers.integrators.nrc_di import PLUGIN_NAME, register
 
+    register()
     cache = make_cache(scene, direct_light_config, params, seed)
     return mi.load_dict({"type": PLUGIN_NAME}).with_cache(cache), cache
 
