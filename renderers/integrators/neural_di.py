@@ -106,15 +106,7 @@ class NeuralDIIntegrator(PrimaryHitIntegrator):
         if self.visibility is None:
             raise ValueError("NeuralDIIntegrator needs a visibility source: "
                              "call with_visibility(CacheVisibility(cache)) first")
-        unshadowed = self.lights(scene).unshadowed(si, active)
-        visibility = self.visibility(scene, sampler, si, active)
-        if len(visibility) != len(unshadowed):
-            raise ValueError(f"the visibility source gives {len(visibility)} values for "
-                             f"{len(unshadowed)} emitters")
-        total = mi.Color3f(0)
-        for u, v in zip(unshadowed, visibility, strict=True):
-            total += u * v
-        return total
+        return self.lights(scene).shade(si, self.visibility(scene, sampler, si, active), active)
 
 
 def register() -> None:

@@ -28,8 +28,12 @@ linearly transformed cosines there, Sec. 3.1). Delta lobes get 0.
 
 Emitters: area emitters on meshes (a Mitsuba ``rectangle`` is a two-triangle
 mesh; ``obj``/``ply`` meshes work), planar triangles with their face normal,
-uniform radiance (the ``radiance.value`` of a constant texture). Every
-triangle is a term of the kernel, so the total is bounded (MAX_TRIANGLES).
+uniform radiance (the ``radiance.value`` of a constant texture).
+
+Cost: the sum runs as symbolic loops over the emitters and their triangles
+(gathering vertices from a buffer), so the kernel's size does not grow with
+the number of lights: one BSDF evaluation per light and shading point, a few
+dozen flops per triangle edge.
 """
 
 from __future__ import annotations
@@ -38,22 +42,18 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-#: Emitter triangles the unrolled kernel handles (one term each per shading point).
-MAX_TRIANGLES = 512
-
 
 class PolygonLights:
     """The scene's emitters as triangles with a uniform radiance each (module docstring).
 
     Raises ValueError, naming the emitter, for an emitter that is not a mesh
-    (environment, point, sphere lights), for a textured radiance and above
-    MAX_TRIANGLES triangles in all.
+    (environment, point, sphere lights) and for a textured radiance.
     """
 
     def __init__(self, scene: mi.Scene) -> None:
         self.scene = scene
-        self.triangles: list[np.ndarray] = []   # per emitter: (T, 3, 3) world-space vertices
-        self.radiance: list[mi.Color3f] = []
+        triangles: list[np.ndarray] = []   # per emitter: (T, 3, 3) world-space vertices
+        radiance: list[np.ndarray] = []
         # The shapes as their own classes (emitter.get_shape() gives the base class).
         owners = {id(shape.emitter()): shape for shape in scene.shapes()
                   if shape.emitter() is not None}
@@ -67,39 +67,53 @@ class PolygonLights:
             if "radiance.value" not in params:
                 raise ValueError(f"emitter {index} ({emitter.id()}) has a textured radiance: "
                                  "the closed form needs a uniform one")
-            self.radiance.append(mi.Color3f(params["radiance.value"]))
+            radiance.append(np.asarray(params["radiance.value"], dtype=np.float32).reshape(-1))
             positions = np.asarray(shape.vertex_positions_buffer(), dtype=np.float64)
             faces = np.asarray(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)
-            self.triangles.append(positions.reshape(-1, 3)[faces])
-        total = sum(len(t) for t in self.triangles)
-        if total > MAX_TRIANGLES:
-            raise ValueError(f"the emitters have {total} triangles; at most {MAX_TRIANGLES} "
-                             "are supported")
+            triangles.append(positions.reshape(-1, 3)[faces])
+        self.count = len(triangles)
+        # Flat buffers: triangle t of emitter k is t in [first[k], first[k + 1]).
+        flat = np.concatenate(triangles) if triangles else np.zeros((0, 3, 3))
+        self.first = mi.UInt32(np.cumsum([0] + [len(t) for t in triangles]))
+        self.vertices = [mi.Point3f(*(mi.Float(flat[:, j, c]) for c in range(3)))
+                         for j in range(3)]
+        rgb = np.stack(radiance) if radiance else np.zeros((0, 3))
+        self.radiance = mi.Color3f(*(mi.Float(rgb[:, c]) for c in range(3)))
 
-    @property
-    def count(self) -> int:
-        return len(self.triangles)
-
-    def unshadowed(self, si: mi.SurfaceInteraction3f, active: mi.Bool) -> list[mi.Color3f]:
-        """U_k(x) of every emitter k: the reflected direct light toward si.wi without
-        occlusion (module docstring); 0 where ``active`` is False."""
+    @dr.syntax
+    def shade(self, si: mi.SurfaceInteraction3f, visibility: list[mi.Float],
+              active: mi.Bool) -> mi.Color3f:
+        """Σ_k U_k(x) w_k(x): the unshadowed direct light of every emitter k toward
+        si.wi (module docstring) weighted by ``visibility`` (one Float per emitter);
+        0 where ``active`` is False."""
+        if len(visibility) != self.count:
+            raise ValueError(f"{len(visibility)} visibility values for {self.count} emitters")
         bsdf = si.bsdf()
         # The hemisphere light arrives from: the side of w_i (two-sided BSDFs).
         n = dr.mulsign(si.sh_frame.n, mi.Frame3f.cos_theta(si.wi))
-        terms = []
-        for triangles, radiance in zip(self.triangles, self.radiance, strict=True):
+        total = mi.Color3f(0)
+        k = mi.UInt32(0)
+        while active & (k < self.count):
             irradiance, vector = mi.Float(0), mi.Vector3f(0)
-            for triangle in triangles:
-                e, phi = triangle_irradiance(si.p, n, triangle)
+            t = dr.gather(mi.UInt32, self.first, k)
+            end = dr.gather(mi.UInt32, self.first, k + 1)
+            while t < end:
+                v = [dr.gather(mi.Point3f, vertices, t) for vertices in self.vertices]
+                e, phi = triangle_irradiance(si.p, n, v)
                 irradiance += e
                 vector += phi
-            live = active & (irradiance > 0)
+                t += 1
             length = dr.norm(vector)
+            live = irradiance > 0
             f = bsdf.eval(mi.BSDFContext(), si, si.to_local(vector / length), live)
             # f includes cos θ_k = n · Φ / |Φ| = E / |Φ|: f_r L E = f L |Φ|.
-            term = f * radiance * length
-            terms.append(dr.select(live, mi.Color3f(term), 0.0))
-        return terms
+            weight = visibility[0]
+            for index in range(1, self.count):
+                weight = dr.select(k == index, visibility[index], weight)
+            term = f * dr.gather(mi.Color3f, self.radiance, k) * (length * weight)
+            total += dr.select(live, mi.Color3f(term), 0.0)
+            k += 1
+        return total
 
 
 def edge_vector(a: mi.Vector3f, b: mi.Vector3f) -> mi.Vector3f:
@@ -112,12 +126,10 @@ def edge_vector(a: mi.Vector3f, b: mi.Vector3f) -> mi.Vector3f:
 
 
 def triangle_irradiance(p: mi.Point3f, n: mi.Vector3f,
-                        triangle: np.ndarray) -> tuple[mi.Float, mi.Vector3f]:
-    """(E, Φ) of one emitting triangle at points ``p`` with normals ``n``: 0 unless p
-    is in front of the triangle; edges clipped to the upper hemisphere of n."""
-    v = [mi.Point3f(*(float(c) for c in vertex)) for vertex in triangle]
-    face = np.cross(triangle[1] - triangle[0], triangle[2] - triangle[0])
-    in_front = dr.dot(p - v[0], mi.Vector3f(*(float(c) for c in face))) > 0
+                        v: list[mi.Point3f]) -> tuple[mi.Float, mi.Vector3f]:
+    """(E, Φ) of the emitting triangle with vertices ``v`` at points ``p`` with normals
+    ``n``: 0 unless p is in front of it; edges clipped to the upper hemisphere of n."""
+    in_front = dr.dot(p - v[0], dr.cross(v[1] - v[0], v[2] - v[0])) > 0
     phi = mi.Vector3f(0)
     exit_point, entry_point = mi.Vector3f(0), mi.Vector3f(0)
     for i in range(3):
