@@ -2,8 +2,9 @@
 
 For a planar polygon P of uniform radiance L_e and a shading point x with
 normal n, the integral of the cosine over the solid angle P subtends (its
-projected solid angle; Lambert 1760, in Arvo's form, "Applications of
-irradiance tensors", SIGGRAPH 1995, Eq. 3) is a sum over P's edges:
+projected solid angle; Lambert 1760, in the vector form of Arvo,
+"Applications of irradiance tensors to the simulation of non-Lambertian
+phenomena", SIGGRAPH 1995) is a sum over P's edges:
 
     E(x) = ∫_P max(cos θ_x, 0) dω = | n · Φ |,   Φ = 1/2 Σ_i Θ_i γ_i
 
