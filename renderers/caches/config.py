@@ -400,3 +400,20 @@ def visibility_config(n_outputs: int, **overrides: Any) -> CacheConfig:
     )
     return _preset(base.model_dump(), overrides)
 
+
+
+def direct_light_config(**overrides: Any) -> CacheConfig:
+    """NRC DI, the visibility paper's radiance-cache baseline (Sec. 4.2): the direct
+    light reflected at a position, RGB.
+
+    The network and training of :func:`visibility_config` ("exactly the same
+    network architecture ... and training data procedure") with three unbounded
+    outputs: linear while training and clamped at >= 0 when rendering
+    (``clamped_linear``; the paper's leaky ReLU output differs from it only below
+    0, where direct light never is), and NRC's relative L2 loss on luminance
+    [MRNK21] instead of L2, since radiance, unlike visibility, spans orders of
+    magnitude.
+    """
+    base = visibility_config(3, output={"activation": "clamped_linear"},
+                             loss={"kind": "relative_l2", "relative_to": "luminance"})
+    return _preset(base.model_dump(), overrides)

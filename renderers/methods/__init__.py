@@ -32,8 +32,10 @@ from typing import Any
 from pydantic import ValidationError
 
 from renderers.methods import (
+    neural_di,
     nirc,
     nrc,
+    nrc_di,
     nvc_env,
     nvc_lights,
     pt,
@@ -58,7 +60,7 @@ class NotApplicable(MethodError):
 #: The methods of this repository.
 BUILTIN: dict[str, Method] = {module.METHOD.name: module.METHOD
                               for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
-                                             restir_di, nirc, nrc)}
+                                             restir_di, neural_di, nrc_di, nirc, nrc)}
 
 #: The entry-point group other packages register methods under.
 ENTRY_POINT_GROUP = "nirc_bench.methods"

@@ -33,6 +33,7 @@ class SceneFeatures:
     has_delta: bool  # some BSDF has a delta (or null) component
     bbox_min: list[float]  # scene bounding box (shapes only)
     bbox_max: list[float]
+    polygon_emitter_count: int = 0  # area emitters on meshes (rectangles, triangle meshes)
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
@@ -58,6 +59,7 @@ def compute_features(scene: Any, resolution: tuple[int, int]) -> SceneFeatures:
     # envmap/constant/sunsky but not a directional light.
     environment = [e for e in emitters if e.is_environment()]
     area = [e for e in emitters if int(e.flags()) & int(mi.EmitterFlags.Surface)]
+    polygons = [e for e in area if e.get_shape() is not None and e.get_shape().is_mesh()]
     flags = _bsdf_flags(scene)
     bbox = scene.bbox()
     # A scene of only an env map has an empty (infinite) box; JSON has no inf.
@@ -73,4 +75,5 @@ def compute_features(scene: Any, resolution: tuple[int, int]) -> SceneFeatures:
         has_delta=bool(flags & int(mi.BSDFFlags.Delta)),
         bbox_min=[float(x) for x in lo],
         bbox_max=[float(x) for x in hi],
+        polygon_emitter_count=len(polygons),
     )

@@ -74,7 +74,8 @@ def test_knobs_keep_todays_candidates():
     # the light-selection and direct-light methods calibrate spp, like PT; NRC has no knob
     assert [name for name, m in METHODS.items() if m.knob and m.knob.name == "nc"] == ["nirc"]
     assert METHODS["nrc"].knob is None
-    for name in ("pt-power", "pt-spatial", "nvc-lights", "nvc-env", "restir-di"):
+    for name in ("pt-power", "pt-spatial", "nvc-lights", "nvc-env", "restir-di", "neural-di",
+                 "nrc-di"):
         assert METHODS[name].knob.candidates == METHODS[BASELINE].knob.candidates
 
 
@@ -98,14 +99,16 @@ def test_sweep_roles_keep_todays_series_and_labels():
 
 def _features(**values):
     base = dict(shape_count=3, emitter_count=2, area_emitter_count=2, has_envmap=True,
-                has_many_lights=False, has_glossy=False, has_delta=False)
+                has_many_lights=False, has_glossy=False, has_delta=False,
+                polygon_emitter_count=2)
     return SimpleNamespace(**{**base, **values})
 
 
 #: Methods with a cache that are not caching methods (no ``build``): the visibility
 #: caches of `nvc-lights` and `nvc-env` live on positions too (their other limits:
-#: test_nvc_lights.py, test_nvc_env.py); `restir-di` shades surface points.
-NEED_A_SURFACE = {"nvc-lights", "nvc-env", "restir-di"}
+#: test_nvc_lights.py, test_nvc_env.py); `restir-di`, `neural-di` and `nrc-di` shade
+#: surface points (test_restir.py, test_neural_di.py, test_nrc_di.py).
+NEED_A_SURFACE = {"nvc-lights", "nvc-env", "restir-di", "neural-di", "nrc-di"}
 #: Lighting each method needs besides (nvc-env: an environment map; restir-di: area
 #: emitters only, so none).
 ENVMAP = {"nvc-env": True, "restir-di": False}
@@ -124,8 +127,8 @@ def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
 def test_every_method_applies_to_every_built_in_scene(mi):
     """Today's behaviour: no built-in scene is skipped by any method, except by
     `nvc-lights` the scenes with one emitter (nothing to select), by `nvc-env`
-    those without an environment map and by `restir-di` the scene lit by an
-    environment (`sky`)."""
+    those without an environment map and by `restir-di` and `neural-di` the scene lit
+    by an environment (`sky`)."""
     from renderers.scenes import load_scene
     from renderers.scenes.library import builtin_names
 
@@ -141,6 +144,10 @@ def test_every_method_applies_to_every_built_in_scene(mi):
                 assert METHODS[name].applies_to(features) == \
                     (False, "an environment emitter: restir-di samples points on area "
                             "emitters only")
+            elif name == "neural-di" and features.has_envmap:
+                assert METHODS[name].applies_to(features) == \
+                    (False, "an emitter that is not a polygon (environment, delta or curved "
+                            "area light): neural-di's unshadowed term is a polygon integral")
             else:
                 check_applies(name, features)
 

@@ -1,0 +1,64 @@
+"""`nrc-di`: a neural cache of the direct light at primary hits (NVC paper's NRC DI).
+
+Neural Visibility Cache paper, Sec. 4.2: the visibility cache's network with
+three outputs (``renderers.caches.direct_light_config``) caches the RGB direct
+light reflected at a position, trained online (one Adam step per frame) on
+one-sample NEE estimates at ``camera_points`` camera first hits and
+``world_points`` surface points reached from the scene's box
+(renderers.integrators.nrc_di); the image is the prediction at each camera
+ray's first hit plus the emission seen there. Biased, noise-free but for the
+pixel footprint (docs/estimators.md, "nrc-di"). Parameters: those of
+renderers.methods.primary.
+
+Applies to scenes with a surface and an emitter (any kind, any number).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from renderers.methods.base import Knob, Method
+from renderers.methods.cached import make_cache
+from renderers.methods.nvc_lights import visibility_cache_render
+from renderers.methods.primary import PrimaryCacheParams, lit_surface
+from renderers.methods.pt import SPP_CANDIDATES
+from renderers.timing import StageTimer
+
+
+class NRCDIParams(PrimaryCacheParams):
+    """The cache's training (renderers.methods.primary)."""
+
+
+def build(scene: Any, params: NRCDIParams, seed: int) -> tuple[Any, Any]:
+    """(integrator, RGB cache): the prediction at first hits, untrained."""
+    import mitsuba as mi
+
+    from renderers.caches import direct_light_config
+    from renderers.integrators.nrc_di import PLUGIN_NAME, register
+
+    register()
+    cache = make_cache(scene, direct_light_config, params, seed)
+    return mi.load_dict({"type": PLUGIN_NAME}).with_cache(cache), cache
+
+
+def train_frame(scene: Any, cache: Any, params: NRCDIParams, seed: int,
+                timer: StageTimer) -> None:
+    """One frame of online training: one NEE sample per point, then the cache's step."""
+    from renderers.integrators.nrc_di import direct_light_records
+
+    with timer.stage("training_paths"):
+        records = direct_light_records(scene.scene, params.world_points, params.camera_points,
+                                       seed)
+    with timer.stage("training"):
+        cache.train(records)
+
+
+render = visibility_cache_render(build, train_frame)
+
+
+METHOD = Method("nrc-di",
+                "NRC DI: a hash-grid + 2x32 MLP cache of the direct light, trained online "
+                "on one-sample NEE, rendered as its prediction (biased): primary hits only "
+                "(max_depth 2)",
+                NRCDIParams, render, version=1, integrators=("renderers.integrators.nrc_di",),
+                requires=lit_surface, label="NRC DI", knob=Knob("spp", SPP_CANDIDATES))
