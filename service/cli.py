@@ -50,6 +50,11 @@ MaxDepth = Annotated[int, typer.Option(
     "--max-depth", min=-1, max=1024,
     help="longest path in segments for renders, cache-training paths and the reference "
          "alike (-1 = unbounded: Russian roulette ends paths)")]
+MethodMaxDepth = Annotated[int | None, typer.Option(
+    "--max-depth", min=-1, max=1024,
+    help="longest path in segments for the render, its cache-training paths and the "
+         "reference alike (-1 = unbounded: Russian roulette ends paths); default: the "
+         "method's own (-1; 2 for the direct-light methods)")]
 JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a table")]
 Server = Annotated[str | None, typer.Option(
     "--server", envvar="NIRC_BENCH_SERVER",
@@ -254,7 +259,7 @@ def render(
     spp: Annotated[int, typer.Option("--spp", min=1, max=1 << 16, help="spp per frame")] = 1,
     frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 1,
     seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000, help="K independent renders")] = 4,
-    max_depth: MaxDepth = -1,
+    max_depth: MethodMaxDepth = None,
     param: Annotated[list[str] | None, typer.Option(
         "--param", "-p", help="method parameter NAME=VALUE (repeatable)")] = None,
     estimator: Annotated[str | None, typer.Option(
@@ -286,7 +291,8 @@ def render(
     from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
 
     params = dict(_parse_param(p) for p in param or [])
-    params.setdefault("max_depth", max_depth)
+    if max_depth is not None:
+        params.setdefault("max_depth", max_depth)
     shortcuts = {"estimator": estimator, "termination": termination,
                  "nc": _parse_nc(nc) if nc is not None else None, "pretrain_frames": pretrain}
     params.update({name: value for name, value in shortcuts.items() if value is not None})

@@ -136,6 +136,20 @@ def test_render_reference_evaluate_round_trip(tmp_path):
     assert values["mrse"] == pytest.approx(summary["per_seed"][0]["mrse"], rel=1e-5)
 
 
+def test_render_takes_the_methods_own_depth_unless_given(tmp_path):
+    # restir-di renders direct light only (max_depth 2): no --max-depth needed, and its
+    # reference is the depth-2 one an explicit --max-depth 2 reuses.
+    args = ("render", "--scene", "many-lights", "--method", "restir-di", "--res", "8",
+            "--seeds", "2", "--ref-spp", "64", "--json")
+    first = run_cli(*args, data_dir=tmp_path)
+    assert first.returncode == 0, first.stderr
+    assert json.loads(first.stdout)["reference"]["rendered_now"] is True
+    again = run_cli(*args, "--max-depth", "2", data_dir=tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert json.loads(again.stdout)["reference"]["rendered_now"] is False
+    assert_clean_error(run_cli(*args, "--max-depth", "-1", data_dir=tmp_path), "max_depth")
+
+
 SWEEP_SMALL = ("--scene", "cornell-box", "--res", "8", "--seeds", "2", "--train-frames", "2",
                "--v1-spp", "4", "--ref-spp", "64", "-p", 'cache={"batch_size": 1024}',
                "-p", "min_train_paths=1024")
