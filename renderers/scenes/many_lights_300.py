@@ -17,8 +17,16 @@ from __future__ import annotations
 import numpy as np
 
 from renderers.scenes.many_lights import HALF, HEIGHT, partitions
-from renderers.scenes.parts import SceneDict, area_light, box_between, diffuse, quad, room, \
-    sensor, two_sided
+from renderers.scenes.parts import (
+    SceneDict,
+    area_light,
+    box_between,
+    diffuse,
+    quad,
+    room,
+    sensor,
+    two_sided,
+)
 
 CEILING_GRID = (20, 12)   # lights along x, z
 FLOOR_LAMPS = 60
