@@ -30,6 +30,7 @@ from renderers.methods import (
     pt_power,
     pt_spatial,
     restir_di,
+    restir_nvc,
 )
 from renderers.methods.base import Knob, Method, MethodParams, SweepRole
 
@@ -47,7 +48,7 @@ class NotApplicable(MethodError):
 
 METHODS: dict[str, Method] = {module.METHOD.name: module.METHOD
                               for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
-                                             restir_di, nirc, nrc)}
+                                             restir_di, restir_nvc, nirc, nrc)}
 
 #: The baseline: the method a time budget's ``pt_spp`` and a sweep's reference-sharing
 #: base render name, and the one calibrated when nothing else is (unbiased path tracing).

@@ -55,7 +55,14 @@ from typing import Any
 
 from pydantic import Field
 
-from renderers.methods.base import FrameHooks, Method, RenderOutput, render_stage, run_frames
+from renderers.methods.base import (
+    FrameHooks,
+    Method,
+    MethodParams,
+    RenderOutput,
+    render_stage,
+    run_frames,
+)
 from renderers.methods.cached import cache_method_stats, has_surface, make_cache
 from renderers.methods.pt import PATH_INTEGRATORS, PTParams, path_integrator
 from renderers.seeding import derive_seed
@@ -65,8 +72,8 @@ from renderers.timing import StageTimer
 MAX_LIGHTS = 32
 
 
-class NVCLightsParams(PTParams):
-    """The PT core's parameters plus the visibility cache's (module docstring)."""
+class VisibilityCacheParams(MethodParams):
+    """The visibility cache's parameters (module docstring), shared by `restir-nvc`."""
 
     clamp: float = Field(1e-3, ge=0.0, le=1.0, description="floor of the predicted visibility")
     world_points: int = Field(4096, ge=0, le=1 << 20,
@@ -77,8 +84,6 @@ class NVCLightsParams(PTParams):
     clusters: int = Field(0, ge=0, le=MAX_LIGHTS,
                           description="0: per light up to 32 lights, else at most this many "
                                       "k-means clusters")
-    cluster_candidates: int = Field(8, ge=1, le=64,
-                                    description="RIS candidates within the picked cluster")
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
 
     def cluster_count(self, emitters: int) -> int:
@@ -87,12 +92,20 @@ class NVCLightsParams(PTParams):
             return self.clusters
         return MAX_LIGHTS if emitters > MAX_LIGHTS else 0
 
+
+class NVCLightsParams(PTParams, VisibilityCacheParams):
+    """The PT core's parameters plus the visibility cache's (module docstring)."""
+
+    cluster_candidates: int = Field(8, ge=1, le=64,
+                                    description="RIS candidates within the picked cluster")
+
     def core(self) -> PTParams:
         """The PT core's parameters."""
         return PTParams(**self.model_dump(include=set(PTParams.model_fields)))
 
 
-def light_selection(scene: Any, params: NVCLightsParams, seed: int) -> tuple[type, Any]:
+def light_selection(scene: Any, params: VisibilityCacheParams, seed: int,
+                    cluster_candidates: int = 8) -> tuple[type, Any]:
     """(light selector type bound to a new untrained cache, the cache), per light or
     clustered by ``params``. A clustered cache carries its clusters (``cache.clusters``,
     None per light) for :func:`train_frame`."""
@@ -112,17 +125,18 @@ def light_selection(scene: Any, params: NVCLightsParams, seed: int) -> tuple[typ
     if clusters is None:
         return NVCLightSampler.bound_to(cache, params.clamp), cache
     return ClusteredNVCLightSampler.bound_to_clusters(
-        cache, clusters, params.clamp, params.cluster_candidates), cache
+        cache, clusters, params.clamp, cluster_candidates), cache
 
 
 def build(scene: Any, params: NVCLightsParams, seed: int) -> tuple[Any, Any]:
     """(integrator, visibility cache): the PT core selecting lights with an untrained cache."""
     integrator = path_integrator(params.core())
-    integrator.light_sampler_type, cache = light_selection(scene, params, seed)
+    integrator.light_sampler_type, cache = light_selection(scene, params, seed,
+                                                           params.cluster_candidates)
     return integrator, cache
 
 
-def train_frame(scene: Any, cache: Any, params: NVCLightsParams, seed: int,
+def train_frame(scene: Any, cache: Any, params: VisibilityCacheParams, seed: int,
                 timer: StageTimer) -> None:
     """One frame of online training: shadow rays to every light (or one light per
     cluster), then the cache's step."""
