@@ -66,8 +66,7 @@ def shadow_ray_selector(mi: Any, nvc: Any) -> Any:
     class ShadowRays(type(nvc)):
         def weights(self, si, active):
             weights = []
-            for i, u in enumerate(self.unshadowed(si)):
-                emitter = dr.gather(mi.EmitterPtr, self.scene.emitters_dr(), mi.UInt32(i))
+            for emitter, u in zip(self.emitters, self.unshadowed(si), strict=True):
                 ds, _ = emitter.sample_direction(si, mi.Point2f(0.5, 0.5), active)
                 occluded = self.scene.ray_test(si.spawn_ray_to(ds.p), active)
                 weights.append(u * dr.select(occluded, self.clamp, 1.0))
