@@ -17,7 +17,10 @@ into 4 clusters and on `many-lights-300` (32 clusters), direct light only
 sides except 4096 for `many-lights-300` direct. The planted RIS
 weight without 1 / m_c is rejected on `many-lights-300`. With clamp 0 and a
 cache that calls a cluster of two point lights occluded everywhere, the image
-is rejected, with clamp 0.001 it agrees. `restir-nvc`'s RIS alone (no reuse)
+is rejected, with clamp 0.001 it agrees. With four large lights just above a
+floor (BSDF sampling hits them often, so MIS matters) the estimator agrees,
+and NEE's MIS weight taken with 1 / W as its light pmf (while BSDF hits use the
+source pmf: the weights no longer sum to one) is rejected. `restir-nvc`'s RIS alone (no reuse)
 agrees with ``path`` on `many-lights-300`, and its planted candidate pdf
 without 1 / m_c is rejected.
 """
@@ -32,6 +35,7 @@ import pytest
 from metrics.statistics import agreement_test, z_test
 from renderers.moments import render_moments
 from tests.renderers.lighting import RES, SPP, luminance_moments
+from tests.renderers.scene_xml import perspective_sensor
 from tests.renderers.test_nvc_lights import SHADOWED_FLOOR, _blind_to_light, _reference
 from tests.renderers.test_restir import _moments, _params
 
@@ -226,6 +230,7 @@ def test_ris_weight_without_the_uniform_pick_is_rejected(mi, lights_300):
     integrator, _ = _trained(lights_300, frames=2)
     planted = _without_uniform_pick(integrator.light_sampler_type)(lights_300.scene)
     result = _cluster_ris_test(mi, planted)
+    print(result.summary())
     assert not result.passed, result.summary()
 
 
@@ -274,6 +279,7 @@ def test_planted_ris_weight_without_the_uniform_pick_is_rejected_in_the_image(
     integrator.light_sampler_type = _without_uniform_pick(integrator.light_sampler_type)
     test = luminance_moments(render_moments(lights_300.scene, integrator, LOW_SPP, seed=2))
     result = agreement_test(*test, *references_300[2], alpha=0.01)
+    print(result.summary())
     assert not result.passed, result.summary()
 
 
@@ -307,6 +313,52 @@ def test_clamp_zero_is_biased_where_the_cache_wrongly_predicts_a_cluster_occlude
     assert results[0.001].passed, results[0.001].summary()
 
 
+#: A floor under four large, low area lights of two sizes and powers (k-means into 2
+#: clusters mixes them): BSDF sampling hits the lights often, so MIS weights matter.
+LOW_LIGHTS = """<scene version="3.0.0">
+    """ + perspective_sensor("60", "0, 4, 0.01", "0, 0, 0") + """
+    <shape type="rectangle">
+        <transform name="to_world"><rotate x="1" angle="-90"/><scale value="2"/></transform>
+        <bsdf type="diffuse"/>
+    </shape>""" + "".join(f"""
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="{size}"/><rotate x="1" angle="90"/>
+            <translate x="{x}" y="{y}" z="{z}"/></transform>
+        <emitter type="area"><rgb name="radiance" value="{radiance}, {radiance}, {radiance}"/></emitter>
+    </shape>""" for x, y, z, size, radiance in ((-1, 0.3, -1, 0.6, 1), (-0.6, 0.5, -0.4, 0.3, 8),
+                                              (1, 0.3, 1, 0.6, 1), (0.6, 0.5, 0.4, 0.3, 8))) + """
+</scene>
+"""
+
+
+@pytest.mark.slow
+def test_mis_weights_need_the_same_light_pmf_on_both_sides(mi):
+    """NEE's MIS weight uses the exact source pmf, as the BSDF hits' does: agrees. Planted:
+    NEE takes 1 / W (its RIS weight) as its light pmf instead, so the two strategies'
+    weights no longer sum to one: rejected."""
+    import drjit as dr
+
+    scene = mi.load_string(LOW_LIGHTS.format(res=RES))
+    loaded = SimpleNamespace(scene=scene)
+    reference = _reference(scene, max_depth=2)
+    results = {}
+    for planted in (False, True):
+        integrator, cache = _trained(loaded, frames=2, max_depth=2, clusters=2)
+        assert cache.clusters.count == 2
+        if planted:
+            class RISWeightAsPmf(integrator.light_sampler_type):
+                def select(self, si, u, active):
+                    index, weight, _, u = super().select(si, u, active)
+                    return index, weight, dr.select(weight > 0, dr.rcp(weight), 0), u
+
+            integrator.light_sampler_type = RISWeightAsPmf
+        test = luminance_moments(render_moments(scene, integrator, SPP, seed=3))
+        results[planted] = agreement_test(*test, *reference, alpha=0.01)
+        print(f"planted {planted}: {results[planted].summary()}")
+    assert results[False].passed, results[False].summary()
+    assert not results[True].passed, results[True].summary()
+
+
 def _restir_nvc(scene, planted=False):
     """restir-nvc's estimator (RIS alone) after a few frames of training on ``scene``."""
     from renderers.integrators.restir import ReSTIRDI
@@ -337,4 +389,5 @@ def test_restir_nvc_candidate_pdf_without_the_uniform_pick_is_rejected(mi, light
                                                                        references_300):
     mean, variance, _ = _moments(_restir_nvc(lights_300, planted=True), frames=1, seed=2)
     result = agreement_test(mean, variance, *references_300[2], alpha=0.01)
+    print(result.summary())
     assert not result.passed, result.summary()
