@@ -8,6 +8,7 @@ contribution weight W of the in-cluster pick is tested directly: at fixed
 shading points, E[W U_l 1{l in c}] must equal sum_{l in c} U_l for every cluster
 c (per-cluster z-test, Šidák, over 2^18 picks per point), and the planted
 source pdf without the uniform pick's 1 / m_c is rejected by the same test.
+`restir-nvc` renders through its own frame loop (pre-training, training, reuse).
 
 Statistical checks (slow) as tests/renderers/test_nvc_lights.py: after a few
 frames of training, clustered `nvc-lights` agrees with Mitsuba's ``path``
@@ -391,3 +392,21 @@ def test_restir_nvc_candidate_pdf_without_the_uniform_pick_is_rejected(mi, light
     result = agreement_test(mean, variance, *references_300[2], alpha=0.01)
     print(result.summary())
     assert not result.passed, result.summary()
+
+
+def test_restir_nvc_renders_through_its_frame_loop(mi):
+    """The method's own loop: pre-training, training before every frame, the reservoirs
+    (reuse on), the cache's statistics."""
+    from renderers.methods import METHODS, parse_params
+    from renderers.scenes import load_scene
+
+    scene = load_scene("many-lights", 8)
+    params = parse_params("restir-nvc", {"world_points": 256, "camera_points": 256,
+                                         "pretrain_frames": 1, "spatial_neighbours": 1})
+    output = METHODS["restir-nvc"].render(scene, params, seed_parts=("restir-nvc-test",),
+                                          spp=1, frames=2)
+    assert output.accumulated.shape[:2] == (8, 8) and np.isfinite(output.accumulated).all()
+    assert output.accumulated[..., :3].mean() > 0
+    stats = output.method_stats
+    assert stats["shadow_rays_per_sample"] == 1 + 2 + 2 and stats["pretrain_frames"] == 1
+    assert len(stats["loss_history"]) == 1 + 1 + 2  # pre-training, warm-up, 2 frames
