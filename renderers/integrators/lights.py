@@ -28,8 +28,9 @@ weights the emitter sample by ``weight``, an unbiased contribution weight of
 the pick (E[g(i) weight] = sum of g over the emitters it can pick), and the MIS
 weights of both strategies use ``pmf`` (= ``pmf(si, index)``). The balance
 heuristic stays a partition of unity whatever that pmf is, so NEE plus the
-BSDF-sampled hits stay unbiased as long as ``pmf`` is positive exactly where
-the pick can land (Veach 1997, Sec. 9.2: MIS weights need only sum to one). The
+BSDF-sampled hits stay unbiased as long as ``pmf`` is 0 wherever the pick
+cannot land on a contributing emitter (there the BSDF sample must take the whole
+weight; Veach 1997, Sec. 9.2: MIS weights need only sum to one). The
 default ``select`` is ``sample`` with weight = 1 / pmf.
 
 ``sampler_at(si)`` returns a draw function of ``u`` at one point (``sample``
