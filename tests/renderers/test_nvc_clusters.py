@@ -22,7 +22,8 @@ is rejected, with clamp 0.001 it agrees. With four large lights just above a
 floor (BSDF sampling hits them often, so MIS matters) the estimator agrees,
 and NEE's MIS weight taken with 1 / W as its light pmf (while BSDF hits use the
 source pmf: the weights no longer sum to one) is rejected. `restir-nvc`'s RIS alone (no reuse)
-agrees with ``path`` on `many-lights-300`, and its planted candidate pdf
+agrees with ``path`` on `many-lights-300` and (per-light NVC) on `many-lights`,
+and its planted candidate pdf
 without 1 / m_c is rejected.
 """
 
@@ -378,9 +379,14 @@ def _restir_nvc(scene, planted=False):
 
 
 @pytest.mark.slow
-def test_restir_with_nvc_candidates_matches_path(mi, lights_300, references_300):
-    mean, variance, _ = _moments(_restir_nvc(lights_300), frames=1, seed=1)
-    result = agreement_test(mean, variance, *references_300[2], alpha=0.01)
+@pytest.mark.parametrize("clustered", [True, False], ids=["300-lights", "32-lights"])
+def test_restir_with_nvc_candidates_matches_path(mi, lights_300, references_300, many_lights,
+                                                 clustered):
+    """Candidates from the clustered NVC (300 lights) and from the per-light NVC (32)."""
+    scene = lights_300 if clustered else many_lights
+    reference = references_300[2] if clustered else _reference(many_lights.scene, 2)
+    mean, variance, _ = _moments(_restir_nvc(scene), frames=1, seed=1)
+    result = agreement_test(mean, variance, *reference, alpha=0.01)
     print(result.summary())
     assert result.passed, result.summary()
 
