@@ -21,6 +21,22 @@ once, here. The estimator is unbiased for any selector whose pmf is positive
 for every emitter that can contribute at x and that returns the same pmf in
 ``sample`` and ``pmf``.
 
+A selector whose NEE pick has no tractable pmf (resampled importance sampling,
+the clustered visibility cache of ``renderers.integrators.nvc_lights``)
+overrides ``select(si, u) -> (index, weight, pmf, u_reused)`` instead: NEE
+weights the emitter sample by ``weight``, an unbiased contribution weight of
+the pick (E[g(i) weight] = sum of g over the emitters it can pick), and the MIS
+weights of both strategies use ``pmf`` (= ``pmf(si, index)``). The balance
+heuristic stays a partition of unity whatever that pmf is, so NEE plus the
+BSDF-sampled hits stay unbiased as long as ``pmf`` is 0 wherever the pick
+cannot land on a contributing emitter (there the BSDF sample must take the whole
+weight; Veach 1997, Sec. 9.2: MIS weights need only sum to one). The
+default ``select`` is ``sample`` with weight = 1 / pmf.
+
+``sampler_at(si)`` returns a draw function of ``u`` at one point (``sample``
+without recomputing per-point weights for every draw): the candidate source of
+ReSTIR (``renderers.integrators.restir``).
+
 Selectors:
 
 * :class:`UniformLightSampler` (the core's default): Mitsuba's own
@@ -49,6 +65,7 @@ power is floored at POWER_FLOOR times the mean, so no emitter has pmf 0.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import drjit as dr
@@ -89,6 +106,17 @@ class LightSampler:
         """The probability that ``sample`` at ``si`` picks emitter ``index``."""
         raise NotImplementedError
 
+    def select(self, si: mi.SurfaceInteraction3f, u: mi.Point2f, active: mi.Bool
+               ) -> tuple[mi.UInt32, mi.Float, mi.Float, mi.Point2f]:
+        """NEE's pick: (index, contribution weight, MIS pmf, ``u`` for the emitter's sample)."""
+        index, pmf, u_x = self.sample(si, u.x, active)
+        return index, dr.select(pmf > 0, dr.rcp(pmf), 0), pmf, mi.Point2f(u_x, u.y)
+
+    def sampler_at(self, si: mi.SurfaceInteraction3f, active: mi.Bool
+                   ) -> Callable[[mi.Float], tuple[mi.UInt32, mi.Float, mi.Float]]:
+        """``u -> sample(si, u, active)`` for repeated draws at the same points."""
+        return lambda u: self.sample(si, u, active)
+
     # ---- Built on it: NEE and the MIS light pdf ----
 
     def index_of(self, emitter: mi.EmitterPtr, active: mi.Bool) -> mi.UInt32:
@@ -101,12 +129,12 @@ class LightSampler:
         """NEE: (direction sample with pdf = pmf * emitter pdf, Le / pdf, 0 if occluded)."""
         if self.count == 0:
             return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0)
-        index, pmf, u_x = self.sample(si, u.x, active)
+        index, selection_weight, pmf, u = self.select(si, u, active)
         emitter = dr.gather(mi.EmitterPtr, self.scene.emitters_dr(), index, active)
-        ds, weight = emitter.sample_direction(si, mi.Point2f(u_x, u.y), active)
+        ds, weight = emitter.sample_direction(si, u, active)
         active &= (ds.pdf != 0) & (pmf > 0)
         ds.pdf *= pmf
-        weight = dr.select(active, weight * dr.rcp(pmf), 0)
+        weight = dr.select(active, weight * selection_weight, 0)
         # Visibility as Scene::sample_emitter_direction: an occluded sample has pdf 0.
         occluded = self.scene.ray_test(si.spawn_ray_to(ds.p), active)
         weight[occluded] = 0
@@ -193,6 +221,32 @@ class PowerLightSampler(LightSampler):
         return self.distribution.eval_pmf_normalized(index, active)
 
 
+def invert_cdf(weights: list[mi.Float], u: mi.Float) -> tuple[mi.UInt32, mi.Float, mi.Float]:
+    """(index i, w_i / sum w, ``u`` rescaled to [0, 1) within i) for u in [0, 1).
+
+    The first i whose running sum exceeds u * sum w, in one pass over the
+    weights (the distribution weighted reservoir sampling draws from); pmf 0
+    where every weight is 0."""
+    total = sum(weights[1:], weights[0])
+    target = u * total
+    index = mi.UInt32(len(weights) - 1)
+    chosen_weight = weights[-1]
+    below = mi.Float(0)      # running sum before the chosen entry
+    running = mi.Float(0)
+    found = mi.Bool(False)
+    for i, weight in enumerate(weights):
+        hit = ~found & (target < running + weight)
+        index = dr.select(hit, i, index)
+        chosen_weight = dr.select(hit, weight, chosen_weight)
+        below = dr.select(hit, running, below)
+        found |= hit
+        running += weight
+    pmf = dr.select(total > 0, chosen_weight / total, 0)
+    u_x = dr.clip(dr.select(chosen_weight > 0, (target - below) / chosen_weight, 0), 0,
+                  dr.one_minus_epsilon(mi.Float))
+    return index, pmf, u_x
+
+
 class WeightedLightSampler(LightSampler):
     """p(i | x) = w_i(x) / sum_j w_j(x) for per-point weights ``weights(si)`` (one Float per emitter).
 
@@ -208,26 +262,11 @@ class WeightedLightSampler(LightSampler):
         raise NotImplementedError
 
     def sample(self, si, u, active):
-        weights = self.weights(si, active)
-        total = sum(weights[1:], weights[0])
-        # Inverse CDF: the first i whose running sum exceeds u * total.
-        target = u * total
-        index = mi.UInt32(self.count - 1)
-        chosen_weight = weights[-1]
-        below = mi.Float(0)      # running sum before the chosen emitter
-        running = mi.Float(0)
-        found = mi.Bool(False)
-        for i, weight in enumerate(weights):
-            hit = ~found & (target < running + weight)
-            index = dr.select(hit, i, index)
-            chosen_weight = dr.select(hit, weight, chosen_weight)
-            below = dr.select(hit, running, below)
-            found |= hit
-            running += weight
-        pmf = dr.select(total > 0, chosen_weight / total, 0)
-        u_x = dr.clip(dr.select(chosen_weight > 0, (target - below) / chosen_weight, 0), 0,
-                      dr.one_minus_epsilon(mi.Float))
-        return index, pmf, u_x
+        return invert_cdf(self.weights(si, active), u)
+
+    def sampler_at(self, si, active):
+        weights = self.weights(si, active)  # once for every draw
+        return lambda u: invert_cdf(weights, u)
 
     def pmf(self, si, index, active):
         weights = self.weights(si, active)

@@ -13,8 +13,10 @@ Per lane (one per pixel and replica) and frame, with x the pixel's first hit:
     target      p̂_x(y) = lum(f(x, ω_o, x→y) |cos θ_x| · Le(y → x) · |cos θ_y| / |x - y|²)
                 (unshadowed), and p̂V_x(y) = p̂_x(y) V(x, y) once a shadow ray was cast
     candidates  y_i ~ p(y) = P(e) · pdf_A(y | e), P the power-proportional light
-                selection (renderers.integrators.lights.PowerLightSampler), pdf_A the
-                emitter's position pdf (area measure); i = 1..C
+                selection (renderers.integrators.lights.PowerLightSampler) or any other
+                selector with an exact pmf (`restir-nvc`: the neural visibility cache's,
+                clustered or per light), pdf_A the emitter's position pdf (area
+                measure); i = 1..C
     RIS         w_i = p̂_x(y_i) / (C p(y_i)),  pick y_s with prob w_s / Σ w,
                 W = Σ w / p̂_x(y_s) · V(x, y_s),  M = C   (the one shadow ray: an
                 occluded choice keeps M and gets W = 0, so the reservoir's target
@@ -47,7 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from renderers.integrators.lights import PowerLightSampler
+from renderers.integrators.lights import LightSampler, PowerLightSampler
 
 
 class ReSTIRParams(Protocol):
@@ -118,13 +120,14 @@ def visible(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
     return active & ~scene.ray_test(si.spawn_ray_to(r.p), active)
 
 
-def initial(scene: mi.Scene, lights: PowerLightSampler, si: mi.SurfaceInteraction3f,
+def initial(scene: mi.Scene, lights: LightSampler, si: mi.SurfaceInteraction3f,
             sampler: mi.Sampler, candidates: int) -> Reservoir:
     """RIS of ``candidates`` light samples y ~ P(e) pdf_A(y | e) toward p̂_x."""
     active = si.is_valid()
     chosen, w_sum = dr.zeros(Reservoir, dr.width(active)), mi.Float(0)
+    draw = lights.sampler_at(si, active)  # per-point selection weights, once
     for _ in range(candidates):
-        index, pmf, _ = lights.sample(si, sampler.next_1d(active), active)
+        index, pmf, _ = draw(sampler.next_1d(active))
         emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), index, active)
         ps, _ = emitter.sample_position(0.0, sampler.next_2d(active), active)
         candidate = Reservoir(index, ps.p, ps.n, ps.uv, mi.Float(0), mi.Float(0))
@@ -188,11 +191,13 @@ class ReSTIRDI:
     spp, and what the statistical tests average over.
     """
 
-    def __init__(self, scene: mi.Scene, params: ReSTIRParams, replicas: int = 1) -> None:
+    def __init__(self, scene: mi.Scene, params: ReSTIRParams, replicas: int = 1,
+                 lights: LightSampler | None = None) -> None:
         self.scene, self.params, self.replicas = scene, params, replicas
         self.sensor = scene.sensors()[0]
         self.size = tuple(int(s) for s in self.sensor.film().crop_size())
-        self.lights = PowerLightSampler(scene)
+        # The candidates' light selection (its pmf enters the RIS weights): by power.
+        self.lights = PowerLightSampler(scene) if lights is None else lights
         self.history: Frame | None = None
 
     def reset(self) -> None:

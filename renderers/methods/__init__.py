@@ -42,6 +42,7 @@ from renderers.methods import (
     pt_power,
     pt_spatial,
     restir_di,
+    restir_nvc,
 )
 from renderers.methods.base import Knob, Method, MethodParams, SweepRole
 
@@ -60,7 +61,7 @@ class NotApplicable(MethodError):
 #: The methods of this repository.
 BUILTIN: dict[str, Method] = {module.METHOD.name: module.METHOD
                               for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
-                                             restir_di, neural_di, nrc_di, nirc, nrc)}
+                                             restir_di, restir_nvc, neural_di, nrc_di, nirc, nrc)}
 
 #: The entry-point group other packages register methods under.
 ENTRY_POINT_GROUP = "nirc_bench.methods"

@@ -26,6 +26,10 @@ world_points        4096      training positions per frame uniform in the scene'
 camera_points       4096      training positions per frame at first hits of random
                               camera rays (paper Sec. 3.3)
 pretrain_frames     0         training frames before the first (warm-up) frame
+clusters            0         0: one output per light up to 32 lights, 32 clusters
+                              beyond; k > 0: k-means of the lights into at most k
+                              clusters, one output each (paper Sec. 3.4)
+cluster_candidates  8         streaming RIS candidates within the picked cluster
 cache               {}        overrides of the cache preset
                               (``renderers.caches.visibility_config``: hash grid
                               10 levels x 4 features, base resolution 16; MLP
@@ -34,8 +38,12 @@ cache               {}        overrides of the cache preset
                               per frame)
 ==================  ========  =====================================================
 
-Applies to scenes with 2 to 32 emitters (one output per emitter; environment
-and delta emitters included) and a surface.
+Clustered (``clusters`` > 0, or more than 32 emitters): cluster c is picked with
+the exact pmf ∝ U_c(x) * max(V_c(x), clamp), then one of its lights by
+streaming RIS with an unbiased contribution weight; NEE weights by it and the
+MIS weights use the exact source pmf P(c | x) / m_c (unbiased; docs/estimators.md,
+"Clustered NVC"). Applies to scenes with at least 2 emitters (environment and
+delta emitters included) and a surface.
 """
 
 from __future__ import annotations
@@ -47,18 +55,26 @@ from typing import Any
 
 from pydantic import Field
 
-from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput, render_stage, run_frames
+from renderers.methods.base import (
+    FrameHooks,
+    Knob,
+    Method,
+    MethodParams,
+    RenderOutput,
+    render_stage,
+    run_frames,
+)
 from renderers.methods.cached import cache_method_stats, has_surface, make_cache
 from renderers.methods.pt import PATH_INTEGRATORS, SPP_CANDIDATES, PTParams, path_integrator
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
 
-#: One output per light; more needs the clustered NVC (paper Sec. 3.4).
+#: One output per light up to this many; beyond, clusters (paper Sec. 3.4).
 MAX_LIGHTS = 32
 
 
-class NVCLightsParams(PTParams):
-    """The PT core's parameters plus the visibility cache's (module docstring)."""
+class VisibilityCacheParams(MethodParams):
+    """The visibility cache's parameters (module docstring), shared by `restir-nvc`."""
 
     clamp: float = Field(1e-3, ge=0.0, le=1.0, description="floor of the predicted visibility")
     world_points: int = Field(4096, ge=0, le=1 << 20,
@@ -66,33 +82,70 @@ class NVCLightsParams(PTParams):
     camera_points: int = Field(4096, ge=0, le=1 << 20,
                                description="training points per frame at camera first hits")
     pretrain_frames: int = Field(0, ge=0, le=100_000)
+    clusters: int = Field(0, ge=0, le=MAX_LIGHTS,
+                          description="0: per light up to 32 lights, else at most this many "
+                                      "k-means clusters")
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
+
+    def cluster_count(self, emitters: int) -> int:
+        """0 (one output per light) or the clusters to ask k-means for."""
+        if self.clusters:
+            return self.clusters
+        return MAX_LIGHTS if emitters > MAX_LIGHTS else 0
+
+
+class NVCLightsParams(PTParams, VisibilityCacheParams):
+    """The PT core's parameters plus the visibility cache's (module docstring)."""
+
+    cluster_candidates: int = Field(8, ge=1, le=64,
+                                    description="RIS candidates within the picked cluster")
 
     def core(self) -> PTParams:
         """The PT core's parameters."""
         return PTParams(**self.model_dump(include=set(PTParams.model_fields)))
 
 
-def build(scene: Any, params: NVCLightsParams, seed: int) -> tuple[Any, Any]:
-    """(integrator, visibility cache): the PT core selecting lights with an untrained cache."""
+def light_selection(scene: Any, params: VisibilityCacheParams, seed: int,
+                    cluster_candidates: int = 8) -> tuple[type, Any]:
+    """(light selector type bound to a new untrained cache, the cache), per light or
+    clustered by ``params``. A clustered cache carries its clusters (``cache.clusters``,
+    None per light) for :func:`train_frame`."""
     from renderers.caches import visibility_config
-    from renderers.integrators.nvc_lights import NVCLightSampler
+    from renderers.integrators.nvc_lights import (
+        ClusteredNVCLightSampler,
+        NVCLightSampler,
+        cluster_lights,
+    )
 
     count = len(scene.scene.emitters())
-    cache = make_cache(scene, functools.partial(visibility_config, count), params, seed)
+    wanted = params.cluster_count(count)
+    clusters = cluster_lights(scene.scene, wanted) if wanted else None
+    outputs = count if clusters is None else clusters.count
+    cache = make_cache(scene, functools.partial(visibility_config, outputs), params, seed)
+    cache.clusters = clusters
+    if clusters is None:
+        return NVCLightSampler.bound_to(cache, params.clamp), cache
+    return ClusteredNVCLightSampler.bound_to_clusters(
+        cache, clusters, params.clamp, cluster_candidates), cache
+
+
+def build(scene: Any, params: NVCLightsParams, seed: int) -> tuple[Any, Any]:
+    """(integrator, visibility cache): the PT core selecting lights with an untrained cache."""
     integrator = path_integrator(params.core())
-    integrator.light_sampler_type = NVCLightSampler.bound_to(cache, params.clamp)
+    integrator.light_sampler_type, cache = light_selection(scene, params, seed,
+                                                           params.cluster_candidates)
     return integrator, cache
 
 
-def train_frame(scene: Any, cache: Any, params: NVCLightsParams, seed: int,
+def train_frame(scene: Any, cache: Any, params: VisibilityCacheParams, seed: int,
                 timer: StageTimer) -> None:
-    """One frame of online training: shadow rays to every light, then the cache's step."""
+    """One frame of online training: shadow rays to every light (or one light per
+    cluster), then the cache's step."""
     from renderers.integrators.nvc_lights import visibility_records
 
     with timer.stage("training_paths"):
         records = visibility_records(scene.scene, params.world_points, params.camera_points,
-                                     seed)
+                                     seed, getattr(cache, "clusters", None))
     with timer.stage("training"):
         cache.train(records)
 
@@ -140,12 +193,10 @@ render = visibility_cache_render(build, train_frame)
 
 
 def applies(features: Any) -> tuple[bool, str]:
-    """2 to 32 emitters and a surface for the cache to live on."""
+    """At least 2 emitters (beyond 32 clustered) and a surface for the cache to live on."""
     if features.emitter_count < 2:
         count = "one emitter" if features.emitter_count == 1 else "no emitter"
         return False, f"{count}: nothing to select"
-    if features.emitter_count > MAX_LIGHTS:
-        return False, f"more than {MAX_LIGHTS} emitters: needs the clustered NVC"
     return has_surface(features)
 
 

@@ -38,6 +38,7 @@ emitters are not supported and such scenes are skipped with the reason.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Literal
 
 from pydantic import Field
@@ -46,6 +47,9 @@ from renderers.methods.base import FrameHooks, Knob, Method, MethodParams, Rende
 from renderers.methods.pt import SPP_CANDIDATES
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
+
+#: What runs before a frame's reservoirs (``(index, seed, timer)``; e.g. a cache's training).
+BeforeFrame = Callable[[int, int, StageTimer], None]
 
 
 class ReSTIRDIParams(MethodParams):
@@ -70,9 +74,19 @@ def render(scene: Any, params: ReSTIRDIParams, *, seed_parts: tuple[Any, ...], s
     from renderers.integrators.restir import ReSTIRDI, check_scene
 
     check_scene(scene.scene)
-    restir = ReSTIRDI(scene.scene, params, replicas=spp)
+    output = run_frames(frame_function(ReSTIRDI(scene.scene, params, replicas=spp)),
+                        seed_parts=seed_parts, frames=frames, spp=spp, hooks=hooks)
+    output.method_stats = {"shadow_rays_per_sample": shadow_rays(params)}
+    return output
+
+
+def frame_function(restir: Any, before: BeforeFrame | None = None
+                   ) -> Callable[[int, int, StageTimer], Any]:
+    """``run_frames``' frame of a ``ReSTIRDI`` estimator, after ``before`` (if any)."""
 
     def render_frame(index: int, seed: int, timer: StageTimer):
+        if before is not None:
+            before(index, seed, timer)
         if index <= 0:
             restir.reset()
         if index < 0:
@@ -80,10 +94,7 @@ def render(scene: Any, params: ReSTIRDIParams, *, seed_parts: tuple[Any, ...], s
         with timer.stage("render"):  # ends with the image on the host: nothing pending
             return restir.render(seed).mean(axis=0)
 
-    output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
-                        hooks=hooks)
-    output.method_stats = {"shadow_rays_per_sample": shadow_rays(params)}
-    return output
+    return render_frame
 
 
 def shadow_rays(params: ReSTIRDIParams) -> int:

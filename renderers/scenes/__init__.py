@@ -8,7 +8,7 @@ Public API::
     SceneError, LoadedScene, SceneFeatures
 
 Built-ins (``cornell-box``, ``cornell-glossy``, ``door``, ``corridor``,
-``sky``, ``many-lights``, ``white-room``) are generated in Python — no files,
+``sky``, ``many-lights``, ``many-lights-300``, ``white-room``) are generated in Python — no files,
 no downloads — and carry no integrator: the renderer under test passes its
 own. Every loaded scene has a resolution-independent fingerprint and features
 computed once at load time. See docs/design.md, section "Scenes".

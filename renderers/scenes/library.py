@@ -17,6 +17,7 @@ from renderers.scenes.corridor import corridor
 from renderers.scenes.door import door
 from renderers.scenes.errors import SceneError
 from renderers.scenes.many_lights import many_lights
+from renderers.scenes.many_lights_300 import many_lights_300
 from renderers.scenes.parts import SceneDict
 from renderers.scenes.sky import sky
 from renderers.scenes.white_room import white_room
@@ -63,6 +64,12 @@ _SCENES = (
         "many-lights",
         "open-plan room with 32 small coloured ceiling lights hidden behind partitions",
         many_lights,
+    ),
+    BuiltinScene(
+        "many-lights-300",
+        "the many-lights room with 300 small lights of varied power (beyond one cache "
+        "output per light)",
+        many_lights_300,
     ),
     BuiltinScene(
         "white-room",

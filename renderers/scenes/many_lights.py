@@ -42,7 +42,7 @@ def _light_colours(count: int) -> np.ndarray:
     return 20.0 * power * tint / tint.mean(axis=1, keepdims=True)
 
 
-def _partitions(bsdf: SceneDict) -> dict[str, SceneDict]:
+def partitions(bsdf: SceneDict) -> dict[str, SceneDict]:
     t, h = PARTITION_THICKNESS / 2, PARTITION_HEIGHT
     shapes: dict[str, SceneDict] = {}
     # Three long partitions across z (at x = -2, 0, 2) with a gap at each end.
@@ -60,7 +60,7 @@ def many_lights() -> SceneDict:
     scene: SceneDict = {"type": "scene"}
     scene.update(room((-HALF, 0, -HALF), (HALF, HEIGHT, HALF), wall))
     scene["floor"]["bsdf"] = two_sided(diffuse((0.5, 0.45, 0.4)))
-    scene.update(_partitions(two_sided(diffuse((0.55, 0.6, 0.7)))))
+    scene.update(partitions(two_sided(diffuse((0.55, 0.6, 0.7)))))
 
     # Four lights per bay; bays are 2 m (x) by 4 m (z).
     colours = _light_colours(LIGHT_COUNT)

@@ -74,8 +74,8 @@ def test_knobs_keep_todays_candidates():
     # the light-selection and direct-light methods calibrate spp, like PT; NRC has no knob
     assert [name for name, m in METHODS.items() if m.knob and m.knob.name == "nc"] == ["nirc"]
     assert METHODS["nrc"].knob is None
-    for name in ("pt-power", "pt-spatial", "nvc-lights", "nvc-env", "restir-di", "neural-di",
-                 "nrc-di"):
+    for name in ("pt-power", "pt-spatial", "nvc-lights", "nvc-env", "restir-di", "restir-nvc",
+                 "neural-di", "nrc-di"):
         assert METHODS[name].knob.candidates == METHODS[BASELINE].knob.candidates
 
 
@@ -106,12 +106,12 @@ def _features(**values):
 
 #: Methods with a cache that are not caching methods (no ``build``): the visibility
 #: caches of `nvc-lights` and `nvc-env` live on positions too (their other limits:
-#: test_nvc_lights.py, test_nvc_env.py); `restir-di`, `neural-di` and `nrc-di` shade
-#: surface points (test_restir.py, test_neural_di.py, test_nrc_di.py).
-NEED_A_SURFACE = {"nvc-lights", "nvc-env", "restir-di", "neural-di", "nrc-di"}
+#: test_nvc_lights.py, test_nvc_env.py); `restir-di`, `restir-nvc`, `neural-di` and
+#: `nrc-di` shade surface points (test_restir.py, test_neural_di.py, test_nrc_di.py).
+NEED_A_SURFACE = {"nvc-lights", "nvc-env", "restir-di", "restir-nvc", "neural-di", "nrc-di"}
 #: Lighting each method needs besides (nvc-env: an environment map; restir-di: area
 #: emitters only, so none).
-ENVMAP = {"nvc-env": True, "restir-di": False}
+ENVMAP = {"nvc-env": True, "restir-di": False, "restir-nvc": False}
 
 
 def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
@@ -126,24 +126,28 @@ def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
 
 def test_every_method_applies_to_every_built_in_scene(mi):
     """Today's behaviour: no built-in scene is skipped by any method, except by
-    `nvc-lights` the scenes with one emitter (nothing to select), by `nvc-env`
-    those without an environment map and by `restir-di` and `neural-di` the scene lit
-    by an environment (`sky`)."""
+    `nvc-lights` and `restir-nvc` the scenes with one emitter (nothing to select),
+    by `nvc-env` those without an environment map, by `restir-di`, `restir-nvc` and
+    `neural-di` the scene lit by an environment (`sky`) and by `neural-di` the scene with
+    300 lights (one cache output per light)."""
     from renderers.scenes import load_scene
     from renderers.scenes.library import builtin_names
 
     for scene_name in builtin_names():
         features = load_scene(scene_name, 8).features
         for name in METHODS:
-            if name == "nvc-lights" and features.emitter_count == 1:
+            if name in ("nvc-lights", "restir-nvc") and features.emitter_count == 1:
                 assert METHODS[name].applies_to(features) == \
                     (False, "one emitter: nothing to select")
             elif name == "nvc-env" and not features.has_envmap:
                 assert METHODS[name].applies_to(features) == (False, "no environment map")
-            elif name == "restir-di" and features.has_envmap:
+            elif name in ("restir-di", "restir-nvc") and features.has_envmap:
                 assert METHODS[name].applies_to(features) == \
                     (False, "an environment emitter: restir-di samples points on area "
                             "emitters only")
+            elif name == "neural-di" and features.emitter_count > 32:
+                assert METHODS[name].applies_to(features) == \
+                    (False, "more than 32 emitters: one cache output per light")
             elif name == "neural-di" and features.has_envmap:
                 assert METHODS[name].applies_to(features) == \
                     (False, "an emitter that is not a polygon (environment, delta or curved "

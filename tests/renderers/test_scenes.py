@@ -38,6 +38,7 @@ BUILTINS = (
     "corridor",
     "sky",
     "many-lights",
+    "many-lights-300",
     "white-room",
 )
 REPO = Path(__file__).resolve().parents[2]

@@ -34,7 +34,7 @@ def test_scenes_json_lists_every_builtin(tmp_path):
     assert proc.returncode == 0, proc.stderr
     scenes = {s["name"]: s for s in json.loads(proc.stdout)}
     assert set(scenes) == {"cornell-box", "cornell-glossy", "door", "corridor", "sky",
-                           "many-lights", "white-room"}
+                           "many-lights", "many-lights-300", "white-room"}
     assert scenes["sky"]["features"]["has_envmap"]
     assert len({s["fingerprint"] for s in scenes.values()}) == len(scenes)
 
