@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
+import numpy as np
 import pytest
 
 import jobs.protocol.pareto as pareto_module
@@ -19,6 +20,7 @@ from jobs.protocol.pareto import (
     run_pareto,
 )
 from jobs.protocol.plots import plot_pareto
+from jobs.protocol.results import RunResult
 from jobs.record.config import Settings
 from jobs.record.db import open_store
 from renderers.methods import BASELINE, METHODS
@@ -175,4 +177,25 @@ def test_a_repeated_call_reuses_its_stored_runs_and_measures_time_again(mi, data
     third = run_pareto(ParetoSpec(**{**TINY.__dict__, "pt_spp": [1, 2, 4]}), store, settings)
     assert sorted(renders) == ["pt-power4", "pt4"]
     assert [p.label for p in third.points if not p.reused] == ["PT spp=4", "pt-power spp=4"]
+    store.close()
+
+
+def test_a_point_carries_exactly_the_run_result_of_its_stored_run(mi, data_dir):
+    settings = Settings()
+    store = open_store(settings)
+    spec = ParetoSpec(**{**TINY.__dict__, "methods": ["pt"]})
+    timed = run_pareto(spec, store, settings)
+    # Without timing rounds the samples are the run's per-seed frame times, whose median
+    # is the run's own seconds per frame: then every RunResult field is the run's.
+    untimed = run_pareto(ParetoSpec(**{**spec.__dict__, "timing_rounds": 0}), store, settings)
+    shared = set(RunResult.model_fields)
+    for point, same in zip(timed.points, untimed.points, strict=True):
+        row = RunResult.of(store.get_run(point.id))
+        assert same.model_dump(include=shared) == row.model_dump(include=shared)
+        # With rounds, only the time differs: the rounds' median; the run's is kept.
+        assert point.model_dump(include=shared - {"seconds_per_frame"}) \
+            == row.model_dump(include=shared - {"seconds_per_frame"})
+        assert point.run_seconds_per_frame == row.seconds_per_frame
+        assert point.seconds_per_frame == float(np.median(point.timing_samples))
+        assert same.reused and same.id == point.id
     store.close()
