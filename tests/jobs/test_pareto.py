@@ -5,6 +5,7 @@ that a repeated call reuses its stored runs."""
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,7 +18,9 @@ from jobs.protocol.pareto import (
     _evaluate,
     interleave,
     plan,
+    point_key,
     run_pareto,
+    run_spec,
 )
 from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
@@ -199,3 +202,26 @@ def test_a_point_carries_exactly_the_run_result_of_its_stored_run(mi, data_dir):
         assert point.seconds_per_frame == float(np.median(point.timing_samples))
         assert same.reused and same.id == point.id
     store.close()
+
+
+def test_the_point_key_changes_with_everything_that_determines_a_run(monkeypatch):
+    import jobs.protocol.spec as spec_module
+
+    def prepared(fingerprint="scene", reference="ref", device="cpu"):
+        return SimpleNamespace(scene=SimpleNamespace(fingerprint=fingerprint),
+                               reference=SimpleNamespace(key=reference),
+                               device={"device_key": device})
+
+    spec = run_spec(TINY, plan(TINY)[0][0][0])
+    key = point_key(spec, prepared())
+    assert point_key(run_spec(TINY, plan(TINY)[0][0][0]), prepared()) == key
+    others = [point_key(spec, prepared(fingerprint="edited")),
+              point_key(spec, prepared(reference="other")),
+              point_key(spec, prepared(device="gpu")),
+              point_key(spec.model_copy(update={"frames": 2}), prepared()),
+              point_key(spec.model_copy(update={"spp": 2}), prepared())]
+    versions = spec_module.versions_of
+    monkeypatch.setattr(spec_module, "versions_of", lambda method: {
+        **versions(method), "estimator_version": versions(method)["estimator_version"] + 1})
+    others.append(point_key(spec, prepared()))               # a new estimator version
+    assert len({key, *others}) == len(others) + 1
