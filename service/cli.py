@@ -482,7 +482,8 @@ def pareto(
     timing_rounds: Annotated[int, typer.Option(
         "--timing-rounds", min=0, max=100,
         help="interleaved timing rounds after the runs (each point's time is their median; "
-             "0: the run's own per-seed frame times)")] = 3,
+             "measured on every call, also for reused runs; 0: the run's own per-seed "
+             "frame times)")] = 3,
     probe_frames: Annotated[int, typer.Option("--probe-frames", min=1, max=1000,
                                               help="timed frames per timing probe")] = 3,
     resamples: Annotated[int, typer.Option("--resamples", min=100, max=100_000,
@@ -495,7 +496,8 @@ def pareto(
 ) -> None:
     """Error against seconds per frame (online training included): PT at several spp and
     every caching method at several knob values, the Pareto front, and each method's
-    speed-up at equal MRSE / FLIP over PT with a bootstrap CI (docs/pareto.md)."""
+    speed-up at equal MRSE / FLIP over PT with a bootstrap CI (docs/pareto.md). A point
+    stored by an earlier call (same spec, scene, reference, device) is reused."""
     from jobs.protocol.pareto import ParetoSpec, plan, run_pareto
     from service.pareto_table import pareto_table
 

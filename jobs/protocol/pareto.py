@@ -5,7 +5,11 @@ method of the registry at several values of its equal-time knob (biased NIRC's
 N_c), plus its comparison runs that are not on that knob's curve (NRC, NIRC
 unbiased); a method with neither is skipped, and so is one whose
 ``applies_to`` rules the scene out (with the reason). Every point is a run
-through the executor, stored against the same reference.
+through the executor, stored against the same reference under the point's key
+(:func:`point_key`: its RenderSpec's content address with today's estimator
+and metric versions, the scene fingerprint, the reference and the device): a
+point already stored under its key is reused, not rendered again, so repeating
+a call renders nothing new (its timing rounds are still measured, below).
 
 Each point's seconds per frame, online training included (the caches' frame
 loop trains before every frame; one-off pre-training is not per-frame time),
@@ -17,7 +21,9 @@ median is the run's stored ``seconds_per_frame``, kept with every point). [min,
 max] of the samples is its spread. Then, for MRSE and FLIP: the Pareto front over all
 points, and for every non-baseline point its speed-up at equal error over the
 baseline with a bootstrap interval over seeds and timing samples
-(jobs.protocol.tradeoff; docs/pareto.md).
+(jobs.protocol.tradeoff; docs/pareto.md). A point is a :class:`ParetoPoint`:
+the public result of its stored run (jobs.protocol.results.RunResult) with
+these columns.
 """
 
 from __future__ import annotations
@@ -30,10 +36,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import Field, create_model
 
 from jobs.protocol.calibration import DEFAULT_ROUNDS, interleaved_rounds, probe_seconds
-from jobs.protocol.executor import RunSummary, execute, prepare
+from jobs.protocol.executor import Prepared, execute, prepare
 from jobs.protocol.plots import plot_pareto
+from jobs.protocol.results import RunResult
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.protocol.tradeoff import (
     BOOTSTRAP_METHOD,
@@ -44,7 +52,7 @@ from jobs.protocol.tradeoff import (
     pareto_front,
 )
 from jobs.record.config import Settings
-from jobs.record.store import Store
+from jobs.record.store import DuplicateKeyError, Store
 from metrics.registry import BY_NAME, Metric
 from renderers.methods import (
     BASELINE,
@@ -54,6 +62,7 @@ from renderers.methods import (
     NotApplicable,
     parse_params,
 )
+from renderers.seeding import digest
 
 #: The errors plotted against time, and the speed-up measured at (their ``field`` names).
 PARETO_METRICS: tuple[Metric, ...] = (BY_NAME["mrse"], BY_NAME["flip_hdr"])
@@ -91,19 +100,78 @@ class ParetoSpec:
     resamples: int = RESAMPLES
 
 
+def _metric_columns() -> dict[str, Any]:
+    """Per error of :data:`PARETO_METRICS`: its per-seed values, front flag and speed-up."""
+    columns: dict[str, Any] = {}
+    for m in PARETO_METRICS:
+        columns[f"{m.field}_per_seed"] = (list[float | None], Field(
+            description=f"{m.label} of each seed (the bootstrap resamples them)"))
+        columns[f"front_{m.field}"] = (bool, Field(
+            False, description=f"on the Pareto front of {m.label} against seconds_per_frame"))
+        columns[f"speedup_{m.field}"] = (Speedup | None, Field(
+            None, description=f"speed-up at equal {m.label} over the baseline with its "
+                              "bootstrap 95 % interval (null for a baseline point)"))
+    return columns
+
+
+#: RunResult with the per-metric columns of a point, generated from PARETO_METRICS.
+_ParetoColumns = create_model("_ParetoColumns", __base__=RunResult, **_metric_columns())
+
+
+class ParetoPoint(_ParetoColumns):  # type: ignore[misc,valid-type]
+    """A point of the error-vs-time plane: the public result of its stored run
+    (jobs.protocol.results.RunResult, ``id`` is the run's) with the pareto columns.
+
+    ``seconds_per_frame`` is the point's time, the median of its timing samples
+    (the module docstring); the run's own stored frame time is
+    ``run_seconds_per_frame``. Every other RunResult field is the run's.
+    """
+
+    series: str = Field(description="the series' label (a method, or one of its comparison runs)")
+    label: str = Field(description="the point's label (series and knob value)")
+    baseline: bool = Field(description="a point of the baseline the speed-ups are measured over")
+    reused: bool = Field(description="the run was stored by an earlier call, not rendered now")
+    seconds_per_frame: float = Field(
+        description="median of the timing samples: seconds per frame, online training included")
+    seconds_spread: list[float] = Field(description="[min, max] of the timing samples")
+    timing_samples: list[float] = Field(
+        description="one per interleaved timing round (without rounds, the run's per-seed "
+                    "frame times)")
+    run_seconds_per_frame: float | None = Field(
+        description="the stored run's seconds per frame (median over its seeds)")
+
+    @classmethod
+    def measured(cls, planned: Planned, run: Any, seconds: list[float],
+                 reused: bool) -> ParetoPoint:
+        """The point of ``planned`` from its stored ``run`` and timing samples ``seconds``."""
+        fields = cls.fields_of(run)
+        seeds = sorted(run.seed_results, key=lambda s: s.seed)
+        return cls(**{
+            **fields, "series": planned.series, "label": planned.label,
+            "baseline": planned.method == BASELINE, "reused": reused,
+            "seconds_per_frame": float(np.median(seconds)),
+            "seconds_spread": [min(seconds), max(seconds)], "timing_samples": seconds,
+            "run_seconds_per_frame": fields["seconds_per_frame"],
+            **{f"{m.field}_per_seed": [s.metrics.get(m.seed_key) for s in seeds]
+               for m in PARETO_METRICS}})
+
+
 @dataclass
 class ParetoResult:
     spec: ParetoSpec
     device: str
     reference_id: int
-    points: list[dict[str, Any]]
+    points: list[ParetoPoint]
     skipped: list[dict[str, str]]
     timing: dict[str, Any]
     bootstrap: dict[str, Any]
+    work: dict[str, int] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        """The JSON of ``--json`` and pareto.json: each point is ``ParetoPoint.model_dump``."""
+        return {**{k: v for k, v in asdict(self).items() if k != "points"},
+                "points": [p.model_dump(mode="json") for p in self.points]}
 
 
 def knob_methods() -> list[str]:
@@ -197,12 +265,35 @@ def interleave(series: list[list[Planned]]) -> list[Planned]:
     return [p for group in zip_longest(*series) for p in group if p is not None]
 
 
+def point_key(spec: RenderSpec, prepared: Prepared) -> str:
+    """The idempotency key a point's run is stored under: what determines it (the
+    RenderSpec's content address with today's estimator and metric versions, the
+    scene's fingerprint, the reference and the device, whose frame times it stores)."""
+    return digest("pareto-point", spec.key(), prepared.scene.fingerprint,
+                  prepared.reference.key, prepared.device["device_key"], length=32)
+
+
+def stored_or_rendered(spec: RenderSpec, prepared: Prepared, store: Store, settings: Settings,
+                       progress: Progress | None = None) -> tuple[Any, bool]:
+    """The stored run of ``spec`` under its :func:`point_key` and True, or the run
+    rendered now (jobs.protocol.executor.execute) and False."""
+    key = point_key(spec, prepared)
+    run = store.find_run_by_idempotency_key(key)
+    if run is not None:
+        return run, True
+    try:
+        summary = execute(spec, store, settings, progress=progress, idempotency_key=key)
+    except DuplicateKeyError as err:   # another call stored it meanwhile
+        return err.existing, True
+    return store.get_run(summary.run_id), False
+
+
 def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
                progress: Progress | None = None, out_dir: Path | None = None) -> ParetoResult:
-    """Render, time and evaluate every planned point (module docstring)."""
+    """Render (or reuse), time and evaluate every planned point (module docstring)."""
     series, skipped = plan(spec)
     prepared = prepare(run_spec(spec, series[0][0]), store, settings, progress)
-    runs: list[tuple[Planned, RunSummary]] = []
+    runs: list[tuple[Planned, Any, bool]] = []
     not_applicable: set[str] = set()
     ordered = interleave(series)
     for index, point in enumerate(ordered):
@@ -213,7 +304,8 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
         step = (lambda stage, done, total, label=point.label:
                 progress(f"{label}: {stage}", done, total)) if progress else None
         try:
-            runs.append((point, execute(run_spec(spec, point), store, settings, progress=step)))
+            runs.append((point, *stored_or_rendered(run_spec(spec, point), prepared, store,
+                                                    settings, progress=step)))
         except NotApplicable as err:
             not_applicable.add(point.method)
             skipped.append({"method": point.method, "reason": str(err)})
@@ -222,24 +314,28 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
 
     samples, order = _timing_samples(runs, prepared.scene, spec, progress)
     rank = {id(p): i for i, p in enumerate(p for points in series for p in points)}
-    points = [_point(planned, summary, samples[i]) for i, (planned, summary)
+    points = [ParetoPoint.measured(planned, run, samples[i], reused) for i, (planned, run, reused)
               in sorted(enumerate(runs), key=lambda item: rank[id(item[1][0])])]
     _evaluate(points, spec.resamples)
+    reused = sum(p.reused for p in points)
     result = ParetoResult(
         spec=spec, device=prepared.device["device_key"], reference_id=prepared.reference.id,
         points=points, skipped=skipped,
         timing={"rounds": spec.timing_rounds, "probe_frames": spec.probe_frames,
                 "samples": ("one per interleaved round" if spec.timing_rounds else
                             "the run's per-seed frame times"),
-                "run_order": [planned.label for planned, _ in runs], "round_order": order},
+                "run_order": [planned.label for planned, _, _ in runs], "round_order": order},
         bootstrap={"method": BOOTSTRAP_METHOD, "resamples": spec.resamples,
-                   "confidence": 0.95})
+                   "confidence": 0.95},
+        work={"reference_rendered": int(prepared.reference.rendered_now),
+              "points_rendered": len(points) - reused, "points_reused": reused,
+              "timing_probes": spec.timing_rounds * len(points)})
     if out_dir is not None:
         result.files = write_outputs(result, out_dir)
     return result
 
 
-def _timing_samples(runs: list[tuple[Planned, RunSummary]], scene: Any, spec: ParetoSpec,
+def _timing_samples(runs: list[tuple[Planned, Any, bool]], scene: Any, spec: ParetoSpec,
                     progress: Progress | None) -> tuple[list[list[float]], list[str]]:
     """Per run: its ``timing_rounds`` interleaved probes (without rounds, its per-seed
     frame times); and the order of the probes."""
@@ -257,54 +353,41 @@ def _timing_samples(runs: list[tuple[Planned, RunSummary]], scene: Any, spec: Pa
 
     timed = interleaved_rounds(list(range(len(runs))), measure, spec.timing_rounds,
                                name=lambda i: runs[i][0].label)
-    return ([timed.times[i] or [s["seconds_per_frame"] for s in summary.per_seed]
-             for i, (_, summary) in enumerate(runs)], timed.order)
+    return ([timed.times[i] or [s.metrics["seconds_per_frame"]
+                                for s in sorted(run.seed_results, key=lambda s: s.seed)]
+             for i, (_, run, _) in enumerate(runs)], timed.order)
 
 
-def _point(planned: Planned, summary: RunSummary, seconds: list[float]) -> dict[str, Any]:
-    """A point's row: what it is, its timing and, per metric, value, CI and per-seed values."""
-    row: dict[str, Any] = {
-        "series": planned.series, "label": planned.label, "method": planned.method,
-        "params": planned.params, "spp": planned.spp, "run_id": summary.run_id,
-        "baseline": planned.method == BASELINE,
-        "seconds_per_frame": float(np.median(seconds)),
-        "seconds_spread": [min(seconds), max(seconds)], "timing_samples": seconds,
-        "run_seconds_per_frame": summary.timings["seconds_per_frame"],
-        "quality": summary.quality.get("verdict"),
-    }
-    for metric in PARETO_METRICS:
-        values = [s.get(metric.seed_key) for s in summary.per_seed]
-        usable = all(v is not None and np.isfinite(v) for v in values)
-        row[metric.field] = float(np.mean(values)) if usable else None
-        row[f"{metric.field}_per_seed"] = values
-        if metric.ci_key:
-            row[f"{metric.field}_ci95"] = summary.metrics.get(metric.ci_key)
-    return row
-
-
-def _evaluate(points: list[dict[str, Any]], resamples: int) -> None:
+def _evaluate(points: list[ParetoPoint], resamples: int) -> None:
     """Mark each metric's front and add the speed-ups at equal error over the baseline."""
     for metric in PARETO_METRICS:
         key = metric.field
-        front = pareto_front([p["seconds_per_frame"] for p in points], [p[key] for p in points])
+        front = pareto_front([p.seconds_per_frame for p in points],
+                             [getattr(p, key) for p in points])
         for point, on in zip(points, front, strict=True):
-            point[f"front_{key}"] = on
-        baseline = [_sample(p, key) for p in points if p["baseline"] and p[key] is not None]
+            setattr(point, f"front_{key}", on)
+        baseline = [_sample(p, key) for p in points if p.baseline and _usable(p, key)]
         for point in points:
-            if point["baseline"]:
+            if point.baseline:
                 continue
-            if point[key] is None:
+            if not _usable(point, key):
                 found = Speedup(None, "n/a", note=f"no {metric.label} (withheld or not finite)")
             elif len(baseline) < 2:
                 found = Speedup(None, "n/a", note=f"fewer than two {BASELINE} points with "
                                                   f"a {metric.label}")
             else:
                 found = bootstrap_speedup(baseline, _sample(point, key), resamples=resamples)
-            point[f"speedup_{key}"] = found.to_json()
+            setattr(point, f"speedup_{key}", found)
 
 
-def _sample(point: dict[str, Any], key: str) -> Sample:
-    return Sample(errors=point[f"{key}_per_seed"], seconds=point["timing_samples"])
+def _usable(point: ParetoPoint, key: str) -> bool:
+    """The point has the error ``key`` and every seed's value of it, all finite."""
+    values = [getattr(point, key), *getattr(point, f"{key}_per_seed")]
+    return all(v is not None and np.isfinite(v) for v in values)
+
+
+def _sample(point: ParetoPoint, key: str) -> Sample:
+    return Sample(errors=getattr(point, f"{key}_per_seed"), seconds=point.timing_samples)
 
 
 def write_outputs(result: ParetoResult, out_dir: Path) -> dict[str, str]:
@@ -313,7 +396,7 @@ def write_outputs(result: ParetoResult, out_dir: Path) -> dict[str, str]:
     files = {}
     for metric in PARETO_METRICS:
         path = out_dir / f"pareto_{metric.field}.png"
-        plot_pareto(result.points, metric.field, metric.label, path,
+        plot_pareto([p.model_dump() for p in result.points], metric.field, metric.label, path,
                     f"{metric.label} against time per frame on {result.spec.scene} "
                     f"({result.spec.resolution}x{result.spec.resolution}, {result.device})")
         files[f"pareto_{metric.field}"] = str(path)

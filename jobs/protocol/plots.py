@@ -138,11 +138,10 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
                 title: str) -> Path:
     """Plot error ``key`` against seconds per frame, log-log, to a PNG at ``path``.
 
-    Each point (jobs.protocol.pareto) has ``series``, ``seconds_per_frame``,
-    ``seconds_spread`` = [min, max] (drawn as a horizontal bar), ``key`` and
-    ``front_<key>``. One line per series, through its points in the given (knob)
-    order; the front is a black
-    step line with ringed points. Points without a finite value are left out,
+    Each point (a jobs.protocol.pareto.ParetoPoint's ``model_dump``) has ``series``,
+    ``seconds_per_frame``, ``seconds_spread`` = [min, max] (drawn as a horizontal
+    bar), ``key`` and ``front_<key>``. One line per series, through its points in
+    the given (knob) order; the front is a black step line with ringed points. Points without a finite value are left out,
     and those <= 0 (off the log axis) are counted in a note.
     """
     series = list(dict.fromkeys(str(p["series"]) for p in points))

@@ -9,7 +9,8 @@ model                        used by
 :class:`RunResult`           ``GET /api/v1/results`` and ``/compare`` rows;
                              the report's rows (:class:`ReportRow` adds a
                              label); the sweep's rows
-                             (jobs.protocol.sweep.SweepRow adds its columns)
+                             (jobs.protocol.sweep.SweepRow adds its columns);
+                             the pareto points (jobs.protocol.pareto.ParetoPoint)
 :class:`RunResultDetail`     ``GET /api/v1/runs/{id}`` (the API adds artifact
                              URLs); the table ``nirc-bench render`` prints,
                              embedded or from a service

@@ -24,8 +24,8 @@ method:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
-from typing import Any, Literal
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -130,9 +130,6 @@ class Speedup:
         if self.value is None:
             return "n/a"
         return f"{self.value:.3g}" if self.relation == "=" else f"{self.relation} {self.value:.3g}"
-
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 _RELATION: dict[Placement, Literal["=", ">", "<"]] = {"in": "=", "below": ">", "above": "<"}

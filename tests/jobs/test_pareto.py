@@ -1,12 +1,31 @@
 """The pareto command's plan (read from the method registry), its evaluation of measured
-points (fronts, speed-ups) and its plot, without rendering."""
+points (fronts, speed-ups) and its plot, without rendering; and, rendering a tiny scene,
+that a repeated call reuses its stored runs."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+from types import SimpleNamespace
+
+import numpy as np
 import pytest
 
-from jobs.protocol.pareto import PARETO_METRICS, ParetoSpec, _evaluate, interleave, plan
+import jobs.protocol.pareto as pareto_module
+from jobs.protocol.pareto import (
+    PARETO_METRICS,
+    ParetoPoint,
+    ParetoSpec,
+    _evaluate,
+    interleave,
+    plan,
+    point_key,
+    run_pareto,
+    run_spec,
+)
 from jobs.protocol.plots import plot_pareto
+from jobs.protocol.results import RunResult
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 from renderers.methods import BASELINE, METHODS
 
 
@@ -80,12 +99,18 @@ def test_bad_plans_are_errors_before_anything_renders(changes, fragment):
 
 
 def _point(series: str, seconds: float, mrse: float | None, flip: float,
-           baseline: bool = False) -> dict:
-    return {"series": series, "label": f"{series} {seconds}", "baseline": baseline,
-            "seconds_per_frame": seconds, "seconds_spread": [0.9 * seconds, 1.1 * seconds],
-            "timing_samples": [seconds, 0.95 * seconds, 1.05 * seconds],
-            "mrse": mrse, "mrse_per_seed": [mrse, mrse] if mrse is not None else [None, None],
-            "flip": flip, "flip_per_seed": [0.98 * flip, 1.02 * flip]}
+           baseline: bool = False) -> ParetoPoint:
+    """A measured point (its run's fields are placeholders: only the pareto columns count)."""
+    run = {"id": 1, "created_at": datetime(2026, 1, 1, tzinfo=UTC), "scene": "cornell-box",
+           "scene_fingerprint": "-", "method": "pt", "params": {}, "resolution": [8, 8],
+           "spp": 1, "frames": 1, "seeds": 2, "device_key": "-", "quality": {},
+           "estimator_version": 1, "metric_version": 1, "current": True}
+    return ParetoPoint(
+        **run, series=series, label=f"{series} {seconds}", baseline=baseline, reused=False,
+        seconds_per_frame=seconds, seconds_spread=[0.9 * seconds, 1.1 * seconds],
+        timing_samples=[seconds, 0.95 * seconds, 1.05 * seconds], run_seconds_per_frame=seconds,
+        mrse=mrse, mrse_per_seed=[mrse, mrse] if mrse is not None else [None, None],
+        flip=flip, flip_per_seed=[0.98 * flip, 1.02 * flip])
 
 
 def test_fronts_and_speed_ups_of_measured_points():
@@ -96,16 +121,18 @@ def test_fronts_and_speed_ups_of_measured_points():
                _point("NRC", 0.05, None, 0.5)]        # MRSE withheld: n/a
     _evaluate(points, resamples=200)
     # NIRC at 0.02 s beats PT at 2, 4 and 8 spp (as fast or faster, less error).
-    assert [p["front_mrse"] for p in points] == [True, False, False, False, True, True, False]
-    assert points[4]["speedup_mrse"]["relation"] == "="
-    assert points[4]["speedup_mrse"]["value"] == pytest.approx(4.0)
-    lo, hi = points[4]["speedup_mrse"]["ci95"]
+    assert [p.front_mrse for p in points] == [True, False, False, False, True, True, False]
+    assert points[4].speedup_mrse.relation == "="
+    assert points[4].speedup_mrse.value == pytest.approx(4.0)
+    lo, hi = points[4].speedup_mrse.ci95
     assert lo <= 4.0 <= hi
-    assert points[5]["speedup_mrse"]["relation"] == ">"
-    assert points[5]["speedup_mrse"]["value"] == pytest.approx(0.08 / 0.5)
-    assert points[6]["speedup_mrse"]["relation"] == "n/a" and "MRSE" in points[6]["speedup_mrse"]["note"]
-    assert points[6]["speedup_flip"]["relation"] == "<"
-    assert all("speedup_mrse" not in p for p in points[:4])
+    assert points[5].speedup_mrse.relation == ">"
+    assert points[5].speedup_mrse.value == pytest.approx(0.08 / 0.5)
+    assert points[6].speedup_mrse.relation == "n/a" and "MRSE" in points[6].speedup_mrse.note
+    assert points[6].speedup_flip.relation == "<"
+    assert all(p.speedup_mrse is None for p in points[:4])
+    # The JSON shape is the model's: a dump validates back to the same point.
+    assert [ParetoPoint.model_validate(p.model_dump(mode="json")) for p in points] == points
 
 
 def test_the_plot_draws_every_metric(tmp_path):
@@ -113,6 +140,88 @@ def test_the_plot_draws_every_metric(tmp_path):
     points.append(_point("NIRC", 0.02, 0.05, 0.2))
     _evaluate(points, resamples=100)
     for metric in PARETO_METRICS:
-        path = plot_pareto(points, metric.field, metric.label, tmp_path / f"{metric.field}.png",
+        path = plot_pareto([p.model_dump() for p in points], metric.field, metric.label, tmp_path / f"{metric.field}.png",
                            "test")
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+TINY = ParetoSpec(scene="cornell-box", resolution=8, frames=1, seeds=2, pt_spp=[1, 2],
+                  methods=["pt", "pt-power"], ref_spp=64, timing_rounds=1, probe_frames=1,
+                  resamples=100)
+
+
+def test_a_repeated_call_reuses_its_stored_runs_and_measures_time_again(mi, data_dir,
+                                                                        monkeypatch):
+    renders = []
+    execute = pareto_module.execute
+    monkeypatch.setattr(pareto_module, "execute",
+                        lambda spec, *args, **kwargs: renders.append(spec.method + str(spec.spp))
+                        or execute(spec, *args, **kwargs))
+    settings = Settings()
+    store = open_store(settings)
+    first = run_pareto(TINY, store, settings)
+    assert sorted(renders) == ["pt-power1", "pt-power2", "pt1", "pt2"]
+    assert not any(p.reused for p in first.points)
+    assert first.work["points_rendered"] == 4 and first.work["points_reused"] == 0
+
+    renders.clear()
+    second = run_pareto(TINY, store, settings)
+    assert renders == []                                    # nothing rendered again
+    assert all(p.reused for p in second.points) and second.work["points_reused"] == 4
+    assert [p.id for p in second.points] == [p.id for p in first.points]
+    for before, after in zip(first.points, second.points, strict=True):
+        for metric in PARETO_METRICS:
+            key = metric.field
+            assert getattr(after, key) == getattr(before, key) is not None
+            assert getattr(after, f"{key}_per_seed") == getattr(before, f"{key}_per_seed")
+        assert len(after.timing_samples) == 1               # timed again, in one round
+
+    # A point whose spec differs (PT and pt-power at 4 spp) is rendered; the rest reused.
+    third = run_pareto(ParetoSpec(**{**TINY.__dict__, "pt_spp": [1, 2, 4]}), store, settings)
+    assert sorted(renders) == ["pt-power4", "pt4"]
+    assert [p.label for p in third.points if not p.reused] == ["PT spp=4", "pt-power spp=4"]
+    store.close()
+
+
+def test_a_point_carries_exactly_the_run_result_of_its_stored_run(mi, data_dir):
+    settings = Settings()
+    store = open_store(settings)
+    spec = ParetoSpec(**{**TINY.__dict__, "methods": ["pt"]})
+    timed = run_pareto(spec, store, settings)
+    # Without timing rounds the samples are the run's per-seed frame times, whose median
+    # is the run's own seconds per frame: then every RunResult field is the run's.
+    untimed = run_pareto(ParetoSpec(**{**spec.__dict__, "timing_rounds": 0}), store, settings)
+    shared = set(RunResult.model_fields)
+    for point, same in zip(timed.points, untimed.points, strict=True):
+        row = RunResult.of(store.get_run(point.id))
+        assert same.model_dump(include=shared) == row.model_dump(include=shared)
+        # With rounds, only the time differs: the rounds' median; the run's is kept.
+        assert point.model_dump(include=shared - {"seconds_per_frame"}) \
+            == row.model_dump(include=shared - {"seconds_per_frame"})
+        assert point.run_seconds_per_frame == row.seconds_per_frame
+        assert point.seconds_per_frame == float(np.median(point.timing_samples))
+        assert same.reused and same.id == point.id
+    store.close()
+
+
+def test_the_point_key_changes_with_everything_that_determines_a_run(monkeypatch):
+    import jobs.protocol.spec as spec_module
+
+    def prepared(fingerprint="scene", reference="ref", device="cpu"):
+        return SimpleNamespace(scene=SimpleNamespace(fingerprint=fingerprint),
+                               reference=SimpleNamespace(key=reference),
+                               device={"device_key": device})
+
+    spec = run_spec(TINY, plan(TINY)[0][0][0])
+    key = point_key(spec, prepared())
+    assert point_key(run_spec(TINY, plan(TINY)[0][0][0]), prepared()) == key
+    others = [point_key(spec, prepared(fingerprint="edited")),
+              point_key(spec, prepared(reference="other")),
+              point_key(spec, prepared(device="gpu")),
+              point_key(spec.model_copy(update={"frames": 2}), prepared()),
+              point_key(spec.model_copy(update={"spp": 2}), prepared())]
+    versions = spec_module.versions_of
+    monkeypatch.setattr(spec_module, "versions_of", lambda method: {
+        **versions(method), "estimator_version": versions(method)["estimator_version"] + 1})
+    others.append(point_key(spec, prepared()))               # a new estimator version
+    assert len({key, *others}) == len(others) + 1

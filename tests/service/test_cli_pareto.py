@@ -6,6 +6,7 @@ import json
 
 import pytest
 
+from jobs.protocol.pareto import ParetoPoint
 from tests.service.test_cli import assert_clean_error, run_cli
 
 SMALL = ("pareto", "--scene", "cornell-box", "--res", "16", "--frames", "2", "--seeds", "2",
@@ -15,18 +16,21 @@ SMALL = ("pareto", "--scene", "cornell-box", "--res", "16", "--frames", "2", "--
 
 def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
     out = tmp_path / "out"
-    proc = run_cli(*SMALL, "--methods", "pt,nirc", "--pt-spp", "1,2,4",
-                   "--knob-values", "nirc=1,2", "--out", str(out), "--json",
-                   data_dir=tmp_path / "data")
+    args = (*SMALL, "--methods", "pt,nirc", "--pt-spp", "1,2,4", "--knob-values", "nirc=1,2")
+    proc = run_cli(*args, "--out", str(out), "--json", data_dir=tmp_path / "data")
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout)
     assert json.loads((out / "pareto.json").read_text())["points"] == result["points"]
+    # Every point is the one public model (RunResult and the pareto columns).
+    assert all(ParetoPoint.model_validate(p).model_dump(mode="json") == p
+               for p in result["points"])
     for name in ("pareto_mrse.png", "pareto_flip.png"):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
     points = {p["label"]: p for p in result["points"]}
     assert set(points) == {"PT spp=1", "PT spp=2", "PT spp=4", "NIRC nc=1", "NIRC nc=2",
                            "NIRC unbiased"}
-    assert len({p["run_id"] for p in points.values()}) == 6       # one stored run each
+    assert len({p["id"] for p in points.values()}) == 6           # one stored run each
+    assert result["work"]["points_rendered"] == 6 and not any(p["reused"] for p in points.values())
     for point in points.values():
         # Two interleaved timing rounds; the time is their median.
         assert len(point["timing_samples"]) == 2
@@ -35,13 +39,22 @@ def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
         assert len(point["mrse_per_seed"]) == 2 and point["mrse"] > 0
         assert isinstance(point["front_mrse"], bool) and isinstance(point["front_flip"], bool)
         if point["baseline"]:
-            assert "speedup_mrse" not in point
+            assert point["speedup_mrse"] is None
         else:
             speedup = point["speedup_mrse"]
             assert speedup["relation"] in ("=", ">", "<")
             assert speedup["value"] > 0 and len(speedup["ci95"]) == 2
     assert any(p["front_mrse"] for p in points.values())
     assert result["bootstrap"]["resamples"] == 200 and "percentile" in result["bootstrap"]["method"]
+
+    # The same call again reuses every stored run (the table marks them '=') and prints
+    # the same errors; only the timing rounds are measured again.
+    again = run_cli(*args, data_dir=tmp_path / "data")
+    assert again.returncode == 0, again.stderr
+    assert "6 reused, 0 rendered now" in again.stdout
+    for point in points.values():
+        assert f"{point['id']}=" in again.stdout
+        assert f"{point['mrse']:.4g}" in again.stdout
 
 
 @pytest.mark.parametrize("args, fragment", [
