@@ -143,15 +143,17 @@ def _nan_pixel(image: np.ndarray) -> np.ndarray:
     return image
 
 
-@pytest.fixture
-def planted_report(embedded, monkeypatch):
+@pytest.fixture(scope="module")
+def planted_report(embedded):
     """The near-black case with only pt and the two planted methods registered."""
     registry = {"pt": METHODS["pt"], "pt-nan": _planted("pt-nan", _nan_pixel),
                 "pt-biased": _planted("pt-biased", lambda image: image * np.float32(1.1))}
-    for name, method in registry.items():
-        monkeypatch.setitem(METHODS, name, method)
-    monkeypatch.setattr(stress, "METHODS", registry)
-    return run_suite(embedded, SMALL.model_copy(update={"seeds": 8}), get_cases(["near-black"]))
+    with pytest.MonkeyPatch.context() as patch:
+        for name, method in registry.items():
+            patch.setitem(METHODS, name, method)
+        patch.setattr(stress, "METHODS", registry)
+        return run_suite(embedded, SMALL.model_copy(update={"seeds": 8}),
+                         get_cases(["near-black"]))
 
 
 def test_a_planted_nan_pixel_is_counted_and_kept_out_of_the_metrics(planted_report):
