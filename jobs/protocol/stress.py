@@ -69,7 +69,8 @@ CASES: tuple[StressCase, ...] = (
                scenes.degenerate_triangles),
     StressCase("radiance-1e30", "a second emitter of radiance 1e30 (variances overflow float32)",
                scenes.radiance("1e30, 1e30, 1e30"), agree=False),
-    StressCase("radiance-0", "a second emitter of radiance 0 (zero power: selection pmf 0)",
+    StressCase("radiance-0", "a second emitter of radiance 0 (zero power for power-based "
+               "light selection)",
                scenes.radiance("0, 0, 0")),
     StressCase("radiance-inf", "an emitter of infinite radiance (refused at load)",
                scenes.radiance("inf, inf, inf")),

@@ -83,10 +83,13 @@ def test_an_infinite_emitter_is_refused_with_the_reason(report):
 
 
 def test_the_user_is_told_about_a_scene_without_emitters(report):
-    for row in _rows(report, "no-emitter").values():
-        if row.status == "ok":
-            assert row.verdict == "no-emitter" and row.told, row
-            assert row.max_pixel == 0.0
+    rows = [r for r in _rows(report, "no-emitter").values() if r.status == "ok"]
+    # pt-power and pt-spatial crashed here before (tests/renderers/test_light_sampling.py).
+    assert {"pt-power", "pt-spatial"} <= {r.method for r in rows}
+    for row in rows:
+        assert row.verdict == "no-emitter" and row.told, row
+        if row.agreement is not None:       # unbiased: exactly black
+            assert row.max_pixel == 0.0, row
 
 
 def test_a_1e30_emitter_overflows_into_a_verdict_not_into_metrics(report):
