@@ -59,8 +59,10 @@ CASES: tuple[StressCase, ...] = (
                "path contributions", scenes.fireflies, agree=False),
     StressCase("near-black", "black walls: a reference ~0 almost everywhere (relative metrics)",
                scenes.near_black),
+    # Near-delta lobes give heavy-tailed pixels: with a few seeds the aggregate test
+    # rejected pt-spatial, which with one emitter samples exactly as pt (docs/stress.md).
     StressCase("near-mirror", "roughness 1e-4 (conductor walls, plastic box): near-delta lobes",
-               scenes.near_mirror),
+               scenes.near_mirror, agree=False),
     StressCase("grazing", "a floor seen and lit at grazing angles (cosines ~0)",
                scenes.grazing),
     StressCase("envmap-1e5", "an environment map with a 1e5 dynamic range (one small sun)",

@@ -88,8 +88,10 @@ def test_the_user_is_told_about_a_scene_without_emitters(report):
     assert {"pt-power", "pt-spatial"} <= {r.method for r in rows}
     for row in rows:
         assert row.verdict == "no-emitter" and row.told, row
-        if row.agreement is not None:       # unbiased: exactly black
-            assert row.max_pixel == 0.0, row
+        if row.agreement is not None and row.skipped_steps is None:
+            assert row.max_pixel == 0.0, row    # unbiased without a cache: exactly black
+        elif row.agreement is not None:         # a control variate: 0 only in expectation
+            assert row.agreement == "agrees", row.agreement_detail
 
 
 @pytest.mark.slow
