@@ -282,7 +282,7 @@ def row_of(case: StressCase, variant: Variant, outcome: Outcome,
               for s in detail.get("per_seed", [])),
         max_pixel=max((float(f.max()) for f in finite if f.size), default=None),
         verdict=quality.get("verdict"), told=told, **training_counts(stats))
-    if variant.unbiased and against is not None:
+    if variant.unbiased and against is not None and len(outcome.images) >= 2:
         row.expected_agreement = case.agree
         row.agreement, row.agreement_detail = agreement(outcome.images, against, alpha)
     return row
