@@ -126,7 +126,7 @@ _pixels = hnp.arrays(np.float32, SHAPE, elements=st.one_of(
     st.floats(0.0, BIG, width=32), st.sampled_from([0.0, BIG, np.nan, np.inf, -np.inf])))
 
 
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(images=st.lists(_pixels, min_size=2, max_size=3), ref=_pixels,
        variance=hnp.arrays(np.float32, SHAPE, elements=st.floats(0.0, BIG, width=32)))
 def test_any_mix_of_extreme_pixels_gives_finite_values_or_none(images, ref, variance):
