@@ -10,10 +10,9 @@ what the user was told (the quality verdict, its reasons and warnings).
 
 A method whose parameters have an ``estimator`` choice runs once per choice
 (``nirc`` biased and unbiased). Which runs are unbiased, and so tested for
-agreement, is read from the method: an ``estimator`` parameter of
-``'unbiased'``, or a method with no ``estimator`` choice and no trained cache
-builder (``build``); ``nvc-lights`` trains a cache inside its frame loop but
-only for light selection, and its render function has no ``build``.
+agreement, is what the method declares: an ``estimator`` parameter of
+``'unbiased'``, or ``Method.unbiased``; a method that declares neither is not
+tested.
 
 Agreement is :func:`metrics.statistics.agreement_test` (per-pixel Šidák test
 and the aggregate block test, alpha 0.01 each) of the K seeds' mean, with the
@@ -123,7 +122,7 @@ def variants() -> list[Variant]:
     for name, method in METHODS.items():
         choices = _estimators(method)
         if not choices:
-            rows.append(Variant(name, {}, unbiased=method.build is None))
+            rows.append(Variant(name, {}, unbiased=method.unbiased is True))
         for choice in choices:
             rows.append(Variant(name, {"estimator": choice}, unbiased=choice == "unbiased"))
     return rows

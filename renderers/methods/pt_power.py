@@ -22,4 +22,4 @@ render = render_with_lights("PowerLightSampler")
 
 
 METHOD = Method("pt-power", "path tracing with emitters selected in proportion to power",
-                PTPowerParams, render, version=1, integrators=PATH_INTEGRATORS)
+                PTPowerParams, render, version=1, integrators=PATH_INTEGRATORS, unbiased=True)

@@ -106,4 +106,5 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = Method("restir-di",
                 "screen-space ReSTIR DI (8 candidates, temporal + spatial reuse, unbiased "
                 "Talbot MIS): direct light at primary hits only (max_depth 2)",
-                ReSTIRDIParams, render, version=1, requires=applies, label="ReSTIR DI")
+                ReSTIRDIParams, render, version=1, requires=applies, label="ReSTIR DI",
+                unbiased=True)
