@@ -251,8 +251,9 @@ class ZTestResult:
 
 
 def _two_sided_p_values(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
-                        var_b: np.ndarray) -> np.ndarray:
-    """p = P(|Z| >= |z|) with z = (a - b) / sqrt(var_a + var_b); degenerate cases handled."""
+                        var_b: np.ndarray, dof: float | None = None) -> np.ndarray:
+    """p = P(|Z| >= |z|) with z = (a - b) / sqrt(var_a + var_b), or P(|T_dof| >= |z|)
+    for variances estimated with ``dof`` degrees of freedom; degenerate cases handled."""
     diff = mean_a - mean_b
     var = var_a + var_b
     p = np.zeros(diff.shape, dtype=np.float64)
@@ -260,7 +261,8 @@ def _two_sided_p_values(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarra
     z = np.abs(diff[positive]) / np.sqrt(var[positive])
     # erfc(|z|/sqrt 2) keeps the tiny p-values that a Šidák level (~1e-7) needs;
     # 1 - cdf would round them to 0.
-    p[positive] = special.erfc(z / math.sqrt(2.0))
+    p[positive] = (special.erfc(z / math.sqrt(2.0)) if dof is None
+                   else 2.0 * stats.t.sf(z, dof))
     # Zero variance on both sides: the means are exact, so they agree or they don't.
     p[(var == 0) & (diff == 0)] = 1.0
     return p
@@ -283,7 +285,7 @@ def _paired_means(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
 
 
 def z_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray, var_b: np.ndarray,
-           alpha: float = 0.01) -> ZTestResult:
+           alpha: float = 0.01, dof: float | None = None) -> ZTestResult:
     """Per-pixel-channel two-sample z-test of "both means estimate the same image".
 
     ``var_a`` and ``var_b`` are variances *of the means* (the pass variance
@@ -303,14 +305,19 @@ def z_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray, var_b: np.
     otherwise; elements with a non-finite input fail (p = 0). The z statistic
     assumes the variance estimates are accurate: use many passes per side
     (hundreds), or the heavier tails of estimated variances cause false failures.
+    With variances estimated from few passes give ``dof`` (e.g. passes - 1): z is
+    then read as a Student t with ``dof`` degrees of freedom (Welch's test with the
+    smaller side's degrees of freedom, conservative), whose tails are that heavy.
     """
+    if dof is not None and not dof > 0:
+        raise MetricError(f"degrees of freedom must be > 0, got {dof}")
     a, va, b, vb = _paired_means(mean_a, var_a, mean_b, var_b)
     finite = np.isfinite(a) & np.isfinite(b) & np.isfinite(va) & np.isfinite(vb)
     n_tested = int(a.size)
     alpha_corrected = sidak_alpha(alpha, n_tested)
 
     p_values = np.zeros(a.shape, dtype=np.float64)
-    p_values[finite] = _two_sided_p_values(a[finite], va[finite], b[finite], vb[finite])
+    p_values[finite] = _two_sided_p_values(a[finite], va[finite], b[finite], vb[finite], dof)
     n_failed = int(np.count_nonzero(p_values <= alpha_corrected))
     worst = np.unravel_index(int(np.argmin(p_values)), p_values.shape)
     return ZTestResult(
@@ -481,7 +488,8 @@ def agreement_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
                    alpha: float = 0.01) -> AgreementResult:
     """Both tests at level ``alpha`` each: a render agrees with a reference only if
     no pixel is an outlier (:func:`z_test`) and the block means agree
-    (:func:`aggregate_test`). Statistical render tests use this."""
-    return AgreementResult(z_test(mean_a, var_a, mean_b, var_b, alpha=alpha),
+    (:func:`aggregate_test`). Statistical render tests use this. ``dof``: degrees of
+    freedom of the variance estimates, for both tests."""
+    return AgreementResult(z_test(mean_a, var_a, mean_b, var_b, alpha=alpha, dof=dof),
                            aggregate_test(mean_a, var_a, mean_b, var_b, dof=dof, block=block,
                                           alpha=alpha))

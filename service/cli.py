@@ -684,6 +684,60 @@ def gc(
         store.close()
 
 
+@app.command()
+def stress(
+    case: Annotated[list[str] | None, typer.Option(
+        "--case", help="a stress case (repeat; default: all, docs/stress.md)")] = None,
+    res: Annotated[int, typer.Option("--res", min=4, max=512)] = 16,
+    spp: Annotated[int, typer.Option("--spp", min=1, max=1024)] = 4,
+    frames: Annotated[int, typer.Option("--frames", min=1, max=64)] = 2,
+    seeds: Annotated[int, typer.Option("--seeds", min=2, max=64)] = 8,
+    reference_spp: Annotated[int, typer.Option("--reference-spp", min=8, max=1 << 20)] = 1024,
+    as_json: JsonOut = False,
+    server: Server = None,
+    api_key: ApiKeyOpt = None,
+    data_dir: DataDir = None,
+) -> None:
+    """Run adversarial scenes through every registered method and print, per case and
+    method, non-finite pixels, losses and skipped steps, the largest pixel, agreement of
+    unbiased methods and what the user is told. Exits 1 if a method crashed, a non-finite
+    value reached a metric or cache weight, or an unbiased method disagreed where it must
+    agree."""
+    from jobs.protocol.stress import (
+        EmbeddedBackend,
+        StressSettings,
+        get_cases,
+        markdown_table,
+        run_suite,
+    )
+
+    settings = StressSettings(resolution=res, spp=spp, frames=frames, seeds=seeds,
+                              reference_spp=reference_spp)
+    cases = get_cases(case)
+    if server:
+        from service.client import ServiceClient
+        from service.stress_remote import RemoteBackend
+
+        backend: Any = RemoteBackend(ServiceClient(server, api_key))
+    else:
+        from renderers.backend import init_backend
+
+        init_backend()
+        paths = _settings(data_dir)
+        backend = EmbeddedBackend(_store(paths), paths)
+    progress = None if as_json else (lambda what: err_console.print(
+        f"stress: {what}", markup=False, highlight=False))
+    report = run_suite(backend, settings, cases, progress)
+    if as_json:
+        _print_json({**report.model_dump(mode="json"), "problems": report.problems()})
+    else:
+        console.print(markdown_table(report), markup=False, highlight=False, soft_wrap=True)
+        for problem in report.problems():
+            console.print(f"problem: {problem}", markup=False, highlight=False, soft_wrap=True)
+    if report.problems():
+        raise typer.Exit(1)
+
+
 apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True)
 app.add_typer(apikey_app, name="apikey")
 

@@ -69,6 +69,16 @@ class ServiceClient:
     def get(self, path: str) -> Any:
         return self._request("GET", path)
 
+    def download(self, path: str) -> bytes:
+        """The raw body of ``GET path`` (an artifact's file)."""
+        try:
+            response = self.http.get(path)
+        except httpx.HTTPError as err:
+            raise RemoteError(f"cannot reach the service at {self.http.base_url}: {err}") from None
+        if response.status_code >= 400:
+            raise RemoteError(f"the service refused GET {path}: {_detail(response)}")
+        return response.content
+
     def wait(self, job_id: int, progress: Callable[[str, int, int], None] | None = None,
              poll_s: float = 1.0) -> dict[str, Any]:
         """Long-poll the job until it is final (the answer comes as soon as it is),

@@ -93,6 +93,14 @@ def get_or_render_reference(
         image_path=references_dir / image_name, rendered_now=True)
 
 
+def stored_reference(store: Store, references_dir: Path, reference_id: int) -> LoadedReference:
+    """The stored reference ``reference_id`` (e.g. a run's), read from its files."""
+    row = store.get_reference(reference_id)
+    if row is None:
+        raise ImageReadError(f"reference {reference_id} is not stored")
+    return _load(row, references_dir)
+
+
 def _load(row: Any, references_dir: Path) -> LoadedReference:
     """Read a stored reference; its file paths are relative to ``references_dir``."""
     return LoadedReference(

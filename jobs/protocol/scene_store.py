@@ -31,6 +31,7 @@ from pathlib import Path
 
 from jobs.record.config import Settings
 from renderers.scenes import LoadedScene, SceneError, builtin_names, load_scene
+from renderers.scenes.errors import SceneNotFinite
 from renderers.scenes.vetting import (
     STAGED_SCENE,
     Limits,
@@ -128,7 +129,8 @@ def load_spec_scene(scene: str, resolution: int, settings: Settings) -> LoadedSc
 
     A stored scene that Mitsuba refuses fails with a fixed message naming the id:
     Mitsuba's own text can quote a line of a file, and a job's error is served to
-    every reader.
+    every reader. A scene refused for a non-finite value says which object, by its
+    position and type (renderers.scenes.errors.SceneNotFinite).
     """
     if SCENE_ID.match(scene) is None:
         return load_scene(scene, resolution)
@@ -137,6 +139,9 @@ def load_spec_scene(scene: str, resolution: int, settings: Settings) -> LoadedSc
         raise SceneError(unavailable_message())
     try:
         loaded = load_scene(path, resolution)
+    except SceneNotFinite as err:
+        # What is not finite, named by position and type only: safe to serve.
+        raise SceneError(f"scene {scene} was refused: {err.reason}") from None
     except SceneError:
         raise SceneError(f"scene {scene} could not be loaded: Mitsuba refused the scene or "
                          "one of its files (its message is not shown, as it can quote the "

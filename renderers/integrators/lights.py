@@ -144,6 +144,8 @@ class LightSampler:
     def pdf_emitter_direction(self, prev_si: mi.SurfaceInteraction3f, ds: mi.DirectionSample3f,
                               active: mi.Bool) -> mi.Float:
         """p_light of a BSDF sample from ``prev_si`` that hit ``ds.emitter``."""
+        if self.count == 0:     # nothing to hit (and no selection to evaluate)
+            return mi.Float(0)
         active &= dr.reinterpret_array(mi.UInt32, ds.emitter) != 0  # an emitter was hit
         pmf = self.pmf(prev_si, self.index_of(ds.emitter, active), active)
         return dr.select(active, pmf * ds.emitter.pdf_direction(prev_si, ds, active), 0)
@@ -211,7 +213,10 @@ class PowerLightSampler(LightSampler):
     def __init__(self, scene: mi.Scene) -> None:
         super().__init__(scene)
         self.powers = emitter_powers(scene)
-        self.distribution = mi.DiscreteDistribution(mi.Float(self.powers))
+        # No emitter, no distribution (Mitsuba refuses an empty one); NEE then adds
+        # nothing and the pmf is never evaluated (LightSampler).
+        self.distribution = (mi.DiscreteDistribution(mi.Float(self.powers)) if self.count
+                             else None)
 
     def sample(self, si, u, active):
         index, u_x, pmf = self.distribution.sample_reuse_pmf(u, active)

@@ -118,6 +118,10 @@ class Method:
     requires: Callable[[Any], tuple[bool, str]] = everywhere
     label: str = ""
     comparison: tuple[ComparisonRun, ...] = ()
+    #: Whether its expectation is the reference's (True: tested for agreement by the
+    #: stress suite, docs/stress.md), not (False), or set by its ``estimator``
+    #: parameter or not declared (None).
+    unbiased: bool | None = None
 
     def applies_to(self, features: Any) -> tuple[bool, str]:
         """Whether the method can render a scene with ``features``, and why not."""

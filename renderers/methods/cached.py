@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from pydantic import Field, model_validator
 
 from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
@@ -171,9 +172,16 @@ def cache_method_stats(cache: Any, params: Any, pretrain_s: float,
         "pretrain_frames": params.pretrain_frames,
         "pretrain_s": pretrain_s,
         "loss_history": list(cache.loss_history),
-        "cache_stats": dict(cache.stats),
+        "cache_stats": {**cache.stats, "nonfinite_weights": nonfinite_weights(cache)},
         "cache_config": cache.config.model_dump(mode="json"),
     }
+
+
+def nonfinite_weights(cache: Any) -> int:
+    """NaN or infinite entries of the weights the cache infers with (what a snapshot
+    stores); a skipped training step (renderers.caches.cache) keeps this 0."""
+    return sum(int(np.count_nonzero(~np.isfinite(values)))
+               for values in cache.inference_parameters().values())
 
 
 def query_stats(frames: list[list[Any]]) -> dict[str, float]:

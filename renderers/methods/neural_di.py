@@ -71,4 +71,4 @@ METHOD = Method("neural-di",
                 "(max_depth 2)",
                 NeuralDIParams, render, version=1,
                 integrators=("renderers.integrators.neural_di",), requires=applies,
-                label="Neural DI", knob=Knob("spp", SPP_CANDIDATES))
+                label="Neural DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False)

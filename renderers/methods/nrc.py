@@ -51,5 +51,5 @@ def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
 METHOD = Method(
     "nrc", "Neural Radiance Cache, spread-angle termination", NRCParams, cached_render(build),
     version=3, integrators=("renderers.integrators.nrc", *TRAINING_INTEGRATORS),
-    sweep=SweepRole("NRC"), build=build, requires=has_surface, label="NRC",
+    sweep=SweepRole("NRC"), build=build, requires=has_surface, label="NRC", unbiased=False,
     comparison=(ComparisonRun(2, "NRC", "NRC biased", role="matched"),))

@@ -61,4 +61,4 @@ METHOD = Method("nrc-di",
                 "on one-sample NEE, rendered as its prediction (biased): primary hits only "
                 "(max_depth 2)",
                 NRCDIParams, render, version=1, integrators=("renderers.integrators.nrc_di",),
-                requires=lit_surface, label="NRC DI", knob=Knob("spp", SPP_CANDIDATES))
+                requires=lit_surface, label="NRC DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False)

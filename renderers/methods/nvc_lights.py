@@ -204,4 +204,5 @@ METHOD = Method("nvc-lights",
                 "path tracing with lights selected by a neural visibility cache "
                 "(power / distance^2 x cosine bound x max(V, clamp)) at every vertex",
                 NVCLightsParams, render, version=1, integrators=PATH_INTEGRATORS,
-                requires=applies, label="NVC lights", knob=Knob("spp", SPP_CANDIDATES))
+                requires=applies, label="NVC lights", knob=Knob("spp", SPP_CANDIDATES),
+                unbiased=True)

@@ -80,6 +80,6 @@ PATH_INTEGRATORS = ("renderers.integrators.path",)
 
 METHOD = Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", PTParams, render,
                 version=2, integrators=PATH_INTEGRATORS, knob=Knob("spp", SPP_CANDIDATES),
-                label="PT",
+                label="PT", unbiased=True,
                 comparison=(ComparisonRun(0, "PT 1 spp", "PT 1 spp"),
                             ComparisonRun(1, "PT 2 spp", "PT 2 spp", spp=2, role="budget")))

@@ -23,4 +23,4 @@ render = render_with_lights("PowerLightSampler")
 
 METHOD = Method("pt-power", "path tracing with emitters selected in proportion to power",
                 PTPowerParams, render, version=1, integrators=PATH_INTEGRATORS,
-                knob=Knob("spp", SPP_CANDIDATES))
+                knob=Knob("spp", SPP_CANDIDATES), unbiased=True)

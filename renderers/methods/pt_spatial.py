@@ -23,4 +23,4 @@ render = render_with_lights("SpatialLightSampler")
 
 METHOD = Method("pt-spatial", "path tracing with emitters selected by power / distance^2 per shading point",
                 PTSpatialParams, render, version=1, integrators=PATH_INTEGRATORS,
-                knob=Knob("spp", SPP_CANDIDATES))
+                knob=Knob("spp", SPP_CANDIDATES), unbiased=True)

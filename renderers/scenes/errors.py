@@ -11,3 +11,14 @@ from __future__ import annotations
 
 class SceneError(ValueError):
     """A scene cannot be found, parsed or loaded; the message says which and why."""
+
+
+class SceneNotFinite(SceneError):
+    """A loaded scene with a NaN or infinite transform, vertex or emitter parameter.
+
+    ``reason`` says what, without the file's path or the ids it gives its objects,
+    so a service can show it for a stored scene (jobs.protocol.scene_store)."""
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason

@@ -31,7 +31,7 @@ from xml.parsers import expat
 
 import numpy as np
 
-from renderers.scenes.errors import SceneError
+from renderers.scenes.errors import SceneError, SceneNotFinite
 from renderers.scenes.fingerprint import xml_fingerprint
 from renderers.scenes.resolution import Resolution
 from renderers.scenes.runtime import mitsuba
@@ -227,10 +227,11 @@ def check_finite_scene(scene: Any, path: Path) -> None:
         box = shape.bbox()
         corners = [float(v) for v in (*box.min, *box.max)]
         if not all(math.isfinite(v) for v in corners):
-            raise SceneError(
-                f"{path}: {_label('shape', index, shape)} has a NaN or infinite transform "
-                "or vertex position (its bounding box is not finite), so it would vanish "
-                "from the render; fix its <transform name=\"to_world\"> or its mesh")
+            reason = ("has a NaN or infinite transform or vertex position (its bounding box "
+                      "is not finite), so it would vanish from the render; fix its "
+                      "<transform name=\"to_world\"> or its mesh")
+            raise SceneNotFinite(f"{path}: {_label('shape', index, shape)} {reason}",
+                                 f"shape #{index + 1} ({shape.class_name()}) {reason}")
     mi = mitsuba()
     for index, emitter in enumerate(scene.emitters()):
         for key, value in mi.traverse(emitter).items():
@@ -238,10 +239,11 @@ def check_finite_scene(scene: Any, path: Path) -> None:
                 shape = emitter.get_shape()
                 where = (f" on {_label('shape', scene.shapes().index(shape), shape)}"
                          if shape is not None and shape in scene.shapes() else "")
-                raise SceneError(
-                    f"{path}: {_label('emitter', index, emitter)}{where} has a NaN or "
-                    f"infinite {key.split('.')[0]!r}; every pixel it lights would be NaN or "
-                    "infinite")
+                reason = (f"has a NaN or infinite {key.split('.')[0]!r}; every pixel it "
+                          "lights would be NaN or infinite")
+                raise SceneNotFinite(
+                    f"{path}: {_label('emitter', index, emitter)}{where} {reason}",
+                    f"emitter #{index + 1} ({emitter.class_name()}) {reason}")
 
 
 def load_xml_scene(name: str, resolution: Resolution | None) -> XmlScene:

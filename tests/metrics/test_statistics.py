@@ -328,3 +328,27 @@ def test_aggregate_test_degenerate_inputs():
         aggregate_test(np.ones((3, 8, 3)), 1.0, np.ones((3, 8, 3)), 1.0)
     with pytest.raises(MetricError, match="degrees of freedom"):
         aggregate_test(image, 1.0, image, 1.0, dof=0)
+
+
+def test_z_test_with_estimated_variances_needs_their_degrees_of_freedom():
+    """K = 8 normal passes per side, variances estimated from them: read as z the
+    per-pixel test rejects equal means far above alpha; as a Student t with K - 1
+    degrees of freedom it holds alpha, and it still rejects a shift of 3 sigma."""
+    rng = np.random.default_rng(11)
+    k, shape, repetitions = 8, (8, 8, 3), 200
+
+    def moments(shift: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        passes = rng.normal(1.0 + shift, 1.0, (k, *shape))
+        return passes.mean(axis=0), passes.var(axis=0, ddof=1) / k
+
+    as_z = as_t = 0
+    for _ in range(repetitions):
+        a, b = moments(), moments()
+        as_z += not z_test(*a, *b).passed
+        as_t += not z_test(*a, *b, dof=k - 1).passed
+    assert as_z / repetitions > 0.2
+    assert as_t / repetitions <= 0.03
+    shifted = z_test(*moments(shift=3.0), *moments(), dof=k - 1)
+    assert not shifted.passed
+    with pytest.raises(MetricError, match="degrees of freedom"):
+        z_test(*moments(), *moments(), dof=0)

@@ -524,3 +524,20 @@ def test_loaded_weights_reproduce_the_trained_cache(trained):
         copy.load_inference_parameters(bad)
     with pytest.raises(ValueError, match="names"):
         copy.load_inference_parameters({"nonsense": np.zeros(3)})
+
+
+def test_nonfinite_weights_are_counted_for_the_run(mi):
+    """A run's ``cache_stats.nonfinite_weights`` (the stress suite's check that no NaN
+    reaches stored weights) counts NaN and infinite entries of the inference weights."""
+    import numpy as np
+
+    from renderers.methods.cached import nonfinite_weights
+
+    cache = caches.NeuralCache(small_config(), [0, 0, 0], [1, 1, 1], seed=0)
+    assert nonfinite_weights(cache) == 0
+    weights = cache.inference_parameters()
+    key = next(iter(weights))
+    weights[key] = weights[key].copy()
+    weights[key][:3] = [np.nan, np.inf, -np.inf]
+    cache.load_inference_parameters(weights)
+    assert nonfinite_weights(cache) == 3

@@ -202,3 +202,19 @@ def test_spatial_selection_with_an_environment_matches_mitsuba_path(mi):
                                   seed=1005))
     result = agreement_test(*test, *reference, alpha=0.01)
     assert result.passed, result.summary()
+
+
+@pytest.mark.parametrize("index", [1, 2], ids=["power", "spatial"])
+def test_a_scene_without_emitters_renders_black(mi, index):
+    """Found by the stress suite (docs/stress.md): with no emitter, the power selector
+    built an empty distribution and the MIS pdf indexed an empty weight list; both
+    crashed the render. Now NEE and the MIS pdf add nothing and the image is 0."""
+    from tests.renderers.scene_xml import perspective_sensor
+
+    scene = mi.load_string(f"""<scene version="3.0.0">
+        {perspective_sensor("45", "0, 0, 3", "0, 0, 0").replace("{res}", "8")}
+        <shape type="rectangle"><bsdf type="diffuse"/></shape>
+    </scene>""")
+    integrator = _integrator(mi, _selectors()[index])
+    image = np.array(mi.render(scene, integrator=integrator, spp=4))
+    assert np.all(image[..., :3] == 0)
