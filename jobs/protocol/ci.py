@@ -24,7 +24,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field
 
 from jobs.protocol.ci_stats import TEST_NAMES, compare, decide, look_levels, look_sizes
-from jobs.protocol.ci_suite import TIME, BaselineFile, BaselineRow, Entry, Suite
+from jobs.protocol.ci_suite import TIME, BaselineRow, Entry, Suite, config_key
 from jobs.protocol.provenance import git_branch, git_commit
 from jobs.protocol.results import RunResultDetail
 from jobs.protocol.spec import RenderSpec
@@ -219,8 +219,8 @@ def baseline_rows(suite: Suite, runner: Runner, *, seed_start: int = 0,
 
 def file_baseline(rows: Sequence[BaselineRow]) -> BaselineSource:
     """The rows of a baseline file as a baseline source."""
-    baseline = BaselineFile(rows=list(rows))
-    return lambda entry, _first, metric: baseline.find(entry, metric.name)
+    index = {(config_key(row), row.metric): row for row in rows}
+    return lambda entry, _first, metric: index.get((config_key(entry), metric.name))
 
 
 def stored_baseline(store: Store, ref: str) -> BaselineSource:

@@ -13,10 +13,16 @@ and the one-sided p-value tests "the candidate is worse" with a SciPy test:
 design           test
 ===============  ==========================================================
 paired           both sides hold the same seed numbers: Student's t on the
-                 per-seed differences (``scipy.stats.ttest_rel``)
-unpaired         Welch's t (``ttest_ind(equal_var=False)``) or the
+                 per-seed differences (as ``scipy.stats.ttest_rel``)
+unpaired         Welch's t (as ``ttest_ind(equal_var=False)``) or the
                  Mann-Whitney U test (``mannwhitneyu``), as the suite says
 ===============  ==========================================================
+
+The t statistics share their standard error and degrees of freedom with the
+upper confidence bound below, so they are computed here once and their tails
+taken from SciPy's Student-t distribution function (``scipy.special.stdtr``,
+what ``ttest_rel`` / ``ttest_ind`` use; tests/jobs/test_ci.py checks both
+agree): the CI's false-failure measurement runs thousands of suites.
 
 Identical values are decided without a test: all differences zero (or both
 sides constant and equal) is p = 1; a constant shift with no spread is p = 0
@@ -51,7 +57,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 Direction = Literal["lower", "higher"]
 Spending = Literal["obrien-fleming", "pocock"]
@@ -65,8 +71,8 @@ def spent(t: float, alpha: float, spending: Spending) -> float:
     (Lan and DeMets 1983; the O'Brien-Fleming-type and Pocock-type functions)."""
     if t <= 0.0:
         return 0.0
-    if spending == "obrien-fleming":
-        return float(2.0 * stats.norm.sf(stats.norm.isf(alpha / 2.0) / math.sqrt(min(t, 1.0))))
+    if spending == "obrien-fleming":   # 2 (1 - Phi(z_{1 - alpha/2} / sqrt(t)))
+        return float(2.0 * special.ndtr(special.ndtri(alpha / 2.0) / math.sqrt(min(t, 1.0))))
     return float(alpha * math.log1p((math.e - 1.0) * min(t, 1.0)))
 
 
@@ -121,34 +127,32 @@ def compare(candidate: Sequence[float], baseline: Sequence[float], direction: Di
     if paired:
         d = sign * (c - b)
         diff = float(d.mean())
-        sd = float(d.std(ddof=1)) if d.size > 1 else 0.0
-        if sd == 0.0:
-            p = 0.0 if diff > 0 else 1.0
-            upper = diff
-        else:
-            p = float(stats.ttest_rel(sign * c, sign * b, alternative="greater").pvalue)
-            upper = diff + float(stats.t.isf(beta, d.size - 1)) * sd / math.sqrt(d.size)
+        se = float(d.std(ddof=1)) / math.sqrt(d.size) if d.size > 1 else 0.0
+        p, upper = _t_tail(diff, se, d.size - 1, beta)
         return Look("paired", float(b.mean()), float(c.mean()), _relative(diff, scale),
                     _relative(upper, scale), p)
     diff = sign * float(c.mean() - b.mean())
     vc = float(c.var(ddof=1)) / c.size if c.size > 1 else 0.0
     vb = float(b.var(ddof=1)) / b.size if b.size > 1 else 0.0
     se = math.sqrt(vc + vb)
-    if se == 0.0:       # both sides constant (or single values): no spread to test against
-        p = 0.0 if diff > 0 else 1.0
-        upper = diff
-    else:
-        # Welch-Satterthwaite degrees of freedom of the difference of means
-        df = se**4 / ((vc**2 / (c.size - 1) if c.size > 1 else 0.0)
-                      + (vb**2 / (b.size - 1) if b.size > 1 else 0.0))
-        upper = diff + float(stats.t.isf(beta, df)) * se
-        if test == "mann-whitney":
-            p = float(stats.mannwhitneyu(sign * c, sign * b, alternative="greater").pvalue)
-        else:
-            p = float(stats.ttest_ind(sign * c, sign * b, equal_var=False,
-                                      alternative="greater").pvalue)
+    # Welch-Satterthwaite degrees of freedom of the difference of means
+    df = se**4 / ((vc**2 / (c.size - 1) if c.size > 1 else 0.0)
+                  + (vb**2 / (b.size - 1) if b.size > 1 else 0.0)) if se > 0.0 else 1.0
+    p, upper = _t_tail(diff, se, df, beta)
+    if test == "mann-whitney" and se > 0.0:
+        p = float(stats.mannwhitneyu(sign * c, sign * b, alternative="greater").pvalue)
     return Look(test, float(b.mean()), float(c.mean()), _relative(diff, scale),
                 _relative(upper, scale), p)
+
+
+def _t_tail(diff: float, se: float, df: float, beta: float) -> tuple[float, float]:
+    """One-sided p-value of ``diff > 0`` with standard error ``se`` on ``df`` degrees of
+    freedom, and the (1 - beta) upper bound ``diff + t_{1-beta, df} se``. No spread
+    (se = 0: identical values, or a constant shift) decides by the sign alone."""
+    if se == 0.0:
+        return (0.0 if diff > 0 else 1.0), diff
+    return (float(special.stdtr(df, -diff / se)),
+            diff + float(special.stdtrit(df, 1.0 - beta)) * se)
 
 
 def decide(look: Look, level: float, min_change: float, last: bool) -> str | None:

@@ -203,12 +203,6 @@ class BaselineFile(BaseModel):
     created_at: datetime = Field(default_factory=lambda: datetime.now(UTC))
     rows: list[BaselineRow]
 
-    def find(self, entry: Entry, metric: str) -> BaselineRow | None:
-        for row in self.rows:
-            if config_key(row) == config_key(entry) and row.metric == metric:
-                return row
-        return None
-
 
 def read_baseline(path: Path) -> BaselineFile:
     """The baseline file at ``path``; CiError if missing or unreadable."""
