@@ -227,18 +227,21 @@ def stored_baseline(store: Store, ref: str) -> BaselineSource:
     """The latest stored results of the commit or branch ``ref``: per entry, the runs of the
     newest commit under ``ref`` with the entry's configuration, stored before the entry's
     first candidate run (their seeds merged)."""
+    loaded: dict[tuple[str, int], list[RunResultDetail]] = {}   # per entry, read once
 
-    def find(entry: Entry, first: RunResultDetail, metric: Metric) -> BaselineRow | None:
+    def runs_of(entry: Entry, first: RunResultDetail) -> list[RunResultDetail]:
         matching = [run for run in store.list_runs(scene=first.scene, method=entry.method,
                                                    git_ref=ref)
                     if run.id < first.id and run.status == "succeeded"
                     and _same_config(run, entry)]
-        if not matching:
-            return None
-        commit = matching[0].git_commit
-        chosen = reversed([run for run in matching if run.git_commit == commit])
-        return row_of(entry, [RunResultDetail.of(store.get_run(run.id)) for run in chosen],
-                      metric)
+        chosen = [run for run in matching if run.git_commit == matching[0].git_commit]
+        return [RunResultDetail.of(store.get_run(run.id)) for run in reversed(chosen)]
+
+    def find(entry: Entry, first: RunResultDetail, metric: Metric) -> BaselineRow | None:
+        key = (entry.label, first.id)
+        if key not in loaded:
+            loaded[key] = runs_of(entry, first)
+        return row_of(entry, loaded[key], metric) if loaded[key] else None
 
     return find
 
