@@ -29,7 +29,8 @@ max_seeds = 6
 [[methods]]
 label = "pt"
 method = "pt"
-
+"""
+NIRC = """
 [[methods]]
 label = "nirc biased"
 method = "nirc"
@@ -39,8 +40,17 @@ params = { estimator = "biased", max_depth = 3 }
 
 @pytest.fixture
 def suite(tmp_path: Path) -> Path:
+    """PT only (2 rows): the cheap suite of the tests that check the plumbing."""
     path = tmp_path / "suite.toml"
     path.write_text(SUITE)
+    return path
+
+
+@pytest.fixture
+def suite_with_nirc(tmp_path: Path) -> Path:
+    """PT and biased NIRC (4 rows)."""
+    path = tmp_path / "suite_nirc.toml"
+    path.write_text(SUITE + NIRC)
     return path
 
 
@@ -57,7 +67,9 @@ def edit(baseline: Path, target: Path, change) -> Path:
     return target
 
 
-def test_own_baseline_passes_and_a_baseline_edited_to_be_better_fails(tmp_path, suite):
+def test_own_baseline_passes_and_a_baseline_edited_to_be_better_fails(tmp_path,
+                                                                      suite_with_nirc):
+    suite = suite_with_nirc
     data, baseline = tmp_path / "data", tmp_path / "baseline.json"
     written = ci(suite, baseline, data, "--update-baseline")
     assert written.returncode == 0, written.stderr
@@ -95,7 +107,7 @@ def test_the_latest_results_of_a_branch_are_a_baseline(tmp_path, suite):
     second = ci(suite, unused, data, "--baseline-ref", "main",
                 env={"NIRC_BENCH_BRANCH": "feature"})
     assert second.returncode == 0, second.stdout + second.stderr
-    assert "PASS: 4 rows compared" in second.stdout
+    assert "PASS: 2 rows compared" in second.stdout and "paired t" in second.stdout
 
 
 @pytest.mark.parametrize("args, fragment", [
@@ -123,9 +135,9 @@ def test_over_rest(tmp_path, suite):
         assert written.returncode == 0, written.stderr
         proc = ci(suite, baseline, tmp_path / "data", *remote)
         assert proc.returncode == 0, proc.stdout + proc.stderr
-        assert "PASS: 4 rows compared" in proc.stdout
+        assert "PASS: 2 rows compared" in proc.stdout
         runs = service.get("/api/v1/results")
-        assert len(runs) == 4       # one run at the cap per entry, then one group each
+        assert len(runs) == 2       # one run at the cap, then one group
         detail = service.get(f"/api/v1/runs/{runs[0]['id']}")
         assert detail["git_commit"] and "git_branch" in detail
         assert [s["seed"] for s in detail["per_seed"]] == [0, 1, 2]
