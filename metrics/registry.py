@@ -67,6 +67,8 @@ class Metric:
     sweep_plot: bool = False       # a panel of the sweep figure (NIRC paper Fig. 13)
     withheld_keys: tuple[str, ...] = ()  # further stored-key prefixes the verdict clears
     details: tuple[tuple[str, str], ...] = ()  # (label, stored key) shown beside it in details
+    ci_min_change: float | None = None  # smallest relative change (worse way) nirc-bench ci
+                                        # calls a regression; None: not gated (needs seed_key)
 
     @property
     def verdict_name(self) -> str:
@@ -109,15 +111,17 @@ def _efficiency(metrics: Mapping[str, Any]) -> float | None:
 #: order: MRSE, FLIP, rBias², rVar).
 METRICS: tuple[Metric, ...] = (
     Metric("mse", "MSE", "mean squared error against the reference", "lower",
-           Aggregate.MEAN, key="mse_mean", seed_key="mse", log_axis=True),
+           Aggregate.MEAN, key="mse_mean", seed_key="mse", log_axis=True, ci_min_change=0.25),
     Metric("mrse", "MRSE", "mean relative squared error (X-R)^2/(R^2+eps)", "lower",
            Aggregate.MEAN_CI, key="mrse_mean", seed_key="mrse", log_axis=True, field="mrse",
-           sweep_plot=True, details=(("MRSE less reference floor", "mrse_corrected"),)),
+           sweep_plot=True, details=(("MRSE less reference floor", "mrse_corrected"),),
+           ci_min_change=0.25),
     Metric("flip_hdr", "FLIP", "HDR-FLIP mean over pixels, at the reference's exposures",
            "lower", Aggregate.MEAN, key="flip_hdr_mean", seed_key="flip_hdr", group="flip",
-           field="flip", sweep_plot=True),
+           field="flip", sweep_plot=True, ci_min_change=0.1),
     Metric("flip_ldr", "FLIP (LDR)", "LDR-FLIP mean over pixels of the tone-mapped images",
-           "lower", Aggregate.MEAN, key="flip_ldr_mean", seed_key="flip_ldr", group="flip"),
+           "lower", Aggregate.MEAN, key="flip_ldr_mean", seed_key="flip_ldr", group="flip",
+           ci_min_change=0.1),
     Metric("rbias2", "rBias²", "relative squared bias over K renders, less the render and "
            "reference noise floors", "lower", Aggregate.BIAS_VARIANCE, key="rbias2",
            log_axis=True, needs_k2=True, field="rbias2", sweep_plot=True,
@@ -134,7 +138,8 @@ METRICS: tuple[Metric, ...] = (
            log_axis=True),
     Metric("psnr", "PSNR", "PSNR of the tone-mapped images (clamp + sRGB), "
            "10 log10(1/MSE) on [0, 1]", "higher", Aggregate.MEAN, key="psnr_mean",
-           seed_key="psnr", per_seed=psnr_tonemapped, unit="dB", field="psnr"),
+           seed_key="psnr", per_seed=psnr_tonemapped, unit="dB", field="psnr",
+           ci_min_change=0.05),
 )
 
 BY_NAME: dict[str, Metric] = {m.name: m for m in METRICS}
@@ -145,6 +150,8 @@ if len(BY_NAME) != len(METRICS):
 LISTED: tuple[Metric, ...] = tuple(m for m in METRICS if m.field)
 #: The metrics with a value per seed, in order.
 PER_SEED: tuple[Metric, ...] = tuple(m for m in METRICS if m.seed_key)
+#: The metrics nirc-bench ci compares (a per-seed value and a minimum change), in order.
+CI_GATED: tuple[Metric, ...] = tuple(m for m in PER_SEED if m.ci_min_change is not None)
 
 
 def verdict_keys() -> dict[str, tuple[str, ...]]:

@@ -515,6 +515,51 @@ def pareto(
         data_dir, as_json, lambda r: r.to_json(), pareto_table)
 
 
+@app.command()
+def ci(
+    suite: Annotated[Path, typer.Option("--suite", help="the pinned suite (TOML)")]
+        = Path("ci/suite.toml"),
+    baseline: Annotated[Path, typer.Option(
+        "--baseline", help="baseline file to compare with (or to write)")]
+        = Path("ci/baseline.json"),
+    baseline_ref: Annotated[str | None, typer.Option(
+        "--baseline-ref", help="compare with the latest stored results of this commit or "
+                               "branch instead of the baseline file")] = None,
+    update_baseline: Annotated[bool, typer.Option(
+        "--update-baseline", help="run every entry at the seed cap and write --baseline")]
+        = False,
+    seed_start: Annotated[int, typer.Option(
+        "--seed-start", min=0, max=1 << 20,
+        help="first seed (the baseline's seeds give a paired comparison)")] = 0,
+    summary: Annotated[Path | None, typer.Option(
+        "--summary", help="also write the Markdown summary here")] = None,
+    junit: Annotated[Path | None, typer.Option("--junit", help="write JUnit XML here")] = None,
+    data_dir: DataDir = None,
+    server: Server = None,
+    api_key: ApiKeyOpt = None,
+) -> None:
+    """Regression gate: run a pinned suite, adding seeds until each row is decided, and
+    compare with a baseline (docs/ci.md). Exit 0: pass, 1: regression, 2: could not run."""
+    from jobs.protocol.ci_suite import CiError
+    from service.ci_command import CiOptions, run_ci
+
+    options = CiOptions(suite=suite, baseline=baseline, baseline_ref=baseline_ref,
+                        update_baseline=update_baseline, seed_start=seed_start,
+                        summary=summary, junit=junit, data_dir=data_dir, server=server,
+                        api_key=api_key)
+    try:
+        code = run_ci(options, console, err_console)
+    except Exception as err:  # noqa: BLE001 - exit 1 means a regression: all else is 2
+        if os.environ.get("NIRC_BENCH_DEBUG"):
+            raise
+        message = (describe_user_error(err) if isinstance(err, (*USER_ERRORS, CiError))
+                   else f"{type(err).__name__}: {err}")
+        err_console.print(f"nirc-bench ci: could not run: {message}", markup=False,
+                          highlight=False, soft_wrap=True)
+        raise typer.Exit(2) from None
+    raise typer.Exit(code)
+
+
 TlsCaFile = Annotated[Path | None, typer.Option(
     "--tls-ca-file", help="tls:// scheduler: the CA that signed the scheduler's and workers' "
                           "certificates (or NIRC_BENCH_TLS_CA_FILE)")]

@@ -23,7 +23,7 @@ import numpy as np
 
 from jobs.protocol.calibration import calibrate_job
 from jobs.protocol.plots import plot_convergence
-from jobs.protocol.provenance import git_commit, library_versions
+from jobs.protocol.provenance import git_branch, git_commit, library_versions
 from jobs.protocol.quality import judge_run
 from jobs.protocol.references import LoadedReference, get_or_render_reference
 from jobs.protocol.results import RunResultDetail
@@ -302,8 +302,9 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
     scratch.mkdir(parents=True, exist_ok=True)
     outputs = [rendered.output for rendered in seeds]
     per_seed, artifacts = [], []
-    for seed, (output, curve) in enumerate(zip(outputs, (r.convergence for r in seeds),
-                                               strict=True)):
+    for index, (output, curve) in enumerate(zip(outputs, (r.convergence for r in seeds),
+                                                strict=True)):
+        seed = spec.seed_start + index
         values = image_metrics(output.accumulated, reference.mean, eps=spec.eps,
                                flip_exposures=reference.flip_exposures,
                                ref_variance=reference.variance)
@@ -312,12 +313,12 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
         per_seed.append({"seed": seed, **values, "path_stats": output.path_stats,
                          "method_stats": output.method_stats, "convergence": curve})
         artifacts += _seed_artifacts(artifacts_store, scratch, seed, output.accumulated,
-                                     reference, spec.eps, previews=seed == 0)
+                                     reference, spec.eps, previews=index == 0)
         # Per-frame images (``keep_frames``), named frame_<seed>_<index> when exported.
-        for index, frame in enumerate(output.frames or []):
+        for number, frame in enumerate(output.frames or []):
             artifacts.append(artifact_record(artifacts_store,
                                        encode_image(write_exr, frame, scratch / "f.exr"),
-                                       f"frame{index:05d}", ".exr", "image/x-exr", seed))
+                                       f"frame{number:05d}", ".exr", "image/x-exr", seed))
 
     seed_timings = [output.timings for output in outputs]
     frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
@@ -353,7 +354,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
             "frames": spec.frames, "seeds": len(outputs), "reference_id": reference.id,
             "metrics": metrics, "timings": timings, "path_stats": path_stats,
             "device": device, "device_key": device["device_key"],
-            "versions": library_versions(), "git_commit": git_commit(), "quality": quality,
+            "versions": library_versions(), "git_commit": git_commit(), "git_branch": git_branch(),
+            "quality": quality,
             "idempotency_key": idempotency_key, **versions,
         },
         [{"seed": s["seed"], "metrics": s, "timings": t}
@@ -401,8 +403,8 @@ def execute(
     params = parse_params(spec.method, spec.params)
     param_json = params.model_dump(mode="json")
     rendered = []
-    for seed in range(spec.seeds):
-        label = f"seed {seed + 1}/{spec.seeds}"
+    for seed in range(spec.seed_start, spec.seed_start + spec.seeds):
+        label = f"seed {seed + 1 - spec.seed_start}/{spec.seeds}"
         rendered.append(render_seed(
             lambda hooks, seed=seed: method.render(
                 prepared.scene, params,

@@ -1,4 +1,4 @@
-"""Provenance stored with every result: library versions and the project commit."""
+"""Provenance stored with every result: library versions, the project commit and branch."""
 
 from __future__ import annotations
 
@@ -41,3 +41,20 @@ def git_commit() -> str:
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return commit + ("-dirty" if dirty else "")
+
+
+@cache
+def git_branch() -> str | None:
+    """The branch the project checkout is on: ``NIRC_BENCH_BRANCH`` if set, else the CI
+    system's (``GITHUB_HEAD_REF`` of a pull request, ``GITHUB_REF_NAME``, ``CI_COMMIT_REF_NAME``),
+    else git's current branch; None on a detached HEAD or without a checkout."""
+    for name in ("NIRC_BENCH_BRANCH", "GITHUB_HEAD_REF", "GITHUB_REF_NAME", "CI_COMMIT_REF_NAME"):
+        if os.environ.get(name):
+            return os.environ[name]
+    try:
+        branch = subprocess.run(["git", "-C", str(PROJECT_ROOT), "rev-parse", "--abbrev-ref",
+                                 "HEAD"], capture_output=True, text=True, timeout=10,
+                                check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return None if branch in ("", "HEAD") else branch

@@ -154,6 +154,7 @@ class RunResultDetail(RunResult):
     device: dict[str, Any]
     versions: dict[str, Any]
     git_commit: str | None
+    git_branch: str | None = Field(None, description="branch of the commit, when known")
     reference_id: int | None
     reference: ReferenceInfo | None = None
     per_seed: list[SeedRow]
@@ -164,7 +165,8 @@ class RunResultDetail(RunResult):
         return {
             **RunResult.fields_of(run), "metrics": run.metrics, "timings": run.timings,
             "path_stats": run.path_stats, "device": run.device, "versions": run.versions,
-            "git_commit": run.git_commit, "reference_id": run.reference_id,
+            "git_commit": run.git_commit,
+            "git_branch": run.git_branch, "reference_id": run.reference_id,
             "reference": None if ref is None else ReferenceInfo(
                 id=ref.id, spp=ref.spp, key=ref.key, split_half=ref.split_half or {}),
             "per_seed": [SeedRow(seed=s.seed, metrics=s.metrics, timings=s.timings)

@@ -109,6 +109,8 @@ class RenderSpec(BaseModel):
     spp: int = Field(1, ge=1, le=1 << 16, description="samples per pixel per frame")
     frames: int = Field(1, ge=1, le=100_000)
     seeds: int = Field(4, ge=1, le=1000, description="K independent renders (rBias2/rVar need 2+)")
+    seed_start: int = Field(0, ge=0, le=1 << 20, description="number of the first seed: seeds "
+                            "seed_start .. seed_start + K - 1 (nirc-bench ci adds seeds in groups)")
     eps: float = Field(0.01, gt=0.0, le=1.0, description="relative-error epsilon of MRSE")
     reference: ReferenceSpec = Field(default_factory=ReferenceSpec)
     keep_frames: bool = False
@@ -132,7 +134,10 @@ class RenderSpec(BaseModel):
     def key(self) -> str:
         """Content address of the spec under today's estimator and metric versions
         (equal specs give equal keys; a version bump gives new ones)."""
-        return digest("render-spec", self.model_dump(mode="json"), self.versions())
+        data = self.model_dump(mode="json")
+        if not data["seed_start"]:  # specs from before seed_start keep their keys
+            del data["seed_start"]
+        return digest("render-spec", data, self.versions())
 
 
 #: The methods a sweep can run (the registry's methods with a sweep role).

@@ -177,6 +177,7 @@ class Run(Base):
     device_key: Mapped[str] = mapped_column(String, index=True)
     versions: Mapped[dict[str, Any]] = mapped_column(default=dict)
     git_commit: Mapped[str | None] = mapped_column(String)
+    git_branch: Mapped[str | None] = mapped_column(String, index=True)   # None: not known
     quality: Mapped[dict[str, Any]] = mapped_column(default=dict)     # verdict, reasons, withheld
     # What computed the result (jobs.protocol.versions); 1 = stored before versions were recorded.
     estimator_version: Mapped[int] = mapped_column(Integer, server_default="1")

@@ -192,12 +192,14 @@ class Store:
         limit: int | None = None,
         current: Mapping[str, int] | None = None,
         metric_version: int | None = None,
+        git_ref: str | None = None,
     ) -> list[Run]:
         """Runs matching the given filters, newest first, without relationships.
 
         ``scene`` matches the scene name. ``current`` (method -> estimator version)
         keeps only runs of those methods at those versions, ``metric_version``
-        only runs scored under it. Use ``get_run`` for seeds and artifacts.
+        only runs scored under it, ``git_ref`` only runs of that branch or of a
+        commit starting with it. Use ``get_run`` for seeds and artifacts.
         """
         query = select(Run).order_by(Run.created_at.desc(), Run.id.desc())
         if scene is not None:
@@ -211,6 +213,9 @@ class Store:
                                              for name, v in current.items())))
         if metric_version is not None:
             query = query.where(Run.metric_version == metric_version)
+        if git_ref is not None:
+            query = query.where(or_(Run.git_branch == git_ref,
+                                    Run.git_commit.startswith(git_ref, autoescape=True)))
         if limit is not None:
             query = query.limit(limit)
         with self.session() as session:

@@ -1,0 +1,109 @@
+"""``nirc-bench ci`` end to end: runners (embedded or over REST), baseline, outputs, exit code.
+
+The comparison runs here in the client (jobs.protocol.ci); only the runs
+themselves go to a service with ``--server``, which stores them like any job.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from rich.console import Console
+
+from jobs.protocol.ci import (
+    BaselineSource,
+    Runner,
+    baseline_rows,
+    file_baseline,
+    run_suite,
+    stored_baseline,
+)
+from jobs.protocol.ci_suite import CiError, load_suite, read_baseline, write_baseline
+from jobs.protocol.results import RunResultDetail
+from jobs.protocol.spec import RenderSpec
+from jobs.record.store import Store
+from service.ci_report import headline, junit, markdown
+
+
+@dataclass(frozen=True)
+class CiOptions:
+    """The options of the command (service.cli.ci)."""
+
+    suite: Path
+    baseline: Path
+    baseline_ref: str | None
+    update_baseline: bool
+    seed_start: int
+    summary: Path | None
+    junit: Path | None
+    data_dir: Path | None
+    server: str | None
+    api_key: str | None
+
+
+def embedded_runner(data_dir: Path | None) -> tuple[Runner, Store]:
+    """Runs each spec in this process through the executor; also returns the store."""
+    from jobs.protocol.executor import execute
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+
+    settings = Settings(data_dir=data_dir) if data_dir else Settings()
+    store = open_store(settings)
+    return (lambda spec: execute(spec, store, settings).result), store
+
+
+def remote_runner(server: str, api_key: str | None) -> Runner:
+    """Submits each spec to the service at ``server`` and reads the stored run back."""
+    from service.client import RemoteError, ServiceClient
+
+    client = ServiceClient(server, api_key)
+
+    def run(spec: RenderSpec) -> RunResultDetail:
+        job = client.wait(client.submit("render", spec.model_dump(mode="json"))["id"])
+        if job["status"] != "succeeded":
+            raise RemoteError(f"job {job['id']} {job['status']}: {job['error']}")
+        return RunResultDetail.model_validate(client.get(f"/api/v1/runs/{job['run_id']}"))
+
+    return run
+
+
+def run_ci(options: CiOptions, console: Console, err_console: Console) -> int:
+    """Run the command; the exit status: 0 pass (or baseline written), 1 regression.
+    Anything that keeps it from running raises (the caller exits 2)."""
+    suite = load_suite(options.suite)
+    if options.update_baseline and options.baseline_ref:
+        raise CiError("--update-baseline writes the baseline file; it takes no --baseline-ref")
+    store: Store | None = None
+    if options.server:
+        if options.baseline_ref:
+            raise CiError("--baseline-ref reads the local database; with --server compare "
+                          "with a baseline file (--baseline)")
+        runner = remote_runner(options.server, options.api_key)
+    else:
+        runner, store = embedded_runner(options.data_dir)
+
+    def progress(text: str) -> None:
+        err_console.print(f"nirc-bench ci: {text}", markup=False, highlight=False)
+
+    if options.update_baseline:
+        rows = baseline_rows(suite, runner, seed_start=options.seed_start, progress=progress)
+        write_baseline(options.baseline, rows)
+        console.print(f"baseline written to {options.baseline} ({len(rows)} rows)",
+                      markup=False, highlight=False)
+        return 0
+    source: BaselineSource
+    if options.baseline_ref:
+        source, name = stored_baseline(store, options.baseline_ref), options.baseline_ref
+    else:
+        source, name = file_baseline(read_baseline(options.baseline).rows), str(options.baseline)
+    result = run_suite(suite, runner, source, suite_name=str(options.suite),
+                       baseline_name=name, seed_start=options.seed_start, progress=progress)
+    text = markdown(result)
+    console.print(text, markup=False, highlight=False, soft_wrap=True)
+    for path, content in ((options.summary, text), (options.junit, junit(result))):
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(content)
+    err_console.print(f"nirc-bench ci: {headline(result)}", markup=False, highlight=False)
+    return result.exit_code

@@ -1,0 +1,80 @@
+"""The outputs of ``nirc-bench ci``: a Markdown summary (a pull-request comment) and JUnit XML."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+from jobs.protocol.ci import CiResult, CiRow
+
+_VERDICT = {"pass": "pass", "regression": "**REGRESSION**", "not comparable": "not comparable"}
+
+
+def _number(value: float | None) -> str:
+    return "–" if value is None else f"{value:.4g}"
+
+
+def _change(row: CiRow) -> str:
+    """The relative change the way a reader expects: + is worse."""
+    return "–" if row.change is None else f"{row.change:+.1%} (worse)" if row.change > 0 \
+        else f"{row.change:+.1%}"
+
+
+def _p(value: float | None) -> str:
+    return "–" if value is None else f"{value:.2g}"
+
+
+def headline(result: CiResult) -> str:
+    bad = result.regressions
+    if bad:
+        return f"REGRESSION: {len(bad)} of {len(result.rows)} rows"
+    skipped = sum(row.verdict == "not comparable" for row in result.rows)
+    return (f"PASS: {len(result.rows) - skipped} rows compared"
+            + (f", {skipped} not comparable" if skipped else ""))
+
+
+def markdown(result: CiResult) -> str:
+    """The summary table: baseline, candidate, change, p-value, seeds and verdict per row."""
+    branch = f" ({result.branch})" if result.branch else ""
+    lines = [
+        f"## nirc-bench ci: {headline(result)}", "",
+        f"Suite `{result.suite}` against `{result.baseline}` at commit `{result.commit[:12]}`"
+        f"{branch}. A row is a regression when it is worse by at least its minimum change and "
+        f"significant: false-failure level {result.level:g} for the whole suite (Bonferroni over "
+        f"the rows, {result.spending} alpha spending over the looks); p is one-sided.", "",
+        "| configuration | metric | baseline | candidate | change | min. change | p-value "
+        "| seeds (baseline) | test | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in result.rows:
+        lines.append(
+            f"| {row.entry} | {row.metric_label} ({row.direction} is better) "
+            f"| {_number(row.baseline)} | {_number(row.candidate)} | {_change(row)} "
+            f"| {row.min_change:.0%} | {_p(row.p_value)} | {row.seeds} ({row.baseline_seeds}) "
+            f"| {row.test or '–'} | {_VERDICT[row.verdict]} |")
+    notes = [f"- {row.entry}, {row.metric_label}: {row.note}" for row in result.rows
+             if row.verdict != "pass"]
+    if notes:
+        lines += ["", *notes]
+    lines += ["", f"{len(result.runs)} runs stored ({result.seconds:.0f} s)."]
+    return "\n".join(lines) + "\n"
+
+
+def junit(result: CiResult) -> str:
+    """JUnit XML: a test case per row; a regression fails, a row not compared is skipped."""
+    suite = ET.Element("testsuite", name="nirc-bench ci", tests=str(len(result.rows)),
+                       failures=str(len(result.regressions)), errors="0",
+                       skipped=str(sum(r.verdict == "not comparable" for r in result.rows)),
+                       time=f"{result.seconds:.3f}")
+    for row in result.rows:
+        case = ET.SubElement(suite, "testcase", classname=row.entry, name=row.metric)
+        detail = (f"baseline {_number(row.baseline)}, candidate {_number(row.candidate)}, "
+                  f"change {_change(row)}, p {_p(row.p_value)}, {row.seeds} seeds; {row.note}")
+        if row.verdict == "regression":
+            ET.SubElement(case, "failure", message=row.note).text = detail
+        elif row.verdict == "not comparable":
+            ET.SubElement(case, "skipped", message=row.note)
+        else:
+            ET.SubElement(case, "system-out").text = detail
+    root = ET.Element("testsuites")
+    root.append(suite)
+    return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode")
