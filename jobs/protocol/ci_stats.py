@@ -18,11 +18,8 @@ unpaired         Welch's t (as ``ttest_ind(equal_var=False)``) or the
                  Mann-Whitney U test (``mannwhitneyu``), as the suite says
 ===============  ==========================================================
 
-The t statistics share their standard error and degrees of freedom with the
-upper confidence bound below, so they are computed here once and their tails
-taken from SciPy's Student-t distribution function (``scipy.special.stdtr``,
-what ``ttest_rel`` / ``ttest_ind`` use; tests/jobs/test_ci.py checks both
-agree): the CI's false-failure measurement runs thousands of suites.
+The upper confidence bound of the change (early acceptance, below) is the one-sided
+confidence interval of the same SciPy test (``TtestResult.confidence_interval``).
 
 Identical values are decided without a test: all differences zero (or both
 sides constant and equal) is p = 1; a constant shift with no spread is p = 0
@@ -54,7 +51,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from scipy import special, stats
@@ -124,35 +121,39 @@ def compare(candidate: Sequence[float], baseline: Sequence[float], direction: Di
     b = np.asarray(baseline, dtype=float)
     sign = 1.0 if direction == "lower" else -1.0
     scale = abs(float(b.mean()))
+    worse_c, worse_b = sign * c, sign * b        # larger is worse on both sides now
     if paired:
-        d = sign * (c - b)
+        d = worse_c - worse_b
         diff = float(d.mean())
-        se = float(d.std(ddof=1)) / math.sqrt(d.size) if d.size > 1 else 0.0
-        p, upper = _t_tail(diff, se, d.size - 1, beta)
+        if d.size < 2 or np.ptp(d) == 0.0:       # identical values or a constant shift
+            p, upper = _no_spread(diff)
+        else:
+            p, upper = _t_tail(stats.ttest_1samp(d, 0.0, alternative="less"), beta)
         return Look("paired", float(b.mean()), float(c.mean()), _relative(diff, scale),
                     _relative(upper, scale), p)
-    diff = sign * float(c.mean() - b.mean())
-    vc = float(c.var(ddof=1)) / c.size if c.size > 1 else 0.0
-    vb = float(b.var(ddof=1)) / b.size if b.size > 1 else 0.0
-    se = math.sqrt(vc + vb)
-    # Welch-Satterthwaite degrees of freedom of the difference of means
-    df = se**4 / ((vc**2 / (c.size - 1) if c.size > 1 else 0.0)
-                  + (vb**2 / (b.size - 1) if b.size > 1 else 0.0)) if se > 0.0 else 1.0
-    p, upper = _t_tail(diff, se, df, beta)
-    if test == "mann-whitney" and se > 0.0:
-        p = float(stats.mannwhitneyu(sign * c, sign * b, alternative="greater").pvalue)
+    diff = float(worse_c.mean() - worse_b.mean())
+    if min(c.size, b.size) < 2 or (np.ptp(c) == 0.0 and np.ptp(b) == 0.0):
+        p, upper = _no_spread(diff)
+    else:
+        p, upper = _t_tail(stats.ttest_ind(worse_c, worse_b, equal_var=False,
+                                           alternative="less"), beta)
+        if test == "mann-whitney":
+            p = float(stats.mannwhitneyu(worse_c, worse_b, alternative="greater").pvalue)
     return Look(test, float(b.mean()), float(c.mean()), _relative(diff, scale),
                 _relative(upper, scale), p)
 
 
-def _t_tail(diff: float, se: float, df: float, beta: float) -> tuple[float, float]:
-    """One-sided p-value of ``diff > 0`` with standard error ``se`` on ``df`` degrees of
-    freedom, and the (1 - beta) upper bound ``diff + t_{1-beta, df} se``. No spread
-    (se = 0: identical values, or a constant shift) decides by the sign alone."""
-    if se == 0.0:
-        return (0.0 if diff > 0 else 1.0), diff
-    return (float(special.stdtr(df, -diff / se)),
-            diff + float(special.stdtrit(df, 1.0 - beta)) * se)
+def _no_spread(diff: float) -> tuple[float, float]:
+    """Without spread (identical values, a constant shift) the sign decides: (p, bound)."""
+    return (0.0 if diff > 0 else 1.0), diff
+
+
+def _t_tail(result: Any, beta: float) -> tuple[float, float]:
+    """From SciPy's t-test of "the difference is less than 0" (``result``, a
+    ``TtestResult``): the one-sided p-value of "worse" (difference > 0), which is its
+    complement (the t distribution is continuous), and the (1 - beta) upper bound of
+    the difference, its one-sided confidence interval's upper end."""
+    return float(1.0 - result.pvalue), float(result.confidence_interval(1.0 - beta).high)
 
 
 def decide(look: Look, level: float, min_change: float, last: bool) -> str | None:

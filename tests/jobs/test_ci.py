@@ -105,7 +105,9 @@ def test_compare_handles_identical_values_and_constant_shifts():
                            alternative="greater").pvalue)
 
 
-def test_the_t_tails_are_scipys_paired_and_welch_tests():
+def test_worse_is_the_one_sided_alternative_in_both_directions():
+    # compare() turns signs so that 'worse' is the alternative: for a lower-is-better
+    # metric the candidate larger, for a higher-is-better one smaller.
     rng = np.random.default_rng(2)
     for _ in range(20):
         c, b = rng.lognormal(0.1, 0.3, 6), rng.lognormal(0.0, 0.3, 6)
