@@ -11,11 +11,12 @@ integrator no pixel coordinates, but its wavefront is laid out pixel-major
 ``tests/renderers/test_adaptive.py`` checks this layout), so the pixel of a
 lane is ``lane // spp``.
 
-Cache queries are deferred (deferred.py): the loop records the queries whose
-value is used in a per-frame :class:`~renderers.integrators.deferred.QueryBuffer`
-(``self.queries``), and :meth:`CachedPathIntegrator.sample` evaluates only
-those after the loop and adds them to each lane's radiance before Mitsuba
-splats it to the film.
+Cache queries are deferred (deferred.py): the loop records the vertices whose
+cache value is used in a per-frame :class:`~renderers.integrators.deferred.QueryBuffer`
+(``self.queries``), and :meth:`CachedPathIntegrator.sample` re-creates only
+those after the loop, draws their sampled queries (NIRC's N_c directions),
+evaluates the cache and adds the result to each lane's radiance before
+Mitsuba splats it to the film.
 """
 
 from __future__ import annotations
@@ -27,7 +28,14 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from renderers.integrators.deferred import InlineQueries, QueryBuffer, QueryCount, QueryLayout
+from renderers.integrators.deferred import (
+    InlineQueries,
+    QueryBuffer,
+    QueryCount,
+    QueryLayout,
+    SampledQueries,
+    draw_query_key,
+)
 from renderers.integrators.path import PathIntegrator, Vertex
 from renderers.integrators.spread import SPREAD_C, primary_footprint, spread_increment
 from renderers.timing import StageTimer, synchronize
@@ -108,12 +116,18 @@ class CachedPathIntegrator(PathIntegrator):
     0 for none) and ``cache_vertices``.
 
     Deferred queries (module doc): a subclass gives the buffer's
-    :meth:`query_layout`; each :meth:`sample` appends a :class:`QueryCount` to
-    ``query_counts`` (None for a frame above ``MAX_QUERY_SLOTS``, whose
-    queries were evaluated in the loop) and, if ``timer`` is set, times the
-    deferred pass as the stage ``inference`` (nested in the caller's
-    ``render`` stage, which then excludes it).
+    :meth:`query_layout` and, where its cache vertices draw queries in the
+    deferred pass (``draws_queries``), :meth:`sampled_queries`; the vertex's
+    cache inputs are :meth:`surface_inputs`. Each :meth:`sample` appends a
+    :class:`QueryCount` to ``query_counts`` (None for a frame above
+    ``MAX_QUERY_SLOTS``, whose queries were drawn and evaluated in the loop)
+    and, if ``timer`` is set, times the deferred pass (re-creating the
+    vertices, drawing their queries, the cache) as the stage ``inference``
+    (nested in the caller's ``render`` stage, which then excludes it).
     """
+
+    #: The cache vertices draw queries (``QueryBuffer.draw``): each lane draws a key.
+    draws_queries = False
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -149,14 +163,26 @@ class CachedPathIntegrator(PathIntegrator):
         """Slots per lane of the frame's query buffer (deferred.py)."""
         raise NotImplementedError
 
+    def surface_inputs(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
+        """The cache inputs of a vertex (:func:`cache_inputs`)."""
+        return cache_inputs(si, bsdf)
+
+    def sampled_queries(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
+                        count: mi.UInt32) -> SampledQueries:
+        """The ``count`` queries a cache vertex draws (``draws_queries``; deferred.py)."""
+        raise NotImplementedError
+
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Trace the paths, recording cache queries; then evaluate the recorded ones."""
         lanes = dr.width(ray.d.x)
+        key = draw_query_key(sampler) if self.draws_queries else None
         replay = sampler.clone()  # the same random numbers, should the buffer be too small
         layout = self.query_layout()
         while True:
             deferred = lanes * layout.slots <= MAX_QUERY_SLOTS
-            self.queries = QueryBuffer(lanes, layout) if deferred else InlineQueries(self.cache)
+            self.queries = (QueryBuffer(lanes, layout, key) if deferred else
+                            InlineQueries(self.cache, self.surface_inputs, self.sampled_queries,
+                                          key))
             L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
             synchronize(L, valid_ray, depth, state)
             needed = int(dr.max(state.cache_vertices, axis=None)[0])
@@ -173,7 +199,7 @@ class CachedPathIntegrator(PathIntegrator):
         count = None
         if deferred:
             with self._stage("inference"):
-                cached, queries = self.queries.evaluate(self.cache)
+                cached, queries = self.queries.evaluate(scene, self)
                 L = mi.Spectrum(L) + cached
                 synchronize(L)
             count = QueryCount(queries, lanes, layout.slots)

@@ -137,6 +137,9 @@ class NVCEnvIntegrator(CachedPathIntegrator):
         vertices = self.max_depth - 1 if self.max_depth > 0 else self.vertex_slots
         return QueryLayout(vertices, self.nc + (self.estimator == "unbiased"))
 
+    def surface_inputs(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
+        return surface_inputs(si)
+
     def env_sample(self, vertex: Vertex, active: mi.Bool) -> tuple[mi.DirectionSample3f,
                                                                   mi.Spectrum]:
         """One w ~ p_env and g(w) = L_env f cos w_L / p_env (0 where p_env or f is 0)."""
@@ -153,7 +156,7 @@ class NVCEnvIntegrator(CachedPathIntegrator):
         # Where the core does NEE (path.py): a smooth BSDF at a vertex that may extend.
         active = vertex.active_next & mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
         si = vertex.si
-        handle = self.queries.vertex(state.cache_vertices, vertex, surface_inputs(si), active)
+        handle = self.queries.vertex(state.cache_vertices, vertex, active)
         # ---- Cache level: I_c = 1/N_c sum_i g(w_i) V_c(x, w_i) (NIRC Eq. 12) ----
         L_add = mi.Spectrum(0)
         for slot in range(self.nc):
