@@ -35,10 +35,13 @@ environment is the only emitter the core's NEE is skipped altogether
 
 The cache is evaluated after the path loop, on the used queries only
 (deferred.py, through :class:`CachedPathIntegrator`): at a vertex the loop
-records the position and, per query, the direction and the factor that
+records the ray that found it (the deferred pass re-creates the vertex for
+its position) and, per query, the direction and the factor that
 multiplies V_c in the estimate (g / N_c for the cache level, -g for the
 residual); the residual's g V is added in the loop. Every NEE vertex is a
-cache vertex, so a path has up to max_depth - 1 of them (the buffer's bound);
+cache vertex, so the p_env directions stay drawn in the loop (unlike NIRC's
+N_c directions: no lane that does NEE could skip them), and a path has up to
+max_depth - 1 of them (the buffer's bound);
 with unbounded depth the buffer starts with one vertex slot per lane and a
 frame that needed more is traced again with the same random numbers
 (cached.py), keeping the count for later frames.
