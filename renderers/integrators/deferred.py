@@ -199,14 +199,16 @@ class QueryBuffer:
                        dr.gather(mi.Vector3f, self.ray_direction, vertices))
         ray.maxt = dr.gather(mi.Float, self.maxt, vertices)
         si, bsdf = recreate_vertex(scene, ray)
+        inputs = source.surface_inputs(si, bsdf)
         if self.key is not None:
             self._draw_queries(source, si, bsdf, vertices)
+        dr.eval(inputs, self.direction, self.weight, self.used)   # one kernel per vertex
         index = dr.compress(self.used)
         count = dr.width(index)
         if count == 0:
             return dr.zeros(mi.Spectrum, self.lanes), 0
         vertex = index // queries
-        n = source.cache.query(self._surface_features(source, si, bsdf, vertices, vertex),
+        n = source.cache.query(self._surface_features(source.cache, inputs, vertices, vertex),
                                dr.gather(mi.Vector3f, self.direction, index))
         value = (mi.Spectrum(n) * dr.gather(mi.Spectrum, self.weight, index)
                  * dr.gather(mi.Spectrum, self.beta, vertex))
@@ -226,19 +228,19 @@ class QueryBuffer:
             dr.scatter(self.weight, weight, slot, use)
             dr.scatter(self.used, True, slot, use)
 
-    def _surface_features(self, source: QuerySource, si: mi.SurfaceInteraction3f,
-                          bsdf: mi.BSDF, vertices: mi.UInt32, vertex: mi.UInt32) -> list[Any]:
-        """The per-surface features (Sec. 4.5) of each query's vertex ``vertex``:
-        computed once per recorded vertex and gathered per query, or per query
-        where a vertex has a single slot (then a vertex is a query)."""
+    def _surface_features(self, cache: Any, inputs: dict[str, Any], vertices: mi.UInt32,
+                          vertex: mi.UInt32) -> list[Any]:
+        """The per-surface features (Sec. 4.5) of each query's vertex ``vertex`` from
+        the ``inputs`` of the recorded ``vertices``: computed once per vertex and
+        gathered per query, or per query where a vertex has a single slot (then
+        a vertex is a query)."""
         compact = dr.zeros(mi.UInt32, self.lanes * self.layout.vertices)
         dr.scatter(compact, dr.arange(mi.UInt32, dr.width(vertices)), vertices)
         at = dr.gather(mi.UInt32, compact, vertex)
-        inputs = source.surface_inputs(si, bsdf)
         if self.layout.queries == 1:
-            return source.cache.surface_features(
+            return cache.surface_features(
                 **{name: dr.gather(type(value), value, at) for name, value in inputs.items()})
-        surface = source.cache.surface_features(**inputs)
+        surface = cache.surface_features(**inputs)
         dr.eval(surface)   # once per vertex, before the per-query gathers
         return [dr.gather(type(row), row, at) for row in surface]
 
