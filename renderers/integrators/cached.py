@@ -33,7 +33,6 @@ from renderers.integrators.deferred import (
     QueryBuffer,
     QueryCount,
     QueryLayout,
-    SampledQueries,
     draw_query_key,
 )
 from renderers.integrators.path import PathIntegrator, Vertex
@@ -117,7 +116,7 @@ class CachedPathIntegrator(PathIntegrator):
 
     Deferred queries (module doc): a subclass gives the buffer's
     :meth:`query_layout` and, where its cache vertices draw queries in the
-    deferred pass (``draws_queries``), :meth:`sampled_queries`; the vertex's
+    deferred pass (``drawn_slots``), :meth:`drawn_query`; the vertex's
     cache inputs are :meth:`surface_inputs`. Each :meth:`sample` appends a
     :class:`QueryCount` to ``query_counts`` (None for a frame above
     ``MAX_QUERY_SLOTS``, whose queries were drawn and evaluated in the loop)
@@ -126,8 +125,8 @@ class CachedPathIntegrator(PathIntegrator):
     (nested in the caller's ``render`` stage, which then excludes it).
     """
 
-    #: The cache vertices draw queries (``QueryBuffer.draw``): each lane draws a key.
-    draws_queries = False
+    #: The most queries a cache vertex draws itself (``QueryBuffer.draw``; 0: none).
+    drawn_slots = 0
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -167,22 +166,21 @@ class CachedPathIntegrator(PathIntegrator):
         """The cache inputs of a vertex (:func:`cache_inputs`)."""
         return cache_inputs(si, bsdf)
 
-    def sampled_queries(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
-                        count: mi.UInt32) -> SampledQueries:
-        """The ``count`` queries a cache vertex draws (``draws_queries``; deferred.py)."""
+    def drawn_query(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
+                    slot: mi.UInt32, count: mi.UInt32) -> tuple[mi.Vector3f, mi.Spectrum, mi.Bool]:
+        """Query ``slot`` of a cache vertex that draws ``count`` (``drawn_slots``; deferred.py)."""
         raise NotImplementedError
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Trace the paths, recording cache queries; then evaluate the recorded ones."""
         lanes = dr.width(ray.d.x)
-        key = draw_query_key(sampler) if self.draws_queries else None
-        replay = sampler.clone()  # the same random numbers, should the buffer be too small
         layout = self.query_layout()
+        key = draw_query_key(sampler) if self.drawn_slots else None
+        replay = sampler.clone()  # the same random numbers, should the buffer be too small
         while True:
             deferred = lanes * layout.slots <= MAX_QUERY_SLOTS
             self.queries = (QueryBuffer(lanes, layout, key) if deferred else
-                            InlineQueries(self.cache, self.surface_inputs, self.sampled_queries,
-                                          key))
+                            InlineQueries(self.cache, self.surface_inputs, self, key))
             L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
             synchronize(L, valid_ray, depth, state)
             needed = int(dr.max(state.cache_vertices, axis=None)[0])

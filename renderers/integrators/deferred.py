@@ -22,7 +22,7 @@ after the loop, on the recorded vertices only:
 
 c_i is the factor of n in the vertex's term: f_s cos / (p_s N_c) for L_c
 (Eq. 12, whose N_c = D_v directions the deferred pass draws:
-``QuerySource.sampled_queries``), -f cos / p for the unbiased residual (Eq.
+``QuerySource.drawn_query``), -f cos / p for the unbiased residual (Eq.
 11, along the path's own continuation, known in the loop), NRC's
 demodulation factor, NVC's g / N_c. Re-creating the vertex by intersecting
 the recorded ray again gives the loop's surface interaction (the same ray,
@@ -30,8 +30,10 @@ the same scene), so the loop stores 11 floats per vertex instead of the
 vertex's inputs and draws nothing for the cache.
 
 Random numbers of the deferred draws: each lane draws a key from its sampler
-before the loop (:func:`draw_query_key`, 48 random bits, hashed), and its
-k-th cache vertex draws from the PCG32 stream (key, k) (:func:`query_rng`):
+before the loop (:func:`draw_query_key`, 48 random bits, hashed), and query
+i of its k-th cache vertex draws from the PCG32 stream (key, k, i)
+(:func:`query_rng`), so the pass can draw all (vertex, query) pairs as one
+wide kernel:
 reproducible for a given frame seed, independent of the path's own samples
 and of where the draws happen (the in-loop fallback below draws the same).
 
@@ -72,21 +74,21 @@ import mitsuba as mi
 
 from renderers.integrators.path import Vertex
 
-#: (direction, weight, used) of each query a vertex draws (``QuerySource.sampled_queries``).
-SampledQueries = list[tuple[mi.Vector3f, mi.Spectrum, mi.Bool]]
-
 
 class QuerySource(Protocol):
     """What the deferred pass asks of the integrator whose queries it evaluates."""
 
     cache: Any
+    #: The most queries a vertex draws itself (0: none; NIRC: the largest N_c).
+    drawn_slots: int
 
     def surface_inputs(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
         """The per-surface cache inputs of a vertex (cached.cache_inputs)."""
 
-    def sampled_queries(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
-                        count: mi.UInt32) -> SampledQueries:
-        """The ``count`` queries a vertex draws itself, with its own random numbers ``rng``."""
+    def drawn_query(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
+                    slot: mi.UInt32, count: mi.UInt32) -> tuple[mi.Vector3f, mi.Spectrum, mi.Bool]:
+        """Query ``slot`` (used where < ``count``) of a vertex that draws ``count``:
+        (direction, weight, used), drawn with the query's own random numbers ``rng``."""
 
 
 @dataclass(frozen=True)
@@ -117,11 +119,12 @@ def draw_query_key(sampler: mi.Sampler) -> mi.UInt64:
     return mi.sample_tea_64(mi.UInt32(u.x * 0x1000000), mi.UInt32(u.y * 0x1000000))
 
 
-def query_rng(key: mi.UInt64, index: mi.UInt32) -> mi.PCG32:
-    """The random numbers of a lane's ``index``-th cache vertex: a PCG32 stream chosen
-    by the lane's key and the vertex index alone, so the same wherever it is drawn."""
-    rng = mi.PCG32(dr.width(key) if dr.width(key) > 1 else dr.width(index))
-    rng.seed(initstate=key, initseq=mi.UInt64(index))
+def query_rng(key: mi.UInt64, index: mi.UInt32, slot: mi.UInt32 | int) -> mi.PCG32:
+    """The random numbers of query ``slot`` of a lane's ``index``-th cache vertex: the
+    PCG32 stream chosen by the lane's key, the vertex index and the slot alone, so
+    the same wherever (in the loop or after it, in whatever order) it is drawn."""
+    rng = mi.PCG32(max(dr.width(key), dr.width(index), dr.width(slot)))
+    rng.seed(initstate=key, initseq=(mi.UInt64(index) << 32) | mi.UInt64(slot))
     return rng
 
 
@@ -183,7 +186,7 @@ class QueryBuffer:
     def draw(self, handle: tuple[mi.UInt32, mi.Bool], count: mi.UInt32,
              active: mi.Bool) -> mi.Spectrum:
         """Queries 0 .. count - 1 of a vertex are drawn by the deferred pass
-        (``QuerySource.sampled_queries``). Returns what to add now: nothing."""
+        (``QuerySource.drawn_query``). Returns what to add now: nothing."""
         slot, recorded = handle
         dr.scatter(self.draws, mi.UInt32(count), slot, active & recorded)
         return mi.Spectrum(0)
@@ -218,15 +221,23 @@ class QueryBuffer:
 
     def _draw_queries(self, source: QuerySource, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF,
                       vertices: mi.UInt32) -> None:
-        """The queries the recorded vertices draw (slots 0 .. draws - 1), into the query slots."""
-        lane, index = vertices // self.layout.vertices, vertices % self.layout.vertices
-        rng = query_rng(dr.gather(mi.UInt64, self.key, lane), index)
-        drawn = source.sampled_queries(si, bsdf, rng, dr.gather(mi.UInt32, self.draws, vertices))
-        for query, (direction, weight, use) in enumerate(drawn):
-            slot = vertices * self.layout.queries + query
-            dr.scatter(self.direction, direction, slot, use)
-            dr.scatter(self.weight, weight, slot, use)
-            dr.scatter(self.used, True, slot, use)
+        """The queries the recorded vertices draw (slots 0 .. draws - 1), into the query
+        slots: one lane per (vertex, slot), so each buffer takes a single scatter (a
+        second scatter into the same buffer would first launch a kernel for the first)."""
+        slots = source.drawn_slots
+        dr.eval(si, bsdf)   # per vertex, gathered per query
+        at = dr.arange(mi.UInt32, dr.width(vertices) * slots)
+        compact, slot = at // slots, at % slots
+        vertex = dr.gather(mi.UInt32, vertices, compact)
+        lane, index = vertex // self.layout.vertices, vertex % self.layout.vertices
+        rng = query_rng(dr.gather(mi.UInt64, self.key, lane), index, slot)
+        direction, weight, use = source.drawn_query(
+            dr.gather(mi.SurfaceInteraction3f, si, compact), dr.gather(mi.BSDFPtr, bsdf, compact),
+            rng, slot, dr.gather(mi.UInt32, self.draws, vertex))
+        query = vertex * self.layout.queries + slot
+        dr.scatter(self.direction, direction, query, use)
+        dr.scatter(self.weight, weight, query, use)
+        dr.scatter(self.used, True, query, use)
 
     def _surface_features(self, cache: Any, inputs: dict[str, Any], vertices: mi.UInt32,
                           vertex: mi.UInt32) -> list[Any]:
@@ -249,14 +260,13 @@ class InlineQueries:
     """The same interface, evaluated where the query is made, inside the loop: for
     training paths (NRC self-training), whose targets need the value in the loop,
     and for render frames too large for a buffer. ``inputs``: the vertex's cache
-    inputs where the loop does not pass them; ``sampled``: the queries a vertex
-    draws, with the random numbers of ``key`` (the same as in the deferred pass)."""
+    inputs where the loop does not pass them; ``source`` (with ``key``): the
+    queries a vertex draws, with the same random numbers as in the deferred pass."""
 
     def __init__(self, cache: Any,
                  inputs: Callable[[mi.SurfaceInteraction3f, mi.BSDF], dict[str, Any]],
-                 sampled: Callable[..., SampledQueries] | None = None,
-                 key: mi.UInt64 | None = None) -> None:
-        self.cache, self.inputs, self.sampled, self.key = cache, inputs, sampled, key
+                 source: QuerySource | None = None, key: mi.UInt64 | None = None) -> None:
+        self.cache, self.inputs, self.source, self.key = cache, inputs, source, key
 
     def vertex(self, index: mi.UInt32, vertex: Vertex, active: mi.Bool,
                inputs: dict[str, Any] | None = None) -> tuple[list[Any], Vertex, mi.UInt32]:
@@ -273,9 +283,10 @@ class InlineQueries:
     def draw(self, handle: tuple[list[Any], Vertex, mi.UInt32], count: mi.UInt32,
              active: mi.Bool) -> mi.Spectrum:
         _, vertex, index = handle
-        drawn = self.sampled(vertex.si, vertex.bsdf, query_rng(self.key, index),
-                             dr.select(active, count, 0))
         total = mi.Spectrum(0)
-        for query, (direction, weight, use) in enumerate(drawn):
-            total += self.add(handle, query, direction, weight, active & use)
+        for slot in range(self.source.drawn_slots):
+            direction, weight, use = self.source.drawn_query(
+                vertex.si, vertex.bsdf, query_rng(self.key, index, slot), mi.UInt32(slot),
+                count)
+            total += self.add(handle, slot, direction, weight, active & use)
         return total

@@ -56,7 +56,7 @@ The cache term is computed after the path loop, on the cache vertices only
 throughput and N_c, and, for the unbiased residual, the continuation
 direction with its factor -f cos / p. The deferred pass re-creates the
 vertex, draws the N_c smooth directions with their factors f_s cos / (p_s
-N_c) (:meth:`NIRCIntegrator.sampled_queries`, from the vertex's own random
+N_c) (:meth:`NIRCIntegrator.drawn_query`, each from its own random
 stream) and evaluates the network on all of them. A lane that never uses the
 cache draws nothing for it.
 """
@@ -71,7 +71,7 @@ import mitsuba as mi
 
 from renderers.integrators import path
 from renderers.integrators.cached import CachedPathIntegrator, CacheState
-from renderers.integrators.deferred import QueryLayout, SampledQueries
+from renderers.integrators.deferred import QueryLayout
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import spread_exceeded
 
@@ -122,23 +122,21 @@ class NIRCIntegrator(CachedPathIntegrator):
         return QueryLayout(self.vertex_slots, max(self.nc))
 
     # ---- Cache term L_c over the smooth lobes (Eq. 12): the queries a vertex draws ----
-    draws_queries = True
+    @property
+    def drawn_slots(self) -> int:
+        return max(self.nc)
 
-    def sampled_queries(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
-                        count: mi.UInt32) -> SampledQueries:
-        """L_c = 1/N_c sum_i n(x, w_i) f_s cos / p_s: N_c = ``count`` fresh smooth samples
-        w_i (slots 0 .. N_c - 1 of the vertex), each with its factor f_s cos / (p_s N_c).
-        Called by the deferred pass on the recorded vertices (deferred.py)."""
-        ctx = smooth_context()
-        inv_count = dr.rcp(mi.Float(dr.maximum(count, 1)))
-        drawn = []
-        for slot in range(max(self.nc)):
-            use = slot < count
-            u1 = rng.next_float32(use)
-            u2 = mi.Point2f(rng.next_float32(use), rng.next_float32(use))
-            bs, weight = bsdf.sample(ctx, si, u1, u2, use)
-            drawn.append((si.to_world(bs.wo), weight * inv_count, use & (bs.pdf > 0)))
-        return drawn
+    def drawn_query(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
+                    slot: mi.UInt32, count: mi.UInt32) -> tuple[mi.Vector3f, mi.Spectrum, mi.Bool]:
+        """L_c = 1/N_c sum_i n(x, w_i) f_s cos / p_s: query i = ``slot`` of the N_c =
+        ``count`` of a vertex, a fresh smooth sample w_i with the factor f_s cos /
+        (p_s N_c). Called by the deferred pass on the recorded vertices (deferred.py)."""
+        use = slot < count
+        u1 = rng.next_float32(use)
+        u2 = mi.Point2f(rng.next_float32(use), rng.next_float32(use))
+        bs, weight = bsdf.sample(smooth_context(), si, u1, u2, use)
+        return (si.to_world(bs.wo), weight * dr.rcp(mi.Float(dr.maximum(count, 1))),
+                use & (bs.pdf > 0))
 
     def residual_weight(self, vertex: Vertex) -> mi.Spectrum:
         """The factor of n(x, w) in the residual along the continuation w (Eq. 11): -f cos / p."""

@@ -86,9 +86,9 @@ def test_the_deferred_pass_draws_n_c_queries_per_cache_vertex(mi, tmp_path, monk
     assert queries == expected
     assert _cache_vertices(film).sum() == (depth > 0).sum()
 
-    draw = integrator.sampled_queries
-    monkeypatch.setattr(integrator, "sampled_queries",
-                        lambda si, bsdf, rng, count: draw(si, bsdf, rng, count + 1))
+    draw = integrator.drawn_query
+    monkeypatch.setattr(integrator, "drawn_query",
+                        lambda si, bsdf, rng, slot, count: draw(si, bsdf, rng, slot, count + 1))
     _, twin_queries = _render(mi, scene, integrator)
     assert twin_queries != expected
 

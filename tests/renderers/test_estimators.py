@@ -375,9 +375,9 @@ def test_queries_drawn_after_the_loop_agree_with_pt(mi, room_reference):
     _, nirc_plugin, _ = _plugins()
 
     class SumNc(nirc.NIRCIntegrator):
-        def sampled_queries(self, si, bsdf, rng, count):
-            return [(direction, weight * count, use)
-                    for direction, weight, use in super().sampled_queries(si, bsdf, rng, count)]
+        def drawn_query(self, si, bsdf, rng, slot, count):
+            direction, weight, use = super().drawn_query(si, bsdf, rng, slot, count)
+            return direction, weight * count, use
 
     path.register("nirc_test_sum_nc", SumNc)
     scene, reference = room_reference("plastic")
