@@ -225,15 +225,22 @@ class QueryBuffer:
         slots: one lane per (vertex, slot), so each buffer takes a single scatter (a
         second scatter into the same buffer would first launch a kernel for the first)."""
         slots = source.drawn_slots
-        dr.eval(si, bsdf)   # per vertex, gathered per query
-        at = dr.arange(mi.UInt32, dr.width(vertices) * slots)
-        compact, slot = at // slots, at % slots
-        vertex = dr.gather(mi.UInt32, vertices, compact)
+        if slots == 1:   # a lane per vertex already
+            vertex, slot = vertices, mi.UInt32(0)
+        else:
+            # Slot-major lanes: where vertices draw fewer than ``slots``, the unused
+            # slots form whole SIMD packets, which the BSDF call skips.
+            dr.eval(si, bsdf)   # per vertex, gathered per query
+            count = dr.width(vertices)
+            at = dr.arange(mi.UInt32, count * slots)
+            compact, slot = at % count, at // count
+            vertex = dr.gather(mi.UInt32, vertices, compact)
+            si = dr.gather(mi.SurfaceInteraction3f, si, compact)
+            bsdf = dr.gather(mi.BSDFPtr, bsdf, compact)
         lane, index = vertex // self.layout.vertices, vertex % self.layout.vertices
         rng = query_rng(dr.gather(mi.UInt64, self.key, lane), index, slot)
-        direction, weight, use = source.drawn_query(
-            dr.gather(mi.SurfaceInteraction3f, si, compact), dr.gather(mi.BSDFPtr, bsdf, compact),
-            rng, slot, dr.gather(mi.UInt32, self.draws, vertex))
+        direction, weight, use = source.drawn_query(si, bsdf, rng, slot,
+                                                    dr.gather(mi.UInt32, self.draws, vertex))
         query = vertex * self.layout.queries + slot
         dr.scatter(self.direction, direction, query, use)
         dr.scatter(self.weight, weight, query, use)
