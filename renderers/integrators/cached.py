@@ -197,9 +197,11 @@ class CachedPathIntegrator(PathIntegrator):
         count = None
         if deferred:
             with self._stage("inference"):
-                cached, queries = self.queries.evaluate(scene, self)
-                L = mi.Spectrum(L) + cached
-                synchronize(L)
+                queries = 0
+                if needed:   # else no lane recorded a cache vertex: nothing to add
+                    cached, queries = self.queries.evaluate(scene, self)
+                    L = mi.Spectrum(L) + cached
+                    synchronize(L)
             count = QueryCount(queries, lanes, layout.slots)
         self.queries = None
         self.query_counts.append(count)
