@@ -16,7 +16,7 @@ after the loop, on the recorded vertices only:
                 (w_i, c_i, used)                           -> query slot  (l K + k) Q + i
     after:  v = compress(recorded)                         (only the recorded vertices)
             x_v = intersect(ray(v)); inputs(x_v)           (the vertex, re-created)
-            queries 0 .. D_v - 1 drawn at x_v with rng(l, k) -> query slots
+            queries i < D_v drawn at x_v with rng(l, k, i)  -> query slots
             q = compress(used)                             (only the used queries)
             L_l += sum_{k, i} beta_v c_i n(x_v, w_i)       (a fixed order per lane)
 
@@ -32,10 +32,10 @@ vertex's inputs and draws nothing for the cache.
 Random numbers of the deferred draws: each lane draws a key from its sampler
 before the loop (:func:`draw_query_key`, 48 random bits, hashed), and query
 i of its k-th cache vertex draws from the PCG32 stream (key, k, i)
-(:func:`query_rng`), so the pass can draw all (vertex, query) pairs as one
-wide kernel:
-reproducible for a given frame seed, independent of the path's own samples
-and of where the draws happen (the in-loop fallback below draws the same).
+(:func:`query_rng`): reproducible for a given frame seed, independent of the
+path's own samples and of where and in which order the draws happen (the
+pass draws all (vertex, query) pairs as one wide kernel; the in-loop
+fallback below draws the same numbers).
 
 Buffer bound: fixed slots per lane, K vertices x Q queries (a
 :class:`QueryLayout`), ``lanes * K * Q`` query slots (25 bytes each, +12 in
@@ -63,6 +63,7 @@ than recomputing them per query for N_c = 2, 4, 8; 1.4-1.6x slower at N_c =
 1, where a vertex is a query, so one-slot layouts (NRC, biased N_c = 1)
 compute them per query.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
