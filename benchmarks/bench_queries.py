@@ -11,9 +11,10 @@ the frame time (``mi.render``: path tracing + cache inference) of
   cache, so no query is evaluated: the goal is <= 1.1x PT,
 
 split, where the integrator defers its queries (renderers/integrators/
-deferred.py), into the stages ``render`` (path tracing, recording the queries)
-and ``inference`` (the deferred queries), with the cache queries evaluated per
-frame. All measured in this run, interleaved (every repeat renders each
+deferred.py), into the stages ``render`` (path tracing, recording the cache
+vertices) and ``inference`` (the deferred pass: re-creating the recorded
+vertices, drawing NIRC's N_c directions, the network), with the cache queries
+evaluated per frame. All measured in this run, interleaved (every repeat renders each
 configuration once, so a change in the shared machine's load hits all alike),
 warm-up excluded, device synchronised before each clock read.
 

@@ -11,11 +11,12 @@ integrator no pixel coordinates, but its wavefront is laid out pixel-major
 ``tests/renderers/test_adaptive.py`` checks this layout), so the pixel of a
 lane is ``lane // spp``.
 
-Cache queries are deferred (deferred.py): the loop records the queries whose
-value is used in a per-frame :class:`~renderers.integrators.deferred.QueryBuffer`
-(``self.queries``), and :meth:`CachedPathIntegrator.sample` evaluates only
-those after the loop and adds them to each lane's radiance before Mitsuba
-splats it to the film.
+Cache queries are deferred (deferred.py): the loop records the vertices whose
+cache value is used in a per-frame :class:`~renderers.integrators.deferred.QueryBuffer`
+(``self.queries``), and :meth:`CachedPathIntegrator.sample` re-creates only
+those after the loop, draws their sampled queries (NIRC's N_c directions),
+evaluates the cache and adds the result to each lane's radiance before
+Mitsuba splats it to the film.
 """
 
 from __future__ import annotations
@@ -27,7 +28,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from renderers.integrators.deferred import InlineQueries, QueryBuffer, QueryCount, QueryLayout
+from renderers.integrators.deferred import (
+    InlineQueries,
+    QueryBuffer,
+    QueryCount,
+    QueryLayout,
+    draw_query_key,
+)
 from renderers.integrators.path import PathIntegrator, Vertex
 from renderers.integrators.spread import SPREAD_C, primary_footprint, spread_increment
 from renderers.timing import StageTimer, synchronize
@@ -108,12 +115,18 @@ class CachedPathIntegrator(PathIntegrator):
     0 for none) and ``cache_vertices``.
 
     Deferred queries (module doc): a subclass gives the buffer's
-    :meth:`query_layout`; each :meth:`sample` appends a :class:`QueryCount` to
-    ``query_counts`` (None for a frame above ``MAX_QUERY_SLOTS``, whose
-    queries were evaluated in the loop) and, if ``timer`` is set, times the
-    deferred pass as the stage ``inference`` (nested in the caller's
-    ``render`` stage, which then excludes it).
+    :meth:`query_layout` and, where its cache vertices draw queries in the
+    deferred pass (``drawn_slots``), :meth:`drawn_query`; the vertex's
+    cache inputs are :meth:`surface_inputs`. Each :meth:`sample` appends a
+    :class:`QueryCount` to ``query_counts`` (None for a frame above
+    ``MAX_QUERY_SLOTS``, whose queries were drawn and evaluated in the loop)
+    and, if ``timer`` is set, times the deferred pass (re-creating the
+    vertices, drawing their queries, the cache) as the stage ``inference``
+    (nested in the caller's ``render`` stage, which then excludes it).
     """
+
+    #: The most queries a cache vertex draws itself (``QueryBuffer.draw``; 0: none).
+    drawn_slots = 0
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -149,14 +162,25 @@ class CachedPathIntegrator(PathIntegrator):
         """Slots per lane of the frame's query buffer (deferred.py)."""
         raise NotImplementedError
 
+    def surface_inputs(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
+        """The cache inputs of a vertex (:func:`cache_inputs`)."""
+        return cache_inputs(si, bsdf)
+
+    def drawn_query(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
+                    slot: mi.UInt32, count: mi.UInt32) -> tuple[mi.Vector3f, mi.Spectrum, mi.Bool]:
+        """Query ``slot`` of a cache vertex that draws ``count`` (``drawn_slots``; deferred.py)."""
+        raise NotImplementedError
+
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Trace the paths, recording cache queries; then evaluate the recorded ones."""
         lanes = dr.width(ray.d.x)
-        replay = sampler.clone()  # the same random numbers, should the buffer be too small
         layout = self.query_layout()
+        key = draw_query_key(sampler) if self.drawn_slots else None
+        replay = sampler.clone()  # the same random numbers, should the buffer be too small
         while True:
             deferred = lanes * layout.slots <= MAX_QUERY_SLOTS
-            self.queries = QueryBuffer(lanes, layout) if deferred else InlineQueries(self.cache)
+            self.queries = (QueryBuffer(lanes, layout, key) if deferred else
+                            InlineQueries(self.cache, self.surface_inputs, self, key))
             L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
             synchronize(L, valid_ray, depth, state)
             needed = int(dr.max(state.cache_vertices, axis=None)[0])
@@ -173,9 +197,11 @@ class CachedPathIntegrator(PathIntegrator):
         count = None
         if deferred:
             with self._stage("inference"):
-                cached, queries = self.queries.evaluate(self.cache)
-                L = mi.Spectrum(L) + cached
-                synchronize(L)
+                queries = 0
+                if needed:   # else no lane recorded a cache vertex: nothing to add
+                    cached, queries = self.queries.evaluate(scene, self)
+                    L = mi.Spectrum(L) + cached
+                    synchronize(L)
             count = QueryCount(queries, lanes, layout.slots)
         self.queries = None
         self.query_counts.append(count)

@@ -51,23 +51,26 @@ Two estimators use it:
   L_ind(x, w), so the residual term has expectation E[L_ind - n] and the whole
   estimator has exactly PT's expectation, whatever the cache has learned.
 
-The network is evaluated after the path loop, on the used queries only
-(deferred.py): at a cache vertex the loop records its inputs and, per query,
-the direction and the factor that multiplies n(x, w) in the estimate (f_s cos
-/ (p_s N_c) for L_c, -f cos / p for the residual); the directions' random
-numbers are drawn in the loop as before.
+The cache term is computed after the path loop, on the cache vertices only
+(deferred.py): at a cache vertex the loop records the ray that found it, the
+throughput and N_c, and, for the unbiased residual, the continuation
+direction with its factor -f cos / p. The deferred pass re-creates the
+vertex, draws the N_c smooth directions with their factors f_s cos / (p_s
+N_c) (:meth:`NIRCIntegrator.drawn_query`, each from its own random
+stream) and evaluates the network on all of them. A lane that never uses the
+cache draws nothing for it.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Protocol
+from typing import Protocol
 
 import drjit as dr
 import mitsuba as mi
 
 from renderers.integrators import path
-from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs
+from renderers.integrators.cached import CachedPathIntegrator, CacheState
 from renderers.integrators.deferred import QueryLayout
 from renderers.integrators.path import Vertex, VertexTerms
 from renderers.integrators.spread import spread_exceeded
@@ -118,22 +121,22 @@ class NIRCIntegrator(CachedPathIntegrator):
             return QueryLayout(len(self.nc), max(self.nc) + 1)
         return QueryLayout(self.vertex_slots, max(self.nc))
 
-    # ---- Cache term L_c over the smooth lobes (Eq. 12), queries of one vertex ----
-    def cache_term(self, vertex: Vertex, handle: Any, nc_lane: mi.UInt32, max_nc: int,
-                   active: mi.Bool) -> mi.Spectrum:
-        """L_c = 1/N_c sum_i n(x, w_i) f_s cos / p_s: N_c fresh smooth samples, each
-        a query (slots 0 .. N_c - 1 of the vertex ``handle``)."""
-        si, bsdf = vertex.si, vertex.bsdf
-        ctx = smooth_context()
-        inv_nc = dr.rcp(mi.Float(dr.maximum(nc_lane, 1)))
-        total = mi.Spectrum(0)
-        for slot in range(max_nc):
-            use = active & (slot < nc_lane)
-            bs, weight = bsdf.sample(ctx, si, vertex.sampler.next_1d(use),
-                                     vertex.sampler.next_2d(use), use)
-            use &= bs.pdf > 0
-            total += self.queries.add(handle, slot, si.to_world(bs.wo), weight * inv_nc, use)
-        return total
+    # ---- Cache term L_c over the smooth lobes (Eq. 12): the queries a vertex draws ----
+    @property
+    def drawn_slots(self) -> int:
+        return max(self.nc)
+
+    def drawn_query(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, rng: mi.PCG32,
+                    slot: mi.UInt32, count: mi.UInt32) -> tuple[mi.Vector3f, mi.Spectrum, mi.Bool]:
+        """L_c = 1/N_c sum_i n(x, w_i) f_s cos / p_s: query i = ``slot`` of the N_c =
+        ``count`` of a vertex, a fresh smooth sample w_i with the factor f_s cos /
+        (p_s N_c). Called by the deferred pass on the recorded vertices (deferred.py)."""
+        use = slot < count
+        u1 = rng.next_float32(use)
+        u2 = mi.Point2f(rng.next_float32(use), rng.next_float32(use))
+        bs, weight = bsdf.sample(smooth_context(), si, u1, u2, use)
+        return (si.to_world(bs.wo), weight * dr.rcp(mi.Float(dr.maximum(count, 1))),
+                use & (bs.pdf > 0))
 
     def residual_weight(self, vertex: Vertex) -> mi.Spectrum:
         """The factor of n(x, w) in the residual along the continuation w (Eq. 11): -f cos / p."""
@@ -153,9 +156,8 @@ class NIRCIntegrator(CachedPathIntegrator):
         nc_lane = mi.UInt32(self.nc[-1])
         for index in reversed(range(len(self.nc) - 1)):
             nc_lane = dr.select(state.cache_vertices == index, self.nc[index], nc_lane)
-        handle = self.queries.vertex(state.cache_vertices, vertex,
-                                     cache_inputs(vertex.si, vertex.bsdf), use)
-        L_c = self.cache_term(vertex, handle, nc_lane, max(self.nc), use)
+        handle = self.queries.vertex(state.cache_vertices, vertex, use)
+        L_c = self.queries.draw(handle, nc_lane, use)
         # The continuation sample was drawn independently of the N_c cache samples;
         # only a smooth one estimates what L_c integrates (I_s).
         bs = vertex.bsdf_sample
@@ -197,9 +199,8 @@ class NIRCIntegrator(CachedPathIntegrator):
         stop &= usable
         # ---- Shade the terminal vertex: L_e (done) + L_nee (core) + L_c (Eq. 13) ----
         nc_lane = dr.select(vertex.depth == 0, mi.UInt32(nc), mi.UInt32(nc_later))
-        handle = self.queries.vertex(state.cache_vertices, vertex,
-                                     cache_inputs(vertex.si, vertex.bsdf), stop)
-        L_c = self.cache_term(vertex, handle, nc_lane, max(nc, nc_later), stop)
+        handle = self.queries.vertex(state.cache_vertices, vertex, stop)
+        L_c = self.queries.draw(handle, nc_lane, stop)
         # A delta continuation carries I_delta, which L_c leaves out: it goes on as a path.
         delta_cont = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
         state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)

@@ -24,6 +24,7 @@ the loop (their targets need its value there).
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, Protocol
 
 import drjit as dr
@@ -76,7 +77,7 @@ def nrc_terms(queries: QueryBuffer | InlineQueries, sph_c: float, vertex: Vertex
         stop = dr.select(vertex.depth == 0, at_v1, stop)
     stop &= vertex.active_next & smooth & may_terminate
     # ---- Shade the terminal vertex with the cache: L_e (done) + L_r(x, w_o) ----
-    handle = queries.vertex(state.cache_vertices, vertex, inputs, stop)
+    handle = queries.vertex(state.cache_vertices, vertex, stop, inputs)
     L_r = queries.add(handle, 0, -vertex.ray.d, demodulation(inputs), stop)
     state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
     state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
@@ -105,7 +106,11 @@ class NRCIntegrator(CachedPathIntegrator):
 
     def query_layout(self) -> QueryLayout:
         """One query per lane, an exact bound: the path ends where it queries."""
-        return QueryLayout(1, 1, specular=True)
+        return QueryLayout(1, 1)
+
+    def surface_inputs(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
+        """NRC's cache inputs: with the specular albedo."""
+        return cache_inputs(si, bsdf, specular=True)
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
         return nrc_terms(self.queries, self.sph_c, vertex, state,
@@ -148,8 +153,8 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
         _, state = super().vertex_terms(vertex, state)
         may_terminate = self.path_index() % self.unbiased_every != 0
-        terms, state = nrc_terms(InlineQueries(self.cache), self.sph_c, vertex, state,
-                                 may_terminate)
+        terms, state = nrc_terms(InlineQueries(self.cache, partial(cache_inputs, specular=True)),
+                                 self.sph_c, vertex, state, may_terminate)
         own_prediction = terms.stop & (vertex.depth < self.record_depth)
         dr.scatter(self.buffers["valid"], False, self._slot(vertex.depth), own_prediction)
         return terms, state

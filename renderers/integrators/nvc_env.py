@@ -35,10 +35,13 @@ environment is the only emitter the core's NEE is skipped altogether
 
 The cache is evaluated after the path loop, on the used queries only
 (deferred.py, through :class:`CachedPathIntegrator`): at a vertex the loop
-records the position and, per query, the direction and the factor that
+records the ray that found it (the deferred pass re-creates the vertex for
+its position) and, per query, the direction and the factor that
 multiplies V_c in the estimate (g / N_c for the cache level, -g for the
 residual); the residual's g V is added in the loop. Every NEE vertex is a
-cache vertex, so a path has up to max_depth - 1 of them (the buffer's bound);
+cache vertex, so the p_env directions stay drawn in the loop (unlike NIRC's
+N_c directions: no lane that does NEE could skip them), and a path has up to
+max_depth - 1 of them (the buffer's bound);
 with unbounded depth the buffer starts with one vertex slot per lane and a
 frame that needed more is traced again with the same random numbers
 (cached.py), keeping the count for later frames.
@@ -137,6 +140,9 @@ class NVCEnvIntegrator(CachedPathIntegrator):
         vertices = self.max_depth - 1 if self.max_depth > 0 else self.vertex_slots
         return QueryLayout(vertices, self.nc + (self.estimator == "unbiased"))
 
+    def surface_inputs(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
+        return surface_inputs(si)
+
     def env_sample(self, vertex: Vertex, active: mi.Bool) -> tuple[mi.DirectionSample3f,
                                                                   mi.Spectrum]:
         """One w ~ p_env and g(w) = L_env f cos w_L / p_env (0 where p_env or f is 0)."""
@@ -153,7 +159,7 @@ class NVCEnvIntegrator(CachedPathIntegrator):
         # Where the core does NEE (path.py): a smooth BSDF at a vertex that may extend.
         active = vertex.active_next & mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
         si = vertex.si
-        handle = self.queries.vertex(state.cache_vertices, vertex, surface_inputs(si), active)
+        handle = self.queries.vertex(state.cache_vertices, vertex, active)
         # ---- Cache level: I_c = 1/N_c sum_i g(w_i) V_c(x, w_i) (NIRC Eq. 12) ----
         L_add = mi.Spectrum(0)
         for slot in range(self.nc):

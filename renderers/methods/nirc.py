@@ -80,7 +80,7 @@ NC_CANDIDATES = (1, 2, 4, 8, 16, 32)
 METHOD = Method(
     "nirc", "Neural Incident Radiance Cache: biased (BTH/SPH termination) or unbiased "
             "two-level Monte Carlo",
-    NIRCParams, cached_render(build), version=3,
+    NIRCParams, cached_render(build), version=4,
     integrators=("renderers.integrators.nirc", *TRAINING_INTEGRATORS),
     knob=Knob("nc", NC_CANDIDATES, apply=with_nc_at_v1, usable=_biased,
               requirement="biased nirc"),

@@ -70,6 +70,29 @@ def test_no_query_is_evaluated_where_no_path_uses_the_cache(mi, tmp_path):
     assert queries == 8 * RES * RES
 
 
+def test_the_deferred_pass_draws_n_c_queries_per_cache_vertex(mi, tmp_path, monkeypatch):
+    """Adaptive (nc 4,2; half the pixels may terminate at v1): the deferred pass draws
+    4 directions at each path that terminated at v1 and 2 at each that terminated
+    later (on the diffuse box a path has at most one cache vertex), and nothing
+    elsewhere. Twin: an integrator whose vertices draw N_c + 1 is caught."""
+    scene = _scene(mi, tmp_path, DIFFUSE)
+    integrator = _integrator(scene, "nirc", estimator="biased", termination="adaptive",
+                             nc=[4, 2], max_depth=8)
+    integrator.set_v1_mask(np.indices((RES, RES)).sum(axis=0) % 2 == 0)
+    film, queries = _render(mi, scene, integrator)
+    depth = np.rint(film[..., 4]).astype(int)   # cache_depth: 1 + the vertex index
+    assert (depth == 1).any() and (depth > 1).any()
+    expected = 4 * (depth == 1).sum() + 2 * (depth > 1).sum()
+    assert queries == expected
+    assert _cache_vertices(film).sum() == (depth > 0).sum()
+
+    draw = integrator.drawn_query
+    monkeypatch.setattr(integrator, "drawn_query",
+                        lambda si, bsdf, rng, slot, count: draw(si, bsdf, rng, slot, count + 1))
+    _, twin_queries = _render(mi, scene, integrator)
+    assert twin_queries != expected
+
+
 @pytest.mark.parametrize("nc", [1, 4])
 def test_biased_bth_evaluates_n_c_queries_per_terminated_vertex(mi, tmp_path, nc):
     scene = _scene(mi, tmp_path, DIFFUSE)

@@ -363,6 +363,34 @@ def test_unbiased_test_rejects_a_residual_of_the_wrong_sign(mi, room_reference):
 
 
 @pytest.mark.slow
+def test_queries_drawn_after_the_loop_agree_with_pt(mi, room_reference):
+    """Adaptive NIRC (every pixel terminates into the cache at v1 with N_c = 4,
+    later vertices by the spread heuristic with N_c = 1) draws its N_c
+    directions in the deferred pass (deferred.py); with the oracle cache it
+    agrees with PT in the plastic room. Twin: the same draws with L_c the sum
+    instead of the mean of the N_c terms are rejected."""
+    from renderers.caches.oracle import OracleCache
+    from renderers.integrators import nirc, path
+
+    _, nirc_plugin, _ = _plugins()
+
+    class SumNc(nirc.NIRCIntegrator):
+        def drawn_query(self, si, bsdf, rng, slot, count):
+            direction, weight, use = super().drawn_query(si, bsdf, rng, slot, count)
+            return direction, weight * count, use
+
+    path.register("nirc_test_sum_nc", SumNc)
+    scene, reference = room_reference("plastic")
+    values = {"max_depth": -1, "termination": "adaptive", "nc": "4,1"}
+    integrator = _integrator(mi, nirc_plugin, OracleCache(scene), **values)
+    result = _agree(_y(render_moments(scene, integrator, 1024, 3)), reference)
+    assert result.passed, result.summary()
+    twin = _integrator(mi, "nirc_test_sum_nc", OracleCache(scene), **values)
+    result = _agree(_y(render_moments(scene, twin, 1024, 3)), reference)
+    assert not result.passed, result.summary()
+
+
+@pytest.mark.slow
 def test_bth_with_a_perfect_cache_in_the_furnace(mi):
     """BTH + oracle in the furnace (uniform indirect radiance: BTH's direction-
     dependent stop is unbiased there) matches the known Le / (1 - rho) in every
