@@ -54,13 +54,30 @@ def partitions(bsdf: SceneDict) -> dict[str, SceneDict]:
     return shapes
 
 
-def many_lights() -> SceneDict:
-    """The room, partitions, some furniture and the 32 lights."""
+def office() -> SceneDict:
+    """The open-plan room and its partitions, without lights or furniture (the start of
+    `many-lights` and `many-lights-300`)."""
     wall = two_sided(diffuse((0.7, 0.7, 0.7)))
     scene: SceneDict = {"type": "scene"}
     scene.update(room((-HALF, 0, -HALF), (HALF, HEIGHT, HALF), wall))
     scene["floor"]["bsdf"] = two_sided(diffuse((0.5, 0.45, 0.4)))
     scene.update(partitions(two_sided(diffuse((0.55, 0.6, 0.7)))))
+    return scene
+
+
+def furnish(scene: SceneDict) -> SceneDict:
+    """Add the desks (more occluders, surfaces at a second height) and the default view."""
+    desk = diffuse((0.45, 0.3, 0.2))
+    scene["desk-0"] = box_between((-3.6, 0, -3.5), (-2.4, 0.75, -2.7), desk)
+    scene["desk-1"] = box_between((0.4, 0, 1.0), (1.6, 0.75, 1.8), desk)
+    scene["desk-2"] = box_between((2.4, 0, -2.5), (3.6, 0.75, -1.7), desk)
+    scene["sensor"] = sensor(origin=(3.7, 2.7, 3.7), target=(-1.0, 0.2, -1.0), fov=75)
+    return scene
+
+
+def many_lights() -> SceneDict:
+    """The room, partitions, some furniture and the 32 lights."""
+    scene = office()
 
     # Four lights per bay; bays are 2 m (x) by 4 m (z).
     colours = _light_colours(LIGHT_COUNT)
@@ -76,15 +93,7 @@ def many_lights() -> SceneDict:
                     emitter=area_light(colours[index]),
                 )
                 index += 1
-
-    # Desks in some bays: more occluders, and surfaces at a second height.
-    desk = diffuse((0.45, 0.3, 0.2))
-    scene["desk-0"] = box_between((-3.6, 0, -3.5), (-2.4, 0.75, -2.7), desk)
-    scene["desk-1"] = box_between((0.4, 0, 1.0), (1.6, 0.75, 1.8), desk)
-    scene["desk-2"] = box_between((2.4, 0, -2.5), (3.6, 0.75, -1.7), desk)
-
-    scene["sensor"] = sensor(origin=(3.7, 2.7, 3.7), target=(-1.0, 0.2, -1.0), fov=75)
-    return scene
+    return furnish(scene)
 
 
 def floor_view() -> SceneDict:

@@ -16,16 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from renderers.scenes.many_lights import HALF, HEIGHT, partitions
+from renderers.scenes.many_lights import HALF, HEIGHT, furnish, office
 from renderers.scenes.parts import (
     SceneDict,
     area_light,
-    box_between,
-    diffuse,
     quad,
-    room,
-    sensor,
-    two_sided,
 )
 
 CEILING_GRID = (20, 12)   # lights along x, z
@@ -45,11 +40,7 @@ def _radiances(rng: np.random.Generator, count: int, scale: float) -> np.ndarray
 def many_lights_300() -> SceneDict:
     """The room, partitions, desks, 240 ceiling lights and 60 floor lamps."""
     rng = np.random.default_rng(LIGHT_SEED)
-    wall = two_sided(diffuse((0.7, 0.7, 0.7)))
-    scene: SceneDict = {"type": "scene"}
-    scene.update(room((-HALF, 0, -HALF), (HALF, HEIGHT, HALF), wall))
-    scene["floor"]["bsdf"] = two_sided(diffuse((0.5, 0.45, 0.4)))
-    scene.update(partitions(two_sided(diffuse((0.55, 0.6, 0.7)))))
+    scene = office()
 
     nx, nz = CEILING_GRID
     ceiling = _radiances(rng, nx * nz, 40.0)
@@ -70,11 +61,4 @@ def many_lights_300() -> SceneDict:
             (x, 0.01, z), (0, 0, LAMP_HALF), (LAMP_HALF, 0, 0),
             emitter=area_light(lamps[j]))
         index += 1
-
-    desk = diffuse((0.45, 0.3, 0.2))
-    scene["desk-0"] = box_between((-3.6, 0, -3.5), (-2.4, 0.75, -2.7), desk)
-    scene["desk-1"] = box_between((0.4, 0, 1.0), (1.6, 0.75, 1.8), desk)
-    scene["desk-2"] = box_between((2.4, 0, -2.5), (3.6, 0.75, -1.7), desk)
-
-    scene["sensor"] = sensor(origin=(3.7, 2.7, 3.7), target=(-1.0, 0.2, -1.0), fov=75)
-    return scene
+    return furnish(scene)
