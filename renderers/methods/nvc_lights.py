@@ -150,6 +150,17 @@ def train_frame(scene: Any, cache: Any, params: VisibilityCacheParams, seed: int
         cache.train(records)
 
 
+def pretrain(train_frame: Callable[[Any, Any, Any, int, StageTimer], None], scene: Any,
+             cache: Any, params: Any, seed_parts: tuple[Any, ...]) -> float:
+    """The one-off training frames before the first frame (``params.pretrain_frames``);
+    their seconds (not per-frame time)."""
+    start = time.perf_counter()
+    for index in range(params.pretrain_frames):
+        train_frame(scene, cache, params, derive_seed(*seed_parts, "pretrain", index),
+                    StageTimer())
+    return time.perf_counter() - start
+
+
 def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
                             train_frame: Callable[[Any, Any, Any, int, StageTimer], None],
                             ) -> Callable[..., RenderOutput]:
@@ -161,11 +172,7 @@ def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
         """Pre-train, then train and render every frame (the caching methods' frame loop)."""
         integrator, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
 
-        pretrain_start = time.perf_counter()
-        for index in range(params.pretrain_frames):
-            train_frame(scene, cache, params, derive_seed(*seed_parts, "pretrain", index),
-                        StageTimer())
-        pretrain_s = time.perf_counter() - pretrain_start
+        pretrain_s = pretrain(train_frame, scene, cache, params, seed_parts)
 
         render_only = render_stage(scene, integrator, spp)
         # A deferred-query integrator (renderers.integrators.cached) counts its queries.

@@ -29,12 +29,16 @@ Applies to scenes whose emitters are all area emitters (at least 2) and a surfac
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput, run_frames
 from renderers.methods.cached import cache_method_stats
-from renderers.methods.nvc_lights import VisibilityCacheParams, light_selection, train_frame
+from renderers.methods.nvc_lights import (
+    VisibilityCacheParams,
+    light_selection,
+    pretrain,
+    train_frame,
+)
 from renderers.methods.pt import SPP_CANDIDATES
 from renderers.methods.restir_di import ReSTIRDIParams, frame_function, shadow_rays
 from renderers.methods.restir_di import applies as restir_applies
@@ -53,11 +57,7 @@ def render(scene: Any, params: ReSTIRNVCParams, *, seed_parts: tuple[Any, ...], 
 
     check_scene(scene.scene)
     selector, cache = light_selection(scene, params, derive_seed(*seed_parts, "cache"))
-    pretrain_start = time.perf_counter()
-    for index in range(params.pretrain_frames):
-        train_frame(scene, cache, params, derive_seed(*seed_parts, "pretrain", index),
-                    StageTimer())
-    pretrain_s = time.perf_counter() - pretrain_start
+    pretrain_s = pretrain(train_frame, scene, cache, params, seed_parts)
     restir = ReSTIRDI(scene.scene, params, replicas=spp, lights=selector(scene.scene))
 
     def train(index: int, seed: int, timer: StageTimer) -> None:
