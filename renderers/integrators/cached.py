@@ -31,6 +31,7 @@ import numpy as np
 from renderers.integrators.deferred import (
     InlineQueries,
     QueryBuffer,
+    QueryChannel,
     QueryCount,
     QueryLayout,
     draw_query_key,
@@ -91,15 +92,17 @@ class CacheState:
         "spread_sum": mi.Float,      # sum of sqrt spread terms (SPH, see spread.py)
         "a0": mi.Float,              # primary-vertex footprint a_0
         "cache_vertices": mi.UInt32, # vertices at which a cache term was added
+        "env_vertices": mi.UInt32,   # vertices of a second query channel (nvc_env.EnvVisibility)
         "cache_depth": mi.UInt32,    # 1 + index of the vertex the path terminated into (0: none)
         "v1_allowed": mi.Bool,       # adaptive termination: this pixel may use the cache at v1
     }
 
-    def __init__(self, spread_sum=None, a0=None, cache_vertices=None, cache_depth=None,
-                 v1_allowed=None):
+    def __init__(self, spread_sum=None, a0=None, cache_vertices=None, env_vertices=None,
+                 cache_depth=None, v1_allowed=None):
         self.spread_sum = spread_sum
         self.a0 = a0
         self.cache_vertices = cache_vertices
+        self.env_vertices = env_vertices
         self.cache_depth = cache_depth
         self.v1_allowed = v1_allowed
 
@@ -127,6 +130,8 @@ class CachedPathIntegrator(PathIntegrator):
 
     #: The most queries a cache vertex draws itself (``QueryBuffer.draw``; 0: none).
     drawn_slots = 0
+    #: The ``CacheState`` field that counts this channel's cache vertices.
+    counter = "cache_vertices"
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -171,39 +176,55 @@ class CachedPathIntegrator(PathIntegrator):
         """Query ``slot`` of a cache vertex that draws ``count`` (``drawn_slots``; deferred.py)."""
         raise NotImplementedError
 
+    def query_channels(self) -> list[QueryChannel]:
+        """The caches whose queries a frame records, each in its own buffer: by
+        default the integrator's own (counted by ``CacheState.cache_vertices``)."""
+        return [self]
+
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """Trace the paths, recording cache queries; then evaluate the recorded ones."""
         lanes = dr.width(ray.d.x)
-        layout = self.query_layout()
-        key = draw_query_key(sampler) if self.drawn_slots else None
-        replay = sampler.clone()  # the same random numbers, should the buffer be too small
+        channels = self.query_channels()
+        layouts = [channel.query_layout() for channel in channels]
+        keys = [draw_query_key(sampler) if channel.drawn_slots else None
+                for channel in channels]
+        replay = sampler.clone()  # the same random numbers, should a buffer be too small
         while True:
-            deferred = lanes * layout.slots <= MAX_QUERY_SLOTS
-            self.queries = (QueryBuffer(lanes, layout, key) if deferred else
-                            InlineQueries(self.cache, self.surface_inputs, self, key))
+            deferred = lanes * sum(layout.slots for layout in layouts) <= MAX_QUERY_SLOTS
+            for channel, layout, key in zip(channels, layouts, keys, strict=True):
+                channel.queries = (QueryBuffer(lanes, layout, key) if deferred else
+                                   InlineQueries(channel.cache, channel.surface_inputs,
+                                                 channel, key))
             L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
             synchronize(L, valid_ray, depth, state)
-            needed = int(dr.max(state.cache_vertices, axis=None)[0])
-            if not deferred or needed <= layout.vertices:
+            needed = [int(dr.max(getattr(state, channel.counter), axis=None)[0])
+                      for channel in channels]
+            if not deferred or all(n <= layout.vertices
+                                   for n, layout in zip(needed, layouts, strict=True)):
                 break
             # Some lane had more cache vertices than slots: trace the frame again
             # with the same random numbers and room for all of them.
-            self.vertex_slots = needed
-            layout = self.query_layout()
-            if layout.vertices < needed:
-                raise RuntimeError(f"a path used the cache at {needed} vertices, more than the "
-                                   f"bound {layout.vertices} of {type(self).__name__}")
+            for channel, n, layout in zip(channels, needed, layouts, strict=True):
+                if n > layout.vertices:
+                    channel.vertex_slots = n
+                    if channel.query_layout().vertices < n:
+                        raise RuntimeError(
+                            f"a path used the cache at {n} vertices, more than the bound "
+                            f"{channel.query_layout().vertices} of {type(channel).__name__}")
+            layouts = [channel.query_layout() for channel in channels]
             sampler = replay.clone()
         count = None
         if deferred:
             with self._stage("inference"):
                 queries = 0
-                if needed:   # else no lane recorded a cache vertex: nothing to add
-                    cached, queries = self.queries.evaluate(scene, self)
-                    L = mi.Spectrum(L) + cached
-                    synchronize(L)
-            count = QueryCount(queries, lanes, layout.slots)
-        self.queries = None
+                for channel, n in zip(channels, needed, strict=True):
+                    if n:   # else no lane recorded a vertex of this channel: nothing to add
+                        cached, evaluated = channel.queries.evaluate(scene, channel)
+                        L, queries = mi.Spectrum(L) + cached, queries + evaluated
+                synchronize(L)
+            count = QueryCount(queries, lanes, sum(layout.slots for layout in layouts))
+        for channel in channels:
+            channel.queries = None
         self.query_counts.append(count)
         return L, valid_ray, [mi.Float(depth), mi.Float(state.cache_depth),
                               mi.Float(state.cache_vertices)]
@@ -230,7 +251,8 @@ class CachedPathIntegrator(PathIntegrator):
 # training integrator) reuse these by calling them.
 
 def new_cache_state() -> CacheState:
-    return CacheState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0), mi.Bool(True))
+    return CacheState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0), mi.UInt32(0),
+                      mi.Bool(True))
 
 
 def pixel_index(ray: mi.Ray3f, sampler: mi.Sampler) -> mi.UInt32:

@@ -92,6 +92,20 @@ class QuerySource(Protocol):
         (direction, weight, used), drawn with the query's own random numbers ``rng``."""
 
 
+class QueryChannel(QuerySource, Protocol):
+    """One cache's queries in a frame (``CachedPathIntegrator.query_channels``): the
+    source of its queries, its buffer while the frame is traced (``queries``), the
+    ``CacheState`` field counting its vertices (``counter``) and its layout, which
+    grows with ``vertex_slots`` where it has no exact bound."""
+
+    counter: str
+    vertex_slots: int
+    queries: QueryBuffer | InlineQueries | None
+
+    def query_layout(self) -> QueryLayout:
+        """Slots per lane of the channel's buffer."""
+
+
 @dataclass(frozen=True)
 class QueryLayout:
     """Slots of one lane: ``vertices`` cache vertices with ``queries`` queries each."""

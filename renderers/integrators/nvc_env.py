@@ -61,7 +61,7 @@ import mitsuba as mi
 
 from renderers.caches import TrainingRecords
 from renderers.integrators import path
-from renderers.integrators.cached import CachedPathIntegrator, CacheState
+from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs
 from renderers.integrators.deferred import QueryLayout
 from renderers.integrators.lights import UniformLightSampler
 from renderers.integrators.path import Vertex, VertexTerms, mis_weight
@@ -71,10 +71,11 @@ NVC_ENV_PLUGIN = "nirc_nvc_env"
 
 
 class NVCEnvSettings(Protocol):
-    """What the integrator reads of the `nvc-env` method's validated parameters."""
+    """What the estimator reads of the `nvc-env` method's validated parameters."""
 
     estimator: str
     nc: int
+    target: str
 
 
 def is_environment(scene: mi.Scene, emitter: mi.EmitterPtr) -> mi.Bool:
@@ -117,6 +118,83 @@ def surface_inputs(si: mi.SurfaceInteraction3f) -> dict[str, Any]:
             "albedo": mi.Color3f(0)}
 
 
+class EnvVisibility:
+    """The environment's NEE as the two-level estimator of the module docstring: one
+    query channel (deferred.QueryChannel) of a :class:`CachedPathIntegrator`.
+
+    ``target='visibility'``: the cache predicts V(x, w) and a query's factor is
+    g(w) = L_env f cos w_L / p_env. ``target='radiance'`` (NIRC predicting the
+    same direct light, the NIRC paper's Fig. 11): the cache predicts the RGB
+    incident radiance L_env(w) V(x, w) from NIRC's inputs, and a query's factor
+    is h(w) = f cos w_L / p_env (g = L_env h). Vertices are counted by the
+    ``counter`` field of ``CacheState``; a path has at most max_depth - 1 of them.
+    """
+
+    drawn_slots = 0   # its directions are drawn in the loop (module docstring)
+
+    def __init__(self, params: NVCEnvSettings, cache: Any, max_depth: int,
+                 counter: str = "cache_vertices") -> None:
+        self.estimator, self.nc, self.target = params.estimator, params.nc, params.target
+        self.cache = OneOutput(cache) if self.target == "visibility" else cache
+        self.max_depth, self.counter = max_depth, counter
+        self.vertex_slots = 1
+        self.queries: Any = None   # the frame's buffer (CachedPathIntegrator.sample)
+
+    def query_layout(self) -> QueryLayout:
+        """N_c queries per NEE vertex, + 1 (the residual's) when unbiased; a path has at
+        most max_depth - 1 NEE vertices (exact), else as many as seen so far."""
+        vertices = self.max_depth - 1 if self.max_depth > 0 else self.vertex_slots
+        return QueryLayout(vertices, self.nc + (self.estimator == "unbiased"))
+
+    def surface_inputs(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
+        return surface_inputs(si) if self.target == "visibility" else cache_inputs(si, bsdf)
+
+    def drawn_query(self, si, bsdf, rng, slot, count):
+        raise NotImplementedError("the environment's queries are drawn in the loop")
+
+    def env_sample(self, vertex: Vertex, lights: Any, active: mi.Bool
+                   ) -> tuple[mi.DirectionSample3f, mi.Spectrum, mi.Spectrum]:
+        """One w ~ p_env, g(w) = L_env f cos w_L / p_env and the factor of the cache's
+        value in the estimate (g, or h = g / L_env for a radiance cache); 0 where p_env
+        or f is 0. ``lights``: the integrator's selector, whose pdf w_L uses."""
+        si, scene = vertex.si, vertex.scene
+        ds, env_weight = scene.environment().sample_direction(
+            si, vertex.sampler.next_2d(active), active)
+        active &= ds.pdf > 0
+        f, pdf_f = vertex.bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), active)
+        weighted_f = f * mis_weight(lights.pdf_emitter_direction(si, ds, active), pdf_f)
+        g = env_weight * weighted_f   # env_weight = L_env / p_env
+        factor = g if self.target == "visibility" else weighted_f / ds.pdf
+        return ds, dr.select(active, g, 0), dr.select(active, factor, 0)
+
+    def terms(self, vertex: Vertex, state: CacheState, lights: Any) -> mi.Spectrum:
+        """The vertex's estimate of I_env (added now; cache values after the loop); counts
+        the vertex in ``state``."""
+        # Where the core does NEE (path.py): a smooth BSDF at a vertex that may extend.
+        active = vertex.active_next & mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
+        counted = getattr(state, self.counter)
+        handle = self.queries.vertex(counted, vertex, active)
+        # ---- Cache level: I_c = 1/N_c sum_i g(w_i) V_c(x, w_i) (NIRC Eq. 12) ----
+        L_add = mi.Spectrum(0)
+        for slot in range(self.nc):
+            ds, _, factor = self.env_sample(vertex, lights, active)
+            L_add += self.queries.add(handle, slot, ds.d, factor / self.nc, active)
+        # ---- Residual: g(w) (V(x, w) - V_c(x, w)), one shadow ray (NIRC Eq. 11) ----
+        if self.estimator == "unbiased":
+            ds, g, factor = self.env_sample(vertex, lights, active)
+            use = active & (dr.max(g) != 0)
+            visible = use & ~vertex.scene.ray_test(vertex.si.spawn_ray_to(ds.p), use)
+            L_add += dr.select(visible, g, 0)
+            L_add += self.queries.add(handle, self.nc, ds.d, -factor, use)
+        setattr(state, self.counter, dr.select(active, counted + 1, counted))
+        return dr.select(active, L_add, 0)
+
+
+def only_environment(scene: mi.Scene) -> mi.Bool:
+    """Where the environment is the only emitter the core's NEE has nothing left to do."""
+    return mi.Bool(len(scene.emitters()) == 1)
+
+
 class NVCEnvIntegrator(CachedPathIntegrator):
     """PT core whose environment NEE is the two-level estimator of the module docstring."""
 
@@ -124,64 +202,30 @@ class NVCEnvIntegrator(CachedPathIntegrator):
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.estimator = "unbiased"
-        self.nc = 0          # N_c: set by configure
+        self.env: EnvVisibility | None = None   # set by configure
 
     def configure(self, params: NVCEnvSettings, cache: Any) -> None:
         """Take the method's parameters (validated by its model) and the visibility cache."""
-        self.estimator, self.nc, self.cache = params.estimator, params.nc, OneOutput(cache)
+        self.env = EnvVisibility(params, cache, self.max_depth)
 
-    def query_layout(self) -> QueryLayout:
-        """N_c queries per NEE vertex, + 1 (the residual's V_c) when unbiased; a path
-        has at most max_depth - 1 NEE vertices (exact), else as many as seen so far."""
-        if not self.nc:
+    def query_channels(self) -> list[Any]:
+        if self.env is None:
             raise RuntimeError("the nvc-env integrator needs configure(params, cache) before "
                                "it renders (renderers.methods.nvc_env.build does it)")
-        vertices = self.max_depth - 1 if self.max_depth > 0 else self.vertex_slots
-        return QueryLayout(vertices, self.nc + (self.estimator == "unbiased"))
-
-    def surface_inputs(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF) -> dict[str, Any]:
-        return surface_inputs(si)
-
-    def env_sample(self, vertex: Vertex, active: mi.Bool) -> tuple[mi.DirectionSample3f,
-                                                                  mi.Spectrum]:
-        """One w ~ p_env and g(w) = L_env f cos w_L / p_env (0 where p_env or f is 0)."""
-        si, scene = vertex.si, vertex.scene
-        ds, env_weight = scene.environment().sample_direction(
-            si, vertex.sampler.next_2d(active), active)
-        active &= ds.pdf > 0
-        f, pdf_f = vertex.bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), active)
-        pdf_light = self.light_sampler(scene).pdf_emitter_direction(si, ds, active)
-        g = env_weight * f * mis_weight(pdf_light, pdf_f)
-        return ds, dr.select(active, g, 0)
+        return [self.env]
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
-        # Where the core does NEE (path.py): a smooth BSDF at a vertex that may extend.
-        active = vertex.active_next & mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
-        si = vertex.si
-        handle = self.queries.vertex(state.cache_vertices, vertex, active)
-        # ---- Cache level: I_c = 1/N_c sum_i g(w_i) V_c(x, w_i) (NIRC Eq. 12) ----
-        L_add = mi.Spectrum(0)
-        for slot in range(self.nc):
-            ds, g = self.env_sample(vertex, active)
-            L_add += self.queries.add(handle, slot, ds.d, g / self.nc, active)
-        # ---- Residual: g(w) (V(x, w) - V_c(x, w)), one shadow ray (NIRC Eq. 11) ----
-        if self.estimator == "unbiased":
-            ds, g = self.env_sample(vertex, active)
-            use = active & (dr.max(g) != 0)
-            visible = use & ~vertex.scene.ray_test(si.spawn_ray_to(ds.p), use)
-            L_add += dr.select(visible, g, 0)
-            L_add += self.queries.add(handle, self.nc, ds.d, -g, use)
-        state.cache_vertices = dr.select(active, state.cache_vertices + 1, state.cache_vertices)
-        only_env = mi.Bool(len(vertex.scene.emitters()) == 1)
-        terms = VertexTerms(L_add=dr.select(active, L_add, 0), stop=mi.Bool(False),
-                            stop_indirect=mi.Bool(False), skip_nee=only_env)
+        L_add = self.env.terms(vertex, state, self.light_sampler(vertex.scene))
+        terms = VertexTerms(L_add=L_add, stop=mi.Bool(False), stop_indirect=mi.Bool(False),
+                            skip_nee=only_environment(vertex.scene))
         return terms, state
 
 
-def visibility_records(scene: mi.Scene, points: int, seed: int) -> TrainingRecords:
+def visibility_records(scene: mi.Scene, points: int, seed: int,
+                       target: str = "visibility") -> TrainingRecords:
     """One frame of training data (module docstring): ``points`` camera first hits and as
-    many second vertices, each with one p_env direction and its 0/1 shadow-ray outcome."""
+    many second vertices, each with one p_env direction and its 0/1 shadow-ray outcome
+    (``target='radiance'``: L_env(w) times that outcome, RGB, with NIRC's inputs)."""
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(dr.opaque(mi.UInt32, seed), points)
     ray, _ = scene.sensors()[0].sample_ray(time=0.0, sample1=sampler.next_1d(),
@@ -202,12 +246,26 @@ def visibility_records(scene: mi.Scene, points: int, seed: int) -> TrainingRecor
     valid = both(first.is_valid(), second.is_valid())
 
     sampler.seed(dr.opaque(mi.UInt32, derive_seed(seed, "shadow rays")), 2 * points)
-    ds, _ = scene.environment().sample_direction(si, sampler.next_2d(), valid)
+    ds, env_weight = scene.environment().sample_direction(si, sampler.next_2d(), valid)
     escapes = valid & (ds.pdf > 0) & ~scene.ray_test(si.spawn_ray_to(ds.p), valid)
-    records = TrainingRecords(position=si.p, target=[dr.select(escapes, 1.0, 0.0)],
-                              direction=ds.d, valid=valid)
+    if target == "visibility":
+        records = TrainingRecords(position=si.p, target=[dr.select(escapes, 1.0, 0.0)],
+                                  direction=ds.d, valid=valid)
+    else:
+        radiance = dr.select(escapes, env_weight * ds.pdf, 0.0)   # L_env(w) V(x, w)
+        inputs = both_inputs(first, second, both)
+        records = TrainingRecords(target=[radiance[0], radiance[1], radiance[2]],
+                                  direction=ds.d, valid=valid, **inputs)
     dr.eval(records.position, records.target, records.direction, records.valid)
     return records
+
+
+def both_inputs(first: mi.SurfaceInteraction3f, second: mi.SurfaceInteraction3f,
+                both: Any) -> dict[str, Any]:
+    """NIRC's cache inputs (cached.cache_inputs) of the first hits and second vertices,
+    in the lanes ``both`` lays them out in."""
+    inputs = [cache_inputs(si, si.bsdf()) for si in (first, second)]
+    return {name: both(inputs[0][name], inputs[1][name]) for name in inputs[0]}
 
 
 # ---- Registration (per Mitsuba variant: the `nvc-env` method calls it when a render starts) ----

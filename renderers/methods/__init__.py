@@ -34,6 +34,7 @@ from pydantic import ValidationError
 from renderers.methods import (
     neural_di,
     nirc,
+    nirc_nvc_env,
     nrc,
     nrc_di,
     nvc_env,
@@ -61,7 +62,8 @@ class NotApplicable(MethodError):
 #: The methods of this repository.
 BUILTIN: dict[str, Method] = {module.METHOD.name: module.METHOD
                               for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
-                                             restir_di, restir_nvc, neural_di, nrc_di, nirc, nrc)}
+                                             restir_di, restir_nvc, neural_di, nrc_di, nirc, nirc_nvc_env,
+                                             nrc)}
 
 #: The entry-point group other packages register methods under.
 ENTRY_POINT_GROUP = "nirc_bench.methods"

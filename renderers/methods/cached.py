@@ -129,20 +129,30 @@ def train_once(cache: Any, trainer: Any, scene: Any, budget: TrainingBudget, see
         cache.train(TrainingRecords(**records), steps=budget.steps, batch_size=budget.batch_size)
 
 
+#: A second cache's frame of training (seed, timer), taken after the first's.
+ExtraTraining = Callable[[int, StageTimer], None]
+
+
 def render_with_cache(
     scene: Any, params: CacheTrainingParams, integrator: Any, trainer: Any, cache: Any, *,
     seed_parts: tuple[Any, ...], spp: int, frames: int, hooks: FrameHooks = FrameHooks(),
+    extra_training: ExtraTraining | None = None,
 ) -> RenderOutput:
-    """Pre-train, then run the frame loop with training before every frame."""
+    """Pre-train, then run the frame loop with training before every frame.
+    ``extra_training``: a second cache's training, in every frame that trains."""
     # Self-training paths query the cache too.
     integrator.cache = trainer.cache = cache
     width, height = scene.resolution
     budget = frame_training_budget(width * height, params, cache.config)
 
+    def train(seed: int, timer: StageTimer) -> None:
+        train_once(cache, trainer, scene, budget, seed, timer)
+        if extra_training is not None:
+            extra_training(derive_seed(seed, "second cache"), timer)
+
     pretrain_start = time.perf_counter()
     for index in range(params.pretrain_frames):
-        train_once(cache, trainer, scene, budget, derive_seed(*seed_parts, "pretrain", index),
-                   StageTimer())
+        train(derive_seed(*seed_parts, "pretrain", index), StageTimer())
     pretrain_s = time.perf_counter() - pretrain_start
 
     render = render_stage(scene, integrator, spp)
@@ -150,7 +160,7 @@ def render_with_cache(
     frame_queries: list[list[Any]] = []  # the QueryCounts of each timed frame
 
     def render_frame(index: int, seed: int, timer: StageTimer):
-        train_once(cache, trainer, scene, budget, derive_seed(seed, "train"), timer)
+        train(derive_seed(seed, "train"), timer)
         integrator.query_counts.clear()
         image = render(index, seed, timer)
         if index >= 0:  # not the warm-up frame

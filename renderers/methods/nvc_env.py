@@ -21,6 +21,11 @@ estimator           unbiased    ``unbiased``: cache level + residual with one sh
                                 ray (NIRC Eq. 10-12); ``biased``: the cache level
                                 alone (Eq. 13)
 nc                  7           N_c, cache directions per vertex (NIRC Fig. 11)
+target              visibility  what the cache predicts: ``visibility`` V(x, w) (the
+                                NVC); ``radiance``: the RGB incident light
+                                L_env(w) V(x, w), NIRC's inputs and loss, 2 hidden
+                                layers (NIRC predicting the same direct light, the
+                                NIRC paper's Fig. 11; ``env_radiance_config``)
 camera_points       4096        training points per frame: camera first hits, plus
                                 as many vertices one cosine bounce further
 pretrain_frames     0           training frames before the first (warm-up) frame
@@ -60,6 +65,8 @@ class NVCEnvParams(PTParams):
 
     estimator: Literal["unbiased", "biased"] = "unbiased"
     nc: int = Field(7, ge=1, le=64, description="cache directions per vertex (N_c)")
+    target: Literal["visibility", "radiance"] = Field(
+        "visibility", description="the cache predicts V(x, w) or the radiance L_env V (RGB)")
     camera_points: int = Field(4096, ge=1, le=1 << 20,
                                description="training camera first hits per frame")
     pretrain_frames: int = Field(0, ge=0, le=100_000)
@@ -77,14 +84,30 @@ def env_visibility_config(**overrides: Any) -> Any:
     return visibility_config(1, **{"direction": DIRECTION_ENCODING, **overrides})
 
 
+def env_radiance_config(**overrides: Any) -> Any:
+    """NIRC's cache (inputs, output, loss, optimizer) with 2 hidden layers, as the NIRC
+    paper's Fig. 11 limits both networks, trained on the visibility cache's records
+    (``batch_size`` 8192, 1 step per frame) so that both learn from the same data."""
+    from renderers.caches import nirc_config
+
+    return nirc_config(**{"mlp": {"hidden_layers": 2}, "batch_size": 8192,
+                          "steps_per_frame": 1, **overrides})
+
+
+def env_cache(scene: Any, params: NVCEnvParams, seed: int) -> Any:
+    """The untrained cache of the environment's NEE: visibility or radiance (``target``)."""
+    config = env_visibility_config if params.target == "visibility" else env_radiance_config
+    return make_cache(scene, config, params, seed)
+
+
 def build(scene: Any, params: NVCEnvParams, seed: int) -> tuple[Any, Any]:
-    """(integrator, visibility cache): the PT core with the env-NEE estimator, untrained."""
+    """(integrator, cache): the PT core with the env-NEE estimator, untrained."""
     import mitsuba as mi
 
     from renderers.integrators import nvc_env
 
     nvc_env.register()
-    cache = make_cache(scene, env_visibility_config, params, seed)
+    cache = env_cache(scene, params, seed)
     integrator = mi.load_dict({"type": nvc_env.NVC_ENV_PLUGIN, **params.core()})
     integrator.configure(params, cache)
     return integrator, cache
@@ -96,7 +119,7 @@ def train_frame(scene: Any, cache: Any, params: NVCEnvParams, seed: int,
     from renderers.integrators.nvc_env import visibility_records
 
     with timer.stage("training_paths"):
-        records = visibility_records(scene.scene, params.camera_points, seed)
+        records = visibility_records(scene.scene, params.camera_points, seed, params.target)
     with timer.stage("training"):
         cache.train(records)
 

@@ -1,4 +1,5 @@
-"""Helpers of the light-selection tests (test_light_sampling.py, test_nvc_lights.py)."""
+"""Helpers of the light-selection and environment-light tests (test_light_sampling.py,
+test_nvc_lights.py, test_nvc_env.py, test_nirc_nvc_env.py)."""
 
 from __future__ import annotations
 
@@ -61,3 +62,30 @@ ENV_AND_SPHERE = """<scene version="3.0.0">
     <emitter type="constant"><rgb name="radiance" value="0.1, 0.12, 0.2"/></emitter>
 </scene>
 """
+
+
+class ShadowRayOracle:
+    """A visibility "cache" returning the exact visibility of one shadow ray (``zero``:
+    always 0); ``radiance``: the environment's radiance times it, RGB (what nvc-env's
+    ``target='radiance'`` cache predicts). Its surface features are the position and
+    the normal (to offset the ray)."""
+
+    def __init__(self, scene: Any, zero: bool = False, radiance: bool = False) -> None:
+        self.scene, self.zero, self.radiance = scene, zero, radiance
+
+    def surface_features(self, position: Any, normal: Any = None, **_: Any) -> list[Any]:
+        return [*position, *normal]
+
+    def query(self, surface: list[Any], direction: Any) -> list[Any]:
+        import drjit as dr
+        import mitsuba as mi
+
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        si.p, si.n = mi.Point3f(*surface[:3]), mi.Normal3f(*surface[3:])
+        visible = mi.Float(0) if self.zero else dr.select(
+            self.scene.ray_test(si.spawn_ray(direction)), 0.0, 1.0)
+        if not self.radiance:
+            return [visible]
+        si.wi = -direction
+        value = self.scene.environment().eval(si) * visible
+        return [value[0], value[1], value[2]]

@@ -14,6 +14,10 @@ only by its environment map) against Mitsuba's ``path`` with the per-pixel
   zero cache has the known expectation "PT without the environment's NEE"
   (the PT core with :class:`WithoutEnvironmentNEE` and nothing else).
 
+``target='radiance'`` (the cache predicts L_env V, RGB: NIRC predicting the
+same direct light, Fig. 11) passes the same zero, oracle and trained-cache
+tests; its radiance fed through the visibility factor (L_env twice) is rejected.
+
 The two oracle tests also check the MIS bookkeeping: the env NEE term carries
 w_L, the core's BSDF-sampled environment hits keep w_bsdf = 1 - w_L; counting
 either fully would add light and fail. With a constant environment and an area
@@ -31,7 +35,7 @@ import pytest
 
 from metrics.statistics import agreement_test
 from renderers.moments import render_moments
-from tests.renderers.lighting import ENV_AND_SPHERE, luminance_moments
+from tests.renderers.lighting import ENV_AND_SPHERE, ShadowRayOracle, luminance_moments
 
 RES = 16
 SPP = 1024
@@ -59,27 +63,6 @@ def _integrator(scene, cache=None, frames=TRAIN_FRAMES, **params):
     else:
         integrator.configure(parsed, cache)
     return integrator
-
-
-class ShadowRayOracle:
-    """A "cache" returning the exact visibility of one shadow ray (``zero``: always 0).
-    Its surface features are the position and the normal (to offset the ray)."""
-
-    def __init__(self, scene, zero: bool = False) -> None:
-        self.scene, self.zero = scene, zero
-
-    def surface_features(self, position, normal=None):
-        return [*position, *normal]
-
-    def query(self, surface, direction):
-        import drjit as dr
-        import mitsuba as mi
-
-        if self.zero:
-            return [mi.Float(0)]
-        si = dr.zeros(mi.SurfaceInteraction3f)
-        si.p, si.n = mi.Point3f(*surface[:3]), mi.Normal3f(*surface[3:])
-        return [dr.select(self.scene.ray_test(si.spawn_ray(direction)), 0.0, 1.0)]
 
 
 def _agreement(scene, integrator, max_depth, reference=None, seed=1):
@@ -145,10 +128,19 @@ def test_unbiased_with_a_trained_cache_matches_path(mi, sky, max_depth):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("target", ["visibility", "radiance"])
 @pytest.mark.parametrize("zero", [True, False], ids=["zero", "oracle"])
-def test_unbiased_with_any_cache_matches_path(mi, sky, zero):
-    cache = ShadowRayOracle(sky.scene, zero=zero)
-    result = _agreement(sky.scene, _integrator(sky, cache, max_depth=2), 2)
+def test_unbiased_with_any_cache_matches_path(mi, sky, zero, target):
+    cache = ShadowRayOracle(sky.scene, zero=zero, radiance=target == "radiance")
+    result = _agreement(sky.scene, _integrator(sky, cache, max_depth=2, target=target), 2)
+    assert result.passed, result.summary()
+
+
+@pytest.mark.slow
+def test_unbiased_with_a_trained_radiance_cache_matches_path(mi, sky):
+    """The Fig. 11 variant: NIRC's network predicting L_env V, trained 4 frames."""
+    integrator = _integrator(sky, max_depth=2, target="radiance")
+    result = _agreement(sky.scene, integrator, 2)
     assert result.passed, result.summary()
 
 
@@ -161,10 +153,21 @@ def test_dropping_the_residual_is_rejected(mi, sky):
 
 
 @pytest.mark.slow
-def test_biased_with_the_oracle_matches_path(mi, sky):
-    integrator = _integrator(sky, ShadowRayOracle(sky.scene), max_depth=2, estimator="biased")
+@pytest.mark.parametrize("target", ["visibility", "radiance"])
+def test_biased_with_the_oracle_matches_path(mi, sky, target):
+    oracle = ShadowRayOracle(sky.scene, radiance=target == "radiance")
+    integrator = _integrator(sky, oracle, max_depth=2, estimator="biased", target=target)
     result = _agreement(sky.scene, integrator, 2)
     assert result.passed, result.summary()
+
+
+@pytest.mark.slow
+def test_radiance_values_with_the_visibility_factor_are_rejected(mi, sky):
+    """Power of the radiance target's check: the radiance oracle's L_env V weighted by
+    the visibility factor g = L_env f cos w_L / p_env (L_env counted twice)."""
+    oracle = ShadowRayOracle(sky.scene, radiance=True)
+    integrator = _integrator(sky, oracle, max_depth=2, estimator="biased")
+    assert not _agreement(sky.scene, integrator, 2).passed
 
 
 @pytest.mark.slow

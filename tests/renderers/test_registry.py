@@ -72,7 +72,9 @@ def test_knobs_keep_todays_candidates():
     assert nirc.usable({}) and not nirc.usable({"estimator": "unbiased"})
     assert nirc.apply({"nc": [8, 1], "x": 1}, 4) == {"nc": [4, 1], "x": 1}
     # the light-selection and direct-light methods calibrate spp, like PT; NRC has no knob
-    assert [name for name, m in METHODS.items() if m.knob and m.knob.name == "nc"] == ["nirc"]
+    assert [name for name, m in METHODS.items()
+            if m.knob and m.knob.name == "nc"] == ["nirc", "nirc-nvc-env"]
+    assert METHODS["nirc-nvc-env"].knob.candidates == nirc.candidates
     assert METHODS["nrc"].knob is None
     for name in ("pt-power", "pt-spatial", "nvc-lights", "nvc-env", "restir-di", "restir-nvc",
                  "neural-di", "nrc-di"):
@@ -106,12 +108,14 @@ def _features(**values):
 
 #: Methods with a cache that are not caching methods (no ``build``): the visibility
 #: caches of `nvc-lights` and `nvc-env` live on positions too (their other limits:
-#: test_nvc_lights.py, test_nvc_env.py); `restir-di`, `restir-nvc`, `neural-di` and
+#: test_nvc_lights.py, test_nvc_env.py), as does `nirc-nvc-env`, whose two caches its
+#: own build makes; `restir-di`, `restir-nvc`, `neural-di` and
 #: `nrc-di` shade surface points (test_restir.py, test_neural_di.py, test_nrc_di.py).
-NEED_A_SURFACE = {"nvc-lights", "nvc-env", "restir-di", "restir-nvc", "neural-di", "nrc-di"}
+NEED_A_SURFACE = {"nvc-lights", "nvc-env", "nirc-nvc-env", "restir-di", "restir-nvc",
+                  "neural-di", "nrc-di"}
 #: Lighting each method needs besides (nvc-env: an environment map; restir-di: area
 #: emitters only, so none).
-ENVMAP = {"nvc-env": True, "restir-di": False, "restir-nvc": False}
+ENVMAP = {"nvc-env": True, "nirc-nvc-env": True, "restir-di": False, "restir-nvc": False}
 
 
 def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
@@ -127,7 +131,7 @@ def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
 def test_every_method_applies_to_every_built_in_scene(mi):
     """Today's behaviour: no built-in scene is skipped by any method, except by
     `nvc-lights` and `restir-nvc` the scenes with one emitter (nothing to select),
-    by `nvc-env` those without an environment map, by `restir-di`, `restir-nvc` and
+    by `nvc-env` and `nirc-nvc-env` those without an environment map, by `restir-di`, `restir-nvc` and
     `neural-di` the scene lit by an environment (`sky`) and by `neural-di` the scene with
     300 lights (one cache output per light)."""
     from renderers.scenes import load_scene
@@ -139,7 +143,7 @@ def test_every_method_applies_to_every_built_in_scene(mi):
             if name in ("nvc-lights", "restir-nvc") and features.emitter_count == 1:
                 assert METHODS[name].applies_to(features) == \
                     (False, "one emitter: nothing to select")
-            elif name == "nvc-env" and not features.has_envmap:
+            elif name in ("nvc-env", "nirc-nvc-env") and not features.has_envmap:
                 assert METHODS[name].applies_to(features) == (False, "no environment map")
             elif name in ("restir-di", "restir-nvc") and features.has_envmap:
                 assert METHODS[name].applies_to(features) == \

@@ -1,0 +1,105 @@
+"""`nirc-nvc-env`: NIRC for indirect light + the environment's neural visibility cache
+for its direct light (NIRC paper Sec. 4 and 5 combined).
+
+The estimator is in renderers/integrators/nirc_nvc_env.py. Every frame trains
+both caches (NIRC's training paths and step, then nvc-env's shadow rays and
+step; stages ``training_paths`` and ``training`` hold both) and renders with
+them; ``pretrain_frames`` trains both before the first frame.
+
+==================  ==========  ===================================================
+parameter           default     meaning
+==================  ==========  ===================================================
+all of `nirc`'s                 indirect light (``estimator``, ``termination``,
+                                ``nc``, training, ``cache``: NIRC's cache)
+env_estimator       unbiased    the environment's NEE: ``unbiased`` (cache level +
+                                one-shadow-ray residual) or ``biased`` (cache level)
+env_nc              7           N_c of the environment term
+env_camera_points   4096        visibility training points per frame (nvc-env's
+                                ``camera_points``)
+env_cache           {}          overrides of nvc-env's visibility preset
+==================  ==========  ===================================================
+
+Unbiased when ``estimator`` and ``env_estimator`` both are. Applies to scenes
+with an environment map and a surface.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any, Literal
+
+from pydantic import Field
+
+from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput
+from renderers.methods.cached import (
+    TRAINING_INTEGRATORS,
+    load_integrators,
+    make_cache,
+    render_with_cache,
+)
+from renderers.methods.nirc import NC_CANDIDATES, NIRCParams, with_nc_at_v1
+from renderers.methods.nvc_env import applies, env_visibility_config
+from renderers.methods.nvc_env import train_frame as train_env_frame
+from renderers.seeding import derive_seed
+
+
+class NIRCEnvParams(NIRCParams):
+    """`nirc`'s parameters plus the environment term's (module docstring)."""
+
+    env_estimator: Literal["unbiased", "biased"] = "unbiased"
+    env_nc: int = Field(7, ge=1, le=64, description="N_c of the environment term")
+    env_camera_points: int = Field(4096, ge=1, le=1 << 20,
+                                   description="visibility training points per frame")
+    env_cache: dict[str, Any] = Field(default_factory=dict,
+                                      description="visibility cache config overrides")
+
+    def env(self) -> SimpleNamespace:
+        """The environment term's settings as nvc-env reads them (its integrator's
+        NVCEnvSettings, its ``train_frame``'s ``camera_points`` and ``target``)."""
+        return SimpleNamespace(estimator=self.env_estimator, nc=self.env_nc,
+                               target="visibility", camera_points=self.env_camera_points,
+                               cache=self.env_cache)
+
+
+def build(scene: Any, params: NIRCEnvParams, seed: int) -> tuple[Any, Any, Any, Any]:
+    """(render integrator, NIRC training integrator, NIRC cache, visibility cache)."""
+    from renderers.caches import nirc_config
+    from renderers.integrators import nirc_nvc_env
+
+    METHOD.register_integrators()
+    integrator, trainer = load_integrators(nirc_nvc_env.NIRC_NVC_ENV_PLUGIN, params,
+                                           key_vertex="departure")
+    visibility = make_cache(scene, env_visibility_config, params.env(),
+                            derive_seed(seed, "visibility"))
+    integrator.configure_env(params.env(), visibility)
+    return integrator, trainer, make_cache(scene, nirc_config, params, seed), visibility
+
+
+def render(scene: Any, params: NIRCEnvParams, *, seed_parts: tuple[Any, ...], spp: int,
+           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
+    """Both caches trained every frame (module docstring), then the frame rendered."""
+    integrator, trainer, cache, visibility = build(scene, params,
+                                                   derive_seed(*seed_parts, "cache"))
+    env = params.env()
+    output = render_with_cache(
+        scene, params, integrator, trainer, cache, seed_parts=seed_parts, spp=spp,
+        frames=frames, hooks=hooks,
+        extra_training=lambda seed, timer: train_env_frame(scene, visibility, env, seed, timer))
+    output.method_stats["env_cache"] = {
+        "loss_history": list(visibility.loss_history),
+        "cache_config": visibility.config.model_dump(mode="json")}
+    return output
+
+
+def _biased(params: dict[str, Any]) -> bool:
+    return params.get("estimator", "biased") == "biased"
+
+
+METHOD = Method(
+    "nirc-nvc-env", "NIRC for indirect light + a neural visibility cache for the "
+                    "environment's direct light (two-level estimator)",
+    NIRCEnvParams, render, version=1,
+    integrators=("renderers.integrators.nirc_nvc_env", *TRAINING_INTEGRATORS),
+    knob=Knob("nc", NC_CANDIDATES, apply=with_nc_at_v1, usable=_biased,
+              requirement="biased nirc-nvc-env"),
+    requires=applies, label="NIRC + NVC env")
