@@ -18,8 +18,8 @@ Reports:
     squared error of the predicted radiance on a fixed held-out set of
     records, sum (n - L_env V)^2 / sum (L_env V)^2 over luminance, the exact
     V from the record's shadow ray (the visibility cache predicts L_env V_c);
-    and the frame-to-frame spread of that error over the last half of the
-    frames (training stability);
+    and its worst rise, the largest factor by which a frame's error exceeds
+    the best of the frames before it (training stability; 1: never rose);
 (b) the estimator: MRSE of 1-spp frames (per-pixel variance, the estimator
     being unbiased) against a 4096-spp `path` reference, after training, next
     to `pt` at 1 spp (Mitsuba's ``path``, max_depth 2);
@@ -89,10 +89,19 @@ def predicted_radiance(cache: Any, target: str, records: Any, env: np.ndarray) -
     return luminance(np.stack([v.numpy() for v in values], axis=1))   # clamped >= 0
 
 
+def worst_rise(errors: list[float]) -> float:
+    """Training stability: the largest factor by which a frame's error exceeds the best
+    error of the frames before it (1: the error never rose)."""
+    best, worst = errors[0], 1.0
+    for error in errors[1:]:
+        worst, best = max(worst, error / best), min(best, error)
+    return worst
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--res", type=int, default=64)
-    parser.add_argument("--frames", type=int, default=64, help="training frames")
+    parser.add_argument("--frames", type=int, default=256, help="training frames")
     parser.add_argument("--render-frames", type=int, default=16,
                         help="1-spp frames for the MRSE")
     parser.add_argument("--ref-spp", type=int, default=4096)
@@ -148,12 +157,10 @@ def main() -> None:
           f"N_c 7, unbiased; median of {args.repeats} interleaved runs")
     print("(a) relative squared error of the predicted L_env V on 8192 held-out records")
     marks = [f for f in (1, 2, 4, 8, 16, 32, 64, 128, 256) if f <= args.frames]
-    print(f"{'frames':<18}" + "".join(f"{f:>8}" for f in marks) + f"{'spread':>9}")
+    print(f"{'frames':<18}" + "".join(f"{f:>8}" for f in marks) + f"{'worst rise':>12}")
     for t in VARIANTS:
-        last = curve[t][args.frames // 2:]
-        spread = statistics.pstdev(last) / statistics.mean(last)
         print(f"{t:<18}" + "".join(f"{curve[t][f - 1]:>8.3f}" for f in marks)
-              + f"{spread:>9.3f}")
+              + f"{worst_rise(curve[t]):>11.2f}x")
     print(f"(b) MRSE of a 1-spp frame (mean of {args.render_frames}; 4096-spp reference): "
           + ", ".join(f"{name} {value:.4f}" for name, value in errors.items()))
     print(f"(c) 1-spp frame: pt {seconds['pt'] * 1e3:.1f} ms; "
