@@ -11,6 +11,9 @@
 - :func:`aggregate_test`: chi-square and signed-mean statistics over pixel
   blocks, which catch a bias of a few percent that no single pixel shows;
   :func:`agreement_test` runs both tests.
+- :func:`image_mean_test`: the seeds' image mean against the reference's, for
+  renders whose pixels share samples (spatial reuse), where the block test's
+  independent-pixel variances are too small.
 - :func:`mean_confidence_interval`: Student-t interval of a mean over seeds.
 
 Distributions (Student t, chi-square, normal tails) come from ``scipy.stats``
@@ -469,11 +472,76 @@ def aggregate_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray,
 
 
 @dataclass(frozen=True)
+class ImageMeanTestResult:
+    """Outcome of :func:`image_mean_test` (the worst channel's statistic)."""
+
+    t: float              # (seeds' image mean - reference's) / its standard error
+    dof: float            # Welch-Satterthwaite degrees of freedom of t
+    p_value: float        # two-sided
+    seeds: int
+    alpha: float          # family-wise level over the channels
+    passed: bool          # every channel's p-value above alpha / C (Bonferroni)
+
+    def summary(self) -> str:
+        verdict = "passed" if self.passed else "FAILED"
+        return (f"image-mean test {verdict} over {self.seeds} seeds: t {self.t:+.2f} "
+                f"({self.dof:.1f} dof, p {self.p_value:.3g}); level {self.alpha:g}")
+
+
+def image_mean_test(seed_images: np.ndarray, ref_mean: np.ndarray, ref_var: np.ndarray,
+                    alpha: float = 0.01) -> ImageMeanTestResult:
+    """Test "the seeds' image mean has the reference's expectation" per channel, for
+    renders whose pixels are correlated (spatial reuse shares samples between pixels),
+    where :func:`aggregate_test`'s tile variances, summed as if pixels were
+    independent, are too small.
+
+    ``seed_images`` (K, H, W, C) are K independent renders; each one's mean over the
+    pixels is one sample, whatever the correlation between its pixels, so their
+    sample variance s^2 / K measures the error of their average. The reference's
+    pixels are independent: its image mean has variance sum(ref_var) / N^2 (``ref_var``:
+    variances of the reference's means). t = (mean - ref) / sqrt(s^2 / K + v_ref),
+    Student t with Welch-Satterthwaite degrees of freedom (the reference's variance
+    counted as known); channels combined by Bonferroni. Non-finite inputs fail.
+    """
+    if not 0.0 < alpha < 1.0:
+        raise MetricError(f"significance level must be in (0, 1), got {alpha}")
+    images = np.asarray(seed_images, dtype=np.float64)
+    if images.ndim != 4 or images.shape[0] < 2:
+        raise MetricError(f"need (K >= 2, H, W, C) seed images, got shape {images.shape}")
+    _, _, ref, ref_v = _paired_means(images[0], np.zeros(images.shape[1:]), ref_mean, ref_var)
+    channels = images.shape[-1]
+    if not (np.isfinite(images).all() and np.isfinite(ref).all() and np.isfinite(ref_v).all()):
+        return ImageMeanTestResult(math.nan, math.nan, 0.0, images.shape[0], float(alpha),
+                                   False)
+    seeds = images.shape[0]
+    means = images.reshape(seeds, -1, channels).mean(axis=1)          # (K, C)
+    var_seeds = means.var(axis=0, ddof=1) / seeds
+    pixels = ref.shape[0] * ref.shape[1]
+    var_ref = ref_v.reshape(-1, channels).sum(axis=0) / pixels ** 2
+    diff = means.mean(axis=0) - ref.reshape(-1, channels).mean(axis=0)
+    total = var_seeds + var_ref
+    results = []
+    for c in range(channels):
+        if total[c] == 0:
+            results.append((0.0 if diff[c] == 0 else math.inf, math.inf,
+                            1.0 if diff[c] == 0 else 0.0))
+            continue
+        t = float(diff[c] / math.sqrt(total[c]))
+        dof = (float(total[c] ** 2 / (var_seeds[c] ** 2 / (seeds - 1)))
+               if var_seeds[c] > 0 else math.inf)
+        results.append((t, dof, float(2.0 * stats.t.sf(abs(t), dof))))
+    worst = min(results, key=lambda r: r[2])
+    passed = all(r[2] > alpha / channels for r in results)
+    return ImageMeanTestResult(worst[0], worst[1], worst[2], seeds, float(alpha), passed)
+
+
+@dataclass(frozen=True)
 class AgreementResult:
-    """Per-pixel Šidák z-test and the aggregate block test of one image pair."""
+    """Per-pixel Šidák z-test and an aggregate test of one image pair: the block test,
+    or the image-mean test for correlated pixels."""
 
     per_pixel: ZTestResult
-    aggregate: AggregateTestResult
+    aggregate: AggregateTestResult | ImageMeanTestResult
 
     @property
     def passed(self) -> bool:

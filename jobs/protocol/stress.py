@@ -37,7 +37,7 @@ from pydantic import BaseModel, Field
 
 from jobs.protocol import stress_scenes as scenes
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
-from metrics.statistics import agreement_test
+from metrics.statistics import AgreementResult, agreement_test, image_mean_test, z_test
 from renderers.methods import BASELINE, METHODS, Method, NotApplicable, check_applies
 from renderers.scenes import SceneError
 
@@ -102,6 +102,7 @@ class Variant:
     method: str
     params: dict[str, Any]
     unbiased: bool
+    correlated_pixels: bool = False
 
     @property
     def label(self) -> str:
@@ -121,10 +122,13 @@ def variants() -> list[Variant]:
     rows = []
     for name, method in METHODS.items():
         choices = _estimators(method)
+        correlated = method.correlated_pixels
         if not choices:
-            rows.append(Variant(name, {}, unbiased=method.unbiased is True))
+            rows.append(Variant(name, {}, unbiased=method.unbiased is True,
+                                correlated_pixels=correlated))
         for choice in choices:
-            rows.append(Variant(name, {"estimator": choice}, unbiased=choice == "unbiased"))
+            rows.append(Variant(name, {"estimator": choice}, unbiased=choice == "unbiased",
+                                correlated_pixels=correlated))
     return rows
 
 
@@ -256,11 +260,19 @@ def seed_moments(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def agreement(images: list[np.ndarray], other: tuple[np.ndarray, np.ndarray],
-              alpha: float) -> tuple[str, str]:
-    """('agrees' or 'DIFFERS', the tests' summary) of the seeds against ``other``."""
+              alpha: float, correlated_pixels: bool = False) -> tuple[str, str]:
+    """('agrees' or 'DIFFERS', the tests' summary) of the seeds against ``other``.
+    Pixels that share samples (``correlated_pixels``) take the image-mean test in
+    place of the tile test, which assumes independent pixels."""
     mean, variance = seed_moments(images)
-    result = agreement_test(mean, variance, other[0][..., :3], other[1][..., :3],
-                            dof=len(images) - 1, alpha=alpha)
+    ref_mean, ref_var = other[0][..., :3], other[1][..., :3]
+    if correlated_pixels:
+        result = AgreementResult(
+            z_test(mean, variance, ref_mean, ref_var, alpha=alpha, dof=len(images) - 1),
+            image_mean_test(np.stack([i[..., :3] for i in images]), ref_mean, ref_var, alpha))
+    else:
+        result = agreement_test(mean, variance, ref_mean, ref_var, dof=len(images) - 1,
+                                alpha=alpha)
     return ("agrees" if result.passed else "DIFFERS"), result.summary()
 
 
@@ -283,7 +295,8 @@ def row_of(case: StressCase, variant: Variant, outcome: Outcome,
         verdict=quality.get("verdict"), told=told, **training_counts(stats))
     if variant.unbiased and against is not None and len(outcome.images) >= 2:
         row.expected_agreement = case.agree
-        row.agreement, row.agreement_detail = agreement(outcome.images, against, alpha)
+        row.agreement, row.agreement_detail = agreement(outcome.images, against, alpha,
+                                                        variant.correlated_pixels)
     return row
 
 

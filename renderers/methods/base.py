@@ -122,6 +122,10 @@ class Method:
     #: stress suite, docs/stress.md), not (False), or set by its ``estimator``
     #: parameter or not declared (None).
     unbiased: bool | None = None
+    #: Whether its pixels share samples (spatial reuse): then its pixels are not
+    #: independent, and agreement is tested per pixel and on the image mean over
+    #: seeds (metrics.statistics.image_mean_test), not with the tile test.
+    correlated_pixels: bool = False
 
     def applies_to(self, features: Any) -> tuple[bool, str]:
         """Whether the method can render a scene with ``features``, and why not."""

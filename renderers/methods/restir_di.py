@@ -119,4 +119,5 @@ METHOD = Method("restir-di",
                 "screen-space ReSTIR DI (8 candidates, temporal + spatial reuse, unbiased "
                 "Talbot MIS): direct light at primary hits only (max_depth 2)",
                 ReSTIRDIParams, render, version=1, requires=applies, label="ReSTIR DI",
-                knob=Knob("spp", SPP_CANDIDATES), unbiased=True)
+                knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
+                correlated_pixels=True)

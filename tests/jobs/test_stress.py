@@ -125,6 +125,31 @@ def test_unbiased_methods_agree_with_the_reference_where_required(report):
             assert row.agreement == "agrees", row.agreement_detail
 
 
+def test_methods_with_spatial_reuse_declare_correlated_pixels(report):
+    assert {v.method for v in variants() if v.correlated_pixels} == {"restir-di",
+                                                                   "restir-nvc"}
+    for row in report.rows:
+        if row.agreement is not None:
+            correlated = row.method.startswith("restir")
+            assert ("image-mean test" in row.agreement_detail) == correlated, row
+            assert ("aggregate test" in row.agreement_detail) != correlated, row
+
+
+def test_correlated_pixels_are_not_rejected_for_their_correlation():
+    """Eight renders of a flat image whose pixels share their noise (one draw per render,
+    as reuse over the whole 8 x 8 image makes it): the tile test, which takes pixels
+    as independent, rejects them; the image-mean test that correlated methods get does
+    not; the same renders 30 % too bright it rejects."""
+    rng = np.random.default_rng(5)
+    reference = (np.ones((8, 8, 3)), np.full((8, 8, 3), 1e-4))
+    shared = 0.1 * rng.standard_normal((8, 1, 1, 1))
+    images = list(1.0 + shared + 0.01 * rng.standard_normal((8, 8, 8, 3)))
+    assert stress.agreement(images, reference, 0.01)[0] == "DIFFERS"
+    assert stress.agreement(images, reference, 0.01, correlated_pixels=True)[0] == "agrees"
+    brighter = [1.3 * image for image in images]
+    assert stress.agreement(brighter, reference, 0.01, correlated_pixels=True)[0] == "DIFFERS"
+
+
 def test_the_table_has_a_row_per_case_and_method(report):
     table = markdown_table(report)
     assert table.count("\n") == 1 + len(report.rows)
