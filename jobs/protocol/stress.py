@@ -19,7 +19,10 @@ and the aggregate block test, alpha 0.01 each) of the K seeds' mean, with the
 variance of that mean estimated from the seeds (K - 1 degrees of freedom),
 against the reference (its per-pixel variance of the mean), or, when the
 reference's pixels are not at hand (a run on a service), against the K seeds
-of the baseline method of the same case.
+of the baseline method of the same case. A method whose pixels share samples
+(``Method.correlated_pixels``: spatial reuse) takes the image-mean test
+(:func:`metrics.statistics.image_mean_test`) in place of the block test, which
+assumes independent pixels.
 """
 
 from __future__ import annotations
