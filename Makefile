@@ -33,6 +33,7 @@ bench: bootstrap
 	$(PY) -m benchmarks.bench_restir
 	$(PY) -m benchmarks.bench_di
 	$(PY) -m benchmarks.bench_nvc
+	$(PY) -m benchmarks.bench_env_cache
 	$(PY) -m benchmarks.bench_sweep
 	$(PY) -m benchmarks.bench_pareto
 	$(PY) -m benchmarks.bench_service
