@@ -162,9 +162,9 @@ class EnvVisibility:
             si, vertex.sampler.next_2d(active), active)
         active &= ds.pdf > 0
         f, pdf_f = vertex.bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), active)
-        weighted_f = f * mis_weight(lights.pdf_emitter_direction(si, ds, active), pdf_f)
-        g = env_weight * weighted_f   # env_weight = L_env / p_env
-        factor = g if self.target == "visibility" else weighted_f / ds.pdf
+        w_light = mis_weight(lights.pdf_emitter_direction(si, ds, active), pdf_f)
+        g = env_weight * f * w_light   # env_weight = L_env / p_env
+        factor = g if self.target == "visibility" else f * w_light / ds.pdf
         return ds, dr.select(active, g, 0), dr.select(active, factor, 0)
 
     def terms(self, vertex: Vertex, state: CacheState, lights: Any) -> mi.Spectrum:
