@@ -6,27 +6,35 @@ NRC, NIRC and the neural visibility caches are presets of
 ("Methods in one paragraph each") and the NIRC paper, Sec. 4.1 (loss), 4.4 (architecture) and 4.5
 (shared per-surface encoding).
 
-Import after ``renderers.backend.init_backend()`` has selected the variant.
+Use the cache (``NeuralCache``, ``TrainingRecords``) after
+``renderers.backend.init_backend()`` has selected the variant; the configs
+(``renderers.caches.config``) need no backend.
 """
 
-from renderers.caches.cache import NeuralCache, build_mlp
-from renderers.caches.config import (
-    NETWORK_PRESETS,
-    CacheConfig,
-    ConvergedTrainingConfig,
-    DirectionEncodingConfig,
-    HashGridConfig,
-    LossConfig,
-    MLPConfig,
-    OptimizerConfig,
-    OutputConfig,
-    ScalarEncodingConfig,
-    direct_light_config,
-    nirc_config,
-    nrc_config,
-    visibility_config,
-)
-from renderers.caches.records import TrainingRecords
+import importlib
+from typing import Any
+
+#: Where each export lives. Loaded on first use (PEP 562), so that validating a
+#: cache config (renderers.caches.config: pydantic only) does not import Mitsuba,
+#: e.g. when the service checks a submission's parameters.
+_EXPORTS = {
+    "NeuralCache": "renderers.caches.cache",
+    "build_mlp": "renderers.caches.cache",
+    "TrainingRecords": "renderers.caches.records",
+    **{name: "renderers.caches.config" for name in (
+        "NETWORK_PRESETS", "CacheConfig", "ConvergedTrainingConfig",
+        "DirectionEncodingConfig", "HashGridConfig", "LossConfig", "MLPConfig",
+        "OptimizerConfig", "OutputConfig", "ScalarEncodingConfig", "direct_light_config",
+        "nirc_config", "nrc_config", "visibility_config")},
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(module), name)
+
 
 __all__ = [
     "NETWORK_PRESETS",

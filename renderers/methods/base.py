@@ -15,16 +15,36 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer, summarize, synchronize
 
 
 class MethodParams(BaseModel):
-    """Base of every method's parameter model: unknown fields are errors."""
+    """Base of every method's parameter model: unknown fields are errors, and so are
+    cache overrides its cache preset cannot build (:meth:`cache_presets`)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def cache_presets(self) -> dict[str, Callable[..., Any]]:
+        """Each field of cache-config overrides and the preset (a function of
+        renderers.caches.config) it overrides; checked when the parameters are
+        parsed, so a bad override is refused at submission, not when a job runs."""
+        return {}
+
+    @model_validator(mode="after")
+    def _cache_overrides_build(self) -> MethodParams:
+        for name, preset in self.cache_presets().items():
+            try:
+                preset(**getattr(self, name))
+            except ValidationError as error:
+                detail = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}"
+                                   for e in error.errors())
+                raise ValueError(f"{name}: {detail}") from None
+            except (ValueError, TypeError, AttributeError) as error:
+                raise ValueError(f"{name}: {error}") from None
+        return self
 
 
 def everywhere(_features: Any) -> tuple[bool, str]:

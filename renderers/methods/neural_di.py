@@ -33,6 +33,12 @@ from renderers.methods.pt import SPP_CANDIDATES
 class NeuralDIParams(PrimaryCacheParams):
     """The cache's training (renderers.methods.primary); the estimator has no parameter."""
 
+    def cache_presets(self) -> dict[str, Any]:
+        from renderers.caches.config import visibility_config
+
+        # The output count comes from the scene; any count checks the overrides.
+        return {"cache": functools.partial(visibility_config, 1)}
+
 
 def build(scene: Any, params: NeuralDIParams, seed: int) -> tuple[Any, Any]:
     """(integrator, visibility cache): the primary-hit estimator over an untrained cache."""

@@ -45,6 +45,11 @@ class NIRCParams(CacheTrainingParams):
             raise ValueError("the unbiased estimator takes at most 3 entries (one per vertex)")
         return self
 
+    def cache_presets(self) -> dict[str, Any]:
+        from renderers.caches.config import nirc_config
+
+        return {"cache": nirc_config}
+
     def sample_counts(self) -> list[int]:
         if self.nc is not None:
             return list(self.nc)

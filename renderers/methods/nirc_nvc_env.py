@@ -53,6 +53,9 @@ class NIRCEnvParams(NIRCParams):
     env_cache: dict[str, Any] = Field(default_factory=dict,
                                       description="visibility cache config overrides")
 
+    def cache_presets(self) -> dict[str, Any]:
+        return {**super().cache_presets(), "env_cache": env_visibility_config}
+
     def env(self) -> SimpleNamespace:
         """The environment term's settings as nvc-env reads them (its integrator's
         NVCEnvSettings, its ``train_frame``'s ``camera_points`` and ``target``)."""

@@ -34,6 +34,11 @@ class NRCParams(CacheTrainingParams):
     unbiased_every: int = Field(16, ge=1, le=1 << 16,
                                 description="every n-th training path is not terminated")
 
+    def cache_presets(self) -> dict[str, Any]:
+        from renderers.caches.config import nrc_config
+
+        return {"cache": nrc_config}
+
 
 def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
     """(render integrator, training integrator, cache) of an NRC render."""

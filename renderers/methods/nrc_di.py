@@ -28,6 +28,11 @@ from renderers.timing import StageTimer
 class NRCDIParams(PrimaryCacheParams):
     """The cache's training (renderers.methods.primary)."""
 
+    def cache_presets(self) -> dict[str, Any]:
+        from renderers.caches.config import direct_light_config
+
+        return {"cache": direct_light_config}
+
 
 def build(scene: Any, params: NRCDIParams, seed: int) -> tuple[Any, Any]:
     """(integrator, RGB cache): the prediction at first hits, untrained."""

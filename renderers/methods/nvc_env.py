@@ -76,6 +76,10 @@ class NVCEnvParams(PTParams):
         """The PT core's plugin properties."""
         return self.model_dump(include=set(PTParams.model_fields))
 
+    def cache_presets(self) -> dict[str, Any]:
+        return {"cache": env_visibility_config if self.target == "visibility"
+                else env_radiance_config}
+
 
 def env_visibility_config(**overrides: Any) -> Any:
     """The visibility preset with one output and NIRC's direction encoding."""

@@ -87,6 +87,12 @@ class VisibilityCacheParams(MethodParams):
                                       "k-means clusters")
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
 
+    def cache_presets(self) -> dict[str, Any]:
+        from renderers.caches.config import visibility_config
+
+        # The output count comes from the scene; any count checks the overrides.
+        return {"cache": functools.partial(visibility_config, 1)}
+
     def cluster_count(self, emitters: int) -> int:
         """0 (one output per light) or the clusters to ask k-means for."""
         if self.clusters:

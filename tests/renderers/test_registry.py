@@ -242,3 +242,24 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
         "NIRC unbiased", "PT 3 spp (= NIRC unbiased time)"]
     assert report.device == "dev" and report.skipped == []
     assert [row.id for row in report.equal_spp] == [1, 2, 3, 4, 5]   # the runs' own results
+
+
+def test_every_cache_override_field_is_checked_at_parse_time():
+    """Each method's cache-override fields build their preset when parsed: a field the
+    preset does not have is refused, naming it (service: 422 at submission)."""
+    for name, method in METHODS.items():
+        fields = [f for f in method.params.model_fields if f.endswith("cache")]
+        for field in fields:
+            with pytest.raises(MethodError, match=f"{field}: unknown cache config field"):
+                parse_params(name, {field: {"no_such_setting": 1}})
+        assert bool(fields) == (name not in ("pt", "pt-power", "pt-spatial", "restir-di")), name
+
+
+def test_checking_cache_overrides_does_not_import_mitsuba():
+    """The service validates submissions without loading the renderer."""
+    code = ("import sys; from renderers.methods import parse_params; "
+            "parse_params('nirc', {'cache': {'preset': 'small'}}); "
+            "print('mitsuba' in sys.modules)")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            check=True, cwd=Path(__file__).parents[2])
+    assert result.stdout.strip() == "False"

@@ -91,3 +91,24 @@ def test_a_valid_submission_with_numbers_in_float_fields_is_accepted(client):
     """Strictness does not refuse an integer where a float belongs (JSON has one number)."""
     body = {**RENDER, "eps": 1, "params": {"rr_survival": 1}, "seeds": 3}
     assert _post(client, "/api/v1/jobs", body).status_code == 202
+
+
+BAD_CACHE = [
+    ("/api/v1/jobs", {"method": "nirc", "params": {"cache": {"mlp": {"widht": 64}}}},
+     "widht"),
+    ("/api/v1/jobs", {"method": "nrc", "params": {"cache": {"bogus": 1}}}, "bogus"),
+    ("/api/v1/jobs", {"method": "nvc-lights", "params": {"cache": {"preset": "huge"}}},
+     "huge"),
+    ("/api/v1/jobs", {"scene": "sky", "method": "nirc-nvc-env",
+                      "params": {"env_cache": {"batch_size": 0}}}, "env_cache"),
+    ("/api/v1/sweeps", {"params": {"cache": {"loss": {"kind": "l3"}}}}, "loss.kind"),
+]
+
+
+@pytest.mark.parametrize("path, change, field", BAD_CACHE)
+def test_cache_overrides_the_preset_cannot_build_are_422(client, path, change, field):
+    """Refused at submission, naming the override, not by the job when it runs."""
+    base = RENDER if path.endswith("jobs") else SWEEP
+    response = _post(client, path, {**base, **change})
+    assert response.status_code == 422, response.text
+    assert field in json.dumps(response.json()["detail"])
