@@ -71,3 +71,21 @@ def database_url(request):
         return
     with postgres_database() as url:
         yield url
+
+
+@pytest.fixture
+def api_and_store(tmp_path, monkeypatch, database_url):
+    """(in-process API client without a dispatcher, its store) on each test database:
+    for tests that store runs directly and read them back over REST."""
+    from fastapi.testclient import TestClient
+
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from service.api.main import create_app
+
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    settings = Settings(data_dir=tmp_path / "data", database_url=database_url)
+    store = open_store(settings)
+    with TestClient(create_app(settings)) as http:
+        yield http, store
+    store.close()

@@ -8,26 +8,12 @@ from datetime import UTC, datetime, timedelta
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
-from jobs.record.config import Settings
-from jobs.record.db import open_store
 from jobs.record.models import Run
-from service.api.main import create_app
 from tests.jobs.factories import run_fields
 
 START = datetime(2026, 1, 1, tzinfo=UTC)
 URL = "/api/v1/ci/history?metric=mrse&scene=cornell-box&method=pt"
-
-
-@pytest.fixture
-def client(tmp_path, monkeypatch, database_url):
-    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
-    settings = Settings(data_dir=tmp_path / "data", database_url=database_url)
-    store = open_store(settings)
-    with TestClient(create_app(settings)) as http:
-        yield http, store
-    store.close()
 
 
 def store_history(store, levels, *, seed=0, versions=None, **overrides):
@@ -46,8 +32,8 @@ def steps(body):
     return [p["commit"] for s in body["series"] for p in s["points"] if p["step"]]
 
 
-def test_a_planted_step_is_detected_at_its_commit(client):
-    http, store = client
+def test_a_planted_step_is_detected_at_its_commit(api_and_store):
+    http, store = api_and_store
     store_history(store, [0.1] * 4 + [0.13] * 4)
     body = http.get(URL).json()
     (series,) = body["series"]
@@ -60,16 +46,16 @@ def test_a_planted_step_is_detected_at_its_commit(client):
     assert body["test"].startswith("Welch") and body["alpha"] == 0.05
 
 
-def test_a_flat_history_has_no_step(client):
-    http, store = client
+def test_a_flat_history_has_no_step(api_and_store):
+    http, store = api_and_store
     store_history(store, [0.1] * 8, seed=1)
     body = http.get(URL).json()
     assert steps(body) == []
     assert all(p["p_value"] is not None for p in body["series"][0]["points"][1:])
 
 
-def test_a_version_change_is_a_break_and_never_compared(client):
-    http, store = client
+def test_a_version_change_is_a_break_and_never_compared(api_and_store):
+    http, store = api_and_store
     store_history(store, [0.1] * 4 + [0.13] * 4, versions={i: 2 for i in range(4, 8)})
     points = http.get(URL).json()["series"][0]["points"]
     assert points[4]["break_before"] == "estimator version 1 -> 2"
@@ -79,8 +65,8 @@ def test_a_version_change_is_a_break_and_never_compared(client):
     assert all(p["break_before"] is None for i, p in enumerate(points) if i != 4)
 
 
-def test_settings_are_series_and_filters_apply(client):
-    http, store = client
+def test_settings_are_series_and_filters_apply(api_and_store):
+    http, store = api_and_store
     store_history(store, [0.1] * 3)
     store_history(store, [0.2] * 3, width=32, height=32)
     body = http.get(URL).json()
@@ -91,8 +77,8 @@ def test_settings_are_series_and_filters_apply(client):
     assert len(http.get(URL + "&limit=2").json()["series"][0]["points"]) == 2
 
 
-def test_dirty_commits_nonfinite_and_withheld_values_are_counted_not_pooled(client):
-    http, store = client
+def test_dirty_commits_nonfinite_and_withheld_values_are_counted_not_pooled(api_and_store):
+    http, store = api_and_store
     store.add_run(run_fields(git_commit="c0ffee1", metrics={"mrse_mean": 0.1}), [])
     store.add_run(run_fields(git_commit="c0ffee2", metrics={"mrse_mean": 0.2}),
                   [{"seed": 0, "metrics": {"mrse": 0.2}, "timings": {}},
@@ -111,8 +97,8 @@ def test_dirty_commits_nonfinite_and_withheld_values_are_counted_not_pooled(clie
 
 @pytest.mark.skipif(not hasattr(Run, "git_branch"),
                     reason="runs record their branch from the ci-gate change on")
-def test_the_branch_filter_keeps_the_runs_of_that_branch(client):
-    http, store = client
+def test_the_branch_filter_keeps_the_runs_of_that_branch(api_and_store):
+    http, store = api_and_store
     store.add_run(run_fields(git_commit="c0ffee1", git_branch="main",
                              metrics={"mrse_mean": 0.1}), [])
     store.add_run(run_fields(git_commit="c0ffee2", git_branch="topic",
@@ -129,22 +115,22 @@ def test_the_branch_filter_keeps_the_runs_of_that_branch(client):
     ("metric=mrse&scene=cornell-box&method=nope", "unknown method 'nope'"),
     ("metric=mrse&scene=nowhere&method=pt", "unknown scene 'nowhere'"),
 ])
-def test_unknown_names_are_422_with_the_name(client, query, message):
-    http, _ = client
+def test_unknown_names_are_422_with_the_name(api_and_store, query, message):
+    http, _ = api_and_store
     answer = http.get(f"/api/v1/ci/history?{query}")
     assert answer.status_code == 422 and message in answer.json()["detail"]
 
 
 @pytest.mark.parametrize("extra", ["&limit=0", "&limit=501", "&res=0x4", "&res=abc",
                                    "&alpha=1", "&branch="])
-def test_bad_parameters_are_422(client, extra):
-    http, _ = client
+def test_bad_parameters_are_422(api_and_store, extra):
+    http, _ = api_and_store
     assert http.get(URL + extra).status_code == 422
 
 
-def test_metrics_without_seed_values_pool_the_runs(client):
+def test_metrics_without_seed_values_pool_the_runs(api_and_store):
     """rBias² is computed jointly over a run's seeds: one value per run, two runs a commit."""
-    http, store = client
+    http, store = api_and_store
     for i in range(2):
         for value in (0.01, 0.03):
             store.add_run(run_fields(git_commit=f"b{i:06d}", metrics={"rbias2": value},

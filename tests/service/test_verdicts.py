@@ -5,12 +5,6 @@ from __future__ import annotations
 
 import json
 
-import pytest
-from fastapi.testclient import TestClient
-
-from jobs.record.config import Settings
-from jobs.record.db import open_store
-from service.api.main import create_app
 from tests.jobs.factories import run_fields
 from tests.jobs.test_quality import SCENE
 from tests.service.test_cli import run_cli
@@ -21,18 +15,8 @@ NO_EMITTER = {"verdict": "no-emitter", "withheld": ["mrse"], "finite": True,
                            "withheld": ["mrse"]}]}
 
 
-@pytest.fixture
-def client(tmp_path, monkeypatch, database_url):
-    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
-    settings = Settings(data_dir=tmp_path / "data", database_url=database_url)
-    store = open_store(settings)
-    with TestClient(create_app(settings)) as http:
-        yield http, store
-    store.close()
-
-
-def test_verdict_and_versions_are_served(client):
-    http, store = client
+def test_verdict_and_versions_are_served(api_and_store):
+    http, store = api_and_store
     current = store.add_run(run_fields(quality=NO_EMITTER, estimator_version=2,
                                        metric_version=2))
     old = store.add_run(run_fields(method="pt"))            # stored before versions: 1 / 1
@@ -48,8 +32,8 @@ def test_verdict_and_versions_are_served(client):
     assert next(r for r in every if r["id"] == old.id)["verdict"] is None
 
 
-def test_compare_refuses_mixed_metric_versions_and_flags_estimators(client):
-    http, store = client
+def test_compare_refuses_mixed_metric_versions_and_flags_estimators(api_and_store):
+    http, store = api_and_store
     new = store.add_run(run_fields(estimator_version=2, metric_version=2))
     old_metric = store.add_run(run_fields(estimator_version=2, metric_version=1))
     old_pt = store.add_run(run_fields(estimator_version=1, metric_version=2))
