@@ -13,10 +13,11 @@ lane is ``lane // spp``.
 
 Cache queries are deferred (deferred.py): the loop records the vertices whose
 cache value is used in a per-frame :class:`~renderers.integrators.deferred.QueryBuffer`
-(``self.queries``), and :meth:`CachedPathIntegrator.sample` re-creates only
-those after the loop, draws their sampled queries (NIRC's N_c directions),
-evaluates the cache and adds the result to each lane's radiance before
-Mitsuba splats it to the film.
+per cache (``queries`` of each of :meth:`CachedPathIntegrator.query_channels`:
+the integrator's own cache, and nvc_env.EnvVisibility's where a method adds one),
+and :meth:`CachedPathIntegrator.sample` re-creates only those after the loop,
+draws their sampled queries (NIRC's N_c directions), evaluates each cache and
+adds the result to each lane's radiance before Mitsuba splats it to the film.
 """
 
 from __future__ import annotations
@@ -207,11 +208,11 @@ class CachedPathIntegrator(PathIntegrator):
             for channel, n, layout in zip(channels, needed, layouts, strict=True):
                 if n > layout.vertices:
                     channel.vertex_slots = n
-                    if channel.query_layout().vertices < n:
-                        raise RuntimeError(
-                            f"a path used the cache at {n} vertices, more than the bound "
-                            f"{channel.query_layout().vertices} of {type(channel).__name__}")
             layouts = [channel.query_layout() for channel in channels]
+            for channel, n, layout in zip(channels, needed, layouts, strict=True):
+                if layout.vertices < n:
+                    raise RuntimeError(f"a path used the cache at {n} vertices, more than the "
+                                       f"bound {layout.vertices} of {type(channel).__name__}")
             sampler = replay.clone()
         count = None
         if deferred:

@@ -25,7 +25,12 @@ from typing import Any
 
 from renderers.methods.base import Knob, Method
 from renderers.methods.cached import make_cache
-from renderers.methods.nvc_lights import MAX_LIGHTS, train_frame, visibility_cache_render
+from renderers.methods.nvc_lights import (
+    MAX_LIGHTS,
+    one_output_visibility_config,
+    train_frame,
+    visibility_cache_render,
+)
 from renderers.methods.primary import PrimaryCacheParams, lit_surface
 from renderers.methods.pt import SPP_CANDIDATES
 
@@ -34,10 +39,7 @@ class NeuralDIParams(PrimaryCacheParams):
     """The cache's training (renderers.methods.primary); the estimator has no parameter."""
 
     def cache_presets(self) -> dict[str, Any]:
-        from renderers.caches.config import visibility_config
-
-        # The output count comes from the scene; any count checks the overrides.
-        return {"cache": functools.partial(visibility_config, 1)}
+        return {"cache": one_output_visibility_config}
 
 
 def build(scene: Any, params: NeuralDIParams, seed: int) -> tuple[Any, Any]:

@@ -72,9 +72,9 @@ def build(scene: Any, params: NIRCEnvParams, seed: int) -> tuple[Any, Any, Any, 
     METHOD.register_integrators()
     integrator, trainer = load_integrators(nirc_nvc_env.NIRC_NVC_ENV_PLUGIN, params,
                                            key_vertex="departure")
-    visibility = make_cache(scene, env_visibility_config, params.env(),
-                            derive_seed(seed, "visibility"))
-    integrator.configure_env(params.env(), visibility)
+    env = params.env()
+    visibility = make_cache(scene, env_visibility_config, env, derive_seed(seed, "visibility"))
+    integrator.configure_env(env, visibility)
     return integrator, trainer, make_cache(scene, nirc_config, params, seed), visibility
 
 

@@ -46,6 +46,7 @@ a surface.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Literal
 
 from pydantic import Field
@@ -76,9 +77,12 @@ class NVCEnvParams(PTParams):
         """The PT core's plugin properties."""
         return self.model_dump(include=set(PTParams.model_fields))
 
+    def cache_preset(self) -> Callable[..., Any]:
+        """The preset of the cache ``target`` asks for."""
+        return env_visibility_config if self.target == "visibility" else env_radiance_config
+
     def cache_presets(self) -> dict[str, Any]:
-        return {"cache": env_visibility_config if self.target == "visibility"
-                else env_radiance_config}
+        return {"cache": self.cache_preset()}
 
 
 def env_visibility_config(**overrides: Any) -> Any:
@@ -98,12 +102,6 @@ def env_radiance_config(**overrides: Any) -> Any:
                           "steps_per_frame": 1, **overrides})
 
 
-def env_cache(scene: Any, params: NVCEnvParams, seed: int) -> Any:
-    """The untrained cache of the environment's NEE: visibility or radiance (``target``)."""
-    config = env_visibility_config if params.target == "visibility" else env_radiance_config
-    return make_cache(scene, config, params, seed)
-
-
 def build(scene: Any, params: NVCEnvParams, seed: int) -> tuple[Any, Any]:
     """(integrator, cache): the PT core with the env-NEE estimator, untrained."""
     import mitsuba as mi
@@ -111,7 +109,7 @@ def build(scene: Any, params: NVCEnvParams, seed: int) -> tuple[Any, Any]:
     from renderers.integrators import nvc_env
 
     nvc_env.register()
-    cache = env_cache(scene, params, seed)
+    cache = make_cache(scene, params.cache_preset(), params, seed)
     integrator = mi.load_dict({"type": nvc_env.NVC_ENV_PLUGIN, **params.core()})
     integrator.configure(params, cache)
     return integrator, cache

@@ -73,6 +73,14 @@ from renderers.timing import StageTimer
 MAX_LIGHTS = 32
 
 
+def one_output_visibility_config(**overrides: Any) -> Any:
+    """The visibility preset with one output: what parsing checks overrides against (the
+    output count comes from the scene; any count checks them alike)."""
+    from renderers.caches.config import visibility_config
+
+    return visibility_config(1, **overrides)
+
+
 class VisibilityCacheParams(MethodParams):
     """The visibility cache's parameters (module docstring), shared by `restir-nvc`."""
 
@@ -88,10 +96,7 @@ class VisibilityCacheParams(MethodParams):
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
 
     def cache_presets(self) -> dict[str, Any]:
-        from renderers.caches.config import visibility_config
-
-        # The output count comes from the scene; any count checks the overrides.
-        return {"cache": functools.partial(visibility_config, 1)}
+        return {"cache": one_output_visibility_config}
 
     def cluster_count(self, emitters: int) -> int:
         """0 (one output per light) or the clusters to ask k-means for."""

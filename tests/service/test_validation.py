@@ -1,6 +1,7 @@
 """Every value of a submission is checked before it is queued: NaN and Infinity, strings
-and booleans where numbers belong, in the spec and in the method's parameters, are
-422 naming the field (never a 500, never a job that fails when it runs)."""
+and booleans where numbers belong, in the spec and in the method's parameters, and
+cache overrides the method's preset cannot build, are 422 naming the field (never a
+500, never a job that fails when it runs)."""
 
 from __future__ import annotations
 
@@ -79,20 +80,6 @@ NOT_A_NUMBER = [
 ]
 
 
-@pytest.mark.parametrize("path, change, field", NOT_A_NUMBER)
-def test_strings_and_booleans_are_not_numbers(client, path, change, field):
-    base = RENDER if path.endswith("jobs") else SWEEP
-    response = _post(client, path, {**base, **change})
-    assert response.status_code == 422, response.text
-    assert field in json.dumps(response.json()["detail"])
-
-
-def test_a_valid_submission_with_numbers_in_float_fields_is_accepted(client):
-    """Strictness does not refuse an integer where a float belongs (JSON has one number)."""
-    body = {**RENDER, "eps": 1, "params": {"rr_survival": 1}, "seeds": 3}
-    assert _post(client, "/api/v1/jobs", body).status_code == 202
-
-
 BAD_CACHE = [
     ("/api/v1/jobs", {"method": "nirc", "params": {"cache": {"mlp": {"widht": 64}}}},
      "widht"),
@@ -105,10 +92,18 @@ BAD_CACHE = [
 ]
 
 
-@pytest.mark.parametrize("path, change, field", BAD_CACHE)
-def test_cache_overrides_the_preset_cannot_build_are_422(client, path, change, field):
-    """Refused at submission, naming the override, not by the job when it runs."""
+@pytest.mark.parametrize("path, change, field", NOT_A_NUMBER + BAD_CACHE)
+def test_values_of_the_wrong_kind_are_422_naming_the_field(client, path, change, field):
+    """Strings and booleans where numbers belong; cache overrides the method's preset
+    cannot build (refused at submission, not by the job when it runs)."""
     base = RENDER if path.endswith("jobs") else SWEEP
     response = _post(client, path, {**base, **change})
     assert response.status_code == 422, response.text
     assert field in json.dumps(response.json()["detail"])
+
+
+def test_a_valid_submission_with_numbers_in_float_fields_is_accepted(client):
+    """Strictness does not refuse an integer where a float belongs (JSON has one number)."""
+    body = {**RENDER, "eps": 1, "params": {"rr_survival": 1}, "seeds": 3}
+    assert _post(client, "/api/v1/jobs", body).status_code == 202
+
