@@ -25,20 +25,21 @@ with an environment map and a surface.
 
 from __future__ import annotations
 
-from types import SimpleNamespace
+import dataclasses
 from typing import Any, Literal
 
 from pydantic import Field
 
-from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput
+from renderers.methods import nirc
+from renderers.methods.base import FrameHooks, Method, RenderOutput
 from renderers.methods.cached import (
     TRAINING_INTEGRATORS,
     load_integrators,
     make_cache,
     render_with_cache,
 )
-from renderers.methods.nirc import NC_CANDIDATES, NIRCParams, with_nc_at_v1
-from renderers.methods.nvc_env import applies, env_visibility_config
+from renderers.methods.nirc import NIRCParams
+from renderers.methods.nvc_env import NVCEnvParams, applies, env_visibility_config
 from renderers.methods.nvc_env import train_frame as train_env_frame
 from renderers.seeding import derive_seed
 
@@ -56,12 +57,11 @@ class NIRCEnvParams(NIRCParams):
     def cache_presets(self) -> dict[str, Any]:
         return {**super().cache_presets(), "env_cache": env_visibility_config}
 
-    def env(self) -> SimpleNamespace:
-        """The environment term's settings as nvc-env reads them (its integrator's
-        NVCEnvSettings, its ``train_frame``'s ``camera_points`` and ``target``)."""
-        return SimpleNamespace(estimator=self.env_estimator, nc=self.env_nc,
-                               target="visibility", camera_points=self.env_camera_points,
-                               cache=self.env_cache)
+    def env(self) -> NVCEnvParams:
+        """The environment term's settings as `nvc-env`'s model (what its integrator and
+        its ``train_frame`` read: estimator, N_c, camera points, cache overrides)."""
+        return NVCEnvParams(estimator=self.env_estimator, nc=self.env_nc,
+                            camera_points=self.env_camera_points, cache=self.env_cache)
 
 
 def build(scene: Any, params: NIRCEnvParams, seed: int) -> tuple[Any, Any, Any, Any]:
@@ -73,7 +73,7 @@ def build(scene: Any, params: NIRCEnvParams, seed: int) -> tuple[Any, Any, Any, 
     integrator, trainer = load_integrators(nirc_nvc_env.NIRC_NVC_ENV_PLUGIN, params,
                                            key_vertex="departure")
     env = params.env()
-    visibility = make_cache(scene, env_visibility_config, env, derive_seed(seed, "visibility"))
+    visibility = make_cache(scene, env.cache_preset(), env, derive_seed(seed, "visibility"))
     integrator.configure_env(env, visibility)
     return integrator, trainer, make_cache(scene, nirc_config, params, seed), visibility
 
@@ -94,15 +94,10 @@ def render(scene: Any, params: NIRCEnvParams, *, seed_parts: tuple[Any, ...], sp
     return output
 
 
-def _biased(params: dict[str, Any]) -> bool:
-    return params.get("estimator", "biased") == "biased"
-
-
 METHOD = Method(
     "nirc-nvc-env", "NIRC for indirect light + a neural visibility cache for the "
                     "environment's direct light (two-level estimator)",
     NIRCEnvParams, render, version=1,
     integrators=("renderers.integrators.nirc_nvc_env", *TRAINING_INTEGRATORS),
-    knob=Knob("nc", NC_CANDIDATES, apply=with_nc_at_v1, usable=_biased,
-              requirement="biased nirc-nvc-env"),
+    knob=dataclasses.replace(nirc.METHOD.knob, requirement="biased nirc-nvc-env"),
     requires=applies, label="NIRC + NVC env")
