@@ -108,16 +108,27 @@ def _shown(name: str) -> str:
 # ---- Sources -----------------------------------------------------------------
 
 class RootSource:
-    """Files under the service's scene roots, after symlinks are resolved.
+    """Files under the service's scene roots, found without looking outside them.
 
-    A path is accepted when ``Path.resolve(strict=True)`` lands inside a root and
-    on a regular file; the file is then opened without blocking (a FIFO cannot
-    hang the request) and its open descriptor checked again (``/proc/self/fd``)
-    against the roots, so a link swapped in between is caught.
+    A name is first normalised as text (``a/../b`` is ``b``; nothing on disk is asked
+    what ``a`` is) and must then lie inside a root; only after that is the disk
+    touched, one component at a time from the root (:func:`_confined`), each
+    symlink followed as text and checked against the roots again. So neither a
+    ``..`` after a file (``/etc/shadow/../..``) nor a symlink leading out makes
+    the answer depend on what exists outside the roots. The file is then opened
+    without blocking (a FIFO cannot hang the request) and its open descriptor
+    checked again (``/proc/self/fd``) against the roots, so a link swapped in
+    between is caught.
     """
 
     def __init__(self, roots: Iterable[Path], limits: Limits) -> None:
-        self.roots = [resolved for root in roots if (resolved := _resolve_root(root))]
+        # A root as configured (maybe through a symlink) -> the same root resolved: a
+        # client may spell a path either way. Deepest first: nested roots are allowed.
+        self.spellings = sorted(
+            ((Path(os.path.normpath(Path(root).expanduser().absolute())), resolved)
+             for root in roots if (resolved := _resolve_root(root))),
+            key=lambda pair: -len(pair[0].parts))
+        self.roots = [resolved for _, resolved in self.spellings]
         self.limits = limits
 
     def _inside(self, path: Path) -> bool:
@@ -138,11 +149,8 @@ class RootSource:
         return str(Path(key).parent)
 
     def _read(self, path: Path) -> tuple[str, bytes] | None:
-        try:
-            real = path.resolve(strict=True)
-        except (OSError, RuntimeError, ValueError):
-            return None
-        if not self._inside(real) or not real.is_file():
+        real = _confined(str(path), self.roots, self.spellings)
+        if real is None:
             return None
         try:
             fd = os.open(real, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0))
@@ -164,6 +172,53 @@ class RootSource:
             return None
         finally:
             os.close(fd)
+
+
+#: Symlinks followed on the way to one file before it is refused (Linux's own limit).
+MAX_SYMLINKS = 40
+
+
+def _confined(name: str, roots: Sequence[Path],
+              spellings: Sequence[tuple[Path, Path]]) -> Path | None:
+    """The regular file ``name`` (absolute) names, every symlink resolved, or None if
+    it is missing or leads outside ``roots`` at any step (the caller cannot tell which).
+
+    ``name`` is normalised as text before anything is looked up, and must lie inside a
+    root (``spellings`` maps a root as configured to the resolved root). The disk is
+    then asked only about components below the root: a symlink's target is joined as
+    text to the (symlink-free) folder it sits in, normalised, and must lie inside a
+    root again before the walk goes on."""
+    text = os.path.normpath(name)
+    for _ in range(MAX_SYMLINKS + 1):
+        path = Path(text)
+        root = next((root for root in roots if path.is_relative_to(root)), None)
+        if root is None:
+            spelled = next(((given, real) for given, real in spellings
+                            if path.is_relative_to(given)), None)
+            if spelled is None:
+                return None
+            root, path = spelled[1], spelled[1] / path.relative_to(spelled[0])
+        walked = root
+        parts = path.relative_to(root).parts
+        for index, part in enumerate(parts):
+            step = walked / part
+            try:
+                info = os.lstat(step)
+            except (OSError, ValueError):
+                return None
+            if stat.S_ISLNK(info.st_mode):
+                try:
+                    target = os.readlink(step)
+                except OSError:
+                    return None
+                text = os.path.normpath(os.path.join(walked, target, *parts[index + 1:]))
+                break
+            if index < len(parts) - 1 and not stat.S_ISDIR(info.st_mode):
+                return None
+            walked = step
+        else:
+            return walked if walked != root and walked.is_file() else None
+    return None
 
 
 def _resolve_root(root: Path) -> Path | None:

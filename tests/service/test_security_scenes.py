@@ -156,6 +156,41 @@ def test_an_existing_and_a_missing_server_file_get_the_same_answer(api):
         assert "not available" in shadow.json()["detail"][0]["msg"]
 
 
+def climb(prefix: str, target: Path) -> str:
+    """``prefix`` followed by as many ``..`` as it has parts, then ``target``: as text,
+    the path is ``target``; on disk, each step after ``prefix`` asks what it is."""
+    return prefix + "/.." * (len(Path(prefix).parts) - 1) + str(target)
+
+
+def test_dotdot_after_a_server_path_tells_nothing_about_it(api, layout):
+    """`X/../..` names what it names as text: whether X exists outside the roots (a
+    file, /etc/shadow, a process in /proc) never changes the answer."""
+    good = layout["root"] / "good" / "scene.xml"
+    prefixes = [str(layout["outside"] / "scene.xml"), str(layout["outside"] / "nothing.xml"),
+                "/etc/shadow", "/etc/shadowXX", f"/proc/{os.getpid()}", "/proc/999999999"]
+    answers = set()
+    for prefix in prefixes:
+        response = api.post("jobs", {"scene": climb(prefix, good), **TINY})
+        answers.add((response.status_code, response.json().get("id")))
+    assert len(answers) == 1, answers
+    # Text that still climbs out of every root is refused like a missing file.
+    outside = api.post("jobs", {"scene": climb("/etc/shadow", Path("/etc/passwd")), **TINY})
+    assert outside.status_code == 422
+    assert outside.content == refusal(api, "/etc/does-not-exist").content
+
+
+def test_dotdot_in_a_scene_reference_tells_nothing_about_server_files(api, layout):
+    quad = layout["root"] / "good" / "quad.obj"
+    answers = set()
+    for prefix in (str(layout["outside"] / "scene.xml"), str(layout["outside"] / "nothing.xml")):
+        name = f"probe-{len(answers)}-{Path(prefix).stem}.xml"
+        write(layout["root"] / name, scene(
+            f'<shape type="obj"><string name="filename" value="{climb(prefix, quad)}"/></shape>'))
+        response = api.post("jobs", {"scene": name, **TINY})
+        answers.add(response.status_code)
+    assert answers == {202}
+
+
 def test_a_relative_path_is_not_looked_up_in_the_working_directory(api, layout):
     # The server's working directory is this process's: a relative path to a real scene.
     relative = os.path.relpath(layout["outside"] / "scene.xml", Path.cwd())
