@@ -10,7 +10,11 @@
 
 Writes are atomic: the file is written under a temporary name in the same
 directory, flushed to disk, then renamed over the target with ``os.replace``,
-so readers (and a crash) never see a half-written image.
+so readers (and a crash) never see a half-written image. Writes are checked: the
+file is read back (an EXR's header: its size and channels; a PNG decoded) before it
+is renamed into place, because an encoder can report success for a file that a full
+disk left empty; a failed write or check raises :class:`ImageWriteError`, an
+``OSError`` (errno ``EIO``, or the encoder's own), never a silent empty image.
 
 Note: on a damaged EXR the OpenEXR binding prints a one-line warning to stdout
 before we raise ImageReadError; it cannot be silenced without redirecting the
@@ -19,10 +23,11 @@ process's stdout.
 
 from __future__ import annotations
 
+import errno
 import io
 import os
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -40,12 +45,21 @@ class ImageReadError(ValueError):
     """An image file is missing, damaged, or lacks the channels asked for."""
 
 
+class ImageWriteError(OSError):
+    """An image could not be written whole (a full disk, a file size limit, an I/O
+    error); ``errno`` is the cause's when known, else ``EIO``."""
+
+    def __init__(self, path: Path, cause: str, code: int = errno.EIO) -> None:
+        super().__init__(code, f"could not write the image {path.name}: {cause}", str(path))
+
+
 # ---- Atomic writes ----------------------------------------------------------
 
 
 @contextmanager
-def _atomic_target(path: PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success fsync it and rename it over ``path``."""
+def _atomic_target(path: PathLike, check: Callable[[Path], None]) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; once written, fsync it, ``check`` it
+    (raises on a file that does not read back as written) and rename it over ``path``."""
     target = Path(path)
     # A fresh name (not mkstemp) so the writer creates the file with the
     # process umask rather than mkstemp's 0600.
@@ -54,6 +68,7 @@ def _atomic_target(path: PathLike) -> Iterator[Path]:
         yield tmp
         with open(tmp, "rb") as handle:
             os.fsync(handle.fileno())
+        check(tmp)
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
@@ -90,8 +105,23 @@ def write_exr(path: PathLike, img: np.ndarray, channels: Sequence[str] | None = 
     pixels = {name: np.ascontiguousarray(arr[..., i], dtype=np.float32)
               for i, name in enumerate(names)}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with _atomic_target(path) as tmp:
-        OpenEXR.File(header, pixels).write(str(tmp))
+
+    def check(tmp: Path) -> None:
+        try:
+            written = OpenEXR.File(str(tmp), header_only=True)
+            window = written.header()["dataWindow"]
+            shape = (int(window[1][1] - window[0][1] + 1), int(window[1][0] - window[0][0] + 1))
+            found = {channel.name for channel in written.header()["channels"]}
+        except (RuntimeError, ValueError, OSError, KeyError, IndexError) as err:
+            raise ImageWriteError(Path(path), f"it does not read back ({err})") from None
+        if shape != arr.shape[:2] or found != set(names):
+            raise ImageWriteError(Path(path), f"it reads back as {shape} with {sorted(found)}")
+
+    with _atomic_target(path, check) as tmp:
+        try:
+            OpenEXR.File(header, pixels).write(str(tmp))
+        except RuntimeError as err:   # OpenEXR reports a failed write this way, errno lost
+            raise ImageWriteError(Path(path), str(err)) from None
 
 
 def _open_exr(path: Path) -> OpenEXR.File:
@@ -145,7 +175,18 @@ def _png_image(rgb_uint8: np.ndarray) -> Image.Image:
 def write_png(path: PathLike, rgb_uint8: np.ndarray) -> None:
     """Write an 8-bit (H, W, 3) RGB (or (H, W) grey, (H, W, 4) RGBA) image as PNG, atomically."""
     image = _png_image(rgb_uint8)
-    with _atomic_target(path) as tmp:
+
+    def check(tmp: Path) -> None:
+        try:
+            with Image.open(tmp) as written:
+                written.load()
+                size = written.size
+        except (OSError, ValueError, SyntaxError) as err:
+            raise ImageWriteError(Path(path), f"it does not read back ({err})") from None
+        if size != image.size:
+            raise ImageWriteError(Path(path), f"it reads back as {size}")
+
+    with _atomic_target(path, check) as tmp:
         image.save(tmp, format="PNG")
 
 

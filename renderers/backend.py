@@ -81,6 +81,12 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def cpu_device_key() -> str:
+    """The ``device_key`` of renders on this machine's CPU (``llvm`` backend), known
+    without starting Dr.Jit (the service estimates job times with it)."""
+    return f"llvm:{_cpu_model()}:{os.cpu_count()}"
+
+
 def device_info() -> dict[str, Any]:
     """Provenance of the device a render ran on: stored with every result.
 
@@ -104,7 +110,8 @@ def device_info() -> dict[str, Any]:
         info["device"] = info["cpu"]
     else:
         info["device"] = _gpu_name()
-    info["device_key"] = f"{info['backend']}:{info['device']}:{info['cores']}"
+    info["device_key"] = (cpu_device_key() if info["backend"] == "llvm"
+                          else f"{info['backend']}:{info['device']}:{info['cores']}")
     return info
 
 

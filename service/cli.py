@@ -568,6 +568,11 @@ TlsCert = Annotated[Path | None, typer.Option(
                        "(or NIRC_BENCH_TLS_CERT)")]
 TlsKey = Annotated[Path | None, typer.Option(
     "--tls-key", help="tls:// scheduler: its private key, PEM (or NIRC_BENCH_TLS_KEY)")]
+AllowPlaintext = Annotated[bool, typer.Option(
+    "--allow-plaintext-scheduler",
+    help="connect to a tcp:// scheduler off loopback, unencrypted and unauthenticated: "
+         "anyone who reaches it runs code on the workers (or "
+         "NIRC_BENCH_ALLOW_PLAINTEXT_SCHEDULER=true)")]
 
 
 def is_loopback(host: str) -> bool:
@@ -596,9 +601,12 @@ def decide_public_read(choice: bool | None, host: str) -> bool:
 
 
 def _with_tls(settings: Any, scheduler: str, ca_file: Path | None, cert: Path | None,
-              key: Path | None) -> Any:
+              key: Path | None, allow_plaintext: bool = False) -> Any:
     """``settings`` with the TLS files of a tls:// ``scheduler`` (options over the
-    environment's settings), checked; a plain scheduler off loopback gets a warning."""
+    environment's settings), checked; a plain scheduler off loopback is refused unless
+    ``allow_plaintext`` (or the setting of that name) accepts it, with a warning."""
+    if allow_plaintext:
+        settings = settings.model_copy(update={"allow_plaintext_scheduler": True})
     files = {"tls_ca_file": ca_file or settings.tls_ca_file,
              "tls_cert": cert or settings.tls_cert, "tls_key": key or settings.tls_key}
     given = {name: path for name, path in files.items() if path is not None}
@@ -614,9 +622,15 @@ def _with_tls(settings: Any, scheduler: str, ca_file: Path | None, cert: Path | 
         raise UsageError(f"TLS certificates are for a tls:// scheduler address, not "
                          f"'{scheduler}' (start the scheduler with --protocol tls)")
     elif not is_loopback(scheduler.split("://", 1)[-1].rsplit(":", 1)[0]):
+        if not settings.allow_plaintext_scheduler:
+            raise UsageError(
+                f"the scheduler {scheduler} is neither encrypted nor authenticated: anyone "
+                "who reaches it runs code on the workers. Use tls:// with certificates "
+                "(docs/security.md), or accept that risk with --allow-plaintext-scheduler "
+                "(NIRC_BENCH_ALLOW_PLAINTEXT_SCHEDULER=true)")
         err_console.print(f"nirc-bench: warning: the scheduler {scheduler} is not encrypted "
-                          "or authenticated: anyone who reaches it runs code on the workers; "
-                          "use tls:// with certificates (docs/security.md)",
+                          "or authenticated (allowed by allow_plaintext_scheduler): anyone "
+                          "who reaches it runs code on the workers",
                           markup=False, highlight=False)
     return settings.model_copy(update=given)
 
@@ -641,6 +655,7 @@ def serve(
     tls_ca_file: TlsCaFile = None,
     tls_cert: TlsCert = None,
     tls_key: TlsKey = None,
+    allow_plaintext_scheduler: AllowPlaintext = False,
     data_dir: DataDir = None,
 ) -> None:
     """Run the service: REST API (OpenAPI at /docs) + job queue on Dask."""
@@ -652,7 +667,8 @@ def serve(
         raise UsageError("--gpus sizes the embedded cluster; with --scheduler, run "
                          "`nirc-bench worker --scheduler ... --gpus N` on the GPU machines")
     if scheduler:
-        settings = _with_tls(settings, scheduler, tls_ca_file, tls_cert, tls_key)
+        settings = _with_tls(settings, scheduler, tls_ca_file, tls_cert, tls_key,
+                             allow_plaintext_scheduler)
     elif tls_ca_file or tls_cert or tls_key:
         raise UsageError("--tls-* options are for a tls:// --scheduler; the embedded cluster "
                          "stays on loopback")
@@ -679,13 +695,15 @@ def worker(
     tls_ca_file: TlsCaFile = None,
     tls_cert: TlsCert = None,
     tls_key: TlsKey = None,
+    allow_plaintext_scheduler: AllowPlaintext = False,
 ) -> None:
     """Run Dask worker(s) for a service started with --scheduler (same data folder):
     one CPU worker, or one per GPU, each seeing only its GPU (CUDA_VISIBLE_DEVICES)."""
     from jobs.execution.dispatch import QUIET_WORKER_CONFIG, dask_environment, worker_tls_options
     from jobs.execution.gpus import run_workers, worker_commands
 
-    settings = _with_tls(_settings(None), scheduler, tls_ca_file, tls_cert, tls_key)
+    settings = _with_tls(_settings(None), scheduler, tls_ca_file, tls_cert, tls_key,
+                         allow_plaintext_scheduler)
     tls = worker_tls_options(settings)
     commands = [([*argv, *tls], env) for argv, env in worker_commands(
         scheduler, gpus, {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})]
@@ -790,14 +808,17 @@ app.add_typer(apikey_app, name="apikey")
 @apikey_app.command("create")
 def apikey_create(
     name: Annotated[str, typer.Option("--name", help="who or what uses the key")] = "default",
+    admin: Annotated[bool, typer.Option(
+        "--admin", help="may also cancel jobs that other keys submitted")] = False,
     data_dir: DataDir = None,
 ) -> None:
     """Create a key; it is printed once and stored only as a digest."""
     from jobs.execution.apikeys import create_api_key
 
-    row, key = create_api_key(_store(_settings(data_dir)), name)
+    row, key = create_api_key(_store(_settings(data_dir)), name, admin=admin)
     console.print(key, markup=False, highlight=False)
-    err_console.print(f"API key '{name}' created (prefix {row.prefix}); it is not shown again.")
+    err_console.print(f"{'admin ' if admin else ''}API key '{name}' created (prefix "
+                      f"{row.prefix}); it is not shown again.")
 
 
 @apikey_app.command("revoke")

@@ -21,6 +21,14 @@ A Dask task only calls :func:`jobs.execution.runner.run_job`, which claims the j
 the database, so a task that Dask runs twice (a worker lost mid-task) cannot
 run a job twice: the second claim finds it running or finished.
 
+Nothing is left stranded: :meth:`Dispatcher.recover` (at start, then every
+``redispatch_interval_s`` from the service, and for a job that a new submission
+finds as its duplicate) submits again every job that nothing runs — a queued job
+whose task has ended (its claim met a full disk or a locked database, or its key
+was at its running limit) and a running job whose lease expired (its runner died
+or gave it up). The dispatcher remembers its own tasks, so a job whose task is
+still waiting for a worker is not submitted twice.
+
 A sweep is submitted as its task graph (jobs/execution/graph.py): one task per stage job,
 each depending on the tasks of the stages it needs, and the sweep job's own
 task last. A task receives the final statuses of its upstream tasks; a failed
@@ -29,8 +37,10 @@ stage fails everything downstream of it (jobs.execution.runner.run_job).
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
+import threading
 from typing import Any
 
 from jobs.execution.gpus import (
@@ -46,6 +56,9 @@ from jobs.protocol.spec import SweepSpec
 from jobs.record.config import Settings
 from jobs.record.db import open_store
 from jobs.record.models import Job
+from jobs.record.storage import storage_failure
+
+log = logging.getLogger(__name__)
 
 #: Dask settings of every worker (and of the embedded cluster): Dask's defaults wake
 #: its event loop many times a second (an event-loop health tick every 20 ms, a memory
@@ -116,6 +129,11 @@ class Dispatcher:
         self.settings = settings
         self.timeout_s = timeout_s
         self.queue = JobQueue(open_store(settings))
+        # job id -> the future of its (last) task; submissions come from request
+        # threads and the recovery timer.
+        self._tasks: dict[int, Any] = {}
+        self._lock = threading.Lock()
+        self._dispatches = 0
         self.cluster = None
         self.gpu_workers: list[Any] = []
         dask.config.set(QUIET_WORKER_CONFIG)
@@ -158,23 +176,70 @@ class Dispatcher:
         as its task graph of stage jobs, the sweep job last."""
         from distributed import fire_and_forget
 
-        upstream = []
-        if job.kind == "sweep":
-            stages = sweep_stages(SweepSpec(**job.spec))
-            rows = self.queue.stage_jobs(job, stages)
-            futures: dict[str, Any] = {}
-            for stage in stages:
-                futures[stage.name] = self._submit(rows[stage.name],
-                                                   [futures[name] for name in stage.after])
-            upstream = [futures[stage.name] for stage in final_stages(stages)]
-        fire_and_forget(self._submit(job, upstream))
+        with self._lock:
+            upstream = []
+            if job.kind == "sweep":
+                stages = sweep_stages(SweepSpec(**job.spec))
+                rows = self.queue.stage_jobs(job, stages)
+                futures: dict[str, Any] = {}
+                for stage in stages:
+                    futures[stage.name] = self._submit(rows[stage.name],
+                                                       [futures[name] for name in stage.after])
+                upstream = [futures[stage.name] for stage in final_stages(stages)]
+            future = self._submit(job, upstream)
+            fire_and_forget(future)
+            self._tasks[job.id] = future
 
     def _submit(self, job: Job, upstream: list[Any]) -> Any:
         resources = GPU_WORKER if job.device_class == "gpu" else CPU_WORKER
+        # A key of its own per dispatch: the client answers a known key with its old
+        # (maybe failed) future instead of running the task again.
+        self._dispatches += 1
         return self.client.submit(
             run_job_task, job.id, self.settings.model_dump(mode="json"), self.timeout_s,
-            *upstream, key=f"nirc-job-{job.id}-{job.attempts}", pure=False,
-            resources=resources)
+            *upstream, key=f"nirc-job-{job.id}-{job.attempts}-{self._dispatches}",
+            pure=False, resources=resources)
+
+    def _on_its_way(self) -> list[int]:
+        """Jobs whose task is still pending or running (finished tasks are forgotten)."""
+        with self._lock:
+            for job_id in [job_id for job_id, future in self._tasks.items() if future.done()]:
+                del self._tasks[job_id]
+            return list(self._tasks)
+
+    def recover(self, jobs: list[Job] | None = None) -> list[int]:
+        """Submit again the jobs that nothing runs (``jobs``, or every such job in the
+        database: queued ones without a task, running ones whose lease expired).
+        Returns their ids."""
+        busy = set(self._on_its_way())
+        if jobs is None:
+            jobs = self.queue.stranded(self.settings.job_lease_s, exclude=list(busy))
+        lease_s = self.settings.job_lease_s
+        stranded = [job for job in jobs if job.id not in busy
+                    and job.parent_id is None and self.queue.is_stranded(job, lease_s)]
+        for job in stranded:
+            self.submit(job)
+        return [job.id for job in stranded]
+
+    def recover_every(self, interval_s: float) -> threading.Event:
+        """Call :meth:`recover` every ``interval_s`` in a daemon thread, until the
+        returned event is set. A storage failure (the database locked or full) only
+        skips a round."""
+        stop = threading.Event()
+
+        def loop() -> None:
+            while not stop.wait(interval_s):
+                try:
+                    recovered = self.recover()
+                except Exception as err:  # noqa: BLE001 - logged; the next round retries
+                    if storage_failure(err) is None:
+                        log.exception("dispatching stranded jobs failed")
+                    continue
+                if recovered:
+                    log.info("dispatched stranded jobs again: %s", recovered)
+
+        threading.Thread(target=loop, name="nirc-bench-recover", daemon=True).start()
+        return stop
 
     def close(self) -> None:
         self.queue.store.close()

@@ -11,11 +11,17 @@ Every transition is one conditional UPDATE (``WHERE status = ...``), so two
 workers cannot both claim a job, and a duplicated task finds the job taken or
 finished. A running job's runner renews a heartbeat (``updated_at``) while it
 watches its child; when the heartbeat is older than the lease, the runner is
-presumed dead (its worker or the whole service was killed) and another runner
-may take the job over (one more attempt). On start the service dispatches
-every job that is not final again (:meth:`JobQueue.unfinished`): queued ones
-start, running ones are taken over once their lease expires — or simply
-reported done if their runner is alive and finishes.
+presumed dead (its worker or the whole service was killed, or it could not write
+the database) and another runner may take the job over (one more attempt). The
+service dispatches again, at start and then on a timer, every job that nothing is
+running (:meth:`JobQueue.stranded`): queued ones whose task ended without running
+them (the claim failed: database locked, disk full) and running ones whose lease
+expired (jobs/execution/dispatch.py).
+
+Jobs belong to the API key that submitted them (``owner_key_id``); a key's
+Idempotency-Keys are its own, and a key may hold at most a given number of
+unfinished jobs (:class:`TooManyJobs` beyond) and run at most a given number at once
+(a claim beyond waits: the job stays queued and is dispatched again later).
 
 A sweep's stages (jobs/execution/graph.py) are jobs too, children of the sweep's job:
 they are made once per sweep job (:meth:`JobQueue.stage_jobs`, idempotent),
@@ -30,11 +36,12 @@ from collections.abc import Sequence
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import and_, or_, select, update
+from sqlalchemy import and_, func, or_, select, update
 from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session, aliased
 
 from jobs.protocol.spec import RenderSpec, SweepSpec
-from jobs.record.models import DEDUPE_JOB_STATES, FINAL_JOB_STATES, Job, JobStatus
+from jobs.record.models import DEDUPE_JOB_STATES, FINAL_JOB_STATES, ApiKey, Job, JobStatus
 from jobs.record.store import Store
 from renderers.seeding import digest
 
@@ -62,11 +69,30 @@ class IdempotencyKeyReused(ValueError):
     class): answering with the other request's job would be a silent mistake."""
 
 
+class TooManyJobs(RuntimeError):
+    """The submitting key already holds as many unfinished jobs as it may."""
+
+
+def scoped_idempotency_key(owner_key_id: int | None, key: str | None) -> str | None:
+    """The stored form of a client's Idempotency-Key: prefixed by the submitting API
+    key, so that two keys never share one (nor meet the queue's own stage keys)."""
+    if key is None or owner_key_id is None:
+        return key
+    return f"apikey-{owner_key_id}:{key}"
+
+
+def _lock_owner(session: Session, owner_key_id: int) -> None:
+    """Serialize the counting writes of one owner: PostgreSQL locks the key's row (on
+    SQLite every write transaction already holds the database's write lock)."""
+    if session.get_bind().dialect.name == "postgresql":
+        session.execute(select(ApiKey.id).where(ApiKey.id == owner_key_id).with_for_update())
+
+
 def _same_request(job: Job, kind: str, spec: dict[str, Any], device_class: str,
-                  idempotency_key: str | None) -> Job:
+                  idempotency_key: str | None, stored_key: str | None) -> Job:
     """``job``, found for a submission; refuses it if found by an Idempotency-Key that
-    an earlier, different request used."""
-    if idempotency_key is None or job.idempotency_key != idempotency_key:
+    an earlier, different request used (``stored_key``: its scoped form)."""
+    if stored_key is None or job.idempotency_key != stored_key:
         return job
     if job.kind != kind:
         raise IdempotencyKeyReused(
@@ -80,11 +106,12 @@ def _same_request(job: Job, kind: str, spec: dict[str, Any], device_class: str,
 
 
 def _new_job(kind: str, spec: dict[str, Any], spec_key: str, idempotency_key: str | None,
-             device_class: str, max_attempts: int, parent_id: int | None) -> Job:
+             device_class: str, max_attempts: int, parent_id: int | None,
+             owner_key_id: int | None) -> Job:
     return Job(kind=kind, spec=spec, spec_key=spec_key, idempotency_key=idempotency_key,
                device_class=device_class, status=JobStatus.QUEUED.value, attempts=0,
                max_attempts=max_attempts, progress={}, cancel_requested=False,
-               parent_id=parent_id)
+               parent_id=parent_id, owner_key_id=owner_key_id)
 
 
 class JobQueue:
@@ -97,26 +124,35 @@ class JobQueue:
 
     def submit(self, kind: str, spec: dict[str, Any], spec_key: str, *,
                idempotency_key: str | None = None, device_class: str = "cpu",
-               max_attempts: int = 3, parent_id: int | None = None) -> tuple[Job, bool]:
+               max_attempts: int = 3, parent_id: int | None = None,
+               owner_key_id: int | None = None,
+               max_unfinished: int | None = None) -> tuple[Job, bool]:
         """Store a new queued job, or return the existing one: the job submitted
-        under ``idempotency_key``, else a live or succeeded job with the same spec.
-        Returns (job, created).
+        under ``idempotency_key`` (by the same ``owner_key_id``), else a live or
+        succeeded job with the same spec (whoever submitted it: the work is done
+        once). Returns (job, created).
 
         Exactly once: the database holds at most one queued, running or succeeded
         job per ``spec_key`` (the partial unique index ``uq_jobs_live_spec_key``)
-        and one job per ``idempotency_key``, so of concurrent identical submissions
-        one insert wins and the others catch its IntegrityError and return the
-        winner. Raises :class:`IdempotencyKeyReused` when ``idempotency_key`` names
-        a job of another kind, spec or device class.
+        and one job per stored idempotency key, so of concurrent identical
+        submissions one insert wins and the others catch its IntegrityError and
+        return the winner. Raises :class:`IdempotencyKeyReused` when
+        ``idempotency_key`` names a job of another kind, spec or device class, and
+        :class:`TooManyJobs` when the owner already holds ``max_unfinished`` queued
+        or running jobs (counted in the inserting transaction).
         """
+        stored_key = scoped_idempotency_key(owner_key_id, idempotency_key)
         for _ in range(_INSERT_ATTEMPTS):
-            existing = self._existing(spec_key, idempotency_key)
+            existing = self._existing(spec_key, stored_key)
             if existing is not None:
-                return _same_request(existing, kind, spec, device_class, idempotency_key), False
-            job = _new_job(kind, spec, spec_key, idempotency_key, device_class,
-                           max_attempts, parent_id)
+                return _same_request(existing, kind, spec, device_class, idempotency_key,
+                                     stored_key), False
+            job = _new_job(kind, spec, spec_key, stored_key, device_class,
+                           max_attempts, parent_id, owner_key_id)
             try:
                 with self.store.session(write=True) as session:
+                    if owner_key_id is not None and max_unfinished is not None:
+                        self._check_unfinished(session, owner_key_id, max_unfinished)
                     session.add(job)
             except IntegrityError:
                 # Another submission inserted the same spec or key first: return it
@@ -135,6 +171,17 @@ class JobQueue:
             return session.scalars(
                 select(Job).where(Job.spec_key == spec_key, Job.status.in_(_DEDUPE_STATES))
                 .order_by(Job.id.desc()).limit(1)).one_or_none()
+
+    @staticmethod
+    def _check_unfinished(session: Session, owner_key_id: int, limit: int) -> None:
+        _lock_owner(session, owner_key_id)
+        held = session.scalar(select(func.count()).select_from(Job).where(
+            Job.owner_key_id == owner_key_id, Job.parent_id.is_(None),
+            Job.status.in_([JobStatus.QUEUED.value, JobStatus.RUNNING.value])))
+        if held >= limit:
+            raise TooManyJobs(f"this API key already has {held} unfinished jobs, the most "
+                              f"this service allows per key (max_jobs_per_key = {limit}); "
+                              "submit again when one has finished, or cancel one")
 
     def stage_jobs(self, parent: Job, stages: Sequence[Any]) -> dict[str, Job]:
         """The stage jobs of the sweep job ``parent`` (jobs.execution.graph.Stage), made on first
@@ -156,7 +203,7 @@ class JobQueue:
                     session.add_all(_new_job(
                         "stage", {"sweep": parent.spec, "name": stage.name, "task": stage.task},
                         key(stage), key(stage), parent.device_class, parent.max_attempts,
-                        parent.id) for stage in missing)
+                        parent.id, parent.owner_key_id) for stage in missing)
             except IntegrityError:
                 continue
         raise RuntimeError(f"the stage jobs of job {parent.id} kept conflicting")
@@ -196,18 +243,34 @@ class JobQueue:
                 .values(updated_at=_now(), **values))
             return result.rowcount == 1
 
-    def claim(self, job_id: int, worker: str, lease_s: float | None = None) -> Job | None:
+    def claim(self, job_id: int, worker: str, lease_s: float | None = None,
+              max_running_per_owner: int | None = None) -> Job | None:
         """queued -> running for ``worker`` (one more attempt), or take over a running
-        job whose heartbeat is older than ``lease_s``; None if not claimable."""
+        job whose heartbeat is older than ``lease_s``; None if not claimable — also
+        while the job's owner already runs ``max_running_per_owner`` other jobs whose
+        lease holds (the job stays queued, to be dispatched again later)."""
         claimable = Job.status == JobStatus.QUEUED.value
-        if lease_s is not None:
-            stale = _now() - timedelta(seconds=lease_s)
+        stale = _now() - timedelta(seconds=lease_s) if lease_s is not None else None
+        if stale is not None:
             claimable = or_(claimable, and_(Job.status == JobStatus.RUNNING.value,
                                             Job.updated_at < stale))
-        claimed = self._transition(
-            job_id, [claimable, Job.attempts < Job.max_attempts, Job.cancel_requested.is_(False)],
-            status=JobStatus.RUNNING.value, attempts=Job.attempts + 1, worker=worker,
-            started_at=_now(), error=None)
+        conditions = [claimable, Job.attempts < Job.max_attempts,
+                      Job.cancel_requested.is_(False)]
+        with self.store.session(write=True) as session:
+            owner = session.scalar(select(Job.owner_key_id).where(Job.id == job_id))
+            if owner is not None and max_running_per_owner is not None:
+                _lock_owner(session, owner)
+                other = aliased(Job)
+                running = select(func.count()).select_from(other).where(
+                    other.owner_key_id == owner, other.id != job_id,
+                    other.status == JobStatus.RUNNING.value,
+                    *([other.updated_at >= stale] if stale is not None else []))
+                conditions.append(running.scalar_subquery() < max_running_per_owner)
+            claimed = session.execute(
+                update(Job).where(Job.id == job_id, *conditions).values(
+                    updated_at=_now(), status=JobStatus.RUNNING.value,
+                    attempts=Job.attempts + 1, worker=worker, started_at=_now(), error=None)
+            ).rowcount == 1
         return self.get(job_id) if claimed else None
 
     def heartbeat(self, job_id: int) -> None:
@@ -288,12 +351,24 @@ class JobQueue:
         job = self.get(job_id)
         return bool(job and job.cancel_requested)
 
-    def unfinished(self) -> list[int]:
-        """Ids of jobs that are queued or running, oldest first (dispatched again on
-        start; a sweep's stages go with their sweep)."""
+    @staticmethod
+    def is_stranded(job: Job, lease_s: float) -> bool:
+        """Whether nothing can be running ``job`` as read: queued, or running with an
+        expired lease (see :meth:`stranded`)."""
+        if job.status == JobStatus.QUEUED.value:
+            return True
+        return (job.status == JobStatus.RUNNING.value
+                and job.updated_at < _now() - timedelta(seconds=lease_s))
+
+    def stranded(self, lease_s: float, exclude: Sequence[int] = ()) -> list[Job]:
+        """Jobs that nothing is running, oldest first: queued ones, and running ones
+        whose heartbeat is older than ``lease_s``; a sweep's stages go with their
+        sweep, and ``exclude`` lists jobs the caller knows to be on their way."""
+        stale = _now() - timedelta(seconds=lease_s)
         with self.store.session() as session:
             return list(session.scalars(
-                select(Job.id).where(Job.status.in_([JobStatus.QUEUED.value,
-                                                     JobStatus.RUNNING.value]),
-                                     Job.parent_id.is_(None))
+                select(Job).where(
+                    or_(Job.status == JobStatus.QUEUED.value,
+                        and_(Job.status == JobStatus.RUNNING.value, Job.updated_at < stale)),
+                    Job.parent_id.is_(None), Job.id.not_in(list(exclude)))
                 .order_by(Job.id)))

@@ -17,9 +17,24 @@ to the child and watches:
   device class cannot render here (a GPU job on a worker without a usable
   GPU): the child marked it failed with the message; retrying would fail the
   same way;
+* status 4: the child could not write the data folder or the database (disk
+  full, a file size limit, the database locked past its timeout); the line
+  carries the cause. The job goes back to the queue *and this runner leaves it*:
+  retrying at once would meet the same full disk, so the service's next round of
+  dispatching (jobs/execution/dispatch.py) runs it again;
 * the child dies (an abort, a signal, an out-of-memory kill), or the attempt
   times out or is canceled (the parent kills the child): the attempt failed;
-  the job goes back to the queue until ``max_attempts``.
+  the job goes back to the queue until ``max_attempts``. A child that exits on
+  its own is given time to finish exiting, so its real exit status is reported
+  (never "killed by SIGKILL" for a process that was already ending).
+
+The runner itself survives its database failing under it. A heartbeat that
+cannot be written is retried while the lease lasts; once a whole lease has passed
+without one, the runner kills the child and gives the job up (another runner may
+take it over by then). A claim or a transition that fails for storage reasons
+leaves the job queued, or running with a lease that will expire: ``run_job``
+then returns ``"deferred"`` and the service dispatches the job again later. A job
+whose upstream stage was deferred is deferred too, never abandoned.
 
 The child stores the run under the idempotency key ``job-<id>``, so an
 attempt that died after storing its result does not store it twice: the next
@@ -49,10 +64,19 @@ from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
 from jobs.record.db import open_store
 from jobs.record.models import JobStatus
+from jobs.record.storage import describe, storage_failure
 from renderers.backend import BackendError
 
 #: Status of a job that failed for good (bad input).
 EXIT_JOB_FAILED = 3
+#: Status of an attempt that could not write the data folder or the database.
+EXIT_STORAGE = 4
+#: What :func:`run_job` returns for a job left to be dispatched again later (its claim
+#: or a transition met a storage failure, its owner's running limit was reached, or an
+#: upstream stage was deferred); not a job status.
+DEFERRED = "deferred"
+#: Seconds a child that closed its status pipe is given to finish exiting.
+EXIT_GRACE_S = 5.0
 #: Seconds between progress writes to the database.
 PROGRESS_INTERVAL_S = 1.0
 #: Jobs a child serves before it is replaced by a fresh one.
@@ -73,53 +97,86 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
 
     ``upstream``: the final statuses of the stages this job needs (a sweep's task
     graph); if one did not succeed, the job is abandoned without running.
-    Returns the job's final status (or its current one if another worker has it).
+    Returns the job's final status (or its current one if another worker has it),
+    or :data:`DEFERRED` when it is left to be dispatched again.
     """
     store = open_store(settings)
     queue = JobQueue(store)
-    lease_s = settings.job_lease_s
     try:
-        if any(status != JobStatus.SUCCEEDED.value for status in upstream):
-            job = queue.get(job_id)
-            # Stopped by a cancel upstream (and nothing failed): canceled, not failed.
-            canceled = JobStatus.CANCELED.value in upstream and not any(
-                status not in (JobStatus.SUCCEEDED.value, JobStatus.CANCELED.value)
-                for status in upstream)
-            return (queue.abandon(job_id, queue.upstream_error(job), canceled=canceled)
-                    if job else "missing")
-        while True:
-            claimed = queue.claim(job_id, worker, lease_s=lease_s)
-            if claimed is None:
-                job = queue.get(job_id)
-                if job is None or job.status != JobStatus.RUNNING.value:
-                    return job.status if job else "missing"
-                # Another runner has it: wait until it finishes or its lease expires.
-                if queue.expire(job_id, lease_s):
-                    continue
-                time.sleep(poll_s)
-                continue
-            child = _child_for(settings, claimed.device_class)
-            status, reason = child.run(job_id, queue, _timeout_of(claimed, settings, timeout_s),
-                                       poll_s)
-            if status in (0, EXIT_JOB_FAILED):
-                return queue.get(job_id).status
-            if queue.fail(job_id, reason, retry=True) != JobStatus.QUEUED.value:
-                return queue.get(job_id).status
+        return _run(queue, job_id, settings, worker, timeout_s, poll_s, upstream)
+    except Exception as err:
+        if storage_failure(err) is None:
+            raise
+        # Queued, or running with a lease that will expire: dispatched again later.
+        return DEFERRED
     finally:
         store.close()
 
 
-def _timeout_of(job: Any, settings: Settings, timeout_s: float | None) -> float:
-    """The service's ``--job-timeout``, else one from the job's work estimate
-    (jobs.execution.work.default_timeout_s): no attempt runs unbounded."""
+def _run(queue: JobQueue, job_id: int, settings: Settings, worker: str,
+         timeout_s: float | None, poll_s: float, upstream: Sequence[str]) -> str:
+    lease_s = settings.job_lease_s
+    if DEFERRED in upstream:
+        return DEFERRED
+    if any(status != JobStatus.SUCCEEDED.value for status in upstream):
+        job = queue.get(job_id)
+        # Stopped by a cancel upstream (and nothing failed): canceled, not failed.
+        canceled = JobStatus.CANCELED.value in upstream and not any(
+            status not in (JobStatus.SUCCEEDED.value, JobStatus.CANCELED.value)
+            for status in upstream)
+        return (queue.abandon(job_id, queue.upstream_error(job), canceled=canceled)
+                if job else "missing")
+    while True:
+        claimed = queue.claim(job_id, worker, lease_s=lease_s,
+                              max_running_per_owner=settings.max_running_jobs_per_key)
+        if claimed is None:
+            job = queue.get(job_id)
+            if job is None:
+                return "missing"
+            if job.status == JobStatus.QUEUED.value:
+                return DEFERRED     # its owner runs as many jobs as it may: later
+            if job.status != JobStatus.RUNNING.value:
+                return job.status
+            # Another runner has it: wait until it finishes or its lease expires.
+            if queue.expire(job_id, lease_s):
+                continue
+            time.sleep(poll_s)
+            continue
+        child = _child_for(settings, claimed.device_class)
+        status, reason = child.run(job_id, queue,
+                                   _timeout_of(claimed, settings, timeout_s, queue.store),
+                                   poll_s, lease_s)
+        if status in (0, EXIT_JOB_FAILED):
+            return queue.get(job_id).status
+        requeued = queue.fail(job_id, reason, retry=True) == JobStatus.QUEUED.value
+        if status == EXIT_STORAGE and requeued:
+            return DEFERRED
+        if not requeued:
+            return queue.get(job_id).status
+
+
+def _timeout_of(job: Any, settings: Settings, timeout_s: float | None, store: Any) -> float:
+    """The service's ``--job-timeout``, else one from the job's size: its samples at
+    the slowest expected rate (jobs.execution.work.default_timeout_s), and at least
+    twice its estimated time on this device (jobs.execution.timecost): no attempt runs
+    unbounded, and none is killed for being as long as its estimate."""
     if timeout_s is not None:
         return timeout_s
+    from jobs.execution.timecost import (
+        TIMEOUT_OVER_ESTIMATE,
+        estimate_seconds,
+        job_methods_and_scene,
+    )
     from jobs.execution.work import default_timeout_s, job_work
 
     try:
-        return default_timeout_s(job_work(job.kind, job.spec), settings)
+        work = job_work(job.kind, job.spec)
+        methods, scene = job_methods_and_scene(job.kind, job.spec)
     except (ValueError, KeyError, TypeError):  # a spec the child will refuse at once
         return settings.job_timeout_min_s
+    estimate = estimate_seconds(work, methods, scene, store, job.device_class)
+    return max(default_timeout_s(work, settings),
+               settings.job_timeout_min_s + TIMEOUT_OVER_ESTIMATE * estimate.seconds)
 
 
 class _Child:
@@ -151,34 +208,56 @@ class _Child:
                 and (settings.data_dir, settings.database_url, device_class)
                 == (self.settings.data_dir, self.settings.database_url, self.device_class))
 
-    def run(self, job_id: int, queue: JobQueue, timeout_s: float | None,
-            poll_s: float) -> tuple[int, str]:
-        """Run one attempt; returns (status, reason if the attempt failed)."""
+    def run(self, job_id: int, queue: JobQueue, timeout_s: float | None, poll_s: float,
+            lease_s: float) -> tuple[int, str]:
+        """Run one attempt; returns (status, reason if the attempt failed): the child's
+        status, or -1 when it died or was stopped."""
         self.jobs += 1
         try:
             self.proc.stdin.write(f"{job_id}\n")
             self.proc.stdin.flush()
         except BrokenPipeError:
             return -1, self.close("the render process was gone before the job started")
-        started = time.monotonic()
+        started = last_beat = time.monotonic()
         while True:
             ready, _, _ = select.select([self.status], [], [], poll_s)
             if ready:
                 line = self.status.readline()
-                if line:
-                    status = int(line)
-                    if status != 0:
-                        self.close()
-                    return status, ""
-                return -1, self.close()          # EOF: the child died mid-job
-            queue.heartbeat(job_id)
+                if not line:                     # EOF: the child died mid-job
+                    return -1, self.close(ended=True)
+                code, _, reason = line.strip().partition(" ")
+                if int(code) != 0:
+                    self.close()
+                return int(code), reason
+            try:
+                queue.heartbeat(job_id)
+                canceled = queue.cancel_requested(job_id)
+                last_beat = time.monotonic()
+            except Exception as err:
+                if storage_failure(err) is None:
+                    raise
+                # The lease is lost once a whole one passes without a heartbeat:
+                # another runner may take the job over, so this one must stop.
+                if time.monotonic() - last_beat > lease_s:
+                    return -1, self.close(f"the runner gave the job up: no heartbeat for "
+                                          f"{lease_s:g} s, the job's lease ({describe(err)})")
+                continue
             if timeout_s is not None and time.monotonic() - started > timeout_s:
                 return -1, self.close(f"timed out after {timeout_s:g} s (attempt killed)")
-            if queue.cancel_requested(job_id):
+            if canceled:
                 return -1, self.close("canceled while running")
 
-    def close(self, reason: str | None = None) -> str:
-        """Retire the child (killing it if needed); returns why the attempt failed."""
+    def close(self, reason: str | None = None, *, ended: bool = False) -> str:
+        """Retire the child (killing it if needed); returns why the attempt failed.
+
+        ``ended``: the child closed its status pipe, so it is exiting on its own; it
+        gets :data:`EXIT_GRACE_S` to finish before it is killed, so that its own exit
+        status is what the reason names."""
+        if ended:
+            try:
+                self.proc.wait(timeout=EXIT_GRACE_S)
+            except subprocess.TimeoutExpired:
+                pass
         if self.proc.poll() is None:
             self.proc.kill()
         exitcode = self.proc.wait()
@@ -258,7 +337,13 @@ def _throttled(queue: JobQueue, job_id: int):
         now = time.monotonic()
         if now - last[0] >= PROGRESS_INTERVAL_S or done == total:
             last[0] = now
-            queue.set_progress(job_id, stage, done, total)
+            try:
+                queue.set_progress(job_id, stage, done, total)
+            except Exception as err:
+                # Progress is for the eyes only: a render goes on without it (its
+                # result is written, or refused, at the end).
+                if storage_failure(err) is None:
+                    raise
 
     return report
 
@@ -283,19 +368,25 @@ def serve(status_fd: int) -> int:
     """Child entry point: run the job ids read from stdin, one status line each on
     ``status_fd`` (nothing else writes there; stdout is the log).
 
-    An unexpected exception ends the process (its state may be damaged): the
-    parent sees the pipe close and fails the attempt with the last log line.
+    A storage failure (a full disk, a file size limit, the database locked) is
+    answered ``4 <cause>`` on the status pipe: the log may be on the full disk
+    itself, the pipe is not. Any other unexpected exception ends the process (its
+    state may be damaged): the parent sees the pipe close and fails the attempt with
+    the last log line.
     """
     settings = Settings()
     store = open_store(settings)
     with os.fdopen(status_fd, "w") as status_out:
         for line in sys.stdin:
             try:
-                status = run_one(int(line), store, settings)
-            except Exception:  # noqa: BLE001 - reported through the log, then exit
-                traceback.print_exc()
-                return 1
-            status_out.write(f"{status}\n")
+                answer = str(run_one(int(line), store, settings))
+            except Exception as err:  # noqa: BLE001 - reported, then exit
+                if storage_failure(err) is not None:
+                    answer = f"{EXIT_STORAGE} {describe(err)}"
+                else:
+                    traceback.print_exc()
+                    return 1
+            status_out.write(f"{answer}\n")
             status_out.flush()
     return 0
 

@@ -11,10 +11,14 @@ an explicit ``--job-timeout`` a timeout of its size (:func:`default_timeout_s`).
 
 ``artifact_bytes`` estimates the files a job writes (uncompressed RGB float32
 EXRs, PNG previews, cache weights), for the disk limit ``Settings.max_data_bytes``.
+Each part also counts its frames (or reference passes) and its renders (each with
+its own start-up): what a job's *time* depends on besides its samples, used by
+jobs/execution/timecost.py to bound jobs in seconds.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,6 +26,7 @@ from typing import Any
 from sqlalchemy import func, select
 
 from jobs.execution.graph import Stage, sweep_stages
+from jobs.protocol.snapshots import V1_PASSES
 from jobs.protocol.spec import ReferenceSpec, RenderSpec, SweepSpec
 from jobs.protocol.versions import reference_estimator_version
 from jobs.record.config import DATABASE_FILENAME, Settings
@@ -40,20 +45,27 @@ SNAPSHOT_WEIGHTS_BYTES = 16 << 20
 
 @dataclass
 class WorkEstimate:
-    """Path samples a job renders (``samples``) and the bytes it may store."""
+    """Path samples a job renders (``samples``) and the bytes it may store; per part,
+    its samples, frames (or passes) and renders."""
 
     samples: int = 0
     artifact_bytes: int = 0
     parts: dict[str, int] = field(default_factory=dict)   # samples by what renders them
+    frames: dict[str, int] = field(default_factory=dict)  # frames or passes, by part
+    renders: dict[str, int] = field(default_factory=dict)  # renders (start-ups), by part
 
-    def add(self, part: str, samples: int, artifact_bytes: int = 0) -> None:
+    def add(self, part: str, samples: int, artifact_bytes: int = 0, *, frames: int = 0,
+            renders: int = 0) -> None:
         self.samples += samples
         self.artifact_bytes += artifact_bytes
         self.parts[part] = self.parts.get(part, 0) + samples
+        self.frames[part] = self.frames.get(part, 0) + frames
+        self.renders[part] = self.renders.get(part, 0) + renders
 
 
 def _reference(estimate: WorkEstimate, pixels: int, reference: ReferenceSpec) -> None:
-    estimate.add("reference", pixels * reference.spp, 2 * pixels * IMAGE_BYTES_PER_PIXEL)
+    estimate.add("reference", pixels * reference.spp, 2 * pixels * IMAGE_BYTES_PER_PIXEL,
+                 frames=math.ceil(reference.spp / reference.spp_per_pass), renders=1)
 
 
 def render_work(spec: RenderSpec, reference_stored: bool = False) -> WorkEstimate:
@@ -69,13 +81,17 @@ def render_work(spec: RenderSpec, reference_stored: bool = False) -> WorkEstimat
         knob, default = method.knob.name, list(method.knob.candidates)
         candidates = spec.time_budget.candidates or default
         per_candidate = [c if knob == "spp" else spp for c in candidates]
-        estimate.add("calibration", pixels * spec.time_budget.probe_frames * sum(per_candidate))
+        budget = spec.time_budget
+        estimate.add("calibration", pixels * budget.probe_frames * sum(per_candidate),
+                     frames=budget.probe_frames * budget.rounds * len(candidates),
+                     renders=len(candidates))
         if knob == "spp":
             spp = max(candidates)
     frames_kept = spec.frames * spec.seeds if spec.keep_frames else 0
     estimate.add("seeds", pixels * spp * spec.frames * spec.seeds,
                  pixels * (IMAGE_BYTES_PER_PIXEL * (spec.seeds + frames_kept)
-                           + 2 * PREVIEW_BYTES_PER_PIXEL))
+                           + 2 * PREVIEW_BYTES_PER_PIXEL),
+                 frames=spec.frames * spec.seeds, renders=spec.seeds)
     return estimate
 
 
@@ -90,21 +106,28 @@ def stage_work(spec: SweepSpec, task: dict[str, Any]) -> WorkEstimate:
             _reference(estimate, pixels, spec.reference)
         case "snapshot":
             estimate.add("caches", pixels * (spec.train_frames + spec.v1_spp),
-                         SNAPSHOT_WEIGHTS_BYTES + pixels * IMAGE_BYTES_PER_PIXEL)
+                         SNAPSHOT_WEIGHTS_BYTES + pixels * IMAGE_BYTES_PER_PIXEL,
+                         frames=spec.train_frames + V1_PASSES, renders=2)
         case "series":
             points = len(spec.eps or [])
             estimate.add("points", points * pixels * spec.frames * spec.seeds,
-                         points * point_bytes)
+                         points * point_bytes, frames=points * spec.frames * spec.seeds,
+                         renders=points * spec.seeds)
         case "nc-point":
             estimate.add("points", pixels * (spec.train_frames + spec.frames) * spec.seeds,
-                         point_bytes)
+                         point_bytes, frames=(spec.train_frames + spec.frames) * spec.seeds,
+                         renders=spec.seeds)
         case "sweep":
             pairs = equal_time_pairs(spec.methods) if spec.kind == "eps" and spec.equal_time else []
             for _pair in pairs:
                 points = len(spec.eps or [])
-                probes = len(spec.nc_candidates()) * spec.probe_frames
+                candidates = len(spec.nc_candidates())
+                probes = candidates * spec.probe_frames
                 estimate.add("equal time", points * pixels * (probes + spec.frames * spec.seeds),
-                             points * point_bytes)
+                             points * point_bytes,
+                             frames=points * (probes * spec.calibration_rounds
+                                              + spec.frames * spec.seeds),
+                             renders=points * (candidates + spec.seeds))
     return estimate
 
 
@@ -116,7 +139,7 @@ def sweep_work(spec: SweepSpec, stages: list[Stage] | None = None) -> WorkEstima
         part = stage_work(spec, stage.task)
         estimate.artifact_bytes += part.artifact_bytes
         for name, samples in part.parts.items():
-            estimate.add(name, samples)
+            estimate.add(name, samples, frames=part.frames[name], renders=part.renders[name])
     return estimate
 
 

@@ -23,6 +23,8 @@ from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 
+from jobs.record.storage import StorageFull
+
 _CHUNK = 1 << 20            # bytes read at a time when hashing or copying files
 _TEMP_PREFIX = ".tmp-"      # temporary files; never a valid content-addressed name
 PRIVATE_DIR_MODE = 0o700
@@ -116,6 +118,9 @@ class ArtifactStore:
                 # Durable before the rename makes it visible: a crash must not
                 # leave a complete-looking name over incomplete data.
                 os.fsync(out.fileno())
+                written = os.fstat(out.fileno()).st_size
+            if written != size:
+                raise StorageFull(f"stored {written} of {size} bytes of {relpath}")
             # mkstemp creates 0600 already; say so, whatever the platform does.
             os.chmod(temp_name, PRIVATE_FILE_MODE)
             os.replace(temp_name, destination)
@@ -157,6 +162,9 @@ def encode_image(writer: Callable[[Path, np.ndarray], None], image: np.ndarray,
     path = Path(name)
     try:
         writer(path, image)
-        return path.read_bytes()
+        data = path.read_bytes()
     finally:
         path.unlink(missing_ok=True)
+    if not data:    # never store an image as the hash of nothing
+        raise StorageFull(f"the encoded image {scratch.name} is empty")
+    return data

@@ -32,6 +32,14 @@ class Settings(BaseSettings):
     # A running job whose runner has not renewed its heartbeat for this long is
     # taken over by another runner (its worker or the service died).
     job_lease_s: float = Field(30.0, gt=0.0)
+    # How long a database statement waits for a lock held by another connection before
+    # it fails (SQLite busy_timeout, PostgreSQL lock_timeout); a runner that cannot
+    # renew its heartbeat for a whole lease gives its job up to be taken over.
+    db_lock_timeout_s: float = Field(30.0, gt=0.0)
+    # How often the service looks for jobs that nothing runs (queued ones whose task
+    # ended without claiming them, running ones whose lease expired) and dispatches
+    # them again (jobs/execution/dispatch.py).
+    redispatch_interval_s: float = Field(10.0, gt=0.0)
     # The longest a long poll (GET /api/v1/jobs/{id}?wait_s=) holds a request open,
     # below the idle timeouts of proxies in front of the service.
     long_poll_max_s: float = Field(30.0, ge=0.0)
@@ -39,12 +47,21 @@ class Settings(BaseSettings):
     # The most path samples (pixels x spp x frames x seeds, references and sweep
     # stages included) one submission may ask for; more is refused with 422.
     max_job_work: int = Field(100_000_000_000, ge=1)
+    # The longest one submission may be estimated to run on this device, from measured
+    # costs (jobs/execution/timecost.py); longer is refused with 422. None: no limit.
+    max_job_seconds: float | None = Field(3600.0, gt=0.0)
     # The most stage jobs one sweep may make (seeds x methods + 2, or N_c values + 1).
     max_sweep_stages: int = Field(256, ge=1)
     # Without --job-timeout an attempt gets job_timeout_min_s plus its estimated
     # samples at timeout_samples_per_s (a slow machine's rate: a generous bound).
     job_timeout_min_s: float = Field(600.0, gt=0.0)
     timeout_samples_per_s: float = Field(1_000_000.0, gt=0.0)
+    # Per API key: the most unfinished (queued or running) jobs and sweeps it may hold
+    # (a submission beyond is answered 429), and the most jobs (a sweep's stages
+    # included) it may run at once (a claim beyond waits, so that one key cannot
+    # hold every worker). None: no limit.
+    max_jobs_per_key: int | None = Field(100, ge=1)
+    max_running_jobs_per_key: int | None = Field(4, ge=1)
     # Disk: None means no limit; with a limit, a submission whose estimated files would
     # take the data folder past it is refused (507).
     max_data_bytes: int | None = Field(None, ge=0)
@@ -79,6 +96,9 @@ class Settings(BaseSettings):
     # open to anyone who can reach the service. None: on if `serve` binds to
     # loopback; on any other address `serve` refuses to start until it is chosen.
     public_read: bool | None = None
+    # How long a dashboard login lasts (its server-side session; the cookie holds only
+    # the session's token).
+    session_max_age_s: float = Field(12 * 3600.0, gt=0.0)
     # The largest request body accepted (413 beyond, counted as it streams in).
     max_body_bytes: int = Field(1_000_000, ge=1024)
     # Long polls waiting at once; more are answered 429 (each costs a database read
@@ -90,6 +110,9 @@ class Settings(BaseSettings):
     tls_ca_file: Path | None = None
     tls_cert: Path | None = None
     tls_key: Path | None = None
+    # A tcp:// scheduler off loopback (no encryption, no authentication: whoever reaches
+    # it runs code on the workers) is refused unless this is on.
+    allow_plaintext_scheduler: bool = False
 
     @field_validator("data_dir")
     @classmethod

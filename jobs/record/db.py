@@ -40,17 +40,26 @@ class SchemaVersionError(RuntimeError):
     """The database was migrated by a newer nirc-bench than the one running."""
 
 
-def make_engine(url: str | URL) -> Engine:
-    """An engine for ``url``; SQLite files get their folder, WAL and busy_timeout."""
+def make_engine(url: str | URL, lock_timeout_s: float | None = None) -> Engine:
+    """An engine for ``url``; SQLite files get their folder, WAL and busy_timeout.
+
+    ``lock_timeout_s`` (default :data:`SQLITE_BUSY_TIMEOUT_MS`): how long a statement
+    waits for a lock another connection holds before it fails — SQLite's busy_timeout,
+    PostgreSQL's lock_timeout (which otherwise waits for ever: a held table lock would
+    hang every runner's heartbeat instead of letting it give the job up)."""
     url = make_url(url)
+    timeout_ms = round(lock_timeout_s * 1000) if lock_timeout_s else SQLITE_BUSY_TIMEOUT_MS
     if url.get_backend_name() != "sqlite":
         # Long-lived workers outlive server-side idle timeouts; re-check on checkout.
-        return create_engine(url, pool_pre_ping=True)
+        connect_args = ({"options": f"-c lock_timeout={timeout_ms}"}
+                        if url.get_backend_name() == "postgresql" else {})
+        return create_engine(url, pool_pre_ping=True, connect_args=connect_args)
     database = url.database
     if database and database != ":memory:" and not url.query.get("uri"):
         _create_private_file(Path(database).expanduser())
     engine = create_engine(url)
-    event.listen(engine, "connect", _sqlite_on_connect)
+    event.listen(engine, "connect",
+                 lambda connection, record: _sqlite_on_connect(connection, timeout_ms))
     event.listen(engine, "begin", _sqlite_on_begin)
     return engine
 
@@ -72,14 +81,14 @@ def _create_private_file(path: Path) -> None:
         pass
 
 
-def _sqlite_on_connect(dbapi_connection: Any, connection_record: Any) -> None:
+def _sqlite_on_connect(dbapi_connection: Any, busy_timeout_ms: int) -> None:
     # Take transaction control away from the sqlite3 driver, whose legacy mode
     # runs DDL and SELECTs outside any transaction; _sqlite_on_begin emits BEGIN.
     dbapi_connection.isolation_level = None
     cursor = dbapi_connection.cursor()
     try:
         # busy_timeout first: switching to WAL needs a lock another process may hold.
-        cursor.execute(f"PRAGMA busy_timeout = {SQLITE_BUSY_TIMEOUT_MS}")
+        cursor.execute(f"PRAGMA busy_timeout = {int(busy_timeout_ms)}")
         _switch_to_wal(cursor)
         cursor.execute("PRAGMA foreign_keys = ON")
     finally:
@@ -137,6 +146,9 @@ def migrate(engine: Engine) -> None:
     known = {revision.revision for revision in script.walk_revisions()}
     with engine.execution_options(**{BEGIN_IMMEDIATE_OPTION: True}).begin() as connection:
         if connection.dialect.name == "postgresql":
+            # A migration on another machine may take long: wait for it, whatever the
+            # engine's lock timeout.
+            connection.execute(text("SET LOCAL lock_timeout = 0"))
             connection.execute(
                 text("SELECT pg_advisory_xact_lock(:key)"), {"key": _PG_MIGRATION_LOCK}
             )
@@ -160,7 +172,7 @@ def open_store(settings: Settings | None = None) -> Store:
     """Connect to the configured database, migrate it to head, and return a Store."""
     settings = settings or get_settings()
     assert settings.database_url is not None  # filled in by Settings validation
-    engine = make_engine(settings.database_url)
+    engine = make_engine(settings.database_url, settings.db_lock_timeout_s)
     try:
         migrate(engine)
     except BaseException:

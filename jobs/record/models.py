@@ -1,5 +1,5 @@
 """Database models of the job store: references, runs, per-seed results, cache
-snapshots, sweeps, artifacts, queued jobs and API keys.
+snapshots, sweeps, artifacts, queued jobs, API keys and dashboard sessions.
 
 The SQL database is the durable record of every result (docs/results.md);
 images live outside it, content-addressed, and are referenced
@@ -416,6 +416,11 @@ class Job(Base):
     run_id: Mapped[int | None] = mapped_column(ForeignKey("runs.id", ondelete="SET NULL"))
     sweep_id: Mapped[int | None] = mapped_column(ForeignKey("sweeps.id", ondelete="SET NULL"))
     work: Mapped[dict[str, Any] | None]
+    # The API key (api_keys.id) that submitted it (a sweep's stages: the sweep's); None
+    # for jobs of the CLI and those stored before owners were recorded. Only the owner
+    # or an admin key may cancel it. No foreign key: keys are never deleted (a revoked
+    # key keeps its row), and adding one would make SQLite rebuild this table.
+    owner_key_id: Mapped[int | None] = mapped_column(Integer, index=True)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     started_at: Mapped[datetime | None]
     finished_at: Mapped[datetime | None]
@@ -426,7 +431,8 @@ class ApiKey(Base):
     """An API key for the service's write endpoints, stored as a SHA-256 digest only.
 
     The key's first characters (``prefix``) find the row; the digest is then
-    compared in constant time (``hmac.compare_digest``).
+    compared in constant time (``hmac.compare_digest``). An ``admin`` key may also
+    cancel jobs of other keys.
     """
 
     __tablename__ = "api_keys"
@@ -435,5 +441,21 @@ class ApiKey(Base):
     name: Mapped[str] = mapped_column(String)
     prefix: Mapped[str] = mapped_column(String, unique=True)
     digest: Mapped[str] = mapped_column(String)
+    admin: Mapped[bool] = mapped_column(default=False, server_default=text("false"))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     revoked_at: Mapped[datetime | None]
+
+
+class LoginSession(Base):
+    """A dashboard login: the cookie holds a random token, the row only its SHA-256
+    digest, the key it stands for and when it ends. Logging out deletes the row;
+    revoking the key ends it too."""
+
+    __tablename__ = "login_sessions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    digest: Mapped[str] = mapped_column(String, unique=True)
+    api_key_id: Mapped[int] = mapped_column(ForeignKey("api_keys.id", ondelete="CASCADE"),
+                                            index=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    expires_at: Mapped[datetime] = mapped_column(index=True)

@@ -1,9 +1,11 @@
 """Request dependencies: the app's store, queue and dispatcher; API-key checks.
 
-Writes need the key in the ``X-API-Key`` header. Reads need it too unless the
-service runs with ``public_read`` (docs/security.md); a read also accepts the key
-from the dashboard's login cookie (HttpOnly, SameSite=Strict, set by
-``POST /api/v1/auth/login``). Both are declared as OpenAPI security schemes.
+Writes need the key in the ``X-API-Key`` header; a write route that acts on
+behalf of the key takes it as :data:`CallerDep` (the key's row). Reads need a key
+too unless the service runs with ``public_read`` (docs/security.md); a read also
+accepts the dashboard's login cookie, which holds a session token (HttpOnly,
+SameSite=Strict, set by ``POST /api/v1/auth/login``), never the key. Both are
+declared as OpenAPI security schemes.
 """
 
 from __future__ import annotations
@@ -13,9 +15,10 @@ from typing import Annotated, Any
 from fastapi import Depends, HTTPException, Path, Request, Security, status
 from fastapi.security import APIKeyCookie, APIKeyHeader
 
-from jobs.execution.apikeys import verify_api_key
+from jobs.execution.apikeys import session_key, verify_api_key
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
+from jobs.record.models import ApiKey
 from jobs.record.store import Store
 
 
@@ -35,42 +38,56 @@ def get_dispatcher(request: Request) -> Any:
     return request.app.state.dispatcher
 
 
-#: The dashboard's login cookie, holding the key (HttpOnly: page scripts cannot read it).
-KEY_COOKIE = "nirc_bench_key"
+#: The dashboard's login cookie, holding a session token (HttpOnly: page scripts cannot
+#: read it).
+SESSION_COOKIE = "nirc_bench_session"
 
 api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
                               description="an API key (`nirc-bench apikey create`)")
-api_key_cookie = APIKeyCookie(name=KEY_COOKIE, auto_error=False,
-                              description="reads only: the key as the dashboard's login "
-                                          "(POST /api/v1/auth/login) stored it")
+api_key_cookie = APIKeyCookie(name=SESSION_COOKIE, auto_error=False,
+                              description="reads only: the dashboard's login session "
+                                          "(POST /api/v1/auth/login)")
 
 
-def _check_key(store: Store, key: str | None, missing: str) -> None:
-    """401 without a key, 403 with a wrong or revoked one."""
-    if not key:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, missing,
-                            headers={"WWW-Authenticate": "X-API-Key"})
-    if verify_api_key(store, key) is None:
-        raise HTTPException(status.HTTP_403_FORBIDDEN, "invalid or revoked API key")
+def _unauthorized(message: str) -> HTTPException:
+    return HTTPException(status.HTTP_401_UNAUTHORIZED, message,
+                         headers={"WWW-Authenticate": "X-API-Key"})
+
+
+def _forbidden() -> HTTPException:
+    return HTTPException(status.HTTP_403_FORBIDDEN, "invalid or revoked API key")
 
 
 def require_api_key(store: Annotated[Store, Depends(get_store)],
-                    x_api_key: Annotated[str | None, Security(api_key_header)] = None) -> None:
-    """Write endpoints: the key in the X-API-Key header."""
-    _check_key(store, x_api_key, "missing X-API-Key header")
+                    x_api_key: Annotated[str | None, Security(api_key_header)] = None) -> ApiKey:
+    """Write endpoints: the key in the X-API-Key header (401 without, 403 if wrong or
+    revoked); returns its row."""
+    if not x_api_key:
+        raise _unauthorized("missing X-API-Key header")
+    row = verify_api_key(store, x_api_key)
+    if row is None:
+        raise _forbidden()
+    return row
 
 
 def require_read_access(request: Request, store: Annotated[Store, Depends(get_store)],
                         x_api_key: Annotated[str | None, Security(api_key_header)] = None,
                         cookie: Annotated[str | None, Security(api_key_cookie)] = None) -> None:
-    """Read endpoints of a service without public_read: the key in the header or the
-    login cookie. Other methods are left to their own check (a write needs the header:
-    a cookie, sent by the browser on its own, must not authorize one)."""
+    """Read endpoints of a service without public_read: the key in the header or a
+    login session's cookie. Other methods are left to their own check (a write needs
+    the header: a cookie, sent by the browser on its own, must not authorize one)."""
     if request.method not in ("GET", "HEAD"):
         return
-    _check_key(store, x_api_key or cookie,
-               "this service's results are not public: send an API key in the X-API-Key "
-               "header, or log in on the dashboard")
+    if x_api_key:
+        if verify_api_key(store, x_api_key) is None:
+            raise _forbidden()
+        return
+    if not cookie:
+        raise _unauthorized("this service's results are not public: send an API key in "
+                            "the X-API-Key header, or log in on the dashboard")
+    if session_key(store, cookie) is None:
+        raise _unauthorized("the dashboard's login has ended (logged out, expired, or its "
+                            "key revoked): log in again")
 
 
 StoreDep = Annotated[Store, Depends(get_store)]
@@ -78,6 +95,7 @@ QueueDep = Annotated[JobQueue, Depends(get_queue)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 DispatcherDep = Annotated[Any, Depends(get_dispatcher)]
 WriteAccess = Depends(require_api_key)
+CallerDep = Annotated[ApiKey, Depends(require_api_key)]
 ReadAccess = Depends(require_read_access)
 
 #: A row id in a path: database integers are 32-bit on PostgreSQL.

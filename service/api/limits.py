@@ -8,6 +8,9 @@
   and list lengths, nesting depth, and the total size of ``params`` are capped
   (422 naming the field), so a spec that is stored and served to every reader stays
   small.
+* Text: JSON may spell a lone UTF-16 surrogate (``"\\ud800"``), which is no Unicode
+  character: it cannot be stored, hashed or sent back as UTF-8, so a string or key
+  holding one is refused (422) before anything uses it.
 * Echoes: a 422 repeats the offending input, cut to a few hundred characters.
 """
 
@@ -102,12 +105,36 @@ async def _no_body() -> Message:
 
 
 def _violation(path: list[Any], value: Any, kind: str, message: str) -> dict[str, Any]:
-    return {"loc": ["body", *path], "msg": message, "type": kind, "input": value}
+    return {"loc": ["body", *map(_printable, path)], "msg": message, "type": kind,
+            "input": _printable(value)}
+
+
+def _printable(value: Any) -> Any:
+    """``value`` with any lone surrogate spelled as its escape (``\\ud800``), so that
+    the answer that echoes it can be encoded."""
+    if isinstance(value, str) and not _is_unicode(value):
+        return value.encode("utf-8", "backslashreplace").decode("utf-8")
+    return value
+
+
+def _is_unicode(text: str) -> bool:
+    """False for text holding a lone surrogate (JSON's ``\\ud800``), which UTF-8
+    cannot encode."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+_NOT_UNICODE = "holds a lone UTF-16 surrogate (such as \\ud800), which is not Unicode text"
 
 
 def _shape_errors(value: Any, path: list[Any], depth: int = 1) -> list[dict[str, Any]]:
     """Where ``value`` (parsed JSON) passes the string, list, key and depth limits."""
     if isinstance(value, str):
+        if not _is_unicode(value):
+            return [_violation(path, value, "string_unicode", f"a string that {_NOT_UNICODE}")]
         if len(value) > MAX_STRING_CHARS:
             return [_violation(path, value, "string_too_long",
                                f"a string of {len(value)} characters: at most "
@@ -134,6 +161,8 @@ def _shape_errors(value: Any, path: list[Any], depth: int = 1) -> list[dict[str,
     for key, item in items:
         if isinstance(key, str) and len(key) > MAX_STRING_CHARS:
             return [_violation(path, key, "string_too_long", "a key too long")]
+        if isinstance(key, str) and not _is_unicode(key):
+            return [_violation(path, key, "string_unicode", f"a key that {_NOT_UNICODE}")]
         errors += _shape_errors(item, [*path, key], depth + 1)
         if errors:          # the first few are enough to fix the request
             return errors

@@ -2,9 +2,12 @@
 
 ``create_app(settings, dispatcher)`` builds the app; the service (``nirc-bench
 serve``) passes a :class:`jobs.execution.dispatch.Dispatcher`, tests may pass None (jobs
-stay queued) or a stand-in. On start every unfinished job is dispatched again:
-queued ones run, and running ones left by a killed process are taken over when
-their heartbeat lease expires (jobs.execution.queue). A request that fails validation is
+stay queued) or a stand-in. On start, and then every ``redispatch_interval_s``, every
+job that nothing runs is dispatched again: queued ones run, and running ones left by
+a killed process, or given up by a runner that could not write the database, are
+taken over once their heartbeat lease expires (jobs.execution.queue). A storage
+failure is answered in JSON: 507 when the service cannot write (disk full), 503
+while the database is unavailable (service/api/failures.py). A request that fails validation is
 answered 422 with the errors as JSON, even when the bad value is NaN or Infinity
 (which a JSON body may carry, but a JSON answer cannot), and with any echoed input
 cut short (service/api/limits.py, which also bounds bodies).
@@ -32,6 +35,8 @@ from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
 from jobs.record.db import open_store
 from service.api.deps import ReadAccess
+from service.api.failures import add_failure_handlers
+from service.api.headers import SecurityHeaders
 from service.api.limits import BodySizeLimit, bounded_json_body, truncate_echo
 from service.api.routes import auth, ci, jobs, results, scenes
 
@@ -84,12 +89,15 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        stop = None
         if dispatcher is not None:
-            for job_id in queue.unfinished():
-                dispatcher.submit(queue.get(job_id))
+            dispatcher.recover()
+            stop = dispatcher.recover_every(settings.redispatch_interval_s)
         try:
             yield
         finally:
+            if stop is not None:
+                stop.set()
             store.close()
 
     app = FastAPI(title="nirc-bench", version="1",
@@ -99,9 +107,11 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.state.settings, app.state.store, app.state.queue = settings, store, queue
     app.state.dispatcher = dispatcher
     app.add_exception_handler(RequestValidationError, validation_failed)
+    add_failure_handlers(app)
     # A scene upload reads its body under its own cap (scene_max_bytes).
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes,
                        exempt=(("POST", scenes.UPLOAD_PATH),))
+    app.add_middleware(SecurityHeaders)
     guards = [Depends(bounded_json_body)]
     if settings.public_read is False:
         guards.append(ReadAccess)

@@ -26,7 +26,7 @@ from jobs.record.models import Base
 from jobs.record.store import Store
 
 TABLES = {"reference_renders", "runs", "seed_results", "artifacts", "cache_snapshots", "sweeps",
-          "jobs", "api_keys"}
+          "jobs", "api_keys", "login_sessions"}
 
 
 def test_sqlite_pragmas(sqlite_store: Store) -> None:
@@ -59,7 +59,7 @@ def test_migrating_twice_is_a_no_op(store: Store) -> None:
     migrate(store.engine)
     with store.engine.connect() as conn:
         after = conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all()
-    assert before == after == ["0008"]
+    assert before == after == ["0009"]
 
 
 def test_migrations_match_models(store: Store) -> None:

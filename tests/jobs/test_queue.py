@@ -66,14 +66,21 @@ def test_cancel_and_progress(store):
     assert queue.cancel(999) is None
 
 
-def test_unfinished_jobs_and_lease_takeover(store):
+def ids(jobs) -> list[int]:
+    return [job.id for job in jobs]
+
+
+def test_stranded_jobs_and_lease_takeover(store):
     queue = JobQueue(store)
     a, _ = queue.submit("render", SPEC, "a")
     b, _ = queue.submit("render", SPEC, "b", max_attempts=1)
     c, _ = queue.submit("render", SPEC, "c")
     queue.claim(a.id, "dead worker")
     queue.claim(b.id, "dead worker")
-    assert queue.unfinished() == [a.id, b.id, c.id]
+    # Running jobs are stranded only once their lease has expired.
+    assert ids(queue.stranded(lease_s=60)) == [c.id]
+    assert ids(queue.stranded(lease_s=0)) == [a.id, b.id, c.id]
+    assert ids(queue.stranded(lease_s=0, exclude=[c.id])) == [a.id, b.id]
     # A fresh heartbeat keeps the job with its runner; a stale one lets another take over.
     assert queue.claim(a.id, "new worker", lease_s=60) is None
     taken = queue.claim(a.id, "new worker", lease_s=0)
@@ -97,7 +104,7 @@ def test_a_sweeps_stages_are_made_once_and_go_with_their_sweep(store):
     assert {n: j.id for n, j in first.items()} == {n: j.id for n, j in again.items()}
     assert [job.spec["name"] for job in queue.children(sweep.id)] == [s.name for s in stages]
     assert all(job.kind == "stage" and job.parent_id == sweep.id for job in first.values())
-    assert queue.unfinished() == [sweep.id]        # stages are dispatched with their sweep
+    assert ids(queue.stranded(lease_s=0)) == [sweep.id]   # stages go with their sweep
     # A stage fails for good: what needs it is abandoned with its error.
     reference, cache = first["reference"], first["nrc cache 1/2"]
     queue.claim(reference.id, "w")

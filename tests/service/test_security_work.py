@@ -96,17 +96,28 @@ def test_a_full_disk_refuses_new_jobs(api):
     assert queue.list() == []
 
 
-def test_a_job_without_a_timeout_gets_one_from_its_size():
+def test_a_job_without_a_timeout_gets_one_from_its_size(tmp_path, monkeypatch):
     from jobs.execution.runner import _timeout_of
+    from jobs.execution.timecost import DEFAULT
     from jobs.execution.work import render_work
     from jobs.protocol.spec import RenderSpec
 
-    settings = Settings(job_timeout_min_s=60, timeout_samples_per_s=1000)
-    job = SimpleNamespace(kind="render", spec=SPEC)
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    settings = Settings(data_dir=tmp_path / "data", job_timeout_min_s=60,
+                        timeout_samples_per_s=1000)
+    store = open_store(settings)
+    job = SimpleNamespace(kind="render", spec=SPEC, device_class="cpu")
     samples = render_work(RenderSpec(**SPEC)).samples
     assert samples == 16 * 16 * (64 + 2 * 2)
-    assert _timeout_of(job, settings, None) == 60 + samples / 1000
-    assert _timeout_of(job, settings, 5.0) == 5.0
+    assert _timeout_of(job, settings, None, store) == 60 + samples / 1000
+    assert _timeout_of(job, settings, 5.0, store) == 5.0
+    # A job whose samples are few but whose frames are many: twice its estimated time.
+    many = {**SPEC, "frames": 10_000}
+    frames = 10_000 * 2 + 64 // 8        # seeds x frames, and the reference's passes
+    timeout = _timeout_of(SimpleNamespace(kind="render", spec=many, device_class="cpu"),
+                          settings, None, store)
+    assert timeout >= 60 + 2 * frames * DEFAULT.frame_s
+    store.close()
 
 
 def test_a_canceled_stage_cancels_what_needs_it(tmp_path, monkeypatch):

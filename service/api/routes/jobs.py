@@ -1,4 +1,11 @@
-"""Submitting, polling and canceling jobs and sweeps."""
+"""Submitting, polling and canceling jobs and sweeps.
+
+A job belongs to the API key that submitted it: only that key, or an admin key,
+may cancel it; a key's Idempotency-Keys are its own; a key holds at most
+``max_jobs_per_key`` unfinished jobs (429 beyond). An identical spec already live
+or done is answered with that job, whoever submitted it (the work is done once),
+and a job found that way which nothing is running is dispatched again.
+"""
 
 from __future__ import annotations
 
@@ -11,15 +18,16 @@ from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from jobs.execution.graph import sweep_stages
-from jobs.execution.queue import IdempotencyKeyReused, spec_key
+from jobs.execution.queue import IdempotencyKeyReused, TooManyJobs, spec_key
+from jobs.execution.timecost import estimate_seconds
 from jobs.execution.work import data_bytes, reference_stored, render_work, sweep_work
 from jobs.protocol.scene_store import rest_scene
 from jobs.protocol.spec import RenderSpec, SweepSpec
 from jobs.record.config import Settings
-from jobs.record.models import FINAL_JOB_STATES
+from jobs.record.models import FINAL_JOB_STATES, ApiKey
 from renderers.methods import MethodError, format_validation_error, get_method
 from renderers.scenes.vetting import SceneRefused
-from service.api.deps import DispatcherDep, QueueDep, RowId, SettingsDep, WriteAccess
+from service.api.deps import CallerDep, DispatcherDep, QueueDep, RowId, SettingsDep
 from service.api.schemas import JobOut
 
 router = APIRouter(prefix="/api/v1", tags=["jobs"])
@@ -67,9 +75,11 @@ def _check_render(spec: RenderSpec, settings: Settings) -> RenderSpec:
     return spec.model_copy(update={"scene": _check_scene(spec.scene, settings)})
 
 
-def _check_work(kind: str, spec: RenderSpec | SweepSpec, store, settings) -> None:
-    """Refuse what is too big before it is queued: too many stage jobs or samples for
-    this service's limits (422), or more files than its disk limit allows (507)."""
+def _check_work(kind: str, spec: RenderSpec | SweepSpec, store, settings,
+                device_class: str) -> None:
+    """Refuse what is too big before it is queued: too many stage jobs, samples or
+    estimated seconds for this service's limits (422), or more files than its disk
+    limit allows (507)."""
     if kind == "sweep":
         stages = sweep_stages(spec)
         if len(stages) > settings.max_sweep_stages:
@@ -88,6 +98,19 @@ def _check_work(kind: str, spec: RenderSpec | SweepSpec, store, settings) -> Non
             f"({parts}); this service allows {settings.max_job_work:.3g} per job "
             "(max_job_work): lower the resolution, spp, frames or seeds"),
             "type": "value_error"}])
+    if settings.max_job_seconds is not None:
+        methods = list(spec.methods) if kind == "sweep" else [spec.method]
+        time = estimate_seconds(estimate, methods, spec.scene, store, device_class)
+        if time.seconds > settings.max_job_seconds:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, [{"loc": ["body"], "msg": (
+                f"this {kind} job is estimated to take {time.seconds:.0f} s on this "
+                f"service ({time.describe()}; from {_sources(time.sources)}); this service "
+                f"allows {settings.max_job_seconds:.0f} s per job (max_job_seconds): lower "
+                "the resolution, spp, frames, seeds or the number of sweep points"),
+                "type": "value_error", "ctx": {"estimated_s": round(time.seconds, 1),
+                                               "parts_s": {part: round(seconds, 1) for part, seconds
+                                                           in time.parts.items()},
+                                               "limit_s": settings.max_job_seconds}}])
     if settings.max_data_bytes is not None:
         used = data_bytes(store, settings)
         if used + estimate.artifact_bytes > settings.max_data_bytes:
@@ -98,42 +121,54 @@ def _check_work(kind: str, spec: RenderSpec | SweepSpec, store, settings) -> Non
                 "with `nirc-bench gc --apply`"))
 
 
+def _sources(sources: dict[str, str]) -> str:
+    """Where the estimate's costs came from, each source once."""
+    return "; ".join(dict.fromkeys(sources.values()))
+
+
 def _enqueue(kind: str, spec: RenderSpec | SweepSpec, queue, dispatcher, response: Response,
-             idempotency_key: str | None, device_class: str, settings) -> JobOut:
+             idempotency_key: str | None, device_class: str, settings,
+             caller: ApiKey) -> JobOut:
     reason = dispatcher.unavailable(device_class) if dispatcher is not None else None
     if reason:
         raise HTTPException(status.HTTP_409_CONFLICT, reason)
-    _check_work(kind, spec, queue.store, settings)
+    _check_work(kind, spec, queue.store, settings, device_class)
     try:
         job, created = queue.submit(kind, spec.model_dump(mode="json"),
                                     spec_key(kind, spec, device_class),
-                                    idempotency_key=idempotency_key, device_class=device_class)
+                                    idempotency_key=idempotency_key, device_class=device_class,
+                                    owner_key_id=caller.id,
+                                    max_unfinished=settings.max_jobs_per_key)
     except IdempotencyKeyReused as err:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, [
             {"loc": ["header", "Idempotency-Key"], "msg": str(err),
              "type": "value_error"}]) from None
-    if created and dispatcher is not None:
-        dispatcher.submit(job)
+    except TooManyJobs as err:
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, str(err),
+                            headers={"Retry-After": "60"}) from None
+    if dispatcher is not None:
+        if created:
+            dispatcher.submit(job)
+        else:   # a duplicate: never answer with a job that nothing will run
+            dispatcher.recover([job])
     response.headers["Location"] = f"/api/v1/jobs/{job.id}"
     return JobOut.of(job)
 
 
-@router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut,
-             dependencies=[WriteAccess])
+@router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
 def submit_job(spec: RenderSpec, response: Response, queue: QueueDep,
-               dispatcher: DispatcherDep, settings: SettingsDep,
+               dispatcher: DispatcherDep, settings: SettingsDep, caller: CallerDep,
                idempotency_key: IdempotencyKey = None,
                device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a render job (K seeds of a method on a scene, against its reference)."""
     spec = _check_render(spec, settings)
     return _enqueue("render", spec, queue, dispatcher, response,
-                    idempotency_key, device_class, settings)
+                    idempotency_key, device_class, settings, caller)
 
 
-@router.post("/sweeps", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut,
-             dependencies=[WriteAccess])
+@router.post("/sweeps", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
 def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
-                 dispatcher: DispatcherDep, settings: SettingsDep,
+                 dispatcher: DispatcherDep, settings: SettingsDep, caller: CallerDep,
                  idempotency_key: IdempotencyKey = None,
                  device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a sweep (adaptive equal-bias over eps, or over N_c); poll it as a job."""
@@ -141,7 +176,7 @@ def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
         _check_params(method, spec.params)
     spec = spec.model_copy(update={"scene": _check_scene(spec.scene, settings)})
     return _enqueue("sweep", spec, queue, dispatcher, response,
-                    idempotency_key, device_class, settings)
+                    idempotency_key, device_class, settings, caller)
 
 
 @router.get("/jobs", response_model=list[JobOut])
@@ -200,10 +235,15 @@ async def _wait_until_final(request: Request, queue, job, deadline: float, max_w
         state.long_poll_waiters -= 1
 
 
-@router.post("/jobs/{job_id}/cancel", response_model=JobOut, dependencies=[WriteAccess])
-def cancel_job(job_id: RowId, queue: QueueDep) -> JobOut:
-    """Cancel a queued job now; a running job is stopped by its runner."""
-    job = queue.cancel(job_id)
+@router.post("/jobs/{job_id}/cancel", response_model=JobOut)
+def cancel_job(job_id: RowId, queue: QueueDep, caller: CallerDep) -> JobOut:
+    """Cancel a queued job now; a running job is stopped by its runner. Only the key
+    that submitted the job, or an admin key, may cancel it (403 otherwise)."""
+    job = queue.get(job_id)
     if job is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no job {job_id}")
-    return JobOut.of(job)
+    if job.owner_key_id != caller.id and not caller.admin:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, (
+            f"job {job_id} was submitted by another API key; only that key or an admin key "
+            "(`nirc-bench apikey create --admin`) may cancel it"))
+    return JobOut.of(queue.cancel(job_id))
