@@ -296,15 +296,20 @@ class JobQueue:
                                 status=JobStatus.SUCCEEDED.value, run_id=run_id,
                                 sweep_id=sweep_id, work=work, finished_at=_now())
 
-    def fail(self, job_id: int, error: str, *, retry: bool) -> str:
+    def fail(self, job_id: int, error: str, *, retry: bool, count: bool = True) -> str:
         """End a running attempt with ``error``: back to queued when ``retry`` and
-        attempts remain, else failed. Returns the new status."""
+        attempts remain, else failed. Returns the new status. ``count=False``: the
+        attempt does not use one up (it met a full disk, not a fault of the job)."""
         job = self.get(job_id)
         if job is None or job.status != JobStatus.RUNNING.value:
             return job.status if job else JobStatus.FAILED.value
-        if retry and job.attempts < job.max_attempts and not job.cancel_requested:
+        if not count:
+            retry = True
+        if retry and (job.attempts < job.max_attempts or not count) \
+                and not job.cancel_requested:
             self._transition(job_id, [Job.status == JobStatus.RUNNING.value],
-                             status=JobStatus.QUEUED.value, error=error, worker=None)
+                             status=JobStatus.QUEUED.value, error=error, worker=None,
+                             **({} if count else {"attempts": Job.attempts - 1}))
             return JobStatus.QUEUED.value
         final = JobStatus.CANCELED if job.cancel_requested else JobStatus.FAILED
         self._transition(job_id, [Job.status == JobStatus.RUNNING.value],

@@ -19,9 +19,10 @@ to the child and watches:
   same way;
 * status 4: the child could not write the data folder or the database (disk
   full, a file size limit, the database locked past its timeout); the line
-  carries the cause. The job goes back to the queue *and this runner leaves it*:
-  retrying at once would meet the same full disk, so the service's next round of
-  dispatching (jobs/execution/dispatch.py) runs it again;
+  carries the cause. The job goes back to the queue without using up an attempt
+  (the job is not at fault) *and this runner leaves it*: retrying at once would
+  meet the same full disk, so the service's next round of dispatching
+  (jobs/execution/dispatch.py) runs it again; the child stays (it is healthy);
 * the child dies (an abort, a signal, an out-of-memory kill), or the attempt
   times out or is canceled (the parent kills the child): the attempt failed;
   the job goes back to the queue until ``max_attempts``. A child that exits on
@@ -148,8 +149,10 @@ def _run(queue: JobQueue, job_id: int, settings: Settings, worker: str,
                                    poll_s, lease_s)
         if status in (0, EXIT_JOB_FAILED):
             return queue.get(job_id).status
-        requeued = queue.fail(job_id, reason, retry=True) == JobStatus.QUEUED.value
-        if status == EXIT_STORAGE and requeued:
+        storage = status == EXIT_STORAGE
+        requeued = queue.fail(job_id, reason, retry=True, count=not storage) \
+            == JobStatus.QUEUED.value
+        if storage and requeued:
             return DEFERRED
         if not requeued:
             return queue.get(job_id).status
@@ -226,7 +229,8 @@ class _Child:
                 if not line:                     # EOF: the child died mid-job
                     return -1, self.close(ended=True)
                 code, _, reason = line.strip().partition(" ")
-                if int(code) != 0:
+                # A storage failure leaves the child healthy: it serves the next job.
+                if int(code) not in (0, EXIT_STORAGE):
                     self.close()
                 return int(code), reason
             try:

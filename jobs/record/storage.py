@@ -2,8 +2,9 @@
 
 Two kinds of storage failure are expected in operation and are not bugs:
 
-* **full**: no space (``ENOSPC``), a quota (``EDQUOT``) or a file size limit
-  (``EFBIG``, e.g. ``RLIMIT_FSIZE``) stopped a write of a file, or the database
+* **full**: no space (``ENOSPC``), a quota (``EDQUOT``), a file size limit
+  (``EFBIG``, e.g. ``RLIMIT_FSIZE``) or an I/O error (``EIO``: an image that did not
+  read back as written, metrics/imageio.py) stopped a write of a file, or the database
   could not write (SQLite ``SQLITE_FULL`` or an I/O error while writing;
   PostgreSQL's class 53, insufficient resources). Nothing is wrong with the request:
   the service cannot store what it needs (HTTP 507). A check of our own that finds a
@@ -24,7 +25,7 @@ from typing import Literal
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 
-FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO})
 #: SQLite's primary result codes (the low byte of an extended code).
 _SQLITE_FULL, _SQLITE_IOERR, _SQLITE_BUSY, _SQLITE_LOCKED = 13, 10, 5, 6
 
