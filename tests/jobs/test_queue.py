@@ -232,3 +232,21 @@ def test_migration_0007_merges_duplicate_jobs_stored_before_it(store):
     assert status[8][0] == "canceled" and "merged into job 5" in status[8][1]
     # And from now on the database holds the line.
     assert queue.submit("render", SPEC, "a")[0].id == 2
+
+
+def test_a_key_runs_at_most_its_limit_of_jobs_at_once(store):
+    """One key's jobs beyond max_running_per_owner are not claimed (they stay queued,
+    to be dispatched again): the key cannot hold every worker. Another key's job, and
+    the same key's job once a slot is free, are claimed."""
+    from jobs.execution.apikeys import create_api_key
+
+    queue = JobQueue(store)
+    (a, _), (b, _) = create_api_key(store, "a"), create_api_key(store, "b")
+    first, second, theirs = (queue.submit("render", SPEC, key, owner_key_id=owner)[0]
+                             for key, owner in (("1", a.id), ("2", a.id), ("3", b.id)))
+    assert queue.claim(first.id, "w1", lease_s=60, max_running_per_owner=1) is not None
+    assert queue.claim(second.id, "w2", lease_s=60, max_running_per_owner=1) is None
+    assert queue.get(second.id).status == "queued"
+    assert queue.claim(theirs.id, "w2", lease_s=60, max_running_per_owner=1) is not None
+    queue.succeed(first.id, run_id=None)
+    assert queue.claim(second.id, "w1", lease_s=60, max_running_per_owner=1) is not None

@@ -1,8 +1,11 @@
 """Read access, each case replayed: reads without a key on a real `nirc-bench serve
 --no-public-read` on loopback (and with public reads), `serve` on a non-loopback
-address without a choice, the dashboard's login cookie (flags, and in a real
-headless Chromium), the OpenAPI security schemes, owner-only files, and scale-out
-Dask over TLS with certificates (a plain connection is refused)."""
+address without a choice, the dashboard's login session (cookie flags, the key never
+in the cookie, logout ending it on the server, and in a real headless Chromium under
+the dashboard's Content-Security-Policy), security headers, lone surrogates in JSON,
+the OpenAPI security schemes, owner-only files, and scale-out Dask over TLS with
+certificates (a plain connection is refused, a plain scheduler off loopback too unless
+a setting allows it)."""
 
 from __future__ import annotations
 
@@ -32,7 +35,7 @@ SPEC = {"scene": "cornell-box", "method": "pt", "resolution": 8, "spp": 1, "fram
 READS = ["/api/v1/jobs", "/api/v1/jobs/1", "/api/v1/jobs/1?wait_s=1", "/api/v1/results",
          "/api/v1/sweeps", "/api/v1/scenes", "/api/v1/runs/1", "/api/v1/artifacts/1",
          "/api/v1/compare?runs=1,2", "/api/v1/references/1/preview.png"]
-COOKIE = "nirc_bench_key"
+COOKIE = "nirc_bench_session"
 
 
 class LiveService(Service):
@@ -163,6 +166,70 @@ def test_login_cookie_is_httponly_strict_and_authorizes_reads_only(private):
     assert write.status_code == 401
     logout = httpx.post(f"{url}/api/v1/auth/logout", cookies=cookies)
     assert logout.status_code == 204 and f'{COOKIE}=""' in logout.headers["set-cookie"]
+
+
+def test_the_login_cookie_holds_a_session_not_the_key(private):
+    """Before: the cookie held the API key itself for 30 days. After: a session token
+    (its digest stored with the key's id), at most 12 hours, ended on the server by
+    logging out: a copy of the cookie kept by an attacker stops working."""
+    url = private.url
+    login = httpx.post(f"{url}/api/v1/auth/login", json={"api_key": private.key})
+    token = login.cookies[COOKIE]
+    assert token and private.key not in login.headers["set-cookie"]
+    secret = private.key.split("_", 2)[2]
+    assert secret not in token and token not in private.key
+    max_age = next(int(part.split("=")[1]) for part in login.headers["set-cookie"].split("; ")
+                   if part.lower().startswith("max-age="))
+    assert 0 < max_age <= 12 * 3600
+    cookies = {COOKIE: token}
+    assert _status(f"{url}/api/v1/jobs", cookies=cookies) == 200
+    httpx.post(f"{url}/api/v1/auth/logout", cookies=cookies)
+    stolen = httpx.get(f"{url}/api/v1/jobs", cookies=cookies)
+    assert stolen.status_code == 401 and "log in again" in stolen.json()["detail"]
+    assert _status(f"{url}/api/v1/jobs", cookies={COOKIE: private.key}) == 401
+
+
+def test_a_lone_surrogate_in_json_is_422_not_500(private):
+    """Before: `"\\ud800"` in a body (valid JSON, not Unicode) was a 500 on /jobs,
+    /sweeps and the unauthenticated /auth/login. After: 422 in JSON naming the field."""
+    url, key = private.url, {"X-API-Key": private.key, "Content-Type": "application/json"}
+    for path, body, headers in (
+            ("auth/login", '{"api_key": "nb_\\ud800_x"}', {"Content-Type": "application/json"}),
+            ("jobs", '{"scene": "\\ud800", "method": "pt"}', key),
+            ("sweeps", '{"scene": "cornell-box", "eps": [0.5], "params": {"\\udfff": 1}}', key)):
+        answer = httpx.post(f"{url}/api/v1/{path}", content=body, headers=headers)
+        assert answer.status_code == 422, (path, answer.text)
+        assert "surrogate" in answer.json()["detail"][0]["msg"]
+
+
+def test_every_answer_carries_security_headers(private):
+    """Before: no Content-Security-Policy and no X-Frame-Options: any site could frame
+    the dashboard, and an injected script would run. After: both, on every answer."""
+    page = httpx.get(f"{private.url}/")
+    policy = page.headers["content-security-policy"]
+    assert "frame-ancestors 'none'" in policy and "script-src 'self'" in policy
+    assert "unsafe-inline" not in policy
+    for answer in (page, httpx.get(f"{private.url}/api/v1/jobs"),
+                   httpx.get(f"{private.url}/static/app.js")):
+        assert answer.headers["x-frame-options"] == "DENY"
+        assert answer.headers["x-content-type-options"] == "nosniff"
+
+
+def test_a_plain_scheduler_off_loopback_is_refused_unless_allowed(tmp_path):
+    """Before: `serve`/`worker --scheduler tcp://<other machine>` connected with only
+    a warning. After: exit status 2 naming the setting that would allow it."""
+    from service.cli import _with_tls
+
+    env = service_env(tmp_path / "data")
+    for command in (["serve", "--port", str(free_port())], ["worker"]):
+        refused = subprocess.run([sys.executable, "-m", "service", *command, "--scheduler",
+                                  "tcp://192.0.2.1:8786"], env=env, capture_output=True,
+                                 text=True, timeout=60)
+        assert refused.returncode == 2, refused.stderr
+        assert "--allow-plaintext-scheduler" in refused.stderr
+    allowed = _with_tls(Settings(data_dir=tmp_path), "tcp://192.0.2.1:8786", None, None, None,
+                        allow_plaintext=True)
+    assert allowed.allow_plaintext_scheduler
 
 
 def test_openapi_declares_the_key_on_protected_operations(app_with):
