@@ -723,8 +723,10 @@ def gc(
         help="keep anything younger (default: the gc_keep_days setting)")] = None,
     data_dir: DataDir = None,
 ) -> None:
-    """Free disk: remove references no run uses, and files no stored row names
-    (older than --keep-days). Lists them with sizes; removes them only with --apply."""
+    """Free disk: remove references no run uses, stored scenes and files no stored row
+    names (older than --keep-days), and results' artifacts past the retention policy
+    (artifact_keep_days, artifact_max_bytes). Lists them with sizes; removes them only
+    with --apply."""
     from jobs.record import gc as retention
 
     settings = _settings(data_dir)
@@ -732,9 +734,7 @@ def gc(
     try:
         plan = retention.plan(store, settings, keep_days)
         for removal in plan.removals:
-            name = (f"reference {removal.reference_id}" if removal.reference_id is not None
-                    else str(removal.path))
-            console.print(f"{removal.bytes:>14,d}  {removal.what:<15} {name}",
+            console.print(f"{removal.bytes:>14,d}  {removal.what:<15} {removal.name}",
                           markup=False, highlight=False)
         if not apply_:
             console.print(f"would remove {len(plan.removals)} items, {plan.bytes:,d} bytes "

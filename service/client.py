@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-import base64
+import io
+import tarfile
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -53,18 +55,25 @@ class ServiceClient:
         The service never reads the client's paths: the scene is vetted here as the
         service vets uploads (the same walk over includes and file references,
         here with the whole local filesystem allowed: the files are the user's own)
-        and sent as the rewritten XML plus its files; the service vets it again
-        under its own limits.
+        and sent as a tar archive of the rewritten XML (``scene.xml``) and its files,
+        spooled through a temporary file and streamed; the service vets it again under
+        its own limits.
         """
-        from renderers.scenes.vetting import STAGED_SCENE, Limits, vet_root_scene
+        from renderers.scenes.vetting import Limits, blob_bytes, vet_root_scene
 
         scene = Path(path).expanduser().absolute()
         unlimited = Limits(max_file_bytes=1 << 62, max_total_bytes=1 << 62, max_files=1 << 30)
-        files = dict(vet_root_scene(str(scene), [Path(scene.anchor)], unlimited).files)
-        xml = files.pop(STAGED_SCENE)
-        body = {"xml": xml.decode(),
-                "files": {name: base64.b64encode(data).decode() for name, data in files.items()}}
-        return self._request("POST", "/api/v1/scenes", json=body)["id"]
+        staged = vet_root_scene(str(scene), [Path(scene.anchor)], unlimited)
+        with tempfile.TemporaryFile() as archive:
+            with tarfile.open(fileobj=archive, mode="w:") as tar:
+                for name, blob in staged.files.items():
+                    data = blob_bytes(blob)
+                    info = tarfile.TarInfo(name)
+                    info.size = len(data)
+                    tar.addfile(info, io.BytesIO(data))
+            archive.seek(0)
+            return self._request("POST", "/api/v1/scenes", content=archive,
+                                 headers={"Content-Type": "application/x-tar"})["id"]
 
     def get(self, path: str) -> Any:
         return self._request("GET", path)

@@ -18,6 +18,10 @@ gives the same id, and a render reads exactly the bytes that were vetted.
 Anything else — a path outside the roots, a missing file, a symlink leading out —
 gets one and the same message, :func:`unavailable_message`: the answer must not
 tell a client whether some file exists on the server.
+
+Stored scenes count in the data folder's size (jobs.execution.work.data_bytes), and
+``nirc-bench gc`` removes those that no job, run, sweep, reference or cache snapshot
+names (jobs/record/gc.py).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from renderers.scenes import LoadedScene, SceneError, builtin_names, load_scene
 from renderers.scenes.errors import SceneNotFinite
 from renderers.scenes.vetting import (
     STAGED_SCENE,
+    Blob,
     Limits,
     SceneRefused,
     StagedScene,
@@ -51,11 +56,6 @@ def limits_of(settings: Settings) -> Limits:
                   max_total_bytes=settings.scene_max_bytes)
 
 
-def scenes_dir(settings: Settings) -> Path:
-    """Root of the stored (uploaded or staged) scenes."""
-    return settings.data_dir / "scenes"
-
-
 def unavailable_message() -> str:
     """The one answer for a scene that does not exist *or* may not be used; it does
     not even repeat the name, so two answers can be compared byte for byte."""
@@ -71,21 +71,24 @@ def stored_scene_file(scene: str, settings: Settings) -> Path | None:
     match = SCENE_ID.match(scene)
     if match is None:
         return None
-    path = scenes_dir(settings) / match.group(2) / STAGED_SCENE
+    path = settings.scenes_dir / match.group(2) / STAGED_SCENE
     return path if path.is_file() else None
 
 
 def store_scene(staged: StagedScene, settings: Settings) -> bool:
     """Write ``staged`` under its digest unless it is there; True if written now."""
-    root = scenes_dir(settings)
+    root = settings.scenes_dir
     target = root / staged.digest
-    if (target / STAGED_SCENE).is_file():
+    if is_stored(staged, settings):
         return False
     root.mkdir(parents=True, exist_ok=True)
     temporary = Path(tempfile.mkdtemp(prefix=".incoming-", dir=root))
     try:
         for name, data in staged.files.items():
-            (temporary / name).write_bytes(data)
+            if isinstance(data, Path):
+                shutil.copyfile(data, temporary / name)
+            else:
+                (temporary / name).write_bytes(data)
         try:
             os.rename(temporary, target)
         except OSError:
@@ -98,13 +101,27 @@ def store_scene(staged: StagedScene, settings: Settings) -> bool:
         shutil.rmtree(temporary, ignore_errors=True)
 
 
-def save_upload(xml: bytes, files: dict[str, bytes],
-                settings: Settings) -> tuple[str, StagedScene, bool]:
+def save_upload(xml: bytes, files: dict[str, Blob], settings: Settings,
+                room: int | None = None) -> tuple[str, StagedScene, bool]:
     """Vet and store an uploaded scene: its id, what was stored, and whether it was
-    new. Raises SceneRefused (SceneTooLarge) for a scene that may not be stored."""
+    new. Raises SceneRefused (SceneTooLarge) for a scene that may not be stored, and
+    :class:`NoRoom` for a new one larger than ``room`` (bytes left in the data
+    folder's budget; None: no budget)."""
     staged = vet_upload(xml, files, limits_of(settings))
+    if room is not None and staged.total_bytes > room and not is_stored(staged, settings):
+        raise NoRoom(f"the scene is {staged.total_bytes / 1e6:.1f} MB and the data folder "
+                     f"has {max(room, 0) / 1e6:.1f} MB left of this service's limit "
+                     "(max_data_bytes); free space with `nirc-bench gc --apply`")
     created = store_scene(staged, settings)
     return f"upload:{staged.digest}", staged, created
+
+
+class NoRoom(RuntimeError):
+    """Storing this would take the data folder past its size limit."""
+
+
+def is_stored(staged: StagedScene, settings: Settings) -> bool:
+    return (settings.scenes_dir / staged.digest / STAGED_SCENE).is_file()
 
 
 def rest_scene(scene: str, settings: Settings) -> str:

@@ -65,8 +65,14 @@ class Settings(BaseSettings):
     # Disk: None means no limit; with a limit, a submission whose estimated files would
     # take the data folder past it is refused (507).
     max_data_bytes: int | None = Field(None, ge=0)
-    # `nirc-bench gc` removes unreferenced files and references older than this.
+    # `nirc-bench gc` removes unreferenced files, scenes and references older than this.
     gc_keep_days: float = Field(30.0, ge=0.0)
+    # Retention of results' files (jobs/record/gc.py): `nirc-bench gc` removes the
+    # artifacts (images, previews, plots; the results' rows stay) of runs and sweeps
+    # older than artifact_keep_days, and the oldest first while the artifact store is
+    # over artifact_max_bytes. None: no such limit.
+    artifact_keep_days: float | None = Field(365.0, gt=0.0)
+    artifact_max_bytes: int | None = Field(None, ge=0)
     # Folders whose Mitsuba XML scenes REST clients may name by path (docs/service.md);
     # none by default. The environment variable is a JSON list or an os.pathsep-
     # separated one: NIRC_BENCH_SCENE_ROOTS=/srv/scenes:/data/more-scenes.
@@ -131,6 +137,11 @@ class Settings(BaseSettings):
     def artifacts_dir(self) -> Path:
         """Root of the content-addressed artifact files (EXR, PNG, error maps)."""
         return self.data_dir / "artifacts"
+
+    @property
+    def scenes_dir(self) -> Path:
+        """Folder of the stored (uploaded or staged) scenes, one folder per id digest."""
+        return self.data_dir / "scenes"
 
     @property
     def references_dir(self) -> Path:

@@ -1,43 +1,64 @@
 """Retention of the data folder: what `nirc-bench gc` removes.
 
-Runs and sweeps are results and are never removed. What can go is what no
-stored result needs, once it is older than ``Settings.gc_keep_days``:
+Run and sweep rows (the results: metrics, timings, provenance) are never removed.
+What can go:
 
 * references that no run and no cache snapshot uses (their row, their artifact
   rows, their image and variance files): a later job renders them again;
+* stored scenes (uploads and scene-root copies, ``data/scenes/<digest>``) that no
+  job, run, sweep, reference or cache snapshot names;
 * files in the artifact store that no artifact row names (left by a job that
   died before storing its run, or by rows removed since);
 * files in the references folder that no reference row names;
-* scratch files (``data/tmp``) and interrupted writes (``.tmp-*``).
+* scratch files (``data/tmp``) and interrupted writes (``.tmp-*``);
 
-The age limit protects a job in flight: it writes its files before the rows
-that name them. :func:`plan` only looks; :func:`apply` removes what a plan lists.
+all of these once older than ``Settings.gc_keep_days`` (the age limit protects a job
+in flight: it writes its files before the rows that name them). And, by the
+retention policy, the **artifacts of runs and sweeps** (images, error maps,
+previews, plots: their rows and files; the results stay): those of runs and sweeps
+created more than ``artifact_keep_days`` ago, and, while the artifact store holds
+more than ``artifact_max_bytes``, those of the oldest runs and sweeps first.
+Artifacts of references and cache snapshots are kept: later jobs reuse them.
+
+:func:`plan` only looks; :func:`apply` removes what a plan lists.
 """
 
 from __future__ import annotations
 
+import shutil
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-from sqlalchemy import delete, select
+from sqlalchemy import delete, func, select
 
 from jobs.record.config import Settings
-from jobs.record.models import Artifact, CacheSnapshot, Reference, Run
+from jobs.record.models import Artifact, CacheSnapshot, Job, Reference, Run, Sweep
 from jobs.record.store import Store
 
 
 @dataclass
 class Removal:
-    """One thing gc removes: a file (``path``), or a reference row with its files."""
+    """One thing gc removes: a file or folder (``path``), a reference row with its
+    files, or the artifacts (rows and unshared files) of one run or sweep."""
 
-    what: str                  # 'reference', 'artifact file', 'reference file', 'scratch file'
+    what: str       # 'reference', 'scene', 'run artifacts', 'sweep artifacts', '... file'
     path: Path | None
     bytes: int
     reference_id: int | None = None
     files: list[Path] = field(default_factory=list)   # a reference's own files
+    artifact_ids: list[int] = field(default_factory=list)
+    owner_id: int | None = None                       # the run or sweep of artifacts
+
+    @property
+    def name(self) -> str:
+        if self.reference_id is not None:
+            return f"reference {self.reference_id}"
+        if self.owner_id is not None:
+            return f"{self.what.split()[0]} {self.owner_id}"
+        return str(self.path)
 
 
 @dataclass
@@ -59,6 +80,64 @@ def _size(path: Path) -> int:
         return path.stat().st_size
     except OSError:
         return 0
+
+
+def named_scenes(store: Store) -> set[str]:
+    """The stored scene ids (``upload:<d>``, ``staged:<d>``) that a row names: a job's
+    spec (a sweep's stages name its scene too), a run, sweep, reference or snapshot."""
+    with store.session() as session:
+        names = set(session.scalars(select(Job.spec["scene"].as_string())
+                                    .where(Job.parent_id.is_(None))))
+        for column in (Run.scene_name, Sweep.scene_name, Reference.scene_name,
+                       CacheSnapshot.scene_name):
+            names |= set(session.scalars(select(column).distinct()))
+    return {name for name in names if isinstance(name, str) and ":" in name}
+
+
+def _scenes(store: Store, settings: Settings, old_mtime: float) -> list[Removal]:
+    folder = settings.scenes_dir
+    if not folder.is_dir():
+        return []
+    named = {name.split(":", 1)[1] for name in named_scenes(store)}
+    return [Removal("scene", scene, sum(map(_size, _files(scene))))
+            for scene in sorted(folder.iterdir())
+            if scene.is_dir() and not scene.name.startswith(".")
+            and scene.name not in named and scene.stat().st_mtime < old_mtime]
+
+
+def _expired_artifacts(store: Store, settings: Settings) -> list[Removal]:
+    """The artifacts of runs and sweeps past the retention policy (by age, then by the
+    store's size, oldest first)."""
+    keep_days, max_bytes = settings.artifact_keep_days, settings.artifact_max_bytes
+    if keep_days is None and max_bytes is None:
+        return []
+    with store.session() as session:
+        rows = session.execute(
+            select(Artifact.id, Artifact.bytes, Artifact.run_id, Artifact.sweep_id,
+                   func.coalesce(Run.created_at, Sweep.created_at))
+            .outerjoin(Run, Artifact.run_id == Run.id)
+            .outerjoin(Sweep, Artifact.sweep_id == Sweep.id)
+            .where(Artifact.reference_id.is_(None), Artifact.snapshot_id.is_(None),
+                   (Artifact.run_id.is_not(None)) | (Artifact.sweep_id.is_not(None)))).all()
+        total = int(session.scalar(select(func.coalesce(func.sum(Artifact.bytes), 0))) or 0)
+    owners: dict[tuple[str, int], Removal] = {}
+    ages: dict[tuple[str, int], datetime] = {}
+    for artifact_id, size, run_id, sweep_id, created in rows:
+        owner = ("run", run_id) if run_id is not None else ("sweep", sweep_id)
+        removal = owners.setdefault(owner, Removal(f"{owner[0]} artifacts", None, 0,
+                                                   owner_id=owner[1]))
+        removal.artifact_ids.append(artifact_id)
+        removal.bytes += size
+        ages[owner] = created
+    cutoff = datetime.now(UTC) - timedelta(days=keep_days) if keep_days is not None else None
+    chosen: list[Removal] = []
+    for owner in sorted(owners, key=lambda key: (ages[key], key)):
+        expired = cutoff is not None and ages[owner] < cutoff
+        over = max_bytes is not None and total > max_bytes
+        if expired or over:
+            chosen.append(owners[owner])
+            total -= owners[owner].bytes
+    return chosen
 
 
 def plan(store: Store, settings: Settings, keep_days: float | None = None) -> Plan:
@@ -98,6 +177,8 @@ def plan(store: Store, settings: Settings, keep_days: float | None = None) -> Pl
     for path in _files(settings.data_dir / "tmp"):
         if path.stat().st_mtime < old_mtime:
             removals.append(Removal("scratch file", path, _size(path)))
+    removals += _scenes(store, settings, old_mtime)
+    removals += _expired_artifacts(store, settings)
     return Plan(removals)
 
 
@@ -126,10 +207,35 @@ def apply(store: Store, settings: Settings, gc_plan: Plan) -> int:
             path.unlink(missing_ok=True)
     else:
         kept = set()
+    freed += _remove_artifact_rows(store, settings, [
+        artifact_id for removal in gc_plan.removals for artifact_id in removal.artifact_ids])
+    # A scene named since the plan (a job submitted meanwhile) stays.
+    named = {name.split(":", 1)[1] for name in named_scenes(store)}
     for removal in gc_plan.removals:
         if removal.reference_id in kept:
+            continue
+        if removal.what == "scene":
+            if removal.path.name not in named:
+                freed += sum(map(_size, _files(removal.path)))
+                shutil.rmtree(removal.path, ignore_errors=True)
             continue
         for path in [*removal.files, *([removal.path] if removal.path else [])]:
             freed += _size(path)
             path.unlink(missing_ok=True)
+    return freed
+
+
+def _remove_artifact_rows(store: Store, settings: Settings, artifact_ids: list[int]) -> int:
+    """Delete these artifact rows, then the files no remaining row names; bytes freed."""
+    if not artifact_ids:
+        return 0
+    with store.session(write=True) as session:
+        paths = set(session.scalars(select(Artifact.path).where(Artifact.id.in_(artifact_ids))))
+        session.execute(delete(Artifact).where(Artifact.id.in_(artifact_ids)))
+        still_named = set(session.scalars(select(Artifact.path).where(Artifact.path.in_(paths))))
+    freed = 0
+    for relative in paths - still_named:
+        path = settings.artifacts_dir / relative
+        freed += _size(path)
+        path.unlink(missing_ok=True)
     return freed

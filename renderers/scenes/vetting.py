@@ -22,6 +22,10 @@ Which files a reference may name (``source``), and how a name is looked up, is
 the only difference between uploads and roots: see :class:`RootSource` and
 :class:`UploadSource`. Relative names are looked up, like Mitsuba does, first
 next to the XML that names them, then next to the main scene file.
+
+A file's content is a :data:`Blob`: bytes, or the path of a file that only the
+service writes (an upload received to disk). XML is parsed in memory; every other
+file of an upload is hashed and copied from disk in chunks, never held whole.
 """
 
 from __future__ import annotations
@@ -54,6 +58,29 @@ _RESOLVER_TAGS = frozenset({"path", "resource"})
 # Attributes that name things, never files.
 _NAME_ATTRIBUTES = frozenset({"name", "type", "id", "version"})
 _UNSAFE_NAME_CHARACTERS = re.compile(r"[^A-Za-z0-9._-]")
+#: Bytes read at a time when hashing a file on disk.
+_CHUNK = 1 << 20
+
+#: A file's content: its bytes, or a private file holding them (an upload on disk).
+Blob = bytes | Path
+
+
+def blob_size(blob: Blob) -> int:
+    return blob.stat().st_size if isinstance(blob, Path) else len(blob)
+
+
+def blob_sha256(blob: Blob) -> str:
+    if not isinstance(blob, Path):
+        return hashlib.sha256(blob).hexdigest()
+    digest = hashlib.sha256()
+    with blob.open("rb") as file:
+        while chunk := file.read(_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def blob_bytes(blob: Blob) -> bytes:
+    return blob.read_bytes() if isinstance(blob, Path) else blob
 
 
 class SceneRefused(SceneError):
@@ -75,22 +102,22 @@ class Limits:
 
 @dataclass(frozen=True)
 class StagedScene:
-    """A vetted scene ready to be stored: ``files`` (staged name -> bytes) hold the
+    """A vetted scene ready to be stored: ``files`` (staged name -> content) hold the
     rewritten main XML under :data:`STAGED_SCENE` and everything it reads."""
 
     digest: str
-    files: dict[str, bytes]
+    files: dict[str, Blob]
 
     @property
     def total_bytes(self) -> int:
-        return sum(len(data) for data in self.files.values())
+        return sum(blob_size(data) for data in self.files.values())
 
 
 class Source(Protocol):
     """Where a scene's files may come from."""
 
-    def open(self, name: str, near: Sequence[str]) -> tuple[str, bytes] | None:
-        """The key and bytes of the file ``name`` (looked up relative to each folder
+    def open(self, name: str, near: Sequence[str]) -> tuple[str, Blob] | None:
+        """The key and content of the file ``name`` (looked up relative to each folder
         key of ``near`` in turn when relative), or None if it is missing *or* not
         allowed — the caller must not be able to tell which."""
         ...
@@ -242,12 +269,12 @@ def upload_name(name: str) -> str | None:
 
 
 class UploadSource:
-    """The files of an upload (relative name -> bytes); nothing else exists."""
+    """The files of an upload (relative name -> content); nothing else exists."""
 
-    def __init__(self, files: Mapping[str, bytes]) -> None:
+    def __init__(self, files: Mapping[str, Blob]) -> None:
         self.files = dict(files)
 
-    def open(self, name: str, near: Sequence[str]) -> tuple[str, bytes] | None:
+    def open(self, name: str, near: Sequence[str]) -> tuple[str, Blob] | None:
         if upload_name(name) is None:
             return None
         for folder in near:
@@ -312,11 +339,11 @@ def _is_reference(element: ET.Element, attribute: str, value: str) -> bool:
     return "/" in value or "\\" in value or value.startswith("~")
 
 
-def _staged_name(key: str, data: bytes) -> str:
+def _staged_name(key: str, sha256: str) -> str:
     """A flat, content-addressed name that keeps the original's extension (Mitsuba
     picks some readers by it)."""
     base = _UNSAFE_NAME_CHARACTERS.sub("_", PurePosixPath(key.replace("\\", "/")).name)[-80:]
-    return f"{hashlib.sha256(data).hexdigest()[:16]}-{base or 'file'}"
+    return f"{sha256[:16]}-{base or 'file'}"
 
 
 @dataclass
@@ -326,7 +353,8 @@ class _Walk:
     scene: str  # the scene's name as the user gave it, for messages
     main_folder: str
     defaults: dict[str, str] = field(default_factory=dict)
-    files: dict[str, bytes] = field(default_factory=dict)
+    files: dict[str, Blob] = field(default_factory=dict)
+    hashes: dict[str, str] = field(default_factory=dict)  # staged name -> sha256
     staged: dict[str, str] = field(default_factory=dict)  # source key -> staged name
     including: list[str] = field(default_factory=list)  # the chain of XML being walked
 
@@ -343,13 +371,14 @@ class _Walk:
                                "parameters)")
         return substituted
 
-    def add(self, key: str, data: bytes, name: str) -> str:
+    def add(self, key: str, data: Blob, name: str) -> str:
         if key not in self.staged:
-            _check_file_size(name, len(data), self.limits)
-            staged = _staged_name(key, data)
-            self.files[staged] = data
+            _check_file_size(name, blob_size(data), self.limits)
+            sha256 = blob_sha256(data)
+            staged = _staged_name(key, sha256)
+            self.files[staged], self.hashes[staged] = data, sha256
             self.staged[key] = staged
-            total = sum(len(d) for d in self.files.values())
+            total = sum(blob_size(d) for d in self.files.values())
             if total > self.limits.max_total_bytes:
                 raise SceneTooLarge(f"scene {_shown(self.scene)} is more than "
                                     f"{self.limits.max_total_bytes} bytes in all (the limit)")
@@ -395,16 +424,14 @@ class _Walk:
         if found is None:
             raise self.unavailable(name)
         key, data = found
-        if element.tag == "include":
-            if key not in self.staged:
-                data = self.xml(key, data, f"included file {_shown(name)}")
-            return self.add(key, data, name)
+        if element.tag == "include" and key not in self.staged:
+            data = self.xml(key, blob_bytes(data), f"included file {_shown(name)}")
         return self.add(key, data, name)
 
 
-def _digest(files: Mapping[str, bytes]) -> str:
-    manifest = {name: hashlib.sha256(data).hexdigest() for name, data in sorted(files.items())}
-    text = json.dumps(manifest, separators=(",", ":"), sort_keys=True)
+def _digest(hashes: Mapping[str, str]) -> str:
+    """The id of a staged scene: the hash of its files' names and hashes."""
+    text = json.dumps(dict(sorted(hashes.items())), separators=(",", ":"), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:DIGEST_LENGTH]
 
 
@@ -414,10 +441,10 @@ def _stage(source: Source, key: str, data: bytes, shown: str, limits: Limits) ->
     main = walk.xml(key, data, f"scene {_shown(shown)}")
     _check_file_size(shown, len(main), limits)
     files = {STAGED_SCENE: main, **walk.files}
-    if sum(len(d) for d in files.values()) > limits.max_total_bytes:
+    if sum(blob_size(d) for d in files.values()) > limits.max_total_bytes:
         raise SceneTooLarge(f"scene {_shown(shown)} is more than {limits.max_total_bytes} "
                             "bytes in all (the limit)")
-    return StagedScene(_digest(files), files)
+    return StagedScene(_digest({STAGED_SCENE: blob_sha256(main), **walk.hashes}), files)
 
 
 def vet_root_scene(path: str, roots: Sequence[Path], limits: Limits,
@@ -441,16 +468,16 @@ def vet_root_scene(path: str, roots: Sequence[Path], limits: Limits,
 _UPLOAD_MAIN = "\x00scene.xml"
 
 
-def vet_upload(xml: bytes, files: Mapping[str, bytes], limits: Limits) -> StagedScene:
-    """Vet an uploaded scene: its main ``xml`` and ``files`` (relative name -> bytes),
+def vet_upload(xml: bytes, files: Mapping[str, Blob], limits: Limits) -> StagedScene:
+    """Vet an uploaded scene: its main ``xml`` and ``files`` (relative name -> content),
     the only files it may read. Raises :class:`SceneRefused` (or
     :class:`SceneTooLarge`), naming the first bad name or limit."""
     for name, data in files.items():
         if upload_name(name) != name:
             raise SceneRefused(f"file name {_shown(name)} of the upload must be relative, "
                                "without '..', '.' or backslashes")
-        _check_file_size(name, len(data), limits)
-    total = len(xml) + sum(len(data) for data in files.values())
+        _check_file_size(name, blob_size(data), limits)
+    total = len(xml) + sum(blob_size(data) for data in files.values())
     if total > limits.max_total_bytes:
         raise SceneTooLarge(f"the upload is {total} bytes; the limit is "
                             f"{limits.max_total_bytes} bytes in all")

@@ -112,12 +112,12 @@ def _violation(path: list[Any], value: Any, kind: str, message: str) -> dict[str
 def _printable(value: Any) -> Any:
     """``value`` with any lone surrogate spelled as its escape (``\\ud800``), so that
     the answer that echoes it can be encoded."""
-    if isinstance(value, str) and not _is_unicode(value):
+    if isinstance(value, str) and not is_unicode(value):
         return value.encode("utf-8", "backslashreplace").decode("utf-8")
     return value
 
 
-def _is_unicode(text: str) -> bool:
+def is_unicode(text: str) -> bool:
     """False for text holding a lone surrogate (JSON's ``\\ud800``), which UTF-8
     cannot encode."""
     try:
@@ -133,7 +133,7 @@ _NOT_UNICODE = "holds a lone UTF-16 surrogate (such as \\ud800), which is not Un
 def _shape_errors(value: Any, path: list[Any], depth: int = 1) -> list[dict[str, Any]]:
     """Where ``value`` (parsed JSON) passes the string, list, key and depth limits."""
     if isinstance(value, str):
-        if not _is_unicode(value):
+        if not is_unicode(value):
             return [_violation(path, value, "string_unicode", f"a string that {_NOT_UNICODE}")]
         if len(value) > MAX_STRING_CHARS:
             return [_violation(path, value, "string_too_long",
@@ -161,7 +161,7 @@ def _shape_errors(value: Any, path: list[Any], depth: int = 1) -> list[dict[str,
     for key, item in items:
         if isinstance(key, str) and len(key) > MAX_STRING_CHARS:
             return [_violation(path, key, "string_too_long", "a key too long")]
-        if isinstance(key, str) and not _is_unicode(key):
+        if isinstance(key, str) and not is_unicode(key):
             return [_violation(path, key, "string_unicode", f"a key that {_NOT_UNICODE}")]
         errors += _shape_errors(item, [*path, key], depth + 1)
         if errors:          # the first few are enough to fix the request

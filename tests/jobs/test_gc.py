@@ -95,3 +95,37 @@ def test_gc_command_is_a_dry_run_unless_applied(tmp_path, monkeypatch):
     applied = runner.invoke(app, ["gc", "--apply", "--data-dir", str(settings.data_dir)])
     assert applied.exit_code == 0 and "removed 4 items, 367 bytes" in applied.output
     assert not data["orphan"].exists() and data["named"].exists()
+
+
+def test_gc_applies_the_retention_policy_to_results_artifacts(store, settings):
+    """Before: nothing ever removed a result's images. After: gc removes the artifacts
+    (rows and files) of runs older than artifact_keep_days, then the oldest first while
+    the store is over artifact_max_bytes; the runs themselves (their metrics) stay, and
+    a file another row still names stays."""
+    artifacts = ArtifactStore(settings.artifacts_dir)
+    blobs = {name: artifacts.put_bytes(name.encode() * 100, ".exr")
+             for name in ("ancient", "old", "new")}
+    shared = artifacts.put_bytes(b"shared" * 100, ".png")
+    runs = {}
+    for name, days in (("ancient", 400), ("old", 20), ("new", 1)):
+        rows = [{**artifact_fields("image", blobs[name].sha256), "path": blobs[name].relpath,
+                 "bytes": 100 * len(name)},
+                {**artifact_fields("preview", shared.sha256), "path": shared.relpath,
+                 "bytes": 600}]
+        runs[name] = store.add_run(run_fields(
+            created_at=datetime.now(UTC) - timedelta(days=days)), [], rows)
+    by_age = settings.model_copy(update={"artifact_keep_days": 365.0})
+    plan = gc.plan(store, by_age)
+    assert [(r.what, r.owner_id) for r in plan.removals] == [
+        ("run artifacts", runs["ancient"].id)]
+    gc.apply(store, by_age, plan)
+    assert store.get_run(runs["ancient"].id).artifacts == []        # the result stays
+    assert not artifacts.path_of(blobs["ancient"].relpath).exists()
+    assert artifacts.path_of(shared.relpath).exists()               # others name it
+    by_size = settings.model_copy(update={"artifact_keep_days": None,
+                                          "artifact_max_bytes": 600 + 300 + 100})
+    plan = gc.plan(store, by_size)
+    assert [r.owner_id for r in plan.removals] == [runs["old"].id]
+    gc.apply(store, by_size, plan)
+    assert [a.kind for a in store.get_run(runs["new"].id).artifacts] == ["image", "preview"]
+    assert gc.plan(store, by_size).removals == []

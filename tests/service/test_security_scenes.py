@@ -13,10 +13,12 @@ Mitsuba refuses fails with a fixed message, never quoting one of its files.
 from __future__ import annotations
 
 import base64
+import io
 import json
 import os
 import subprocess
 import sys
+import tarfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -259,10 +261,14 @@ def test_an_oversized_upload_is_refused_with_the_limit(api):
     files = {f"part{i}.obj": b"#" * (MAX_FILE_BYTES // 2) for i in range(5)}
     too_much = upload(api, xml, files)
     assert too_much.status_code == 413 and str(MAX_BYTES) in too_much.text
-    huge_body = api.client.post("/api/v1/scenes", content=b"x" * (2 * MAX_BYTES + (1 << 20) + 1),
+    huge_json = api.client.post("/api/v1/scenes", content=b"x" * (1_000_001),
                                 headers={"X-API-Key": api.key,
                                          "Content-Type": "application/json"})
-    assert huge_body.status_code == 413 and str(MAX_BYTES) in huge_body.text
+    assert huge_json.status_code == 413 and "application/x-tar" in huge_json.text
+    huge_tar = api.client.post("/api/v1/scenes", content=b"x" * (MAX_BYTES + (5 << 20)),
+                               headers={"X-API-Key": api.key,
+                                        "Content-Type": "application/x-tar"})
+    assert huge_tar.status_code == 413 and str(MAX_BYTES) in huge_tar.text
 
 
 # ---- Renders (the live service runs them) ----------------------------------------
@@ -306,8 +312,43 @@ def test_the_cli_uploads_a_local_scene_the_service_may_not_read(live, layout):
     assert json.loads(done.stdout)["scene"].startswith("upload:")
 
 
+def tar_of(files: dict[str, bytes], links: dict[str, str] | None = None) -> bytes:
+    """A tar archive of ``files`` (name -> bytes) and symbolic ``links`` (name -> target)."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:") as tar:
+        for name, data in files.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+        for name, target in (links or {}).items():
+            info = tarfile.TarInfo(name)
+            info.type, info.linkname = tarfile.SYMTYPE, target
+            tar.addfile(info)
+    return buffer.getvalue()
+
+
+def upload_tar(target: Target, archive: bytes):
+    return target.client.post("/api/v1/scenes", content=archive,
+                              headers={"X-API-Key": target.key,
+                                       "Content-Type": "application/x-tar"})
+
+
+def test_a_tar_upload_holds_only_regular_files_under_relative_names(api):
+    xml = scene('<shape type="obj"><string name="filename" value="quad.obj"/></shape>')
+    good = upload_tar(api, tar_of({"scene.xml": xml.encode(), "quad.obj": QUAD}))
+    assert good.status_code in (200, 201), good.text
+    same = upload(api, xml, {"quad.obj": QUAD})          # the same scene sent as JSON
+    assert same.json()["id"] == good.json()["id"]
+    for archive in (tar_of({"scene.xml": xml.encode()}, links={"quad.obj": "/etc/passwd"}),
+                    tar_of({"scene.xml": xml.encode(), "../quad.obj": QUAD}),
+                    tar_of({"quad.obj": QUAD}), b"not a tar archive" * 100):
+        refused = upload_tar(api, archive)
+        assert refused.status_code == 422, refused.text
+        assert PASSWD_LINE not in refused.text
+
+
 def test_a_scene_upload_has_its_own_body_cap_not_the_service_wide_one(tmp_path):
-    """Bodies are capped service-wide (max_body_bytes), but an upload carries its
+    """Bodies are capped service-wide (max_body_bytes), but a tar upload carries its
     files: it is read under the scene limits instead (and still refused beyond them)."""
     settings = Settings(data_dir=tmp_path / "data", database_url=None, max_body_bytes=2000,
                         scene_max_file_bytes=MAX_FILE_BYTES, scene_max_bytes=MAX_BYTES)
@@ -317,8 +358,59 @@ def test_a_scene_upload_has_its_own_body_cap_not_the_service_wide_one(tmp_path):
     xml = scene('<shape type="obj"><string name="filename" value="quad.obj"/></shape>')
     with TestClient(create_app(settings, None)) as client:
         target = Target(client, key)
-        assert upload(target, xml, {"quad.obj": mesh}).status_code == 201
+        assert upload(target, xml, {"quad.obj": mesh}).status_code == 413   # JSON: 2000 B
+        assert upload_tar(target, tar_of({"scene.xml": xml.encode(),
+                                          "quad.obj": mesh})).status_code == 201
         assert target.post("jobs", {"scene": "x" * 3000, **TINY}).status_code == 413
-        too_big = upload(target, xml, {"quad.obj": b"#" * (MAX_FILE_BYTES + 1)})
+        too_big = upload_tar(target, tar_of({"scene.xml": xml.encode(),
+                                             "quad.obj": b"#" * (MAX_FILE_BYTES + 1)}))
         assert too_big.status_code == 413
     store.close()
+
+
+def _peak_rss_reset(pid: int) -> int:
+    """Reset the process's peak resident size (VmHWM) to its current size; returns it."""
+    Path(f"/proc/{pid}/clear_refs").write_text("5")
+    return _peak_rss(pid)
+
+
+def _peak_rss(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError("no VmHWM")
+
+
+def test_an_upload_streams_to_disk_counts_in_the_budget_and_gc_removes_it(tmp_path):
+    """Before: a 513 MiB body was buffered whole (the server's memory grew by 3.7x the
+    body), and stored scenes were neither counted in max_data_bytes nor ever removed.
+    After, on a real server: a 24 MiB upload raises its peak memory by less than a
+    quarter of that; a second scene that would pass max_data_bytes is refused (507);
+    `gc --apply` removes the scene no job names, and then the second one fits."""
+    mesh = 24 << 20
+    service = Service(tmp_path / "data")
+    service.env.update({"NIRC_BENCH_SCENE_MAX_FILE_BYTES": str(32 << 20),
+                        "NIRC_BENCH_SCENE_MAX_BYTES": str(32 << 20),
+                        "NIRC_BENCH_MAX_DATA_BYTES": str(40_000_000)})
+    service.start()
+    try:
+        xml = scene('<shape type="obj"><string name="filename" value="big.obj"/></shape>')
+        with httpx.Client(base_url=service.url, timeout=120) as client:
+            target = Target(client, service.key)
+            first = tar_of({"scene.xml": xml.encode(), "big.obj": b"#" * mesh})
+            before = _peak_rss_reset(service.proc.pid)
+            stored = upload_tar(target, first)
+            assert stored.status_code == 201, stored.text
+            assert _peak_rss(service.proc.pid) - before < mesh / 4
+            second = tar_of({"scene.xml": xml.encode(), "big.obj": b"%" * mesh})
+            full = upload_tar(target, second)
+            assert full.status_code == 507 and "max_data_bytes" in full.json()["detail"]
+            collected = subprocess.run([sys.executable, "-m", "service", "gc", "--apply",
+                                        "--keep-days", "0"], env=service.env,
+                                       capture_output=True, text=True, timeout=120)
+            assert collected.returncode == 0, collected.stderr
+            assert stored.json()["id"].split(":")[1] in collected.stdout
+            assert upload_tar(target, second).status_code == 201
+            assert refusal(target, stored.json()["id"]).status_code == 422   # gone
+    finally:
+        service.stop()
