@@ -44,6 +44,17 @@ def open_page(chromium, url: str):
     return page, errors
 
 
+def wait_until(page, expression: str, timeout_s: float = 30.0) -> None:
+    """Wait until the JavaScript ``expression`` is true in ``page``. Polled from here:
+    Playwright's own wait_for_function evaluates its predicate with ``eval`` inside the
+    page, which the dashboard's Content-Security-Policy (no 'unsafe-eval') forbids."""
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(expression):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"still false after {timeout_s:g} s: {expression}")
+        time.sleep(0.1)
+
+
 @contextmanager
 def serve(app) -> Iterator[str]:
     """``app`` served on a free loopback port in a thread; yields its base URL."""

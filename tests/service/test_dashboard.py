@@ -14,7 +14,7 @@ from jobs.record.config import Settings
 from jobs.record.db import open_store
 from metrics import METRIC_VERSION
 from service.api.main import create_app
-from tests.service.conftest import ARTIFACTS, open_page, serve
+from tests.service.conftest import ARTIFACTS, open_page, serve, wait_until
 
 SWEEP_ROWS = [{"series": series, "eps": eps, "ir_bounces_pct": 100 * (1 - eps),
                "mrse": 0.1 * scale * (1 + eps), "mrse_ci95": None, "flip": 0.3 + eps / 10,
@@ -61,7 +61,7 @@ def test_overview_lists_the_latest_results(chromium, site):
 
 def test_scene_page_draws_plots_and_images(chromium, site):
     page, errors = open_page(chromium, f"{site}/#/scene/cornell-box")
-    page.wait_for_function("document.querySelectorAll('svg.plot').length >= 7")
+    wait_until(page, "document.querySelectorAll('svg.plot').length >= 7")
     plots = page.locator("svg.plot")
     # Error vs time (MRSE and FLIP, one device), 4 sweep panels, convergence: each has
     # drawn points, not "no data"; the error-vs-time plots mark the Pareto front.
@@ -70,7 +70,7 @@ def test_scene_page_draws_plots_and_images(chromium, site):
     assert all("Pareto front" in pareto.nth(i).text_content() for i in range(2))
     for i in range(plots.count()):
         assert plots.nth(i).locator("circle").count() > 0, plots.nth(i).inner_text()
-    page.wait_for_function(
+    wait_until(page,
         "[...document.querySelectorAll('#images img')].every(i => i.complete && i.naturalWidth > 0)")
     assert page.locator("#images img").count() == 3      # reference, method, error map
     page.locator(".crop").first.click()                 # crop: all images zoom together

@@ -26,7 +26,7 @@ import uvicorn
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
 from jobs.record.db import open_store
-from tests.service.conftest import open_page
+from tests.service.conftest import open_page, wait_until
 from tests.service.live import Process, Service, Worker, free_port, service_env
 
 SPEC = {"scene": "cornell-box", "method": "pt", "resolution": 8, "spp": 1, "frames": 2,
@@ -289,7 +289,7 @@ def test_dashboard_asks_for_a_key_once(chromium, site):
     page.wait_for_selector("form#login")
     page.fill("#api-key", "nb_0_wrong")
     page.click("form#login button")
-    page.wait_for_function("document.getElementById('login-error').textContent.includes('invalid')")
+    wait_until(page, "document.getElementById('login-error').textContent.includes('invalid')")
     page.fill("#api-key", key)
     page.click("form#login button")
     page.wait_for_selector("text=Latest results")

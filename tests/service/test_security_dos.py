@@ -13,7 +13,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from jobs.execution.apikeys import create_api_key
+from jobs.execution.apikeys import create_api_key, verify_api_key
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
 from jobs.record.db import open_store
@@ -43,12 +43,14 @@ def api(tmp_path, monkeypatch):
     store.close()
 
 
-def _queued_jobs(data_dir, count: int) -> list[int]:
-    """Jobs the service never dispatches (written behind its back): they stay queued."""
+def _queued_jobs(data_dir, count: int, key: str) -> list[int]:
+    """Jobs of ``key`` that the service does not dispatch (written behind its back, and
+    its periodic re-dispatch is switched off): they stay queued."""
     store = open_store(Settings(data_dir=data_dir))
     try:
-        queue = JobQueue(store)
-        return [queue.submit("render", {**SPEC, "eps": 0.01 * (i + 1)}, f"idle-{i}")[0].id
+        queue, owner = JobQueue(store), verify_api_key(store, key)
+        return [queue.submit("render", {**SPEC, "eps": 0.01 * (i + 1)}, f"idle-{i}",
+                             owner_key_id=owner.id)[0].id
                 for i in range(count)]
     finally:
         store.close()
@@ -59,11 +61,12 @@ def test_50_long_polls_do_not_delay_an_authenticated_post(tmp_path, monkeypatch)
     authenticated POST then waited for them (28 s). After: polls hold no thread, the
     POST answers at once, and polls beyond the service's limit are answered 429."""
     monkeypatch.setenv("NIRC_BENCH_LONG_POLL_MAX_WAITERS", str(POLLS))
+    monkeypatch.setenv("NIRC_BENCH_REDISPATCH_INTERVAL_S", "3600")
     data_dir = tmp_path / "data"
     service = Service(data_dir)
     service.start()
     try:
-        polled, canceled = _queued_jobs(data_dir, 2)
+        polled, canceled = _queued_jobs(data_dir, 2, service.key)
 
         async def attack() -> tuple[float, int]:
             limits = httpx.Limits(max_connections=POLLS + 10)

@@ -12,7 +12,7 @@ import sys
 
 from jobs.execution.graph import sweep_stages
 from jobs.protocol.spec import SweepSpec
-from tests.service.conftest import ARTIFACTS, open_page
+from tests.service.conftest import ARTIFACTS, open_page, wait_until
 from tests.service.live import Service
 
 SWEEP = ["--scene", "cornell-box", "--eps", "0.3,1.0", "--nc", "1,2", "--res", "12",
@@ -71,10 +71,10 @@ def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashbo
         assert f"{service.url}/api/v1/artifacts/" in again.stdout    # the plots' URLs
 
         page, errors = open_page(chromium, f"{service.url}/#/scene/cornell-box")
-        page.wait_for_function(
+        wait_until(page,
             "document.querySelectorAll('#sweep svg.plot circle').length > 0")
         assert f"(sweep {result['id']})" in page.inner_text("#sweep")
-        page.wait_for_function("[...document.querySelectorAll('#images img')]"
+        wait_until(page, "[...document.querySelectorAll('#images img')]"
                                ".every(i => i.complete && i.naturalWidth > 0)")
         ARTIFACTS.mkdir(exist_ok=True)
         name = f"dashboard-e2e-sweep-{'postgresql' if database_url else 'sqlite'}.png"
