@@ -4,6 +4,10 @@ what the render libraries print never reaches the status channel."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 
@@ -11,7 +15,7 @@ import psutil
 import pytest
 
 from jobs.execution.queue import JobQueue
-from jobs.execution.runner import run_job
+from jobs.execution.runner import _Child, run_job
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
@@ -185,3 +189,18 @@ def test_a_job_is_stopped_after_mitsuba_warned(store, settings, warning_scene, s
     done = queue.get(warns.id)
     assert done.status == "succeeded" and done.error is None and done.attempts == 1
     assert not child & _render_pids()               # the stopped child is gone
+
+
+def test_a_render_process_that_exits_on_its_own_is_reported_by_its_exit_status():
+    """Before: when a render process closed its status pipe while still exiting, the
+    runner killed it at once and reported "killed by SIGKILL" for a process that was
+    ending on its own. After: it is given time to exit and its own status is named."""
+    read, write = os.pipe()
+    process = subprocess.Popen(
+        [sys.executable, "-c", f"import os, time; os.close({write}); time.sleep(0.5); "
+                               "raise SystemExit(7)"], pass_fds=(write,))
+    os.close(write)
+    child = object.__new__(_Child)      # a stand-in process in the render process's place
+    child.proc, child.log, child.status = process, tempfile.TemporaryFile("w+"), os.fdopen(read)
+    assert child.status.readline() == ""            # the pipe closed: it is ending
+    assert child.close(ended=True) == "the render process exited with status 7"
