@@ -49,6 +49,7 @@ from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
 from renderers.methods import check_applies, get_method, parse_params
 from renderers.methods.base import FrameHooks, OnFrame, RenderOutput
+from renderers.timing import pooled
 
 #: progress(stage, done, total): stage is 'reference' or 'seed k/K'.
 Progress = Callable[[str, int, int], None]
@@ -321,18 +322,14 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
                                        f"frame{number:05d}", ".exr", "image/x-exr", seed))
 
     seed_timings = [output.timings for output in outputs]
-    frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
+    # One statistic over every timed frame of every seed: the frame time, the stages
+    # and the breakdown of the median frame (renderers.timing.pooled).
+    timings = pooled(seed_timings)
+    frame_seconds = timings["frame_median_s"]
+    timings["seconds_per_frame"] = frame_seconds
     metrics = aggregate(per_seed, [o.accumulated for o in outputs], reference, spec.eps,
                         frame_seconds, [rendered.moments for rendered in seeds])
     metrics.update(extra or {})
-    timings = {
-        "protocol": seed_timings[0]["protocol"],
-        "seconds_per_frame": frame_seconds,
-        "warmup_s": seed_timings[0]["warmup_s"],
-        "compile_s_estimate": seed_timings[0]["compile_s_estimate"],
-        "stages": seed_timings[0]["stages"],
-        "breakdown": seed_timings[0]["breakdown"],
-    }
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
     verdict, quality = judge_run([o.accumulated for o in outputs], reference.mean,
                                  scene.features.emitter_count,

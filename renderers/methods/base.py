@@ -17,8 +17,17 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
+from renderers.backend import host_runs_kernels
+from renderers.load import LoadMonitor
 from renderers.seeding import derive_seed
-from renderers.timing import StageTimer, summarize, synchronize
+from renderers.timing import (
+    FrameTime,
+    StageTimer,
+    Warmup,
+    kernel_history,
+    summarize,
+    synchronize,
+)
 
 
 class MethodParams(BaseModel):
@@ -45,6 +54,16 @@ class MethodParams(BaseModel):
             except (ValueError, TypeError, AttributeError) as error:
                 raise ValueError(f"{name}: {error}") from None
         return self
+
+
+#: (parameters, pixels, spp) -> size per timed stage (:attr:`Method.stage_sizes`).
+StageSizes = Callable[[Any, int, int], dict[str, float]]
+
+
+def fixed_stages(*names: str) -> StageSizes:
+    """Stage sizes of stages that do the same work in every frame, whatever its size
+    (e.g. a visibility cache's training points): one unit each."""
+    return lambda _params, _pixels, _spp: dict.fromkeys(names, 1.0)
 
 
 def everywhere(_features: Any) -> tuple[bool, str]:
@@ -146,6 +165,14 @@ class Method:
     #: independent, and agreement is tested per pixel and on the image mean over
     #: seeds (metrics.statistics.image_mean_test), not with the tile test.
     correlated_pixels: bool = False
+    #: The size of each timed stage of a frame of ``pixels`` pixels at ``spp``: the unit
+    #: its time grows with (the per-stage cost model, jobs/protocol/cost_model.py). A
+    #: stage it does not name grows with pixels x spp.
+    stage_sizes: StageSizes = lambda _params, _pixels, _spp: {}
+    #: The parameters with the method's per-frame floors (work held at a fixed size in
+    #: small frames, e.g. training records) scaled by a factor, so that the cost model can
+    #: measure what a unit of a floored stage costs; None: the method has no floors.
+    scale_floors: Callable[[Any, float], Any] | None = None
 
     def applies_to(self, features: Any) -> tuple[bool, str]:
         """Whether the method can render a scene with ``features``, and why not."""
@@ -277,40 +304,46 @@ def run_frames(
     ``seed_parts`` identify the render (scene fingerprint, method, params, seed
     index); frame f renders with ``derive_seed(*seed_parts, f)`` and the warm-up
     frame with a seed of its own, so it never correlates with a timed frame.
+    Dr.Jit's kernel history is on for the warm-up and the timed frames alike
+    (renderers.timing), and the machine's load is measured over the timed frames
+    (renderers.load).
     """
-    warmup_s = 0.0
-    if hooks.warmup:
-        warmup = StageTimer()
-        render_frame(-1, derive_seed(*seed_parts, "warmup"), warmup)
-        warmup_s = sum(warmup.seconds.values())
+    with kernel_history():
+        warmup = Warmup()
+        if hooks.warmup:
+            timer = StageTimer()
+            with timer.frame():
+                render_frame(-1, derive_seed(*seed_parts, "warmup"), timer)
+            warmup = Warmup(timer.frame_s, None if timer.kernels is None else
+                            sum(k.compile_s for k in timer.kernels.values()))
 
-    accumulated: np.ndarray | None = None
-    path_stats = PathStats(aov_names)
-    kept: list[np.ndarray] = []
-    frame_timings: list[dict[str, float]] = []
-    whole_s: list[float] = []
-    for index in range(frames):
-        timer = StageTimer()
-        with timer.frame():
-            film = render_frame(index, derive_seed(*seed_parts, index), timer)
-        film = np.asarray(film)
-        frame_timings.append(timer.seconds)
-        whole_s.append(timer.frame_s)
-        rgb = film[..., :3].astype(np.float32)
-        # Running mean keeps memory constant however many frames run.
-        accumulated = rgb.copy() if accumulated is None else accumulated + (rgb - accumulated) / (index + 1)
-        path_stats.add(film[..., 3:], spp)
-        if hooks.keep_frames:
-            kept.append(rgb)
-        if hooks.on_frame:
-            hooks.on_frame(index, rgb, accumulated)
-        if hooks.progress:
-            hooks.progress(index + 1, frames)
+        accumulated: np.ndarray | None = None
+        path_stats = PathStats(aov_names)
+        kept: list[np.ndarray] = []
+        timed: list[FrameTime] = []
+        with LoadMonitor(host_bound_cpu=host_runs_kernels()) as load:
+            for index in range(frames):
+                timer = StageTimer()
+                with timer.frame():
+                    film = render_frame(index, derive_seed(*seed_parts, index), timer)
+                film = np.asarray(film)
+                timed.append(timer.record())
+                rgb = film[..., :3].astype(np.float32)
+                # Running mean keeps memory constant however many frames run.
+                accumulated = (rgb.copy() if accumulated is None
+                               else accumulated + (rgb - accumulated) / (index + 1))
+                path_stats.add(film[..., 3:], spp)
+                if hooks.keep_frames:
+                    kept.append(rgb)
+                if hooks.on_frame:
+                    hooks.on_frame(index, rgb, accumulated)
+                if hooks.progress:
+                    hooks.progress(index + 1, frames)
 
     assert accumulated is not None
     return RenderOutput(
         accumulated=accumulated,
         frames=kept if hooks.keep_frames else None,
-        timings=summarize(frame_timings, warmup_s, whole_s),
+        timings=summarize(timed, warmup, load.result()),
         path_stats=path_stats.result(),
     )

@@ -225,6 +225,29 @@ def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Cal
     return render
 
 
+def training_stage_sizes(params: Any, pixels: int, _spp: int) -> dict[str, float]:
+    """Training paths and records of a frame of ``pixels`` pixels: the training budget's
+    rule, floors and cap included (:func:`frame_training_budget`)."""
+    config = params.cache_presets()["cache"](**params.cache)
+    budget = frame_training_budget(pixels, params, config)
+    return {"training_paths": budget.paths, "training": budget.records}
+
+
+def scale_training_floors(params: Any, factor: float) -> Any:
+    """``params`` with the floors of training records and paths per frame scaled by
+    ``factor`` ('paper' budgets have no floor: unchanged)."""
+    if params.training_budget == "paper":
+        return params
+    fields = type(params).model_fields
+    scaled = {name: min(round(getattr(params, name) * factor), _upper_bound(fields[name]))
+              for name in ("min_train_records", "min_train_paths")}
+    return type(params).model_validate({**params.model_dump(), **scaled})
+
+
+def _upper_bound(field: Any) -> int:
+    return next(m.le for m in field.metadata if getattr(m, "le", None) is not None)
+
+
 #: Integrator modules every caching method registers besides its own.
 TRAINING_INTEGRATORS = ("renderers.integrators.training",)
 

@@ -37,6 +37,8 @@ from renderers.methods.cached import (
     load_integrators,
     make_cache,
     render_with_cache,
+    scale_training_floors,
+    training_stage_sizes,
 )
 from renderers.methods.nirc import NIRCParams
 from renderers.methods.nvc_env import NVCEnvParams, applies, env_visibility_config
@@ -100,4 +102,6 @@ METHOD = Method(
     NIRCEnvParams, render, version=1,
     integrators=("renderers.integrators.nirc_nvc_env", *TRAINING_INTEGRATORS),
     knob=dataclasses.replace(nirc.METHOD.knob, requirement="biased nirc-nvc-env"),
-    requires=applies, label="NIRC + NVC env")
+    requires=applies, label="NIRC + NVC env",
+    # The environment cache's training points are fixed: NIRC's records carry the growth.
+    stage_sizes=training_stage_sizes, scale_floors=scale_training_floors)

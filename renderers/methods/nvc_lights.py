@@ -61,6 +61,7 @@ from renderers.methods.base import (
     Method,
     MethodParams,
     RenderOutput,
+    fixed_stages,
     render_stage,
     run_frames,
 )
@@ -223,4 +224,4 @@ METHOD = Method("nvc-lights",
                 "(power / distance^2 x cosine bound x max(V, clamp)) at every vertex",
                 NVCLightsParams, render, version=1, integrators=PATH_INTEGRATORS,
                 requires=applies, label="NVC lights", knob=Knob("spp", SPP_CANDIDATES),
-                unbiased=True)
+                unbiased=True, stage_sizes=fixed_stages("training_paths", "training"))

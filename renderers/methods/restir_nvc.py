@@ -31,7 +31,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput, run_frames
+from renderers.methods.base import (
+    FrameHooks,
+    Knob,
+    Method,
+    RenderOutput,
+    fixed_stages,
+    run_frames,
+)
 from renderers.methods.cached import cache_method_stats
 from renderers.methods.nvc_lights import (
     VisibilityCacheParams,
@@ -82,4 +89,4 @@ METHOD = Method("restir-nvc",
                 "(paper Sec. 4.1.1): direct light at primary hits only (max_depth 2)",
                 ReSTIRNVCParams, render, version=1, requires=applies, label="ReSTIR NVC",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
-                correlated_pixels=True)
+                correlated_pixels=True, stage_sizes=fixed_stages("training_paths", "training"))
