@@ -18,7 +18,9 @@ Two clocks per stage (docs/timing.md):
   tracing, code generation, host work, launch gaps.
 
 Every frame is timed as a whole too (``StageTimer.frame``): what runs between
-the stages (Python, building the records) is its part 'other'. The frame time
+the stages (Python, building the records) is its part 'other'. Reading the
+kernel history costs ~9 us per launch; it happens outside every stage's clock
+and its time is subtracted from the whole frame and stored apart (``readout_s``). The frame time
 (``frame_median_s``) is the sum of the stages of the median frame; the time
 breakdown is that frame's parts (its stages and 'other'), so they add up to
 its whole wall time. Medians are lower medians (a frame that was measured).
@@ -40,7 +42,8 @@ PROTOCOL = (
     "reported separately as warmup_s; outputs evaluated and the device synchronised "
     "(dr.eval + dr.sync_thread) before every clock read; wall clock time.perf_counter; "
     "kernel time from Dr.Jit's kernel history (on for the warm-up and the timed frames); "
-    "harness = wall - kernel time; the frame time and its breakdown are those of the "
+    "harness = wall - kernel time; reading the history is timed apart and excluded; "
+    "the frame time and its breakdown are those of the "
     "median frame (lower median)"
 )
 
@@ -115,25 +118,31 @@ class StageTimer:
         self.seconds: dict[str, float] = {}
         self.frame_s = 0.0
         self.kernels: dict[str, KernelTally] | None = {} if kernel_history_enabled() else None
+        self.readout_s = 0.0              # reading the kernel history inside the frame
         self._open: list[str] = []        # the open stages, innermost last
         self._nested: list[float] = []    # per open stage: seconds spent in its inner stages
 
     def _drain_into(self, name: str) -> None:
-        """Charge the kernels launched since the last drain to stage ``name``."""
+        """Charge the kernels launched since the last drain to stage ``name``. Reading
+        the history costs ~9 us per launch (measured): it happens outside every stage's
+        clock and is kept apart (``readout_s``), not in the frame."""
         if self.kernels is not None:
+            start = time.perf_counter()
             self.kernels.setdefault(name, KernelTally()).add(drain_kernels())
+            self.readout_s += time.perf_counter() - start
 
     @contextmanager
     def frame(self) -> Iterator[None]:
-        """Time a whole frame (its stages and everything between them) as ``frame_s``;
-        kernels launched between the stages are the frame's 'other'."""
+        """Time a whole frame (its stages and everything between them, less the reading of
+        the kernel history) as ``frame_s``; kernels launched between the stages are the
+        frame's 'other'."""
         synchronize()
         if self.kernels is not None:
             drain_kernels()   # launched before this frame
         start = time.perf_counter()
         yield
         synchronize()
-        self.frame_s = time.perf_counter() - start
+        self.frame_s = time.perf_counter() - start - self.readout_s
         self._drain_into(OTHER)
 
     @contextmanager
@@ -163,7 +172,8 @@ class StageTimer:
         return FrameTime(
             stages=dict(self.seconds), whole_s=self.frame_s,
             kernel_s=None if kernels is None else {n: k.seconds for n, k in kernels.items()},
-            launches=None if kernels is None else {n: k.launches for n, k in kernels.items()})
+            launches=None if kernels is None else {n: k.launches for n, k in kernels.items()},
+            readout_s=self.readout_s)
 
 
 @dataclass
@@ -175,6 +185,7 @@ class FrameTime:
     whole_s: float
     kernel_s: dict[str, float] | None = None
     launches: dict[str, int] | None = None
+    readout_s: float = 0.0       # reading the kernel history: measurement, not the frame
 
     @property
     def total_s(self) -> float:
@@ -197,12 +208,13 @@ class FrameTime:
 
     def to_json(self) -> dict[str, Any]:
         return {"stages": self.stages, "whole_s": self.whole_s, "kernel_s": self.kernel_s,
-                "launches": self.launches}
+                "launches": self.launches, "readout_s": self.readout_s}
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> FrameTime:
         return cls(stages=data["stages"], whole_s=data["whole_s"],
-                   kernel_s=data.get("kernel_s"), launches=data.get("launches"))
+                   kernel_s=data.get("kernel_s"), launches=data.get("launches"),
+                   readout_s=data.get("readout_s", 0.0))
 
 
 #: The columns of the NIRC paper's Table 1 (Sec. 6.2) as stage names, in its order:
@@ -277,6 +289,8 @@ def device_time(frames: Sequence[FrameTime]) -> dict[str, Any] | None:
         "harness_share": median_low([(w - k) / w if w > 0 else 0.0
                                      for w, k in zip(wall, kernel, strict=True)]),
         "launches_median": median_low([sum((f.launches or {}).values()) for f in frames]),
+        # Reading the kernel history, kept out of every figure above.
+        "readout_median_s": median_low([f.readout_s for f in frames]),
     }
 
 

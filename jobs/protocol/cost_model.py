@@ -24,6 +24,7 @@ sizes beyond the largest probe by the factor it reports. Docs: docs/timing.md.
 
 from __future__ import annotations
 
+import gc
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from statistics import median_low
@@ -287,6 +288,27 @@ def fit_model(method: str, spp: int, device_key: str, samples: Sequence[ProbeSam
         flags.append("machine loaded during the probes: " + "; ".join(load["reasons"]))
     return CostModel(method, spp, device_key, stages, list(samples), rounds, list(order),
                      flags, load, size_of)
+
+
+class SceneSlot:
+    """One loaded scene at a time, by key (e.g. a resolution): asking for another key
+    drops the one held first. A frame's host time grows with the shapes, emitters and
+    BSDFs alive anywhere in the process (Dr.Jit traces a symbolic call for every
+    registered instance of its class): with the many-lights scene loaded beside door,
+    a pt frame of door at 8x8 took 14.9 ms instead of 4.5 ms, its kernels unchanged
+    (docs/timing.md). Probes must not pay for scenes they do not render."""
+
+    def __init__(self, load: Callable[[Any], Any]) -> None:
+        self.load = load
+        self.key: Any = None
+        self.scene: Any = None
+
+    def __call__(self, key: Any) -> Any:
+        if self.scene is None or key != self.key:
+            self.scene = None
+            gc.collect()
+            self.key, self.scene = key, self.load(key)
+        return self.scene
 
 
 #: Renders ``frames`` frames of a method configuration at a square resolution with the

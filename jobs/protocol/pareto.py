@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from itertools import zip_longest
 from pathlib import Path
 from statistics import median_low
@@ -368,6 +368,9 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
         progress("points", len(ordered), len(ordered))
 
     timings, order = _timing_samples(runs, prepared.scene, spec, progress)
+    # The probes load each resolution in turn: no other scene may stay alive meanwhile
+    # (cost_model.SceneSlot).
+    prepared = replace(prepared, scene=None)
     if spec.project_res is not None:
         _project(runs, timings, spec, prepared, settings, progress)
     rank = {id(p): i for i, p in enumerate(p for points in series for p in points)}
@@ -441,13 +444,13 @@ def _project(runs: list[tuple[Planned, Any, bool]], timings: list[Timing], spec:
     """Measure each point's per-stage cost model at ``spec.cost_resolutions`` and project
     its frame time to ``spec.project_res`` (jobs.protocol.cost_model)."""
     assert spec.project_res is not None
-    scenes = {res: load_spec_scene(spec.scene, res, settings) for res in spec.cost_resolutions}
+    scene_at = cost_model.SceneSlot(lambda res: load_spec_scene(spec.scene, res, settings))
     for index, ((planned, _, _), timing) in enumerate(zip(runs, timings, strict=True)):
         method = METHODS[planned.method]
 
         def render(res: int, params: Any, spp: int, method: str = planned.method
                    ) -> dict[str, Any]:
-            return probe_timings(scenes[res], method, params, spp, spec.probe_frames)
+            return probe_timings(scene_at(res), method, params, spp, spec.probe_frames)
 
         step = (lambda done, total, label=planned.label, index=index:
                 progress(f"cost model {index + 1}/{len(runs)} ({label})", done, total)

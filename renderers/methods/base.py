@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -219,13 +220,16 @@ class FrameHooks:
     each frame; ``on_frame`` after each frame (e.g. the executor's per-frame
     error against the reference: the convergence curve); ``warmup``: render
     the untimed warm-up frame first (a caller that renders several series
-    with one already-compiled integrator warms up once and passes False).
+    with one already-compiled integrator warms up once and passes False);
+    ``kernel_time``: record Dr.Jit's kernel history for the kernel time of every
+    stage (off only to measure what recording it costs).
     """
 
     keep_frames: bool = False
     progress: Callable[[int, int], None] | None = None
     on_frame: OnFrame | None = None
     warmup: bool = True
+    kernel_time: bool = True
 
 
 def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:
@@ -308,7 +312,7 @@ def run_frames(
     (renderers.timing), and the machine's load is measured over the timed frames
     (renderers.load).
     """
-    with kernel_history():
+    with kernel_history() if hooks.kernel_time else nullcontext():
         warmup = Warmup()
         if hooks.warmup:
             timer = StageTimer()
