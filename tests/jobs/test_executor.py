@@ -45,6 +45,16 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
     assert run.device_key == summary.device["device_key"]
     assert run.git_commit and run.versions["mitsuba"]
     assert "sync" in run.timings["protocol"] and run.timings["warmup_s"] > 0
+    # One statistic over the 3 x 2 timed frames: the median frame's stages are the frame
+    # time, and no stage's median exceeds it.
+    timings = run.timings
+    assert timings["frames"] == 6
+    stages = {k: v for k, v in timings["breakdown"]["parts_s"].items() if k != "other"}
+    assert sum(stages.values()) == pytest.approx(timings["seconds_per_frame"])
+    assert run.metrics["seconds_per_frame"] == timings["seconds_per_frame"]
+    assert all(s["median_s"] <= timings["seconds_per_frame"] for s in timings["stages"].values())
+    assert 0 < timings["device_time"]["kernel_median_s"] <= timings["device_time"]["wall_median_s"]
+    assert timings["load"]["loaded"] in (True, False)
     assert run.quality["verdict"] == "ok" and run.quality["finite"] is True
     assert run.quality["nonfinite_pixels"] == 0
     kinds = sorted(a.kind for a in run.artifacts)

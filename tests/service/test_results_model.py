@@ -53,6 +53,6 @@ def test_every_view_of_a_run_is_the_one_result_model(mi, data_dir):
     assert row.render_seconds_per_frame is not None and row.seconds_per_frame is not None
     # The Table-1 breakdown reaches the run table and the report's breakdown table.
     assert set(row.time_breakdown_ms) == {"render", "other"}
-    assert "ms per part (Table 1)" in _text(metrics_table(summary.result))
+    assert "the median frame by stage" in _text(metrics_table(summary.result))
     report_text = _text(breakdown_table("parts", [report_row]))
     assert "render" in report_text and "other" in report_text and "PT" in report_text
