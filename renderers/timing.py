@@ -129,7 +129,10 @@ class StageTimer:
         if self.kernels is not None:
             start = time.perf_counter()
             self.kernels.setdefault(name, KernelTally()).add(drain_kernels())
-            self.readout_s += time.perf_counter() - start
+            spent = time.perf_counter() - start
+            self.readout_s += spent
+            if self._nested:    # inside an open stage's window: not that stage's time
+                self._nested[-1] += spent
 
     @contextmanager
     def frame(self) -> Iterator[None]:
@@ -159,11 +162,11 @@ class StageTimer:
             synchronize()
         finally:
             elapsed = time.perf_counter() - start
-            self._drain_into(name)
             self._open.pop()
             inner = self._nested.pop()
             if self._nested:
                 self._nested[-1] += elapsed
+            self._drain_into(name)
         self.seconds[name] = self.seconds.get(name, 0.0) + elapsed - inner
 
     def record(self) -> FrameTime:
