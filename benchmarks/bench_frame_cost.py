@@ -118,18 +118,19 @@ def rounds_of(configs: list[Any], measure: Callable[[Any], Any], rounds: int) ->
     return interleaved_rounds(configs, measure, rounds, name=str).times
 
 
-def frame_table(mi: Any, scenes: Scenes, params: dict[str, Any], resolutions: list[int],
+def frame_table(mi: Any, scenes: Scenes, cases: tuple[tuple, ...], params: dict[str, Any],
+                resolutions: list[int],
                 frames: int, rounds: int) -> dict[tuple[str, int], dict[str, Any]]:
     """Table 1; returns the median round's timings per (row, resolution)."""
-    rows = [label for label, *_ in CASES] + ["path (Mitsuba)", "path (Mitsuba, frozen)"]
+    rows = [label for label, *_ in cases] + ["path (Mitsuba)", "path (Mitsuba, frozen)"]
     configs = [(row, res) for res in resolutions for row in rows]
-    cases = {label: (method, scene) for label, method, scene, _ in CASES}
+    scene_of = {label: (method, scene) for label, method, scene, _ in cases}
 
     def measure(config: tuple[str, int]) -> dict[str, Any]:
         row, res = config
         if row.startswith("path"):
             return mitsuba_path(mi, scenes, res, frames, frozen="frozen" in row)
-        method, scene = cases[row]
+        method, scene = scene_of[row]
         return method_timings(scenes, method, scene, params[row], res, frames)
 
     times = rounds_of(configs, measure, rounds)
@@ -151,13 +152,14 @@ def frame_table(mi: Any, scenes: Scenes, params: dict[str, Any], resolutions: li
     return chosen
 
 
-def fixed_cost_table(chosen: dict[tuple[str, int], dict[str, Any]], res: int) -> None:
+def fixed_cost_table(cases: tuple, chosen: dict[tuple[str, int], dict[str, Any]],
+                     res: int) -> None:
     """Table 2: the median frame at ``res`` split into harness, fixed work, pixel work."""
     from renderers.methods import get_method, parse_params
 
     print(f"\n2. where the frame goes at {res}x{res} (ms of the median frame)")
     print(f"{'method':<30}{'frame':>9}{'harness':>16}{'fixed work':>16}{'pixel work':>16}")
-    for label, method, _scene, params in CASES:
+    for label, method, _scene, params in cases:
         frame = chosen[label, res]["breakdown"]
         fixed_stages = set(get_method(method).stage_sizes(parse_params(method, params), 1, 1))
         wall, kernel = frame["parts_s"], frame["kernel_parts_s"]
@@ -174,7 +176,7 @@ def fixed_cost_table(chosen: dict[tuple[str, int], dict[str, Any]], res: int) ->
           "(training at its record floor, visibility-cache training points)")
 
 
-def cost_model_table(scenes: Scenes, params: dict[str, Any], device_key: str,
+def cost_model_table(scenes: Scenes, cases: tuple, params: dict[str, Any], device_key: str,
                      resolutions: list[int], frames: int, rounds: int,
                      project: tuple[int, int]) -> None:
     """Table 3: a and b per stage with intervals, and the projection."""
@@ -183,7 +185,7 @@ def cost_model_table(scenes: Scenes, params: dict[str, Any], device_key: str,
 
     print(f"\n3. per-stage cost model (fitted at {', '.join(f'{r}x{r}' for r in resolutions)}"
           f"; {rounds} interleaved rounds of {frames} frames; 95 % intervals)")
-    for label, method, scene, _ in CASES:
+    for label, method, scene, _ in cases:
         model = cost_model.measure(
             get_method(method), params[label], 1, device_key,
             lambda res, p, spp, method=method, scene=scene: method_timings(
@@ -207,16 +209,17 @@ def cost_model_table(scenes: Scenes, params: dict[str, Any], device_key: str,
             print(f"      {note}")
 
 
-def history_overhead(scenes: Scenes, params: dict[str, Any], frames: int, rounds: int) -> None:
+def history_overhead(scenes: Scenes, cases: tuple, params: dict[str, Any], frames: int,
+                     rounds: int) -> None:
     """Table 4: the median frame's whole wall time (its stages and 'other', less the
     reading of the history) with the kernel history on over off."""
     configs = [(label, res, on) for label, res in (("pt (door)", 8), ("pt (door)", 128),
                                                    ("nrc (door)", 8)) for on in (True, False)]
-    cases = {label: (method, scene) for label, method, scene, _ in CASES}
+    scene_of = {label: (method, scene) for label, method, scene, _ in cases}
 
     def measure(config: tuple[str, int, bool]) -> float:
         label, res, on = config
-        method, scene = cases[label]
+        method, scene = scene_of[label]
         return method_timings(scenes, method, scene, params[label], res, frames,
                               kernel_time=on)["breakdown"]["frame_s"]
 
@@ -235,7 +238,11 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=4)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--project", default="1920x1080")
+    parser.add_argument("--tables", default="1,2,3,4", help="which tables to print")
+    parser.add_argument("--only", default="", help="rows whose label contains this text")
     args = parser.parse_args()
+    cases = tuple(case for case in CASES if args.only in case[0])
+    tables = set(args.tables.split(","))
 
     mi = init_backend()
     from renderers.methods import parse_params
@@ -243,15 +250,18 @@ def main() -> None:
     device_key = device_info()["device_key"]
     resolutions = [int(r) for r in args.res.split(",")]
     width, height = (int(n) for n in args.project.split("x"))
-    params = {label: parse_params(method, p) for label, method, _, p in CASES}
+    params = {label: parse_params(method, p) for label, method, _, p in cases}
     scenes = Scenes()
     start = time.perf_counter()
     print(f"device: {device_key}")
-    chosen = frame_table(mi, scenes, params, resolutions, args.frames, args.rounds)
-    fixed_cost_table(chosen, min(resolutions))
-    cost_model_table(scenes, params, device_key, [int(r) for r in args.cost_res.split(",")],
-                     args.frames, args.rounds, (width, height))
-    history_overhead(scenes, params, max(args.frames, 8), args.rounds + 2)
+    if tables & {"1", "2"}:
+        chosen = frame_table(mi, scenes, cases, params, resolutions, args.frames, args.rounds)
+        fixed_cost_table(cases, chosen, min(resolutions))
+    if "3" in tables:
+        cost_model_table(scenes, cases, params, device_key, [int(r) for r in args.cost_res.split(",")],
+                         args.frames, args.rounds, (width, height))
+    if "4" in tables and {"pt (door)", "nrc (door)"} <= set(params):
+        history_overhead(scenes, cases, params, max(args.frames, 8), args.rounds + 2)
     print(f"\n({time.perf_counter() - start:.0f} s)")
 
 
