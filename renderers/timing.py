@@ -31,7 +31,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from statistics import median_low
 from typing import Any
 
@@ -299,12 +299,12 @@ def device_time(frames: Sequence[FrameTime]) -> dict[str, Any] | None:
 
 @dataclass
 class Warmup:
-    """The untimed warm-up: its wall seconds and, from the kernel history, the seconds
-    Dr.Jit spent compiling kernels (``compile_s``, None without the history)."""
+    """The untimed warm-up: its wall seconds, its frames and, from the kernel history,
+    the seconds Dr.Jit spent compiling kernels (``compile_s``, None without it)."""
 
     seconds: float = 0.0
     compile_s: float | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
+    frames: int = 1
 
 
 def summarize(frames: Sequence[FrameTime], warmup: Warmup,
@@ -326,9 +326,10 @@ def summarize(frames: Sequence[FrameTime], warmup: Warmup,
         "stages": {name: _stage_summary(frames, name) for name in names if name != OTHER},
         "device_time": device_time(frames),
         "warmup_s": warmup.seconds,
+        "warmup_frames": warmup.frames,
         "compile_s": warmup.compile_s,
-        # The warm-up frame = compilation + one steady-state frame.
-        "compile_s_estimate": max(warmup.seconds - frame_time, 0.0),
+        # The warm-up frames = compilation + as many steady-state frames.
+        "compile_s_estimate": max(warmup.seconds - warmup.frames * frame_time, 0.0),
         "breakdown": breakdown(frames),
         "load": load,
         "per_frame": [f.stages for f in frames],
@@ -346,6 +347,7 @@ def pooled(seed_timings: Sequence[dict[str, Any]]) -> dict[str, Any]:
     summary = summarize(frames, Warmup(first["warmup_s"], first.get("compile_s")),
                         merge_loads([t.get("load") for t in seed_timings]))
     del summary["frames_detail"], summary["per_frame"]   # kept per seed
+    summary["frozen"] = first.get("frozen")
     return summary
 
 

@@ -123,6 +123,7 @@ class NVCLightSampler(SpatialLightSampler):
 
     cache: Any = None
     clamp: float = DEFAULT_CLAMP
+    stateful = True     # the cache's weights change every frame
 
     @classmethod
     def bound_to(cls, cache: Any, clamp: float = DEFAULT_CLAMP) -> type[NVCLightSampler]:

@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 from renderers.backend import host_runs_kernels
+from renderers.frozen import MAX_WARMUP_FRAMES, Frozen, freezing
 from renderers.load import LoadMonitor
 from renderers.seeding import derive_seed
 from renderers.timing import (
@@ -232,13 +233,46 @@ class FrameHooks:
     kernel_time: bool = True
 
 
+class FrozenRender:
+    """A frame that is one frozen ``mi.render`` (renderers.frozen) of an integrator whose
+    frame reads nothing that changes between frames but the seed, timed as 'render'.
+    Built only while freezing is on."""
+
+    def __init__(self, scene: Any, integrator: Any, spp: int) -> None:
+        import mitsuba as mi
+
+        self.scene = scene.scene
+        self.seed_type = mi.UInt32
+        self.state = integrator.frame_state(self.scene)
+
+        def render(scene: Any, seed: Any, state: dict[str, Any]) -> Any:
+            integrator.bind_frame_state(scene, state)
+            return mi.render(scene, integrator=integrator, spp=spp, seed=seed)
+
+        self.render = Frozen(render)
+
+    def __call__(self, _index: int, seed: int, timer: StageTimer) -> Any:
+        with timer.stage("render"):
+            image = self.render(self.scene, self.seed_type(seed), self.state)
+            synchronize(image)
+        return image
+
+    def recordings(self) -> int:
+        return self.render.recordings()
+
+
 def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:
-    """A frame that is one ``mi.render`` of ``scene`` with ``integrator``, timed as 'render'.
+    """A frame that is one ``mi.render`` of ``scene`` with ``integrator``, timed as 'render':
+    frozen (:class:`FrozenRender`) where the integrator says its frame can be
+    (``frame_freezable()``: no state read from Python objects, no host read-back).
 
     A caching integrator (renderers.integrators.cached) times its deferred cache
     inference as the nested stage 'inference'; 'render' is then path tracing only.
     """
     import mitsuba as mi
+
+    if freezing() and getattr(integrator, "frame_freezable", lambda: False)():
+        return FrozenRender(scene, integrator, spp)
 
     def render_frame(_index: int, seed: int, timer: StageTimer):
         if hasattr(integrator, "timer"):
@@ -310,16 +344,16 @@ def run_frames(
     frame with a seed of its own, so it never correlates with a timed frame.
     Dr.Jit's kernel history is on for the warm-up and the timed frames alike
     (renderers.timing), and the machine's load is measured over the timed frames
-    (renderers.load).
+    (renderers.load). A frame function with ``recordings()`` (frozen,
+    renderers.frozen) warms up until its recording count stops changing, and the
+    counts after the warm-up and after the timed frames are reported (``frozen``).
     """
+    recordings = getattr(render_frame, "recordings", None)
     with kernel_history() if hooks.kernel_time else nullcontext():
         warmup = Warmup()
         if hooks.warmup:
-            timer = StageTimer()
-            with timer.frame():
-                render_frame(-1, derive_seed(*seed_parts, "warmup"), timer)
-            warmup = Warmup(timer.frame_s, None if timer.kernels is None else
-                            sum(k.compile_s for k in timer.kernels.values()))
+            warmup = _warm_up(render_frame, seed_parts, recordings)
+        settled = recordings() if recordings else None
 
         accumulated: np.ndarray | None = None
         path_stats = PathStats(aov_names)
@@ -345,9 +379,33 @@ def run_frames(
                     hooks.progress(index + 1, frames)
 
     assert accumulated is not None
+    timings = summarize(timed, warmup, load.result())
+    timings["frozen"] = None if recordings is None else {
+        "recordings_after_warmup": settled, "recordings_after_frames": recordings(),
+        "warmup_frames": warmup.frames}
     return RenderOutput(
         accumulated=accumulated,
         frames=kept if hooks.keep_frames else None,
-        timings=summarize(timed, warmup, load.result()),
+        timings=timings,
         path_stats=path_stats.result(),
     )
+
+
+def _warm_up(render_frame: FrameFn, seed_parts: tuple[Any, ...],
+             recordings: Callable[[], int] | None) -> Warmup:
+    """The untimed warm-up: one frame, or for a frozen frame function as many as its
+    recording count needs to stop changing (at most MAX_WARMUP_FRAMES)."""
+    seconds, compile_s, frames = 0.0, 0.0, 0
+    before = -1
+    while True:
+        timer = StageTimer()
+        seed = derive_seed(*seed_parts, "warmup", *((frames,) if frames else ()))
+        with timer.frame():
+            render_frame(-1, seed, timer)
+        frames += 1
+        seconds += timer.frame_s
+        compile_s = None if timer.kernels is None or compile_s is None else \
+            compile_s + sum(k.compile_s for k in timer.kernels.values())
+        if recordings is None or frames >= MAX_WARMUP_FRAMES or recordings() == before:
+            return Warmup(seconds, compile_s, frames)
+        before = recordings()
