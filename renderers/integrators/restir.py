@@ -43,12 +43,12 @@ must be area emitters (a point on a surface).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
+from renderers.frozen import Frozen, freezing
 from renderers.integrators.lights import LightSampler, PowerLightSampler
 
 
@@ -189,22 +189,33 @@ class ReSTIRDI:
     ``replicas`` independent images of the film's size are rendered side by side
     (lane = replica · pixels + pixel), each with its own reservoirs: the method's
     spp, and what the statistical tests average over.
+
+    A frame (:meth:`frame`) is a function of its seed, the previous frame's
+    reservoirs and the light selector's data, all Dr.Jit values passed in and
+    returned, so it can be frozen (renderers.frozen): it is, unless the selector
+    reads state held in Python (``LightSampler.stateful``, `restir-nvc`'s cache)
+    or freezing is off. The history carried between frames is :attr:`history`.
     """
 
     def __init__(self, scene: mi.Scene, params: ReSTIRParams, replicas: int = 1,
                  lights: LightSampler | None = None) -> None:
         self.scene, self.params, self.replicas = scene, params, replicas
-        self.sensor = scene.sensors()[0]
-        self.size = tuple(int(s) for s in self.sensor.film().crop_size())
+        self.size = tuple(int(s) for s in scene.sensors()[0].film().crop_size())
         # The candidates' light selection (its pmf enters the RIS weights): by power.
         self.lights = PowerLightSampler(scene) if lights is None else lights
         self.history: Frame | None = None
+        self._frame = (Frozen(self.frame, auto_opaque=False)
+                       if freezing() and not self.lights.stateful else self.frame)
+
+    def recordings(self) -> int | None:
+        """Recordings of the frozen frame (None when it is not frozen)."""
+        return self._frame.recordings() if isinstance(self._frame, Frozen) else None
 
     def reset(self) -> None:
         """Forget the previous frame (no temporal reuse in the next one)."""
         self.history = None
 
-    def first_hits(self, sampler: mi.Sampler,
+    def first_hits(self, scene: mi.Scene, sampler: mi.Sampler,
                    lane: mi.UInt32) -> tuple[mi.SurfaceInteraction3f, mi.Spectrum]:
         """Each lane's camera ray through a uniform point of its pixel (box filter):
         (first hit, sensor weight)."""
@@ -212,24 +223,36 @@ class ReSTIRDI:
         pixel = lane % (width * height)
         film = (mi.Point2f(mi.Float(pixel % width), mi.Float(pixel // width))
                 + sampler.next_2d()) / mi.ScalarVector2f(width, height)
-        ray, weight = self.sensor.sample_ray(0.0, sampler.next_1d(), film, sampler.next_2d())
-        return self.scene.ray_intersect(ray), weight
+        ray, weight = scene.sensors()[0].sample_ray(0.0, sampler.next_1d(), film,
+                                                    sampler.next_2d())
+        return scene.ray_intersect(ray), weight
 
-    def render(self, seed: int) -> np.ndarray:
-        """One frame: (replicas, height, width, 4) RGB and whether a surface was hit."""
+    def render(self, seed: int) -> mi.TensorXf:
+        """One frame, its reservoirs kept for the next: a (replicas, height, width, 4)
+        tensor of RGB and whether a surface was hit."""
+        image, self.history = self._frame(self.scene, mi.UInt32(seed), self.history,
+                                          self.lights.frame_arrays())
+        return image
+
+    def frame(self, scene: mi.Scene, seed: mi.UInt32, history: Frame | None,
+              lights: dict[str, Any]) -> tuple[mi.TensorXf, Frame]:
+        """One frame of ``scene`` from the previous frame's reservoirs (None: no temporal
+        reuse) and the light selector's data (``LightSampler.frame_arrays``): (image,
+        this frame's reservoirs). Reads no other Dr.Jit value."""
+        self.lights.bind(lights)
         width, height = self.size
         n = self.replicas * width * height
         sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(dr.opaque(mi.UInt32, seed), n)
+        sampler.seed(seed, n)
         lane = dr.arange(mi.UInt32, n)
-        si, weight = self.first_hits(sampler, lane)
+        si, weight = self.first_hits(scene, sampler, lane)
         valid = si.is_valid()
-        reservoir = initial(self.scene, self.lights, si, sampler, self.params.candidates)
+        reservoir = initial(scene, self.lights, si, sampler, self.params.candidates)
 
-        if self.params.temporal and self.history is not None:
-            previous = dr.gather(Reservoir, self.history.reservoirs, lane)
+        if self.params.temporal and history is not None:
+            previous = dr.gather(Reservoir, history.reservoirs, lane)
             previous.M = dr.minimum(previous.M, self.params.m_clamp * self.params.candidates)
-            reservoir = combine(self.scene, si, [(reservoir, si), (previous, self.history.si)],
+            reservoir = combine(scene, si, [(reservoir, si), (previous, history.si)],
                                 sampler)
         if self.params.spatial:
             dr.eval(reservoir)
@@ -238,17 +261,16 @@ class ReSTIRDI:
                 other = neighbour_lanes(sampler, lane, self.size, self.params.spatial_radius)
                 inputs.append((dr.gather(Reservoir, reservoir, other),
                                dr.gather(mi.SurfaceInteraction3f, si, other)))
-            reservoir = combine(self.scene, si, inputs, sampler)
+            reservoir = combine(scene, si, inputs, sampler)
 
         dr.eval(reservoir, si)
-        self.history = Frame(reservoir, si)
         # W > 0 only for a sample visible from x: shading needs no further ray.
-        value, _ = target(self.scene, si, reservoir, valid & (reservoir.W > 0))
-        L = si.emitter(self.scene).eval(si, valid) + value * reservoir.W
+        value, _ = target(scene, si, reservoir, valid & (reservoir.W > 0))
+        L = si.emitter(scene).eval(si, valid) + value * reservoir.W
         rgb = mi.Color3f(L * weight)
-        image = np.stack([rgb.x.numpy(), rgb.y.numpy(), rgb.z.numpy(),
-                          dr.select(valid, 1.0, 0.0).numpy()], axis=-1)
-        return image.reshape(self.replicas, height, width, 4)
+        pixels = mi.Vector4f(rgb.x, rgb.y, rgb.z, dr.select(valid, 1.0, 0.0))
+        image = mi.TensorXf(dr.ravel(pixels), shape=(self.replicas, height, width, 4))
+        return image, Frame(reservoir, si)
 
 
 def check_scene(scene: mi.Scene) -> None:

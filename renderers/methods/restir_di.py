@@ -46,7 +46,7 @@ from pydantic import Field
 from renderers.methods.base import FrameHooks, Knob, Method, MethodParams, RenderOutput, run_frames
 from renderers.methods.pt import SPP_CANDIDATES
 from renderers.seeding import derive_seed
-from renderers.timing import StageTimer
+from renderers.timing import StageTimer, synchronize
 
 #: What runs before a frame's reservoirs (``(index, seed, timer)``; e.g. a cache's training).
 BeforeFrame = Callable[[int, int, StageTimer], None]
@@ -74,27 +74,35 @@ def render(scene: Any, params: ReSTIRDIParams, *, seed_parts: tuple[Any, ...], s
     from renderers.integrators.restir import ReSTIRDI, check_scene
 
     check_scene(scene.scene)
-    output = run_frames(frame_function(ReSTIRDI(scene.scene, params, replicas=spp)),
+    output = run_frames(ReSTIRFrame(ReSTIRDI(scene.scene, params, replicas=spp)),
                         seed_parts=seed_parts, frames=frames, spp=spp, hooks=hooks)
     output.method_stats = {"shadow_rays_per_sample": shadow_rays(params)}
     return output
 
 
-def frame_function(restir: Any, before: BeforeFrame | None = None
-                   ) -> Callable[[int, int, StageTimer], Any]:
-    """``run_frames``' frame of a ``ReSTIRDI`` estimator, after ``before`` (if any)."""
+class ReSTIRFrame:
+    """``run_frames``' frame of a ``ReSTIRDI`` estimator, after ``before`` (if any): the
+    mean over its replicas, on the device. A warm-up frame renders a frame without
+    history and one with (two recordings when frozen)."""
 
-    def render_frame(index: int, seed: int, timer: StageTimer):
-        if before is not None:
-            before(index, seed, timer)
+    def __init__(self, restir: Any, before: BeforeFrame | None = None) -> None:
+        self.restir, self.before = restir, before
+        if restir.recordings() is not None:
+            self.recordings = restir.recordings
+
+    def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
+        import drjit as dr
+
+        if self.before is not None:
+            self.before(index, seed, timer)
         if index <= 0:
-            restir.reset()
+            self.restir.reset()
         if index < 0:
-            restir.render(derive_seed(seed, "history"))
-        with timer.stage("render"):  # ends with the image on the host: nothing pending
-            return restir.render(seed).mean(axis=0)
-
-    return render_frame
+            self.restir.render(derive_seed(seed, "history"))
+        with timer.stage("render"):
+            image = dr.mean(self.restir.render(seed), axis=0)
+            synchronize(image)
+        return image
 
 
 def shadow_rays(params: ReSTIRDIParams) -> int:

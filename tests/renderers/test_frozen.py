@@ -11,7 +11,7 @@ from renderers.methods import METHODS, get_method, parse_params
 from renderers.methods.base import FrameHooks
 
 #: The methods whose frames are frozen today; the others say why not (docs/timing.md).
-FROZEN = {"pt", "pt-power", "pt-spatial"}
+FROZEN = {"pt", "pt-power", "pt-spatial", "restir-di"}
 #: The scenes tried in order for a method (the first it applies to).
 SCENES = ("many-lights", "sky")
 
