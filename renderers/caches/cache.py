@@ -236,6 +236,17 @@ class NeuralCache:
         """The inference weights as an unpacked tensor-mode network."""
         return self._infer_src
 
+    def inference_state(self) -> dict[str, Any]:
+        """The Dr.Jit arrays inference reads (packed weights, hash-grid table), changed
+        by every training step: a frozen frame takes them as an argument and
+        :meth:`bind_inference` s them (renderers.frozen)."""
+        return {"mlp": self._infer.arrays(), "grid": self._infer_position.grid.data}
+
+    def bind_inference(self, state: dict[str, Any]) -> None:
+        """Infer with ``state`` (:meth:`inference_state`)."""
+        self._infer.bind(state["mlp"])
+        self._infer_position = self._infer_position.with_data(state["grid"])
+
     @property
     def n_surface_values(self) -> int:
         """Length of the list :meth:`surface_features` returns."""

@@ -84,8 +84,8 @@ class LightSampler:
     evaluated at the previous vertex, where NEE would have sampled).
     """
 
-    #: Its selection reads Dr.Jit values held in Python that change between frames (a
-    #: visibility cache's weights): a frame that uses it is not frozen
+    #: Its selection reads Dr.Jit values held in Python that change between frames and
+    #: that :meth:`frame_arrays` does not hand over: a frame that uses it is not frozen
     #: (renderers.frozen), since a replay would not see the new values.
     stateful = False
     #: The attributes holding the per-scene Dr.Jit data the selection reads: a frozen
@@ -94,13 +94,14 @@ class LightSampler:
     ARRAYS: tuple[str, ...] = ("index_table",)
 
     def frame_arrays(self) -> dict[str, Any]:
-        """The Dr.Jit data of :data:`ARRAYS` (a PyTree)."""
+        """The Dr.Jit data the selection reads now (a PyTree): :data:`ARRAYS`."""
         return {name: getattr(self, name) for name in self.ARRAYS}
 
     def bind(self, arrays: dict[str, Any]) -> None:
-        """Read the data of :data:`ARRAYS` from ``arrays`` (a frozen frame's arguments)."""
-        for name, value in arrays.items():
-            setattr(self, name, value)
+        """Read the data of :meth:`frame_arrays` from ``arrays`` (a frozen frame's
+        arguments)."""
+        for name in self.ARRAYS:
+            setattr(self, name, arrays[name])
 
     def __init__(self, scene: mi.Scene) -> None:
         self.scene = scene

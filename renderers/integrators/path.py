@@ -168,8 +168,9 @@ class PathIntegrator(mi.SamplingIntegrator):
 
     def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
         """The Dr.Jit data a frame of ``scene`` reads besides the scene: the light
-        selector's per-scene tables, built now (on the host, which a recording cannot).
-        A frozen frame takes it as an argument and :meth:`bind_frame_state` s it."""
+        selector's (its per-scene tables, built on first use on the host, which a
+        recording cannot; a visibility cache's current weights). A frozen frame takes it
+        as an argument and :meth:`bind_frame_state` s it."""
         return {"lights": self.light_sampler(scene).frame_arrays()}
 
     def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:

@@ -234,16 +234,16 @@ class FrameHooks:
 
 
 class FrozenRender:
-    """A frame that is one frozen ``mi.render`` (renderers.frozen) of an integrator whose
-    frame reads nothing that changes between frames but the seed, timed as 'render'.
-    Built only while freezing is on."""
+    """A frame that is one frozen ``mi.render`` (renderers.frozen), timed as 'render': the
+    seed and the integrator's ``frame_state`` (asked anew every frame) are its
+    arguments. Built only while freezing is on."""
 
     def __init__(self, scene: Any, integrator: Any, spp: int) -> None:
         import mitsuba as mi
 
         self.scene = scene.scene
         self.seed_type = mi.UInt32
-        self.state = integrator.frame_state(self.scene)
+        self.integrator = integrator
 
         def render(scene: Any, seed: Any, state: dict[str, Any]) -> Any:
             integrator.bind_frame_state(scene, state)
@@ -253,12 +253,34 @@ class FrozenRender:
 
     def __call__(self, _index: int, seed: int, timer: StageTimer) -> Any:
         with timer.stage("render"):
-            image = self.render(self.scene, self.seed_type(seed), self.state)
+            # The state is asked anew every frame: a cache's weights change with training.
+            image = self.render(self.scene, self.seed_type(seed),
+                                self.integrator.frame_state(self.scene))
             synchronize(image)
         return image
 
     def recordings(self) -> int:
         return self.render.recordings()
+
+
+class WithParts:
+    """A frame function made of parts (training, then a render stage) that reports the
+    recordings of its frozen parts, so that run_frames warms it up until they settle;
+    its :meth:`settle` runs the frozen parts alone (they change no state: the cache
+    trains once in the warm-up, frozen or not)."""
+
+    def __init__(self, frame: FrameFn, *parts: Any) -> None:
+        self.frame = frame
+        self.frozen = [part for part in parts if hasattr(part, "recordings")]
+        if self.frozen:
+            self.recordings = lambda: sum(part.recordings() for part in self.frozen)
+
+    def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
+        return self.frame(index, seed, timer)
+
+    def settle(self, index: int, seed: int, timer: StageTimer) -> None:
+        for part in self.frozen:
+            part(index, seed, timer)
 
 
 def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:
@@ -393,15 +415,18 @@ def run_frames(
 
 def _warm_up(render_frame: FrameFn, seed_parts: tuple[Any, ...],
              recordings: Callable[[], int] | None) -> Warmup:
-    """The untimed warm-up: one frame, or for a frozen frame function as many as its
-    recording count needs to stop changing (at most MAX_WARMUP_FRAMES)."""
+    """The untimed warm-up: one frame, then, for a frozen frame function, calls of its
+    ``settle`` (the frozen parts alone, which change no state; else the frame again)
+    until its recording count stops changing (at most MAX_WARMUP_FRAMES in all). So a
+    cache trains in one warm-up frame whether its frames are frozen or not."""
     seconds, compile_s, frames = 0.0, 0.0, 0
     before = -1
+    settle = getattr(render_frame, "settle", render_frame)
     while True:
         timer = StageTimer()
         seed = derive_seed(*seed_parts, "warmup", *((frames,) if frames else ()))
         with timer.frame():
-            render_frame(-1, seed, timer)
+            (settle if frames else render_frame)(-1, seed, timer)
         frames += 1
         seconds += timer.frame_s
         compile_s = None if timer.kernels is None or compile_s is None else \

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field, model_validator
 
-from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
+from renderers.methods.base import FrameHooks, RenderOutput, WithParts, render_stage, run_frames
 from renderers.methods.budget import (
     MIN_RECORDS,
     RECORD_FRACTION,
@@ -167,7 +167,8 @@ def render_with_cache(
             frame_queries.append(list(integrator.query_counts))
         return image
 
-    output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
+    output = run_frames(WithParts(render_frame, render), seed_parts=seed_parts, frames=frames,
+                        spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
     output.method_stats = {"training_budget": budget.describe(),
                            **cache_method_stats(cache, params, pretrain_s, frame_queries)}

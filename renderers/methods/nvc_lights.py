@@ -61,6 +61,7 @@ from renderers.methods.base import (
     Method,
     MethodParams,
     RenderOutput,
+    WithParts,
     fixed_stages,
     render_stage,
     run_frames,
@@ -200,7 +201,8 @@ def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
                 frame_queries.append(list(counts))
             return image
 
-        output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
+        output = run_frames(WithParts(render_frame, render_only), seed_parts=seed_parts,
+                            frames=frames, spp=spp,
                             aov_names=tuple(integrator.aov_names()), hooks=hooks)
         output.method_stats = cache_method_stats(cache, params, pretrain_s, frame_queries)
         return output

@@ -83,7 +83,8 @@ def render(scene: Any, params: ReSTIRDIParams, *, seed_parts: tuple[Any, ...], s
 class ReSTIRFrame:
     """``run_frames``' frame of a ``ReSTIRDI`` estimator, after ``before`` (if any): the
     mean over its replicas, on the device. A warm-up frame renders a frame without
-    history and one with (two recordings when frozen)."""
+    history and one with; the further warm-up calls of a frozen estimator
+    (:meth:`settle`) skip ``before``, so a cache trains once in the warm-up."""
 
     def __init__(self, restir: Any, before: BeforeFrame | None = None) -> None:
         self.restir, self.before = restir, before
@@ -91,10 +92,14 @@ class ReSTIRFrame:
             self.recordings = restir.recordings
 
     def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
-        import drjit as dr
-
         if self.before is not None:
             self.before(index, seed, timer)
+        return self.settle(index, seed, timer)
+
+    def settle(self, index: int, seed: int, timer: StageTimer) -> Any:
+        """The frame without ``before``."""
+        import drjit as dr
+
         if index <= 0:
             self.restir.reset()
         if index < 0:

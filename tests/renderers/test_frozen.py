@@ -11,7 +11,7 @@ from renderers.methods import METHODS, get_method, parse_params
 from renderers.methods.base import FrameHooks
 
 #: The methods whose frames are frozen today; the others say why not (docs/timing.md).
-FROZEN = {"pt", "pt-power", "pt-spatial", "restir-di"}
+FROZEN = {"pt", "pt-power", "pt-spatial", "restir-di", "nvc-lights", "restir-nvc"}
 #: The scenes tried in order for a method (the first it applies to).
 SCENES = ("many-lights", "sky")
 
@@ -75,11 +75,14 @@ def test_a_python_value_the_frame_reads_and_changes_is_caught(scenes):
 
 
 def test_a_dr_jit_array_held_in_python_fails_the_recording(scenes, monkeypatch):
-    """Planted: nvc-lights' selection, which reads the visibility cache's weights from
-    Python, declared stateless. Dr.Jit refuses to record a read of an array it was not
-    given, so the render fails instead of replaying stale weights."""
+    """Planted: nvc-lights' selection keeps reading the visibility cache's weights but no
+    longer hands them to the frozen frame (its ``frame_arrays`` without the cache's).
+    Dr.Jit refuses to record a read of an array it was not given, so the render fails
+    instead of replaying stale weights."""
+    from renderers.integrators.lights import LightSampler
     from renderers.integrators.nvc_lights import NVCLightSampler
 
-    monkeypatch.setattr(NVCLightSampler, "stateful", False)
+    monkeypatch.setattr(NVCLightSampler, "frame_arrays", LightSampler.frame_arrays)
+    monkeypatch.setattr(NVCLightSampler, "bind", LightSampler.bind)
     with pytest.raises(RuntimeError, match="recording a frozen function"):
         render(scenes, "nvc-lights", True, frames=2)
