@@ -154,11 +154,15 @@ class OptimizerConfig(_Frozen):
     lr_end: float | None = Field(None, gt=0.0)
     lr_decay_steps: int = Field(0, ge=0)
 
-    def learning_rate(self, step: int) -> float:
-        """Learning rate of the 0-based optimizer step ``step``."""
+    def learning_rate_at(self, step: Any) -> Any:
+        """Learning rate of the 0-based optimizer step ``step`` (a Dr.Jit UInt32 on the
+        device: a frozen training step reads it there, renderers.frozen): ``lr``, or
+        linear from ``lr`` to ``lr_end`` over ``lr_decay_steps`` steps, then ``lr_end``."""
         if self.lr_end is None or self.lr_decay_steps == 0:
             return self.lr
-        t = min(step / self.lr_decay_steps, 1.0)
+        import drjit as dr
+
+        t = dr.minimum(dr.float32_array_t(type(step))(step) / self.lr_decay_steps, 1.0)
         return self.lr + (self.lr_end - self.lr) * t
 
 

@@ -48,7 +48,7 @@ from typing import Any, Protocol
 import drjit as dr
 import mitsuba as mi
 
-from renderers.frozen import Frozen, freezing
+from renderers.frozen import Frozen, freezing, weak_method
 from renderers.integrators.lights import LightSampler, PowerLightSampler
 
 
@@ -204,7 +204,7 @@ class ReSTIRDI:
         # The candidates' light selection (its pmf enters the RIS weights): by power.
         self.lights = PowerLightSampler(scene) if lights is None else lights
         self.history: Frame | None = None
-        self._frame = (Frozen(self.frame, auto_opaque=False)
+        self._frame = (Frozen(weak_method(self.frame), auto_opaque=False)
                        if freezing() and not self.lights.stateful else self.frame)
 
     def recordings(self) -> int | None:

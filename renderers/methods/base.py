@@ -265,15 +265,18 @@ class FrozenRender:
 
 class WithParts:
     """A frame function made of parts (training, then a render stage) that reports the
-    recordings of its frozen parts, so that run_frames warms it up until they settle;
-    its :meth:`settle` runs the frozen parts alone (they change no state: the cache
+    recordings of its frozen parts and of ``counted`` objects (a cache's frozen
+    training step), so that run_frames warms it up until they settle; its
+    :meth:`settle` runs the frozen frame parts alone (they change no state: a cache
     trains once in the warm-up, frozen or not)."""
 
-    def __init__(self, frame: FrameFn, *parts: Any) -> None:
+    def __init__(self, frame: FrameFn, *parts: Any, counted: tuple[Any, ...] = ()) -> None:
         self.frame = frame
         self.frozen = [part for part in parts if hasattr(part, "recordings")]
-        if self.frozen:
-            self.recordings = lambda: sum(part.recordings() for part in self.frozen)
+        self.counted = [c for c in counted if c.recordings() is not None]
+        recorded = [*self.frozen, *self.counted]
+        if recorded:
+            self.recordings = lambda: sum(part.recordings() for part in recorded)
 
     def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
         return self.frame(index, seed, timer)
@@ -281,6 +284,8 @@ class WithParts:
     def settle(self, index: int, seed: int, timer: StageTimer) -> None:
         for part in self.frozen:
             part(index, seed, timer)
+        for counted in self.counted:
+            counted.settle()
 
 
 def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:

@@ -136,10 +136,11 @@ ExtraTraining = Callable[[int, StageTimer], None]
 def render_with_cache(
     scene: Any, params: CacheTrainingParams, integrator: Any, trainer: Any, cache: Any, *,
     seed_parts: tuple[Any, ...], spp: int, frames: int, hooks: FrameHooks = FrameHooks(),
-    extra_training: ExtraTraining | None = None,
+    extra_training: ExtraTraining | None = None, extra_cache: Any = None,
 ) -> RenderOutput:
     """Pre-train, then run the frame loop with training before every frame.
-    ``extra_training``: a second cache's training, in every frame that trains."""
+    ``extra_training``: a second cache's (``extra_cache``) training, in every frame that
+    trains."""
     # Self-training paths query the cache too.
     integrator.cache = trainer.cache = cache
     width, height = scene.resolution
@@ -167,7 +168,9 @@ def render_with_cache(
             frame_queries.append(list(integrator.query_counts))
         return image
 
-    output = run_frames(WithParts(render_frame, render), seed_parts=seed_parts, frames=frames,
+    caches = (cache,) if extra_cache is None else (cache, extra_cache)
+    output = run_frames(WithParts(render_frame, render, counted=caches),
+                        seed_parts=seed_parts, frames=frames,
                         spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
     output.method_stats = {"training_budget": budget.describe(),

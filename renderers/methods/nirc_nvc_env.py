@@ -89,7 +89,8 @@ def render(scene: Any, params: NIRCEnvParams, *, seed_parts: tuple[Any, ...], sp
     output = render_with_cache(
         scene, params, integrator, trainer, cache, seed_parts=seed_parts, spp=spp,
         frames=frames, hooks=hooks,
-        extra_training=lambda seed, timer: train_env_frame(scene, visibility, env, seed, timer))
+        extra_training=lambda seed, timer: train_env_frame(scene, visibility, env, seed, timer),
+        extra_cache=visibility)
     output.method_stats["env_cache"] = {
         "loss_history": list(visibility.loss_history),
         "cache_config": visibility.config.model_dump(mode="json")}

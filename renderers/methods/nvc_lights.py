@@ -201,7 +201,8 @@ def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
                 frame_queries.append(list(counts))
             return image
 
-        output = run_frames(WithParts(render_frame, render_only), seed_parts=seed_parts,
+        output = run_frames(WithParts(render_frame, render_only, counted=(cache,)),
+                            seed_parts=seed_parts,
                             frames=frames, spp=spp,
                             aov_names=tuple(integrator.aov_names()), hooks=hooks)
         output.method_stats = cache_method_stats(cache, params, pretrain_s, frame_queries)

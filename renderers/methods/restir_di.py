@@ -86,10 +86,14 @@ class ReSTIRFrame:
     history and one with; the further warm-up calls of a frozen estimator
     (:meth:`settle`) skip ``before``, so a cache trains once in the warm-up."""
 
-    def __init__(self, restir: Any, before: BeforeFrame | None = None) -> None:
+    def __init__(self, restir: Any, before: BeforeFrame | None = None,
+                 cache: Any = None) -> None:
         self.restir, self.before = restir, before
+        # A cache ``before`` trains, whose frozen step settles in the warm-up too.
+        self.cache = cache if cache is not None and cache.recordings() is not None else None
         if restir.recordings() is not None:
-            self.recordings = restir.recordings
+            self.recordings = lambda: restir.recordings() + (
+                self.cache.recordings() if self.cache is not None else 0)
 
     def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
         if self.before is not None:
@@ -97,9 +101,11 @@ class ReSTIRFrame:
         return self.settle(index, seed, timer)
 
     def settle(self, index: int, seed: int, timer: StageTimer) -> Any:
-        """The frame without ``before``."""
+        """The frame without ``before`` (and a settling call of the cache's step)."""
         import drjit as dr
 
+        if self.cache is not None and index < 0:
+            self.cache.settle()
         if index <= 0:
             self.restir.reset()
         if index < 0:

@@ -70,7 +70,7 @@ def render(scene: Any, params: ReSTIRNVCParams, *, seed_parts: tuple[Any, ...], 
     def train(index: int, seed: int, timer: StageTimer) -> None:
         train_frame(scene, cache, params, derive_seed(seed, "train"), timer)
 
-    output = run_frames(ReSTIRFrame(restir, train), seed_parts=seed_parts, frames=frames,
+    output = run_frames(ReSTIRFrame(restir, train, cache), seed_parts=seed_parts, frames=frames,
                         spp=spp, hooks=hooks)
     output.method_stats = {"shadow_rays_per_sample": shadow_rays(params),
                            **cache_method_stats(cache, params, pretrain_s, [])}
