@@ -34,6 +34,7 @@ CASES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
     ("restir-di d2 (many-lights)", "restir-di", "many-lights", {"max_depth": 2}),
     ("nvc-lights d2 (many-lights)", "nvc-lights", "many-lights", {"max_depth": 2}),
     ("pt d2 (many-lights)", "pt", "many-lights", {"max_depth": 2}),
+    ("pt-power d2 (many-lights)", "pt-power", "many-lights", {"max_depth": 2}),
 )
 
 
