@@ -24,7 +24,7 @@ import numpy as np
 from jobs.protocol.calibration import calibrate_job
 from jobs.protocol.plots import plot_convergence
 from jobs.protocol.provenance import git_branch, git_commit, library_versions
-from jobs.protocol.quality import judge_run
+from jobs.protocol.quality import finite_record, judge_run
 from jobs.protocol.references import LoadedReference, get_or_render_reference
 from jobs.protocol.results import RunResultDetail
 from jobs.protocol.scene_store import load_spec_scene
@@ -292,7 +292,9 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
     The seeds' frame moments (16 bytes per pixel-channel each) give the per-cache
     rBias^2 / rVar.
     The run's quality verdict (jobs.protocol.quality) is stored with it, and the metrics
-    the verdict withholds are stored as None, per seed and aggregated.
+    the verdict withholds are stored as None, per seed and aggregated. A NaN or
+    infinite metric, statistic or loss is stored as None too, and the verdict names it
+    (``quality['nonfinite_values']``).
     """
     scene, reference, device = prepared.scene, prepared.reference, prepared.device
     params = parse_params(spec.method, spec.params)
@@ -334,9 +336,11 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
         "breakdown": seed_timings[0]["breakdown"],
     }
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
+    metrics, per_seed, nonfinite = finite_record(metrics, per_seed)
     verdict, quality = judge_run([o.accumulated for o in outputs], reference.mean,
                                  scene.features.emitter_count,
-                                 [o.method_stats for o in outputs], reference.variance)
+                                 [o.method_stats for o in outputs], reference.variance,
+                                 nonfinite)
     metrics = withhold(metrics, verdict.withheld)
     per_seed = [withhold(s, verdict.withheld) for s in per_seed]
     versions = versions_of(spec.method)

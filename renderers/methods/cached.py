@@ -182,7 +182,8 @@ def cache_method_stats(cache: Any, params: Any, pretrain_s: float,
         "pretrain_frames": params.pretrain_frames,
         "pretrain_s": pretrain_s,
         "loss_history": list(cache.loss_history),
-        "cache_stats": {**cache.stats, "nonfinite_weights": nonfinite_weights(cache)},
+        "cache_stats": {**cache.stats, "nonfinite_weights": nonfinite_weights(cache),
+                        "min_trained_steps": cache.config.min_trained_steps},
         "cache_config": cache.config.model_dump(mode="json"),
     }
 

@@ -68,6 +68,22 @@ def test_a_cached_run_stores_its_time_breakdown_and_training_budget(env):
     assert (budget["mode"], budget["steps"], budget["batch_size"]) == ("scaled", 4, 256)
 
 
+def test_a_barely_trained_cache_is_not_ok(env):
+    """4 steps a frame over the warm-up and 2 frames is 12 steps, below the 100 that
+    nirc's weight EMA (0.99) needs; pre-trained for 22 frames the cache takes 100."""
+    settings, store = env
+    spec = SPEC.model_copy(update={"method": "nirc", "seeds": 1,
+                                   "params": {"cache": {"batch_size": 64}}})
+    short = execute(spec, store, settings).quality
+    assert short["verdict"] == "undertrained-cache" and short["withheld"] == []
+    assert "steps (12) than their configuration needs to count as trained (100)" in \
+        short["reasons"][0]["message"]
+    trained = execute(spec.model_copy(update={"params": {"cache": {"batch_size": 64},
+                                                         "pretrain_frames": 22}}),
+                      store, settings).quality
+    assert trained["verdict"] == "ok", trained
+
+
 def test_the_reference_is_rendered_once_and_reused(env):
     settings, store = env
     first = execute(SPEC, store, settings)
