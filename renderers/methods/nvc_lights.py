@@ -64,7 +64,12 @@ from renderers.methods.base import (
     render_stage,
     run_frames,
 )
-from renderers.methods.cached import cache_method_stats, has_surface, make_cache
+from renderers.methods.cached import (
+    cache_method_stats,
+    has_surface,
+    make_cache,
+    point_training,
+)
 from renderers.methods.pt import PATH_INTEGRATORS, SPP_CANDIDATES, PTParams, path_integrator
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
@@ -161,6 +166,12 @@ def train_frame(scene: Any, cache: Any, params: VisibilityCacheParams, seed: int
         cache.train(records)
 
 
+def training_points(params: Any) -> int:
+    """Training points per frame: world-space and camera points (`nvc-env` trains on
+    camera points only)."""
+    return getattr(params, "world_points", 0) + params.camera_points
+
+
 def pretrain(train_frame: Callable[[Any, Any, Any, int, StageTimer], None], scene: Any,
              cache: Any, params: Any, seed_parts: tuple[Any, ...]) -> float:
     """The one-off training frames before the first frame (``params.pretrain_frames``);
@@ -201,7 +212,9 @@ def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
 
         output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
                             aov_names=tuple(integrator.aov_names()), hooks=hooks)
-        output.method_stats = cache_method_stats(cache, params, pretrain_s, frame_queries)
+        output.method_stats = cache_method_stats(
+            cache, params, pretrain_s, frame_queries,
+            point_training(cache.config, training_points(params)))
         return output
 
     return render

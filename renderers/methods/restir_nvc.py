@@ -32,12 +32,13 @@ from __future__ import annotations
 from typing import Any
 
 from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput, run_frames
-from renderers.methods.cached import cache_method_stats
+from renderers.methods.cached import cache_method_stats, point_training
 from renderers.methods.nvc_lights import (
     VisibilityCacheParams,
     light_selection,
     pretrain,
     train_frame,
+    training_points,
 )
 from renderers.methods.pt import SPP_CANDIDATES
 from renderers.methods.restir_di import ReSTIRDIParams, frame_function, shadow_rays
@@ -66,7 +67,9 @@ def render(scene: Any, params: ReSTIRNVCParams, *, seed_parts: tuple[Any, ...], 
     output = run_frames(frame_function(restir, train), seed_parts=seed_parts, frames=frames,
                         spp=spp, hooks=hooks)
     output.method_stats = {"shadow_rays_per_sample": shadow_rays(params),
-                           **cache_method_stats(cache, params, pretrain_s, [])}
+                           **cache_method_stats(
+                               cache, params, pretrain_s, [],
+                               point_training(cache.config, training_points(params)))}
     return output
 
 

@@ -53,19 +53,29 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
         assert (settings.artifacts_dir / artifact.path).is_file()
 
 
-def test_a_cached_run_stores_its_time_breakdown_and_training_budget(env):
+def test_a_cached_run_stores_its_time_breakdown_and_resolved_cache(env):
     settings, store = env
     spec = SPEC.model_copy(update={"method": "nirc", "seeds": 1,
                                    "params": {"cache": {"batch_size": 256}}})
-    run = store.get_run(execute(spec, store, settings).run_id)
+    summary = execute(spec, store, settings)
+    run = store.get_run(summary.run_id)
     parts = run.timings["breakdown"]["parts_s"]
     assert {"render", "training_paths", "training", "other"} <= set(parts)
     assert all(seconds >= 0 for seconds in parts.values())
     assert run.timings["breakdown"]["inference_in_render"] == ("inference" not in parts)
     assert run.seed_results[0].timings["breakdown"] == run.timings["breakdown"]
-    # 8x8 pixels: the 4096-record floor, capped by the 256-record batch.
-    budget = run.seed_results[0].metrics["method_stats"]["training_budget"]
+    # The resolved configuration, not the overrides (the run's params say cache:
+    # {batch_size: 256}): the preset's network with the override, and per frame the
+    # 8x8 image's 4096-record floor, capped by the 256-record batch.
+    assert run.params["cache"] == {"batch_size": 256}
+    resolved = summary.result.model_dump(mode="json")["caches"]["cache"]
+    assert resolved["config"]["batch_size"] == 256
+    assert (resolved["config"]["mlp"]["width"], resolved["config"]["mlp"]["hidden_layers"],
+            resolved["config"]["direction"]["sh_bands"]) == (64, 4, 5)
+    assert resolved["config"]["optimizer"]["lr"] == 0.01
+    budget = resolved["per_frame"]
     assert (budget["mode"], budget["steps"], budget["batch_size"]) == ("scaled", 4, 256)
+    assert budget["records"] == 1024 and budget["paths"] >= 4096
 
 
 def test_a_barely_trained_cache_is_not_ok(env):

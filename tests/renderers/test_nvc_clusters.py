@@ -416,3 +416,8 @@ def test_restir_nvc_renders_through_its_frame_loop(mi):
     stats = output.method_stats
     assert stats["shadow_rays_per_sample"] == 1 + 2 + 2 and stats["pretrain_frames"] == 1
     assert len(stats["loss_history"]) == 1 + 1 + 2  # pre-training, warm-up, 2 frames
+    # Its resolved cache: one output per light of 32, trained on 512 points a frame.
+    cache = stats["caches"]["cache"]
+    assert cache["config"]["output"]["n_outputs"] == 32
+    assert cache["per_frame"] == {"points": 512, "steps": 1, "batch_size": 8192,
+                                  "records": 8192}
