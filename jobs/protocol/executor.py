@@ -138,7 +138,8 @@ def mean_over_seeds(stats: list[dict[str, Any]]) -> dict[str, Any]:
 
 def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
               reference: LoadedReference, eps: float, frame_seconds: float,
-              frame_moments: Sequence[RunningMoments] | None = None) -> dict[str, Any]:
+              frame_moments: Sequence[RunningMoments] | None = None,
+              correlated_frames: bool = False) -> dict[str, Any]:
     """Reduce K per-seed results to each metric of metrics.registry.METRICS by its
     aggregate form: rBias^2/rVar over seeds and mean MRSE with its CI, less the
     reference floor (metrics.errors.bias_variance), the per-cache statistics of
@@ -157,7 +158,7 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
                         if m.aggregate is Aggregate.MEAN_CI})
         metrics.update({key: per_seed[0][key] for key in
                         ("mrse_corrected", "ref_floor", "ref_floor_ratio_mrse", "warnings")})
-    metrics.update(per_cache_metrics(frame_moments, reference, eps))
+    metrics.update(per_cache_metrics(frame_moments, reference, eps, correlated_frames))
     # ---- Means over seeds (MEAN entries) ----
     for metric in METRICS:
         if metric.aggregate is Aggregate.MEAN:
@@ -177,14 +178,21 @@ PER_CACHE_KEYS = (*(f"{name}_per_cache{suffix}" for name in ("rbias2", "rvar")
 
 
 def per_cache_metrics(frame_moments: Sequence[RunningMoments] | None,
-                      reference: LoadedReference, eps: float) -> dict[str, Any]:
+                      reference: LoadedReference, eps: float,
+                      correlated_frames: bool = False) -> dict[str, Any]:
     """rBias^2 / rVar of each seed's cache from its own frames, with mean and spread.
 
     When they cannot be computed (no frame statistics collected, fewer than 2
-    frames per seed, no finite pixel) every key is None and
-    ``per_cache_unavailable`` says why.
+    frames per seed, no finite pixel) or would be wrong (``correlated_frames``: a
+    method whose frames share samples, ``Method.correlated_frames``) every key is
+    None and ``per_cache_unavailable`` says why.
     """
     try:
+        if correlated_frames:
+            raise MetricError(
+                "this method's frames share samples (temporal reuse), so the spread of "
+                "a seed's frames understates the variance of their mean and the "
+                "difference would be reported as bias; compare seeds instead (rbias2)")
         if not frame_moments:
             raise MetricError("no per-frame statistics were collected for this run")
         return {**per_cache_bias_variance([m.estimate() for m in frame_moments],
@@ -325,7 +333,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
     seed_timings = [output.timings for output in outputs]
     frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
     metrics = aggregate(per_seed, [o.accumulated for o in outputs], reference, spec.eps,
-                        frame_seconds, [rendered.moments for rendered in seeds])
+                        frame_seconds, [rendered.moments for rendered in seeds],
+                        get_method(spec.method).correlated_frames)
     metrics.update(extra or {})
     timings = {
         "protocol": seed_timings[0]["protocol"],

@@ -146,6 +146,11 @@ class Method:
     #: independent, and agreement is tested per pixel and on the image mean over
     #: seeds (metrics.statistics.image_mean_test), not with the tile test.
     correlated_pixels: bool = False
+    #: Whether its frames share samples (temporal reuse): then one seed's frames are
+    #: positively correlated, their spread understates the variance of their mean, and
+    #: the per-cache rBias^2 / rVar of a run (which take them as independent) are not
+    #: reported (jobs.protocol.executor.per_cache_metrics).
+    correlated_frames: bool = False
 
     def applies_to(self, features: Any) -> tuple[bool, str]:
         """Whether the method can render a scene with ``features``, and why not."""

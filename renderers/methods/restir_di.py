@@ -122,4 +122,4 @@ METHOD = Method("restir-di",
                 "Talbot MIS): direct light at primary hits only (max_depth 2)",
                 ReSTIRDIParams, render, version=2, requires=applies, label="ReSTIR DI",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
-                correlated_pixels=True)
+                correlated_pixels=True, correlated_frames=True)

@@ -85,4 +85,4 @@ METHOD = Method("restir-nvc",
                 "(paper Sec. 4.1.1): direct light at primary hits only (max_depth 2)",
                 ReSTIRNVCParams, render, version=2, requires=applies, label="ReSTIR NVC",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
-                correlated_pixels=True)
+                correlated_pixels=True, correlated_frames=True)
