@@ -19,8 +19,10 @@ parameter           default   meaning
 max_depth, rr_*     as `pt`   the PT core (renders and nothing else: training
                               traces shadow rays only)
 clamp               0.001     floor of the predicted visibility (paper Sec. 3.1,
-                              Fig. 5); 0 lets a light the cache wrongly calls
-                              occluded get pmf ~0
+                              Fig. 5), at least 1e-6: the sigmoid is exactly 0 in
+                              float32 below about -88, so without a floor a light
+                              the cache wrongly calls occluded gets pmf 0 (the
+                              paper's biased case)
 world_points        4096      training positions per frame uniform in the scene's
                               bounding box (paper Sec. 3.3)
 camera_points       4096      training positions per frame at first hits of random
@@ -76,6 +78,11 @@ from renderers.timing import StageTimer
 
 #: One output per light up to this many; beyond, clusters (paper Sec. 3.4).
 MAX_LIGHTS = 32
+#: The smallest clamp accepted. The clamp is what keeps these methods unbiased (a
+#: light's weight U * max(V, clamp) never 0 where it can contribute); it must stay a
+#: float32 weight well above underflow for small unshadowed terms U, which a clamp of
+#: 1e-6 does for U down to ~1e-32.
+MIN_CLAMP = 1e-6
 
 
 def one_output_visibility_config(**overrides: Any) -> Any:
@@ -89,7 +96,9 @@ def one_output_visibility_config(**overrides: Any) -> Any:
 class VisibilityCacheParams(MethodParams):
     """The visibility cache's parameters (module docstring), shared by `restir-nvc`."""
 
-    clamp: float = Field(1e-3, ge=0.0, le=1.0, description="floor of the predicted visibility")
+    clamp: float = Field(1e-3, ge=MIN_CLAMP, le=1.0,
+                         description="floor of the predicted visibility; what keeps the "
+                                     "method unbiased, so at least 1e-6")
     world_points: int = Field(4096, ge=0, le=1 << 20,
                               description="training points per frame in the scene's box")
     camera_points: int = Field(4096, ge=0, le=1 << 20,

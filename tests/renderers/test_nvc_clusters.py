@@ -36,7 +36,7 @@ import pytest
 
 from metrics.statistics import agreement_test, z_test
 from renderers.moments import render_moments
-from tests.renderers.lighting import RES, SPP, luminance_moments
+from tests.renderers.lighting import RES, SPP, luminance_moments, trained_nvc_lights
 from tests.renderers.scene_xml import perspective_sensor
 from tests.renderers.test_nvc_lights import SHADOWED_FLOOR, _blind_to_light, _reference
 from tests.renderers.test_restir import _moments, _params
@@ -63,15 +63,7 @@ def lights_300(mi):
 
 
 def _trained(scene, frames=TRAIN_FRAMES, seed=0, **params):
-    """(integrator, cache) of nvc-lights after ``frames`` frames of online training."""
-    from renderers.methods.nvc_lights import NVCLightsParams, build, train_frame
-    from renderers.timing import StageTimer
-
-    parsed = NVCLightsParams(**{**TRAIN_POINTS, **params})
-    integrator, cache = build(scene, parsed, seed)
-    for frame in range(frames):
-        train_frame(scene, cache, parsed, 100 * seed + frame, StageTimer())
-    return integrator, cache
+    return trained_nvc_lights(scene, frames, seed, **{**TRAIN_POINTS, **params})
 
 
 def _without_uniform_pick(sampler_type):
