@@ -114,7 +114,6 @@ class Look:
     baseline_mean: float
     candidate_mean: float
     change: float           # relative change (the estimate), worse way positive
-    min_change: float       # the change the tests are shifted to
     p_worse: float          # one-sided: worse by more than min_change
     p_within: float         # one-sided: worse by less than min_change
 
@@ -153,8 +152,7 @@ def compare(candidate: Sequence[float], baseline: Sequence[float], direction: Di
         else:
             p_worse, p_within = _tails(lambda alternative: stats.ttest_rel(
                 worse_c, moved_b, alternative=alternative))
-        return Look("paired", float(b.mean()), float(c.mean()), change, min_change,
-                    p_worse, p_within)
+        return Look("paired", float(b.mean()), float(c.mean()), change, p_worse, p_within)
     if min(c.size, b.size) < 2 or (np.ptp(c) == 0.0 and np.ptp(b) == 0.0):
         p_worse, p_within = _no_spread(change, min_change)
     elif test == "mann-whitney":
@@ -163,7 +161,7 @@ def compare(candidate: Sequence[float], baseline: Sequence[float], direction: Di
     else:
         p_worse, p_within = _tails(lambda alternative: stats.ttest_ind(
             worse_c, moved_b, equal_var=False, alternative=alternative))
-    return Look(test, float(b.mean()), float(c.mean()), change, min_change, p_worse, p_within)
+    return Look(test, float(b.mean()), float(c.mean()), change, p_worse, p_within)
 
 
 def _tails(run: Any) -> tuple[float, float]:
@@ -173,9 +171,8 @@ def _tails(run: Any) -> tuple[float, float]:
 
 def _no_spread(change: float, min_change: float) -> tuple[float, float]:
     """Without spread (identical values, a constant shift) the change is what it is:
-    (p_worse, p_within) is 0 on the side it falls, 1 on the other."""
-    worse = change >= min_change
-    return (0.0 if worse else 1.0), (1.0 if worse else 0.0)
+    (p_worse, p_within) is 0 on the side of ``min_change`` it falls, 1 otherwise."""
+    return (0.0 if change > min_change else 1.0), (0.0 if change < min_change else 1.0)
 
 
 def smallest_rank_p(candidate_seeds: int, baseline_seeds: int) -> float:

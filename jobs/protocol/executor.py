@@ -344,8 +344,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
         "stages": seed_timings[0]["stages"],
         "breakdown": seed_timings[0]["breakdown"],
     }
-    path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
     metrics, per_seed, nonfinite = finite_record(metrics, per_seed)
+    path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
     verdict, quality = judge_run([o.accumulated for o in outputs], reference.mean,
                                  scene.features.emitter_count,
                                  [o.method_stats for o in outputs], reference.variance,
