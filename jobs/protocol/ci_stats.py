@@ -150,23 +150,27 @@ def compare(candidate: Sequence[float], baseline: Sequence[float], direction: Di
         if d.size < 2 or np.ptp(d) == 0.0:       # identical values or a constant shift
             p_worse, p_within = _no_spread(change, min_change)
         else:
-            p_worse, p_within = _tails(lambda alternative: stats.ttest_rel(
-                worse_c, moved_b, alternative=alternative))
+            p_worse, p_within = _t_tails(stats.ttest_rel(worse_c, moved_b,
+                                                         alternative="greater"))
         return Look("paired", float(b.mean()), float(c.mean()), change, p_worse, p_within)
     if min(c.size, b.size) < 2 or (np.ptp(c) == 0.0 and np.ptp(b) == 0.0):
         p_worse, p_within = _no_spread(change, min_change)
     elif test == "mann-whitney":
-        p_worse, p_within = _tails(lambda alternative: stats.mannwhitneyu(
-            worse_c, moved_b, alternative=alternative))
+        # A rank statistic is discrete: each side is its own test.
+        p_worse, p_within = (float(stats.mannwhitneyu(worse_c, moved_b,
+                                                      alternative=alternative).pvalue)
+                             for alternative in ("greater", "less"))
     else:
-        p_worse, p_within = _tails(lambda alternative: stats.ttest_ind(
-            worse_c, moved_b, equal_var=False, alternative=alternative))
+        p_worse, p_within = _t_tails(stats.ttest_ind(worse_c, moved_b, equal_var=False,
+                                                     alternative="greater"))
     return Look(test, float(b.mean()), float(c.mean()), change, p_worse, p_within)
 
 
-def _tails(run: Any) -> tuple[float, float]:
-    """(p of "greater", p of "less") of one SciPy test, ``run(alternative)``."""
-    return float(run("greater").pvalue), float(run("less").pvalue)
+def _t_tails(result: Any) -> tuple[float, float]:
+    """(p of "greater", p of "less") from one SciPy t-test run for "greater": the t
+    distribution is continuous, so the two add up to 1 (one test per look, not two)."""
+    p_greater = float(result.pvalue)
+    return p_greater, 1.0 - p_greater
 
 
 def _no_spread(change: float, min_change: float) -> tuple[float, float]:
