@@ -123,8 +123,9 @@ class RunResult(ResultMetrics):
     warnings: list[str] = Field(
         default_factory=list, description="e.g. the reference floor is above 10 % of a metric")
     verdict: str | None = Field(
-        None, description="quality verdict (ok, untrained-cache, nonfinite, negative-radiance, "
-                          "degenerate-reference, no-emitter); null for runs stored before verdicts")
+        None, description="quality verdict (ok, undertrained-cache, untrained-cache, "
+                          "nonfinite-value, nonfinite, negative-radiance, degenerate-reference, "
+                          "no-emitter); null for runs stored before verdicts")
     withheld: list[str] = Field(
         default_factory=list, description="metrics the verdict makes meaningless (null above)")
     estimator_version: int
@@ -192,6 +193,13 @@ class RunResultDetail(RunResult):
     git_branch: str | None = Field(None, description="branch of the commit, when known")
     reference_id: int | None
     reference: ReferenceInfo | None = None
+    caches: dict[str, Any] = Field(
+        default_factory=dict,
+        description="each cache's resolved configuration, under the parameter that "
+                    "overrides it ('cache', 'env_cache'): 'config', the whole network after "
+                    "preset and overrides (encodings, MLP, output, loss, optimizer, EMA, "
+                    "batch, steps), and 'per_frame', its training per frame (paths or "
+                    "points, steps, batch size, records); empty for a method without a cache")
     per_seed: list[SeedRow]
 
     @classmethod
@@ -204,9 +212,25 @@ class RunResultDetail(RunResult):
             "git_branch": run.git_branch, "reference_id": run.reference_id,
             "reference": None if ref is None else ReferenceInfo(
                 id=ref.id, spp=ref.spp, key=ref.key, split_half=ref.split_half or {}),
+            "caches": resolved_caches(run.seed_results),
             "per_seed": [SeedRow(seed=s.seed, metrics=s.metrics, timings=s.timings)
                          for s in run.seed_results],
         }
+
+
+def resolved_caches(seed_results: Any) -> dict[str, Any]:
+    """The caches' resolved configuration a run stored with its seeds (the same for
+    every seed: it depends on the parameters and the frame size only). Runs stored
+    before ``method_stats['caches']`` kept the config and the training budget apart."""
+    if not seed_results:
+        return {}
+    stats = seed_results[0].metrics.get("method_stats") or {}
+    if "caches" in stats:
+        return stats["caches"]
+    if "cache_config" in stats:
+        return {"cache": {"config": stats["cache_config"],
+                          "per_frame": stats.get("training_budget")}}
+    return {}
 
 
 class ReportRow(RunResult):

@@ -27,11 +27,18 @@ Per lane (one per pixel and replica) and frame, with x the pixel's first hit:
                 heuristic m_j(y) = M_j p̂V_{x_j}(y) / Σ_k M_k p̂V_{x_k}(y) (Talbot),
                 W = Σ w / p̂_x(y_s),  M = Σ M_j
     shading     L = Le(x) + f(x, x→y) Le(y) G(x, y) · W   (W > 0: y visible from x)
+                    + f_δ(x, ω) Le(y_δ) / p(ω)   (ω drawn by the BSDF; only when the
+                    drawn lobe is a delta lobe, y_δ the first hit along ω)
 
 The m_j sum to 1 over the inputs for every y, and an input that cannot hold
 y (p̂V_{x_j}(y) = 0) gets m = 0, so each reservoir's W stays an unbiased
 contribution weight of its target at its own x: the image is unbiased with
-reuse on (docs/estimators.md, "restir-di"). The visibility in the weights
+reuse on (docs/estimators.md, "restir-di"). The target evaluates the BSDF,
+which is 0 on delta lobes (a mirror, the coating of smooth plastic, glass), so
+the light reflected or refracted by a delta lobe at x is not a light sample at
+all: one BSDF sample per lane adds it where the BSDF drew a delta lobe (the
+second line of the shading), as Mitsuba's ``path`` at max_depth 2 collects an
+emitter hit after a delta bounce with MIS weight 1. The visibility in the weights
 costs one shadow ray per pair of inputs (j, k), k != j (a kept sample is
 visible from its own x_j). The confidence weights M are clamped before
 temporal reuse (M_prev <= m_clamp · C), which changes the weights, not their
@@ -170,6 +177,19 @@ def combine(scene: mi.Scene, si: mi.SurfaceInteraction3f,
     return finish(scene, si, chosen, w_sum, M, active)
 
 
+def delta_emission(scene: mi.Scene, si: mi.SurfaceInteraction3f, sampler: mi.Sampler,
+                   active: mi.Bool) -> mi.Spectrum:
+    """The emission seen from ``si`` through a delta lobe of its BSDF: one BSDF sample,
+    kept only where it drew a delta lobe (f_δ Le / p, the sample weight dividing by the
+    lobe's selection probability too); the reservoirs' target holds every other lobe."""
+    ctx = mi.BSDFContext()
+    bs, bsdf_weight = si.bsdf().sample(ctx, si, sampler.next_1d(active),
+                                       sampler.next_2d(active), active)
+    delta = active & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    hit = scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), delta)
+    return dr.select(delta, bsdf_weight * hit.emitter(scene, delta).eval(hit, delta), 0)
+
+
 def neighbour_lanes(sampler: mi.Sampler, lane: mi.UInt32, size: tuple[int, int],
                     radius: float) -> mi.UInt32:
     """A pixel uniform in the disk of ``radius`` px around each lane's (clamped to the
@@ -266,7 +286,8 @@ class ReSTIRDI:
         dr.eval(reservoir, si)
         # W > 0 only for a sample visible from x: shading needs no further ray.
         value, _ = target(scene, si, reservoir, valid & (reservoir.W > 0))
-        L = si.emitter(scene).eval(si, valid) + value * reservoir.W
+        L = (si.emitter(scene).eval(si, valid) + value * reservoir.W
+             + delta_emission(scene, si, sampler, valid))
         rgb = mi.Color3f(L * weight)
         pixels = mi.Vector4f(rgb.x, rgb.y, rgb.z, dr.select(valid, 1.0, 0.0))
         image = mi.TensorXf(dr.ravel(pixels), shape=(self.replicas, height, width, 4))

@@ -175,6 +175,11 @@ class Method:
     #: small frames, e.g. training records) scaled by a factor, so that the cost model can
     #: measure what a unit of a floored stage costs; None: the method has no floors.
     scale_floors: Callable[[Any, float], Any] | None = None
+    #: Whether its frames share samples (temporal reuse): then one seed's frames are
+    #: positively correlated, their spread understates the variance of their mean, and
+    #: the per-cache rBias^2 / rVar of a run (which take them as independent) are not
+    #: reported (jobs.protocol.executor.per_cache_metrics).
+    correlated_frames: bool = False
 
     def applies_to(self, features: Any) -> tuple[bool, str]:
         """Whether the method can render a scene with ``features``, and why not."""

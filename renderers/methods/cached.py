@@ -173,22 +173,42 @@ def render_with_cache(
                         seed_parts=seed_parts, frames=frames,
                         spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
-    output.method_stats = {"training_budget": budget.describe(),
-                           **cache_method_stats(cache, params, pretrain_s, frame_queries)}
+    output.method_stats = cache_method_stats(cache, params, pretrain_s, frame_queries,
+                                             budget.describe())
     return output
 
 
+def cache_record(cache: Any, per_frame: dict[str, Any]) -> dict[str, Any]:
+    """A cache's resolved configuration as a run stores it (``method_stats['caches']``):
+    the whole network config after preset and overrides (encodings, MLP, output, loss,
+    optimizer, EMA, batch and steps) and what it trains on per frame (``per_frame``:
+    paths or points, steps, batch size, records)."""
+    return {"config": cache.config.model_dump(mode="json"), "per_frame": per_frame}
+
+
 def cache_method_stats(cache: Any, params: Any, pretrain_s: float,
-                       frame_queries: list[list[Any]]) -> dict[str, Any]:
-    """What a run stores of its cache: queries per frame, pre-training, losses, config."""
+                       frame_queries: list[list[Any]],
+                       per_frame: dict[str, Any]) -> dict[str, Any]:
+    """What a run stores of its cache: queries per frame, pre-training, losses, and its
+    resolved configuration under the name of the parameter that overrides it
+    (``caches['cache']``, :func:`cache_record`)."""
     return {
         **(query_stats(frame_queries) if frame_queries else {}),
         "pretrain_frames": params.pretrain_frames,
         "pretrain_s": pretrain_s,
         "loss_history": list(cache.loss_history),
-        "cache_stats": {**cache.stats, "nonfinite_weights": nonfinite_weights(cache)},
-        "cache_config": cache.config.model_dump(mode="json"),
+        "cache_stats": {**cache.stats, "nonfinite_weights": nonfinite_weights(cache),
+                        "min_trained_steps": cache.config.min_trained_steps},
+        "caches": {"cache": cache_record(cache, per_frame)},
     }
+
+
+def point_training(config: Any, points: int) -> dict[str, int]:
+    """The per-frame training of a cache trained on ``points`` points a frame (the
+    visibility caches, `nrc-di`): ``config.steps_per_frame`` steps of its batch."""
+    return {"points": points, "steps": config.steps_per_frame,
+            "batch_size": config.batch_size,
+            "records": config.steps_per_frame * config.batch_size}
 
 
 def nonfinite_weights(cache: Any) -> int:

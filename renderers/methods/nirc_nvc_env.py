@@ -34,8 +34,10 @@ from renderers.methods import nirc
 from renderers.methods.base import FrameHooks, Method, RenderOutput
 from renderers.methods.cached import (
     TRAINING_INTEGRATORS,
+    cache_record,
     load_integrators,
     make_cache,
+    point_training,
     render_with_cache,
     scale_training_floors,
     training_stage_sizes,
@@ -91,9 +93,9 @@ def render(scene: Any, params: NIRCEnvParams, *, seed_parts: tuple[Any, ...], sp
         frames=frames, hooks=hooks,
         extra_training=lambda seed, timer: train_env_frame(scene, visibility, env, seed, timer),
         extra_cache=visibility)
-    output.method_stats["env_cache"] = {
-        "loss_history": list(visibility.loss_history),
-        "cache_config": visibility.config.model_dump(mode="json")}
+    output.method_stats["env_cache"] = {"loss_history": list(visibility.loss_history)}
+    output.method_stats["caches"]["env_cache"] = cache_record(
+        visibility, point_training(visibility.config, env.camera_points))
     return output
 
 

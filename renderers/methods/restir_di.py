@@ -10,7 +10,9 @@ primary hits too). One sample (and one reservoir) per pixel and frame; ``spp``
 renders that many independent reservoir chains per pixel and averages them.
 The estimator (renderers.integrators.restir; docs/estimators.md, "restir-di")
 is unbiased with and without reuse: Talbot MIS over the reused reservoirs with
-visibility-checked targets, not the biased 1/M normalisation.
+visibility-checked targets, not the biased 1/M normalisation; the light that a
+delta lobe (a mirror, smooth plastic's coating) reflects at the first hit, which
+no light sample can carry, comes from one BSDF sample per pixel.
 
 ==================  ========  =====================================================
 parameter           default   meaning
@@ -137,6 +139,6 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = Method("restir-di",
                 "screen-space ReSTIR DI (8 candidates, temporal + spatial reuse, unbiased "
                 "Talbot MIS): direct light at primary hits only (max_depth 2)",
-                ReSTIRDIParams, render, version=1, requires=applies, label="ReSTIR DI",
+                ReSTIRDIParams, render, version=2, requires=applies, label="ReSTIR DI",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
-                correlated_pixels=True)
+                correlated_pixels=True, correlated_frames=True)

@@ -39,12 +39,13 @@ from renderers.methods.base import (
     fixed_stages,
     run_frames,
 )
-from renderers.methods.cached import cache_method_stats
+from renderers.methods.cached import cache_method_stats, point_training
 from renderers.methods.nvc_lights import (
     VisibilityCacheParams,
     light_selection,
     pretrain,
     train_frame,
+    training_points,
 )
 from renderers.methods.pt import SPP_CANDIDATES
 from renderers.methods.restir_di import ReSTIRDIParams, ReSTIRFrame, shadow_rays
@@ -73,7 +74,9 @@ def render(scene: Any, params: ReSTIRNVCParams, *, seed_parts: tuple[Any, ...], 
     output = run_frames(ReSTIRFrame(restir, train, cache), seed_parts=seed_parts, frames=frames,
                         spp=spp, hooks=hooks)
     output.method_stats = {"shadow_rays_per_sample": shadow_rays(params),
-                           **cache_method_stats(cache, params, pretrain_s, [])}
+                           **cache_method_stats(
+                               cache, params, pretrain_s, [],
+                               point_training(cache.config, training_points(params)))}
     return output
 
 
@@ -87,6 +90,7 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = Method("restir-nvc",
                 "restir-di with initial candidates from a (clustered) neural visibility cache "
                 "(paper Sec. 4.1.1): direct light at primary hits only (max_depth 2)",
-                ReSTIRNVCParams, render, version=1, requires=applies, label="ReSTIR NVC",
+                ReSTIRNVCParams, render, version=2, requires=applies, label="ReSTIR NVC",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
-                correlated_pixels=True, stage_sizes=fixed_stages("training_paths", "training"))
+                correlated_pixels=True, correlated_frames=True,
+                stage_sizes=fixed_stages("training_paths", "training"))

@@ -118,7 +118,7 @@ def test_a_render_trains_its_budget_and_breaks_its_frame_time_down(scene, method
     params = parse_params(method, {"max_depth": 6, "pretrain_frames": pretrain})
     out = get_method(method).render(scene, params, seed_parts=("budget", method), spp=1,
                                     frames=frames)
-    budget = out.method_stats["training_budget"]
+    budget = out.method_stats["caches"]["cache"]["per_frame"]
     assert budget == {"mode": "scaled", "paths": 4096, "steps": 4, "batch_size": 1024,
                       "records": 4096}
     stats = out.method_stats["cache_stats"]
