@@ -26,6 +26,7 @@ test-fast: bootstrap
 	$(TEST_ENV) $(PY) -m pytest -q -m "not slow"
 
 bench: bootstrap
+	$(PY) -m benchmarks.bench_frame_cost
 	$(PY) -m benchmarks.bench_pt
 	$(PY) -m benchmarks.bench_cache
 	$(PY) -m benchmarks.bench_nirc

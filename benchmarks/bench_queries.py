@@ -1,4 +1,4 @@
-"""Benchmark: what the cache queries cost a NIRC frame, next to PT (issue 13, point 1).
+"""Benchmark: what the cache queries cost a NIRC frame, next to PT.
 
 Prints, for one 1-spp frame on one scene, the median over ``--repeats`` of
 the frame time (``mi.render``: path tracing + cache inference) of

@@ -11,7 +11,7 @@
    a drift of this VM's speed hits both alike; the ratio is the median of the
    paired ratios, with a bootstrap 95 % interval. CPU time per job is split
    into the render process and the service process (API, queue, Dask).
-   Goal (issue 5): ratio <= 1.05.
+   Goal: ratio <= 1.05.
 2. Submission throughput: jobs per second accepted (202) by the API from 16
    concurrent clients.
 """

@@ -6,7 +6,7 @@ measured inside the same run (device synchronised before every clock read):
 the reference, the caches' training frames + converged cache-at-v1 images,
 and the 20 x K x F timed 1-spp frames. Everything else — JIT compilation,
 warm-up frames, metrics (FLIP), artifacts, database writes, plots — is
-overhead. Goal (issue 4): ratio <= 1.2. A first, smaller sweep in another
+overhead. Goal: ratio <= 1.2. A first, smaller sweep in another
 folder warms the on-disk kernel cache, so compilation that a user pays once
 per machine is not counted; the cold ratio is printed too.
 """

@@ -379,7 +379,11 @@ def per_cache_bias_variance(caches: Sequence[MeanEstimate], ref: np.ndarray,
 
     The estimate is exact for i.i.d. frames (a frozen cache). Frames of a
     cache trained online are not identically distributed, so S_k^2 then also
-    holds the drift of the cache over the run.
+    holds the drift of the cache over the run. Frames must be independent:
+    positively correlated frames (temporal reuse) make S_k^2 / F smaller than
+    the variance of M_k, and the difference is reported as bias (for an AR(1)
+    sequence with coefficient phi, by about (1 + phi) / (1 - phi) - 1 times the
+    variance of an independent mean); callers leave such methods out.
 
     Raises MetricError when F < 2, the caches differ in F or shape, or no
     pixel is finite everywhere.

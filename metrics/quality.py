@@ -58,8 +58,13 @@ class VerdictCode:
 
 VERDICTS: dict[str, VerdictCode] = {v.code: v for v in (
     VerdictCode("ok", 0, "nothing found that makes the metrics meaningless", ()),
+    VerdictCode("undertrained-cache", 5, "a cache took fewer successful training steps "
+                "than its configuration needs to count as trained: the errors measure a cache "
+                "early in its training", ()),
     VerdictCode("untrained-cache", 10, "a cache took no successful training step: the "
                 "method ran, but not as intended", ()),
+    VerdictCode("nonfinite-value", 15, "a metric, a statistic or a training loss came out "
+                "NaN or infinite; it is stored as null and named", ()),
     VerdictCode("nonfinite", 20, "the render has NaN or infinite pixels", ERROR_METRICS),
     VerdictCode("negative-radiance", 30, "the reference has negative values (the scene emits "
                 "or reflects negative radiance): FLIP's tone mapping is undefined for them",
@@ -96,8 +101,10 @@ class RunFacts:
     reference_negative_pixels: int = 0       # some channel < 0
     render_negative_pixels: int = 0          # summed over the K renders
     emitter_count: int | None = None         # None: not known
+    nonfinite_values: tuple[str, ...] = ()   # paths of NaN/Inf metrics or losses, stored null
     cache_steps: tuple[int, ...] = ()        # per render's cache (empty: no cache)
     cache_skipped_steps: tuple[int, ...] = ()
+    cache_min_steps: tuple[int, ...] = ()    # steps each cache needs to count as trained
     cache_records: tuple[int, ...] = ()      # usable training records per cache
     cache_dropped_nonfinite: tuple[int, ...] = ()  # records dropped: non-finite target/input
 
@@ -171,6 +178,17 @@ def _nonfinite(facts: RunFacts) -> Reason | None:
                                 "over the finite pixels only", withhold=False)
 
 
+def _nonfinite_values(facts: RunFacts) -> Reason | None:
+    if not facts.nonfinite_values:
+        return None
+    shown = ", ".join(facts.nonfinite_values[:5])
+    more = len(facts.nonfinite_values) - 5
+    return _reason("nonfinite-value",
+                   f"{len(facts.nonfinite_values)} values of the run were NaN or infinite and "
+                   f"are stored as null (never averaged): {shown}"
+                   + (f" and {more} more" if more > 0 else ""))
+
+
 def _negative_radiance(facts: RunFacts) -> Reason | None:
     # Only the reference decides: a signed estimator (the two-level residual of unbiased
     # NIRC) legitimately averages to small negative pixels, which FLIP clamps to 0 like
@@ -207,8 +225,24 @@ def _untrained_cache(facts: RunFacts) -> Reason | None:
                    "untrained cache, not the method")
 
 
+def _undertrained_cache(facts: RunFacts) -> Reason | None:
+    # Caches that took no step at all are _untrained_cache's.
+    short = [(steps, needed) for steps, needed in zip(facts.cache_steps, facts.cache_min_steps,
+                                                      strict=False) if 0 < steps < needed]
+    if not short:
+        return None
+    steps = ", ".join(str(s) for s, _ in short)
+    needed = ", ".join(sorted({str(n) for _, n in short}))
+    return _reason("undertrained-cache",
+                   f"{len(short)} of {len(facts.cache_steps)} caches took fewer successful "
+                   f"training steps ({steps}) than their configuration needs to count as "
+                   f"trained ({needed}); the errors measure a cache early in its training: "
+                   "pre-train it (pretrain_frames) or render more frames")
+
+
 CHECKS: tuple[Callable[[RunFacts], Reason | None], ...] = (
-    _no_emitter, _degenerate_reference, _nonfinite, _negative_radiance, _untrained_cache)
+    _no_emitter, _degenerate_reference, _nonfinite, _nonfinite_values, _negative_radiance,
+    _untrained_cache, _undertrained_cache)
 
 
 def assess(facts: RunFacts) -> Quality:

@@ -131,3 +131,11 @@ def _gpu_name() -> str:
     import drjit as dr
 
     return f"CUDA GPU (compute capability {dr.detail.cuda_compute_capability()})"
+
+
+def host_runs_kernels() -> bool:
+    """Whether the selected variant runs its kernels on this host's cores (LLVM), so
+    that the process's CPU time says how much of the cores it got (renderers.load)."""
+    import mitsuba as mi
+
+    return not (mi.variant() or "").startswith("cuda")

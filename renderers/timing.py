@@ -7,18 +7,32 @@ clock is read. The first call of a kernel JIT-compiles it (0.3-5 s; later
 processes hit the kernel cache in ``~/.drjit``): frame loops run one warm-up
 frame that is excluded from the timings and reported separately.
 
-Every frame is timed twice: per stage, and as a whole (``StageTimer.frame``).
-The frame time proper (``frame_median_s``) is the sum of the stages; the whole
-frame also holds what runs between them (Python, building the records), which
-the breakdown reports as 'other'.
+Two clocks per stage (docs/timing.md):
+
+- **wall time**, ``time.perf_counter`` between two synchronisations: what the
+  stage costs end to end on this machine;
+- **kernel time**, the summed ``execution_time`` of the kernels Dr.Jit launched
+  inside the stage (its kernel history, ``JitFlag.KernelHistory``; measured on
+  the device on CUDA, with the host's monotonic clock around each kernel on
+  LLVM). Wall minus kernel time is the **harness** share of the stage: Python
+  tracing, code generation, host work, launch gaps.
+
+Every frame is timed as a whole too (``StageTimer.frame``): what runs between
+the stages (Python, building the records) is its part 'other'. Reading the
+kernel history costs ~9 us per launch; it happens outside every stage's clock
+and its time is subtracted from the whole frame and stored apart (``readout_s``). The frame time
+(``frame_median_s``) is the sum of the stages of the median frame; the time
+breakdown is that frame's parts (its stages and 'other'), so they add up to
+its whole wall time. Medians are lower medians (a frame that was measured).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from statistics import median
+from dataclasses import dataclass
+from statistics import median_low
 from typing import Any
 
 import drjit as dr
@@ -26,8 +40,15 @@ import drjit as dr
 PROTOCOL = (
     "steady-state seconds per frame: one warm-up frame (JIT compilation) excluded and "
     "reported separately as warmup_s; outputs evaluated and the device synchronised "
-    "(dr.eval + dr.sync_thread) before every clock read; wall clock time.perf_counter"
+    "(dr.eval + dr.sync_thread) before every clock read; wall clock time.perf_counter; "
+    "kernel time from Dr.Jit's kernel history (on for the warm-up and the timed frames); "
+    "harness = wall - kernel time; reading the history is timed apart and excluded; "
+    "the frame time and its breakdown are those of the "
+    "median frame (lower median)"
 )
+
+#: The part of a frame outside its stages (StageTimer.frame minus the stages).
+OTHER = "other"
 
 
 def synchronize(*values: Any) -> None:
@@ -37,44 +58,166 @@ def synchronize(*values: Any) -> None:
     dr.sync_thread()
 
 
-class StageTimer:
-    """Accumulates synchronised wall time per named stage within one frame.
+def kernel_history_enabled() -> bool:
+    """Whether Dr.Jit records the kernels it launches (``JitFlag.KernelHistory``)."""
+    return bool(dr.flag(dr.JitFlag.KernelHistory))
 
-    Stages may nest (the deferred cache ``inference`` runs inside
-    ``mi.render``, timed as ``render``): a stage's time excludes the time of
-    the stages nested in it, so the stages of a frame add up to its wall time.
+
+@contextmanager
+def kernel_history() -> Iterator[None]:
+    """Record Dr.Jit's kernel launches in this block (for :class:`StageTimer`), then
+    drop what no timer read, so the history (which holds each kernel's code) never grows
+    outside a timed block. The flag stays constant inside the block: toggling it forces a
+    frozen function to record again."""
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        try:
+            yield
+        finally:
+            dr.kernel_history_clear()
+
+
+@dataclass
+class KernelTally:
+    """Kernels drained from the history: summed execution time, launches, and the
+    host time Dr.Jit spent generating (``codegen``) and compiling (``backend``) them."""
+
+    seconds: float = 0.0
+    launches: int = 0
+    codegen_s: float = 0.0
+    compile_s: float = 0.0
+
+    def add(self, other: KernelTally) -> None:
+        self.seconds += other.seconds
+        self.launches += other.launches
+        self.codegen_s += other.codegen_s
+        self.compile_s += other.compile_s
+
+
+def drain_kernels() -> KernelTally:
+    """Sum and clear the kernel history (empty when it is off). Times are in ms there."""
+    tally = KernelTally()
+    for kernel in dr.kernel_history():
+        tally.seconds += 1e-3 * float(kernel.get("execution_time", 0.0))
+        tally.launches += 1
+        tally.codegen_s += 1e-3 * float(kernel.get("codegen_time", 0.0))
+        tally.compile_s += 1e-3 * float(kernel.get("backend_time", 0.0))
+    return tally
+
+
+class StageTimer:
+    """Wall and kernel time per named stage within one frame.
+
+    Stages may nest (the deferred cache ``inference`` runs inside ``mi.render``,
+    timed as ``render``): a stage's time excludes the time of the stages nested
+    in it, so the stages of a frame add up to its wall time, and so do their
+    kernel times. Kernel time is known only while Dr.Jit's kernel history is on
+    (:func:`kernel_history`); otherwise ``kernels`` is None.
     """
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
         self.frame_s = 0.0
-        self._nested: list[float] = []   # per open stage: seconds spent in its inner stages
+        self.kernels: dict[str, KernelTally] | None = {} if kernel_history_enabled() else None
+        self.readout_s = 0.0              # reading the kernel history inside the frame
+        self._open: list[str] = []        # the open stages, innermost last
+        self._nested: list[float] = []    # per open stage: seconds spent in its inner stages
+
+    def _drain_into(self, name: str) -> None:
+        """Charge the kernels launched since the last drain to stage ``name``. Reading
+        the history costs ~9 us per launch (measured): it happens outside every stage's
+        clock and is kept apart (``readout_s``), not in the frame."""
+        if self.kernels is not None:
+            start = time.perf_counter()
+            self.kernels.setdefault(name, KernelTally()).add(drain_kernels())
+            spent = time.perf_counter() - start
+            self.readout_s += spent
+            if self._nested:    # inside an open stage's window: not that stage's time
+                self._nested[-1] += spent
 
     @contextmanager
     def frame(self) -> Iterator[None]:
-        """Time a whole frame (its stages and everything between them) as ``frame_s``."""
+        """Time a whole frame (its stages and everything between them, less the reading of
+        the kernel history) as ``frame_s``; kernels launched between the stages are the
+        frame's 'other'."""
         synchronize()
+        if self.kernels is not None:
+            drain_kernels()   # launched before this frame
         start = time.perf_counter()
         yield
         synchronize()
-        self.frame_s = time.perf_counter() - start
+        self.frame_s = time.perf_counter() - start - self.readout_s
+        self._drain_into(OTHER)
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
         """Time a block. The block must ``synchronize(outputs)`` its lazy results
         before it ends; the device is synchronised again before the clock is read."""
         synchronize()
+        self._drain_into(self._open[-1] if self._open else OTHER)
         start = time.perf_counter()
+        self._open.append(name)
         self._nested.append(0.0)
         try:
             yield
             synchronize()
         finally:
             elapsed = time.perf_counter() - start
+            self._open.pop()
             inner = self._nested.pop()
             if self._nested:
                 self._nested[-1] += elapsed
+            self._drain_into(name)
         self.seconds[name] = self.seconds.get(name, 0.0) + elapsed - inner
+
+    def record(self) -> FrameTime:
+        """This frame's times (after :meth:`frame`)."""
+        kernels = self.kernels
+        return FrameTime(
+            stages=dict(self.seconds), whole_s=self.frame_s,
+            kernel_s=None if kernels is None else {n: k.seconds for n, k in kernels.items()},
+            launches=None if kernels is None else {n: k.launches for n, k in kernels.items()},
+            readout_s=self.readout_s)
+
+
+@dataclass
+class FrameTime:
+    """One timed frame: wall seconds per stage, the whole frame's wall seconds, and
+    (with the kernel history on) kernel seconds and launches per stage and 'other'."""
+
+    stages: dict[str, float]
+    whole_s: float
+    kernel_s: dict[str, float] | None = None
+    launches: dict[str, int] | None = None
+    readout_s: float = 0.0       # reading the kernel history: measurement, not the frame
+
+    @property
+    def total_s(self) -> float:
+        """The frame time proper: the sum of its stages."""
+        return sum(self.stages.values())
+
+    def parts(self) -> dict[str, float]:
+        """Wall seconds per stage and 'other' (the whole frame less its stages)."""
+        return {**self.stages, OTHER: max(self.whole_s - self.total_s, 0.0)}
+
+    def kernel_parts(self) -> dict[str, float] | None:
+        """Kernel seconds per stage and 'other' (None without the kernel history)."""
+        if self.kernel_s is None:
+            return None
+        return {name: self.kernel_s.get(name, 0.0) for name in self.parts()}
+
+    @property
+    def kernel_total_s(self) -> float | None:
+        return None if self.kernel_s is None else sum(self.kernel_s.values())
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stages": self.stages, "whole_s": self.whole_s, "kernel_s": self.kernel_s,
+                "launches": self.launches, "readout_s": self.readout_s}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> FrameTime:
+        return cls(stages=data["stages"], whole_s=data["whole_s"],
+                   kernel_s=data.get("kernel_s"), launches=data.get("launches"),
+                   readout_s=data.get("readout_s", 0.0))
 
 
 #: The columns of the NIRC paper's Table 1 (Sec. 6.2) as stage names, in its order:
@@ -82,54 +225,139 @@ class StageTimer:
 TABLE_1_STAGES = ("render", "training_paths", "training", "inference")
 
 
-def breakdown(frames: list[dict[str, float]], whole_s: list[float]) -> dict[str, Any]:
-    """Table-1-style time breakdown: the median seconds of every stage, and of 'other'.
-
-    ``frames``: each frame's seconds per stage; ``whole_s``: each frame's whole
-    time (:meth:`StageTimer.frame`). 'other' is a frame's whole time minus its
-    stages. Stages come in Table 1's order, then any others by name. Without an
-    ``inference`` stage the cache queries run inside ``render`` (one fused
-    kernel) and ``inference_in_render`` says so. Medians do not add up: the
-    parts sum to ``frame_s`` (the median whole frame) up to the frames' spread.
-    """
+def _ordered(names: set[str]) -> list[str]:
+    """Stage names in Table 1's order, then any others by name, 'other' last."""
     order = {name: index for index, name in enumerate(TABLE_1_STAGES)}
-    names = sorted({name for frame in frames for name in frame},
-                   key=lambda name: (order.get(name, len(order)), name))
-    parts = {name: median(frame.get(name, 0.0) for frame in frames) for name in names}
-    parts["other"] = median(max(whole - sum(frame.values()), 0.0)
-                            for frame, whole in zip(frames, whole_s, strict=True))
-    return {
-        "statistic": "median over the timed frames, seconds",
-        "parts_s": parts,
-        "frame_s": median(whole_s),
+    order[OTHER] = len(order) + 1
+    return sorted(names, key=lambda name: (order.get(name, len(TABLE_1_STAGES)), name))
+
+
+def median_frame(frames: Sequence[FrameTime]) -> FrameTime:
+    """The frame whose stage total is the (lower) median of the frames'."""
+    return sorted(frames, key=lambda f: f.total_s)[(len(frames) - 1) // 2]
+
+
+def breakdown(frames: Sequence[FrameTime]) -> dict[str, Any]:
+    """Table-1-style split of the median frame (:func:`median_frame`): wall seconds of
+    every stage and of 'other', and (with the kernel history) their kernel seconds and
+    harness (wall - kernel). The parts add up to ``frame_s``, that frame's whole wall
+    time; its stages add up to the reported frame time. Without an ``inference`` stage
+    the cache queries run inside ``render`` (one fused kernel) and
+    ``inference_in_render`` says so."""
+    frame = median_frame(frames)
+    parts = frame.parts()
+    names = _ordered(set(parts))
+    kernel = frame.kernel_parts()
+    result: dict[str, Any] = {
+        "statistic": "the median frame (lower median of the stage totals), seconds",
+        "parts_s": {name: parts[name] for name in names},
+        "frame_s": frame.whole_s,
         "inference_in_render": "inference" not in parts,
+    }
+    if kernel is not None:
+        result["kernel_parts_s"] = {name: kernel[name] for name in names}
+        result["harness_parts_s"] = {name: parts[name] - kernel[name] for name in names}
+        result["frame_kernel_s"] = sum(kernel.values())
+    return result
+
+
+def _stage_summary(frames: Sequence[FrameTime], name: str) -> dict[str, float]:
+    """Statistics of one stage over frames; with the kernel history, of its kernel time,
+    its harness (wall - kernel) and its launches too."""
+    wall = [f.parts().get(name, 0.0) for f in frames]
+    summary: dict[str, float] = {"mean_s": sum(wall) / len(wall), "median_s": median_low(wall),
+                                 "min_s": min(wall)}
+    if all(f.kernel_s is not None for f in frames):
+        kernel = [f.kernel_parts().get(name, 0.0) for f in frames]  # type: ignore[union-attr]
+        summary["kernel_median_s"] = median_low(kernel)
+        summary["harness_median_s"] = median_low([w - k for w, k in zip(wall, kernel,
+                                                                        strict=True)])
+        summary["launches_median"] = median_low([(f.launches or {}).get(name, 0)
+                                                 for f in frames])
+    return summary
+
+
+def device_time(frames: Sequence[FrameTime]) -> dict[str, Any] | None:
+    """Whole-frame wall and kernel time over frames (None without the kernel history):
+    medians of wall, kernel and harness seconds, of the harness share (harness / wall)
+    and of kernel launches per frame."""
+    if not frames or any(f.kernel_s is None for f in frames):
+        return None
+    wall = [f.whole_s for f in frames]
+    kernel = [f.kernel_total_s or 0.0 for f in frames]
+    return {
+        "wall_median_s": median_low(wall),
+        "kernel_median_s": median_low(kernel),
+        "harness_median_s": median_low([w - k for w, k in zip(wall, kernel, strict=True)]),
+        "harness_share": median_low([(w - k) / w if w > 0 else 0.0
+                                     for w, k in zip(wall, kernel, strict=True)]),
+        "launches_median": median_low([sum((f.launches or {}).values()) for f in frames]),
+        # Reading the kernel history, kept out of every figure above.
+        "readout_median_s": median_low([f.readout_s for f in frames]),
     }
 
 
-def summarize(frames: list[dict[str, float]], warmup_s: float,
-              whole_s: list[float]) -> dict[str, Any]:
-    """Per-stage mean/median/min over frames, frame totals, the warm-up time and
-    the breakdown (``whole_s``: each frame's whole time, see :func:`breakdown`)."""
-    stages = sorted({name for frame in frames for name in frame})
-    per_stage = {}
-    for name in stages:
-        values = [frame.get(name, 0.0) for frame in frames]
-        per_stage[name] = {
-            "mean_s": sum(values) / len(values),
-            "median_s": median(values),
-            "min_s": min(values),
-        }
-    totals = [sum(frame.values()) for frame in frames]
-    frame_median = median(totals) if totals else 0.0
+@dataclass
+class Warmup:
+    """The untimed warm-up: its wall seconds, its frames and, from the kernel history,
+    the seconds Dr.Jit spent compiling kernels (``compile_s``, None without it)."""
+
+    seconds: float = 0.0
+    compile_s: float | None = None
+    frames: int = 1
+
+
+def summarize(frames: Sequence[FrameTime], warmup: Warmup,
+              load: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What a render stores of its time: per-stage statistics over ``frames``, the frame
+    time (stage total of the median frame), the breakdown of that frame, whole-frame
+    device time, the warm-up and compilation, the machine load during the frames, and
+    every frame (``frames_detail``; ``per_frame`` keeps each frame's stage seconds)."""
+    if not frames:
+        raise ValueError("no timed frame to summarize")
+    names = _ordered({name for f in frames for name in f.parts()})
+    frame_time = median_frame(frames).total_s
+    totals = [f.total_s for f in frames]
     return {
         "protocol": PROTOCOL,
         "frames": len(frames),
-        "frame_mean_s": sum(totals) / len(totals) if totals else 0.0,
-        "frame_median_s": frame_median,
-        "stages": per_stage,
-        "warmup_s": warmup_s,
-        # The warm-up frame = compilation + one steady-state frame.
-        "compile_s_estimate": max(warmup_s - frame_median, 0.0),
-        "breakdown": breakdown(frames, whole_s),
-        "per_frame": frames,
+        "frame_mean_s": sum(totals) / len(totals),
+        "frame_median_s": frame_time,
+        "stages": {name: _stage_summary(frames, name) for name in names if name != OTHER},
+        "device_time": device_time(frames),
+        "warmup_s": warmup.seconds,
+        "warmup_frames": warmup.frames,
+        "compile_s": warmup.compile_s,
+        # The warm-up frames = compilation + as many steady-state frames.
+        "compile_s_estimate": max(warmup.seconds - warmup.frames * frame_time, 0.0),
+        "breakdown": breakdown(frames),
+        "load": load,
+        "per_frame": [f.stages for f in frames],
+        "frames_detail": [f.to_json() for f in frames],
     }
+
+
+def pooled(seed_timings: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One summary over the timed frames of several seeds (each a :func:`summarize`
+    result), so that a run's frame time, stages and breakdown come from one statistic
+    over the same frames. Warm-up and compilation are the first seed's; the load is
+    flagged when any seed's was."""
+    frames = [FrameTime.from_json(f) for t in seed_timings for f in t["frames_detail"]]
+    first = seed_timings[0]
+    summary = summarize(frames, Warmup(first["warmup_s"], first.get("compile_s")),
+                        merge_loads([t.get("load") for t in seed_timings]))
+    del summary["frames_detail"], summary["per_frame"]   # kept per seed
+    summary["frozen"] = first.get("frozen")
+    return summary
+
+
+def merge_loads(loads: Sequence[dict[str, Any] | None]) -> dict[str, Any] | None:
+    """The load of several timed windows: loaded when any was, unknown (None) when none
+    was but one is unknown, with their reasons."""
+    known = [load for load in loads if load]
+    if not known:
+        return None
+    verdicts = [load["loaded"] for load in known]
+    return {"loaded": True if any(verdicts) else None if None in verdicts else False,
+            "reasons": list(dict.fromkeys(r for load in known for r in load["reasons"])),
+            "windows": known}

@@ -38,9 +38,10 @@ def markdown(result: CiResult) -> str:
     lines = [
         f"## nirc-bench ci: {headline(result)}", "",
         f"Suite `{result.suite}` against `{result.baseline}` at commit `{result.commit[:12]}`"
-        f"{branch}. A row is a regression when it is worse by at least its minimum change and "
-        f"significant: false-failure level {result.level:g} for the whole suite (Bonferroni over "
-        f"the rows, {result.spending} alpha spending over the looks); p is one-sided.", "",
+        f"{branch}. A row is a regression when a one-sided test shows it worse by at least "
+        f"its minimum change (the lower confidence bound of the change above it, not the "
+        f"estimate): false-failure level {result.level:g} for the whole suite (Bonferroni over "
+        f"the rows, {result.spending} alpha spending over the looks); p is that test's.", "",
         "| configuration | metric | baseline | candidate | change | min. change | p-value "
         "| seeds (baseline) | test | verdict |",
         "|---|---|---|---|---|---|---|---|---|---|",

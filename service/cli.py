@@ -441,6 +441,19 @@ def _counts(text: str, option: str, what: str) -> list[int]:
     return values
 
 
+def _resolution(text: str, option: str) -> tuple[int, int]:
+    """'1920x1080' given to ``option``: width and height, each 1..16384."""
+    from jobs.protocol.ranges import RangeError
+
+    width, sep, height = text.lower().partition("x")
+    if not sep or not width.strip().isdigit() or not height.strip().isdigit():
+        raise RangeError(f"{option}: '{text}' is not WIDTHxHEIGHT (e.g. 1920x1080)")
+    size = int(width), int(height)
+    if not all(1 <= n <= 16384 for n in size):
+        raise RangeError(f"{option}: '{text}': width and height must be 1..16384")
+    return size
+
+
 def _parse_knob_values(texts: list[str]) -> dict[str, list[int]]:
     """``--knob-values``: 'METHOD=1,4,16' for one method, or '1,4,16' for every method
     with an equal-time knob other than the baseline (the registry's)."""
@@ -489,6 +502,13 @@ def pareto(
     resamples: Annotated[int, typer.Option("--resamples", min=100, max=100_000,
                                            help="bootstrap resamples of the speed-up CI")]
         = 2000,
+    project_res: Annotated[str | None, typer.Option(
+        "--project-res", help="also project each point's ms/frame to this resolution, e.g. "
+                              "1920x1080, from its per-stage cost model measured on this "
+                              "device (docs/timing.md)")] = None,
+    cost_res: Annotated[str, typer.Option(
+        "--cost-res", help="square resolutions the cost model is fitted from "
+                           "(with --project-res)")] = "64,128,256",
     out: Annotated[Path | None, typer.Option(
         "--out", help="write pareto.json, pareto_mrse.png and pareto_flip.png here")] = None,
     as_json: JsonOut = False,
@@ -497,7 +517,9 @@ def pareto(
     """Error against seconds per frame (online training included): PT at several spp and
     every caching method at several knob values, the Pareto front, and each method's
     speed-up at equal MRSE / FLIP over PT with a bootstrap CI (docs/pareto.md). A point
-    stored by an earlier call (same spec, scene, reference, device) is reused."""
+    stored by an earlier call (same spec, scene, reference, device) is reused. With
+    --project-res, each point's frame time projected to that resolution (labelled as a
+    projection from this device; the errors stay those measured at --res)."""
     from jobs.protocol.pareto import ParetoSpec, plan, run_pareto
     from service.pareto_table import pareto_table
 
@@ -507,7 +529,9 @@ def pareto(
         knob_values=_parse_knob_values(knob_values or []),
         methods=[m.strip() for m in methods.split(",") if m.strip()] if methods else None,
         pretrain_frames=pretrain, max_depth=max_depth, ref_spp=ref_spp,
-        timing_rounds=timing_rounds, probe_frames=probe_frames, resamples=resamples)
+        timing_rounds=timing_rounds, probe_frames=probe_frames, resamples=resamples,
+        project_res=_resolution(project_res, "--project-res") if project_res else None,
+        cost_resolutions=_counts(cost_res, "--cost-res", "resolutions"))
     plan(spec)      # bad options fail before anything renders
     _run_embedded(
         lambda store, settings, report: run_pareto(spec, store, settings, progress=report,

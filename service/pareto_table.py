@@ -27,22 +27,43 @@ def _speedup(value: Speedup | None) -> str:
     return f"{value.text()} [{ends[0]}, {ends[1]}]"
 
 
+def _projected(projection: dict[str, Any] | None) -> str:
+    if not projection or projection.get("frame_s") is None:
+        return "n/a"
+    lo, hi = projection["frame_ci"]
+    return f"{_ms(projection['frame_s'])} [{_ms(lo)}, {_ms(hi)}]"
+
+
 def pareto_table(result: Any) -> Group:
     """The points in time order within each series, front marked '*', a reused run
     marked '=' after its id, then the notes."""
     table = Table(title=f"error against time on {result.spec.scene} "
                         f"({result.spec.resolution}x{result.spec.resolution}, "
                         f"{result.spec.frames} frames, K = {result.spec.seeds}; {result.device})")
-    for column in ("series", "point", "run", "ms/frame", "spread (ms)"):
+    projected = result.spec.project_res
+    target = "x".join(map(str, projected)) if projected else ""
+    columns = ["series", "point", "run", "ms/frame", "spread (ms)", "harness %"]
+    if projected:
+        columns.append(f"ms/frame at {target} (projected) [95% CI]")
+    for column in columns:
         table.add_column(column, justify="left" if column in ("series", "point") else "right")
     for metric in PARETO_METRICS:
         table.add_column(metric.label, justify="right")
         table.add_column(f"x PT at equal {metric.label} [95% CI]", justify="right")
     notes: dict[tuple[str, str], list[str]] = {}    # (point, note) -> metrics
     for point in result.points:
+        flags = [*point.probe_flags, *point.timing_flags]
+        flagged = "!" if flags else ""
         cells = [point.series, point.label, f"{point.id}{'=' if point.reused else ''}",
-                 _ms(point.seconds_per_frame),
-                 f"{_ms(point.seconds_spread[0])}–{_ms(point.seconds_spread[1])}"]
+                 _ms(point.seconds_per_frame) + flagged,
+                 f"{_ms(point.seconds_spread[0])}–{_ms(point.seconds_spread[1])}",
+                 "-" if point.harness_share is None else f"{100 * point.harness_share:.0f}"]
+        if projected:
+            cells.append(_projected(point.projection))
+        for flag in flags:
+            notes.setdefault((point.label, flag), []).append("time")
+        for note in (point.projection or {}).get("notes", []):
+            notes.setdefault((point.label, f"projection: {note}"), []).append("time")
         for metric in PARETO_METRICS:
             key = metric.field
             value = getattr(point, key)
@@ -62,6 +83,15 @@ def pareto_table(result: Any) -> Group:
              f"extrapolated: '>' / '<' are bounds) / the point's time; 95% CI: percentile "
              f"bootstrap over seeds and timing samples ({result.bootstrap['resamples']} "
              "resamples, docs/pareto.md); '–': an end PT's measured range cannot bound.",
+             "harness %: the share of the run's median frame outside kernels (host work, "
+             "tracing, launch gaps); ! after ms/frame: a timing flag below.",
+             *([f"projected: the per-stage cost model (a + b x size per stage, fitted at "
+                f"{', '.join(f'{r}x{r}' for r in result.spec.cost_resolutions)} on "
+                f"{result.device}) evaluated at {target}: a projection from this device, not "
+                f"a measurement; the errors are those measured at "
+                f"{result.spec.resolution}x{result.spec.resolution} (a cache's error depends on "
+                "the resolution)."] if projected else []),
+             *result.timing.get("flags", []),
              *(f"{label} ({', '.join(metrics)}): {note}"
                for (label, note), metrics in notes.items()),
              *(f"skipped {s['method']}: {s['reason']}" for s in result.skipped)]

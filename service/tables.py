@@ -8,6 +8,7 @@ from rich.console import Group
 from rich.markup import escape
 from rich.table import Table
 
+from jobs.protocol.calibration import ADVICE
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
 from metrics.registry import LISTED, METRICS, PER_SEED, Metric
 
@@ -115,9 +116,10 @@ def metrics_table(run: RunResultDetail) -> Group:
                                         f"{_fmt(run.ref_floor_ratio_mrse)}",
         **_metric_rows(m),
         "ms per frame": _ms(run.seconds_per_frame),
+        "kernel ms / harness share": _device_text(run),
         "ms render stage": _ms(run.render_seconds_per_frame),
-        "ms per part (Table 1)": _breakdown_text(run.time_breakdown_ms),
-        "warm-up / compile (s)": f"{t['warmup_s']:.3g} / {t['compile_s_estimate']:.3g}",
+        "warm-up / compile (s)": _warmup_text(t),
+        "machine load while timed": _load_text(t.get("load")),
         "avg path vertices": run.path_stats.get("avg_path_vertices"),
         "non-finite pixels": run.quality.get("nonfinite_pixels"),
         "device": run.device_key,
@@ -130,27 +132,70 @@ def metrics_table(run: RunResultDetail) -> Group:
         seeds.add_row(str(s.seed), *(_fmt(_shown(s.metrics.get(m.seed_key))) for m in PER_SEED),
                       _fmt(_ms(s.metrics.get("seconds_per_frame"))),
                       str(s.metrics.get("nonfinite_pixels")))
-    parts: list[Any] = [key_value_table(f"{run.method} vs reference", head), seeds]
-    parts += [f"warning: {text}" for text in run.warnings]
+    parts: list[Any] = [key_value_table(f"{run.method} vs reference", head)]
+    if run.time_breakdown_ms:
+        parts.append(stage_table(run))
+    parts.append(seeds)
+    parts += [f"warning: {text}" for text in [*run.warnings, *run.timing_flags]]
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
     return Group(*parts)
 
 
-def _breakdown_text(parts: dict[str, float] | None) -> str:
-    return "-" if not parts else ", ".join(f"{name} {ms:.3g}" for name, ms in parts.items())
+def _device_text(run: RunResult) -> str:
+    if run.kernel_seconds_per_frame is None or run.harness_share is None:
+        return "- (no kernel time: stored before it was measured)"
+    return f"{_fmt(_ms(run.kernel_seconds_per_frame))} / {100 * run.harness_share:.0f} %"
+
+
+def _warmup_text(timings: dict[str, Any]) -> str:
+    compile_s = timings.get("compile_s")
+    compiled = (f"compile {compile_s:.3g} (kernel history)" if compile_s is not None else
+                f"compile {timings['compile_s_estimate']:.3g} (estimated)")
+    return f"warm-up {timings['warmup_s']:.3g}, {compiled}"
+
+
+def _load_text(load: dict[str, Any] | None) -> str:
+    if not load:
+        return "- (not measured)"
+    verdict = {True: "LOADED", False: "quiet", None: "unknown"}[load["loaded"]]
+    windows = load.get("windows") or [load]
+    stalls = [w["cpu_stall_fraction"] for w in windows if w.get("cpu_stall_fraction") is not None]
+    detail = f" (tasks waited for a core {100 * max(stalls):.0f} % of the time)" if stalls else ""
+    return verdict + detail
+
+
+def stage_table(run: RunResult) -> Table:
+    """The median frame by stage: wall, kernel and harness milliseconds, launches."""
+    wall = run.time_breakdown_ms or {}
+    kernel = run.kernel_breakdown_ms
+    stages = (run.timings if isinstance(run, RunResultDetail) else {}).get("stages", {})
+    table = Table(title="the median frame by stage (ms; harness = wall - kernel: host work, "
+                        "tracing, launch gaps)")
+    for column in ("stage", "wall", "kernel", "harness", "harness %", "launches"):
+        table.add_column(column, justify="left" if column == "stage" else "right")
+    for name, ms in wall.items():
+        k = None if kernel is None else kernel.get(name)
+        launches = (stages.get(name) or {}).get("launches_median")
+        table.add_row(name, _fmt(ms), "-" if k is None else _fmt(k),
+                      "-" if k is None else _fmt(ms - k),
+                      "-" if k is None or ms <= 0 else f"{100 * (ms - k) / ms:.0f}",
+                      "-" if launches is None else str(launches))
+    return table
 
 
 def breakdown_table(title: str, rows: list[ReportRow]) -> Table:
-    """Milliseconds per frame of each part of the rows' frames (the NIRC paper's Table 1)."""
+    """Milliseconds per frame of each part of the rows' median frames (the NIRC paper's
+    Table 1), their total, kernel time and harness share."""
     parts = list(dict.fromkeys(name for r in rows for name in (r.time_breakdown_ms or {})))
     table = Table(title=title)
-    for column in ("method", *parts, "total"):
+    for column in ("method", *parts, "total", "kernel", "harness %"):
         table.add_column(column, justify="left" if column == "method" else "right")
     for r in rows:
         ms = r.time_breakdown_ms or {}
         table.add_row(r.label, *(_fmt(ms[name]) if name in ms else "-" for name in parts),
-                      _fmt(_ms(r.seconds_per_frame)))
+                      _fmt(_ms(r.seconds_per_frame)), _fmt(_ms(r.kernel_seconds_per_frame)),
+                      "-" if r.harness_share is None else f"{100 * r.harness_share:.0f}")
     return table
 
 
@@ -184,8 +229,9 @@ def comparison_tables(report: Report) -> Group:
 
     return Group(table(f"{report.scene}: equal spp ({report.device})", report.equal_spp),
                  table(f"{report.scene}: equal time ({report.device})", report.equal_time),
-                 breakdown_table(f"{report.scene}: ms per frame by part (median; render "
-                                 "includes cache inference unless listed)", report.equal_spp),
+                 breakdown_table(f"{report.scene}: ms per frame by part (the median frame; "
+                                 "render includes cache inference unless listed)",
+                                 report.equal_spp),
                  calibration_table("N_c calibration (NIRC biased)", report.calibration),
                  *(f"skipped {s.label or s.method}: {s.reason}" for s in report.skipped))
 
@@ -216,6 +262,10 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
     }
     if cal.get("unstable"):
         rows["UNSTABLE"] = "; ".join(r for r in cal.get("reasons", []) if r.startswith("unstable"))
+    if cal.get("loaded"):
+        rows["LOADED"] = "; ".join(r for r in cal.get("reasons", []) if r.startswith("loaded"))
+    if cal.get("unstable") or cal.get("loaded"):
+        rows["what to do"] = ADVICE.removeprefix("what to do: ")
     return key_value_table(title, rows)
 
 

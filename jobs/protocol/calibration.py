@@ -23,7 +23,9 @@ How it measures, because these machines are shared and their speed drifts:
   choice then depends on the noise of the machine;
 - ``capped`` says that the largest candidate fits: the true equal-time value
   may be larger than any candidate tried; ``fits`` False says that not even
-  the smallest fits (it is then chosen).
+  the smallest fits (it is then chosen);
+- ``loaded`` says that other work held the CPU during a probe (renderers.load);
+  an unstable or loaded calibration says what to do about it (:data:`ADVICE`).
 """
 
 from __future__ import annotations
@@ -37,6 +39,11 @@ import numpy as np
 #: Default number of interleaved rounds and the allowed spread (fraction of the budget).
 DEFAULT_ROUNDS = 3
 DEFAULT_MAX_SPREAD = 0.1
+#: What to do about a calibration whose timings cannot be trusted.
+ADVICE = ("what to do: calibrate again with nothing else running on the machine (the load "
+          "flag says whether something was), or with more rounds (a time budget's 'rounds') "
+          "or a tolerance at least as wide as the spread ('tolerance_ms', sweep "
+          "--tolerance-ms); until then the chosen value may be one candidate off")
 
 
 @dataclass
@@ -55,9 +62,20 @@ class Calibration:
     fits: bool = False              # False: even the smallest candidate is over budget
     capped: bool = False            # True: the largest candidate fits (the top of the range)
     unstable: bool = False          # True: the timings' spread could change the choice
+    loaded: bool | None = None      # other work held the CPU during a probe (None: unknown)
     reasons: list[str] = field(default_factory=list)
     order: list[str] = field(default_factory=list)  # the measurement order ('budget', 'nc=4')
     device_key: str = ""
+
+    def note_load(self, load: dict[str, Any] | None) -> None:
+        """Record the machine's load over the probes (renderers.timing.merge_loads)."""
+        if load is None:
+            return
+        self.loaded = load["loaded"]
+        if self.loaded:
+            self.reasons += [f"loaded: {reason}" for reason in load["reasons"]]
+            if ADVICE not in self.reasons:
+                self.reasons.append(ADVICE)
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
@@ -70,25 +88,26 @@ class Calibration:
 class Rounds:
     """Timings of :func:`interleaved_rounds`: per value, of the lead, and their order."""
 
-    times: dict[Any, list[float]]
+    times: dict[Any, list[Any]]
     lead: list[float]
     order: list[str]
 
 
-def interleaved_rounds(values: Sequence[Any], measure: Callable[[Any], float], rounds: int, *,
+def interleaved_rounds(values: Sequence[Any], measure: Callable[[Any], Any], rounds: int, *,
                        name: Callable[[Any], str] = str,
                        lead: Callable[[], float] | None = None) -> Rounds:
     """Time every value (``measure(value)``: seconds) in ``rounds`` rounds, ascending
     in even rounds and descending in odd ones, so a slow drift of the machine affects
     every value alike; ``lead`` (e.g. a measured budget) is timed first in each round.
-    ``order`` records the measurements ('budget' for the lead, ``name(value)``)."""
+    ``order`` records the measurements ('budget' for the lead, ``name(value)``);
+    ``times`` holds what ``measure`` returned (seconds, or a richer record)."""
     timed = Rounds(times={v: [] for v in values}, lead=[], order=[])
     for index in range(rounds):
         if lead is not None:
             timed.lead.append(float(lead()))
             timed.order.append("budget")
         for value in values if index % 2 == 0 else reversed(values):
-            timed.times[value].append(float(measure(value)))
+            timed.times[value].append(measure(value))
             timed.order.append(name(value))
     return timed
 
@@ -146,23 +165,66 @@ def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], flo
             record.reasons.append(f"unstable: {knob} {value} spreads over "
                                   f"{1e3 * lo:.3g}..{1e3 * hi:.3g} ms across the limit "
                                   f"{1e3 * limit:.3g} ms (allowed spread {1e3 * allowed:.3g} ms)")
+    if record.unstable:
+        record.reasons.append(ADVICE)
     return record
+
+
+def probe_timings(scene: Any, method: str, params: Any, spp: int, frames: int) -> dict[str, Any]:
+    """The timings (renderers.timing.summarize) of one seed of ``method`` with validated
+    ``params`` rendering ``frames`` frames of ``scene`` (online training included;
+    caches without pre-training: the per-frame cost does not depend on how trained the
+    cache is)."""
+    from renderers.methods import get_method
+
+    if "pretrain_frames" in type(params).model_fields:
+        params = params.model_copy(update={"pretrain_frames": 0})
+    output = get_method(method).render(
+        scene, params, seed_parts=("calibration", method, params.model_dump(mode="json")),
+        spp=spp, frames=frames)
+    return output.timings
+
+
+def caveats(calibration: dict[str, Any]) -> list[str]:
+    """What a stored calibration record (``Calibration.to_json()``) says against trusting
+    its choice, in a few words each: capped, unstable, loaded (records stored before a
+    flag existed lack it)."""
+    found = []
+    if calibration.get("capped"):
+        found.append(f"calibration capped: {calibration['knob']} {calibration['chosen']} is "
+                     "the largest candidate; a larger one might fit")
+    if calibration.get("unstable"):
+        found.append("calibration unstable: the machine's timing noise could change the "
+                     "choice")
+    if calibration.get("loaded"):
+        found.append("machine loaded during the calibration")
+    return found
+
+
+class LoadLog:
+    """Collects the load of every probe (:func:`probe_timings`) of a calibration."""
+
+    def __init__(self) -> None:
+        self.loads: list[dict[str, Any] | None] = []
+
+    def seconds(self, timings: dict[str, Any]) -> float:
+        """The probe's frame time, keeping its load."""
+        self.loads.append(timings.get("load"))
+        return timings["frame_median_s"]
+
+    def merged(self) -> dict[str, Any] | None:
+        from renderers.timing import merge_loads
+
+        return merge_loads(self.loads)
 
 
 def probe_seconds(scene: Any, method: str, params: dict[str, Any], spp: int,
                   frames: int) -> float:
-    """Median seconds per frame of one seed of ``method`` rendering ``frames`` frames
-    of ``scene`` (online training included; caches without pre-training: the
-    per-frame cost does not depend on how trained the cache is)."""
-    from renderers.methods import get_method, parse_params
+    """Median seconds per frame of :func:`probe_timings` with ``params`` as JSON."""
+    from renderers.methods import parse_params
 
-    values = parse_params(method, params)
-    if "pretrain_frames" in type(values).model_fields:
-        values = values.model_copy(update={"pretrain_frames": 0})
-    output = get_method(method).render(
-        scene, values, seed_parts=("calibration", method, values.model_dump(mode="json")),
-        spp=spp, frames=frames)
-    return output.timings["frame_median_s"]
+    return probe_timings(scene, method, parse_params(method, params), spp,
+                         frames)["frame_median_s"]
 
 
 def knob_of(spec: Any) -> Any:
@@ -195,8 +257,13 @@ def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibrat
     spec_knob = knob_of(spec)
     knob, default_candidates = spec_knob.name, list(spec_knob.candidates)
 
+    from renderers.methods import parse_params
+
+    log = LoadLog()
+
     def frame_seconds(method: str, params: dict[str, Any], spp: int) -> float:
-        return probe_seconds(scene, method, params, spp, budget.probe_frames)
+        return log.seconds(probe_timings(scene, method, parse_params(method, params), spp,
+                                         budget.probe_frames))
 
     budget_value: float | Callable[[], float]
     if budget.ms is not None:
@@ -215,6 +282,7 @@ def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibrat
                        budget_source=source, tolerance_s=budget.tolerance_ms / 1e3,
                        device_key=device_key, rounds=budget.rounds,
                        max_spread=budget.max_spread)
+    record.note_load(log.merged())
     update: dict[str, Any] = {"time_budget": None}
     if knob == "spp":
         update["spp"] = record.chosen

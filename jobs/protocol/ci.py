@@ -10,8 +10,9 @@ and frame time only on the same device; other rows are ``not comparable``.
 
 The level of the whole suite (``suite.level``) is split evenly over its rows
 (Bonferroni), and each row's share is spent over the looks
-(jobs.protocol.ci_stats): the chance that an unchanged suite fails is at most
-``suite.level``. docs/ci.md has the argument and the chosen numbers.
+(jobs.protocol.ci_stats): the chance that the suite fails while no row got worse by
+its minimum change or more is at most ``suite.level``. docs/ci.md has the argument
+and the chosen numbers.
 """
 
 from __future__ import annotations
@@ -23,7 +24,15 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from jobs.protocol.ci_stats import TEST_NAMES, compare, decide, look_levels, look_sizes
+from jobs.protocol.ci_stats import (
+    TEST_NAMES,
+    accept_levels,
+    compare,
+    decide,
+    look_levels,
+    look_sizes,
+    smallest_rank_p,
+)
 from jobs.protocol.ci_suite import TIME, BaselineRow, Entry, Suite, config_key
 from jobs.protocol.provenance import git_branch, git_commit
 from jobs.protocol.results import RunResultDetail
@@ -50,8 +59,10 @@ class CiRow(BaseModel):
     min_change: float
     baseline: float | None = Field(None, description="mean of the baseline's seeds compared")
     candidate: float | None = Field(None, description="mean of the candidate's seeds")
-    change: float | None = Field(None, description="relative change, positive = worse")
-    p_value: float | None = Field(None, description="one-sided: the candidate is worse")
+    change: float | None = Field(None, description="relative change (the estimate), "
+                                                   "positive = worse")
+    p_value: float | None = Field(None, description="one-sided p of 'worse by at most "
+                                                    "min_change' (small: a regression)")
     level: float | None = Field(None, description="alpha_k of the deciding look")
     test: str | None = None
     seeds: int = Field(0, description="candidate seeds used")
@@ -134,12 +145,15 @@ class _RowState:
         self.metric = metric
         self.base: BaselineRow | None = None
         self.decided = False
+        self.blind_looks: list[int] = []     # looks whose level no rank test could reach
 
     def close(self, verdict: Verdict, note: str = "") -> None:
         self.row.verdict, self.row.note, self.decided = verdict, note, True
 
-    def look(self, cand: BaselineRow, suite: Suite, level: float, look: int, last: bool) -> None:
-        """Compare with the candidate's seeds so far at ``level``; decide if possible."""
+    def look(self, cand: BaselineRow, suite: Suite, levels: tuple[float, float], look: int,
+             last: bool) -> None:
+        """Compare with the candidate's seeds so far at ``levels`` (alpha_k, beta_k);
+        decide if possible."""
         base = self.base
         missing = [s for s, v in zip(cand.seeds, cand.values, strict=True) if v is None]
         self.row.seeds, self.row.looks = len(cand.seeds), look
@@ -150,20 +164,28 @@ class _RowState:
         base_values = dict(zip(base.seeds, base.values, strict=True))
         paired = all(s in base_values for s in cand.seeds)
         b = [base_values[s] for s in cand.seeds] if paired else list(base.values)
-        result = compare(cand.values, b, self.metric.direction, paired=paired,
-                         test=suite.test, beta=suite.beta)
+        minimum = self.row.min_change
+        result = compare(cand.values, b, self.metric.direction, min_change=minimum,
+                         paired=paired, test=suite.test)
+        level, accept_level = levels
         self.row.baseline, self.row.candidate = result.baseline_mean, result.candidate_mean
-        self.row.change, self.row.p_value, self.row.level = result.change, result.p_value, level
+        self.row.change, self.row.p_value, self.row.level = result.change, result.p_worse, level
         self.row.test, self.row.baseline_seeds = TEST_NAMES[result.test], len(b)
-        verdict = decide(result, level, self.row.min_change, last)
+        if result.test == "mann-whitney" and smallest_rank_p(len(cand.values), len(b)) >= level:
+            self.blind_looks.append(look)
+        verdict = decide(result, level, accept_level, last)
+        estimate = f"estimate {result.change:+.1%}"
         if verdict == "regression":
-            self.close(verdict, f"worse by {result.change:.1%} (>= {self.row.min_change:.0%}), "
-                                f"p < {level:.2g}")
-        elif verdict == "pass" and result.upper < self.row.min_change:
-            self.close(verdict, f"change below {self.row.min_change:.0%} at "
-                                f"{1 - suite.beta:.0%} confidence")
+            self.close(verdict, f"worse by at least {minimum:.0%} ({estimate}), "
+                                f"p {result.p_worse:.2g} < {level:.2g}")
+        elif verdict == "pass" and result.p_within < accept_level:
+            self.close(verdict, f"change below {minimum:.0%} ({estimate}), "
+                                f"p {result.p_within:.2g} < {accept_level:.2g}")
         elif verdict == "pass":
-            self.close(verdict, "no regression shown at the seed cap")
+            blind = (f"; the Mann-Whitney test could not reject at look(s) {self.blind_looks} "
+                     "with so few seeds, whatever the values" if self.blind_looks else "")
+            self.close(verdict, f"not shown to be worse by at least {minimum:.0%} at the seed "
+                                f"cap ({estimate}){blind}")
 
 
 def run_suite(suite: Suite, runner: Runner, baseline_of: BaselineSource, *, suite_name: str,
@@ -175,7 +197,8 @@ def run_suite(suite: Suite, runner: Runner, baseline_of: BaselineSource, *, suit
     entries, metrics = suite.entries(), suite.gated()
     sizes = look_sizes(suite.group, suite.max_seeds)
     per_row = suite.level / (len(entries) * len(metrics))     # Bonferroni over the rows
-    levels = look_levels(sizes, per_row, suite.spending)
+    levels = list(zip(look_levels(sizes, per_row, suite.spending),
+                      accept_levels(sizes, suite.beta), strict=True))
     rows: list[CiRow] = []
     runs: list[int] = []
     for entry in entries:

@@ -7,23 +7,33 @@ better, ``d = b - c`` where higher is better. The relative change is
 
     change = mean(d) / |mean(b)|                      (0.3 = 30 % worse)
 
-and the one-sided p-value tests "the candidate is worse" with a SciPy test:
+and ``min_change`` (m) is the smallest change that matters. Each look runs two
+one-sided SciPy tests of the *shifted* hypothesis "change = m", i.e. of
+``E[worse c] = E[worse b] + m |E[b]|``: the candidate's values against the
+baseline's values each moved by ``m b`` the worse way (``(1 + m) b`` for a
+positive lower-is-better metric, ``(1 - m) b`` for a positive higher-is-better
+one):
 
 ===============  ==========================================================
 design           test
 ===============  ==========================================================
 paired           both sides hold the same seed numbers: Student's t on the
-                 per-seed differences (as ``scipy.stats.ttest_rel``)
-unpaired         Welch's t (as ``ttest_ind(equal_var=False)``) or the
+                 per-seed differences to the moved baseline (``ttest_rel``)
+unpaired         Welch's t (``ttest_ind(equal_var=False)``) or the
                  Mann-Whitney U test (``mannwhitneyu``), as the suite says
 ===============  ==========================================================
 
-The upper confidence bound of the change (early acceptance, below) is the one-sided
-confidence interval of the same SciPy test (``TtestResult.confidence_interval``).
+``p_worse`` is the p-value of "the change is at most m" against "worse by more
+than m"; rejecting it says that the lower confidence bound of the change is
+above m (a regression of at least the minimum change, not merely an estimate
+above it). ``p_within`` is the p-value of "the change is at least m" against
+"less than m"; rejecting it says that the upper confidence bound is below m.
+Moving the baseline by its own values keeps the baseline's noise in the test
+(the scale ``|mean(b)|`` is itself an estimate).
 
 Identical values are decided without a test: all differences zero (or both
-sides constant and equal) is p = 1; a constant shift with no spread is p = 0
-when worse, 1 when better.
+sides constant and equal) is change 0; a constant shift with no spread is the
+change it is, compared with m directly.
 
 Sequential effort (docs/ci.md): seeds come in groups, looks ``k = 1..K`` at
 ``n_k`` seeds, information fraction ``t_k = n_k / n_K``. The row's level
@@ -35,15 +45,17 @@ Sequential effort (docs/ci.md): seeds come in groups, looks ``k = 1..K`` at
 and look ``k`` tests at ``alpha_k = A(t_k) - A(t_{k-1})``. Since the
 ``alpha_k`` sum to ``alpha``, the chance of a false regression at any look is
 at most ``sum_k alpha_k = alpha`` by the union bound (Bonferroni over the
-looks: conservative, valid whatever the correlation between looks). A row is
-decided
+looks: conservative, valid whatever the correlation between looks), and that
+holds for any true change up to m, not only for no change. The early-accept
+level ``beta`` is spent the same way over the looks before the cap, with the
+Pocock-type function (accepting early is what saves seeds, so it spends early):
+``beta_k = B(t_k) - B(t_{k-1})``, so a change of at least m is accepted early
+with probability at most ``beta``. A row is decided
 
-* a regression when ``p < alpha_k`` and ``change >= min_change``;
-* no regression early when the one-sided ``1 - beta`` upper confidence bound
-  of the change is below ``min_change`` (the change is shown to be smaller
-  than what matters). Stopping to accept never adds a rejection, so it
-  leaves the level as it is;
-* no regression at the cap otherwise.
+* a regression when ``p_worse < alpha_k``;
+* no regression early when ``p_within < beta_k`` (the change is shown to be
+  smaller than what matters);
+* no regression at the cap otherwise (worse by at least m was not shown).
 """
 
 from __future__ import annotations
@@ -82,6 +94,12 @@ def look_levels(sizes: Sequence[int], alpha: float, spending: Spending) -> list[
             for a, b in zip(fractions, fractions[1:], strict=False)]
 
 
+def accept_levels(sizes: Sequence[int], beta: float) -> list[float]:
+    """``beta_k`` of each look's early acceptance (Pocock-type spending, module
+    docstring); the cap's is 0, since the cap passes whatever is undecided."""
+    return [*look_levels(sizes, beta, "pocock")[:-1], 0.0]
+
+
 def look_sizes(group: int, cap: int) -> list[int]:
     """Seeds after each look: ``group, 2 group, ...``, the last one the cap."""
     sizes = list(range(group, cap, group))
@@ -95,9 +113,9 @@ class Look:
     test: str               # key of TEST_NAMES
     baseline_mean: float
     candidate_mean: float
-    change: float           # relative change, worse way positive
-    upper: float            # one-sided (1 - beta) upper bound of the change
-    p_value: float          # one-sided: the candidate is worse
+    change: float           # relative change (the estimate), worse way positive
+    p_worse: float          # one-sided: worse by more than min_change
+    p_within: float         # one-sided: worse by less than min_change
 
 
 def _relative(value: float, scale: float) -> float:
@@ -107,14 +125,14 @@ def _relative(value: float, scale: float) -> float:
 
 
 def compare(candidate: Sequence[float], baseline: Sequence[float], direction: Direction, *,
-            paired: bool, test: UnpairedTest = "welch", beta: float = 0.05) -> Look:
+            min_change: float, paired: bool, test: UnpairedTest = "welch") -> Look:
     """Compare finite per-seed values (paired: equal lengths, same seeds in order).
 
     =============  ===========================================================
     ``direction``  which way is better for the metric (metrics.registry)
+    ``min_change`` the relative change the two tests are shifted to
     ``paired``     use the per-seed differences (the two sides share seeds)
     ``test``       the unpaired test: ``welch`` or ``mann-whitney``
-    ``beta``       one-sided level of the upper bound that accepts early
     =============  ===========================================================
     """
     c = np.asarray(candidate, dtype=float)
@@ -122,45 +140,61 @@ def compare(candidate: Sequence[float], baseline: Sequence[float], direction: Di
     sign = 1.0 if direction == "lower" else -1.0
     scale = abs(float(b.mean()))
     worse_c, worse_b = sign * c, sign * b        # larger is worse on both sides now
+    # The baseline moved the worse way by min_change of its own magnitude: testing the
+    # candidate against it tests "change = min_change" (module docstring).
+    moved_b = worse_b + min_change * math.copysign(1.0, float(b.mean())) * b
+    diff = float(worse_c.mean() - worse_b.mean())
+    change = _relative(diff, scale)
     if paired:
         d = worse_c - worse_b
-        diff = float(d.mean())
         if d.size < 2 or np.ptp(d) == 0.0:       # identical values or a constant shift
-            p, upper = _no_spread(diff)
+            p_worse, p_within = _no_spread(change, min_change)
         else:
-            p, upper = _t_tail(stats.ttest_1samp(d, 0.0, alternative="less"), beta)
-        return Look("paired", float(b.mean()), float(c.mean()), _relative(diff, scale),
-                    _relative(upper, scale), p)
-    diff = float(worse_c.mean() - worse_b.mean())
+            p_worse, p_within = _t_tails(stats.ttest_rel(worse_c, moved_b,
+                                                         alternative="greater"))
+        return Look("paired", float(b.mean()), float(c.mean()), change, p_worse, p_within)
     if min(c.size, b.size) < 2 or (np.ptp(c) == 0.0 and np.ptp(b) == 0.0):
-        p, upper = _no_spread(diff)
+        p_worse, p_within = _no_spread(change, min_change)
+    elif test == "mann-whitney":
+        # A rank statistic is discrete: each side is its own test.
+        p_worse, p_within = (float(stats.mannwhitneyu(worse_c, moved_b,
+                                                      alternative=alternative).pvalue)
+                             for alternative in ("greater", "less"))
     else:
-        p, upper = _t_tail(stats.ttest_ind(worse_c, worse_b, equal_var=False,
-                                           alternative="less"), beta)
-        if test == "mann-whitney":
-            p = float(stats.mannwhitneyu(worse_c, worse_b, alternative="greater").pvalue)
-    return Look(test, float(b.mean()), float(c.mean()), _relative(diff, scale),
-                _relative(upper, scale), p)
+        p_worse, p_within = _t_tails(stats.ttest_ind(worse_c, moved_b, equal_var=False,
+                                                     alternative="greater"))
+    return Look(test, float(b.mean()), float(c.mean()), change, p_worse, p_within)
 
 
-def _no_spread(diff: float) -> tuple[float, float]:
-    """Without spread (identical values, a constant shift) the sign decides: (p, bound)."""
-    return (0.0 if diff > 0 else 1.0), diff
+def _t_tails(result: Any) -> tuple[float, float]:
+    """(p of "greater", p of "less") from one SciPy t-test run for "greater": the t
+    distribution is continuous, so the two add up to 1 (one test per look, not two)."""
+    p_greater = float(result.pvalue)
+    return p_greater, 1.0 - p_greater
 
 
-def _t_tail(result: Any, beta: float) -> tuple[float, float]:
-    """From SciPy's t-test of "the difference is less than 0" (``result``, a
-    ``TtestResult``): the one-sided p-value of "worse" (difference > 0), which is its
-    complement (the t distribution is continuous), and the (1 - beta) upper bound of
-    the difference, its one-sided confidence interval's upper end."""
-    return float(1.0 - result.pvalue), float(result.confidence_interval(1.0 - beta).high)
+def _no_spread(change: float, min_change: float) -> tuple[float, float]:
+    """Without spread (identical values, a constant shift) the change is what it is:
+    (p_worse, p_within) is 0 on the side of ``min_change`` it falls, 1 otherwise."""
+    return (0.0 if change > min_change else 1.0), (0.0 if change < min_change else 1.0)
 
 
-def decide(look: Look, level: float, min_change: float, last: bool) -> str | None:
-    """``regression``, ``pass`` or None (undecided: add seeds) at a look tested at
-    ``level`` (its ``alpha_k``)."""
-    if look.p_value < level and look.change >= min_change:
+def smallest_rank_p(candidate_seeds: int, baseline_seeds: int) -> float:
+    """The smallest one-sided p-value the Mann-Whitney U test of :func:`compare` can
+    return with these seed counts: that of two samples that do not overlap. A look
+    whose level is below it cannot reject, whatever the values (docs/ci.md)."""
+    candidate = 2.0 + np.arange(candidate_seeds, dtype=float)
+    baseline = 1.0 / (2.0 + np.arange(baseline_seeds, dtype=float))
+    return compare(candidate, baseline, "lower", min_change=0.0, paired=False,
+                   test="mann-whitney").p_worse
+
+
+def decide(look: Look, level: float, accept_level: float, last: bool) -> str | None:
+    """``regression``, ``pass`` or None (undecided: add seeds) at a look whose "worse by
+    at least min_change" test runs at ``level`` (its ``alpha_k``) and whose early
+    acceptance at ``accept_level`` (its ``beta_k``)."""
+    if look.p_worse < level:
         return "regression"
-    if look.upper < min_change or last:
+    if look.p_within < accept_level or last:
         return "pass"
     return None

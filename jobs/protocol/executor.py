@@ -24,7 +24,7 @@ import numpy as np
 from jobs.protocol.calibration import calibrate_job
 from jobs.protocol.plots import plot_convergence
 from jobs.protocol.provenance import git_branch, git_commit, library_versions
-from jobs.protocol.quality import judge_run
+from jobs.protocol.quality import finite_record, judge_run
 from jobs.protocol.references import LoadedReference, get_or_render_reference
 from jobs.protocol.results import RunResultDetail
 from jobs.protocol.scene_store import load_spec_scene
@@ -49,6 +49,7 @@ from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
 from renderers.methods import check_applies, get_method, parse_params
 from renderers.methods.base import FrameHooks, OnFrame, RenderOutput
+from renderers.timing import pooled
 
 #: progress(stage, done, total): stage is 'reference' or 'seed k/K'.
 Progress = Callable[[str, int, int], None]
@@ -138,7 +139,8 @@ def mean_over_seeds(stats: list[dict[str, Any]]) -> dict[str, Any]:
 
 def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
               reference: LoadedReference, eps: float, frame_seconds: float,
-              frame_moments: Sequence[RunningMoments] | None = None) -> dict[str, Any]:
+              frame_moments: Sequence[RunningMoments] | None = None,
+              correlated_frames: bool = False) -> dict[str, Any]:
     """Reduce K per-seed results to each metric of metrics.registry.METRICS by its
     aggregate form: rBias^2/rVar over seeds and mean MRSE with its CI, less the
     reference floor (metrics.errors.bias_variance), the per-cache statistics of
@@ -157,7 +159,7 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
                         if m.aggregate is Aggregate.MEAN_CI})
         metrics.update({key: per_seed[0][key] for key in
                         ("mrse_corrected", "ref_floor", "ref_floor_ratio_mrse", "warnings")})
-    metrics.update(per_cache_metrics(frame_moments, reference, eps))
+    metrics.update(per_cache_metrics(frame_moments, reference, eps, correlated_frames))
     # ---- Means over seeds (MEAN entries) ----
     for metric in METRICS:
         if metric.aggregate is Aggregate.MEAN:
@@ -177,14 +179,21 @@ PER_CACHE_KEYS = (*(f"{name}_per_cache{suffix}" for name in ("rbias2", "rvar")
 
 
 def per_cache_metrics(frame_moments: Sequence[RunningMoments] | None,
-                      reference: LoadedReference, eps: float) -> dict[str, Any]:
+                      reference: LoadedReference, eps: float,
+                      correlated_frames: bool = False) -> dict[str, Any]:
     """rBias^2 / rVar of each seed's cache from its own frames, with mean and spread.
 
     When they cannot be computed (no frame statistics collected, fewer than 2
-    frames per seed, no finite pixel) every key is None and
-    ``per_cache_unavailable`` says why.
+    frames per seed, no finite pixel) or would be wrong (``correlated_frames``: a
+    method whose frames share samples, ``Method.correlated_frames``) every key is
+    None and ``per_cache_unavailable`` says why.
     """
     try:
+        if correlated_frames:
+            raise MetricError(
+                "this method's frames share samples (temporal reuse), so the spread of "
+                "a seed's frames understates the variance of their mean and the "
+                "difference would be reported as bias; compare seeds instead (rbias2)")
         if not frame_moments:
             raise MetricError("no per-frame statistics were collected for this run")
         return {**per_cache_bias_variance([m.estimate() for m in frame_moments],
@@ -292,7 +301,9 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
     The seeds' frame moments (16 bytes per pixel-channel each) give the per-cache
     rBias^2 / rVar.
     The run's quality verdict (jobs.protocol.quality) is stored with it, and the metrics
-    the verdict withholds are stored as None, per seed and aggregated.
+    the verdict withholds are stored as None, per seed and aggregated. A NaN or
+    infinite metric, statistic or loss is stored as None too, and the verdict names it
+    (``quality['nonfinite_values']``).
     """
     scene, reference, device = prepared.scene, prepared.reference, prepared.device
     params = parse_params(spec.method, spec.params)
@@ -321,22 +332,21 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
                                        f"frame{number:05d}", ".exr", "image/x-exr", seed))
 
     seed_timings = [output.timings for output in outputs]
-    frame_seconds = float(np.median([t["frame_median_s"] for t in seed_timings]))
+    # One statistic over every timed frame of every seed: the frame time, the stages
+    # and the breakdown of the median frame (renderers.timing.pooled).
+    timings = pooled(seed_timings)
+    frame_seconds = timings["frame_median_s"]
+    timings["seconds_per_frame"] = frame_seconds
     metrics = aggregate(per_seed, [o.accumulated for o in outputs], reference, spec.eps,
-                        frame_seconds, [rendered.moments for rendered in seeds])
+                        frame_seconds, [rendered.moments for rendered in seeds],
+                        get_method(spec.method).correlated_frames)
     metrics.update(extra or {})
-    timings = {
-        "protocol": seed_timings[0]["protocol"],
-        "seconds_per_frame": frame_seconds,
-        "warmup_s": seed_timings[0]["warmup_s"],
-        "compile_s_estimate": seed_timings[0]["compile_s_estimate"],
-        "stages": seed_timings[0]["stages"],
-        "breakdown": seed_timings[0]["breakdown"],
-    }
+    metrics, per_seed, nonfinite = finite_record(metrics, per_seed)
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])
     verdict, quality = judge_run([o.accumulated for o in outputs], reference.mean,
                                  scene.features.emitter_count,
-                                 [o.method_stats for o in outputs], reference.variance)
+                                 [o.method_stats for o in outputs], reference.variance,
+                                 nonfinite)
     metrics = withhold(metrics, verdict.withheld)
     per_seed = [withhold(s, verdict.withheld) for s in per_seed]
     versions = versions_of(spec.method)

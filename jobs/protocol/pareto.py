@@ -13,12 +13,17 @@ a call renders nothing new (its timing rounds are still measured, below).
 
 Each point's seconds per frame, online training included (the caches' frame
 loop trains before every frame; one-off pre-training is not per-frame time),
-is the median of its timing samples: ``timing_rounds`` probes measured after
+is the (lower) median of its timing samples: ``timing_rounds`` probes measured after
 all runs in interleaved rounds (jobs.protocol.calibration), so that a drift or
 a load spike of a shared machine hits every point alike, not the points that
-happened to run then; with no rounds, the run's per-seed frame times (their
-median is the run's stored ``seconds_per_frame``, kept with every point). [min,
-max] of the samples is its spread. Then, for MRSE and FLIP: the Pareto front over all
+happened to run then; with no rounds, every timed frame of the run's seeds (their
+lower median is the run's stored ``seconds_per_frame``, kept with every point). [min,
+max] of the samples is its spread; a spread above :data:`MAX_SPREAD` of the median,
+a probe on a loaded machine (renderers.load) and a baseline whose frame time does
+not grow with spp are flagged. With ``project_res`` every point's per-stage cost
+model (jobs.protocol.cost_model) is measured too and its frame time projected to
+that resolution: a projection from this device, beside the errors measured at the
+point's own resolution. Then, for MRSE and FLIP: the Pareto front over all
 points, and for every non-baseline point its speed-up at equal error over the
 baseline with a bootstrap interval over seeds and timing samples
 (jobs.protocol.tradeoff; docs/pareto.md). A point is a :class:`ParetoPoint`:
@@ -30,18 +35,26 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from itertools import zip_longest
 from pathlib import Path
+from statistics import median_low
 from typing import Any
 
 import numpy as np
 from pydantic import Field, create_model
 
-from jobs.protocol.calibration import DEFAULT_ROUNDS, interleaved_rounds, probe_seconds
+from jobs.protocol import cost_model
+from jobs.protocol.calibration import (
+    DEFAULT_MAX_SPREAD,
+    DEFAULT_ROUNDS,
+    interleaved_rounds,
+    probe_timings,
+)
 from jobs.protocol.executor import Prepared, execute, prepare
 from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
+from jobs.protocol.scene_store import load_spec_scene
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.protocol.tradeoff import (
     BOOTSTRAP_METHOD,
@@ -63,9 +76,12 @@ from renderers.methods import (
     parse_params,
 )
 from renderers.seeding import digest
+from renderers.timing import FrameTime, merge_loads
 
 #: The errors plotted against time, and the speed-up measured at (their ``field`` names).
 PARETO_METRICS: tuple[Metric, ...] = (BY_NAME["mrse"], BY_NAME["flip_hdr"])
+#: A point's timing samples may spread (max - min) this much of their median unflagged.
+MAX_SPREAD = DEFAULT_MAX_SPREAD
 
 Progress = Callable[[str, int, int], None]
 
@@ -98,6 +114,33 @@ class ParetoSpec:
     timing_rounds: int = DEFAULT_ROUNDS
     probe_frames: int = 3
     resamples: int = RESAMPLES
+    project_res: tuple[int, int] | None = None
+    cost_resolutions: list[int] = field(
+        default_factory=lambda: list(cost_model.DEFAULT_RESOLUTIONS))
+
+
+@dataclass
+class Timing:
+    """A point's timing samples (seconds per frame), the machine's load during each of
+    its probes, and its projection to another resolution (if asked for)."""
+
+    samples: list[float]
+    loads: list[dict[str, Any] | None] = field(default_factory=list)
+    interleaved: bool = True        # samples of interleaved probes, not a run's frames
+    projection: cost_model.Projection | None = None
+
+    def flags(self) -> list[str]:
+        """Why these samples may not be trusted (the module docstring)."""
+        found = []
+        middle = float(np.median(self.samples))
+        spread = (max(self.samples) - min(self.samples)) / middle if middle > 0 else 0.0
+        if self.interleaved and len(self.samples) > 1 and spread > MAX_SPREAD:
+            found.append(f"its timing samples spread {100 * spread:.0f} % of their median "
+                         f"(bound {100 * MAX_SPREAD:.0f} %)")
+        load = merge_loads(self.loads)
+        if load and load["loaded"]:
+            found.append("machine loaded while it was timed: " + "; ".join(load["reasons"]))
+        return found
 
 
 def _metric_columns() -> dict[str, Any]:
@@ -132,26 +175,35 @@ class ParetoPoint(_ParetoColumns):  # type: ignore[misc,valid-type]
     baseline: bool = Field(description="a point of the baseline the speed-ups are measured over")
     reused: bool = Field(description="the run was stored by an earlier call, not rendered now")
     seconds_per_frame: float = Field(
-        description="median of the timing samples: seconds per frame, online training included")
+        description="lower median of the timing samples: seconds per frame, online training "
+                    "included")
     seconds_spread: list[float] = Field(description="[min, max] of the timing samples")
     timing_samples: list[float] = Field(
-        description="one per interleaved timing round (without rounds, the run's per-seed "
-                    "frame times)")
+        description="one per interleaved timing round (without rounds, every timed frame of "
+                    "the run's seeds; older runs: each seed's frame time)")
     run_seconds_per_frame: float | None = Field(
-        description="the stored run's seconds per frame (median over its seeds)")
+        description="the stored run's seconds per frame (its median frame over all seeds)")
+    probe_flags: list[str] = Field(
+        default_factory=list, description="why this point's timing samples may not be "
+                                          "trusted: a spread above the bound, a loaded machine")
+    projection: dict[str, Any] | None = Field(
+        None, description="its frame time projected to another resolution from this "
+                          "device's per-stage cost model (jobs.protocol.cost_model)")
 
     @classmethod
-    def measured(cls, planned: Planned, run: Any, seconds: list[float],
-                 reused: bool) -> ParetoPoint:
-        """The point of ``planned`` from its stored ``run`` and timing samples ``seconds``."""
+    def measured(cls, planned: Planned, run: Any, timing: Timing, reused: bool) -> ParetoPoint:
+        """The point of ``planned`` from its stored ``run`` and its ``timing``."""
         fields = cls.fields_of(run)
         seeds = sorted(run.seed_results, key=lambda s: s.seed)
+        seconds = timing.samples
         return cls(**{
             **fields, "series": planned.series, "label": planned.label,
             "baseline": planned.method == BASELINE, "reused": reused,
-            "seconds_per_frame": float(np.median(seconds)),
+            "seconds_per_frame": float(median_low(seconds)),
             "seconds_spread": [min(seconds), max(seconds)], "timing_samples": seconds,
             "run_seconds_per_frame": fields["seconds_per_frame"],
+            "probe_flags": timing.flags(),
+            "projection": None if timing.projection is None else timing.projection.to_json(),
             **{f"{m.field}_per_seed": [s.metrics.get(m.seed_key) for s in seeds]
                for m in PARETO_METRICS}})
 
@@ -192,6 +244,9 @@ def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
     if BASELINE not in names:
         raise MethodError(f"the baseline '{BASELINE}' must be among the methods: the "
                           "speed-ups are measured against it")
+    if spec.project_res is not None and len(set(spec.cost_resolutions)) < 2:
+        raise MethodError("give at least two --cost-res resolutions: the cost model fits a "
+                          "line through them")
     if len(set(spec.pt_spp)) < 2:
         raise MethodError(f"give at least two {BASELINE} spp values: its error-vs-time curve "
                           "is interpolated between them")
@@ -312,9 +367,15 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
     if progress:
         progress("points", len(ordered), len(ordered))
 
-    samples, order = _timing_samples(runs, prepared.scene, spec, progress)
+    timings, order = _timing_samples(runs, prepared.scene, spec, progress)
+    # The probes load each resolution in turn: no other scene may stay alive meanwhile
+    # (cost_model.SceneSlot).
+    prepared = replace(prepared, scene=None)
+    if spec.project_res is not None:
+        _project(runs, timings, spec, prepared, settings, progress)
     rank = {id(p): i for i, p in enumerate(p for points in series for p in points)}
-    points = [ParetoPoint.measured(planned, run, samples[i], reused) for i, (planned, run, reused)
+    points = [ParetoPoint.measured(planned, run, timings[i], reused)
+              for i, (planned, run, reused)
               in sorted(enumerate(runs), key=lambda item: rank[id(item[1][0])])]
     _evaluate(points, spec.resamples)
     reused = sum(p.reused for p in points)
@@ -323,8 +384,10 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
         points=points, skipped=skipped,
         timing={"rounds": spec.timing_rounds, "probe_frames": spec.probe_frames,
                 "samples": ("one per interleaved round" if spec.timing_rounds else
-                            "the run's per-seed frame times"),
-                "run_order": [planned.label for planned, _, _ in runs], "round_order": order},
+                            "the run's timed frames"),
+                "max_spread": MAX_SPREAD, "flags": baseline_flags(points),
+                "run_order": [planned.label for planned, _, _ in runs], "round_order": order,
+                "cost_resolutions": spec.cost_resolutions if spec.project_res else None},
         bootstrap={"method": BOOTSTRAP_METHOD, "resamples": spec.resamples,
                    "confidence": 0.95},
         work={"reference_rendered": int(prepared.reference.rendered_now),
@@ -336,26 +399,77 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
 
 
 def _timing_samples(runs: list[tuple[Planned, Any, bool]], scene: Any, spec: ParetoSpec,
-                    progress: Progress | None) -> tuple[list[list[float]], list[str]]:
+                    progress: Progress | None) -> tuple[list[Timing], list[str]]:
     """Per run: its ``timing_rounds`` interleaved probes (without rounds, its per-seed
-    frame times); and the order of the probes."""
+    frame times) with their loads; and the order of the probes."""
     total, done = spec.timing_rounds * len(runs), 0
 
-    def measure(index: int) -> float:
+    def measure(index: int) -> dict[str, Any]:
         nonlocal done
         planned = runs[index][0]
-        seconds = probe_seconds(scene, planned.method, planned.params, planned.spp,
+        timings = probe_timings(scene, planned.method,
+                                parse_params(planned.method, planned.params), planned.spp,
                                 spec.probe_frames)
         done += 1
         if progress:
             progress("timing rounds", done, total)
-        return seconds
+        return timings
 
     timed = interleaved_rounds(list(range(len(runs))), measure, spec.timing_rounds,
                                name=lambda i: runs[i][0].label)
-    return ([timed.times[i] or [s.metrics["seconds_per_frame"]
-                                for s in sorted(run.seed_results, key=lambda s: s.seed)]
-             for i, (_, run, _) in enumerate(runs)], timed.order)
+    found = []
+    for index, (_, run, _) in enumerate(runs):
+        probes = timed.times[index]
+        if probes:
+            found.append(Timing([p["frame_median_s"] for p in probes],
+                                [p.get("load") for p in probes]))
+        else:
+            found.append(Timing(run_frame_seconds(run), [(run.timings or {}).get("load")],
+                                interleaved=False))
+    return found, timed.order
+
+
+def run_frame_seconds(run: Any) -> list[float]:
+    """The frame times of a stored run: every timed frame of every seed (whose lower
+    median is the run's ``seconds_per_frame``), or for runs stored before frames were
+    kept, each seed's frame time."""
+    seeds = sorted(run.seed_results, key=lambda s: s.seed)
+    if all("frames_detail" in (s.timings or {}) for s in seeds):
+        return [FrameTime.from_json(f).total_s for s in seeds for f in s.timings["frames_detail"]]
+    return [s.metrics["seconds_per_frame"] for s in seeds]
+
+
+def _project(runs: list[tuple[Planned, Any, bool]], timings: list[Timing], spec: ParetoSpec,
+             prepared: Prepared, settings: Settings, progress: Progress | None) -> None:
+    """Measure each point's per-stage cost model at ``spec.cost_resolutions`` and project
+    its frame time to ``spec.project_res`` (jobs.protocol.cost_model)."""
+    assert spec.project_res is not None
+    scene_at = cost_model.SceneSlot(lambda res: load_spec_scene(spec.scene, res, settings))
+    for index, ((planned, _, _), timing) in enumerate(zip(runs, timings, strict=True)):
+        method = METHODS[planned.method]
+
+        def render(res: int, params: Any, spp: int, method: str = planned.method
+                   ) -> dict[str, Any]:
+            return probe_timings(scene_at(res), method, params, spp, spec.probe_frames)
+
+        step = (lambda done, total, label=planned.label, index=index:
+                progress(f"cost model {index + 1}/{len(runs)} ({label})", done, total)
+                ) if progress else None
+        model = cost_model.measure(method, parse_params(planned.method, planned.params),
+                                   planned.spp, prepared.device["device_key"], render,
+                                   resolutions=spec.cost_resolutions,
+                                   rounds=max(spec.timing_rounds, 1), progress=step)
+        timing.projection = model.project(*spec.project_res)
+
+
+def baseline_flags(points: list[ParetoPoint]) -> list[str]:
+    """A baseline curve whose frame time does not grow with spp: its timings are noisier
+    than the steps between them (the speed-ups interpolate along that curve)."""
+    curve = sorted((p.spp, p.seconds_per_frame) for p in points if p.baseline)
+    return [f"{BASELINE} is not monotone in spp: {a} spp {1e3 * ta:.3g} ms/frame >= "
+            f"{b} spp {1e3 * tb:.3g} ms/frame (timing noise above the step; re-run quiet "
+            "or with more --timing-rounds)"
+            for (a, ta), (b, tb) in zip(curve, curve[1:], strict=False) if ta >= tb]
 
 
 def _evaluate(points: list[ParetoPoint], resamples: int) -> None:

@@ -53,8 +53,8 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
     Each row is one sweep point of one series, with keys ``series``, ``eps``,
     ``ir_bounces_pct``, ``ms_frame`` and one per panel (``mrse``, ``flip``,
     ``rbias2``, ``rvar``; ``mrse_ci95`` = [lo, hi] or None). Points with a missing or non-finite
-    value are left out of that metric's panel; on log panels, points <= 0 are
-    left out too and counted in a note on the panel.
+    value are left out of that metric's panel, and on log panels points <= 0; a
+    note on the panel counts each kind left out.
     """
     series = list(dict.fromkeys(str(row["series"]) for row in rows))
     colours = _series_colours(series)
@@ -64,12 +64,12 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
         figure.delaxes(ax)
     axes = axes[:len(_SWEEP_PANELS)]
     for ax, (key, label, log, ci_key) in zip(axes, _SWEEP_PANELS, strict=True):
-        plotted, hidden = False, 0
+        plotted, hidden, dropped = False, 0, 0
         for name in series:
             members = [row for row in rows if str(row["series"]) == name]
             pairs = ((row.get("ir_bounces_pct"), row.get(key)) for row in members)
-            xs, ys, dropped = _plottable(pairs, log=log)
-            hidden += dropped
+            xs, ys, below, missing = _plottable(pairs, log=log)
+            hidden, dropped = hidden + below, dropped + missing
             if xs:
                 # Dashed with open markers: an equal-time series often coincides
                 # with its base series (same N_c), which must stay visible.
@@ -87,7 +87,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
         if log:
             ax.set_yscale("log")
         ax.grid(True, which="major", alpha=0.3)
-        _annotate(ax, plotted, hidden)
+        _annotate(ax, plotted, hidden, dropped)
 
     handles = {}
     for ax in axes:
@@ -106,12 +106,13 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
     ``curves[label]`` holds ``frame`` (frame indices), ``frame_mrse`` (MRSE of
     each single frame) and optionally ``accumulated_mrse`` (MRSE of the running
     mean up to that frame), lists of equal length. Per-frame error is drawn
-    solid, accumulated error dashed, in one colour per label; non-finite and
-    non-positive values are left out (the y axis is logarithmic).
+    solid, accumulated error dashed, in one colour per label; missing, non-finite
+    and non-positive values are left out (the y axis is logarithmic) and counted in a
+    note.
     """
     colours = _series_colours(list(curves))
     figure, (ax,) = _new_figure(1, 1, title, figsize=(7.0, 4.5))
-    plotted, hidden = False, 0
+    plotted, hidden, dropped = False, 0, 0
     for label, curve in curves.items():
         for key, style, kind in (
             ("frame_mrse", "-", "per frame"),
@@ -119,8 +120,9 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
         ):
             if curve.get(key) is None:
                 continue
-            xs, ys, dropped = _plottable(zip(curve["frame"], curve[key], strict=True), log=True)
-            hidden += dropped
+            xs, ys, below, missing = _plottable(zip(curve["frame"], curve[key], strict=True),
+                                                log=True)
+            hidden, dropped = hidden + below, dropped + missing
             if xs:
                 ax.plot(xs, ys, style, color=colours[label], label=f"{label} ({kind})")
                 plotted = True
@@ -130,7 +132,7 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
     ax.grid(True, which="major", alpha=0.3)
     if plotted:
         ax.legend(fontsize="small")
-    _annotate(ax, plotted, hidden)
+    _annotate(ax, plotted, hidden, dropped)
     return _save_png(figure, path)
 
 
@@ -141,16 +143,18 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
     Each point (a jobs.protocol.pareto.ParetoPoint's ``model_dump``) has ``series``,
     ``seconds_per_frame``, ``seconds_spread`` = [min, max] (drawn as a horizontal
     bar), ``key`` and ``front_<key>``. One line per series, through its points in
-    the given (knob) order; the front is a black step line with ringed points. Points without a finite value are left out,
-    and those <= 0 (off the log axis) are counted in a note.
+    the given (knob) order; the front is a black step line with ringed points. Points
+    without a finite value and those <= 0 (off the log axes) are left out and counted in
+    a note.
     """
     series = list(dict.fromkeys(str(p["series"]) for p in points))
     colours = _series_colours(series)
     figure, (ax,) = _new_figure(1, 1, title, figsize=(7.5, 5.0))
-    plotted, hidden = False, 0
+    plotted, hidden, dropped = False, 0, 0
     for name in series:
         members = [p for p in points if str(p["series"]) == name]
         drawn = [p for p in members if _positive(p.get(key)) and _positive(p["seconds_per_frame"])]
+        dropped += dropped_points(p.get(key) for p in members)
         hidden += sum(1 for p in members if _finite(p.get(key)) is not None
                       and not _positive(p.get(key)))
         if not drawn:
@@ -175,7 +179,7 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
     ax.grid(True, which="both", alpha=0.3)
     if plotted:
         ax.legend(fontsize="small")
-    _annotate(ax, plotted, hidden)
+    _annotate(ax, plotted, hidden, dropped)
     return _save_png(figure, path)
 
 
@@ -192,26 +196,30 @@ def _finite(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
+def dropped_points(values: Iterable[Any]) -> int:
+    """How many of a series' ``values`` a plot leaves out as missing or not finite."""
+    return sum(1 for value in values if _finite(value) is None)
+
+
 def _plottable(
     pairs: Iterable[tuple[Any, Any]], *, log: bool
-) -> tuple[list[float], list[float], int]:
-    """The (x, y) pairs that can be drawn, as x-sorted coordinate lists.
-
-    Pairs with a missing or non-finite coordinate are dropped. On a log axis
-    (``log``) finite y <= 0 are dropped too, and their number is returned third
-    so the plot can say that some points are not shown.
+) -> tuple[list[float], list[float], int, int]:
+    """The (x, y) pairs that can be drawn, as x-sorted coordinate lists, then how many
+    were left out: finite y <= 0 on a log axis (``log``), and pairs with a missing or
+    non-finite coordinate, so the plot can say that some points are not shown.
     """
-    points, hidden = [], 0
+    points, hidden, dropped = [], 0, 0
     for raw_x, raw_y in pairs:
         x, y = _finite(raw_x), _finite(raw_y)
         if x is None or y is None:
+            dropped += 1
             continue
         if log and y <= 0:
             hidden += 1
             continue
         points.append((x, y))
     points.sort()
-    return [x for x, _ in points], [y for _, y in points], hidden
+    return [x for x, _ in points], [y for _, y in points], hidden, dropped
 
 
 def _draw_ci(ax: Axes, rows: list[dict[str, Any]], key: str, ci_key: str, colour: str) -> None:
@@ -257,11 +265,15 @@ def _new_figure(
     return figure, list(figure.subplots(nrows, ncols, squeeze=False).ravel())
 
 
-def _annotate(ax: Axes, plotted: bool, hidden: int) -> None:
-    """Say on the panel when it is empty or when points <= 0 were left off its log axis."""
+def _annotate(ax: Axes, plotted: bool, hidden: int, dropped: int) -> None:
+    """Say on the panel when it is empty, when points <= 0 were left off its log axis and
+    when points were missing or not finite."""
     lines = [] if plotted else ["no data"]
     if hidden:
         lines.append(f"{hidden} point{'s' if hidden != 1 else ''} <= 0 not shown")
+    if dropped:
+        lines.append(f"{dropped} point{'s' if dropped != 1 else ''} missing or not finite, "
+                     "not shown")
     if lines:
         ax.text(
             0.98,

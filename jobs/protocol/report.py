@@ -23,6 +23,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from jobs.protocol.calibration import caveats
 from jobs.protocol.executor import RunSummary, execute
 from jobs.protocol.results import ReportRow, Skipped
 from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
@@ -101,8 +102,9 @@ def comparison_report(
         report.calibration = calibration
         if not report.equal_time:
             report.equal_time.append(_row(f"{budget.row} (budget)", summaries[budget.label]))
+        notes = [*([] if calibration["fits"] else [entry.unfit]), *caveats(calibration)]
         report.equal_time.append(_row(entry.row.format(chosen=calibration["chosen"]), summary,
-                                      "" if calibration["fits"] else entry.unfit))
+                                      "; ".join(notes)))
 
     # ---- Equal time: the baseline with the spp that fits each matched method's time ----
     for _name, entry in entries:
@@ -114,5 +116,5 @@ def comparison_report(
         assert pt_eq is not None    # the baseline renders every scene
         report.equal_time += [_row(entry.label, summary),
                               _row(f"{baseline} {pt_eq.spec.spp} spp (= {entry.label} time)",
-                                   pt_eq)]
+                                   pt_eq, "; ".join(caveats(pt_eq.metrics["calibration"])))]
     return report

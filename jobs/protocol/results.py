@@ -50,11 +50,29 @@ def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
 ResultMetrics = create_model("ResultMetrics", **_metric_fields(LISTED))
 
 
-def breakdown_ms(timings: dict[str, Any]) -> dict[str, float] | None:
-    """The Table-1-style breakdown of a frame in milliseconds (median per part: render,
-    training_paths, training, inference, ..., other); None for runs stored before it."""
-    parts = (timings.get("breakdown") or {}).get("parts_s")
+def breakdown_ms(timings: dict[str, Any], key: str = "parts_s") -> dict[str, float] | None:
+    """The Table-1-style breakdown of the median frame in milliseconds per part (render,
+    training_paths, training, inference, ..., other): its wall time (``parts_s``) or its
+    kernel time (``kernel_parts_s``); None for runs stored before it."""
+    parts = (timings.get("breakdown") or {}).get(key)
     return None if parts is None else {name: 1e3 * s for name, s in parts.items()}
+
+
+def device_split(timings: dict[str, Any]) -> tuple[float | None, float | None]:
+    """Kernel seconds of the median frame and its harness share (wall time outside
+    kernels over its wall time); None for runs stored without kernel time."""
+    frame = timings.get("breakdown") or {}
+    kernel, wall = frame.get("frame_kernel_s"), frame.get("frame_s")
+    if kernel is None or not wall:
+        return kernel, None
+    return kernel, max(wall - kernel, 0.0) / wall
+
+
+def timing_flags(timings: dict[str, Any]) -> list[str]:
+    """Why a run's timing may not be trusted: the machine was loaded while it was timed."""
+    load = timings.get("load") or {}
+    return [f"loaded: {reason}" for reason in load.get("reasons", [])] if load.get("loaded") \
+        else []
 
 
 def render_seconds(timings: dict[str, Any]) -> float | None:
@@ -81,8 +99,21 @@ class RunResult(ResultMetrics):
     render_seconds_per_frame: float | None = Field(
         None, description="median seconds of a frame's render stage alone")
     time_breakdown_ms: dict[str, float] | None = Field(
-        None, description="median milliseconds per frame of each part (render, training_paths, "
-                          "training, inference, other), as in the NIRC paper's Table 1")
+        None, description="milliseconds of each part (render, training_paths, training, "
+                          "inference, other) of the median frame, as in the NIRC paper's "
+                          "Table 1; they add up to its wall time")
+    kernel_breakdown_ms: dict[str, float] | None = Field(
+        None, description="kernel milliseconds of each part of the median frame (Dr.Jit's "
+                          "kernel history); the rest of a part is harness")
+    kernel_seconds_per_frame: float | None = Field(
+        None, description="kernel seconds of the median frame (device time; null for runs "
+                          "stored before kernel time was measured)")
+    harness_share: float | None = Field(
+        None, description="share of the median frame's wall time outside kernels: host "
+                          "work, Python tracing, launch gaps")
+    timing_flags: list[str] = Field(
+        default_factory=list, description="why the timing may not be trusted (a loaded "
+                                          "machine)")
     device_key: str
     quality: dict[str, Any]
     ref_floor_ratio_rbias2: float | None = Field(
@@ -92,8 +123,9 @@ class RunResult(ResultMetrics):
     warnings: list[str] = Field(
         default_factory=list, description="e.g. the reference floor is above 10 % of a metric")
     verdict: str | None = Field(
-        None, description="quality verdict (ok, untrained-cache, nonfinite, negative-radiance, "
-                          "degenerate-reference, no-emitter); null for runs stored before verdicts")
+        None, description="quality verdict (ok, undertrained-cache, untrained-cache, "
+                          "nonfinite-value, nonfinite, negative-radiance, degenerate-reference, "
+                          "no-emitter); null for runs stored before verdicts")
     withheld: list[str] = Field(
         default_factory=list, description="metrics the verdict makes meaningless (null above)")
     estimator_version: int
@@ -112,6 +144,10 @@ class RunResult(ResultMetrics):
             "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),
             "render_seconds_per_frame": render_seconds(run.timings),
             "time_breakdown_ms": breakdown_ms(run.timings),
+            "kernel_breakdown_ms": breakdown_ms(run.timings, "kernel_parts_s"),
+            "kernel_seconds_per_frame": device_split(run.timings)[0],
+            "harness_share": device_split(run.timings)[1],
+            "timing_flags": timing_flags(run.timings),
             "device_key": run.device_key, "quality": q, "verdict": q.get("verdict"),
             "withheld": q.get("withheld", []), "estimator_version": run.estimator_version,
             "metric_version": run.metric_version,
@@ -157,6 +193,13 @@ class RunResultDetail(RunResult):
     git_branch: str | None = Field(None, description="branch of the commit, when known")
     reference_id: int | None
     reference: ReferenceInfo | None = None
+    caches: dict[str, Any] = Field(
+        default_factory=dict,
+        description="each cache's resolved configuration, under the parameter that "
+                    "overrides it ('cache', 'env_cache'): 'config', the whole network after "
+                    "preset and overrides (encodings, MLP, output, loss, optimizer, EMA, "
+                    "batch, steps), and 'per_frame', its training per frame (paths or "
+                    "points, steps, batch size, records); empty for a method without a cache")
     per_seed: list[SeedRow]
 
     @classmethod
@@ -169,9 +212,25 @@ class RunResultDetail(RunResult):
             "git_branch": run.git_branch, "reference_id": run.reference_id,
             "reference": None if ref is None else ReferenceInfo(
                 id=ref.id, spp=ref.spp, key=ref.key, split_half=ref.split_half or {}),
+            "caches": resolved_caches(run.seed_results),
             "per_seed": [SeedRow(seed=s.seed, metrics=s.metrics, timings=s.timings)
                          for s in run.seed_results],
         }
+
+
+def resolved_caches(seed_results: Any) -> dict[str, Any]:
+    """The caches' resolved configuration a run stored with its seeds (the same for
+    every seed: it depends on the parameters and the frame size only). Runs stored
+    before ``method_stats['caches']`` kept the config and the training budget apart."""
+    if not seed_results:
+        return {}
+    stats = seed_results[0].metrics.get("method_stats") or {}
+    if "caches" in stats:
+        return stats["caches"]
+    if "cache_config" in stats:
+        return {"cache": {"config": stats["cache_config"],
+                          "per_frame": stats.get("training_budget")}}
+    return {}
 
 
 class ReportRow(RunResult):

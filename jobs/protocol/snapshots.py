@@ -113,7 +113,7 @@ def get_or_make_snapshot(
         "path_stats": training.path_stats,
         "loss_history": training.method_stats["loss_history"],
         "cache_stats": training.method_stats["cache_stats"],
-        "cache_config": training.method_stats["cache_config"],
+        "cache_config": training.method_stats["caches"]["cache"]["config"],
         "nonfinite_v1_pixels": int(np.count_nonzero(~np.isfinite(v1_image).all(axis=-1))),
     }
     artifacts = _snapshot_artifacts(settings, weights, v1_image, v1_variance)

@@ -5,8 +5,16 @@ registered method as ordinary render jobs, embedded or on a service, and each
 (case, method) is reduced to one :class:`StressRow`: did it run (or why not),
 how many non-finite pixels, training losses, skipped steps and cache weights
 it produced, the largest pixel value, whether an unbiased method still agrees
-with the reference, whether any non-finite value reached a stored metric, and
-what the user was told (the quality verdict, its reasons and warnings).
+with the reference, whether any non-finite value reached a stored metric, how
+many points its plotted series lack, and what the user was told (the quality
+verdict, its reasons and warnings).
+
+Non-finite values are counted on the values themselves, never after a JSON
+conversion (which turns NaN into null, the same as a metric the verdict
+withholds): the executor stores a NaN or infinite metric, statistic or loss as
+null and names it in the run's ``quality['nonfinite_values']`` (what a run on a
+service reports), and the embedded backend hands over the stored run unconverted,
+so a number that escaped that is counted as well.
 
 A method whose parameters have an ``estimator`` choice runs once per choice
 (``nirc`` biased and unbiased). Which runs are unbiased, and so tested for
@@ -39,6 +47,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from jobs.protocol import stress_scenes as scenes
+from jobs.protocol.plots import dropped_points
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from metrics.statistics import AgreementResult, agreement_test, image_mean_test, z_test
 from renderers.methods import BASELINE, METHODS, Method, NotApplicable, check_applies
@@ -189,7 +198,8 @@ class StressRow(BaseModel):
     skipped_steps: int | None = None             # training steps skipped (non-finite)
     dropped_records: int | None = None           # training records dropped (non-finite)
     nonfinite_weights: int | None = None         # in the caches' final weights
-    nonfinite_metrics: int | None = None         # stored metric values that are NaN/Inf
+    nonfinite_metrics: int | None = None         # metric values that came out NaN/Inf
+    dropped_plot_points: int | None = None       # missing or non-finite points of its plots
     max_pixel: float | None = None               # largest finite pixel value
     agreement: str | None = None                 # 'agrees' / 'DIFFERS' / None: not tested
     agreement_detail: str = ""
@@ -205,15 +215,18 @@ class StressReport(BaseModel):
     rows: list[StressRow]
 
     def problems(self) -> list[str]:
-        """What the suite exists to catch: a crash, a non-finite value in a metric or a
-        stored weight, or an unbiased method that no longer agrees where it must."""
+        """What the suite exists to catch: a crash, a non-finite value in a metric, a
+        training loss or a stored weight, or an unbiased method that no longer agrees
+        where it must."""
         found = []
         for row in self.rows:
             where = f"{row.case} / {row.method}"
             if row.status == "error":
                 found.append(f"{where}: {row.message}")
             if row.nonfinite_metrics:
-                found.append(f"{where}: {row.nonfinite_metrics} non-finite stored metric values")
+                found.append(f"{where}: {row.nonfinite_metrics} non-finite metric values")
+            if row.nonfinite_losses:
+                found.append(f"{where}: {row.nonfinite_losses} non-finite training losses")
             if row.nonfinite_weights:
                 found.append(f"{where}: {row.nonfinite_weights} non-finite cache weights")
             if row.expected_agreement and row.agreement == "DIFFERS":
@@ -246,13 +259,38 @@ def training_counts(method_stats: Iterable[dict[str, Any] | None]) -> dict[str, 
                               "nonfinite_weights"))
     stats = [s["cache_stats"] for s in caches]
     return {
-        "nonfinite_losses": sum(count_nonfinite_values(s.get("loss_history") or [])
-                                for s in caches),
+        "nonfinite_losses": sum(count_nonfinite_values(losses) for s in caches
+                                for losses in loss_histories(s)),
         "skipped_steps": sum(int(c.get("skipped_steps", 0)) for c in stats),
         "dropped_records": sum(int(c.get("dropped_nonfinite_targets", 0))
                                + int(c.get("dropped_nonfinite_inputs", 0)) for c in stats),
         "nonfinite_weights": sum(int(c.get("nonfinite_weights", 0)) for c in stats),
     }
+
+
+def loss_histories(method_stats: dict[str, Any]) -> list[list[Any]]:
+    """Every loss curve of a seed's method statistics (``loss_history``, and a second
+    cache's under its own key, e.g. ``env_cache``)."""
+    curves = [method_stats.get("loss_history") or []]
+    curves += [v["loss_history"] for v in method_stats.values()
+               if isinstance(v, dict) and "loss_history" in v]
+    return curves
+
+
+def stored_nonfinite(quality: dict[str, Any]) -> tuple[int, int]:
+    """(metrics, losses): the NaN or infinite values the executor stored as null
+    (``quality['nonfinite_values']``, paths such as ``seed 0.method_stats.loss_history[3]``)."""
+    paths = quality.get("nonfinite_values") or []
+    losses = sum(1 for path in paths if "loss_history" in path)
+    return len(paths) - losses, losses
+
+
+def convergence_drops(per_seed: Iterable[dict[str, Any]]) -> int:
+    """Points the error-over-frames plot (the executor's ``convergence.png``) leaves out
+    of the seeds' curves as missing or not finite."""
+    return sum(dropped_points(curve)
+               for s in per_seed
+               for curve in ((s["metrics"].get("convergence") or {}).values()))
 
 
 def seed_moments(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -284,18 +322,23 @@ def row_of(case: StressCase, variant: Variant, outcome: Outcome,
     """The row of a finished job (``against``: what unbiased runs are tested against)."""
     detail = outcome.detail
     quality = detail.get("quality") or {}
-    stats = [s["metrics"].get("method_stats") for s in detail.get("per_seed", [])]
+    per_seed = detail.get("per_seed", [])
+    stats = [s["metrics"].get("method_stats") for s in per_seed]
     finite = [i[np.isfinite(i)] for i in outcome.images]
     told = [r["message"] for r in quality.get("reasons", [])] + list(detail.get("warnings") or [])
+    stored_metrics, stored_losses = stored_nonfinite(quality)
+    counts = training_counts(stats)
+    if stored_losses:
+        counts["nonfinite_losses"] = (counts["nonfinite_losses"] or 0) + stored_losses
     row = StressRow(
         case=case.name, method=variant.label, status="ok",
         nonfinite_pixels=int(quality.get("nonfinite_pixels", 0)),
-        nonfinite_metrics=count_nonfinite_values(detail.get("metrics"))
+        nonfinite_metrics=stored_metrics + count_nonfinite_values(detail.get("metrics"))
         + sum(count_nonfinite_values({k: v for k, v in s["metrics"].items()
-                                      if k != "method_stats"})
-              for s in detail.get("per_seed", [])),
+                                      if k != "method_stats"}) for s in per_seed),
+        dropped_plot_points=convergence_drops(per_seed),
         max_pixel=max((float(f.max()) for f in finite if f.size), default=None),
-        verdict=quality.get("verdict"), told=told, **training_counts(stats))
+        verdict=quality.get("verdict"), told=told, **counts)
     if variant.unbiased and against is not None and len(outcome.images) >= 2:
         row.expected_agreement = case.agree
         row.agreement, row.agreement_detail = agreement(outcome.images, against, alpha,
@@ -404,7 +447,8 @@ class EmbeddedBackend:
             images = [read_exr(summary.files[f"image_seed{k}.exr"]) for k in range(spec.seeds)]
         reference = stored_reference(self.store, self.settings.references_dir,
                                      summary.reference["id"])
-        return Outcome(summary.result.model_dump(mode="json"), images,
+        # Python values, not JSON: a NaN stays a NaN here (JSON would make it null).
+        return Outcome(summary.result.model_dump(), images,
                        (reference.mean, reference.variance))
 
 
@@ -416,10 +460,10 @@ def _number(value: int | float | None) -> str:
 
 def markdown_table(report: StressReport) -> str:
     """The stress table (docs/stress.md shows one)."""
-    lines = [f"| case | method | status | non-finite pixels | non-finite losses / skipped "
-             f"steps / dropped records / weights | max pixel | agreement (vs {report.against}) "
-             "| verdict | told |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [f"| case | method | status | non-finite pixels | non-finite metrics / plot "
+             "points dropped | non-finite losses / skipped steps / dropped records / weights "
+             f"| max pixel | agreement (vs {report.against}) | verdict | told |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in report.rows:
         status = r.status if not r.message else f"{r.status}: {r.message}"
         training = ("–" if r.skipped_steps is None else
@@ -429,7 +473,9 @@ def markdown_table(report: StressReport) -> str:
         if r.agreement and not r.expected_agreement:
             agree += " (not required)"
         told = "; ".join(r.told) or "–"
+        values = ("–" if r.nonfinite_metrics is None else
+                  f"{r.nonfinite_metrics} / {r.dropped_plot_points}")
         lines.append(f"| {r.case} | {r.method} | {status} | {_number(r.nonfinite_pixels)} | "
-                     f"{training} | {_number(r.max_pixel)} | {agree} | {r.verdict or '–'} | "
-                     f"{told} |".replace("\n", " "))
+                     f"{values} | {training} | {_number(r.max_pixel)} | {agree} | "
+                     f"{r.verdict or '–'} | {told} |".replace("\n", " "))
     return "\n".join(lines)

@@ -64,7 +64,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from pydantic import BaseModel, Field, computed_field
 
-from jobs.protocol.calibration import calibrate
+from jobs.protocol.calibration import LoadLog, calibrate
 from jobs.protocol.executor import (
     Prepared,
     Progress,
@@ -414,13 +414,15 @@ class _Sweep:
                 continue
             # The budget is the matched point's frame time re-measured in every
             # round (same probe as the candidates), not its stored render time.
+            log = LoadLog()
             record = calibrate(
-                knob, candidates, lambda nc, eps=eps: self.probe(method, eps, nc),
-                lambda match_eps=match_eps: self.probe(against, match_eps),
+                knob, candidates, lambda nc, eps=eps, log=log: self.probe(method, eps, log, nc),
+                lambda match_eps=match_eps, log=log: self.probe(against, match_eps, log),
                 budget_source=f"{series_label(against)} frame time at eps {match_eps} "
                               f"(rBias2 {matching_rbias2(match):.3g}, run {match.id})",
                 tolerance_s=self.spec.time_tolerance_ms / 1e3, device_key=self.device_key,
                 rounds=self.spec.calibration_rounds, max_spread=self.spec.time_max_spread)
+            record.note_load(log.merged())
             self.work["calibrations"] += 1
             plan.setdefault(record.chosen, []).append(Point(
                 eps, self.params(method, record.chosen), key,
@@ -440,10 +442,10 @@ class _Sweep:
             runs.update({eps: self.store.get_run(run_id) for eps, run_id in rendered.items()})
         return runs
 
-    def probe(self, method: str, eps: float, nc: int | None = None) -> float:
+    def probe(self, method: str, eps: float, log: LoadLog, nc: int | None = None) -> float:
         """Seconds per 1-spp frame of ``method`` (NIRC: with ``nc`` samples at v1) with the
-        mask of ``eps`` (seed 0's cache). Only an integrator's first probe warms up
-        (compiles): a new mask is data, not a new kernel."""
+        mask of ``eps`` (seed 0's cache), its load kept in ``log``. Only an integrator's
+        first probe warms up (compiles): a new mask is data, not a new kernel."""
         snap = self.snapshot(method, 0)
         first = (method, nc) not in self._probes
         if first:
@@ -456,7 +458,7 @@ class _Sweep:
                             frames=self.spec.probe_frames, spp=1, aov_names=CACHE_AOVS,
                             hooks=FrameHooks(warmup=first))
         self.report("calibration", self.work["calibrations"] + 1, len(self.spec.eps))
-        return output.timings["frame_median_s"]
+        return log.seconds(output.timings)
 
     def nc_point(self, nc: int) -> Any:
         """The stored run of the knob method (biased NIRC) with ``nc`` (N_c sweep),

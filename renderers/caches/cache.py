@@ -33,6 +33,7 @@ all derived from ``seed`` (and, for batches, the optimizer step counter).
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Any
 
@@ -47,6 +48,7 @@ from renderers.caches.encodings import InputEncoder, PositionEncoding, Vec3, to_
 from renderers.caches.inference import PackedMLP
 from renderers.caches.losses import cache_loss
 from renderers.caches.records import TrainingRecords
+from renderers.frozen import Frozen, freezing, weak_method
 from renderers.seeding import derive_seed
 
 #: Optimizer key of the hash-grid table (the MLP keys are 'mlp.layers.<i>.*').
@@ -171,6 +173,12 @@ class NeuralCache:
         self._ema_steps = 0
 
         self._attempted_steps = 0     # steps tried, also seeds the batch draws
+        # Steps taken, on the device: the learning-rate schedule reads it inside a step.
+        self._counters = {"steps": mi.UInt32(0)}
+        self._last_step: tuple[TrainingRecords, mi.UInt32] | None = None  # for settle()
+        # The training step, frozen (renderers.frozen) when frames are frozen.
+        self._step_fn = (Frozen(weak_method(self._train_step), auto_opaque=False)
+                         if freezing() else self._train_step)
         self.loss_history: list[float] = []
         self.stats: dict[str, int] = {
             "records_seen": 0,
@@ -235,6 +243,32 @@ class NeuralCache:
     def tensor_network(self) -> nn.Sequential:
         """The inference weights as an unpacked tensor-mode network."""
         return self._infer_src
+
+    def recordings(self) -> int | None:
+        """Recordings of the frozen training step (None when it is not frozen)."""
+        return self._step_fn.recordings() if isinstance(self._step_fn, Frozen) else None
+
+    def settle(self) -> None:
+        """Run the frozen training step once more on the last step's records but on a
+        copy of the optimizer, EMA and counter, so that its recordings settle in a
+        warm-up without training the cache any further."""
+        if self.recordings() is None or self._last_step is None:
+            return
+        opt = copy.copy(self._opt)
+        opt.state, opt.lr = _fresh(self._opt.state), _fresh(self._opt.lr)
+        dr.eval(self._step_fn(opt, _fresh(self._ema or {}), _fresh(self._counters),
+                              *self._last_step))
+
+    def inference_state(self) -> dict[str, Any]:
+        """The Dr.Jit arrays inference reads (packed weights, hash-grid table), changed
+        by every training step: a frozen frame takes them as an argument and
+        :meth:`bind_inference` s them (renderers.frozen)."""
+        return {"mlp": self._infer.arrays(), "grid": self._infer_position.grid.data}
+
+    def bind_inference(self, state: dict[str, Any]) -> None:
+        """Infer with ``state`` (:meth:`inference_state`)."""
+        self._infer.bind(state["mlp"])
+        self._infer_position = self._infer_position.with_data(state["grid"])
 
     @property
     def n_surface_values(self) -> int:
@@ -382,11 +416,24 @@ class NeuralCache:
         # fewer: the tensor-mode kernels bake the batch size into their IR, and
         # a new size per frame meant a JIT compilation (~1 s) per training step.
         draws = self._batch_indices(n, batch_size, steps)
+        taken = []
         for s in range(steps):
             index = dr.gather(mi.UInt32, usable, mi.UInt32(draws[s]))
-            loss = self._step(records.gather(index))
-            if loss is not None:
-                losses.append(loss)
+            self._attempted_steps += 1
+            taken.append(self._step_fn(self._opt, self._ema or {}, self._counters, records,
+                                       index))
+            self._last_step = (records, index)
+        # One read-back per frame: the losses are a result (the loss curve).
+        dr.eval(taken)
+        for loss, good in taken:
+            if bool(good[0]):
+                losses.append(float(loss[0]))
+                self.stats["steps"] += 1
+                self.stats["records_trained"] += batch_size
+                if self._ema is not None:
+                    self._ema_steps += 1
+            else:
+                self.stats["skipped_steps"] += 1
         self.loss_history += losses
         if rule is not None and losses:
             mean = sum(losses) / len(losses)
@@ -485,14 +532,22 @@ class NeuralCache:
         flat = np.concatenate(perms)[:needed].astype(np.uint32)
         return [flat[s * batch:(s + 1) * batch] for s in range(steps)]
 
-    def _step(self, batch: TrainingRecords) -> float | None:
-        """One Adam step on ``batch``; None if it was skipped (non-finite)."""
-        self._attempted_steps += 1
+    def _train_step(self, opt: Adam, ema: dict[str, Any], counters: dict[str, Any],
+                    records: TrainingRecords, index: mi.UInt32) -> tuple[mi.Float, mi.Bool]:
+        """One Adam step on the records at ``index``: (its loss, whether it was taken).
+
+        A function of its arguments only (the optimizer's weights and moments, the EMA
+        of the weights, the step counter, the records), updating them in place, so that
+        a frozen replay (renderers.frozen) does what the traced step does. A step whose
+        loss or gradients are not finite leaves everything unchanged (Adam's masked
+        update), decided on the device: no read-back inside the step.
+        """
+        batch = records.gather(index)
 
         # ---- Bind the optimizer's parameters (Adam owns them) ----
         for key in self._mlp_keys:
-            self._net[key] = self._opt[key]
-        position = self.encoder.position.with_data(self._opt[GRID_KEY])
+            self._net[key] = opt[key]
+        position = self.encoder.position.with_data(opt[GRID_KEY])
 
         # ---- Forward (tensor mode) and loss (Eq. 18 or L2) ----
         x = to_tensor(self._input_rows(batch, position))
@@ -504,8 +559,8 @@ class NeuralCache:
         loss = cache_loss(self.config.loss, y, to_tensor(batch.target_rows()))
         dr.backward(loss)
 
-        # ---- Guard: skip the step if anything is non-finite ----
-        bad = dr.count(~dr.isfinite(loss.array))
+        # ---- Taken only if everything is finite ----
+        good = dr.isfinite(loss.array)
         lookup = position.lookup
         for key in self._keys:
             if key == GRID_KEY and lookup is not None and lookup.finite is not None:
@@ -513,35 +568,42 @@ class NeuralCache:
                 # everywhere (grid_grad.py) and its lookup says which: no
                 # reduction over the whole table (~1.3M entries) per step, and
                 # the gradient stays lazy, computed inside Adam's kernel.
-                bad += dr.select(lookup.finite, mi.UInt32(0), mi.UInt32(1))
+                good &= lookup.finite
                 continue
-            bad += dr.count(~dr.isfinite(_flat(dr.grad(self._opt[key]))))
-        dr.eval(loss, bad)
-        loss_value = float(loss.array[0])
-        if int(bad[0]) != 0:
-            # Re-registering a value with the same shape drops its gradient
-            # and keeps Adam's moments: the weights are unchanged.
-            for key in self._keys:
-                self._opt[key] = self._opt[key]
-            self.stats["skipped_steps"] += 1
-            return None
+            good &= dr.count(~dr.isfinite(_flat(dr.grad(opt[key])))) == 0
 
-        # ---- Adam step (+ EMA of the weights), one kernel launch ----
-        self._opt.set_learning_rate(self.config.optimizer.learning_rate(self.stats["steps"]))
-        self._opt.step(eval=False)
-        if self._ema is not None:
+        # ---- Adam step (+ EMA of the weights), masked by ``good`` ----
+        opt.set_learning_rate(self.config.optimizer.learning_rate_at(counters["steps"]))
+        opt.step(active=good, eval=False)
+        if ema:
             decay = self.config.ema_decay
             for key in self._keys:
-                acc = dr.fma(self._ema[key], decay, dr.detach(self._opt[key]) * (1.0 - decay))
-                dr.schedule(acc)
-                self._ema[key] = acc
-            self._ema_steps += 1
-        dr.eval()
-        self.stats["steps"] += 1
-        self.stats["records_trained"] += len(batch)
-        return loss_value
+                acc = dr.fma(ema[key], decay, dr.detach(opt[key]) * (1.0 - decay))
+                ema[key] = _where(good, acc, ema[key])
+        counters["steps"] = counters["steps"] + dr.select(good, 1, 0)
+        return loss.array, good
 
 
 def _flat(value: Any) -> mi.Float:
     """The flat Float storage of a Float or a tensor."""
     return value.array if dr.is_tensor_v(value) else value
+
+
+def _fresh(tree: Any) -> Any:
+    """``tree`` with new containers and new array objects for the same values (and their
+    AD edges): a frozen replay updates the array objects it was given in place, so a
+    step on a copy made otherwise would change the original."""
+    if dr.is_array_v(tree):
+        return type(tree)(tree)
+    if isinstance(tree, tuple | list):
+        return type(tree)(_fresh(item) for item in tree)
+    if isinstance(tree, dict):
+        return {key: _fresh(value) for key, value in tree.items()}
+    return tree
+
+
+def _where(mask: mi.Bool, new: Any, old: Any) -> Any:
+    """``new`` where the width-1 ``mask`` is set, else ``old`` (Floats or tensors)."""
+    if dr.is_tensor_v(old):
+        return type(old)(dr.select(mask, _flat(new), _flat(old)), old.shape)
+    return dr.select(mask, new, old)

@@ -67,6 +67,17 @@ class PackedMLP:
         dr.eval(self.views)
         self.plan = plan
 
+    def arrays(self) -> Any:
+        """The packed weights (a PyTree of matrix views): what evaluation reads."""
+        return self.views if self.split else self.full
+
+    def bind(self, arrays: Any) -> None:
+        """Evaluate with ``arrays`` (from :meth:`arrays`; a frozen frame's argument)."""
+        if self.split:
+            self.views = arrays
+        else:
+            self.full = arrays
+
     def surface(self, rows: list[mi.Float]) -> list[mi.Float]:
         """Per-surface part: W_s s + b_1 (or the rows themselves if not split)."""
         if not self.split:

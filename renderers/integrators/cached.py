@@ -146,6 +146,11 @@ class CachedPathIntegrator(PathIntegrator):
         # (biased NIRC); raised to what a frame needed, kept for later frames.
         self.vertex_slots = 1
 
+    def frame_freezable(self) -> bool:
+        """Not yet: the frame reads the cache's weights from Python and reads counts back
+        to size its deferred query buffers (renderers.frozen)."""
+        return False
+
     def set_v1_mask(self, mask: np.ndarray | None) -> None:
         """Per-pixel (H, W) booleans: where paths may terminate into the cache at v1.
 

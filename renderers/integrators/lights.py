@@ -84,6 +84,25 @@ class LightSampler:
     evaluated at the previous vertex, where NEE would have sampled).
     """
 
+    #: Its selection reads Dr.Jit values held in Python that change between frames and
+    #: that :meth:`frame_arrays` does not hand over: a frame that uses it is not frozen
+    #: (renderers.frozen), since a replay would not see the new values.
+    stateful = False
+    #: The attributes holding the per-scene Dr.Jit data the selection reads: a frozen
+    #: frame takes them as arguments (:meth:`frame_arrays`, :meth:`bind`), since a
+    #: recording may only read Dr.Jit values it was given.
+    ARRAYS: tuple[str, ...] = ("index_table",)
+
+    def frame_arrays(self) -> dict[str, Any]:
+        """The Dr.Jit data the selection reads now (a PyTree): :data:`ARRAYS`."""
+        return {name: getattr(self, name) for name in self.ARRAYS}
+
+    def bind(self, arrays: dict[str, Any]) -> None:
+        """Read the data of :meth:`frame_arrays` from ``arrays`` (a frozen frame's
+        arguments)."""
+        for name in self.ARRAYS:
+            setattr(self, name, arrays[name])
+
     def __init__(self, scene: mi.Scene) -> None:
         self.scene = scene
         self.emitters = scene.emitters()
@@ -158,6 +177,8 @@ class UniformLightSampler(LightSampler):
     tracer is exactly Mitsuba's ``path`` and pays nothing for the hook.
     """
 
+    ARRAYS = ()
+
     def __init__(self, scene: mi.Scene) -> None:
         # No index table: the scene's routines need none (and building it evaluates).
         self.scene = scene
@@ -209,6 +230,8 @@ def emitter_powers(scene: mi.Scene) -> np.ndarray:
 
 class PowerLightSampler(LightSampler):
     """p(i) ∝ Φ_i, the same at every point (pbrt-v4 ``PowerLightSampler``)."""
+
+    ARRAYS = (*LightSampler.ARRAYS, "distribution")
 
     def __init__(self, scene: mi.Scene) -> None:
         super().__init__(scene)

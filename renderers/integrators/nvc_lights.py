@@ -124,6 +124,15 @@ class NVCLightSampler(SpatialLightSampler):
     cache: Any = None
     clamp: float = DEFAULT_CLAMP
 
+    def frame_arrays(self) -> dict[str, Any]:
+        """The selector's tables and the cache's current weights (they change every
+        frame: a frozen frame must be handed them each time)."""
+        return {**super().frame_arrays(), "cache": self.cache.inference_state()}
+
+    def bind(self, arrays: dict[str, Any]) -> None:
+        super().bind(arrays)
+        self.cache.bind_inference(arrays["cache"])
+
     @classmethod
     def bound_to(cls, cache: Any, clamp: float = DEFAULT_CLAMP) -> type[NVCLightSampler]:
         """A subclass whose weights use ``cache`` (one output per emitter) and ``clamp``."""
@@ -207,6 +216,8 @@ class ClusteredNVCLightSampler(NVCLightSampler):
 
     clusters: LightClusters | None = None
     candidates: int = DEFAULT_CLUSTER_CANDIDATES
+    ARRAYS = (*NVCLightSampler.ARRAYS, "light_power", "light_r2", "light_centre",
+              "light_placed", "order", "sizes", "starts", "labels")
 
     @classmethod
     def bound_to_clusters(cls, cache: Any, clusters: LightClusters,

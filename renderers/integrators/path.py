@@ -160,6 +160,22 @@ class PathIntegrator(mi.SamplingIntegrator):
 
     light_sampler_type: type[LightSampler] = UniformLightSampler
 
+    def frame_freezable(self) -> bool:
+        """Whether a frame of this integrator may be frozen (renderers.frozen): the core
+        reads nothing that changes between frames but the seed, unless its light
+        selector reads state held in Python (``LightSampler.stateful``)."""
+        return not self.light_sampler_type.stateful
+
+    def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
+        """The Dr.Jit data a frame of ``scene`` reads besides the scene: the light
+        selector's (its per-scene tables, built on first use on the host, which a
+        recording cannot; a visibility cache's current weights). A frozen frame takes it
+        as an argument and :meth:`bind_frame_state` s it."""
+        return {"lights": self.light_sampler(scene).frame_arrays()}
+
+    def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:
+        self.light_sampler(scene).bind(state["lights"])
+
     def light_sampler(self, scene: mi.Scene) -> LightSampler:
         """The light sampler of ``scene``, built on first use (a selector may
         precompute per-scene data, e.g. emitter powers) and kept for that scene."""

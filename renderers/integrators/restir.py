@@ -27,11 +27,18 @@ Per lane (one per pixel and replica) and frame, with x the pixel's first hit:
                 heuristic m_j(y) = M_j p̂V_{x_j}(y) / Σ_k M_k p̂V_{x_k}(y) (Talbot),
                 W = Σ w / p̂_x(y_s),  M = Σ M_j
     shading     L = Le(x) + f(x, x→y) Le(y) G(x, y) · W   (W > 0: y visible from x)
+                    + f_δ(x, ω) Le(y_δ) / p(ω)   (ω drawn by the BSDF; only when the
+                    drawn lobe is a delta lobe, y_δ the first hit along ω)
 
 The m_j sum to 1 over the inputs for every y, and an input that cannot hold
 y (p̂V_{x_j}(y) = 0) gets m = 0, so each reservoir's W stays an unbiased
 contribution weight of its target at its own x: the image is unbiased with
-reuse on (docs/estimators.md, "restir-di"). The visibility in the weights
+reuse on (docs/estimators.md, "restir-di"). The target evaluates the BSDF,
+which is 0 on delta lobes (a mirror, the coating of smooth plastic, glass), so
+the light reflected or refracted by a delta lobe at x is not a light sample at
+all: one BSDF sample per lane adds it where the BSDF drew a delta lobe (the
+second line of the shading), as Mitsuba's ``path`` at max_depth 2 collects an
+emitter hit after a delta bounce with MIS weight 1. The visibility in the weights
 costs one shadow ray per pair of inputs (j, k), k != j (a kept sample is
 visible from its own x_j). The confidence weights M are clamped before
 temporal reuse (M_prev <= m_clamp · C), which changes the weights, not their
@@ -43,12 +50,12 @@ must be area emitters (a point on a surface).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
+from renderers.frozen import Frozen, freezing, weak_method
 from renderers.integrators.lights import LightSampler, PowerLightSampler
 
 
@@ -170,6 +177,19 @@ def combine(scene: mi.Scene, si: mi.SurfaceInteraction3f,
     return finish(scene, si, chosen, w_sum, M, active)
 
 
+def delta_emission(scene: mi.Scene, si: mi.SurfaceInteraction3f, sampler: mi.Sampler,
+                   active: mi.Bool) -> mi.Spectrum:
+    """The emission seen from ``si`` through a delta lobe of its BSDF: one BSDF sample,
+    kept only where it drew a delta lobe (f_δ Le / p, the sample weight dividing by the
+    lobe's selection probability too); the reservoirs' target holds every other lobe."""
+    ctx = mi.BSDFContext()
+    bs, bsdf_weight = si.bsdf().sample(ctx, si, sampler.next_1d(active),
+                                       sampler.next_2d(active), active)
+    delta = active & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    hit = scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), delta)
+    return dr.select(delta, bsdf_weight * hit.emitter(scene, delta).eval(hit, delta), 0)
+
+
 def neighbour_lanes(sampler: mi.Sampler, lane: mi.UInt32, size: tuple[int, int],
                     radius: float) -> mi.UInt32:
     """A pixel uniform in the disk of ``radius`` px around each lane's (clamped to the
@@ -189,22 +209,33 @@ class ReSTIRDI:
     ``replicas`` independent images of the film's size are rendered side by side
     (lane = replica · pixels + pixel), each with its own reservoirs: the method's
     spp, and what the statistical tests average over.
+
+    A frame (:meth:`frame`) is a function of its seed, the previous frame's
+    reservoirs and the light selector's data, all Dr.Jit values passed in and
+    returned, so it can be frozen (renderers.frozen): it is, unless the selector
+    reads state held in Python (``LightSampler.stateful``, `restir-nvc`'s cache)
+    or freezing is off. The history carried between frames is :attr:`history`.
     """
 
     def __init__(self, scene: mi.Scene, params: ReSTIRParams, replicas: int = 1,
                  lights: LightSampler | None = None) -> None:
         self.scene, self.params, self.replicas = scene, params, replicas
-        self.sensor = scene.sensors()[0]
-        self.size = tuple(int(s) for s in self.sensor.film().crop_size())
+        self.size = tuple(int(s) for s in scene.sensors()[0].film().crop_size())
         # The candidates' light selection (its pmf enters the RIS weights): by power.
         self.lights = PowerLightSampler(scene) if lights is None else lights
         self.history: Frame | None = None
+        self._frame = (Frozen(weak_method(self.frame), auto_opaque=False)
+                       if freezing() and not self.lights.stateful else self.frame)
+
+    def recordings(self) -> int | None:
+        """Recordings of the frozen frame (None when it is not frozen)."""
+        return self._frame.recordings() if isinstance(self._frame, Frozen) else None
 
     def reset(self) -> None:
         """Forget the previous frame (no temporal reuse in the next one)."""
         self.history = None
 
-    def first_hits(self, sampler: mi.Sampler,
+    def first_hits(self, scene: mi.Scene, sampler: mi.Sampler,
                    lane: mi.UInt32) -> tuple[mi.SurfaceInteraction3f, mi.Spectrum]:
         """Each lane's camera ray through a uniform point of its pixel (box filter):
         (first hit, sensor weight)."""
@@ -212,24 +243,36 @@ class ReSTIRDI:
         pixel = lane % (width * height)
         film = (mi.Point2f(mi.Float(pixel % width), mi.Float(pixel // width))
                 + sampler.next_2d()) / mi.ScalarVector2f(width, height)
-        ray, weight = self.sensor.sample_ray(0.0, sampler.next_1d(), film, sampler.next_2d())
-        return self.scene.ray_intersect(ray), weight
+        ray, weight = scene.sensors()[0].sample_ray(0.0, sampler.next_1d(), film,
+                                                    sampler.next_2d())
+        return scene.ray_intersect(ray), weight
 
-    def render(self, seed: int) -> np.ndarray:
-        """One frame: (replicas, height, width, 4) RGB and whether a surface was hit."""
+    def render(self, seed: int) -> mi.TensorXf:
+        """One frame, its reservoirs kept for the next: a (replicas, height, width, 4)
+        tensor of RGB and whether a surface was hit."""
+        image, self.history = self._frame(self.scene, mi.UInt32(seed), self.history,
+                                          self.lights.frame_arrays())
+        return image
+
+    def frame(self, scene: mi.Scene, seed: mi.UInt32, history: Frame | None,
+              lights: dict[str, Any]) -> tuple[mi.TensorXf, Frame]:
+        """One frame of ``scene`` from the previous frame's reservoirs (None: no temporal
+        reuse) and the light selector's data (``LightSampler.frame_arrays``): (image,
+        this frame's reservoirs). Reads no other Dr.Jit value."""
+        self.lights.bind(lights)
         width, height = self.size
         n = self.replicas * width * height
         sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(dr.opaque(mi.UInt32, seed), n)
+        sampler.seed(seed, n)
         lane = dr.arange(mi.UInt32, n)
-        si, weight = self.first_hits(sampler, lane)
+        si, weight = self.first_hits(scene, sampler, lane)
         valid = si.is_valid()
-        reservoir = initial(self.scene, self.lights, si, sampler, self.params.candidates)
+        reservoir = initial(scene, self.lights, si, sampler, self.params.candidates)
 
-        if self.params.temporal and self.history is not None:
-            previous = dr.gather(Reservoir, self.history.reservoirs, lane)
+        if self.params.temporal and history is not None:
+            previous = dr.gather(Reservoir, history.reservoirs, lane)
             previous.M = dr.minimum(previous.M, self.params.m_clamp * self.params.candidates)
-            reservoir = combine(self.scene, si, [(reservoir, si), (previous, self.history.si)],
+            reservoir = combine(scene, si, [(reservoir, si), (previous, history.si)],
                                 sampler)
         if self.params.spatial:
             dr.eval(reservoir)
@@ -238,17 +281,17 @@ class ReSTIRDI:
                 other = neighbour_lanes(sampler, lane, self.size, self.params.spatial_radius)
                 inputs.append((dr.gather(Reservoir, reservoir, other),
                                dr.gather(mi.SurfaceInteraction3f, si, other)))
-            reservoir = combine(self.scene, si, inputs, sampler)
+            reservoir = combine(scene, si, inputs, sampler)
 
         dr.eval(reservoir, si)
-        self.history = Frame(reservoir, si)
         # W > 0 only for a sample visible from x: shading needs no further ray.
-        value, _ = target(self.scene, si, reservoir, valid & (reservoir.W > 0))
-        L = si.emitter(self.scene).eval(si, valid) + value * reservoir.W
+        value, _ = target(scene, si, reservoir, valid & (reservoir.W > 0))
+        L = (si.emitter(scene).eval(si, valid) + value * reservoir.W
+             + delta_emission(scene, si, sampler, valid))
         rgb = mi.Color3f(L * weight)
-        image = np.stack([rgb.x.numpy(), rgb.y.numpy(), rgb.z.numpy(),
-                          dr.select(valid, 1.0, 0.0).numpy()], axis=-1)
-        return image.reshape(self.replicas, height, width, 4)
+        pixels = mi.Vector4f(rgb.x, rgb.y, rgb.z, dr.select(valid, 1.0, 0.0))
+        image = mi.TensorXf(dr.ravel(pixels), shape=(self.replicas, height, width, 4))
+        return image, Frame(reservoir, si)
 
 
 def check_scene(scene: mi.Scene) -> None:

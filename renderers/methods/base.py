@@ -11,14 +11,25 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
+from renderers.backend import host_runs_kernels
+from renderers.frozen import MAX_WARMUP_FRAMES, Frozen, freezing
+from renderers.load import LoadMonitor
 from renderers.seeding import derive_seed
-from renderers.timing import StageTimer, summarize, synchronize
+from renderers.timing import (
+    FrameTime,
+    StageTimer,
+    Warmup,
+    kernel_history,
+    summarize,
+    synchronize,
+)
 
 
 class MethodParams(BaseModel):
@@ -45,6 +56,16 @@ class MethodParams(BaseModel):
             except (ValueError, TypeError, AttributeError) as error:
                 raise ValueError(f"{name}: {error}") from None
         return self
+
+
+#: (parameters, pixels, spp) -> size per timed stage (:attr:`Method.stage_sizes`).
+StageSizes = Callable[[Any, int, int], dict[str, float]]
+
+
+def fixed_stages(*names: str) -> StageSizes:
+    """Stage sizes of stages that do the same work in every frame, whatever its size
+    (e.g. a visibility cache's training points): one unit each."""
+    return lambda _params, _pixels, _spp: dict.fromkeys(names, 1.0)
 
 
 def everywhere(_features: Any) -> tuple[bool, str]:
@@ -146,6 +167,19 @@ class Method:
     #: independent, and agreement is tested per pixel and on the image mean over
     #: seeds (metrics.statistics.image_mean_test), not with the tile test.
     correlated_pixels: bool = False
+    #: The size of each timed stage of a frame of ``pixels`` pixels at ``spp``: the unit
+    #: its time grows with (the per-stage cost model, jobs/protocol/cost_model.py). A
+    #: stage it does not name grows with pixels x spp.
+    stage_sizes: StageSizes = lambda _params, _pixels, _spp: {}
+    #: The parameters with the method's per-frame floors (work held at a fixed size in
+    #: small frames, e.g. training records) scaled by a factor, so that the cost model can
+    #: measure what a unit of a floored stage costs; None: the method has no floors.
+    scale_floors: Callable[[Any, float], Any] | None = None
+    #: Whether its frames share samples (temporal reuse): then one seed's frames are
+    #: positively correlated, their spread understates the variance of their mean, and
+    #: the per-cache rBias^2 / rVar of a run (which take them as independent) are not
+    #: reported (jobs.protocol.executor.per_cache_metrics).
+    correlated_frames: bool = False
 
     def applies_to(self, features: Any) -> tuple[bool, str]:
         """Whether the method can render a scene with ``features``, and why not."""
@@ -192,22 +226,85 @@ class FrameHooks:
     each frame; ``on_frame`` after each frame (e.g. the executor's per-frame
     error against the reference: the convergence curve); ``warmup``: render
     the untimed warm-up frame first (a caller that renders several series
-    with one already-compiled integrator warms up once and passes False).
+    with one already-compiled integrator warms up once and passes False);
+    ``kernel_time``: record Dr.Jit's kernel history for the kernel time of every
+    stage (off only to measure what recording it costs).
     """
 
     keep_frames: bool = False
     progress: Callable[[int, int], None] | None = None
     on_frame: OnFrame | None = None
     warmup: bool = True
+    kernel_time: bool = True
+
+
+class FrozenRender:
+    """A frame that is one frozen ``mi.render`` (renderers.frozen), timed as 'render': the
+    seed and the integrator's ``frame_state`` (asked anew every frame) are its
+    arguments. Built only while freezing is on."""
+
+    def __init__(self, scene: Any, integrator: Any, spp: int) -> None:
+        import mitsuba as mi
+
+        self.scene = scene.scene
+        self.seed_type = mi.UInt32
+        self.integrator = integrator
+
+        def render(scene: Any, seed: Any, state: dict[str, Any]) -> Any:
+            integrator.bind_frame_state(scene, state)
+            return mi.render(scene, integrator=integrator, spp=spp, seed=seed)
+
+        self.render = Frozen(render)
+
+    def __call__(self, _index: int, seed: int, timer: StageTimer) -> Any:
+        with timer.stage("render"):
+            # The state is asked anew every frame: a cache's weights change with training.
+            image = self.render(self.scene, self.seed_type(seed),
+                                self.integrator.frame_state(self.scene))
+            synchronize(image)
+        return image
+
+    def recordings(self) -> int:
+        return self.render.recordings()
+
+
+class WithParts:
+    """A frame function made of parts (training, then a render stage) that reports the
+    recordings of its frozen parts and of ``counted`` objects (a cache's frozen
+    training step), so that run_frames warms it up until they settle; its
+    :meth:`settle` runs the frozen frame parts alone (they change no state: a cache
+    trains once in the warm-up, frozen or not)."""
+
+    def __init__(self, frame: FrameFn, *parts: Any, counted: tuple[Any, ...] = ()) -> None:
+        self.frame = frame
+        self.frozen = [part for part in parts if hasattr(part, "recordings")]
+        self.counted = [c for c in counted if c.recordings() is not None]
+        recorded = [*self.frozen, *self.counted]
+        if recorded:
+            self.recordings = lambda: sum(part.recordings() for part in recorded)
+
+    def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
+        return self.frame(index, seed, timer)
+
+    def settle(self, index: int, seed: int, timer: StageTimer) -> None:
+        for part in self.frozen:
+            part(index, seed, timer)
+        for counted in self.counted:
+            counted.settle()
 
 
 def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:
-    """A frame that is one ``mi.render`` of ``scene`` with ``integrator``, timed as 'render'.
+    """A frame that is one ``mi.render`` of ``scene`` with ``integrator``, timed as 'render':
+    frozen (:class:`FrozenRender`) where the integrator says its frame can be
+    (``frame_freezable()``: no state read from Python objects, no host read-back).
 
     A caching integrator (renderers.integrators.cached) times its deferred cache
     inference as the nested stage 'inference'; 'render' is then path tracing only.
     """
     import mitsuba as mi
+
+    if freezing() and getattr(integrator, "frame_freezable", lambda: False)():
+        return FrozenRender(scene, integrator, spp)
 
     def render_frame(_index: int, seed: int, timer: StageTimer):
         if hasattr(integrator, "timer"):
@@ -277,40 +374,73 @@ def run_frames(
     ``seed_parts`` identify the render (scene fingerprint, method, params, seed
     index); frame f renders with ``derive_seed(*seed_parts, f)`` and the warm-up
     frame with a seed of its own, so it never correlates with a timed frame.
+    Dr.Jit's kernel history is on for the warm-up and the timed frames alike
+    (renderers.timing), and the machine's load is measured over the timed frames
+    (renderers.load). A frame function with ``recordings()`` (frozen,
+    renderers.frozen) warms up until its recording count stops changing, and the
+    counts after the warm-up and after the timed frames are reported (``frozen``).
     """
-    warmup_s = 0.0
-    if hooks.warmup:
-        warmup = StageTimer()
-        render_frame(-1, derive_seed(*seed_parts, "warmup"), warmup)
-        warmup_s = sum(warmup.seconds.values())
+    recordings = getattr(render_frame, "recordings", None)
+    with kernel_history() if hooks.kernel_time else nullcontext():
+        warmup = Warmup()
+        if hooks.warmup:
+            warmup = _warm_up(render_frame, seed_parts, recordings)
+        settled = recordings() if recordings else None
 
-    accumulated: np.ndarray | None = None
-    path_stats = PathStats(aov_names)
-    kept: list[np.ndarray] = []
-    frame_timings: list[dict[str, float]] = []
-    whole_s: list[float] = []
-    for index in range(frames):
-        timer = StageTimer()
-        with timer.frame():
-            film = render_frame(index, derive_seed(*seed_parts, index), timer)
-        film = np.asarray(film)
-        frame_timings.append(timer.seconds)
-        whole_s.append(timer.frame_s)
-        rgb = film[..., :3].astype(np.float32)
-        # Running mean keeps memory constant however many frames run.
-        accumulated = rgb.copy() if accumulated is None else accumulated + (rgb - accumulated) / (index + 1)
-        path_stats.add(film[..., 3:], spp)
-        if hooks.keep_frames:
-            kept.append(rgb)
-        if hooks.on_frame:
-            hooks.on_frame(index, rgb, accumulated)
-        if hooks.progress:
-            hooks.progress(index + 1, frames)
+        accumulated: np.ndarray | None = None
+        path_stats = PathStats(aov_names)
+        kept: list[np.ndarray] = []
+        timed: list[FrameTime] = []
+        with LoadMonitor(host_bound_cpu=host_runs_kernels()) as load:
+            for index in range(frames):
+                timer = StageTimer()
+                with timer.frame():
+                    film = render_frame(index, derive_seed(*seed_parts, index), timer)
+                film = np.asarray(film)
+                timed.append(timer.record())
+                rgb = film[..., :3].astype(np.float32)
+                # Running mean keeps memory constant however many frames run.
+                accumulated = (rgb.copy() if accumulated is None
+                               else accumulated + (rgb - accumulated) / (index + 1))
+                path_stats.add(film[..., 3:], spp)
+                if hooks.keep_frames:
+                    kept.append(rgb)
+                if hooks.on_frame:
+                    hooks.on_frame(index, rgb, accumulated)
+                if hooks.progress:
+                    hooks.progress(index + 1, frames)
 
     assert accumulated is not None
+    timings = summarize(timed, warmup, load.result())
+    timings["frozen"] = None if recordings is None else {
+        "recordings_after_warmup": settled, "recordings_after_frames": recordings(),
+        "warmup_frames": warmup.frames}
     return RenderOutput(
         accumulated=accumulated,
         frames=kept if hooks.keep_frames else None,
-        timings=summarize(frame_timings, warmup_s, whole_s),
+        timings=timings,
         path_stats=path_stats.result(),
     )
+
+
+def _warm_up(render_frame: FrameFn, seed_parts: tuple[Any, ...],
+             recordings: Callable[[], int] | None) -> Warmup:
+    """The untimed warm-up: one frame, then, for a frozen frame function, calls of its
+    ``settle`` (the frozen parts alone, which change no state; else the frame again)
+    until its recording count stops changing (at most MAX_WARMUP_FRAMES in all). So a
+    cache trains in one warm-up frame whether its frames are frozen or not."""
+    seconds, compile_s, frames = 0.0, 0.0, 0
+    before = -1
+    settle = getattr(render_frame, "settle", render_frame)
+    while True:
+        timer = StageTimer()
+        seed = derive_seed(*seed_parts, "warmup", *((frames,) if frames else ()))
+        with timer.frame():
+            (settle if frames else render_frame)(-1, seed, timer)
+        frames += 1
+        seconds += timer.frame_s
+        compile_s = None if timer.kernels is None or compile_s is None else \
+            compile_s + sum(k.compile_s for k in timer.kernels.values())
+        if recordings is None or frames >= MAX_WARMUP_FRAMES or recordings() == before:
+            return Warmup(seconds, compile_s, frames)
+        before = recordings()

@@ -61,7 +61,8 @@ class TrainingBudget:
         return self.steps * self.batch_size
 
     def describe(self) -> dict[str, int | str]:
-        """What is stored with a run (``method_stats['training_budget']``)."""
+        """What a run stores as its cache's training per frame
+        (``method_stats['caches']['cache']['per_frame']``)."""
         return {**asdict(self), "records": self.records}
 
 

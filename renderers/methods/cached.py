@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field, model_validator
 
-from renderers.methods.base import FrameHooks, RenderOutput, render_stage, run_frames
+from renderers.methods.base import FrameHooks, RenderOutput, WithParts, render_stage, run_frames
 from renderers.methods.budget import (
     MIN_RECORDS,
     RECORD_FRACTION,
@@ -136,10 +136,11 @@ ExtraTraining = Callable[[int, StageTimer], None]
 def render_with_cache(
     scene: Any, params: CacheTrainingParams, integrator: Any, trainer: Any, cache: Any, *,
     seed_parts: tuple[Any, ...], spp: int, frames: int, hooks: FrameHooks = FrameHooks(),
-    extra_training: ExtraTraining | None = None,
+    extra_training: ExtraTraining | None = None, extra_cache: Any = None,
 ) -> RenderOutput:
     """Pre-train, then run the frame loop with training before every frame.
-    ``extra_training``: a second cache's training, in every frame that trains."""
+    ``extra_training``: a second cache's (``extra_cache``) training, in every frame that
+    trains."""
     # Self-training paths query the cache too.
     integrator.cache = trainer.cache = cache
     width, height = scene.resolution
@@ -167,24 +168,47 @@ def render_with_cache(
             frame_queries.append(list(integrator.query_counts))
         return image
 
-    output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
+    caches = (cache,) if extra_cache is None else (cache, extra_cache)
+    output = run_frames(WithParts(render_frame, render, counted=caches),
+                        seed_parts=seed_parts, frames=frames,
+                        spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
-    output.method_stats = {"training_budget": budget.describe(),
-                           **cache_method_stats(cache, params, pretrain_s, frame_queries)}
+    output.method_stats = cache_method_stats(cache, params, pretrain_s, frame_queries,
+                                             budget.describe())
     return output
 
 
+def cache_record(cache: Any, per_frame: dict[str, Any]) -> dict[str, Any]:
+    """A cache's resolved configuration as a run stores it (``method_stats['caches']``):
+    the whole network config after preset and overrides (encodings, MLP, output, loss,
+    optimizer, EMA, batch and steps) and what it trains on per frame (``per_frame``:
+    paths or points, steps, batch size, records)."""
+    return {"config": cache.config.model_dump(mode="json"), "per_frame": per_frame}
+
+
 def cache_method_stats(cache: Any, params: Any, pretrain_s: float,
-                       frame_queries: list[list[Any]]) -> dict[str, Any]:
-    """What a run stores of its cache: queries per frame, pre-training, losses, config."""
+                       frame_queries: list[list[Any]],
+                       per_frame: dict[str, Any]) -> dict[str, Any]:
+    """What a run stores of its cache: queries per frame, pre-training, losses, and its
+    resolved configuration under the name of the parameter that overrides it
+    (``caches['cache']``, :func:`cache_record`)."""
     return {
         **(query_stats(frame_queries) if frame_queries else {}),
         "pretrain_frames": params.pretrain_frames,
         "pretrain_s": pretrain_s,
         "loss_history": list(cache.loss_history),
-        "cache_stats": {**cache.stats, "nonfinite_weights": nonfinite_weights(cache)},
-        "cache_config": cache.config.model_dump(mode="json"),
+        "cache_stats": {**cache.stats, "nonfinite_weights": nonfinite_weights(cache),
+                        "min_trained_steps": cache.config.min_trained_steps},
+        "caches": {"cache": cache_record(cache, per_frame)},
     }
+
+
+def point_training(config: Any, points: int) -> dict[str, int]:
+    """The per-frame training of a cache trained on ``points`` points a frame (the
+    visibility caches, `nrc-di`): ``config.steps_per_frame`` steps of its batch."""
+    return {"points": points, "steps": config.steps_per_frame,
+            "batch_size": config.batch_size,
+            "records": config.steps_per_frame * config.batch_size}
 
 
 def nonfinite_weights(cache: Any) -> int:
@@ -223,6 +247,29 @@ def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Cal
                                  seed_parts=seed_parts, spp=spp, frames=frames, hooks=hooks)
 
     return render
+
+
+def training_stage_sizes(params: Any, pixels: int, _spp: int) -> dict[str, float]:
+    """Training paths and records of a frame of ``pixels`` pixels: the training budget's
+    rule, floors and cap included (:func:`frame_training_budget`)."""
+    config = params.cache_presets()["cache"](**params.cache)
+    budget = frame_training_budget(pixels, params, config)
+    return {"training_paths": budget.paths, "training": budget.records}
+
+
+def scale_training_floors(params: Any, factor: float) -> Any:
+    """``params`` with the floors of training records and paths per frame scaled by
+    ``factor`` ('paper' budgets have no floor: unchanged)."""
+    if params.training_budget == "paper":
+        return params
+    fields = type(params).model_fields
+    scaled = {name: min(round(getattr(params, name) * factor), _upper_bound(fields[name]))
+              for name in ("min_train_records", "min_train_paths")}
+    return type(params).model_validate({**params.model_dump(), **scaled})
+
+
+def _upper_bound(field: Any) -> int:
+    return next(m.le for m in field.metadata if getattr(m, "le", None) is not None)
 
 
 #: Integrator modules every caching method registers besides its own.

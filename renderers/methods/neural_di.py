@@ -23,7 +23,7 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-from renderers.methods.base import Knob, Method
+from renderers.methods.base import Knob, Method, fixed_stages
 from renderers.methods.cached import make_cache
 from renderers.methods.nvc_lights import (
     MAX_LIGHTS,
@@ -79,4 +79,5 @@ METHOD = Method("neural-di",
                 "(max_depth 2)",
                 NeuralDIParams, render, version=1,
                 integrators=("renderers.integrators.neural_di",), requires=applies,
-                label="Neural DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False)
+                label="Neural DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False,
+                stage_sizes=fixed_stages("training_paths", "training"))

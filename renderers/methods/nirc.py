@@ -18,6 +18,8 @@ from renderers.methods.cached import (
     has_surface,
     load_integrators,
     make_cache,
+    scale_training_floors,
+    training_stage_sizes,
 )
 
 
@@ -96,6 +98,7 @@ METHOD = Method(
                                                         "nc": [nc]},
                     knob_label="NIRC biased"),
     build=build, requires=has_surface, label="NIRC",
+    stage_sizes=training_stage_sizes, scale_floors=scale_training_floors,
     comparison=(
         ComparisonRun(3, "NIRC biased", "NIRC biased (N_c 4)", {"estimator": "biased", "nc": [4]}),
         ComparisonRun(4, "NIRC unbiased", "NIRC unbiased (N_c 3,1,1)",

@@ -34,9 +34,13 @@ from renderers.methods import nirc
 from renderers.methods.base import FrameHooks, Method, RenderOutput
 from renderers.methods.cached import (
     TRAINING_INTEGRATORS,
+    cache_record,
     load_integrators,
     make_cache,
+    point_training,
     render_with_cache,
+    scale_training_floors,
+    training_stage_sizes,
 )
 from renderers.methods.nirc import NIRCParams
 from renderers.methods.nvc_env import NVCEnvParams, applies, env_visibility_config
@@ -87,10 +91,11 @@ def render(scene: Any, params: NIRCEnvParams, *, seed_parts: tuple[Any, ...], sp
     output = render_with_cache(
         scene, params, integrator, trainer, cache, seed_parts=seed_parts, spp=spp,
         frames=frames, hooks=hooks,
-        extra_training=lambda seed, timer: train_env_frame(scene, visibility, env, seed, timer))
-    output.method_stats["env_cache"] = {
-        "loss_history": list(visibility.loss_history),
-        "cache_config": visibility.config.model_dump(mode="json")}
+        extra_training=lambda seed, timer: train_env_frame(scene, visibility, env, seed, timer),
+        extra_cache=visibility)
+    output.method_stats["env_cache"] = {"loss_history": list(visibility.loss_history)}
+    output.method_stats["caches"]["env_cache"] = cache_record(
+        visibility, point_training(visibility.config, env.camera_points))
     return output
 
 
@@ -100,4 +105,6 @@ METHOD = Method(
     NIRCEnvParams, render, version=1,
     integrators=("renderers.integrators.nirc_nvc_env", *TRAINING_INTEGRATORS),
     knob=dataclasses.replace(nirc.METHOD.knob, requirement="biased nirc-nvc-env"),
-    requires=applies, label="NIRC + NVC env")
+    requires=applies, label="NIRC + NVC env",
+    # The environment cache's training points are fixed: NIRC's records carry the growth.
+    stage_sizes=training_stage_sizes, scale_floors=scale_training_floors)

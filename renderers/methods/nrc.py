@@ -22,6 +22,8 @@ from renderers.methods.cached import (
     has_surface,
     load_integrators,
     make_cache,
+    scale_training_floors,
+    training_stage_sizes,
 )
 
 
@@ -57,4 +59,5 @@ METHOD = Method(
     "nrc", "Neural Radiance Cache, spread-angle termination", NRCParams, cached_render(build),
     version=3, integrators=("renderers.integrators.nrc", *TRAINING_INTEGRATORS),
     sweep=SweepRole("NRC"), build=build, requires=has_surface, label="NRC", unbiased=False,
+    stage_sizes=training_stage_sizes, scale_floors=scale_training_floors,
     comparison=(ComparisonRun(2, "NRC", "NRC biased", role="matched"),))

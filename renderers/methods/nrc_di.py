@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from renderers.methods.base import Knob, Method
+from renderers.methods.base import Knob, Method, fixed_stages
 from renderers.methods.cached import make_cache
 from renderers.methods.nvc_lights import visibility_cache_render
 from renderers.methods.primary import PrimaryCacheParams, lit_surface
@@ -66,4 +66,5 @@ METHOD = Method("nrc-di",
                 "on one-sample NEE, rendered as its prediction (biased): primary hits only "
                 "(max_depth 2)",
                 NRCDIParams, render, version=1, integrators=("renderers.integrators.nrc_di",),
-                requires=lit_surface, label="NRC DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False)
+                requires=lit_surface, label="NRC DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False,
+                stage_sizes=fixed_stages("training_paths", "training"))

@@ -51,7 +51,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from renderers.methods.base import Knob, Method
+from renderers.methods.base import Knob, Method, fixed_stages
 from renderers.methods.cached import has_surface, make_cache
 from renderers.methods.nvc_lights import visibility_cache_render
 from renderers.methods.pt import SPP_CANDIDATES, PTParams
@@ -140,4 +140,5 @@ METHOD = Method("nvc-env",
                 "direct environment light as a two-level estimator: N_c env-map samples "
                 "weighted by a neural visibility cache + a one-shadow-ray residual",
                 NVCEnvParams, render, version=1, integrators=("renderers.integrators.nvc_env",),
-                requires=applies, label="NVC env", knob=Knob("spp", SPP_CANDIDATES))
+                requires=applies, label="NVC env", knob=Knob("spp", SPP_CANDIDATES),
+                stage_sizes=fixed_stages("training_paths", "training"))

@@ -19,8 +19,10 @@ parameter           default   meaning
 max_depth, rr_*     as `pt`   the PT core (renders and nothing else: training
                               traces shadow rays only)
 clamp               0.001     floor of the predicted visibility (paper Sec. 3.1,
-                              Fig. 5); 0 lets a light the cache wrongly calls
-                              occluded get pmf ~0
+                              Fig. 5), at least 1e-6: the sigmoid is exactly 0 in
+                              float32 below about -88, so without a floor a light
+                              the cache wrongly calls occluded gets pmf 0 (the
+                              paper's biased case)
 world_points        4096      training positions per frame uniform in the scene's
                               bounding box (paper Sec. 3.3)
 camera_points       4096      training positions per frame at first hits of random
@@ -61,16 +63,28 @@ from renderers.methods.base import (
     Method,
     MethodParams,
     RenderOutput,
+    WithParts,
+    fixed_stages,
     render_stage,
     run_frames,
 )
-from renderers.methods.cached import cache_method_stats, has_surface, make_cache
+from renderers.methods.cached import (
+    cache_method_stats,
+    has_surface,
+    make_cache,
+    point_training,
+)
 from renderers.methods.pt import PATH_INTEGRATORS, SPP_CANDIDATES, PTParams, path_integrator
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
 
 #: One output per light up to this many; beyond, clusters (paper Sec. 3.4).
 MAX_LIGHTS = 32
+#: The smallest clamp accepted. The clamp is what keeps these methods unbiased (a
+#: light's weight U * max(V, clamp) never 0 where it can contribute); it must stay a
+#: float32 weight well above underflow for small unshadowed terms U, which a clamp of
+#: 1e-6 does for U down to ~1e-32.
+MIN_CLAMP = 1e-6
 
 
 def one_output_visibility_config(**overrides: Any) -> Any:
@@ -84,7 +98,9 @@ def one_output_visibility_config(**overrides: Any) -> Any:
 class VisibilityCacheParams(MethodParams):
     """The visibility cache's parameters (module docstring), shared by `restir-nvc`."""
 
-    clamp: float = Field(1e-3, ge=0.0, le=1.0, description="floor of the predicted visibility")
+    clamp: float = Field(1e-3, ge=MIN_CLAMP, le=1.0,
+                         description="floor of the predicted visibility; what keeps the "
+                                     "method unbiased, so at least 1e-6")
     world_points: int = Field(4096, ge=0, le=1 << 20,
                               description="training points per frame in the scene's box")
     camera_points: int = Field(4096, ge=0, le=1 << 20,
@@ -161,6 +177,12 @@ def train_frame(scene: Any, cache: Any, params: VisibilityCacheParams, seed: int
         cache.train(records)
 
 
+def training_points(params: Any) -> int:
+    """Training points per frame: world-space and camera points (`nvc-env` trains on
+    camera points only)."""
+    return getattr(params, "world_points", 0) + params.camera_points
+
+
 def pretrain(train_frame: Callable[[Any, Any, Any, int, StageTimer], None], scene: Any,
              cache: Any, params: Any, seed_parts: tuple[Any, ...]) -> float:
     """The one-off training frames before the first frame (``params.pretrain_frames``);
@@ -199,9 +221,13 @@ def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
                 frame_queries.append(list(counts))
             return image
 
-        output = run_frames(render_frame, seed_parts=seed_parts, frames=frames, spp=spp,
+        output = run_frames(WithParts(render_frame, render_only, counted=(cache,)),
+                            seed_parts=seed_parts,
+                            frames=frames, spp=spp,
                             aov_names=tuple(integrator.aov_names()), hooks=hooks)
-        output.method_stats = cache_method_stats(cache, params, pretrain_s, frame_queries)
+        output.method_stats = cache_method_stats(
+            cache, params, pretrain_s, frame_queries,
+            point_training(cache.config, training_points(params)))
         return output
 
     return render
@@ -223,4 +249,4 @@ METHOD = Method("nvc-lights",
                 "(power / distance^2 x cosine bound x max(V, clamp)) at every vertex",
                 NVCLightsParams, render, version=1, integrators=PATH_INTEGRATORS,
                 requires=applies, label="NVC lights", knob=Knob("spp", SPP_CANDIDATES),
-                unbiased=True)
+                unbiased=True, stage_sizes=fixed_stages("training_paths", "training"))

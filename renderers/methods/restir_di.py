@@ -10,7 +10,9 @@ primary hits too). One sample (and one reservoir) per pixel and frame; ``spp``
 renders that many independent reservoir chains per pixel and averages them.
 The estimator (renderers.integrators.restir; docs/estimators.md, "restir-di")
 is unbiased with and without reuse: Talbot MIS over the reused reservoirs with
-visibility-checked targets, not the biased 1/M normalisation.
+visibility-checked targets, not the biased 1/M normalisation; the light that a
+delta lobe (a mirror, smooth plastic's coating) reflects at the first hit, which
+no light sample can carry, comes from one BSDF sample per pixel.
 
 ==================  ========  =====================================================
 parameter           default   meaning
@@ -46,7 +48,7 @@ from pydantic import Field
 from renderers.methods.base import FrameHooks, Knob, Method, MethodParams, RenderOutput, run_frames
 from renderers.methods.pt import SPP_CANDIDATES
 from renderers.seeding import derive_seed
-from renderers.timing import StageTimer
+from renderers.timing import StageTimer, synchronize
 
 #: What runs before a frame's reservoirs (``(index, seed, timer)``; e.g. a cache's training).
 BeforeFrame = Callable[[int, int, StageTimer], None]
@@ -74,27 +76,46 @@ def render(scene: Any, params: ReSTIRDIParams, *, seed_parts: tuple[Any, ...], s
     from renderers.integrators.restir import ReSTIRDI, check_scene
 
     check_scene(scene.scene)
-    output = run_frames(frame_function(ReSTIRDI(scene.scene, params, replicas=spp)),
+    output = run_frames(ReSTIRFrame(ReSTIRDI(scene.scene, params, replicas=spp)),
                         seed_parts=seed_parts, frames=frames, spp=spp, hooks=hooks)
     output.method_stats = {"shadow_rays_per_sample": shadow_rays(params)}
     return output
 
 
-def frame_function(restir: Any, before: BeforeFrame | None = None
-                   ) -> Callable[[int, int, StageTimer], Any]:
-    """``run_frames``' frame of a ``ReSTIRDI`` estimator, after ``before`` (if any)."""
+class ReSTIRFrame:
+    """``run_frames``' frame of a ``ReSTIRDI`` estimator, after ``before`` (if any): the
+    mean over its replicas, on the device. A warm-up frame renders a frame without
+    history and one with; the further warm-up calls of a frozen estimator
+    (:meth:`settle`) skip ``before``, so a cache trains once in the warm-up."""
 
-    def render_frame(index: int, seed: int, timer: StageTimer):
-        if before is not None:
-            before(index, seed, timer)
+    def __init__(self, restir: Any, before: BeforeFrame | None = None,
+                 cache: Any = None) -> None:
+        self.restir, self.before = restir, before
+        # A cache ``before`` trains, whose frozen step settles in the warm-up too.
+        self.cache = cache if cache is not None and cache.recordings() is not None else None
+        if restir.recordings() is not None:
+            self.recordings = lambda: restir.recordings() + (
+                self.cache.recordings() if self.cache is not None else 0)
+
+    def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
+        if self.before is not None:
+            self.before(index, seed, timer)
+        return self.settle(index, seed, timer)
+
+    def settle(self, index: int, seed: int, timer: StageTimer) -> Any:
+        """The frame without ``before`` (and a settling call of the cache's step)."""
+        import drjit as dr
+
+        if self.cache is not None and index < 0:
+            self.cache.settle()
         if index <= 0:
-            restir.reset()
+            self.restir.reset()
         if index < 0:
-            restir.render(derive_seed(seed, "history"))
-        with timer.stage("render"):  # ends with the image on the host: nothing pending
-            return restir.render(seed).mean(axis=0)
-
-    return render_frame
+            self.restir.render(derive_seed(seed, "history"))
+        with timer.stage("render"):
+            image = dr.mean(self.restir.render(seed), axis=0)
+            synchronize(image)
+        return image
 
 
 def shadow_rays(params: ReSTIRDIParams) -> int:
@@ -118,6 +139,6 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = Method("restir-di",
                 "screen-space ReSTIR DI (8 candidates, temporal + spatial reuse, unbiased "
                 "Talbot MIS): direct light at primary hits only (max_depth 2)",
-                ReSTIRDIParams, render, version=1, requires=applies, label="ReSTIR DI",
+                ReSTIRDIParams, render, version=2, requires=applies, label="ReSTIR DI",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
-                correlated_pixels=True)
+                correlated_pixels=True, correlated_frames=True)

@@ -31,16 +31,24 @@ from __future__ import annotations
 
 from typing import Any
 
-from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput, run_frames
-from renderers.methods.cached import cache_method_stats
+from renderers.methods.base import (
+    FrameHooks,
+    Knob,
+    Method,
+    RenderOutput,
+    fixed_stages,
+    run_frames,
+)
+from renderers.methods.cached import cache_method_stats, point_training
 from renderers.methods.nvc_lights import (
     VisibilityCacheParams,
     light_selection,
     pretrain,
     train_frame,
+    training_points,
 )
 from renderers.methods.pt import SPP_CANDIDATES
-from renderers.methods.restir_di import ReSTIRDIParams, frame_function, shadow_rays
+from renderers.methods.restir_di import ReSTIRDIParams, ReSTIRFrame, shadow_rays
 from renderers.methods.restir_di import applies as restir_applies
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
@@ -63,10 +71,12 @@ def render(scene: Any, params: ReSTIRNVCParams, *, seed_parts: tuple[Any, ...], 
     def train(index: int, seed: int, timer: StageTimer) -> None:
         train_frame(scene, cache, params, derive_seed(seed, "train"), timer)
 
-    output = run_frames(frame_function(restir, train), seed_parts=seed_parts, frames=frames,
+    output = run_frames(ReSTIRFrame(restir, train, cache), seed_parts=seed_parts, frames=frames,
                         spp=spp, hooks=hooks)
     output.method_stats = {"shadow_rays_per_sample": shadow_rays(params),
-                           **cache_method_stats(cache, params, pretrain_s, [])}
+                           **cache_method_stats(
+                               cache, params, pretrain_s, [],
+                               point_training(cache.config, training_points(params)))}
     return output
 
 
@@ -80,6 +90,7 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = Method("restir-nvc",
                 "restir-di with initial candidates from a (clustered) neural visibility cache "
                 "(paper Sec. 4.1.1): direct light at primary hits only (max_depth 2)",
-                ReSTIRNVCParams, render, version=1, requires=applies, label="ReSTIR NVC",
+                ReSTIRNVCParams, render, version=2, requires=applies, label="ReSTIR NVC",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
-                correlated_pixels=True)
+                correlated_pixels=True, correlated_frames=True,
+                stage_sizes=fixed_stages("training_paths", "training"))

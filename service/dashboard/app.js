@@ -79,6 +79,7 @@ async function scenePage(scene, runId) {
   v.innerHTML = `<h2>${esc(scene)}</h2><h3>Error vs time (per device; <code>nirc-bench pareto</code> adds speed-ups)</h3><div class="plots" id="pareto"></div>
     <h3>Adaptive equal-bias sweep</h3><div class="plots" id="sweep"></div>
     <h3>Run</h3><p><select id="run"></select></p><p id="verdict"></p>
+    <h3>Time per frame</h3><div id="timing"></div>
     <h3>Convergence over frames</h3><div class="plots" id="convergence"></div>
     <h3>Images (click to crop)</h3><div class="images" id="images"></div>`;
   // Error vs time (nirc-bench pareto's view): times compare only on one device, so one plot per
@@ -121,10 +122,36 @@ async function scenePage(scene, runId) {
   if (runs.length) await runDetail(select.value || runs[0].id);
 }
 
+// The run's median frame by stage: wall, kernel (Dr.Jit's kernel history) and harness
+// (wall - kernel: host work, tracing, launch gaps) milliseconds, launches; the load flag.
+function timingTable(run) {
+  const wall = run.time_breakdown_ms;
+  if (!wall) return "<p class='muted'>No per-stage timing stored with this run.</p>";
+  const kernel = run.kernel_breakdown_ms || {};
+  const stages = (run.timings || {}).stages || {};
+  const load = (run.timings || {}).load;
+  const rows = Object.entries(wall).map(([name, ms]) => {
+    const k = kernel[name];
+    const launches = (stages[name] || {}).launches_median;
+    return `<tr><td class="text">${esc(name)}</td><td>${num(ms)}</td><td>${num(k)}</td>
+      <td>${k === undefined ? "–" : num(ms - k)}</td><td>${k === undefined || ms <= 0 ? "–" : num(100 * (ms - k) / ms, 2)}</td>
+      <td>${launches ?? "–"}</td></tr>`;
+  }).join("");
+  const share = run.harness_share === null || run.harness_share === undefined ? "–" : `${num(100 * run.harness_share, 2)} %`;
+  const quiet = !load ? "not measured" : load.loaded === true ? "LOADED" : load.loaded === false ? "quiet" : "unknown";
+  return `<p>${num(run.seconds_per_frame * 1e3)} ms per frame (the median frame's stages), kernel
+    ${num((run.kernel_seconds_per_frame ?? NaN) * 1e3)} ms, harness share ${share}; machine while timed: <b>${quiet}</b>
+    — ${esc(run.device_key)}</p>
+    <table class="timing"><tr><th class="text">stage</th><th>wall ms</th><th>kernel ms</th><th>harness ms</th>
+    <th>harness %</th><th>launches</th></tr>${rows}</table>
+    ${(run.timing_flags || []).map((f) => `<p class="muted">${esc(f)}</p>`).join("")}`;
+}
+
 async function runDetail(runId) {
   const run = await api(`/runs/${runId}`);
   document.getElementById("verdict").innerHTML = `quality verdict: <b class="verdict-${esc(run.verdict ?? "none")}">${esc(run.verdict ?? "not judged")}</b>`
     + (run.quality.reasons || []).map((r) => `<br><span class="muted">${esc(r.code)}: ${esc(r.message)}</span>`).join("");
+  document.getElementById("timing").innerHTML = timingTable(run);
   const conv = document.getElementById("convergence");
   const seeds = run.per_seed.filter((s) => s.metrics.convergence);
   linePlot(conv, { title: `run ${run.id}: MRSE over frames`, xlabel: "frame", ylabel: "MRSE", logy: true, width: 560,

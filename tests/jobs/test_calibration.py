@@ -11,7 +11,7 @@ import itertools
 
 import pytest
 
-from jobs.protocol.calibration import calibrate, calibrate_job
+from jobs.protocol.calibration import calibrate, calibrate_job, caveats
 from jobs.protocol.spec import RenderSpec, TimeBudget
 from renderers.methods.nirc import with_nc_at_v1
 
@@ -99,6 +99,24 @@ def test_a_spread_across_the_limit_is_flagged_unstable():
     jumpy = Clock({1: 0.010}, budget=[0.020, 0.030, 0.020])
     record = calibrate("nc", [1], jumpy.measure, jumpy.budget, budget_source="test", rounds=3)
     assert record.unstable and any("budget's spread" in r for r in record.reasons)
+    # An unstable calibration says what to do about it, and a report row says it was.
+    assert record.reasons[-1].startswith("what to do:")
+    assert caveats(record.to_json())[-1] == (
+        "calibration unstable: the machine's timing noise could change the choice")
+
+
+def test_a_loaded_or_capped_calibration_says_so():
+    clock = Clock({1: 0.010, 2: 0.012}, budget=0.020)
+    record = calibrate("nc", [1, 2], clock.measure, 0.020, budget_source="test")
+    record.note_load({"loaded": True, "reasons": ["tasks waited for a core 40 % of the time"]})
+    assert record.loaded and record.capped and not record.unstable
+    assert "loaded: tasks waited for a core 40 % of the time" in record.reasons
+    assert any(r.startswith("what to do:") for r in record.reasons)
+    assert [c.split(":")[0] for c in caveats(record.to_json())] == [
+        "calibration capped", "machine loaded during the calibration"]
+    quiet = calibrate("nc", [1, 2], clock.measure, 0.020, budget_source="test")
+    quiet.note_load({"loaded": False, "reasons": []})
+    assert quiet.loaded is False and not any("what to do" in r for r in quiet.reasons)
 
 
 def test_adaptive_nc_keeps_its_later_vertex_count():

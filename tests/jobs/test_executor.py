@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from jobs.protocol.executor import execute
+from jobs.protocol.executor import execute, per_cache_metrics
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from metrics.statistics import RunningMoments
 from renderers import methods
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=3,
@@ -45,6 +47,16 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
     assert run.device_key == summary.device["device_key"]
     assert run.git_commit and run.versions["mitsuba"]
     assert "sync" in run.timings["protocol"] and run.timings["warmup_s"] > 0
+    # One statistic over the 3 x 2 timed frames: the median frame's stages are the frame
+    # time, and no stage's median exceeds it.
+    timings = run.timings
+    assert timings["frames"] == 6
+    stages = {k: v for k, v in timings["breakdown"]["parts_s"].items() if k != "other"}
+    assert sum(stages.values()) == pytest.approx(timings["seconds_per_frame"])
+    assert run.metrics["seconds_per_frame"] == timings["seconds_per_frame"]
+    assert all(s["median_s"] <= timings["seconds_per_frame"] for s in timings["stages"].values())
+    assert 0 < timings["device_time"]["kernel_median_s"] <= timings["device_time"]["wall_median_s"]
+    assert timings["load"]["loaded"] in (True, False)
     assert run.quality["verdict"] == "ok" and run.quality["finite"] is True
     assert run.quality["nonfinite_pixels"] == 0
     kinds = sorted(a.kind for a in run.artifacts)
@@ -53,19 +65,45 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
         assert (settings.artifacts_dir / artifact.path).is_file()
 
 
-def test_a_cached_run_stores_its_time_breakdown_and_training_budget(env):
+def test_a_cached_run_stores_its_time_breakdown_and_resolved_cache(env):
     settings, store = env
     spec = SPEC.model_copy(update={"method": "nirc", "seeds": 1,
                                    "params": {"cache": {"batch_size": 256}}})
-    run = store.get_run(execute(spec, store, settings).run_id)
+    summary = execute(spec, store, settings)
+    run = store.get_run(summary.run_id)
     parts = run.timings["breakdown"]["parts_s"]
     assert {"render", "training_paths", "training", "other"} <= set(parts)
     assert all(seconds >= 0 for seconds in parts.values())
     assert run.timings["breakdown"]["inference_in_render"] == ("inference" not in parts)
     assert run.seed_results[0].timings["breakdown"] == run.timings["breakdown"]
-    # 8x8 pixels: the 4096-record floor, capped by the 256-record batch.
-    budget = run.seed_results[0].metrics["method_stats"]["training_budget"]
+    # The resolved configuration, not the overrides (the run's params say cache:
+    # {batch_size: 256}): the preset's network with the override, and per frame the
+    # 8x8 image's 4096-record floor, capped by the 256-record batch.
+    assert run.params["cache"] == {"batch_size": 256}
+    resolved = summary.result.model_dump(mode="json")["caches"]["cache"]
+    assert resolved["config"]["batch_size"] == 256
+    assert (resolved["config"]["mlp"]["width"], resolved["config"]["mlp"]["hidden_layers"],
+            resolved["config"]["direction"]["sh_bands"]) == (64, 4, 5)
+    assert resolved["config"]["optimizer"]["lr"] == 0.01
+    budget = resolved["per_frame"]
     assert (budget["mode"], budget["steps"], budget["batch_size"]) == ("scaled", 4, 256)
+    assert budget["records"] == 1024 and budget["paths"] >= 4096
+
+
+def test_a_barely_trained_cache_is_not_ok(env):
+    """4 steps a frame over the warm-up and 2 frames is 12 steps, below the 100 that
+    nirc's weight EMA (0.99) needs; pre-trained for 22 frames the cache takes 100."""
+    settings, store = env
+    spec = SPEC.model_copy(update={"method": "nirc", "seeds": 1,
+                                   "params": {"cache": {"batch_size": 64}}})
+    short = execute(spec, store, settings).quality
+    assert short["verdict"] == "undertrained-cache" and short["withheld"] == []
+    assert "steps (12) than their configuration needs to count as trained (100)" in \
+        short["reasons"][0]["message"]
+    trained = execute(spec.model_copy(update={"params": {"cache": {"batch_size": 64},
+                                                         "pretrain_frames": 22}}),
+                      store, settings).quality
+    assert trained["verdict"] == "ok", trained
 
 
 def test_the_reference_is_rendered_once_and_reused(env):
@@ -235,3 +273,55 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     console.print(sweep_table(result))
     text = console.export_text()
     assert all(metric.label in text for metric in LISTED) and "PSNR" in text
+
+
+def _ar1_seeds(phi: float, truth: np.ndarray, sigma: float, frames: int, seeds: int,
+               seed: int) -> list[RunningMoments]:
+    """Each seed's frame moments of unbiased frames X_f = T (1 + sigma e_f), e_f a
+    stationary AR(1) sequence with coefficient ``phi`` (unit variance) per pixel."""
+    rng = np.random.default_rng(seed)
+    result = []
+    for _ in range(seeds):
+        moments, e = RunningMoments(), rng.standard_normal(truth.shape)
+        for _ in range(frames):
+            moments.add(truth * (1.0 + sigma * e))
+            e = phi * e + np.sqrt(1.0 - phi * phi) * rng.standard_normal(truth.shape)
+        result.append(moments)
+    return result
+
+
+def test_per_cache_statistics_are_left_out_for_correlated_frames():
+    """Unbiased frames: independent ones give per-cache rBias^2 ~ 0; AR(1) frames with
+    phi 0.9 (what temporal reuse makes) give the variance the frames' spread misses as
+    'bias', so a method that declares correlated frames gets none, with the reason."""
+    truth = np.random.default_rng(1).uniform(0.2, 2.0, (24, 24, 3))
+    reference = SimpleNamespace(mean=truth, variance=np.zeros_like(truth))
+    sigma, frames, eps = 0.3, 32, 0.01
+    independent = per_cache_metrics(_ar1_seeds(0.0, truth, sigma, frames, 8, 2), reference,
+                                    eps)["rbias2_per_cache_mean"]
+    correlated = per_cache_metrics(_ar1_seeds(0.9, truth, sigma, frames, 8, 3), reference,
+                                   eps)["rbias2_per_cache_mean"]
+    # E[(M - T)^2] = s2 c / F and E[S^2] = s2 (F - c) / (F - 1), c = 1 + 2 sum (1 - k/F) phi^k.
+    lags = np.arange(1, frames)
+    c = 1 + 2 * np.sum((1 - lags / frames) * 0.9**lags)
+    weight = np.mean((sigma * truth) ** 2 / (truth**2 + eps))
+    expected = weight * (c / frames - (frames - c) / (frames * (frames - 1)))
+    print(f"per-cache rBias^2: independent {independent:.2e}, AR(1) {correlated:.4f}, "
+          f"expected {expected:.4f}")
+    assert abs(independent) < 0.05 * expected
+    assert correlated == pytest.approx(expected, rel=0.25)
+    left_out = per_cache_metrics(_ar1_seeds(0.9, truth, sigma, frames, 2, 4), reference, eps,
+                                 correlated_frames=True)
+    assert left_out["rbias2_per_cache_mean"] is None and left_out["rvar_per_cache"] is None
+    assert "frames share samples" in left_out["per_cache_unavailable"]
+
+
+def test_a_method_with_temporal_reuse_reports_no_per_cache_statistics(env):
+    settings, store = env
+    assert {n for n, m in methods.METHODS.items() if m.correlated_frames} == {
+        "restir-di", "restir-nvc"}
+    summary = execute(SPEC.model_copy(update={"scene": "cornell-box", "method": "restir-di",
+                                              "seeds": 2}), store, settings)
+    assert summary.metrics["rbias2_per_cache_mean"] is None
+    assert "temporal reuse" in summary.metrics["per_cache_unavailable"]
+    assert summary.metrics["rbias2"] is not None

@@ -15,7 +15,9 @@ from jobs.protocol.pareto import (
     PARETO_METRICS,
     ParetoPoint,
     ParetoSpec,
+    Timing,
     _evaluate,
+    baseline_flags,
     interleave,
     plan,
     point_key,
@@ -133,6 +135,24 @@ def test_fronts_and_speed_ups_of_measured_points():
     assert all(p.speedup_mrse is None for p in points[:4])
     # The JSON shape is the model's: a dump validates back to the same point.
     assert [ParetoPoint.model_validate(p.model_dump(mode="json")) for p in points] == points
+
+
+def test_a_baseline_whose_time_does_not_grow_with_spp_is_flagged():
+    def pt(spp: int, seconds: float) -> ParetoPoint:
+        return _point("PT", seconds, 0.1, 0.1, baseline=True).model_copy(update={"spp": spp})
+
+    assert baseline_flags([pt(1, 0.01), pt(2, 0.02), pt(4, 0.04)]) == []
+    flags = baseline_flags([pt(1, 0.01), pt(4, 0.018), pt(2, 0.02)])
+    assert len(flags) == 1 and "2 spp 20 ms/frame >= 4 spp 18 ms/frame" in flags[0]
+
+
+def test_timing_samples_that_spread_or_ran_loaded_are_flagged():
+    assert Timing([1.0, 1.05, 0.98]).flags() == []
+    assert "spread 20 %" in Timing([1.0, 1.2, 1.0]).flags()[0]
+    # A run's own frames are not interleaved probes: their spread is not judged.
+    assert Timing([1.0, 1.2, 1.0], interleaved=False).flags() == []
+    loaded = {"loaded": True, "reasons": ["other work held the CPU"]}
+    assert "loaded" in Timing([1.0, 1.0], [None, loaded]).flags()[0]
 
 
 def test_the_plot_draws_every_metric(tmp_path):

@@ -109,7 +109,9 @@ def test_sweep_skips_missing_and_non_positive_values(tmp_path: Path, figures: li
     assert len(mrse.collections) == 0  # no valid CI left to draw
     assert [list(line.get_xdata()) for line in flip.get_lines()] == [[0.0, 50.0, 75.0]]
     assert [list(line.get_ydata()) for line in rbias2.get_lines()] == [[2e-4]]
-    assert [text.get_text() for text in rbias2.texts] == ["3 points <= 0 not shown"]
+    # -1e-4, 0 and -1 are off the log axis; inf and the row without an x are not finite.
+    assert [text.get_text() for text in rbias2.texts] == [
+        "3 points <= 0 not shown\n2 points missing or not finite, not shown"]
     assert [list(line.get_xdata()) for line in rvar.get_lines()] == [[0.0, 25.0, 75.0]]
     assert [label.get_text() for label in figures[0].legends[0].get_texts()] == ["NIRC"]
 
@@ -121,7 +123,8 @@ def test_sweep_single_point_and_unplottable_series(tmp_path: Path, figures: list
     ]
     assert_png(plot_sweep(rows, tmp_path / "sweep.png", "one point"))
     rbias2 = figures[0].axes[2]
-    assert rbias2.texts[0].get_text() == "no data\n1 point <= 0 not shown"
+    assert rbias2.texts[0].get_text() == ("no data\n1 point <= 0 not shown\n"
+                                          "1 point missing or not finite, not shown")
 
 
 def test_sweep_without_rows(tmp_path: Path, figures: list[Figure]) -> None:
@@ -176,7 +179,8 @@ def test_convergence_skips_bad_values(tmp_path: Path, figures: list[Figure]) -> 
         "a (accumulated)": [2.0, 3.0],
         "single (per frame)": [0.0],
     }
-    assert [text.get_text() for text in ax.texts] == ["2 points <= 0 not shown"]
+    assert [text.get_text() for text in ax.texts] == [
+        "2 points <= 0 not shown\n3 points missing or not finite, not shown"]
 
 
 def test_convergence_without_curves(tmp_path: Path, figures: list[Figure]) -> None:

@@ -1,4 +1,4 @@
-"""No silent successes: each degenerate case of issue 11 (point 9), rendered end to end
+"""No silent successes: each degenerate case, rendered end to end
 through the executor on a tiny XML scene, is stored with a named verdict and its
 meaningless metrics withheld (None), or refused at load with a SceneError naming the
 shape; one case each through the CLI (--json) and the REST API. Also the inf finding of

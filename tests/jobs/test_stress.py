@@ -178,11 +178,44 @@ def _nan_pixel(image: np.ndarray) -> np.ndarray:
     return image
 
 
+def _nan_loss() -> Method:
+    """pt reporting a cache whose loss curve holds a NaN (a step taken on a NaN loss); it
+    declares no unbiasedness, so only its counts are judged."""
+    base = METHODS["pt"]
+
+    def render(*args, **kwargs):
+        output = base.render(*args, **kwargs)
+        output.method_stats = {"loss_history": [0.5, float("nan"), 0.4],
+                               "cache_stats": {"steps": 3, "skipped_steps": 0}}
+        return output
+
+    return dataclasses.replace(base, name="pt-nan-loss", render=render, comparison=(),
+                               unbiased=None)
+
+
+def _nan_frame() -> Method:
+    """pt whose first frame reaches the error-over-frames tracker with a NaN pixel (the
+    frame's MRSE is then missing from the curve the convergence plot draws)."""
+    base = METHODS["pt"]
+
+    def render(*args, hooks, **kwargs):
+        def on_frame(index, frame, accumulated):
+            if index == 0:
+                frame, accumulated = _nan_pixel(frame.copy()), _nan_pixel(accumulated.copy())
+            hooks.on_frame(index, frame, accumulated)
+
+        return base.render(*args, hooks=dataclasses.replace(hooks, on_frame=on_frame),
+                           **kwargs)
+
+    return dataclasses.replace(base, name="pt-nan-frame", render=render, comparison=())
+
+
 @pytest.fixture(scope="module")
 def planted_report(embedded):
-    """The near-black case with only pt and the two planted methods registered."""
+    """The near-black case with only pt and the planted methods registered."""
     registry = {"pt": METHODS["pt"], "pt-nan": _planted("pt-nan", _nan_pixel),
-                "pt-biased": _planted("pt-biased", lambda image: image * np.float32(1.1))}
+                "pt-biased": _planted("pt-biased", lambda image: image * np.float32(1.1)),
+                "pt-nan-loss": _nan_loss(), "pt-nan-frame": _nan_frame()}
     with pytest.MonkeyPatch.context() as patch:
         for name, method in registry.items():
             patch.setitem(METHODS, name, method)
@@ -198,6 +231,22 @@ def test_a_planted_nan_pixel_is_counted_and_kept_out_of_the_metrics(planted_repo
     assert nan.verdict == "nonfinite" and nan.nonfinite_metrics == 0
     assert nan.agreement == "DIFFERS"
     assert rows["pt"].agreement == "agrees"
+
+
+def test_a_planted_nan_loss_is_counted_and_a_problem(planted_report):
+    """The executor stores it as null and names it; the suite counts it either way."""
+    row = _rows(planted_report, "near-black")["pt-nan-loss"]
+    assert row.nonfinite_losses == 8 and row.nonfinite_metrics == 0   # one per seed
+    assert row.verdict == "nonfinite-value"
+    assert any("pt-nan-loss: 8 non-finite training losses" in p
+               for p in planted_report.problems())
+
+
+def test_points_the_convergence_plot_drops_are_counted(planted_report):
+    rows = _rows(planted_report, "near-black")
+    # Frame 0's MRSE and the running mean's, in each of the 8 seeds.
+    assert rows["pt-nan-frame"].dropped_plot_points == 16
+    assert rows["pt"].dropped_plot_points == 0 and rows["pt-nan-frame"].nonfinite_metrics == 0
 
 
 def test_a_planted_bias_is_caught_by_the_agreement_test(planted_report):
@@ -252,6 +301,37 @@ def test_the_command_prints_the_table_and_json(tmp_path, monkeypatch):
     assert data["problems"] == [] and {r["status"] for r in data["rows"]} == {"refused"}
     result = runner.invoke(app, ["stress", "--case", "nope"])
     assert result.exit_code != 0
+
+
+def test_a_nan_metric_or_a_nan_loss_makes_the_command_fail(tmp_path, monkeypatch):
+    """A metric that comes out NaN used to be counted after the JSON conversion had made
+    it null, and a NaN loss was counted but not a problem: both exited 0."""
+    from jobs.protocol import executor
+    from service.cli import app
+
+    monkeypatch.setenv("NIRC_BENCH_DATA_DIR", str(tmp_path / "data"))
+    args = ["stress", "--case", "near-black", "--res", "8", "--spp", "2", "--frames", "1",
+            "--seeds", "2", "--reference-spp", "64", "--json"]
+    per_seed_values = executor.per_seed_values
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(stress, "METHODS", {"pt": METHODS["pt"]})
+        patch.setattr(executor, "per_seed_values",
+                      lambda image, reference: {**per_seed_values(image, reference),
+                                                "psnr": float("nan")})
+        result = CliRunner().invoke(app, args)
+    assert result.exit_code == 1, result.output
+    row = json.loads(result.output)["rows"][0]
+    # Each seed's PSNR and their mean.
+    assert row["nonfinite_metrics"] == 3 and row["verdict"] == "nonfinite-value"
+
+    with pytest.MonkeyPatch.context() as patch:
+        registry = {"pt": METHODS["pt"], "pt-nan-loss": _nan_loss()}
+        patch.setitem(METHODS, "pt-nan-loss", registry["pt-nan-loss"])
+        patch.setattr(stress, "METHODS", registry)
+        result = CliRunner().invoke(app, args)
+    assert result.exit_code == 1, result.output
+    assert json.loads(result.output)["problems"] == [
+        "near-black / pt-nan-loss: 2 non-finite training losses"]
 
 
 def test_over_rest_scenes_are_uploaded_and_agreement_is_against_the_baseline(tmp_path):

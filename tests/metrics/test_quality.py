@@ -60,6 +60,16 @@ def test_negative_radiance_withholds_flip_and_untrained_cache_nothing() -> None:
     assert "2 of 2 caches" in untrained.reasons[0].message
 
 
+def test_a_cache_below_its_minimum_steps_is_undertrained_and_withholds_nothing() -> None:
+    short = assess(facts(cache_steps=(12, 150), cache_min_steps=(100, 100)))
+    assert short.verdict == "undertrained-cache" and short.withheld == ()
+    assert "1 of 2 caches took fewer successful training steps (12)" in short.reasons[0].message
+    assert assess(facts(cache_steps=(100, 150), cache_min_steps=(100, 100))).verdict == "ok"
+    # A cache with no step at all is untrained, and only that.
+    none = assess(facts(cache_steps=(0, 150), cache_min_steps=(100, 100)))
+    assert [r.code for r in none.reasons] == ["untrained-cache"]
+
+
 def test_every_code_has_a_distinct_severity() -> None:
     assert len({v.severity for v in VERDICTS.values()}) == len(VERDICTS)
 

@@ -1,5 +1,5 @@
 """Helpers of the light-selection and environment-light tests (test_light_sampling.py,
-test_nvc_lights.py, test_nvc_env.py, test_nirc_nvc_env.py)."""
+test_nvc_lights.py, test_nvc_clusters.py, test_nvc_env.py, test_nirc_nvc_env.py)."""
 
 from __future__ import annotations
 
@@ -23,6 +23,22 @@ def pt_integrator(mi: Any, sampler_type: Any = None, max_depth: int = 4) -> Any:
     if sampler_type is not None:
         integrator.light_sampler_type = sampler_type
     return integrator
+
+
+def trained_nvc_lights(scene: Any, frames: int, seed: int = 0, **params: Any) -> tuple[Any, Any]:
+    """(integrator, cache) of nvc-lights after ``frames`` frames of online training; a
+    ``clamp`` below the accepted minimum (a planted defect) is set past validation."""
+    from renderers.methods.nvc_lights import NVCLightsParams, build, train_frame
+    from renderers.timing import StageTimer
+
+    clamp = params.pop("clamp", None)
+    parsed = NVCLightsParams(**params)
+    if clamp is not None:
+        parsed = parsed.model_copy(update={"clamp": clamp})
+    integrator, cache = build(scene, parsed, seed)
+    for frame in range(frames):
+        train_frame(scene, cache, parsed, 100 * seed + frame, StageTimer())
+    return integrator, cache
 
 
 def luminance_moments(moments: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

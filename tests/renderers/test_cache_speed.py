@@ -145,25 +145,30 @@ def test_fixed_point_grid_gradient_is_finite_everywhere_or_nowhere(poison):
     assert lookup is None
 
 
-def test_a_step_with_a_non_finite_grid_gradient_is_skipped(monkeypatch):
-    """The guard sees a NaN table gradient through the lookup's flag alone."""
+@pytest.mark.parametrize("frozen", [False, True])
+def test_a_step_with_a_non_finite_grid_gradient_is_skipped(monkeypatch, frozen):
+    """The guard sees a NaN table gradient through the lookup's flag alone. A frozen step
+    replays the backward it recorded, so there the poison is planted before the step
+    is first recorded (every step skipped); traced, after a first good step."""
     import numpy as np
 
     import renderers.caches.grid_grad as grid_grad
+    from renderers.frozen import frozen_frames
 
-    cache = caches.NeuralCache(small_config(), [0, 0, 0], [1, 1, 1], seed=1)
-    rec = synthetic_records(2048, seed=3)
-    cache.train(rec, steps=1)
-    before = cache.parameters()
     backward = grid_grad.DeterministicGridLookup.backward
 
     def poisoned(self):
         backward(self)
         self.handle.finite = mi.Bool(False)
 
+    rec = synthetic_records(2048, seed=3)
+    with frozen_frames(frozen):
+        cache = caches.NeuralCache(small_config(), [0, 0, 0], [1, 1, 1], seed=1)
+    taken = 0 if frozen else len(cache.train(rec, steps=1))
+    before = cache.parameters()
     monkeypatch.setattr(grid_grad.DeterministicGridLookup, "backward", poisoned)
     assert cache.train(rec, steps=2) == []
-    assert cache.stats["skipped_steps"] == 2
+    assert cache.stats["skipped_steps"] == 2 and cache.stats["steps"] == taken
     after = cache.parameters()
     for key, value in before.items():
         np.testing.assert_array_equal(value, after[key])

@@ -91,8 +91,12 @@ def test_presets_have_the_documented_shape():
     vis = caches.visibility_config(8)
     assert vis.output.n_outputs == 8 and vis.output.activation == "sigmoid"
     assert vis.loss.kind == "l2" and vis.direction.kind == "none"
-    assert vis.optimizer.learning_rate(0) == 0.05
-    assert vis.optimizer.learning_rate(200) == pytest.approx(1e-3)
+    import mitsuba as mi
+
+    assert vis.optimizer.learning_rate_at(mi.UInt32(0))[0] == pytest.approx(0.05)
+    assert vis.optimizer.learning_rate_at(mi.UInt32(100))[0] == pytest.approx(0.0255, rel=1e-5)
+    assert vis.optimizer.learning_rate_at(mi.UInt32(200))[0] == pytest.approx(1e-3, rel=1e-5)
+    assert vis.optimizer.learning_rate_at(mi.UInt32(500))[0] == pytest.approx(1e-3, rel=1e-5)
 
 
 def test_config_overrides_deep_merge_and_round_trip_json():

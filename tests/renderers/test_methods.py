@@ -7,7 +7,6 @@ import pytest
 
 from renderers.methods import MethodError, get_method, parse_params
 from renderers.methods.base import FrameHooks
-from renderers.timing import summarize
 
 
 @pytest.fixture(scope="module")
@@ -65,28 +64,3 @@ def test_invalid_parameters_name_the_field(params, field):
 def test_unknown_method_lists_the_known_ones():
     with pytest.raises(MethodError, match="pt"):
         get_method("nope")
-
-
-def test_timing_summary_excludes_the_warmup():
-    frames = [{"render": 0.010}, {"render": 0.012}, {"render": 0.011}]
-    summary = summarize(frames, warmup_s=2.5, whole_s=[0.011, 0.013, 0.012])
-    assert summary["frame_median_s"] == pytest.approx(0.011)
-    assert summary["frame_mean_s"] == pytest.approx(0.011)
-    assert summary["warmup_s"] == 2.5
-    assert summary["compile_s_estimate"] == pytest.approx(2.5 - 0.011)
-    assert "sync" in summary["protocol"]
-
-
-def test_a_nested_stage_is_not_counted_in_the_outer_one(mi):
-    """The deferred cache inference runs inside mi.render: 'render' excludes it."""
-    import time
-
-    from renderers.timing import StageTimer
-
-    timer = StageTimer()
-    with timer.stage("render"):
-        time.sleep(0.02)
-        with timer.stage("inference"):
-            time.sleep(0.05)
-    assert timer.seconds["inference"] >= 0.05
-    assert 0.02 <= timer.seconds["render"] < 0.05

@@ -140,3 +140,22 @@ def test_with_another_emitter_only_the_env_nee_is_replaced(mi, core_env_nee):
 def test_leaving_the_env_nee_out_is_rejected(mi, sky, reference):
     integrator = _integrator(sky, _oracles(sky, env_zero=True), **BIASED)
     assert not _agreement(sky, integrator, reference).passed
+
+
+def test_a_run_stores_both_caches_resolved_configuration(mi, sky):
+    """Through the method's frame loop: each cache under the parameter that overrides it,
+    with its whole network and its training per frame."""
+    from renderers.methods import METHODS, parse_params
+
+    params = parse_params("nirc-nvc-env", {"env_camera_points": 256,
+                                           "cache": {"batch_size": 256},
+                                           "env_cache": {"batch_size": 256}})
+    output = METHODS["nirc-nvc-env"].render(sky, params, seed_parts=("caches",), spp=1,
+                                            frames=1)
+    caches = output.method_stats["caches"]
+    assert set(caches) == {"cache", "env_cache"}
+    assert caches["cache"]["config"]["mlp"]["hidden_layers"] == 4
+    assert caches["cache"]["per_frame"]["steps"] == 4
+    assert caches["env_cache"]["config"]["output"]["activation"] == "sigmoid"
+    assert caches["env_cache"]["per_frame"] == {"points": 256, "steps": 1, "batch_size": 256,
+                                                "records": 256}

@@ -36,7 +36,7 @@ import pytest
 
 from metrics.statistics import agreement_test, z_test
 from renderers.moments import render_moments
-from tests.renderers.lighting import RES, SPP, luminance_moments
+from tests.renderers.lighting import RES, SPP, luminance_moments, trained_nvc_lights
 from tests.renderers.scene_xml import perspective_sensor
 from tests.renderers.test_nvc_lights import SHADOWED_FLOOR, _blind_to_light, _reference
 from tests.renderers.test_restir import _moments, _params
@@ -63,15 +63,7 @@ def lights_300(mi):
 
 
 def _trained(scene, frames=TRAIN_FRAMES, seed=0, **params):
-    """(integrator, cache) of nvc-lights after ``frames`` frames of online training."""
-    from renderers.methods.nvc_lights import NVCLightsParams, build, train_frame
-    from renderers.timing import StageTimer
-
-    parsed = NVCLightsParams(**{**TRAIN_POINTS, **params})
-    integrator, cache = build(scene, parsed, seed)
-    for frame in range(frames):
-        train_frame(scene, cache, parsed, 100 * seed + frame, StageTimer())
-    return integrator, cache
+    return trained_nvc_lights(scene, frames, seed, **{**TRAIN_POINTS, **params})
 
 
 def _without_uniform_pick(sampler_type):
@@ -416,3 +408,8 @@ def test_restir_nvc_renders_through_its_frame_loop(mi):
     stats = output.method_stats
     assert stats["shadow_rays_per_sample"] == 1 + 2 + 2 and stats["pretrain_frames"] == 1
     assert len(stats["loss_history"]) == 1 + 1 + 2  # pre-training, warm-up, 2 frames
+    # Its resolved cache: one output per light of 32, trained on 512 points a frame.
+    cache = stats["caches"]["cache"]
+    assert cache["config"]["output"]["n_outputs"] == 32
+    assert cache["per_frame"] == {"points": 512, "steps": 1, "batch_size": 8192,
+                                  "records": 8192}

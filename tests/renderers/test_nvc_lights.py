@@ -24,7 +24,14 @@ import pytest
 
 from metrics.statistics import agreement_test
 from renderers.moments import render_moments
-from tests.renderers.lighting import ENV_AND_SPHERE, RES, SPP, luminance_moments, random_points
+from tests.renderers.lighting import (
+    ENV_AND_SPHERE,
+    RES,
+    SPP,
+    luminance_moments,
+    random_points,
+    trained_nvc_lights,
+)
 from tests.renderers.scene_xml import perspective_sensor
 
 TRAIN_FRAMES = 8
@@ -38,15 +45,7 @@ def many_lights(mi):
 
 
 def _trained(scene, frames=TRAIN_FRAMES, seed=0, **params):
-    """(integrator, cache) of nvc-lights after ``frames`` frames of online training."""
-    from renderers.methods.nvc_lights import NVCLightsParams, build, train_frame
-    from renderers.timing import StageTimer
-
-    parsed = NVCLightsParams(**params)
-    integrator, cache = build(scene, parsed, seed)
-    for frame in range(frames):
-        train_frame(scene, cache, parsed, 100 * seed + frame, StageTimer())
-    return integrator, cache
+    return trained_nvc_lights(scene, frames, seed, **params)
 
 
 # ---------------------------------------------------------------------------
@@ -66,6 +65,21 @@ def test_registered_with_pt_parameters_and_the_papers_defaults():
     with pytest.raises(MethodError, match="clamp"):
         parse_params("nvc-lights", {"clamp": -1})
     assert METHODS["nvc-lights"].version == 1
+
+
+@pytest.mark.parametrize("method", ["nvc-lights", "restir-nvc"])
+def test_a_clamp_that_lets_a_light_go_unselectable_is_refused(method):
+    """These methods declare themselves unbiased because of the clamp: a clamp of 0 (or
+    one that underflows) would let a light the cache calls occluded get pmf 0, the
+    biased case planted in the tests below, so it is refused when parsed."""
+    from renderers.methods import METHODS, MethodError, parse_params
+
+    assert METHODS[method].unbiased is True
+    for bad in (0.0, 1e-7):
+        with pytest.raises(MethodError, match="clamp: Input should be greater than or equal "
+                                              "to 0.000001"):
+            parse_params(method, {"clamp": bad})
+    assert parse_params(method, {"clamp": 1e-6}).clamp == 1e-6
 
 
 @pytest.mark.parametrize(("emitters", "shapes", "reason"), [

@@ -59,7 +59,7 @@ def reference(mi, many_lights):
 def _moments(restir, frames: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, variance of the mean, per-replica luminance images) of the last of ``frames``."""
     for frame in range(frames):
-        image = restir.render(seed * 1000 + frame)
+        image = np.asarray(restir.render(seed * 1000 + frame))
     y = image[..., :3] @ LUMINANCE
     mean = y.mean(axis=0)
     variance = y.var(axis=0, ddof=1) / len(y) + (FLOAT32_REL_PRECISION * mean) ** 2
@@ -183,7 +183,8 @@ def _floor_view(mi, resolution: int):
 def _frame_errors(scene, reference: np.ndarray, frames: int, **params) -> list[float]:
     """MRSE of each of ``frames`` frames, the mean over 4 independent chains."""
     restir = _restir(scene, replicas=4, **params)
-    return [float(np.mean([mrse(image[..., :3], reference) for image in restir.render(100 + f)]))
+    return [float(np.mean([mrse(image[..., :3], reference)
+                           for image in np.asarray(restir.render(100 + f))]))
             for f in range(frames)]
 
 

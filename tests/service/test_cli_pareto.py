@@ -67,11 +67,34 @@ def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
     (("--knob-values", "nirc=0,2"), ">= 1"),
     (("--knob-values", "nirc=300"), "nc"),
     (("--seeds", "1"), "seeds"),
+    (("--project-res", "1920"), "WIDTHxHEIGHT"),
+    (("--project-res", "0x1080"), "1..16384"),
+    (("--project-res", "64x64", "--cost-res", "8"), "at least two --cost-res"),
 ])
 def test_bad_pareto_arguments_are_clear_errors(tmp_path, args, fragment):
     proc = run_cli("pareto", "--scene", "cornell-box", *args, data_dir=tmp_path)
     assert_clean_error(proc, fragment)
     assert proc.returncode == 2
+
+
+def test_pareto_projects_each_point_from_its_cost_model(tmp_path):
+    args = (*SMALL, "--res", "8", "--methods", "pt", "--pt-spp", "1,2",
+            "--project-res", "64x48", "--cost-res", "8,16")
+    proc = run_cli(*args, "--json", data_dir=tmp_path / "data")
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert result["timing"]["cost_resolutions"] == [8, 16]
+    for point in result["points"]:
+        projection = point["projection"]
+        assert (projection["width"], projection["height"]) == (64, 48)
+        assert projection["label"].startswith("projection to 64x48 from ")
+        stages = {s["stage"]: s for s in projection["stages"]}
+        assert stages["render"]["size"] == 64 * 48 * point["spp"]
+        lo, hi = projection["frame_ci"]
+        assert lo <= projection["frame_s"] <= hi
+        assert isinstance(point["probe_flags"], list)
+    table = run_cli(*args, data_dir=tmp_path / "data").stdout
+    assert "ms/frame at 64x48 (projected)" in table and "not a measurement" in table
 
 
 def test_knob_values_name_one_method_or_every_method_with_a_knob():

@@ -73,6 +73,14 @@ def test_scene_page_draws_plots_and_images(chromium, site):
     wait_until(page,
         "[...document.querySelectorAll('#images img')].every(i => i.complete && i.naturalWidth > 0)")
     assert page.locator("#images img").count() == 3      # reference, method, error map
+    # The run's median frame by stage: wall, kernel and harness milliseconds.
+    page.wait_for_selector("table.timing td")
+    timing = page.locator("table.timing")
+    assert timing.locator("th").all_inner_texts() == ["stage", "wall ms", "kernel ms",
+                                                      "harness ms", "harness %", "launches"]
+    stages = timing.locator("tr td.text").all_inner_texts()
+    assert stages[0] == "render" and stages[-1] == "other"
+    assert "harness share" in page.inner_text("#timing")
     page.locator(".crop").first.click()                 # crop: all images zoom together
     assert "scale(4)" in page.locator("#images img").first.get_attribute("style")
     page.screenshot(path=str(ARTIFACTS / "dashboard-scene.png"), full_page=True)

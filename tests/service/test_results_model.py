@@ -53,6 +53,28 @@ def test_every_view_of_a_run_is_the_one_result_model(mi, data_dir):
     assert row.render_seconds_per_frame is not None and row.seconds_per_frame is not None
     # The Table-1 breakdown reaches the run table and the report's breakdown table.
     assert set(row.time_breakdown_ms) == {"render", "other"}
-    assert "ms per part (Table 1)" in _text(metrics_table(summary.result))
+    assert "the median frame by stage" in _text(metrics_table(summary.result))
     report_text = _text(breakdown_table("parts", [report_row]))
     assert "render" in report_text and "other" in report_text and "PT" in report_text
+
+
+def test_a_runs_resolved_cache_configuration_is_served(api_and_store):
+    """What a run's ``caches`` shows: the stored resolved configuration of its seeds
+    (method_stats['caches']), or for a run stored before it the config and training
+    budget it kept apart; nothing for a method without a cache."""
+    from tests.jobs.factories import run_fields
+
+    http, store = api_and_store
+    resolved = {"cache": {"config": {"mlp": {"width": 64, "hidden_layers": 4}},
+                          "per_frame": {"steps": 4, "batch_size": 1024, "records": 4096}}}
+    stored = [
+        {"method_stats": {"caches": resolved}},
+        {"method_stats": {"cache_config": resolved["cache"]["config"],
+                          "training_budget": resolved["cache"]["per_frame"]}},
+        {"method_stats": {}},
+    ]
+    for method_stats, expected in zip(stored, (resolved, resolved, {}), strict=True):
+        run = store.add_run(run_fields(method="nirc", params={"cache": {}}),
+                            [{"seed": 0, "metrics": method_stats, "timings": {}}])
+        served = http.get(f"/api/v1/runs/{run.id}").json()
+        assert served["caches"] == expected and served["params"] == {"cache": {}}

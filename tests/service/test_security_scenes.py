@@ -1,4 +1,4 @@
-"""Scene paths over REST must not expose the server's files (issue 11, point 1).
+"""Scene paths over REST must not expose the server's files.
 
 Each attack is replayed against the in-process app and against a real `nirc-bench
 serve` on loopback (one start for the module, scene roots and size limits from its

@@ -1,0 +1,270 @@
+"""Benchmark: what a frame costs, and where its fixed cost goes (docs/timing.md).
+
+Four tables, each measured in this one run with interleaved rounds and medians:
+
+1. **Frame time at 8², 64², 128²** per method: wall ms per frame (the stage total
+   of the median frame), kernel ms (Dr.Jit's kernel history), the harness share
+   (wall outside kernels) and kernel launches per frame; Mitsuba's own ``path``
+   through ``mi.render`` (plain and frozen with ``dr.freeze``) as the reference.
+2. **The fixed cost at 8²**, split into harness (wall - kernel of every part),
+   the method's own fixed work (kernel time of stages whose size does not grow
+   with the image: training at its record floor, the visibility caches' training
+   points) and pixel work (kernel time of the stages that grow with pixels x spp).
+3. **The per-stage cost model** a + b x size of each method, fitted at 64², 128²,
+   256² (and the caches' floors scaled x4, x16) with 95 % intervals, and its
+   projection to 1920x1080 on this device.
+4. **What recording the kernel history costs**: frames with and without it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+from statistics import median
+from typing import Any
+
+from renderers.backend import device_info, init_backend
+
+#: (label, method, scene, params) of each row (spp 1).
+CASES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
+    ("pt (door)", "pt", "door", {}),
+    ("nirc biased N_c 4 (door)", "nirc", "door", {"estimator": "biased", "nc": [4]}),
+    ("nrc (door)", "nrc", "door", {}),
+    ("restir-di d2 (many-lights)", "restir-di", "many-lights", {"max_depth": 2}),
+    ("nvc-lights d2 (many-lights)", "nvc-lights", "many-lights", {"max_depth": 2}),
+    ("pt d2 (many-lights)", "pt", "many-lights", {"max_depth": 2}),
+    ("pt-power d2 (many-lights)", "pt-power", "many-lights", {"max_depth": 2}),
+)
+
+
+class Scenes:
+    """The scene a probe renders, and no other alive (cost_model.SceneSlot)."""
+
+    def __init__(self) -> None:
+        from jobs.protocol.cost_model import SceneSlot
+        from renderers.scenes import load_scene
+
+        self.slot = SceneSlot(lambda key: load_scene(*key))
+
+    def __call__(self, name: str, res: int) -> Any:
+        return self.slot((name, res))
+
+
+def method_timings(scenes: Scenes, method: str, scene: str, params: Any, res: int,
+                   frames: int, kernel_time: bool = True) -> dict[str, Any]:
+    """One seed's timings (renderers.timing.summarize), no pre-training."""
+    from renderers.methods import get_method
+    from renderers.methods.base import FrameHooks
+
+    if "pretrain_frames" in type(params).model_fields:
+        params = params.model_copy(update={"pretrain_frames": 0})
+    return get_method(method).render(
+        scenes(scene, res), params, seed_parts=("bench-frame-cost", method, res), spp=1,
+        frames=frames, hooks=FrameHooks(kernel_time=kernel_time)).timings
+
+
+def mitsuba_path(mi: Any, scenes: Scenes, res: int, frames: int, frozen: bool) -> dict[str, Any]:
+    """Mitsuba's ``path`` at 1 spp on door through ``mi.render`` (or a frozen function of
+    it, warmed up until its recording count stops changing), timed like a method."""
+    import drjit as dr
+
+    from renderers.timing import (
+        FrameTime,
+        StageTimer,
+        Warmup,
+        kernel_history,
+        summarize,
+        synchronize,
+    )
+
+    scene = scenes("door", res).scene
+    integrator = mi.load_dict({"type": "path"})
+
+    def render(seed: Any) -> Any:
+        return mi.render(scene, integrator=integrator, spp=1, seed=seed)
+
+    call: Callable[[Any], Any] = dr.freeze(render) if frozen else render
+    seed_type = mi.UInt32 if frozen else int
+    timed: list[FrameTime] = []
+    with kernel_history():
+        recordings, seed = -1, 0
+        while True:   # warm up until the recording count settles (unfrozen: once)
+            synchronize(call(seed_type(seed)))
+            seed += 1
+            count = getattr(call, "n_recordings", 0)
+            if count == recordings or not frozen:
+                break
+            recordings = count
+        for index in range(frames):
+            timer = StageTimer()
+            with timer.frame(), timer.stage("render"):
+                synchronize(call(seed_type(1000 + index)))
+            timed.append(timer.record())
+    return summarize(timed, Warmup())
+
+
+def frame_row(timings: dict[str, Any]) -> tuple[float, float, float, float]:
+    """(ms per frame, kernel ms, harness share, launches) of the median frame."""
+    frame = timings["breakdown"]
+    kernel = frame.get("frame_kernel_s", 0.0)
+    launches = sum(stage.get("launches_median", 0) for stage in timings["stages"].values())
+    return (1e3 * timings["frame_median_s"], 1e3 * kernel,
+            max(frame["frame_s"] - kernel, 0.0) / frame["frame_s"], launches)
+
+
+def rounds_of(configs: list[Any], measure: Callable[[Any], Any], rounds: int) -> dict[Any, list]:
+    from jobs.protocol.calibration import interleaved_rounds
+
+    return interleaved_rounds(configs, measure, rounds, name=str).times
+
+
+def frame_table(mi: Any, scenes: Scenes, cases: tuple[tuple, ...], params: dict[str, Any],
+                resolutions: list[int],
+                frames: int, rounds: int) -> dict[tuple[str, int], dict[str, Any]]:
+    """Table 1; returns the median round's timings per (row, resolution)."""
+    rows = [label for label, *_ in cases] + ["path (Mitsuba)", "path (Mitsuba, frozen)"]
+    configs = [(row, res) for res in resolutions for row in rows]
+    scene_of = {label: (method, scene) for label, method, scene, _ in cases}
+
+    def measure(config: tuple[str, int]) -> dict[str, Any]:
+        row, res = config
+        if row.startswith("path"):
+            return mitsuba_path(mi, scenes, res, frames, frozen="frozen" in row)
+        method, scene = scene_of[row]
+        return method_timings(scenes, method, scene, params[row], res, frames)
+
+    times = rounds_of(configs, measure, rounds)
+    chosen = {c: sorted(t, key=lambda x: x["frame_median_s"])[(len(t) - 1) // 2]
+              for c, t in times.items()}
+    print(f"\n1. frame time (median of {rounds} interleaved rounds of {frames} frames; "
+          "ms of the median frame; harness = wall outside kernels)")
+    header = f"{'method':<30}" + "".join(f"{f'{r}x{r}: ms kernel harness launches':>42}"
+                                         for r in resolutions)
+    print(header)
+    for row in rows:
+        cells = []
+        for res in resolutions:
+            ms, kernel, share, launches = frame_row(chosen[row, res])
+            cells.append(f"{ms:>12.3g}{kernel:>9.3g}{100 * share:>9.0f}%{launches:>11.0f}")
+        print(f"{row:<30}" + "".join(f"{c:>42}" for c in cells))
+    loaded = [f"{row} {res}" for (row, res), t in chosen.items() if (t.get("load") or {}).get("loaded")]
+    print("loaded while timed: " + (", ".join(loaded) if loaded else "none"))
+    return chosen
+
+
+def fixed_cost_table(cases: tuple, chosen: dict[tuple[str, int], dict[str, Any]],
+                     res: int) -> None:
+    """Table 2: the median frame at ``res`` split into harness, fixed work, pixel work."""
+    from renderers.methods import get_method, parse_params
+
+    print(f"\n2. where the frame goes at {res}x{res} (ms of the median frame)")
+    print(f"{'method':<30}{'frame':>9}{'harness':>16}{'fixed work':>16}{'pixel work':>16}")
+    for label, method, _scene, params in cases:
+        frame = chosen[label, res]["breakdown"]
+        fixed_stages = set(get_method(method).stage_sizes(parse_params(method, params), 1, 1))
+        wall, kernel = frame["parts_s"], frame["kernel_parts_s"]
+        whole = frame["frame_s"]
+        harness = sum(wall[n] - kernel[n] for n in wall)
+        fixed = sum(kernel[n] for n in kernel if n in fixed_stages)
+        pixel = sum(kernel[n] for n in kernel if n not in fixed_stages)
+
+        def part(seconds: float, whole: float = whole) -> str:
+            return f"{1e3 * seconds:.3g} ({100 * seconds / whole:.0f}%)"
+        print(f"{label:<30}{1e3 * whole:>9.3g}{part(harness):>16}{part(fixed):>16}"
+              f"{part(pixel):>16}")
+    print("fixed work: kernel time of the stages whose size does not grow with the image "
+          "(training at its record floor, visibility-cache training points)")
+
+
+def cost_model_table(scenes: Scenes, cases: tuple, params: dict[str, Any], device_key: str,
+                     resolutions: list[int], frames: int, rounds: int,
+                     project: tuple[int, int]) -> None:
+    """Table 3: a and b per stage with intervals, and the projection."""
+    from jobs.protocol import cost_model
+    from renderers.methods import get_method
+
+    print(f"\n3. per-stage cost model (fitted at {', '.join(f'{r}x{r}' for r in resolutions)}"
+          f"; {rounds} interleaved rounds of {frames} frames; 95 % intervals)")
+    for label, method, scene, _ in cases:
+        model = cost_model.measure(
+            get_method(method), params[label], 1, device_key,
+            lambda res, p, spp, method=method, scene=scene: method_timings(
+                scenes, method, scene, p, res, frames),
+            resolutions=resolutions, rounds=rounds)
+        print(f"{label}")
+        for name, stage in model.stages.items():
+            wall = stage.wall
+            slope = ("b -" if wall.slope is None else
+                     f"b {1e9 * wall.slope:.3g} [{1e9 * wall.slope_ci[0]:.3g}, "
+                     f"{1e9 * wall.slope_ci[1]:.3g}] ns/unit")
+            print(f"   {name:<16} a {1e3 * wall.intercept:8.3g} ms [{1e3 * wall.intercept_ci[0]:.3g}, "
+                  f"{1e3 * wall.intercept_ci[1]:.3g}]   {slope}   ({stage.unit})")
+        projection = model.project(*project)
+        if projection.frame_s is not None:
+            lo, hi = projection.frame_ci
+            print(f"   -> {project[0]}x{project[1]}: {1e3 * projection.frame_s:.4g} ms/frame "
+                  f"[{1e3 * lo:.4g}, {1e3 * hi:.4g}], harness share "
+                  f"{100 * (projection.harness_share or 0):.1f} % (projection from this device)")
+        for note in projection.notes:
+            print(f"      {note}")
+
+
+def history_overhead(scenes: Scenes, cases: tuple, params: dict[str, Any], frames: int,
+                     rounds: int) -> None:
+    """Table 4: the median frame's whole wall time (its stages and 'other', less the
+    reading of the history) with the kernel history on over off."""
+    configs = [(label, res, on) for label, res in (("pt (door)", 8), ("pt (door)", 128),
+                                                   ("nrc (door)", 8)) for on in (True, False)]
+    scene_of = {label: (method, scene) for label, method, scene, _ in cases}
+
+    def measure(config: tuple[str, int, bool]) -> float:
+        label, res, on = config
+        method, scene = scene_of[label]
+        return method_timings(scenes, method, scene, params[label], res, frames,
+                              kernel_time=on)["breakdown"]["frame_s"]
+
+    times = rounds_of(configs, measure, rounds)
+    print(f"\n4. kernel history's own cost (median of {rounds} interleaved rounds)")
+    for label, res in (("pt (door)", 8), ("pt (door)", 128), ("nrc (door)", 8)):
+        on, off = median(times[label, res, True]), median(times[label, res, False])
+        print(f"{label:<14}{res:>4}x{res:<4} on {1e3 * on:8.3g} ms  off {1e3 * off:8.3g} ms  "
+              f"on/off {on / off:.3f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--res", default="8,64,128", help="resolutions of table 1")
+    parser.add_argument("--cost-res", default="64,128,256", help="resolutions of the model")
+    parser.add_argument("--frames", type=int, default=4)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--project", default="1920x1080")
+    parser.add_argument("--tables", default="1,2,3,4", help="which tables to print")
+    parser.add_argument("--only", default="", help="rows whose label contains this text")
+    args = parser.parse_args()
+    cases = tuple(case for case in CASES if args.only in case[0])
+    tables = set(args.tables.split(","))
+
+    mi = init_backend()
+    from renderers.methods import parse_params
+
+    device_key = device_info()["device_key"]
+    resolutions = [int(r) for r in args.res.split(",")]
+    width, height = (int(n) for n in args.project.split("x"))
+    params = {label: parse_params(method, p) for label, method, _, p in cases}
+    scenes = Scenes()
+    start = time.perf_counter()
+    print(f"device: {device_key}")
+    if tables & {"1", "2"}:
+        chosen = frame_table(mi, scenes, cases, params, resolutions, args.frames, args.rounds)
+        fixed_cost_table(cases, chosen, min(resolutions))
+    if "3" in tables:
+        cost_model_table(scenes, cases, params, device_key, [int(r) for r in args.cost_res.split(",")],
+                         args.frames, args.rounds, (width, height))
+    if "4" in tables and {"pt (door)", "nrc (door)"} <= set(params):
+        history_overhead(scenes, cases, params, max(args.frames, 8), args.rounds + 2)
+    print(f"\n({time.perf_counter() - start:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

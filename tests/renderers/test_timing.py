@@ -1,0 +1,157 @@
+"""The timing protocol: stages, kernel time, the median frame, pooled seeds, machine load."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from renderers.timing import FrameTime, Warmup, breakdown, pooled, summarize
+
+
+def frame(stages: dict[str, float], whole: float, kernel: dict[str, float] | None = None):
+    return FrameTime(stages=stages, whole_s=whole, kernel_s=kernel,
+                     launches=None if kernel is None else dict.fromkeys(kernel, 2))
+
+
+def test_the_summary_excludes_the_warmup_and_takes_the_median_frame():
+    frames = [frame({"render": 0.010}, 0.011), frame({"render": 0.012}, 0.013),
+              frame({"render": 0.011}, 0.012), frame({"render": 0.030}, 0.031)]
+    summary = summarize(frames, Warmup(2.5, compile_s=1.9))
+    # Lower median of 10, 11, 12, 30 ms: a frame that was measured.
+    assert summary["frame_median_s"] == pytest.approx(0.011)
+    assert summary["frame_mean_s"] == pytest.approx(0.01575)
+    assert summary["warmup_s"] == 2.5 and summary["compile_s"] == 1.9
+    assert summary["compile_s_estimate"] == pytest.approx(2.5 - 0.011)
+    assert summary["device_time"] is None   # no kernel history
+    assert "sync" in summary["protocol"] and "kernel history" in summary["protocol"]
+
+
+def test_the_breakdown_is_one_frame_whose_parts_add_up():
+    frames = [frame({"training": 0.2, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
+                    0.34, {"training": 0.15, "render": 0.09, "training_paths": 0.0,
+                           "denoise": 0.01, "other": 0.005}),
+              frame({"training": 0.3, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
+                    0.45, {"training": 0.2, "render": 0.08, "training_paths": 0.0,
+                           "denoise": 0.01, "other": 0.0}),
+              frame({"training": 0.2, "render": 0.2, "training_paths": 0.02, "denoise": 0.02},
+                    0.46, {"training": 0.1, "render": 0.15, "training_paths": 0.01,
+                           "denoise": 0.01, "other": 0.0})]
+    result = breakdown(frames)
+    parts = result["parts_s"]
+    assert list(parts) == ["render", "training_paths", "training", "denoise", "other"]
+    # The median frame by stage total (0.33, 0.43, 0.44) is the second.
+    assert parts == pytest.approx({"render": 0.1, "training_paths": 0.01, "training": 0.3,
+                                   "denoise": 0.02, "other": 0.02})
+    assert sum(parts.values()) == pytest.approx(result["frame_s"]) == pytest.approx(0.45)
+    assert result["frame_kernel_s"] == pytest.approx(0.29)
+    assert result["harness_parts_s"]["training"] == pytest.approx(0.1)
+    assert result["inference_in_render"] is True
+    summary = summarize(frames, Warmup())
+    assert summary["frame_median_s"] == pytest.approx(sum(parts.values()) - parts["other"])
+    assert summary["device_time"]["harness_share"] == pytest.approx(1 - 0.29 / 0.45)
+    assert summary["stages"]["training"]["kernel_median_s"] == pytest.approx(0.15)
+    assert summary["stages"]["training"]["launches_median"] == 2
+
+
+def test_pooled_seeds_report_stages_and_frame_time_from_one_statistic():
+    """A slow first seed must not make a stage's time exceed the frame time: before, the
+    stages were seed 0's and the frame time the median over seeds (39.8 vs 31.3 ms)."""
+    slow = summarize([frame({"render": 0.040, "training": 0.002}, 0.043)] * 3, Warmup(1.0))
+    fast = [summarize([frame({"render": 0.029, "training": 0.002}, 0.032)] * 3, Warmup(1.0))
+            for _ in range(2)]
+    run = pooled([slow, *fast])
+    assert run["frames"] == 9
+    for stage in run["stages"].values():
+        assert stage["median_s"] <= run["frame_median_s"]
+    stages = {k: v for k, v in run["breakdown"]["parts_s"].items() if k != "other"}
+    assert sum(stages.values()) == pytest.approx(run["frame_median_s"]) == pytest.approx(0.031)
+    assert run["warmup_s"] == 1.0 and "frames_detail" not in run
+
+
+def test_a_nested_stage_is_not_counted_in_the_outer_one(mi):
+    """The deferred cache inference runs inside mi.render: 'render' excludes it."""
+    from renderers.timing import StageTimer
+
+    timer = StageTimer()
+    with timer.stage("render"):
+        time.sleep(0.02)
+        with timer.stage("inference"):
+            time.sleep(0.05)
+    assert timer.seconds["inference"] >= 0.05
+    assert 0.02 <= timer.seconds["render"] < 0.05
+
+
+@pytest.fixture(scope="module")
+def pt_render(mi):
+    from renderers.methods import get_method, parse_params
+    from renderers.scenes import load_scene
+
+    scene = load_scene("cornell-box", 16)
+
+    def render(frames: int):
+        return get_method("pt").render(scene, parse_params("pt", {}), seed_parts=("timing",),
+                                       spp=4, frames=frames)
+    return render
+
+
+def test_kernel_time_is_captured_and_bounded_by_wall_time(mi, pt_render):
+    import drjit as dr
+
+    before = dr.flag(dr.JitFlag.KernelHistory)
+    out = pt_render(3)
+    assert dr.flag(dr.JitFlag.KernelHistory) == before   # the loop restores the flag
+    for detail in out.timings["frames_detail"]:
+        timed = FrameTime.from_json(detail)
+        kernel = timed.kernel_parts()
+        assert kernel is not None and kernel["render"] > 0
+        assert timed.launches["render"] >= 1
+        assert timed.kernel_total_s <= timed.whole_s
+        assert timed.readout_s > 0   # reading the history: timed, kept out of the frame
+        for name, seconds in timed.parts().items():
+            assert kernel[name] <= seconds + 1e-4, name   # 0.1 ms: clock granularity
+    device = out.timings["device_time"]
+    assert 0 < device["kernel_median_s"] <= device["wall_median_s"]
+    assert 0 <= device["harness_share"] < 1 and device["launches_median"] >= 1
+    assert out.timings["compile_s"] is not None and out.timings["compile_s"] >= 0
+
+
+def _burners(count: int) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+
+
+def test_a_cpu_burning_process_flags_the_timing_and_a_quiet_machine_does_not(pt_render):
+    from renderers.load import LoadMonitor, usable_cores
+
+    with LoadMonitor() as idle:     # this process asleep: only other work can stall
+        time.sleep(0.5)
+    if idle.result()["loaded"]:
+        pytest.skip("other work holds this machine's CPU: its quiet half cannot be shown")
+    quiet = pt_render(200).timings["load"]
+    assert quiet["loaded"] is False, quiet
+    burners = _burners(usable_cores())
+    try:
+        time.sleep(0.3)
+        loaded = pt_render(200).timings["load"]
+    finally:
+        for burner in burners:
+            burner.kill()
+            burner.wait()
+    assert loaded["loaded"] is True, loaded
+    assert loaded["reasons"] and "other work" in loaded["reasons"][0]
+    if loaded["cpu_stall_fraction"] is not None:
+        assert loaded["cpu_stall_fraction"] > quiet["cpu_stall_fraction"]
+
+
+def test_the_load_verdict_falls_back_to_the_cpu_share_and_says_when_it_cannot_tell():
+    from renderers.load import judge
+
+    assert judge(0.5, 0.99)["loaded"] is True           # pressure wins
+    assert judge(0.01, 0.2)["loaded"] is False
+    assert judge(None, 0.5) == {"loaded": True, "basis": "process cpu share",
+                                "reasons": [judge(None, 0.5)["reasons"][0]]}
+    assert judge(None, 0.95)["loaded"] is False
+    unknown = judge(None, None)
+    assert unknown["loaded"] is None and "unknown" in unknown["reasons"][0]
