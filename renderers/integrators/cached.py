@@ -96,16 +96,18 @@ class CacheState:
         "env_vertices": mi.UInt32,   # vertices of a second query channel (nvc_env.EnvVisibility)
         "cache_depth": mi.UInt32,    # 1 + index of the vertex the path terminated into (0: none)
         "v1_allowed": mi.Bool,       # adaptive termination: this pixel may use the cache at v1
+        "termination_value": mi.Float,  # a number the termination policy carries (termination/)
     }
 
     def __init__(self, spread_sum=None, a0=None, cache_vertices=None, env_vertices=None,
-                 cache_depth=None, v1_allowed=None):
+                 cache_depth=None, v1_allowed=None, termination_value=None):
         self.spread_sum = spread_sum
         self.a0 = a0
         self.cache_vertices = cache_vertices
         self.env_vertices = env_vertices
         self.cache_depth = cache_depth
         self.v1_allowed = v1_allowed
+        self.termination_value = termination_value
 
 
 class CachedPathIntegrator(PathIntegrator):
@@ -258,7 +260,14 @@ class CachedPathIntegrator(PathIntegrator):
 
 def new_cache_state() -> CacheState:
     return CacheState(mi.Float(0), mi.Float(0), mi.UInt32(0), mi.UInt32(0), mi.UInt32(0),
-                      mi.Bool(True))
+                      mi.Bool(True), mi.Float(0))
+
+
+def smooth_context() -> mi.BSDFContext:
+    """A BSDF context restricted to the smooth (non-delta) lobes."""
+    ctx = mi.BSDFContext()
+    ctx.type_mask = int(mi.BSDFFlags.Smooth)
+    return ctx
 
 
 def pixel_index(ray: mi.Ray3f, sampler: mi.Sampler) -> mi.UInt32:

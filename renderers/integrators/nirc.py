@@ -27,22 +27,19 @@ Two estimators use it:
   emission it hits (``VertexTerms.stop_indirect``, path.py); the termination
   decision only replaces the *indirect* part by L_c (N_c fresh samples, not the
   continuation direction), and nothing is divided by the continuation
-  probability. So direct light is exactly PT's. Termination by the Balanced
-  Termination Heuristic (Eq. 22-23: continue with P_s = p(w) / (p(w) + N_c / pi),
-  p the full BSDF pdf of the continuation direction w; for vertices after the
-  first also stop when the spread heuristic says so) or by the spread heuristic
-  alone. Where the continuation is a delta lobe, the BTH decision for the
-  smooth part is drawn with a virtual smooth sample instead (its full pdf), so
-  the smooth part is cached with the same probability as in the smooth branch.
-  BTH is biased even with a perfect cache unless L_ind is uniform over the
-  hemisphere: P_s depends on the direction the continuing path then follows
-  and the continuing path is not reweighted (docs/estimators.md).
-  ``termination='adaptive'`` is the per-pixel policy of Sec. 6.3: at the first
-  vertex v1 a path terminates where the pixel's v1 mask allows (the mask comes
-  from the relative bias of the converged cache-at-v1 image, jobs/protocol/sweep.py),
-  at later vertices by the spread heuristic; N_c may differ at v1 and later
+  probability. So direct light is exactly PT's. Where the path terminates is
+  the termination policy's decision (``renderers.integrators.termination``,
+  asked at each vertex): the Balanced Termination Heuristic (``bth``, Eq.
+  22-23, then the spread heuristic), the spread heuristic alone (``sph``) or
+  the per-pixel policy of Sec. 6.3 (``adaptive``: at the first vertex v1 where
+  the pixel's v1 mask allows, the mask coming from the relative bias of the
+  converged cache-at-v1 image, jobs/protocol/sweep.py; later by the spread
+  heuristic). N_c may differ at v1 and later where the policy takes two values
   (``nc='8,1'``: 8 neural samples at v1, 1 afterwards — the paper's "NIRC
-  equal time" series varies the first).
+  equal time" series varies the first). BTH is biased even with a perfect
+  cache unless L_ind is uniform over the hemisphere: P_s depends on the
+  direction the continuing path then follows and the continuing path is not
+  reweighted (docs/estimators.md).
 * unbiased (Eq. 10-11, two-level Monte Carlo): at the first three
   non-specular vertices add L_c and the residual with the path's own
   continuation direction w, -n(x, w) f cos / p(w) (only where w is a smooth
@@ -63,28 +60,27 @@ cache draws nothing for it.
 
 from __future__ import annotations
 
-import math
 from typing import Protocol
 
 import drjit as dr
 import mitsuba as mi
 
 from renderers.integrators import path
-from renderers.integrators.cached import CachedPathIntegrator, CacheState
+from renderers.integrators.cached import CachedPathIntegrator, CacheState, smooth_context
 from renderers.integrators.deferred import QueryLayout
 from renderers.integrators.path import Vertex, VertexTerms
-from renderers.integrators.spread import spread_exceeded
+from renderers.integrators.termination import TerminationPolicy, TerminationQuery
 
 
 class NIRCSettings(Protocol):
     """What the estimator reads of the `nirc` method's validated parameters
     (renderers.methods.nirc.NIRCParams; that module declares this integrator)."""
 
-    sph_c: float
     estimator: str
-    termination: str
 
     def sample_counts(self) -> list[int]: ...
+
+    def termination_policy(self) -> TerminationPolicy: ...
 
 
 NIRC_PLUGIN = "nirc_nirc"
@@ -93,7 +89,7 @@ NIRC_PLUGIN = "nirc_nirc"
 class NIRCIntegrator(CachedPathIntegrator):
     """PT core + NIRC cache terms, configured by the `nirc` method's validated
     parameters (:class:`NIRCSettings`, the `nirc` method's model: ``estimator``,
-    ``termination``, ``nc``, ``sph_c``) through :meth:`configure`.
+    ``nc``, the termination policy) through :meth:`configure`.
 
     The plugin's properties are those of the PT core; the estimator's own
     parameters come only through :meth:`configure`, so they are parsed and
@@ -103,13 +99,16 @@ class NIRCIntegrator(CachedPathIntegrator):
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.nc: list[int] = []       # N_c per vertex: set by configure
+        self.policy: TerminationPolicy | None = None   # of the biased estimator
 
     def configure(self, params: NIRCSettings) -> None:
         """Take the method's parameters (validated once, by the model)."""
-        self.sph_c = params.sph_c
         self.estimator = params.estimator
-        self.termination = params.termination
         self.nc = params.sample_counts()
+        self.policy = params.termination_policy()
+        if self.policy.blends:
+            raise ValueError(f"the nirc integrator stops or continues; termination "
+                             f"{self.policy.name!r} blends the cache with the next segment")
 
     def query_layout(self) -> QueryLayout:
         """Unbiased: len(nc) vertices of N_c + 1 queries (the residual), an exact bound.
@@ -169,36 +168,18 @@ class NIRCIntegrator(CachedPathIntegrator):
                             stop_indirect=mi.Bool(False), skip_nee=mi.Bool(False))
         return terms, state
 
-    def _bth_continue_pdf(self, vertex: Vertex, usable: mi.Bool) -> mi.Float:
-        """Full BSDF pdf p(w) for Eq. 22: of the continuation w where it is a smooth
-        sample, else of a virtual smooth sample (the decision is about the smooth part)."""
-        si, bsdf, bs = vertex.si, vertex.bsdf, vertex.bsdf_sample
-        delta = usable & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        virtual, _ = bsdf.sample(smooth_context(), si, vertex.sampler.next_1d(delta),
-                                 vertex.sampler.next_2d(delta), delta)
-        pdf_virtual = bsdf.pdf(mi.BSDFContext(), si, virtual.wo, delta)
-        return dr.select(delta, pdf_virtual, bs.pdf)
-
     def _biased_terms(self, vertex: Vertex, state: CacheState,
                       usable: mi.Bool) -> tuple[VertexTerms, CacheState]:
-        # ---- Termination of the smooth indirect part (BTH Eq. 22-23, SPH Eq. 19-21,
-        #      adaptive Sec. 6.3). NEE (MIS-weighted) and the continuation's emitter
-        #      hit are collected whatever is decided here (path.py, stop_indirect) ----
-        nc = self.nc[0]
-        nc_later = self.nc[-1] if self.termination == "adaptive" else nc
-        spread_stop = (vertex.depth > 0) & spread_exceeded(state.spread_sum, state.a0, self.sph_c)
-        if self.termination == "bth":
-            pdf = self._bth_continue_pdf(vertex, usable)
-            p_continue = pdf / (pdf + nc / math.pi)
-            xi = vertex.sampler.next_1d(usable)
-            stop = (xi > p_continue) | spread_stop
-        elif self.termination == "adaptive":
-            stop = dr.select(vertex.depth == 0, state.v1_allowed, spread_stop)
-        else:
-            stop = spread_stop
-        stop &= usable
+        # ---- Termination of the smooth indirect part: the policy's decision
+        #      (termination/: BTH Eq. 22-23, SPH Eq. 19-21, adaptive Sec. 6.3). NEE
+        #      (MIS-weighted) and the continuation's emitter hit are collected
+        #      whatever is decided here (path.py, stop_indirect) ----
+        weight, state = self.policy.continuation(
+            TerminationQuery(vertex, state, usable, self.cache))
+        stop = (weight < 1) & usable
         # ---- Shade the terminal vertex: L_e (done) + L_nee (core) + L_c (Eq. 13) ----
-        nc_lane = dr.select(vertex.depth == 0, mi.UInt32(nc), mi.UInt32(nc_later))
+        nc_at_v1, nc_later = self.policy.settings.nc
+        nc_lane = dr.select(vertex.depth == 0, mi.UInt32(nc_at_v1), mi.UInt32(nc_later))
         handle = self.queries.vertex(state.cache_vertices, vertex, stop)
         L_c = self.queries.draw(handle, nc_lane, stop)
         # A delta continuation carries I_delta, which L_c leaves out: it goes on as a path.
@@ -208,13 +189,6 @@ class NIRCIntegrator(CachedPathIntegrator):
         terms = VertexTerms(L_add=dr.select(stop, L_c, 0), stop=mi.Bool(False),
                             stop_indirect=stop & ~delta_cont, skip_nee=mi.Bool(False))
         return terms, state
-
-
-def smooth_context() -> mi.BSDFContext:
-    """A BSDF context restricted to the smooth (non-delta) lobes."""
-    ctx = mi.BSDFContext()
-    ctx.type_mask = int(mi.BSDFFlags.Smooth)
-    return ctx
 
 
 # ---- Registration (per Mitsuba variant: the `nirc` method calls it when a render starts) ----

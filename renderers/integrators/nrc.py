@@ -41,7 +41,13 @@ from renderers.integrators.cached import (
 )
 from renderers.integrators.deferred import InlineQueries, QueryBuffer, QueryLayout
 from renderers.integrators.path import Vertex, VertexTerms
-from renderers.integrators.spread import SPREAD_C, spread_exceeded
+from renderers.integrators.spread import SPREAD_C
+from renderers.integrators.termination import (
+    TerminationPolicy,
+    TerminationQuery,
+    TerminationSettings,
+    make_policy,
+)
 from renderers.integrators.training import TrainingPathIntegrator, training_plugin
 
 
@@ -51,8 +57,9 @@ class NRCSettings(Protocol):
     these integrators)."""
 
     sph_c: float
-    termination: str
     unbiased_every: int
+
+    def termination_policy(self) -> TerminationPolicy: ...
 
 
 NRC_PLUGIN = "nirc_nrc"
@@ -60,22 +67,20 @@ NRC_PLUGIN = "nirc_nrc"
 MIN_V1_ROUGHNESS = 0.0625
 
 
-def nrc_terms(queries: QueryBuffer | InlineQueries, sph_c: float, vertex: Vertex,
+def nrc_terms(queries: QueryBuffer | InlineQueries, policy: TerminationPolicy, vertex: Vertex,
               state: CacheState, may_terminate: mi.Bool | bool = True,
-              adaptive: bool = False) -> tuple[VertexTerms, CacheState]:
-    """Terminate into the outgoing-radiance cache (see module doc): by the spread
-    heuristic, never at the first vertex; with ``adaptive`` (NIRC paper Sec. 6.3)
-    also at v1 where the pixel's v1 mask allows and the surface is not too
-    glossy (roughness >= ``MIN_V1_ROUGHNESS``). The query goes to ``queries``
-    (deferred, or evaluated in the loop for training paths)."""
+              cache: Any = None) -> tuple[VertexTerms, CacheState]:
+    """Terminate into the outgoing-radiance cache (see module doc) where ``policy``
+    says so (termination/: the spread heuristic, never at the first vertex; or
+    adaptive, NIRC paper Sec. 6.3, at v1 where the pixel's v1 mask allows). At v1
+    the cache is not used on surfaces glossier than ``MIN_V1_ROUGHNESS``. The query
+    goes to ``queries`` (deferred, or evaluated in the loop for training paths)."""
     smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
     inputs = cache_inputs(vertex.si, vertex.bsdf, specular=True)
-    # ---- Termination by the spread heuristic (Eq. 21) ----
-    stop = (vertex.depth > 0) & spread_exceeded(state.spread_sum, state.a0, sph_c)
-    if adaptive:
-        at_v1 = state.v1_allowed & (inputs["roughness"] >= MIN_V1_ROUGHNESS)
-        stop = dr.select(vertex.depth == 0, at_v1, stop)
-    stop &= vertex.active_next & smooth & may_terminate
+    usable = vertex.active_next & smooth & may_terminate
+    weight, state = policy.continuation(TerminationQuery(vertex, state, usable, cache))
+    stop = (weight < 1) & ((vertex.depth > 0) | (inputs["roughness"] >= MIN_V1_ROUGHNESS))
+    stop &= usable
     # ---- Shade the terminal vertex with the cache: L_e (done) + L_r(x, w_o) ----
     handle = queries.vertex(state.cache_vertices, vertex, stop, inputs)
     L_r = queries.add(handle, 0, -vertex.ray.d, demodulation(inputs), stop)
@@ -86,23 +91,29 @@ def nrc_terms(queries: QueryBuffer | InlineQueries, sph_c: float, vertex: Vertex
     return terms, state
 
 
+def refuse_blending(policy: TerminationPolicy) -> TerminationPolicy:
+    """``policy``, if its decisions only stop or continue (NRC's cache ends the path)."""
+    if policy.blends:
+        raise ValueError(f"nrc stops or continues; termination {policy.name!r} blends the "
+                         "cache with the next segment")
+    return policy
+
+
 class NRCIntegrator(CachedPathIntegrator):
     """PT core + termination into an outgoing-radiance cache.
 
-    ``termination`` (from the method's model, :class:`NRCSettings`, through
-    :meth:`configure`): 'sph' (spread heuristic, the default before it is
-    configured) or 'adaptive' (the per-pixel v1 mask at the first vertex, then
-    the spread heuristic).
+    The termination policy (termination/) comes from the method's model
+    (:class:`NRCSettings`) through :meth:`configure`; before it is configured,
+    the spread heuristic with the ``sph_c`` property.
     """
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.termination = "sph"
+        self.policy = make_policy("sph", {}, TerminationSettings(self.sph_c))
 
     def configure(self, params: NRCSettings) -> None:
         """Take the `nrc` method's parameters (validated once, by the model)."""
-        self.sph_c = params.sph_c
-        self.termination = params.termination
+        self.policy = refuse_blending(params.termination_policy())
 
     def query_layout(self) -> QueryLayout:
         """One query per lane, an exact bound: the path ends where it queries."""
@@ -113,14 +124,13 @@ class NRCIntegrator(CachedPathIntegrator):
         return cache_inputs(si, bsdf, specular=True)
 
     def vertex_terms(self, vertex: Vertex, state: CacheState) -> tuple[VertexTerms, CacheState]:
-        return nrc_terms(self.queries, self.sph_c, vertex, state,
-                         adaptive=self.termination == "adaptive")
+        return nrc_terms(self.queries, self.policy, vertex, state, cache=self.cache)
 
 
 class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     """NRC's self-training paths [MRNK21]: training paths that terminate into the cache.
 
-    Training paths are terminated by the same spread heuristic as render paths
+    Training paths are terminated by the spread heuristic (``sph``), as render paths
     and end with the cache's own prediction, so targets are cheap and
     low-variance but biased toward the cache; a fraction ``1/unbiased_every``
     of them (1/16 in NRC) never terminates and keeps the cache anchored to
@@ -132,7 +142,8 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.unbiased_every = int(props.get("unbiased_every", 16))
-        self.sph_c = float(props.get("sph_c", SPREAD_C))
+        self.spread = make_policy("sph", {}, TerminationSettings(
+            float(props.get("sph_c", SPREAD_C))))
         self.cache: Any = None
         if self.key_vertex != "arrival":
             raise ValueError("NRC self-training records at the arrival vertex")
@@ -142,7 +153,7 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     def configure(self, params: NRCSettings) -> None:
         """Take the `nrc` method's parameters (validated once, by the model)."""
         self.unbiased_every = params.unbiased_every
-        self.sph_c = params.sph_c
+        self.spread = make_policy("sph", {}, TerminationSettings(params.sph_c))
 
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> CacheState:
         return new_cache_state()
@@ -154,7 +165,7 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
         _, state = super().vertex_terms(vertex, state)
         may_terminate = self.path_index() % self.unbiased_every != 0
         terms, state = nrc_terms(InlineQueries(self.cache, partial(cache_inputs, specular=True)),
-                                 self.sph_c, vertex, state, may_terminate)
+                                 self.spread, vertex, state, may_terminate, self.cache)
         own_prediction = terms.stop & (vertex.depth < self.record_depth)
         dr.scatter(self.buffers["valid"], False, self._slot(vertex.depth), own_prediction)
         return terms, state

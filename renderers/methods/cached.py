@@ -23,7 +23,13 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import (
+    BaseModel,
+    Field,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+    model_validator,
+)
 
 from renderers.methods.base import FrameHooks, RenderOutput, WithParts, render_stage, run_frames
 from renderers.methods.budget import (
@@ -85,6 +91,52 @@ class CacheTrainingParams(PTParams):
         """The PT core's plugin properties."""
         return {"max_depth": self.max_depth, "rr_depth": self.rr_depth,
                 "rr_mode": self.rr_mode, "rr_survival": self.rr_survival}
+
+
+class TerminationChoice(BaseModel):
+    """A caching method's termination policy (renderers.integrators.termination):
+    ``termination`` names it (the method declares the field with the names of the
+    policies that serve its cache), ``termination_params`` are the policy's own
+    parameters, validated by the policy's model. Empty parameters are left out of
+    the dumped parameters, so parameter sets from before policies had parameters
+    dump, store and hash as they did."""
+
+    termination_params: dict[str, Any] = Field(
+        default_factory=dict, description="the termination policy's own parameters")
+
+    @model_validator(mode="after")
+    def _check_termination_params(self) -> TerminationChoice:
+        from renderers.integrators.termination import get_policy
+
+        get_policy(self.termination).Params.model_validate(  # type: ignore[attr-defined]
+            self.termination_params)
+        return self
+
+    @model_serializer(mode="wrap")
+    def _omit_empty_termination_params(self, handler: SerializerFunctionWrapHandler
+                                       ) -> dict[str, Any]:
+        data = handler(self)
+        if not data.get("termination_params"):
+            data.pop("termination_params", None)
+        return data
+
+    def termination_settings(self) -> Any:
+        """What the policy takes from the method besides its own parameters (sph_c; N_c
+        where the method has it, :meth:`termination_nc`)."""
+        from renderers.integrators.termination import TerminationSettings
+
+        return TerminationSettings(self.sph_c, self.termination_nc())  # type: ignore[attr-defined]
+
+    def termination_nc(self) -> tuple[int, int]:
+        """N_c at the first vertex and later, for the policy (none by default)."""
+        return (0, 0)
+
+    def termination_policy(self) -> Any:
+        """The configured policy object the integrator asks at each vertex."""
+        from renderers.integrators.termination import make_policy
+
+        return make_policy(self.termination, self.termination_params,  # type: ignore[attr-defined]
+                           self.termination_settings())
 
 
 def load_integrators(plugin: str, params: CacheTrainingParams, key_vertex: str,

@@ -10,10 +10,12 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
+from renderers.integrators.termination import get_policy, policy_names
 from renderers.methods.base import ComparisonRun, Knob, Method, SweepRole
 from renderers.methods.cached import (
     TRAINING_INTEGRATORS,
     CacheTrainingParams,
+    TerminationChoice,
     cached_render,
     has_surface,
     load_integrators,
@@ -22,13 +24,16 @@ from renderers.methods.cached import (
     training_stage_sizes,
 )
 
+#: The termination policies of NIRC's cache of incident radiance (the registry's).
+IncidentTermination = Literal[policy_names("incident")]  # type: ignore[valid-type]
 
-class NIRCParams(CacheTrainingParams):
+
+class NIRCParams(CacheTrainingParams, TerminationChoice):
     """Parameters of the `nirc` method (PT core and training parameters included)."""
 
     estimator: Literal["biased", "unbiased"] = "biased"
-    termination: Literal["bth", "sph", "adaptive"] = Field(
-        "bth", description="biased termination: BTH, SPH, or adaptive (v1 mask, then SPH)")
+    termination: IncidentTermination = Field(
+        "bth", description="biased termination policy (renderers/integrators/termination)")
     nc: list[int] | None = Field(
         None, description="N_c: [4] biased; [N_c at v1, N_c later] adaptive; "
                           "per non-specular vertex, e.g. [3,1,1], unbiased")
@@ -38,11 +43,11 @@ class NIRCParams(CacheTrainingParams):
         nc = self.sample_counts()
         if any(n < 1 or n > 256 for n in nc):
             raise ValueError("nc entries must be in 1..256")
-        if self.estimator == "biased" and self.termination == "adaptive":
-            if len(nc) > 2:
-                raise ValueError("adaptive termination takes N_c at v1 and later (e.g. nc=[8,1])")
-        elif self.estimator == "biased" and len(nc) != 1:
-            raise ValueError("the biased estimator takes one N_c (e.g. nc=[4])")
+        entries = get_policy(self.termination).nc_entries
+        if self.estimator == "biased" and len(nc) > entries:
+            raise ValueError(f"{self.termination} termination takes N_c at v1 and later "
+                             "(e.g. nc=[8,1])" if entries > 1 else
+                             "the biased estimator takes one N_c (e.g. nc=[4])")
         if self.estimator == "unbiased" and len(nc) > 3:
             raise ValueError("the unbiased estimator takes at most 3 entries (one per vertex)")
         return self
@@ -57,7 +62,12 @@ class NIRCParams(CacheTrainingParams):
             return list(self.nc)
         if self.estimator == "unbiased":
             return [3, 1, 1]
-        return [1] if self.termination == "adaptive" else [4]
+        return list(get_policy(self.termination).default_nc)
+
+    def termination_nc(self) -> tuple[int, int]:
+        """N_c at v1 and at later vertices (the last entry), for the policy (BTH's Eq. 22)."""
+        nc = self.sample_counts()
+        return (nc[0], nc[-1])
 
 
 def build(scene: Any, params: NIRCParams, seed: int) -> tuple[Any, Any, Any]:

@@ -14,10 +14,12 @@ from typing import Any, Literal
 
 from pydantic import Field
 
+from renderers.integrators.termination import policy_names
 from renderers.methods.base import ComparisonRun, Method, SweepRole
 from renderers.methods.cached import (
     TRAINING_INTEGRATORS,
     CacheTrainingParams,
+    TerminationChoice,
     cached_render,
     has_surface,
     load_integrators,
@@ -26,12 +28,15 @@ from renderers.methods.cached import (
     training_stage_sizes,
 )
 
+#: The termination policies of NRC's cache of outgoing radiance (the registry's).
+OutgoingTermination = Literal[policy_names("outgoing")]  # type: ignore[valid-type]
 
-class NRCParams(CacheTrainingParams):
+
+class NRCParams(CacheTrainingParams, TerminationChoice):
     """Parameters of the `nrc` method (PT core and training parameters included)."""
 
-    termination: Literal["sph", "adaptive"] = Field(
-        "sph", description="spread heuristic, or adaptive (v1 mask, then SPH; Sec. 6.3)")
+    termination: OutgoingTermination = Field(
+        "sph", description="termination policy (renderers/integrators/termination)")
     self_training: bool = True
     unbiased_every: int = Field(16, ge=1, le=1 << 16,
                                 description="every n-th training path is not terminated")

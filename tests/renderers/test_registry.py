@@ -167,12 +167,13 @@ def test_integrators_receive_the_validated_model(mi):
     scene = load_scene("cornell-box", 8)
     params = parse_params("nirc", {"termination": "adaptive", "nc": [8, 1], "sph_c": 0.02})
     integrator, trainer, _cache = METHODS["nirc"].build(scene, params, 0)
-    assert (integrator.estimator, integrator.termination, integrator.nc, integrator.sph_c) \
-        == ("biased", "adaptive", [8, 1], 0.02)
+    policy = integrator.policy
+    assert (integrator.estimator, policy.name, integrator.nc, policy.settings.sph_c,
+            policy.settings.nc) == ("biased", "adaptive", [8, 1], 0.02, (8, 1))
     assert trainer.key_vertex == "departure"
     params = parse_params("nrc", {"unbiased_every": 4, "termination": "adaptive"})
     integrator, trainer, _cache = METHODS["nrc"].build(scene, params, 0)
-    assert integrator.termination == "adaptive" and trainer.unbiased_every == 4
+    assert integrator.policy.name == "adaptive" and trainer.unbiased_every == 4
     assert trainer.key_vertex == "arrival"
 
 

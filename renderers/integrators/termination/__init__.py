@@ -1,0 +1,155 @@
+"""Path termination as one object the path-tracing core asks at each vertex.
+
+As light selection is one object (``renderers.integrators.lights``, after
+pbrt-v4's ``LightSampler``), the decision where a path hands over to a
+radiance cache is one object, a :class:`TerminationPolicy`, which the caching
+integrators (``nirc``, ``nrc``) ask at every vertex. A policy answers with a
+*continuation weight* alpha in [0, 1] per lane: 1 continues the path, 0 ends it
+into the cache, and a value in between blends the cache (weight 1 - alpha) with
+one more segment (weight alpha; the next segment includes the direct light at
+the next vertex). What a policy may read is a :class:`TerminationQuery`:
+
+* the vertex (``renderers.integrators.path.Vertex``: position, BSDF, the
+  continuation sample and its pdf, throughput, depth);
+* the lanes at which the cache may replace the next segment (``usable``);
+* the per-path state carried along the path (``state``: the spread of the path
+  for the spread heuristic, the pixel's v1 mask of adaptive termination, and
+  ``termination_value``, one number a policy keeps for itself, e.g. an
+  accumulated variance);
+* the N_c coupling of NIRC (``nc``: the number of cache samples at the first
+  vertex and at later ones; the Balanced Termination Heuristic depends on it);
+* read access to the cache's statistics at the current vertex and, by tracing
+  the continuation ray, at the next one (:meth:`TerminationQuery.statistics`;
+  caches that keep no statistics raise).
+
+Each policy is declared in its own module of this package with its own typed
+parameters (a pydantic model, ``Params``), the caches it serves (``serves``:
+'incident' for NIRC's cache of incident radiance, 'outgoing' for NRC's cache
+of outgoing radiance) and what it needs of N_c. Importing this package imports
+every module in it (:func:`_discover`), so adding a policy adds one file; the
+methods' parameter models list the policies of the kind they serve. Reading the
+registry does not import Mitsuba: policies import it where they evaluate.
+docs/termination.md says how to add one.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict
+
+if TYPE_CHECKING:
+    from renderers.integrators.cached import CacheState
+    from renderers.integrators.path import Vertex
+
+CacheKind = Literal["incident", "outgoing"]
+
+
+class NoParams(BaseModel):
+    """The parameters of a policy that has none of its own."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+@dataclass(frozen=True)
+class TerminationSettings:
+    """What a policy takes from the method besides its own parameters: c of the
+    spread heuristic (``sph_c``, shared with the training paths) and N_c at the
+    first vertex and at later ones (NIRC; (0, 0) for a cache without sampled queries)."""
+
+    sph_c: float
+    nc: tuple[int, int] = (0, 0)
+
+
+@dataclass
+class TerminationQuery:
+    """What a policy sees at one vertex (all arrays per lane; module doc)."""
+
+    vertex: Vertex
+    state: CacheState
+    usable: Any                   # mi.Bool: the cache may replace the next segment here
+    cache: Any = None             # the integrator's cache (statistics, where it keeps any)
+
+    def statistics(self, at: Literal["current", "next"] = "current") -> Any:
+        """The cache's statistics at this vertex or at the next one (the hit of the
+        continuation ray, traced here: a look-ahead costs one ray)."""
+        reader = getattr(self.cache, "statistics", None)
+        if reader is None:
+            raise TypeError(f"{type(self.cache).__name__} keeps no statistics")
+        vertex = self.vertex
+        if at == "current":
+            return reader(vertex.si, self.usable)
+        ray = vertex.si.spawn_ray(vertex.si.to_world(vertex.bsdf_sample.wo))
+        hit = vertex.scene.ray_intersect(ray, self.usable)
+        return reader(hit, self.usable & hit.is_valid())
+
+
+class TerminationPolicy:
+    """Base of the termination policies (module doc).
+
+    A subclass sets ``name``, ``description``, ``serves`` and, where it differs
+    from the defaults, ``Params``, ``nc_entries`` (how many N_c values it takes:
+    1, or 2 for N_c at the first vertex and later) and ``default_nc``; it
+    implements :meth:`continuation`. ``blends``: whether its weights can lie
+    strictly between 0 and 1 (an integrator that only stops or continues refuses
+    such a policy).
+    """
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+    serves: ClassVar[frozenset[str]]
+    Params: ClassVar[type[BaseModel]] = NoParams
+    nc_entries: ClassVar[int] = 1
+    default_nc: ClassVar[tuple[int, ...]] = (4,)
+    blends: ClassVar[bool] = False
+
+    def __init__(self, params: BaseModel, settings: TerminationSettings) -> None:
+        self.params = params
+        self.settings = settings
+
+    def continuation(self, query: TerminationQuery) -> tuple[Any, CacheState]:
+        """(alpha per lane, the path state): the continuation weight in [0, 1]."""
+        raise NotImplementedError
+
+
+POLICIES: dict[str, type[TerminationPolicy]] = {}
+
+
+def register(cls: type[TerminationPolicy]) -> type[TerminationPolicy]:
+    """Class decorator: add a policy to the registry under its ``name``."""
+    if cls.name in POLICIES and POLICIES[cls.name] is not cls:
+        raise ValueError(f"two termination policies are named {cls.name!r}")
+    POLICIES[cls.name] = cls
+    return cls
+
+
+def policy_names(kind: CacheKind) -> tuple[str, ...]:
+    """The registered policies that serve a cache of ``kind``, in registration order."""
+    return tuple(name for name, cls in POLICIES.items() if kind in cls.serves)
+
+
+def get_policy(name: str) -> type[TerminationPolicy]:
+    try:
+        return POLICIES[name]
+    except KeyError:
+        raise ValueError(f"unknown termination policy {name!r}; "
+                         f"known: {', '.join(POLICIES)}") from None
+
+
+def make_policy(name: str, params: dict[str, Any], settings: TerminationSettings
+                ) -> TerminationPolicy:
+    """The policy ``name`` with its parameters validated by its own model."""
+    cls = get_policy(name)
+    return cls(cls.Params.model_validate(params), settings)
+
+
+def _discover() -> None:
+    """Import every module of this package: each registers its policies."""
+    for module in sorted(pkgutil.iter_modules(__path__), key=lambda info: info.name):
+        importlib.import_module(f"{__name__}.{module.name}")
+
+
+_discover()

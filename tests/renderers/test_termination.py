@@ -1,0 +1,202 @@
+"""Path termination as a policy object (renderers/integrators/termination).
+
+The policies reproduce, bit for bit, the images the caching integrators
+rendered before termination was a policy object: ``golden/termination_before.npz``
+holds 16x16 renders (max_depth 6, 2 spp, 2 frames after 3 pre-training frames,
+seed parts ('ref', 7)) made by the code that branched on the termination string,
+and, for adaptive termination, integrator renders with a fixed v1 mask on an
+untrained cache. Bitwise equality needs the same Dr.Jit LLVM code generation
+(this machine's CPU features); a mismatch elsewhere says to regenerate them from
+the commit before the change, not that the estimator changed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import pytest
+from pydantic import BaseModel, Field, ValidationError
+
+from renderers.integrators import termination
+from renderers.integrators.termination import (
+    POLICIES,
+    TerminationPolicy,
+    TerminationQuery,
+    TerminationSettings,
+    make_policy,
+    policy_names,
+)
+from renderers.methods import METHODS, MethodError, parse_params
+
+GOLDEN = Path(__file__).parent / "golden" / "termination_before.npz"
+RES = 16
+
+#: name in the golden file -> (method, parameters, scene)
+CONFIGS: dict[str, tuple[str, dict[str, Any], str]] = {
+    "nirc_bth": ("nirc", {"estimator": "biased", "termination": "bth"}, "cornell-box"),
+    "nirc_sph": ("nirc", {"estimator": "biased", "termination": "sph"}, "cornell-box"),
+    "nirc_sph_c1": ("nirc", {"estimator": "biased", "termination": "sph", "sph_c": 1.0},
+                    "cornell-box"),
+    "nirc_adaptive": ("nirc", {"estimator": "biased", "termination": "adaptive", "nc": [8, 2]},
+                      "cornell-box"),
+    "nirc_unbiased": ("nirc", {"estimator": "unbiased"}, "cornell-box"),
+    "nrc_sph": ("nrc", {"termination": "sph"}, "cornell-box"),
+    "nrc_adaptive": ("nrc", {"termination": "adaptive"}, "cornell-box"),
+    "nrc_pt_training": ("nrc", {"self_training": False}, "cornell-box"),
+    "nirc_nvc_env": ("nirc-nvc-env", {}, "sky"),
+}
+PRETRAIN = {"nirc_nvc_env": 2}
+
+
+def _params(name: str) -> Any:
+    method, params, _scene = CONFIGS[name]
+    return parse_params(method, {"max_depth": 6, "pretrain_frames": PRETRAIN.get(name, 3),
+                                 **params})
+
+
+@pytest.fixture(scope="module")
+def golden() -> dict[str, np.ndarray]:
+    return dict(np.load(GOLDEN))
+
+
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_policies_reproduce_the_images_from_before(mi, golden, name):
+    from renderers.scenes import load_scene
+
+    method, _params_json, scene_name = CONFIGS[name]
+    out = METHODS[method].render(load_scene(scene_name, RES), _params(name),
+                                 seed_parts=("ref", 7), spp=2, frames=2)
+    np.testing.assert_array_equal(np.asarray(out.accumulated), golden[name])
+
+
+@pytest.mark.parametrize("name", ["nirc_adaptive", "nrc_adaptive"])
+def test_adaptive_policy_reproduces_masked_images_from_before(mi, golden, name):
+    from renderers.scenes import load_scene
+
+    method = CONFIGS[name][0]
+    scene = load_scene("cornell-box", RES)
+    integrator, _trainer, cache = METHODS[method].build(scene, _params(name), 3)
+    integrator.cache = cache
+    integrator.set_v1_mask((np.indices((RES, RES)).sum(axis=0) % 3) != 0)
+    image = np.asarray(mi.render(scene.scene, integrator=integrator, spp=3, seed=5))
+    np.testing.assert_array_equal(image, golden[f"{name}_mask"])
+
+
+def test_each_policy_is_declared_in_its_own_module():
+    for name, cls in POLICIES.items():
+        assert cls.name == name and cls.description and cls.serves
+        assert cls.__module__ == f"{termination.__name__}.{name}"
+
+
+def test_methods_accept_the_policies_of_the_cache_they_have():
+    assert set(policy_names("incident")) == {"bth", "sph", "adaptive"}
+    assert set(policy_names("outgoing")) == {"sph", "adaptive"}
+    with pytest.raises(MethodError, match="termination"):
+        parse_params("nrc", {"termination": "bth"})
+    with pytest.raises(MethodError, match="termination"):
+        parse_params("nirc", {"termination": "magic"})
+
+
+def test_policy_parameters_are_validated_by_the_policy_and_left_out_when_empty():
+    dumped = parse_params("nirc", {"termination": "sph"}).model_dump(mode="json")
+    assert "termination_params" not in dumped
+    with pytest.raises(MethodError, match="Extra inputs"):
+        parse_params("nirc", {"termination": "sph", "termination_params": {"t": 1.0}})
+
+
+def test_the_nc_coupling_follows_the_policy():
+    assert parse_params("nirc", {"termination": "bth"}).termination_nc() == (4, 4)
+    assert parse_params("nirc", {"termination": "adaptive"}).termination_nc() == (1, 1)
+    assert parse_params("nirc", {"termination": "adaptive", "nc": [8, 2]}).termination_nc() \
+        == (8, 2)
+    with pytest.raises(MethodError, match="one N_c"):
+        parse_params("nirc", {"termination": "sph", "nc": [8, 2]})
+
+
+class _Threshold(BaseModel):
+    threshold: float = Field(gt=0.0)
+
+
+class _ToyPolicy(TerminationPolicy):
+    """Stop everywhere (weight 0) below ``threshold`` 1, else continue: a policy of the tests."""
+
+    name = "toy"
+    description = "a constant continuation weight"
+    serves = frozenset({"incident"})
+    Params: ClassVar[type[BaseModel]] = _Threshold
+
+    def continuation(self, query: TerminationQuery) -> tuple[Any, Any]:
+        import mitsuba as mi
+
+        return mi.Float(0.0 if self.params.threshold < 1.0 else 1.0), query.state
+
+
+@pytest.fixture
+def toy(monkeypatch):
+    monkeypatch.setitem(POLICIES, _ToyPolicy.name, _ToyPolicy)
+    return _ToyPolicy
+
+
+def test_a_registered_policy_gets_its_typed_parameters(toy):
+    policy = make_policy("toy", {"threshold": 2.0}, TerminationSettings(0.01))
+    assert isinstance(policy, toy) and policy.params.threshold == 2.0
+    with pytest.raises(ValidationError):
+        make_policy("toy", {"threshold": -1.0}, TerminationSettings(0.01))
+    with pytest.raises(ValueError, match="unknown termination policy"):
+        make_policy("none-such", {}, TerminationSettings(0.01))
+
+
+@pytest.mark.parametrize("threshold, used", [(0.5, True), (1.0, False)])
+def test_the_integrator_asks_the_policy_at_each_vertex(mi, toy, threshold, used):
+    """A policy that always continues leaves the cache unused; one that stops
+    (weight < 1) at every usable vertex sends every path into it at the first."""
+    from renderers.scenes import load_scene
+
+    scene = load_scene("cornell-box", 8)
+    params = parse_params("nirc", {"estimator": "biased", "max_depth": 6})
+    integrator, _trainer, cache = METHODS["nirc"].build(scene, params, 0)
+    integrator.cache = cache
+    integrator.policy = make_policy("toy", {"threshold": threshold},
+                                    params.termination_settings())
+    image, _valid, aovs = integrator.sample(scene.scene, _sampler(mi, scene, 64),
+                                            _camera_rays(mi, scene, 64))
+    cache_depth = np.asarray(aovs[1])
+    if used:
+        assert np.mean(cache_depth == 1) > 0.5
+    else:
+        assert cache_depth.max() == 0
+
+
+def test_integrators_that_only_stop_refuse_a_blending_policy(mi, toy, monkeypatch):
+    from types import SimpleNamespace
+
+    from renderers.integrators.nirc import NIRC_PLUGIN
+    from renderers.integrators.nrc import refuse_blending
+
+    monkeypatch.setattr(toy, "blends", True)
+    policy = make_policy("toy", {"threshold": 0.5}, TerminationSettings(0.01))
+    with pytest.raises(ValueError, match="blends"):
+        refuse_blending(policy)
+    METHODS["nirc"].register_integrators()
+    integrator = mi.load_dict({"type": NIRC_PLUGIN})
+    settings = SimpleNamespace(estimator="biased", sample_counts=lambda: [4],
+                               termination_policy=lambda: policy)
+    with pytest.raises(ValueError, match="blends"):
+        integrator.configure(settings)
+
+
+def _sampler(mi, scene, lanes):
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(0, lanes)
+    return sampler
+
+
+def _camera_rays(mi, scene, lanes):
+    sensor = scene.scene.sensors()[0]
+    import drjit as dr
+
+    u = dr.arange(mi.Float, lanes) / lanes
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(u, 0.5), mi.Point2f(0.5, 0.5))
+    return ray
