@@ -381,7 +381,8 @@ def sweep(
                                   "'authors' (docs/protocol.md)")] = "relative-mse",
     max_depth: MaxDepth = -1,
     termination: Annotated[str, typer.Option(
-        "--termination", help="N_c sweep: 'bth' or 'sph'")] = "bth",
+        "--termination", help="N_c sweep: the termination policy (its method's "
+                               "'termination' parameter)")] = "bth",
     equal_time: Annotated[bool, typer.Option(
         "--equal-time/--no-equal-time", help="add the 'NIRC equal time' series")] = True,
     tolerance_ms: Annotated[float, typer.Option("--tolerance-ms", min=0.0, max=1e6,

@@ -16,7 +16,14 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from jobs.protocol.versions import sweep_estimator_versions, versions_of
 from metrics import METRIC_VERSION
-from renderers.methods import BASELINE, METHODS, equal_time_pairs, sweep_methods
+from renderers.methods import (
+    BASELINE,
+    METHODS,
+    MethodError,
+    equal_time_pairs,
+    parse_params,
+    sweep_methods,
+)
 from renderers.methods.pt import DEFAULT_MAX_DEPTH
 from renderers.reference import ReferenceSettings
 from renderers.seeding import digest
@@ -191,7 +198,9 @@ class SweepSpec(BaseModel):
     time_max_spread: float = Field(0.1, gt=0.0, le=10.0,
                                    description="timing spread allowed before a calibration is "
                                                "flagged unstable, x the budget")
-    termination: Literal["bth", "sph"] = Field("bth", description="N_c sweep: NIRC termination")
+    termination: str = Field("bth", min_length=1,
+                             description="N_c sweep: the termination policy of the method "
+                                         "whose N_c it varies (one its parameters accept)")
     metric_eps: float = Field(0.01, gt=0.0, le=1.0, description="epsilon of MRSE / rBias2")
     params: dict[str, Any] = Field(default_factory=dict,
                                    description="extra parameters for every method")
@@ -232,6 +241,13 @@ class SweepSpec(BaseModel):
             raise ValueError("set max_depth on the sweep, not in params")
         if self.max_depth == 0:
             raise ValueError("max_depth must be -1 (unbounded) or >= 1")
+        if self.kind == "nc":
+            method = self.knob_method
+            for nc in self.nc or []:
+                try:
+                    parse_params(method, METHODS[method].sweep.knob_point(nc, self.termination))
+                except MethodError as err:
+                    raise ValueError(str(err)) from None
         return self
 
     @property

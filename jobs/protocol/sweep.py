@@ -256,11 +256,12 @@ class _Sweep:
     # ---- parameters and keys ----
 
     def params(self, method: str, nc_v1: int | None = None) -> Any:
-        """Validated parameters of a sweep point: adaptive termination, and what the
-        method's sweep role adds (NIRC: biased, N_c 1 or ``nc_v1`` at v1)."""
+        """Validated parameters of a sweep point: what the method's sweep role declares
+        for equal-bias points, and what it adds (NIRC: biased, N_c 1 or ``nc_v1`` at v1)."""
+        role = get_method(method).sweep
         values: dict[str, Any] = {**self.spec.params, "max_depth": self.spec.max_depth,
-                                  "pretrain_frames": 0, "termination": "adaptive"}
-        values.update(get_method(method).sweep.point(nc_v1))
+                                  **role.equal_bias}
+        values.update(role.point(nc_v1))
         return parse_params(method, values)
 
     def point_key(self, series: str, eps: float, params: Any, extra: Any = None) -> str:

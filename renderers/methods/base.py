@@ -93,10 +93,12 @@ class Knob:
 class SweepRole:
     """How a caching method takes part in a sweep (jobs/protocol/sweep.py).
 
-    ``label`` names its series in tables and plots. ``point(knob_value)`` gives
-    the parameters of an adaptive equal-bias point on top of the shared ones
-    (adaptive termination, no pre-training); ``knob_value`` is None except for
-    the equal-time series. ``equal_time_against``: the method whose frame time
+    ``label`` names its series in tables and plots. ``equal_bias``: the parameters
+    every adaptive equal-bias point of the method has (a termination policy that
+    reads the per-pixel v1 mask; no pre-training, the sweep's snapshots are the
+    training). ``point(knob_value)`` gives the parameters of an adaptive
+    equal-bias point on top of those and the shared ones; ``knob_value`` is None
+    except for the equal-time series. ``equal_time_against``: the method whose frame time
     this method's knob is calibrated to (the series ``<name>-equal-time``).
     ``knob_point(value, termination)``: the parameters of a point of a sweep over
     the knob (the N_c sweep), for the one method that has it; ``knob_label``
@@ -104,6 +106,7 @@ class SweepRole:
     """
 
     label: str
+    equal_bias: dict[str, Any]
     point: Callable[[int | None], dict[str, Any]] = lambda _value: {}
     equal_time_against: str | None = None
     knob_point: Callable[[int, str], dict[str, Any]] | None = None

@@ -93,6 +93,11 @@ class CacheTrainingParams(PTParams):
                 "rr_mode": self.rr_mode, "rr_survival": self.rr_survival}
 
 
+#: A caching method's adaptive equal-bias points (jobs/protocol/sweep.py): adaptive
+#: termination reads the sweep's v1 mask; the sweep's snapshots are the training.
+ADAPTIVE_EQUAL_BIAS: dict[str, Any] = {"termination": "adaptive", "pretrain_frames": 0}
+
+
 class TerminationChoice(BaseModel):
     """A caching method's termination policy (renderers.integrators.termination):
     ``termination`` names it (the method declares the field with the names of the

@@ -13,6 +13,7 @@ from pydantic import Field, model_validator
 from renderers.integrators.termination import get_policy, policy_names
 from renderers.methods.base import ComparisonRun, Knob, Method, SweepRole
 from renderers.methods.cached import (
+    ADAPTIVE_EQUAL_BIAS,
     TRAINING_INTEGRATORS,
     CacheTrainingParams,
     TerminationChoice,
@@ -101,7 +102,7 @@ METHOD = Method(
     integrators=("renderers.integrators.nirc", *TRAINING_INTEGRATORS),
     knob=Knob("nc", NC_CANDIDATES, apply=with_nc_at_v1, usable=_biased,
               requirement="biased nirc"),
-    sweep=SweepRole("NIRC", point=lambda nc_v1: {"estimator": "biased", "nc": [nc_v1 or 1, 1]},
+    sweep=SweepRole("NIRC", ADAPTIVE_EQUAL_BIAS, point=lambda nc_v1: {"estimator": "biased", "nc": [nc_v1 or 1, 1]},
                     equal_time_against="nrc",
                     knob_point=lambda nc, termination: {"estimator": "biased",
                                                         "termination": termination,

@@ -17,6 +17,7 @@ from pydantic import Field
 from renderers.integrators.termination import policy_names
 from renderers.methods.base import ComparisonRun, Method, SweepRole
 from renderers.methods.cached import (
+    ADAPTIVE_EQUAL_BIAS,
     TRAINING_INTEGRATORS,
     CacheTrainingParams,
     TerminationChoice,
@@ -63,6 +64,6 @@ def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
 METHOD = Method(
     "nrc", "Neural Radiance Cache, spread-angle termination", NRCParams, cached_render(build),
     version=3, integrators=("renderers.integrators.nrc", *TRAINING_INTEGRATORS),
-    sweep=SweepRole("NRC"), build=build, requires=has_surface, label="NRC", unbiased=False,
+    sweep=SweepRole("NRC", ADAPTIVE_EQUAL_BIAS), build=build, requires=has_surface, label="NRC", unbiased=False,
     stage_sizes=training_stage_sizes, scale_floors=scale_training_floors,
     comparison=(ComparisonRun(2, "NRC", "NRC biased", role="matched"),))
