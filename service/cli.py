@@ -11,6 +11,7 @@ else prints one line and exits 1 (``NIRC_BENCH_DEBUG=1`` shows the traceback).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -227,6 +228,22 @@ def _parse_param(text: str) -> tuple[str, Any]:
         return name.strip(), value
 
 
+def _parse_sweep(text: str) -> Any:
+    """``--sweep NAME=VALUES``: a range or comma list of numbers (integers where every
+    value is one), else a comma list of JSON values or words."""
+    from jobs.protocol.ranges import RangeError, parse_range
+    from jobs.protocol.spec import ParameterSweep
+
+    name, sep, values = text.partition("=")
+    if not sep or not name.strip() or not values.strip():
+        raise typer.BadParameter(f"expected NAME=VALUES, got '{text}'", param_hint="--sweep")
+    for integer in (True, False):
+        with contextlib.suppress(RangeError):
+            return ParameterSweep(name=name.strip(), values=parse_range(values, integer=integer))
+    return ParameterSweep(name=name.strip(),
+                          values=[_parse_param(f"v={word}")[1] for word in values.split(",")])
+
+
 def _shortcut_help(field: str, what: str) -> str:
     """Help of a parameter shortcut: which methods have ``field`` (from the registry)."""
     names = [name for name, method in METHODS.items() if field in method.params.model_fields]
@@ -365,8 +382,12 @@ def sweep(
     nc: Annotated[str | None, typer.Option(
         "--nc", help="N_c values ('1:32', '1,2,4'): a biased-NIRC sweep, or with --eps the "
                      "candidates of the 'NIRC equal time' series (default 1,2,4,8,16,32)")] = None,
+    sweep_parameter: Annotated[str | None, typer.Option(
+        "--sweep", help="a parameter sweep: NAME=VALUES over a parameter every method of "
+                        "--methods declares, e.g. 'sph_c=0.01,0.1,1' or a range 'a:b:step'")] = None,
     methods: Annotated[str, typer.Option(
-        "--methods", help=f"comma list of {', '.join(sweep_methods())}")] = ",".join(sweep_methods()),
+        "--methods", help=f"comma list of {', '.join(sweep_methods())} (any method for "
+                          "--sweep)")] = ",".join(sweep_methods()),
     res: Res = 64,
     seeds: Annotated[int, typer.Option("--seeds", min=2, max=1000,
                                        help="K independent caches and renders")] = 4,
@@ -397,7 +418,8 @@ def sweep(
     server: Server = None,
     api_key: ApiKeyOpt = None,
 ) -> None:
-    """Run the adaptive equal-bias sweep (NIRC paper Sec. 6.3, Fig. 13) or an N_c sweep.
+    """Run the adaptive equal-bias sweep (NIRC paper Sec. 6.3, Fig. 13), an N_c sweep or a
+    sweep over one parameter (--sweep).
 
     References, trained caches and converged cache-at-v1 images are computed once
     and reused; points already stored are not rendered again.
@@ -407,8 +429,9 @@ def sweep(
     from jobs.protocol.sweep import run_sweep
     from service.tables import sweep_table
 
-    if eps is None and nc is None:
-        raise RangeError("give --eps (adaptive equal-bias sweep) and/or --nc (N_c sweep)")
+    if eps is None and nc is None and sweep_parameter is None:
+        raise RangeError("give --eps (adaptive equal-bias sweep) and/or --nc (N_c sweep), "
+                         "or --sweep NAME=VALUES")
 
     def parsed(text: str | None, option: str, integer: bool = False) -> list | None:
         try:
@@ -418,6 +441,7 @@ def sweep(
 
     spec = SweepSpec(
         scene=scene, eps=parsed(eps, "--eps"), nc=parsed(nc, "--nc", integer=True),
+        parameter=_parse_sweep(sweep_parameter) if sweep_parameter is not None else None,
         methods=[m.strip() for m in methods.split(",") if m.strip()], resolution=res,
         seeds=seeds, frames=frames, train_frames=train_frames, v1_spp=v1_spp,
         max_depth=max_depth, termination=termination, equal_time=equal_time,

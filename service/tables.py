@@ -272,7 +272,7 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
 #: The sweep table's columns (SweepRow attribute, header); the metric columns (each with
 #: its 95 % interval) come from metrics.registry.
 SWEEP_COLUMNS = (
-    ("series", "series"), ("eps", "eps"), ("nc", "N_c v1"),
+    ("series", "series"), ("eps", "eps"), ("nc", "N_c v1"), ("value", "value"),
     *((m.field, m.label) for m in LISTED), ("ms_frame", "ms/frame"),
     ("avg_path_length", "path len"), ("ir_bounces_pct", "% IR"),
     ("avg_path_length_authors", "path len (authors)"), ("ir_bounces_pct_authors", "% IR (authors)"),
@@ -289,8 +289,9 @@ def _work_line(work: dict[str, int]) -> str:
 def sweep_table(result: SweepResult) -> Group:
     """The sweep's points (one row per series and eps / N_c), skipped methods, work done."""
     table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
-    for _, header in SWEEP_COLUMNS:
+    for key, header in SWEEP_COLUMNS:
         # The series label is what a reader looks rows up by: never wrapped.
+        header = result.parameter or header if key == "value" else header
         table.add_column(header, justify="left" if header == "series" else "right",
                          no_wrap=header == "series")
     metric_cells = {m.field: index for index, m in enumerate(LISTED)}

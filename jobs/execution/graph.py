@@ -38,6 +38,12 @@ class Stage:
 def sweep_stages(spec: SweepSpec) -> list[Stage]:
     """The stages of ``spec`` in an order where every stage follows those it needs."""
     stages = [Stage("reference", {"stage": "reference"})]
+    if spec.kind == "parameter":
+        assert spec.parameter is not None
+        return stages + [Stage(f"{method} {spec.parameter.name}={value}",
+                               {"stage": "parameter-point", "method": method, "value": value},
+                               ("reference",))
+                         for method in spec.methods for value in spec.parameter.values]
     if spec.kind == "nc":
         return stages + [Stage(f"nc {nc}", {"stage": "nc-point", "nc": nc}, ("reference",))
                          for nc in spec.nc or []]

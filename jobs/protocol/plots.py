@@ -47,8 +47,12 @@ _SWEEP_PANELS = tuple(
 )
 
 
-def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
-    """Plot an adaptive equal-bias sweep (NIRC paper, Figure 13) to a PNG at ``path``.
+def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str,
+               x_key: str = "ir_bounces_pct", x_label: str | None = None) -> Path:
+    """Plot a sweep to a PNG at ``path``: by default an adaptive equal-bias sweep (NIRC
+    paper, Figure 13) over the % indirect-radiance bounces; with ``x_key`` over another
+    numeric row key (a parameter sweep's ``value``, named ``x_label``; a log axis when
+    all values are positive and span more than a factor 10).
 
     Each row is one sweep point of one series, with keys ``series``, ``eps``,
     ``ir_bounces_pct``, ``ms_frame`` and one per panel (``mrse``, ``flip``,
@@ -56,6 +60,10 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
     value are left out of that metric's panel, and on log panels points <= 0; a
     note on the panel counts each kind left out.
     """
+    figure_13 = x_key == "ir_bounces_pct"
+    xs_all = [_finite(row.get(x_key)) for row in rows]
+    log_x = (not figure_13 and bool(xs_all) and all(x is not None and x > 0 for x in xs_all)
+             and max(xs_all) > 10 * min(xs_all))  # type: ignore[type-var, operator]
     series = list(dict.fromkeys(str(row["series"]) for row in rows))
     colours = _series_colours(series)
     nrows = math.ceil(len(_SWEEP_PANELS) / 2)
@@ -67,7 +75,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
         plotted, hidden, dropped = False, 0, 0
         for name in series:
             members = [row for row in rows if str(row["series"]) == name]
-            pairs = ((row.get("ir_bounces_pct"), row.get(key)) for row in members)
+            pairs = ((row.get(x_key), row.get(key)) for row in members)
             xs, ys, below, missing = _plottable(pairs, log=log)
             hidden, dropped = hidden + below, dropped + missing
             if xs:
@@ -78,12 +86,15 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
                         markersize=6 if dashed else 4, fillstyle="none" if dashed else "full")
                 plotted = True
             if ci_key:
-                _draw_ci(ax, members, key, ci_key, colours[name])
+                _draw_ci(ax, members, key, ci_key, colours[name], x_key)
         ax.set_title(label)
-        ax.set_xlabel("% indirect-radiance bounces")
+        ax.set_xlabel("% indirect-radiance bounces" if figure_13 else str(x_label or x_key))
         ax.set_ylabel(label)
-        ax.set_xlim(-3.0, 103.0)
-        ax.set_xticks(range(0, 101, 25))
+        if figure_13:
+            ax.set_xlim(-3.0, 103.0)
+            ax.set_xticks(range(0, 101, 25))
+        elif log_x:
+            ax.set_xscale("log")
         if log:
             ax.set_yscale("log")
         ax.grid(True, which="major", alpha=0.3)
@@ -222,12 +233,13 @@ def _plottable(
     return [x for x, _ in points], [y for _, y in points], hidden, dropped
 
 
-def _draw_ci(ax: Axes, rows: list[dict[str, Any]], key: str, ci_key: str, colour: str) -> None:
+def _draw_ci(ax: Axes, rows: list[dict[str, Any]], key: str, ci_key: str, colour: str,
+             x_key: str = "ir_bounces_pct") -> None:
     """Error bars for the rows' ``ci_key`` intervals around ``key`` that fit on a log axis."""
     xs, ys, below, above = [], [], [], []
     for row in rows:
         x, y, interval = (
-            _finite(row.get("ir_bounces_pct")),
+            _finite(row.get(x_key)),
             _finite(row.get(key)),
             row.get(ci_key),
         )

@@ -149,8 +149,26 @@ class RenderSpec(BaseModel):
 
 #: The methods a sweep can run (the registry's methods with a sweep role).
 SWEEP_METHODS = sweep_methods()
-#: The names a sweep spec accepts in ``methods`` (the JSON schema lists them).
-SweepMethod = Literal[SWEEP_METHODS]  # type: ignore[valid-type]
+#: Values a parameter sweep gives one parameter (each validated by the methods' models).
+ParameterValue = bool | int | float | str
+
+
+class ParameterSweep(BaseModel):
+    """A sweep over one declared parameter of the sweep's methods: every value, for
+    every method, is a render job (the sweep's seeds, frames and reference)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+    name: str = Field(min_length=1, description="a parameter every method of the sweep declares")
+    values: list[ParameterValue] = Field(min_length=1, max_length=1000,
+                                         description="the values, in the order swept")
+
+    @field_validator("values")
+    @classmethod
+    def _distinct(cls, values: list[ParameterValue]) -> list[ParameterValue]:
+        if len({(type(v), v) for v in values}) != len(values):
+            raise ValueError("the swept values must be distinct")
+        return values
 
 
 def _knob_method() -> str:
@@ -159,9 +177,10 @@ def _knob_method() -> str:
 
 
 class SweepSpec(BaseModel):
-    """A sweep: the adaptive equal-bias protocol over eps (NIRC paper Sec. 6.3), or a
-    sweep over N_c of biased NIRC. Expanded by ``jobs.protocol.sweep`` into render jobs that
-    share the reference and the trained caches."""
+    """A sweep: the adaptive equal-bias protocol over eps (NIRC paper Sec. 6.3), a
+    sweep over N_c of biased NIRC, or a sweep over any declared parameter of any method
+    (``parameter``). Expanded by ``jobs.protocol.sweep`` into render jobs that share the
+    reference (and, for the first, the trained caches)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
@@ -172,7 +191,11 @@ class SweepSpec(BaseModel):
     nc: list[int] | None = Field(
         None, description="without eps: the N_c values of a biased-NIRC sweep; with eps: the "
                           "N_c candidates of the 'NIRC equal time' series")
-    methods: list[SweepMethod] = Field(default_factory=lambda: list(SWEEP_METHODS))
+    parameter: ParameterSweep | None = Field(
+        None, description="without eps and nc: the parameter and values of a parameter sweep")
+    methods: list[str] = Field(default_factory=lambda: list(SWEEP_METHODS),
+                               description="methods of the sweep: those with a sweep role for "
+                                           "eps and N_c sweeps, any for a parameter sweep")
     resolution: int = Field(64, ge=1, le=8192, description="image width and height in pixels")
     seeds: int = Field(4, ge=2, le=1000, description="K independent caches and renders")
     frames: int = Field(1, ge=1, le=100_000, description="1-spp frames per sweep point")
@@ -231,12 +254,24 @@ class SweepSpec(BaseModel):
     def _check_methods(cls, values: list[str]) -> list[str]:
         if not values:
             raise ValueError("name at least one method")
+        unknown = [name for name in values if name not in METHODS]
+        if unknown:
+            raise ValueError(f"unknown method(s) {', '.join(unknown)}; known: "
+                             f"{', '.join(METHODS)}")
         return list(dict.fromkeys(values))
 
     @model_validator(mode="after")
     def _check_axes(self) -> SweepSpec:
-        if self.eps is None and self.nc is None:
-            raise ValueError("a sweep needs eps values (adaptive equal-bias) or nc values")
+        if self.eps is None and self.nc is None and self.parameter is None:
+            raise ValueError("a sweep needs eps values (adaptive equal-bias), nc values or a "
+                             "parameter")
+        if self.parameter is not None:
+            self._check_parameter(self.parameter)
+        else:
+            others = [name for name in self.methods if name not in SWEEP_METHODS]
+            if others:
+                raise ValueError(f"eps and N_c sweeps run {', '.join(SWEEP_METHODS)} (the "
+                                 f"methods with a sweep role), not {', '.join(others)}")
         if "max_depth" in self.params:
             raise ValueError("set max_depth on the sweep, not in params")
         if self.max_depth == 0:
@@ -250,8 +285,35 @@ class SweepSpec(BaseModel):
                     raise ValueError(str(err)) from None
         return self
 
+    def _check_parameter(self, sweep: ParameterSweep) -> None:
+        if self.eps is not None or self.nc is not None:
+            raise ValueError("a parameter sweep takes neither eps nor nc values")
+        if sweep.name in self.params or sweep.name == "max_depth":
+            raise ValueError(f"{sweep.name} is swept: set it in parameter.values, not here")
+        for method in self.methods:
+            if sweep.name not in METHODS[method].params.model_fields:
+                raise ValueError(f"{method} has no parameter {sweep.name!r}")
+            for value in sweep.values:
+                try:
+                    self.parameter_point(method, value)
+                except MethodError as err:
+                    raise ValueError(f"{sweep.name}={value!r}: {err}") from None
+
+    def parameter_point(self, method: str, value: ParameterValue) -> Any:
+        """The validated parameters of ``method`` at one value of a parameter sweep: the
+        sweep's parameters and depth, the value, and ``train_frames`` pre-training
+        frames where the method trains a cache."""
+        assert self.parameter is not None
+        values: dict[str, Any] = {**self.params, "max_depth": self.max_depth,
+                                  self.parameter.name: value}
+        if "pretrain_frames" in METHODS[method].params.model_fields:
+            values.setdefault("pretrain_frames", self.train_frames)
+        return parse_params(method, values)
+
     @property
     def kind(self) -> str:
+        if self.parameter is not None:
+            return "parameter"
         return "eps" if self.eps is not None else "nc"
 
     @property
@@ -278,4 +340,7 @@ class SweepSpec(BaseModel):
     def key(self, device_key: str) -> str:
         """Content address of the sweep on one device (timings are per device) under
         today's versions."""
-        return digest("sweep-spec", self.model_dump(mode="json"), device_key, self.versions())
+        data = self.model_dump(mode="json")
+        if data["parameter"] is None:  # specs from before parameter sweeps keep their keys
+            del data["parameter"]
+        return digest("sweep-spec", data, device_key, self.versions())

@@ -105,6 +105,8 @@ class SweepRow(RunResult):
     series: str = Field(description="the series' label (a method, or its equal-time series)")
     eps: float | None = Field(description="relative-bias threshold of the v1 mask (eps sweep)")
     nc: int | None = Field(description="N_c at v1 (null: the method has no N_c)")
+    value: bool | int | float | str | None = Field(
+        None, description="the swept parameter's value (parameter sweep)")
     rbias2_raw: float | None = None
     avg_path_length: float | None = Field(None, description="average path vertices")
     ir_bounces_pct: float | None = Field(None, description="% indirect-radiance bounces")
@@ -144,6 +146,7 @@ class SweepResult(BaseModel):
     kind: str
     scene: str
     device_key: str
+    parameter: str | None = Field(None, description="the swept parameter (parameter sweep)")
     rows: list[SweepRow]
     skipped: list[Skipped]
     work: dict[str, int]
@@ -241,7 +244,8 @@ class _Sweep:
         self._probes: dict[tuple[str, int | None], Any] = {}  # probe integrators (method, N_c)
         self._bias: dict[str, np.ndarray] = {}  # relative-bias maps by snapshot key
         # One bar across the whole sweep: caches, then points (reused ones count too).
-        n_points = len(spec.eps or spec.nc or [])
+        n_points = (len(spec.eps or spec.nc or []) if spec.parameter is None
+                    else len(spec.parameter.values) * len(spec.methods))
         equal_time_series = len(equal_time_pairs(spec.methods)) if spec.equal_time else 0
         self.units_total = (len(spec.methods) * (spec.seeds + n_points)
                             + n_points * equal_time_series
@@ -482,6 +486,22 @@ class _Sweep:
         return self.store.get_run(summary.run_id)
 
 
+    def parameter_point(self, method: str, value: Any) -> Any:
+        """The stored run of ``method`` at one value of a parameter sweep, rendering it
+        if missing (every value with the same seeds and the sweep's reference)."""
+        spec = self.point_spec(method, self.spec.parameter_point(method, value))
+        key = digest("sweep-parameter-point", spec.model_dump(mode="json"), self.device_key,
+                     self.prepared.reference.key, spec.versions(), length=32)
+        run = self.store.find_run_by_idempotency_key(key)
+        if run is not None:
+            self.work["points_reused"] += 1
+            return run
+        summary = execute(spec, self.store, self.settings, idempotency_key=key,
+                          progress=self.report)
+        self.work["points_rendered"] += 1
+        return self.store.get_run(summary.run_id)
+
+
 def matching_rbias2(run: Any) -> float | None:
     """The rBias^2 the equal-time series matches on: the mean over caches of the
     per-cache rBias^2 when the run has it (opposite biases of different caches do
@@ -541,12 +561,18 @@ def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[di
     out_dir.mkdir(parents=True, exist_ok=True)
     title = f"{sweep.prepared.scene.name} ({sweep.device_key})"
     files: dict[str, Path] = {}
+    rows = result.to_json()["rows"]
     if result.kind == "eps":
-        files["fig13"] = plot_sweep(result.to_json()["rows"], out_dir / "sweep_fig13.png",
+        files["fig13"] = plot_sweep(rows, out_dir / "sweep_fig13.png",
                                     f"Adaptive equal-bias sweep: {title}")
         files["fig10"] = plot_convergence(_convergence_curves(sweep),
                                           out_dir / "convergence_fig10.png",
                                           f"Error over training frames: {title}")
+    if result.kind == "parameter" and all(
+            isinstance(row["value"], int | float) for row in rows):
+        files["parameter"] = plot_sweep(rows, out_dir / "sweep_parameter.png",
+                                        f"Sweep over {result.parameter}: {title}",
+                                        x_key="value", x_label=str(result.parameter))
     artifacts = ArtifactStore(sweep.settings.artifacts_dir)
     records = []
     for kind, path in files.items():
@@ -573,9 +599,10 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
                             spec=spec.model_dump(mode="json"), result={},
                             device_key=sweep.device_key, **spec.versions())
     try:
-        rows = _eps_rows(sweep) if spec.kind == "eps" else _nc_rows(sweep)
+        rows = {"eps": _eps_rows, "nc": _nc_rows, "parameter": _parameter_rows}[spec.kind](sweep)
         result = SweepResult(
             sweep_id=row.id, key=key, kind=spec.kind, scene=sweep.prepared.scene.name,
+            parameter=spec.parameter.name if spec.parameter else None,
             device_key=sweep.device_key, rows=rows, skipped=sweep.skipped, work=sweep.work,
             stage_work=stage_work or {},
             snapshots=[SweepSnapshot(method=m, seed=s, key=snap.key, id=snap.id,
@@ -623,6 +650,19 @@ def _nc_rows(sweep: _Sweep) -> list[SweepRow]:
     return rows
 
 
+def _parameter_rows(sweep: _Sweep) -> list[SweepRow]:
+    """A sweep over one parameter: a series per method, a row per value (online training,
+    ``train_frames`` pre-training where the method trains a cache)."""
+    assert sweep.spec.parameter is not None
+    rows = []
+    for method in sweep.spec.methods:
+        for value in sweep.spec.parameter.values:
+            run = sweep.parameter_point(method, value)
+            sweep.advance()
+            rows.append(point_row(method, None, run).model_copy(update={"value": value}))
+    return rows
+
+
 def run_stage(spec: SweepSpec, task: dict[str, Any], store: Store, settings: Settings,
               progress: Progress | None = None) -> dict[str, int]:
     """Run one stage of ``spec``'s task graph (jobs/execution/graph.py): store what the sweep
@@ -638,6 +678,8 @@ def run_stage(spec: SweepSpec, task: dict[str, Any], store: Store, settings: Set
             sweep.series(task["method"])
         case "nc-point":
             sweep.nc_point(int(task["nc"]))
+        case "parameter-point":
+            sweep.parameter_point(task["method"], task["value"])
         case other:
             raise ValueError(f"unknown sweep stage {other!r}")
     return sweep.work

@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from jobs.protocol.spec import ReferenceSpec, SweepSpec
+from jobs.protocol.spec import ParameterSweep, ReferenceSpec, SweepSpec
 from jobs.protocol.sweep import (
     avg_path_length_authors,
     ir_bounces_pct,
@@ -315,3 +315,67 @@ def test_an_nc_sweep_run_as_stages_renders_its_points_in_the_stages(sweep_env):
     assert result.work["points_rendered"] == 0 and result.work["points_reused"] == 2
     assert result.stage_work["points_rendered"] == 2
     assert [row.nc for row in result.rows] == [1, 2]
+
+
+# ---- A parameter sweep (any declared parameter of any method) -----------------------
+
+def _parameter_spec(**overrides) -> SweepSpec:
+    """A toy parameter: pt's Russian-roulette survival, which lengthens paths as it grows."""
+    values = dict(scene="cornell-box", resolution=16, seeds=2, methods=["pt"],
+                  parameter=ParameterSweep(name="rr_survival", values=[0.5, 0.95]),
+                  params={"rr_depth": 1}, reference=ReferenceSpec(spp=256))
+    return SweepSpec(**{**values, **overrides})
+
+
+@pytest.fixture(scope="module")
+def parameter_env(tmp_path_factory, mi):
+    settings_ = Settings(data_dir=Path(tmp_path_factory.mktemp("parameter")) / "data")
+    store = open_store(settings_)
+    yield settings_, store, run_sweep(_parameter_spec(), store, settings_)
+    store.close()
+
+
+def test_a_parameter_sweep_renders_a_row_per_value_with_the_same_seeds(parameter_env):
+    _, store, result = parameter_env
+    assert result.kind == "parameter" and result.parameter == "rr_survival"
+    assert [(row.series, row.value) for row in result.rows] == [("pt", 0.5), ("pt", 0.95)]
+    runs = [store.get_run(row.id) for row in result.rows]
+    assert [run.params["rr_survival"] for run in runs] == [0.5, 0.95]
+    assert {run.params["rr_depth"] for run in runs} == {1} and {run.seeds for run in runs} == {2}
+    assert runs[0].reference_id == runs[1].reference_id
+    for row in result.rows:
+        assert row.finite and row.mrse is not None and np.isfinite(row.mrse)
+    # The swept value reached the renderer: higher survival, longer paths.
+    assert result.rows[1].avg_path_length > result.rows[0].avg_path_length
+    assert Path(result.files["parameter"]).stat().st_size > 0
+    assert result.work["points_rendered"] == 2 and result.work["reference_rendered"] == 1
+
+
+def test_a_repeated_or_staged_parameter_sweep_renders_nothing_new(parameter_env):
+    settings_, store, first = parameter_env
+    again = run_sweep(_parameter_spec(), store, settings_)
+    assert again.work["points_rendered"] == 0 and again.work["points_reused"] == 2
+    assert [row.id for row in again.rows] == [row.id for row in first.rows]
+    staged = _run_staged(_parameter_spec(parameter=ParameterSweep(
+        name="rr_survival", values=[0.5, 0.95, 0.8])), store, settings_)
+    assert staged.stage_work["points_rendered"] == 1 and staged.stage_work["points_reused"] == 2
+    assert [row.value for row in staged.rows] == [0.5, 0.95, 0.8]
+
+
+@pytest.mark.parametrize("values, fragment", [
+    ({"parameter": ParameterSweep(name="unknown", values=[1])}, "pt has no parameter"),
+    ({"parameter": ParameterSweep(name="rr_survival", values=[2.0])}, "less than or equal"),
+    ({"params": {"rr_survival": 0.5}}, "is swept"),
+    ({"eps": [0.1]}, "neither eps nor nc"),
+    ({"methods": ["pt", "nirc"], "parameter": ParameterSweep(name="nc", values=[1])},
+     "pt has no parameter"),
+])
+def test_bad_parameter_sweeps_are_explained(values, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        _parameter_spec(**values)
+
+
+def test_the_nc_sweep_takes_a_termination_the_method_accepts():
+    assert small_spec(eps=None, termination="sph").termination == "sph"
+    with pytest.raises(ValueError, match="termination"):
+        small_spec(eps=None, termination="magic")

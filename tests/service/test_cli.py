@@ -192,3 +192,17 @@ def test_server_errors_are_clear(tmp_path):
     with_out = run_cli("sweep", "--scene", "cornell-box", "--eps", "0.5", "--server",
                        "http://127.0.0.1:9", "--out", str(tmp_path / "x"), data_dir=tmp_path)
     assert_clean_error(with_out, "--out")
+
+
+@pytest.mark.parametrize("text, name, values", [
+    ("sph_c=0.01,0.1,1,10", "sph_c", [0.01, 0.1, 1.0, 10.0]),
+    ("unbiased_every=4:16:4", "unbiased_every", [4, 8, 12, 16]),
+    ("self_training=true,false", "self_training", [True, False]),
+    ("rr_mode=fixed,throughput", "rr_mode", ["fixed", "throughput"]),
+])
+def test_sweep_option_takes_values_or_a_range(text, name, values):
+    from service.cli import _parse_sweep
+
+    parsed = _parse_sweep(text)
+    assert (parsed.name, parsed.values) == (name, values)
+    assert [type(v) for v in parsed.values] == [type(v) for v in values]
