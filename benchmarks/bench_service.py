@@ -57,11 +57,11 @@ class _Direct:
         import psutil
 
         from jobs.protocol.executor import execute
-        from jobs.protocol.spec import RenderSpec
+        from jobs.protocol.job import RenderJob
 
         me = psutil.Process()
         cpu, start = _cpu_s(me), time.perf_counter()
-        execute(RenderSpec(**spec), self.store, self.settings)
+        execute(RenderJob.parse(spec), self.store, self.settings)
         return time.perf_counter() - start, _cpu_s(me) - cpu
 
 

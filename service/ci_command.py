@@ -45,12 +45,13 @@ class CiOptions:
 def embedded_runner(data_dir: Path | None) -> tuple[Runner, Store]:
     """Runs each spec in this process through the executor; also returns the store."""
     from jobs.protocol.executor import execute
+    from jobs.protocol.job import RenderJob
     from jobs.record.config import Settings
     from jobs.record.db import open_store
 
     settings = Settings(data_dir=data_dir) if data_dir else Settings()
     store = open_store(settings)
-    return (lambda spec: execute(spec, store, settings).result), store
+    return (lambda spec: execute(RenderJob.parse(spec), store, settings).result), store
 
 
 def remote_runner(server: str, api_key: str | None) -> Runner:

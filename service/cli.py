@@ -305,6 +305,7 @@ def render(
 ) -> None:
     """Render a method over K seeds, compare with the reference, store the run."""
     from jobs.protocol.executor import execute
+    from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
 
     params = dict(_parse_param(p) for p in param or [])
@@ -319,8 +320,8 @@ def render(
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
                       time_budget=budget)
     _run(server, api_key, "render", spec, as_json, data_dir,
-         lambda store, settings, report: execute(spec, store, settings, progress=report,
-                                                 out_dir=out),
+         lambda store, settings, report: execute(RenderJob.parse(spec), store, settings,
+                                                 progress=report, out_dir=out),
          lambda s: s.to_json(), lambda s: metrics_table(s.result), out)
     if out is not None and not as_json:
         console.print(f"images and summary.json written to {out}")

@@ -314,7 +314,8 @@ def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict
     """Run a job's spec through the one executor; returns what ``JobQueue.succeed``
     records: the result ids, or a stage's work counters."""
     from jobs.protocol.executor import execute
-    from jobs.protocol.spec import RenderSpec, SweepSpec
+    from jobs.protocol.job import RenderJob
+    from jobs.protocol.spec import SweepSpec
     from jobs.protocol.sweep import run_stage, run_sweep
 
     if job.kind == "stage":
@@ -329,7 +330,7 @@ def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict
     stored = store.find_run_by_idempotency_key(key)
     if stored is not None:  # an earlier attempt stored it, then died
         return {"run_id": stored.id}
-    summary = execute(RenderSpec(**job.spec), store, settings, progress=progress,
+    summary = execute(RenderJob.parse(job.spec), store, settings, progress=progress,
                       idempotency_key=key)
     return {"run_id": summary.run_id}
 

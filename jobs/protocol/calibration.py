@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -218,15 +219,6 @@ class LoadLog:
         return merge_loads(self.loads)
 
 
-def probe_seconds(scene: Any, method: str, params: dict[str, Any], spp: int,
-                  frames: int) -> float:
-    """Median seconds per frame of :func:`probe_timings` with ``params`` as JSON."""
-    from renderers.methods import parse_params
-
-    return probe_timings(scene, method, parse_params(method, params), spp,
-                         frames)["frame_median_s"]
-
-
 def knob_of(spec: Any) -> Any:
     """The equal-time knob of ``spec``'s method with its parameters (MethodError if none)."""
     from renderers.methods import METHODS, MethodError
@@ -241,51 +233,52 @@ def knob_of(spec: Any) -> Any:
     return knob
 
 
-def calibrate_job(spec: Any, scene: Any, device_key: str) -> tuple[Any, Calibration]:
-    """Calibrate ``spec``'s knob to its ``time_budget`` on this device.
+def calibrate_job(job: Any, scene: Any, device_key: str) -> tuple[Any, Calibration]:
+    """Calibrate the knob of ``job`` (a :class:`jobs.protocol.job.RenderJob`) to its
+    spec's ``time_budget`` on this device.
 
     The knob is the method's (its ``Method.knob``): spp, or a parameter the
-    method sets (N_c at v1 for biased nirc). Returns the spec with the chosen
+    method sets (N_c at v1 for biased nirc). Returns the job with the chosen
     value and no budget, and the calibration record. Probes render one seed for ``probe_frames`` frames
     (caches without pre-training: the per-frame cost, online training
     included, does not depend on how trained the cache is). A PT budget is
-    re-measured in every round, interleaved with the candidates.
+    re-measured in every round, interleaved with the candidates. Each candidate is
+    a job derived from ``job`` (the job module validates it); the probes take its
+    typed parameters.
     """
-    from renderers.methods import BASELINE
-
+    spec = job.spec
     budget = spec.time_budget
     spec_knob = knob_of(spec)
     knob, default_candidates = spec_knob.name, list(spec_knob.candidates)
-
-    from renderers.methods import parse_params
-
     log = LoadLog()
 
-    def frame_seconds(method: str, params: dict[str, Any], spp: int) -> float:
-        return log.seconds(probe_timings(scene, method, parse_params(method, params), spp,
+    def frame_seconds(probe: Any, spp: int) -> float:
+        return log.seconds(probe_timings(scene, probe.method, probe.params, spp,
                                          budget.probe_frames))
 
     budget_value: float | Callable[[], float]
     if budget.ms is not None:
         budget_value, source = budget.ms / 1e3, f"{budget.ms} ms per frame"
     else:
-        pt_params = {"max_depth": spec.max_depth()}
-        budget_value = lambda: frame_seconds(BASELINE, pt_params, budget.pt_spp)  # noqa: E731
+        baseline = job.baseline()
+        budget_value = lambda: frame_seconds(baseline, budget.pt_spp)  # noqa: E731
         source = f"PT {budget.pt_spp} spp frame time (measured)"
+
+    @cache
+    def candidate(value: int) -> Any:
+        """The job with knob ``value`` (derived once per value, whatever the rounds)."""
+        return job.with_params(spec_knob.apply(spec.params, value))
 
     def measure(value: int) -> float:
         if knob == "spp":
-            return frame_seconds(spec.method, spec.params, value)
-        return frame_seconds(spec.method, spec_knob.apply(spec.params, value), spec.spp)
+            return frame_seconds(job, value)
+        return frame_seconds(candidate(value), spec.spp)
 
     record = calibrate(knob, budget.candidates or default_candidates, measure, budget_value,
                        budget_source=source, tolerance_s=budget.tolerance_ms / 1e3,
                        device_key=device_key, rounds=budget.rounds,
                        max_spread=budget.max_spread)
     record.note_load(log.merged())
-    update: dict[str, Any] = {"time_budget": None}
     if knob == "spp":
-        update["spp"] = record.chosen
-    else:
-        update["params"] = spec_knob.apply(spec.params, record.chosen)
-    return spec.model_copy(update=update), record
+        return job.with_spec(time_budget=None, spp=record.chosen), record
+    return candidate(record.chosen).with_spec(time_budget=None), record

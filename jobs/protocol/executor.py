@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from jobs.protocol.calibration import calibrate_job
+from jobs.protocol.job import RenderJob
 from jobs.protocol.plots import plot_convergence
 from jobs.protocol.provenance import git_branch, git_commit, library_versions
 from jobs.protocol.quality import finite_record, judge_run
@@ -47,7 +48,7 @@ from metrics.quality import withhold
 from metrics.registry import METRICS, Aggregate, per_seed_values, seed_mean
 from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
-from renderers.methods import check_applies, get_method, parse_params
+from renderers.methods import check_applies, get_method
 from renderers.methods.base import FrameHooks, OnFrame, RenderOutput
 from renderers.timing import pooled
 
@@ -278,19 +279,20 @@ class Prepared:
     started: datetime
 
 
-def prepare(spec: RenderSpec, store: Store, settings: Settings,
+def prepare(job: RenderJob, store: Store, settings: Settings,
             progress: Progress | None = None) -> Prepared:
     """Initialise the backend, load the scene and get (or render) its reference."""
     init_backend()
+    spec = job.spec
     scene = load_spec_scene(spec.scene, spec.resolution, settings)
     started = datetime.now(UTC)
     reference = get_or_render_reference(
-        store, settings.references_dir, scene, spec.reference.settings(spec.max_depth()),
+        store, settings.references_dir, scene, spec.reference.settings(job.max_depth),
         progress=(lambda done, total: progress("reference", done, total)) if progress else None)
     return Prepared(scene=scene, reference=reference, device=device_info(), started=started)
 
 
-def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender], store: Store,
+def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], store: Store,
               settings: Settings, *, idempotency_key: str | None = None,
               extra: dict[str, Any] | None = None, out_dir: Path | None = None) -> RunSummary:
     """Evaluate K seeds' renders (:func:`render_seed`) against the reference and store them
@@ -306,8 +308,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
     (``quality['nonfinite_values']``).
     """
     scene, reference, device = prepared.scene, prepared.reference, prepared.device
-    params = parse_params(spec.method, spec.params)
-    param_json = params.model_dump(mode="json")
+    spec = job.spec
+    param_json = job.params.model_dump(mode="json")
     artifacts_store = ArtifactStore(settings.artifacts_dir)
     scratch = settings.data_dir / "tmp"
     scratch.mkdir(parents=True, exist_ok=True)
@@ -382,14 +384,14 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
 
 
 def execute(
-    spec: RenderSpec,
+    job: RenderJob,
     store: Store,
     settings: Settings,
     progress: Progress | None = None,
     out_dir: Path | None = None,
     idempotency_key: str | None = None,
 ) -> RunSummary:
-    """Run ``spec`` to completion and store the result; see the module docstring.
+    """Run ``job`` to completion and store the result; see the module docstring.
 
     With a ``time_budget`` the spp (pt) or N_c (biased nirc) is first calibrated
     to it on this device (jobs.protocol.calibration); the run stores the calibrated spec
@@ -398,19 +400,18 @@ def execute(
     ``idempotency_key`` (e.g. a sweep point's key) is stored with the run; a
     second run under the same key raises ``DuplicateKeyError``.
     """
-    method = get_method(spec.method)
-    parse_params(spec.method, spec.params)
-    prepared = prepare(spec, store, settings, progress)
-    check_applies(spec.method, prepared.scene.features)
+    method = get_method(job.method)
+    prepared = prepare(job, store, settings, progress)
+    check_applies(job.method, prepared.scene.features)
     extra: dict[str, Any] = {}
-    if spec.time_budget is not None:
+    if job.spec.time_budget is not None:
         if progress:
             progress("calibration", 0, 1)
-        spec, calibration = calibrate_job(spec, prepared.scene, prepared.device["device_key"])
+        job, calibration = calibrate_job(job, prepared.scene, prepared.device["device_key"])
         extra["calibration"] = calibration.to_json()
         if progress:
             progress("calibration", 1, 1)
-    params = parse_params(spec.method, spec.params)
+    spec, params = job.spec, job.params
     param_json = params.model_dump(mode="json")
     rendered = []
     for seed in range(spec.seed_start, spec.seed_start + spec.seeds):
@@ -423,5 +424,5 @@ def execute(
             prepared.reference.mean, spec.eps, keep_frames=spec.keep_frames,
             progress=(lambda done, total, label=label: progress(label, done, total))
             if progress else None))
-    return store_run(spec, prepared, rendered, store, settings, out_dir=out_dir,
+    return store_run(job, prepared, rendered, store, settings, out_dir=out_dir,
                      idempotency_key=idempotency_key, extra=extra)

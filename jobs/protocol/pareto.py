@@ -52,6 +52,7 @@ from jobs.protocol.calibration import (
     probe_timings,
 )
 from jobs.protocol.executor import Prepared, execute, prepare
+from jobs.protocol.job import RenderJob
 from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
 from jobs.protocol.scene_store import load_spec_scene
@@ -337,7 +338,8 @@ def stored_or_rendered(spec: RenderSpec, prepared: Prepared, store: Store, setti
     if run is not None:
         return run, True
     try:
-        summary = execute(spec, store, settings, progress=progress, idempotency_key=key)
+        summary = execute(RenderJob.parse(spec), store, settings, progress=progress,
+                          idempotency_key=key)
     except DuplicateKeyError as err:   # another call stored it meanwhile
         return err.existing, True
     return store.get_run(summary.run_id), False
@@ -347,7 +349,7 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
                progress: Progress | None = None, out_dir: Path | None = None) -> ParetoResult:
     """Render (or reuse), time and evaluate every planned point (module docstring)."""
     series, skipped = plan(spec)
-    prepared = prepare(run_spec(spec, series[0][0]), store, settings, progress)
+    prepared = prepare(RenderJob.parse(run_spec(spec, series[0][0])), store, settings, progress)
     runs: list[tuple[Planned, Any, bool]] = []
     not_applicable: set[str] = set()
     ordered = interleave(series)

@@ -25,6 +25,7 @@ from pydantic import BaseModel, Field
 
 from jobs.protocol.calibration import caveats
 from jobs.protocol.executor import RunSummary, execute
+from jobs.protocol.job import RenderJob
 from jobs.protocol.results import ReportRow, Skipped
 from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
 from jobs.record.config import Settings
@@ -65,7 +66,7 @@ def comparison_report(
         step = (lambda stage, done, total: progress(f"{label}: {stage}", done, total)) \
             if progress else None
         try:
-            return execute(spec, store, settings, progress=step)
+            return execute(RenderJob.parse(spec), store, settings, progress=step)
         except NotApplicable as err:   # the method's applies_to rules the scene out
             report.skipped.append(Skipped(method=method, label=label, reason=str(err)))
             return None

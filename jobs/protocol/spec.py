@@ -12,7 +12,15 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from jobs.protocol.versions import sweep_estimator_versions, versions_of
 from metrics import METRIC_VERSION
@@ -125,14 +133,6 @@ class RenderSpec(BaseModel):
         None, description="calibrate spp (pt) or N_c (nirc biased) to this frame time")
 
     _check_params = field_validator("params")(finite_params)
-
-    def max_depth(self) -> int:
-        """The method's path depth, which its reference must share: the params' or the
-        default of the method's parameter model (`restir-di`: 2, direct light only)."""
-        field = METHODS[self.method].params.model_fields.get("max_depth") \
-            if self.method in METHODS else None
-        default = DEFAULT_MAX_DEPTH if field is None else field.default
-        return int(self.params.get("max_depth", default))
 
     def versions(self) -> dict[str, int]:
         """The estimator version of the method and the metric version, as of today."""
@@ -285,6 +285,14 @@ class SweepSpec(BaseModel):
                     raise ValueError(str(err)) from None
         return self
 
+    @model_serializer(mode="wrap")
+    def _omit_no_parameter(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # Specs from before parameter sweeps dump, store and hash as they did.
+        data = handler(self)
+        if data.get("parameter") is None:
+            data.pop("parameter", None)
+        return data
+
     def _check_parameter(self, sweep: ParameterSweep) -> None:
         if self.eps is not None or self.nc is not None:
             raise ValueError("a parameter sweep takes neither eps nor nc values")
@@ -340,7 +348,4 @@ class SweepSpec(BaseModel):
     def key(self, device_key: str) -> str:
         """Content address of the sweep on one device (timings are per device) under
         today's versions."""
-        data = self.model_dump(mode="json")
-        if data["parameter"] is None:  # specs from before parameter sweeps keep their keys
-            del data["parameter"]
-        return digest("sweep-spec", data, device_key, self.versions())
+        return digest("sweep-spec", self.model_dump(mode="json"), device_key, self.versions())

@@ -436,12 +436,14 @@ class EmbeddedBackend:
 
     def run(self, spec: RenderSpec) -> Outcome:
         from jobs.protocol.executor import execute
+        from jobs.protocol.job import RenderJob
         from jobs.protocol.references import stored_reference
         from metrics.imageio import read_exr
 
         with tempfile.TemporaryDirectory(prefix="nirc-stress-run-") as out:
             try:
-                summary = execute(spec, self.store, self.settings, out_dir=Path(out))
+                summary = execute(RenderJob.parse(spec), self.store, self.settings,
+                                  out_dir=Path(out))
             except SceneError as err:
                 raise Refused(str(err)) from None
             images = [read_exr(summary.files[f"image_seed{k}.exr"]) for k in range(spec.seeds)]

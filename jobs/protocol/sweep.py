@@ -74,10 +74,11 @@ from jobs.protocol.executor import (
     render_seed,
     store_run,
 )
+from jobs.protocol.job import RenderJob
 from jobs.protocol.plots import plot_convergence, plot_sweep
 from jobs.protocol.results import RunResult, Skipped
 from jobs.protocol.snapshots import Snapshot, get_or_make_snapshot
-from jobs.protocol.spec import RenderSpec, SweepSpec
+from jobs.protocol.spec import SweepSpec
 from jobs.record.artifacts import ArtifactStore, artifact_record
 from jobs.record.config import Settings
 from jobs.record.store import Store
@@ -234,7 +235,8 @@ class _Sweep:
         self.report = progress or (lambda stage, done, total: None)
         self.whole = whole
         self.base = spec.base_render_spec()
-        self.prepared: Prepared = prepare(self.base, store, settings, progress)
+        self.prepared: Prepared = prepare(RenderJob.parse(self.base), store, settings,
+                                          progress)
         self.device_key = self.prepared.device["device_key"]
         self.work = {"reference_rendered": int(self.prepared.reference.rendered_now),
                      "snapshots_trained": 0, "snapshots_reused": 0, "points_rendered": 0,
@@ -275,9 +277,12 @@ class _Sweep:
                       self.prepared.reference.key, self.device_key, extra,
                       self.spec.versions(), length=32)
 
-    def point_spec(self, method: str, params: Any) -> RenderSpec:
-        return self.base.model_copy(update={"method": method,
+    def point_job(self, method: str, params: Any) -> RenderJob:
+        """The render job of a point: the sweep's base spec with ``method`` and its
+        parameters, validated by the sweep (:meth:`params`, the spec's expansions)."""
+        spec = self.base.model_copy(update={"method": method,
                                             "params": params.model_dump(mode="json")})
+        return RenderJob.of(spec, params)
 
     # ---- snapshots and frozen integrators ----
 
@@ -362,7 +367,7 @@ class _Sweep:
                                "snapshots": [self.snapshot(method, s).key
                                              for s in range(self.spec.seeds)],
                                **(point.extra or {})}}
-            summary = store_run(self.point_spec(method, params), self.prepared,
+            summary = store_run(self.point_job(method, params), self.prepared,
                                 rendered[point.eps], self.store, self.settings,
                                 idempotency_key=point.key, extra=extra)
             run_ids[point.eps] = summary.run_id
@@ -473,14 +478,14 @@ class _Sweep:
             **self.spec.params, "max_depth": self.spec.max_depth,
             **get_method(method).sweep.knob_point(nc, self.spec.termination),
             "pretrain_frames": self.spec.train_frames})
-        spec = self.point_spec(method, params)
-        key = digest("sweep-nc-point", spec.model_dump(mode="json"), self.device_key,
-                     self.prepared.reference.key, spec.versions(), length=32)
+        job = self.point_job(method, params)
+        key = digest("sweep-nc-point", job.spec.model_dump(mode="json"), self.device_key,
+                     self.prepared.reference.key, job.spec.versions(), length=32)
         run = self.store.find_run_by_idempotency_key(key)
         if run is not None:
             self.work["points_reused"] += 1
             return run
-        summary = execute(spec, self.store, self.settings, idempotency_key=key,
+        summary = execute(job, self.store, self.settings, idempotency_key=key,
                           progress=self.report)
         self.work["points_rendered"] += 1
         return self.store.get_run(summary.run_id)
@@ -489,14 +494,15 @@ class _Sweep:
     def parameter_point(self, method: str, value: Any) -> Any:
         """The stored run of ``method`` at one value of a parameter sweep, rendering it
         if missing (every value with the same seeds and the sweep's reference)."""
-        spec = self.point_spec(method, self.spec.parameter_point(method, value))
-        key = digest("sweep-parameter-point", spec.model_dump(mode="json"), self.device_key,
-                     self.prepared.reference.key, spec.versions(), length=32)
+        job = self.point_job(method, self.spec.parameter_point(method, value))
+        key = digest("sweep-parameter-point", job.spec.model_dump(mode="json"),
+                     self.device_key, self.prepared.reference.key, job.spec.versions(),
+                     length=32)
         run = self.store.find_run_by_idempotency_key(key)
         if run is not None:
             self.work["points_reused"] += 1
             return run
-        summary = execute(spec, self.store, self.settings, idempotency_key=key,
+        summary = execute(job, self.store, self.settings, idempotency_key=key,
                           progress=self.report)
         self.work["points_rendered"] += 1
         return self.store.get_run(summary.run_id)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import pytest
 
 from jobs.protocol.executor import execute
+from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.record.config import Settings
 from jobs.record.db import open_store
@@ -29,7 +30,7 @@ def test_trained_biased_caches_beat_pt_at_one_spp(mi, data_dir, scene):
                       reference=ReferenceSpec(spp=4096))
 
     def run(method, params):
-        return execute(base.model_copy(update={"method": method, "params": params}), store,
+        return execute(RenderJob.parse(base.model_copy(update={"method": method, "params": params})), store,
                        settings).metrics
 
     pt = run("pt", {})

@@ -12,6 +12,7 @@ import itertools
 import pytest
 
 from jobs.protocol.calibration import calibrate, calibrate_job, caveats
+from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import RenderSpec, TimeBudget
 from renderers.methods.nirc import with_nc_at_v1
 
@@ -147,6 +148,7 @@ def test_calibrate_job_keeps_the_later_vertex_nc(monkeypatch):
     spec = RenderSpec(scene="cornell-box", method="nirc",
                       params={"termination": "adaptive", "nc": [8, 1]},
                       time_budget=TimeBudget(ms=4.5, candidates=[1, 2, 4, 8], rounds=2))
-    calibrated, record = calibrate_job(spec, scene=None, device_key="test")
-    assert calibrated.params["nc"] == [4, 1] and record.chosen == 4
+    calibrated, record = calibrate_job(RenderJob.parse(spec), scene=None, device_key="test")
+    assert calibrated.spec.params["nc"] == [4, 1] and record.chosen == 4
+    assert calibrated.params.nc == [4, 1] and calibrated.spec.time_budget is None
     assert all(nc[1:] == [1] for nc in seen) and len(seen) == 8   # 4 candidates x 2 rounds

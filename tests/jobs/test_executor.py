@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from jobs.protocol.executor import execute, per_cache_metrics
+from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.record.config import Settings
 from jobs.record.db import open_store
@@ -27,7 +28,7 @@ def env(mi, data_dir):
 
 def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
     settings, store = env
-    summary = execute(SPEC, store, settings)
+    summary = execute(RenderJob.parse(SPEC), store, settings)
 
     run = store.get_run(summary.run_id)
     assert run.status == "succeeded" and run.method == "pt" and run.seeds == 3
@@ -69,7 +70,7 @@ def test_a_cached_run_stores_its_time_breakdown_and_resolved_cache(env):
     settings, store = env
     spec = SPEC.model_copy(update={"method": "nirc", "seeds": 1,
                                    "params": {"cache": {"batch_size": 256}}})
-    summary = execute(spec, store, settings)
+    summary = execute(RenderJob.parse(spec), store, settings)
     run = store.get_run(summary.run_id)
     parts = run.timings["breakdown"]["parts_s"]
     assert {"render", "training_paths", "training", "other"} <= set(parts)
@@ -96,20 +97,20 @@ def test_a_barely_trained_cache_is_not_ok(env):
     settings, store = env
     spec = SPEC.model_copy(update={"method": "nirc", "seeds": 1,
                                    "params": {"cache": {"batch_size": 64}}})
-    short = execute(spec, store, settings).quality
+    short = execute(RenderJob.parse(spec), store, settings).quality
     assert short["verdict"] == "undertrained-cache" and short["withheld"] == []
     assert "steps (12) than their configuration needs to count as trained (100)" in \
         short["reasons"][0]["message"]
-    trained = execute(spec.model_copy(update={"params": {"cache": {"batch_size": 64},
-                                                         "pretrain_frames": 22}}),
+    trained = execute(RenderJob.parse(spec.model_copy(update={"params": {"cache": {"batch_size": 64},
+                                                         "pretrain_frames": 22}})),
                       store, settings).quality
     assert trained["verdict"] == "ok", trained
 
 
 def test_the_reference_is_rendered_once_and_reused(env):
     settings, store = env
-    first = execute(SPEC, store, settings)
-    second = execute(SPEC.model_copy(update={"seeds": 2}), store, settings)
+    first = execute(RenderJob.parse(SPEC), store, settings)
+    second = execute(RenderJob.parse(SPEC.model_copy(update={"seeds": 2})), store, settings)
     assert first.reference["rendered_now"] and not second.reference["rendered_now"]
     assert first.reference["key"] == second.reference["key"]
     assert len(list(settings.references_dir.glob("*.variance.exr"))) == 1
@@ -117,9 +118,9 @@ def test_the_reference_is_rendered_once_and_reused(env):
 
 def test_a_damaged_reference_file_is_rendered_again(env):
     settings, store = env
-    first = execute(SPEC, store, settings)
+    first = execute(RenderJob.parse(SPEC), store, settings)
     (settings.references_dir / f"{first.reference['key']}.exr").write_bytes(b"not an exr")
-    again = execute(SPEC, store, settings)
+    again = execute(RenderJob.parse(SPEC), store, settings)
     assert again.reference["rendered_now"]
 
 
@@ -134,7 +135,7 @@ def test_nonfinite_pixels_are_counted_and_fail_the_quality_flag(env, monkeypatch
 
     monkeypatch.setitem(methods.METHODS, "pt",
                         dataclasses.replace(original, render=render_with_a_nan))
-    summary = execute(SPEC.model_copy(update={"resolution": 16}), store, settings)
+    summary = execute(RenderJob.parse(SPEC.model_copy(update={"resolution": 16})), store, settings)
     # 1 of 256 pixels per seed: below the 1 % limit, so flagged but still scored.
     assert summary.quality["finite"] is False and summary.quality["nonfinite_pixels"] == 3
     assert summary.quality["verdict"] == "nonfinite" and summary.quality["withheld"] == []
@@ -147,7 +148,7 @@ def test_nonfinite_pixels_are_counted_and_fail_the_quality_flag(env, monkeypatch
 
 def test_kept_frames_are_stored_per_seed(env):
     settings, store = env
-    summary = execute(SPEC.model_copy(update={"keep_frames": True, "seeds": 2}), store, settings)
+    summary = execute(RenderJob.parse(SPEC.model_copy(update={"keep_frames": True, "seeds": 2})), store, settings)
     run = store.get_run(summary.run_id)
     frames = sorted((a.seed_result_id, a.kind) for a in run.artifacts if a.kind.startswith("frame"))
     assert len(frames) == 2 * SPEC.frames
@@ -155,7 +156,7 @@ def test_kept_frames_are_stored_per_seed(env):
 
 def test_convergence_over_frames_is_stored_per_seed(env):
     settings, store = env
-    summary = execute(SPEC.model_copy(update={"frames": 4, "seeds": 2}), store, settings)
+    summary = execute(RenderJob.parse(SPEC.model_copy(update={"frames": 4, "seeds": 2})), store, settings)
     run = store.get_run(summary.run_id)
     for seed in run.seed_results:
         curve = seed.metrics["convergence"]
@@ -172,7 +173,7 @@ def test_a_time_budget_calibrates_spp_and_is_recorded(env):
 
     settings, store = env
     budget = TimeBudget(pt_spp=2, candidates=[1, 2, 4, 8], probe_frames=2, tolerance_ms=1e6)
-    summary = execute(SPEC.model_copy(update={"time_budget": budget, "seeds": 2}), store,
+    summary = execute(RenderJob.parse(SPEC.model_copy(update={"time_budget": budget, "seeds": 2})), store,
                       settings)
     calibration = summary.metrics["calibration"]
     assert calibration["knob"] == "spp" and calibration["fits"]
@@ -183,7 +184,7 @@ def test_a_time_budget_calibrates_spp_and_is_recorded(env):
     assert store.get_run(summary.run_id).spp == 8
 
     tiny = TimeBudget(ms=1e-6, candidates=[1, 2], probe_frames=1)
-    over = execute(SPEC.model_copy(update={"time_budget": tiny, "seeds": 2}), store, settings)
+    over = execute(RenderJob.parse(SPEC.model_copy(update={"time_budget": tiny, "seeds": 2})), store, settings)
     assert over.metrics["calibration"]["fits"] is False and over.spec.spp == 1
     # Every candidate is timed (frame time need not grow with the knob).
     assert list(over.metrics["calibration"]["measured_s"]) == ["1", "2"]
@@ -195,7 +196,7 @@ def test_a_time_budget_needs_a_knob(env):
     settings, store = env
     spec = SPEC.model_copy(update={"method": "nrc", "time_budget": TimeBudget(ms=10)})
     with pytest.raises(methods.MethodError, match="no equal-time knob"):
-        execute(spec, store, settings)
+        execute(RenderJob.parse(spec), store, settings)
     with pytest.raises(ValueError, match="exactly one"):
         TimeBudget(ms=1, pt_spp=2)
 
@@ -242,7 +243,7 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     from service.tables import metric_label, metrics_table, sweep_table
 
     settings, store = env
-    summary = execute(SPEC, store, settings)
+    summary = execute(RenderJob.parse(SPEC), store, settings)
     run = store.get_run(summary.run_id)
     for metric in METRICS:
         assert metric.key in run.metrics, metric.name
@@ -320,8 +321,8 @@ def test_a_method_with_temporal_reuse_reports_no_per_cache_statistics(env):
     settings, store = env
     assert {n for n, m in methods.METHODS.items() if m.correlated_frames} == {
         "restir-di", "restir-nvc"}
-    summary = execute(SPEC.model_copy(update={"scene": "cornell-box", "method": "restir-di",
-                                              "seeds": 2}), store, settings)
+    summary = execute(RenderJob.parse(SPEC.model_copy(update={"scene": "cornell-box", "method": "restir-di",
+                                              "seeds": 2})), store, settings)
     assert summary.metrics["rbias2_per_cache_mean"] is None
     assert "temporal reuse" in summary.metrics["per_cache_unavailable"]
     assert summary.metrics["rbias2"] is not None

@@ -175,8 +175,8 @@ def test_a_repeated_call_reuses_its_stored_runs_and_measures_time_again(mi, data
     renders = []
     execute = pareto_module.execute
     monkeypatch.setattr(pareto_module, "execute",
-                        lambda spec, *args, **kwargs: renders.append(spec.method + str(spec.spp))
-                        or execute(spec, *args, **kwargs))
+                        lambda job, *args, **kwargs: renders.append(job.method + str(job.spec.spp))
+                        or execute(job, *args, **kwargs))
     settings = Settings()
     store = open_store(settings)
     first = run_pareto(TINY, store, settings)

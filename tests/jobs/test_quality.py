@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jobs.protocol.executor import execute
+from jobs.protocol.job import RenderJob
 from jobs.protocol.quality import judge_run
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.record.config import Settings
@@ -49,7 +50,7 @@ def test_a_scene_without_emitter_is_told_not_scored(env, tmp_path):
     settings, store = env
     path = tmp_path / "dark.xml"
     path.write_text(SCENE.format(emitter=""))
-    summary = execute(_spec(path), store, settings)
+    summary = execute(RenderJob.parse(_spec(path)), store, settings)
     run = store.get_run(summary.run_id)
     assert run.quality["verdict"] == "no-emitter"
     assert {r["code"] for r in run.quality["reasons"]} == {"no-emitter", "degenerate-reference"}
@@ -67,7 +68,7 @@ def test_a_black_reference_is_degenerate_and_keeps_the_absolute_error(env, tmp_p
     settings, store = env
     path = tmp_path / "away.xml"
     path.write_text(SCENE.format(emitter=AWAY_EMITTER))
-    summary = execute(_spec(path), store, settings)
+    summary = execute(RenderJob.parse(_spec(path)), store, settings)
     assert summary.quality["verdict"] == "degenerate-reference"
     assert summary.metrics["mrse_mean"] is None and summary.metrics["flip_hdr_mean"] is None
     assert summary.metrics["psnr_mean"] is None     # two black tone-mapped images: 100 dB

@@ -14,6 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from jobs.protocol.executor import execute
+from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.record.config import Settings
 from jobs.record.db import open_store
@@ -70,7 +71,7 @@ def stored(store, summary):
 def test_a_cache_that_never_trained_says_how_many_steps_were_skipped_and_why(env, tmp_path):
     # 1e18: the reference stays finite, but every training loss overflows float32.
     settings, store = env
-    summary = execute(spec(scene(tmp_path, "bright", radiance="1e18"), "nrc", frames=2),
+    summary = execute(RenderJob.parse(spec(scene(tmp_path, "bright", radiance="1e18"), "nrc", frames=2)),
                       store, settings)
     run = stored(store, summary)
     assert run.quality["verdict"] == "untrained-cache"
@@ -86,7 +87,7 @@ def test_an_overflowing_reference_is_nonfinite_not_an_empty_ok(env, tmp_path):
     # 1e30: the reference mean is finite, its variance (1e60) is not: before, the run
     # was "ok" with MSE and MRSE silently None.
     settings, store = env
-    summary = execute(spec(scene(tmp_path, "huge", radiance="1e30")), store, settings)
+    summary = execute(RenderJob.parse(spec(scene(tmp_path, "huge", radiance="1e30"))), store, settings)
     run = stored(store, summary)
     assert run.quality["verdict"] == "nonfinite"
     assert set(run.quality["withheld"]) == ERRORS
@@ -99,7 +100,7 @@ def test_an_overflowing_reference_is_nonfinite_not_an_empty_ok(env, tmp_path):
 def test_negative_radiance_is_told_not_hidden_as_a_black_reference(env, tmp_path):
     # Before, negative pixels counted as black: the verdict was degenerate-reference.
     settings, store = env
-    summary = execute(spec(scene(tmp_path, "negative", radiance="-1")), store, settings)
+    summary = execute(RenderJob.parse(spec(scene(tmp_path, "negative", radiance="-1"))), store, settings)
     run = stored(store, summary)
     assert run.quality["verdict"] == "negative-radiance"
     assert run.quality["withheld"] == ["flip"]
@@ -132,7 +133,7 @@ def test_a_black_reference_is_degenerate(env, tmp_path):
     settings, store = env
     # The lamp sits far outside the view, behind the floor: everything seen is black.
     path = scene(tmp_path, "dark", light='<translate z="-50"/>')
-    run = stored(store, execute(spec(path), store, settings))
+    run = stored(store, execute(RenderJob.parse(spec(path)), store, settings))
     assert run.quality["verdict"] == "degenerate-reference"
     assert run.metrics["mrse_mean"] is None and run.metrics["mse_mean"] is not None
 

@@ -153,12 +153,13 @@ def test_masks_use_the_noise_corrected_bias_of_the_snapshots(sweep_env):
     """The rows' mask coverage is that of the noise-corrected map of the stored v1 images
     and variances; on these 32-spp images the raw map would admit fewer pixels."""
     from jobs.protocol.executor import prepare
+    from jobs.protocol.job import RenderJob
     from jobs.protocol.snapshots import _load
     from metrics.bias_maps import bias_map, passes
 
     settings_, store, result = sweep_env
     spec = small_spec()
-    reference = prepare(spec.base_render_spec(), store, settings_).reference
+    reference = prepare(RenderJob.parse(spec.base_render_spec()), store, settings_).reference
     gained = 0
     for name in ("NIRC", "NRC"):
         for row in _series(result, name):

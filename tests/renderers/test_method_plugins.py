@@ -41,6 +41,7 @@ from pydantic import ValidationError
 
 from jobs.execution.apikeys import create_api_key
 from jobs.protocol.executor import execute
+from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec, SweepSpec
 from jobs.record.config import Settings
 from jobs.record.db import open_store
@@ -53,7 +54,7 @@ settings = Settings(data_dir=Path(sys.argv[1]))
 store = open_store(settings)
 spec = RenderSpec(scene="cornell-box", method="example-direct", resolution=16, spp=1,
                   frames=2, seeds=2, reference=ReferenceSpec(spp=64, spp_per_pass=16))
-summary = execute(spec, store, settings)
+summary = execute(RenderJob.parse(spec), store, settings)
 run = store.get_run(summary.run_id)
 _, key = create_api_key(store, "plugin test")
 with TestClient(create_app(settings)) as http:

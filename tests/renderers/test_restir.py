@@ -87,10 +87,11 @@ def test_parameters_are_validated_and_the_method_registered():
 
 
 def test_the_reference_depth_is_the_methods():
+    from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import RenderSpec
 
-    assert RenderSpec(scene="many-lights", method="restir-di").max_depth() == 2
-    assert RenderSpec(scene="many-lights", method="pt").max_depth() == -1
+    assert RenderJob.parse(RenderSpec(scene="many-lights", method="restir-di")).max_depth == 2
+    assert RenderJob.parse(RenderSpec(scene="many-lights", method="pt")).max_depth == -1
 
 
 def test_temporal_confidence_is_clamped(mi, many_lights):

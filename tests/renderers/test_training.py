@@ -141,6 +141,7 @@ class ConstantCache:
 # ---- Defaults: one depth for renders, references and training ----
 
 def test_default_depth_is_unbounded_everywhere():
+    from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import RenderSpec, SweepSpec
     from renderers.methods.pt import PTParams
     from renderers.reference import ReferenceSettings
@@ -149,10 +150,10 @@ def test_default_depth_is_unbounded_everywhere():
     assert parse_params("nirc", {}).max_depth == -1
     assert parse_params("nrc", {}).max_depth == -1
     assert ReferenceSettings().max_depth == -1
-    assert RenderSpec(scene="door").max_depth() == -1
+    assert RenderJob.parse(RenderSpec(scene="door")).max_depth == -1
     sweep = SweepSpec(scene="door", nc=[1])
     assert sweep.max_depth == -1
-    assert sweep.base_render_spec().max_depth() == -1
+    assert RenderJob.parse(sweep.base_render_spec()).max_depth == -1
     with pytest.raises(ValueError, match="max_depth"):
         SweepSpec(scene="door", nc=[1], max_depth=0)
 

@@ -8,6 +8,7 @@ import pytest
 
 from jobs.execution.queue import JobQueue
 from jobs.protocol.executor import execute
+from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.protocol.versions import current_estimator_versions
 from jobs.record.config import Settings
@@ -30,8 +31,8 @@ def site(tmp_path_factory, mi):
     store = open_store(settings)
     spec = RenderSpec(scene="cornell-box", resolution=16, spp=1, frames=4, seeds=2,
                       reference=ReferenceSpec(spp=64, spp_per_pass=8))
-    execute(spec, store, settings)
-    execute(spec.model_copy(update={"spp": 2}), store, settings)
+    execute(RenderJob.parse(spec), store, settings)
+    execute(RenderJob.parse(spec.model_copy(update={"spp": 2})), store, settings)
     sweep = store.start_sweep(key="k", kind="eps", scene_name="cornell-box",
                               scene_fingerprint="f", spec={}, result={}, device_key="test",
                               estimator_versions=current_estimator_versions(),

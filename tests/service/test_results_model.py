@@ -8,6 +8,7 @@ from rich.console import Console
 
 from jobs.execution.apikeys import create_api_key
 from jobs.protocol.executor import execute
+from jobs.protocol.job import RenderJob
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.protocol.sweep import point_row
@@ -29,7 +30,7 @@ def _text(renderable) -> str:
 def test_every_view_of_a_run_is_the_one_result_model(mi, data_dir):
     settings = Settings()
     store = open_store(settings)
-    summary = execute(SPEC, store, settings)
+    summary = execute(RenderJob.parse(SPEC), store, settings)
     run = store.get_run(summary.run_id)
     row = RunResult.of(run)
     assert summary.result == RunResultDetail.of(run)   # what the executor hands the CLI

@@ -21,6 +21,7 @@ from jobs.execution.graph import sweep_stages
 from jobs.execution.queue import IdempotencyKeyReused, TooManyJobs, spec_key
 from jobs.execution.timecost import estimate_seconds
 from jobs.execution.work import data_bytes, reference_stored, render_work, sweep_work
+from jobs.protocol.job import RenderJob
 from jobs.protocol.scene_store import rest_scene
 from jobs.protocol.spec import RenderSpec, SweepSpec
 from jobs.record.config import Settings
@@ -70,17 +71,22 @@ def _check_params(method: str, params: dict) -> None:
                                        f"{format_validation_error(err)}") from None
 
 
-def _check_render(spec: RenderSpec, settings: Settings) -> RenderSpec:
-    _check_params(spec.method, spec.params)
-    return spec.model_copy(update={"scene": _check_scene(spec.scene, settings)})
+def _check_render(spec: RenderSpec, settings: Settings) -> RenderJob:
+    """The request's job, parsed here once (strictly: in a request body a string or a
+    boolean is not a number), with the scene checked."""
+    try:
+        job = RenderJob.parse(spec, strict=True)
+    except MethodError as err:
+        raise _unprocessable("params", str(err)) from None
+    return job.with_spec(scene=_check_scene(spec.scene, settings))
 
 
-def _check_work(kind: str, spec: RenderSpec | SweepSpec, store, settings,
+def _check_work(kind: str, spec: RenderJob | SweepSpec, store, settings,
                 device_class: str) -> None:
     """Refuse what is too big before it is queued: too many stage jobs, samples or
     estimated seconds for this service's limits (422), or more files than its disk
     limit allows (507)."""
-    if kind == "sweep":
+    if isinstance(spec, SweepSpec):
         stages = sweep_stages(spec)
         if len(stages) > settings.max_sweep_stages:
             raise _unprocessable("seeds", (
@@ -89,8 +95,9 @@ def _check_work(kind: str, spec: RenderSpec | SweepSpec, store, settings,
                 f"this service allows {settings.max_sweep_stages} (max_sweep_stages)"))
         estimate = sweep_work(spec, stages)
     else:
+        job, spec = spec, spec.spec
         estimate = render_work(spec, reference_stored(store, spec.scene, spec.resolution,
-                                                      spec.reference, spec.max_depth()))
+                                                      spec.reference, job.max_depth))
     if estimate.samples > settings.max_job_work:
         parts = ", ".join(f"{name} {samples:.3g}" for name, samples in estimate.parts.items())
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, [{"loc": ["body"], "msg": (
@@ -126,13 +133,14 @@ def _sources(sources: dict[str, str]) -> str:
     return "; ".join(dict.fromkeys(sources.values()))
 
 
-def _enqueue(kind: str, spec: RenderSpec | SweepSpec, queue, dispatcher, response: Response,
+def _enqueue(kind: str, parsed: RenderJob | SweepSpec, queue, dispatcher, response: Response,
              idempotency_key: str | None, device_class: str, settings,
              caller: ApiKey) -> JobOut:
     reason = dispatcher.unavailable(device_class) if dispatcher is not None else None
     if reason:
         raise HTTPException(status.HTTP_409_CONFLICT, reason)
-    _check_work(kind, spec, queue.store, settings, device_class)
+    _check_work(kind, parsed, queue.store, settings, device_class)
+    spec = parsed.spec if isinstance(parsed, RenderJob) else parsed
     try:
         job, created = queue.submit(kind, spec.model_dump(mode="json"),
                                     spec_key(kind, spec, device_class),
@@ -161,8 +169,7 @@ def submit_job(spec: RenderSpec, response: Response, queue: QueueDep,
                idempotency_key: IdempotencyKey = None,
                device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a render job (K seeds of a method on a scene, against its reference)."""
-    spec = _check_render(spec, settings)
-    return _enqueue("render", spec, queue, dispatcher, response,
+    return _enqueue("render", _check_render(spec, settings), queue, dispatcher, response,
                     idempotency_key, device_class, settings, caller)
 
 

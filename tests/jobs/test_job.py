@@ -1,0 +1,173 @@
+"""A render job is parsed once, where it enters, into one typed immutable object.
+
+The keys that address stored work (render and sweep specs, the queue's
+idempotency keys, references, the method parameters that go into sweep-point and
+snapshot keys) are those computed by the code before jobs were parsed once: the
+values below were computed with it, so stored results stay comparable.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from jobs.execution.queue import spec_key
+from jobs.protocol.job import RenderJob
+from jobs.protocol.references import reference_key
+from jobs.protocol.spec import RenderSpec, SweepSpec, TimeBudget
+from renderers.methods import MethodError, parse_params
+from renderers.seeding import digest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+RENDERS = {
+    "pt": RenderSpec(scene="cornell-box"),
+    "nirc_adaptive": RenderSpec(scene="cornell-box", method="nirc",
+                                params={"termination": "adaptive", "nc": [8, 1]}, seeds=2),
+    "nrc_budget": RenderSpec(scene="door", method="nrc",
+                             params={"termination": "sph", "sph_c": 0.02},
+                             time_budget=TimeBudget(ms=5.0)),
+    "restir": RenderSpec(scene="many-lights", method="restir-di", seed_start=4),
+}
+SWEEPS = {
+    "eps": SweepSpec(scene="cornell-box", eps=[0.1, 0.3]),
+    "nc": SweepSpec(scene="cornell-box", nc=[1, 2], termination="sph", params={"sph_c": 0.02}),
+}
+PARAMS = [("nirc", t) for t in ("bth", "sph", "adaptive")] + [("nrc", t) for t in ("sph", "adaptive")]
+
+GOLDEN = {
+    "render-spec pt":
+        "b4f2cab8e2bcd3add62ff1df8a878fd9a821b06a669cda02283b1a58241ea506",
+    "idempotency render pt":
+        "b5678091e73286e49cb0b29782b458f34205dbfa77a4f182d702c8d9188550ed",
+    "reference pt":
+        "3052614eb2624108d207454ec5c419a5",
+    "render-spec nirc_adaptive":
+        "7dc660aead47fc5e18c2c92746a971c7ce8bf910e16fda22018712df34fbeabb",
+    "idempotency render nirc_adaptive":
+        "dd3ad1d30c66e0c0a04b2def1b7e86e741126c01512fe5e6363bb84968979794",
+    "reference nirc_adaptive":
+        "3052614eb2624108d207454ec5c419a5",
+    "render-spec nrc_budget":
+        "7b9613b6feaf15c8a5ac4c304116b1e93c882a833c728c00849a22f6864de9bf",
+    "idempotency render nrc_budget":
+        "852e8d564ed844070317d6d1b117ba425e03a82b2ee0b476087205372f62e41c",
+    "reference nrc_budget":
+        "3052614eb2624108d207454ec5c419a5",
+    "render-spec restir":
+        "bb45e80cc2cb7474780b6bfbc6635cbab48ca28556d24d3817459af2cb2f03bf",
+    "idempotency render restir":
+        "0e2a580ffb5f96df1be5fb41d954ff272482b1b30411700c457acc96332875a1",
+    "reference restir":
+        "614aaaa5d49d8d801ac6691d429eb33b",
+    "sweep-spec eps":
+        "665e289d1f4e2fe6acfc7f5aabc90b426fe64d4535bdb7a0291740aea6cba105",
+    "idempotency sweep eps":
+        "a9d3b106cc60381207a6797a771313c0786db9873bf2ad3bec71b3adc861922e",
+    "sweep-spec nc":
+        "03297169cea3fb3e36535d881aaaa573db6fe24075f8d901923f250d3a382281",
+    "idempotency sweep nc":
+        "b07bf1d1f859e3b1217a048090120adb33bc0b910df2c5a650d2597ec188a171",
+    "params nirc bth":
+        "39c614cd6df7d3c6db1c1da2de621cce85540fb8458c96b2d2fe29b5109a8e2a",
+    "params nirc sph":
+        "14b7d8ae15c57b49021f441a637232be6673f79ae409bd49d8c81e63afeed603",
+    "params nirc adaptive":
+        "f1346ac316a6feeb020a264181d4cc6fa29ce3c40a344bee4d46bfb1ee1c46cb",
+    "params nrc sph":
+        "17b639b1740769bd442eb745eb4019c3a9a26e6d5027fd3b1f0b01dac511663d",
+    "params nrc adaptive":
+        "7dc19c287c5f488eacbee4fe60e80844589bb8e8383e0b81621c1d8d703049ae",
+}
+
+
+def _keys() -> dict[str, str]:
+    scene = SimpleNamespace(fingerprint="fingerprint", resolution=(64, 64))
+    out = {}
+    for name, spec in RENDERS.items():
+        out[f"render-spec {name}"] = spec.key()
+        out[f"idempotency render {name}"] = spec_key("render", spec, "cpu")
+        out[f"reference {name}"] = reference_key(
+            scene, spec.reference.settings(RenderJob.parse(spec).max_depth))
+    for name, sweep in SWEEPS.items():
+        out[f"sweep-spec {name}"] = sweep.key("device")
+        out[f"idempotency sweep {name}"] = spec_key("sweep", sweep, "cpu")
+    for method, termination in PARAMS:
+        dumped = parse_params(method, {"termination": termination}).model_dump(mode="json")
+        out[f"params {method} {termination}"] = digest(dumped)
+    return out
+
+
+def test_stored_keys_are_those_from_before():
+    assert _keys() == GOLDEN
+
+
+def test_a_job_is_immutable():
+    job = RenderJob.parse(RENDERS["nirc_adaptive"])
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        job.params = None  # type: ignore[misc]
+    with pytest.raises(Exception, match="frozen"):
+        job.params.nc = [1]  # type: ignore[misc]
+    with pytest.raises(Exception, match="frozen"):
+        job.spec.spp = 2  # type: ignore[misc]
+
+
+def test_a_job_parses_its_spec_and_knows_its_depth():
+    job = RenderJob.parse(RENDERS["nirc_adaptive"].model_dump(mode="json"))
+    assert job.spec == RENDERS["nirc_adaptive"] and job.params.nc == [8, 1]
+    assert job.max_depth == -1 and RenderJob.parse(RENDERS["restir"]).max_depth == 2
+    with pytest.raises(MethodError, match="nc"):
+        RenderJob.parse(RENDERS["pt"].model_copy(update={"method": "nirc",
+                                                         "params": {"nc": [0]}}))
+    with pytest.raises(MethodError, match="rr_survival"):   # request bodies: strict
+        RenderJob.parse(RENDERS["pt"].model_copy(update={"params": {"rr_survival": "0.5"}}),
+                        strict=True)
+
+
+def test_derived_jobs_are_validated_and_keep_the_spec_in_step():
+    job = RenderJob.parse(RENDERS["nirc_adaptive"])
+    derived = job.with_params({"termination": "adaptive", "nc": [2, 1]})
+    assert derived.params.nc == [2, 1] and derived.spec.params["nc"] == [2, 1]
+    with pytest.raises(MethodError):
+        job.with_params({"nc": [1000]})
+    assert job.baseline().method == "pt" and job.baseline().max_depth == job.max_depth
+    with pytest.raises(ValueError, match="dump"):
+        RenderJob.of(job.spec, parse_params("nirc", {"nc": [4]}))
+
+
+def test_the_executor_renders_and_stores_the_typed_parameters(mi, data_dir):
+    """The executor takes the job's typed parameters, not its JSON: a job whose JSON
+    says otherwise is rendered and stored with the typed values."""
+    from jobs.protocol.executor import execute
+    from jobs.protocol.spec import ReferenceSpec
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+
+    spec = RenderSpec(scene="cornell-box", resolution=8, seeds=2,
+                      params={"max_depth": 3, "rr_survival": 0.9},
+                      reference=ReferenceSpec(spp=64))
+    job = RenderJob(spec, parse_params("pt", {"max_depth": 3, "rr_survival": 0.5}))
+    settings = Settings()
+    store = open_store(settings)
+    run = store.get_run(execute(job, store, settings).run_id)
+    store.close()
+    assert run.params["rr_survival"] == 0.5
+
+
+#: The modules below the entry points: none of them validates a method's parameters.
+BELOW_THE_EDGES = ("jobs/protocol/executor.py", "jobs/protocol/calibration.py",
+                   "jobs/protocol/references.py", "jobs/protocol/snapshots.py",
+                   "jobs/execution/queue.py")
+
+
+@pytest.mark.parametrize("path", BELOW_THE_EDGES)
+def test_parameter_models_are_validated_only_at_the_entry_points(path):
+    tree = ast.parse((ROOT / path).read_text())
+    calls = [node for node in ast.walk(tree) if isinstance(node, ast.Call)]
+    names = {getattr(call.func, "id", getattr(call.func, "attr", None)) for call in calls}
+    assert not names & {"parse_params", "model_validate", "model_validate_json"}, path
+    assert not any(getattr(call.func, "id", None) == "RenderSpec" for call in calls), path
