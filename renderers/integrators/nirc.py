@@ -60,6 +60,7 @@ cache draws nothing for it.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Protocol
 
 import drjit as dr
@@ -96,6 +97,9 @@ class NIRCIntegrator(CachedPathIntegrator):
     validated once, by the method's model.
     """
 
+    #: A policy's fractional continuation weight blends L_c with the continuation.
+    continuation_weights = True
+
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.nc: list[int] = []       # N_c per vertex: set by configure
@@ -106,9 +110,6 @@ class NIRCIntegrator(CachedPathIntegrator):
         self.estimator = params.estimator
         self.nc = params.sample_counts()
         self.policy = params.termination_policy()
-        if self.policy.blends:
-            raise ValueError(f"the nirc integrator stops or continues; termination "
-                             f"{self.policy.name!r} blends the cache with the next segment")
 
     def query_layout(self) -> QueryLayout:
         """Unbiased: len(nc) vertices of N_c + 1 queries (the residual), an exact bound.
@@ -176,18 +177,25 @@ class NIRCIntegrator(CachedPathIntegrator):
         #      whatever is decided here (path.py, stop_indirect) ----
         weight, state = self.policy.continuation(
             TerminationQuery(vertex, state, usable, self.cache))
-        stop = (weight < 1) & usable
-        # ---- Shade the terminal vertex: L_e (done) + L_nee (core) + L_c (Eq. 13) ----
+        cached = (weight < 1) & usable
+        # ---- Shade the vertex: L_e (done) + L_nee (core) + (1 - alpha) L_c (Eq. 13); a
+        #      weight alpha > 0 blends with the continuation, which the core weights
+        #      alpha from the next vertex's direct light on (VertexTerms.continue_weight) ----
+        keep = 1.0 - weight
         nc_at_v1, nc_later = self.policy.settings.nc
         nc_lane = dr.select(vertex.depth == 0, mi.UInt32(nc_at_v1), mi.UInt32(nc_later))
-        handle = self.queries.vertex(state.cache_vertices, vertex, stop)
-        L_c = self.queries.draw(handle, nc_lane, stop)
-        # A delta continuation carries I_delta, which L_c leaves out: it goes on as a path.
+        handle = self.queries.vertex(state.cache_vertices,
+                                     dataclasses.replace(vertex, beta=vertex.beta * keep), cached)
+        L_c = self.queries.draw(handle, nc_lane, cached)
+        # A delta continuation carries I_delta, which L_c leaves out: it goes on as a path,
+        # unweighted.
         delta_cont = mi.has_flag(vertex.bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
+        stop = cached & (weight <= 0)
         state.cache_depth = dr.select(stop, vertex.depth + 1, state.cache_depth)
-        state.cache_vertices = dr.select(stop, state.cache_vertices + 1, state.cache_vertices)
-        terms = VertexTerms(L_add=dr.select(stop, L_c, 0), stop=mi.Bool(False),
-                            stop_indirect=stop & ~delta_cont, skip_nee=mi.Bool(False))
+        state.cache_vertices = dr.select(cached, state.cache_vertices + 1, state.cache_vertices)
+        terms = VertexTerms(L_add=dr.select(cached, L_c * keep, 0), stop=mi.Bool(False),
+                            stop_indirect=stop & ~delta_cont, skip_nee=mi.Bool(False),
+                            continue_weight=dr.select(cached & ~stop & ~delta_cont, weight, 1.0))
         return terms, state
 
 

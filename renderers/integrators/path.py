@@ -29,6 +29,13 @@ termination probability 0.1 of the NIRC paper, Sec. 6.2); ``rr_mode=
 'throughput'`` uses Mitsuba's rule q = min(max(beta) * eta^2, 0.95). Both are
 unbiased; they differ in path length and so in speed and variance.
 
+A method may also weight the rest of a path: ``VertexTerms.continue_weight``
+alpha scales everything after the emission the continuation ray hits (the next
+segment, from the direct light at the next vertex on), so that a cache term
+weighted 1 - alpha and the continuation weighted alpha blend (integrators that
+set ``continuation_weights``; the variance-bounding termination of Kandlbinder
+et al. 2024, Eq. 5).
+
 A method ends a path with ``VertexTerms.stop_indirect`` (its term replaced
 the indirect light at the vertex: the continuation ray is still traced, only
 to collect the MIS-weighted emission it hits, so direct light stays exactly
@@ -101,13 +108,16 @@ class VertexTerms:
       (NRC: the cached outgoing radiance contains everything, direct light
       included, so it is combined with ``skip_nee``).
 
-    Where ``skip_nee`` is set no NEE is done at this vertex.
+    Where ``skip_nee`` is set no NEE is done at this vertex. ``continue_weight``
+    (integrators with ``continuation_weights`` only): the weight in [0, 1] of the
+    path after the emission its continuation ray hits (module doc); None: 1.
     """
 
     L_add: mi.Spectrum
     stop: mi.Bool
     stop_indirect: mi.Bool
     skip_nee: mi.Bool
+    continue_weight: mi.Float | None = None
 
 
 class PathIntegrator(mi.SamplingIntegrator):
@@ -135,6 +145,9 @@ class PathIntegrator(mi.SamplingIntegrator):
             returns (VertexTerms or None, state). NEE is MIS-weighted unless
             skipped, also at a vertex that stops.
     """
+
+    #: Whether ``VertexTerms.continue_weight`` is applied (a loop variable more).
+    continuation_weights = False
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -240,6 +253,8 @@ class PathIntegrator(mi.SamplingIntegrator):
         prev_bsdf_pdf = mi.Float(1.0)         # solid-angle pdf of the last BSDF sample
         prev_bsdf_delta = mi.Bool(True)       # last BSDF sample was a delta lobe (or camera)
         last_segment = mi.Bool(False)         # the ray only collects the emission it hits
+        weighted = self.continuation_weights
+        pending = mi.Float(1.0)               # continue_weight of the previous vertex
         state = self.init_state(ray, sampler) # the method's own per-path state (or None)
 
         while dr.hint(active, max_iterations=-1, label="nirc path tracer"):
@@ -253,6 +268,8 @@ class PathIntegrator(mi.SamplingIntegrator):
             w_bsdf = mis_weight(prev_bsdf_pdf, pdf_light)
             Le = ds.emitter.eval(si, active & (prev_bsdf_pdf > 0))
             L = dr.fma(beta, Le * w_bsdf, L)
+            if weighted:   # the rest of the path, from this vertex's direct light on
+                beta *= pending
 
             # A path whose indirect light was replaced (stop_indirect) ends here.
             active_next = ((depth + 1 < self.max_depth_u32) & si.is_valid() & active
@@ -285,6 +302,9 @@ class PathIntegrator(mi.SamplingIntegrator):
                 L = dr.fma(beta, terms.L_add, L)
                 active_next &= ~terms.stop
                 last_segment = active_next & terms.stop_indirect
+                if weighted:
+                    pending = (mi.Float(1.0) if terms.continue_weight is None
+                               else mi.Float(terms.continue_weight))
 
             L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_light, L)
 

@@ -169,22 +169,59 @@ def test_the_integrator_asks_the_policy_at_each_vertex(mi, toy, threshold, used)
         assert cache_depth.max() == 0
 
 
-def test_integrators_that_only_stop_refuse_a_blending_policy(mi, toy, monkeypatch):
-    from types import SimpleNamespace
-
-    from renderers.integrators.nirc import NIRC_PLUGIN
+def test_nrc_refuses_a_blending_policy(toy, monkeypatch):
     from renderers.integrators.nrc import refuse_blending
 
     monkeypatch.setattr(toy, "blends", True)
-    policy = make_policy("toy", {"threshold": 0.5}, TerminationSettings(0.01))
     with pytest.raises(ValueError, match="blends"):
-        refuse_blending(policy)
-    METHODS["nirc"].register_integrators()
-    integrator = mi.load_dict({"type": NIRC_PLUGIN})
-    settings = SimpleNamespace(estimator="biased", sample_counts=lambda: [4],
-                               termination_policy=lambda: policy)
-    with pytest.raises(ValueError, match="blends"):
-        integrator.configure(settings)
+        refuse_blending(make_policy("toy", {"threshold": 0.5}, TerminationSettings(0.01)))
+
+
+class _FirstVertex(BaseModel):
+    alpha: float = Field(ge=0.0, le=1.0)
+
+
+class _BlendAtTheFirstVertex(TerminationPolicy):
+    """Continuation weight ``alpha`` at the first vertex, 1 after: a policy of the tests."""
+
+    name = "blend-first"
+    description = "a constant blend at the first vertex"
+    serves = frozenset({"incident"})
+    Params: ClassVar[type[BaseModel]] = _FirstVertex
+    blends = True
+
+    def continuation(self, query: TerminationQuery) -> tuple[Any, Any]:
+        import drjit as dr
+        import mitsuba as mi
+
+        return dr.select(query.vertex.depth == 0, mi.Float(self.params.alpha),
+                         mi.Float(1.0)), query.state
+
+
+@pytest.mark.parametrize("alpha", [0.25, 0.5])
+def test_a_continuation_weight_blends_the_cache_with_the_next_segment(mi, monkeypatch, alpha):
+    """With weight alpha at v1, the image is alpha x (always continue) + (1 - alpha) x
+    (always stop into the cache): L_c is weighted 1 - alpha and the path after the
+    emission the continuation hits (the direct light at v2 and on) alpha. The same
+    random numbers drive the three renders, so this holds per pixel."""
+    from renderers.scenes import load_scene
+
+    monkeypatch.setitem(POLICIES, _BlendAtTheFirstVertex.name, _BlendAtTheFirstVertex)
+    scene = load_scene("cornell-box", RES)
+    params = parse_params("nirc", {"estimator": "biased", "max_depth": 6, "nc": [2]})
+    integrator, _trainer, cache = METHODS["nirc"].build(scene, params, 0)
+    integrator.cache = cache
+
+    def image(weight: float) -> np.ndarray:
+        integrator.policy = make_policy("blend-first", {"alpha": weight},
+                                        params.termination_settings())
+        film = np.asarray(mi.render(scene.scene, integrator=integrator, spp=4, seed=1),
+                          dtype=np.float64)
+        return film[..., :3]    # the radiance (the AOVs count cache vertices)
+
+    stop, go, blend = image(0.0), image(1.0), image(alpha)
+    assert np.abs(go - stop).max() > 1e-2     # the cache and the path differ here
+    np.testing.assert_allclose(blend, alpha * go + (1 - alpha) * stop, rtol=1e-4, atol=1e-6)
 
 
 def _sampler(mi, scene, lanes):
@@ -194,9 +231,9 @@ def _sampler(mi, scene, lanes):
 
 
 def _camera_rays(mi, scene, lanes):
-    sensor = scene.scene.sensors()[0]
     import drjit as dr
 
+    sensor = scene.scene.sensors()[0]
     u = dr.arange(mi.Float, lanes) / lanes
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(u, 0.5), mi.Point2f(0.5, 0.5))
     return ray

@@ -94,8 +94,8 @@ class TerminationPolicy:
     from the defaults, ``Params``, ``nc_entries`` (how many N_c values it takes:
     1, or 2 for N_c at the first vertex and later) and ``default_nc``; it
     implements :meth:`continuation`. ``blends``: whether its weights can lie
-    strictly between 0 and 1 (an integrator that only stops or continues refuses
-    such a policy).
+    strictly between 0 and 1 (NIRC blends its cache term with the continuation;
+    NRC, whose cache ends the path, refuses such a policy).
     """
 
     name: ClassVar[str]
