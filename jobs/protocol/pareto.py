@@ -329,17 +329,16 @@ def point_key(spec: RenderSpec, prepared: Prepared) -> str:
                   prepared.reference.key, prepared.device["device_key"], length=32)
 
 
-def stored_or_rendered(spec: RenderSpec, prepared: Prepared, store: Store, settings: Settings,
+def stored_or_rendered(job: RenderJob, prepared: Prepared, store: Store, settings: Settings,
                        progress: Progress | None = None) -> tuple[Any, bool]:
-    """The stored run of ``spec`` under its :func:`point_key` and True, or the run
+    """The stored run of ``job`` under its spec's :func:`point_key` and True, or the run
     rendered now (jobs.protocol.executor.execute) and False."""
-    key = point_key(spec, prepared)
+    key = point_key(job.spec, prepared)
     run = store.find_run_by_idempotency_key(key)
     if run is not None:
         return run, True
     try:
-        summary = execute(RenderJob.parse(spec), store, settings, progress=progress,
-                          idempotency_key=key)
+        summary = execute(job, store, settings, progress=progress, idempotency_key=key)
     except DuplicateKeyError as err:   # another call stored it meanwhile
         return err.existing, True
     return store.get_run(summary.run_id), False
@@ -349,7 +348,10 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
                progress: Progress | None = None, out_dir: Path | None = None) -> ParetoResult:
     """Render (or reuse), time and evaluate every planned point (module docstring)."""
     series, skipped = plan(spec)
-    prepared = prepare(RenderJob.parse(run_spec(spec, series[0][0])), store, settings, progress)
+    # Each point's job, parsed once: rendered, timed in every round and modelled from it.
+    jobs = {id(point): RenderJob.parse(run_spec(spec, point))
+            for points in series for point in points}
+    prepared = prepare(jobs[id(series[0][0])], store, settings, progress)
     runs: list[tuple[Planned, Any, bool]] = []
     not_applicable: set[str] = set()
     ordered = interleave(series)
@@ -361,7 +363,7 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
         step = (lambda stage, done, total, label=point.label:
                 progress(f"{label}: {stage}", done, total)) if progress else None
         try:
-            runs.append((point, *stored_or_rendered(run_spec(spec, point), prepared, store,
+            runs.append((point, *stored_or_rendered(jobs[id(point)], prepared, store,
                                                     settings, progress=step)))
         except NotApplicable as err:
             not_applicable.add(point.method)
@@ -369,12 +371,12 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
     if progress:
         progress("points", len(ordered), len(ordered))
 
-    timings, order = _timing_samples(runs, prepared.scene, spec, progress)
+    timings, order = _timing_samples(runs, jobs, prepared.scene, spec, progress)
     # The probes load each resolution in turn: no other scene may stay alive meanwhile
     # (cost_model.SceneSlot).
     prepared = replace(prepared, scene=None)
     if spec.project_res is not None:
-        _project(runs, timings, spec, prepared, settings, progress)
+        _project(runs, jobs, timings, spec, prepared, settings, progress)
     rank = {id(p): i for i, p in enumerate(p for points in series for p in points)}
     points = [ParetoPoint.measured(planned, run, timings[i], reused)
               for i, (planned, run, reused)
@@ -400,7 +402,8 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
     return result
 
 
-def _timing_samples(runs: list[tuple[Planned, Any, bool]], scene: Any, spec: ParetoSpec,
+def _timing_samples(runs: list[tuple[Planned, Any, bool]], jobs: dict[int, RenderJob],
+                    scene: Any, spec: ParetoSpec,
                     progress: Progress | None) -> tuple[list[Timing], list[str]]:
     """Per run: its ``timing_rounds`` interleaved probes (without rounds, its per-seed
     frame times) with their loads; and the order of the probes."""
@@ -409,8 +412,7 @@ def _timing_samples(runs: list[tuple[Planned, Any, bool]], scene: Any, spec: Par
     def measure(index: int) -> dict[str, Any]:
         nonlocal done
         planned = runs[index][0]
-        timings = probe_timings(scene, planned.method,
-                                parse_params(planned.method, planned.params), planned.spp,
+        timings = probe_timings(scene, planned.method, jobs[id(planned)].params, planned.spp,
                                 spec.probe_frames)
         done += 1
         if progress:
@@ -441,8 +443,9 @@ def run_frame_seconds(run: Any) -> list[float]:
     return [s.metrics["seconds_per_frame"] for s in seeds]
 
 
-def _project(runs: list[tuple[Planned, Any, bool]], timings: list[Timing], spec: ParetoSpec,
-             prepared: Prepared, settings: Settings, progress: Progress | None) -> None:
+def _project(runs: list[tuple[Planned, Any, bool]], jobs: dict[int, RenderJob],
+             timings: list[Timing], spec: ParetoSpec, prepared: Prepared, settings: Settings,
+             progress: Progress | None) -> None:
     """Measure each point's per-stage cost model at ``spec.cost_resolutions`` and project
     its frame time to ``spec.project_res`` (jobs.protocol.cost_model)."""
     assert spec.project_res is not None
@@ -457,7 +460,7 @@ def _project(runs: list[tuple[Planned, Any, bool]], timings: list[Timing], spec:
         step = (lambda done, total, label=planned.label, index=index:
                 progress(f"cost model {index + 1}/{len(runs)} ({label})", done, total)
                 ) if progress else None
-        model = cost_model.measure(method, parse_params(planned.method, planned.params),
+        model = cost_model.measure(method, jobs[id(planned)].params,
                                    planned.spp, prepared.device["device_key"], render,
                                    resolutions=spec.cost_resolutions,
                                    rounds=max(spec.timing_rounds, 1), progress=step)
