@@ -245,6 +245,7 @@ class _Sweep:
         self.skipped: list[Skipped] = []
         self._probes: dict[tuple[str, int | None], Any] = {}  # probe integrators (method, N_c)
         self._bias: dict[str, np.ndarray] = {}  # relative-bias maps by snapshot key
+        self._params: dict[tuple[str, int | None], Any] = {}  # validated, by (method, N_c)
         # One bar across the whole sweep: caches, then points (reused ones count too).
         n_points = (len(spec.eps or spec.nc or []) if spec.parameter is None
                     else len(spec.parameter.values) * len(spec.methods))
@@ -263,12 +264,15 @@ class _Sweep:
 
     def params(self, method: str, nc_v1: int | None = None) -> Any:
         """Validated parameters of a sweep point: what the method's sweep role declares
-        for equal-bias points, and what it adds (NIRC: biased, N_c 1 or ``nc_v1`` at v1)."""
-        role = get_method(method).sweep
-        values: dict[str, Any] = {**self.spec.params, "max_depth": self.spec.max_depth,
-                                  **role.equal_bias}
-        values.update(role.point(nc_v1))
-        return parse_params(method, values)
+        for equal-bias points, and what it adds (NIRC: biased, N_c 1 or ``nc_v1`` at v1).
+        Validated once per (method, N_c): the model is frozen, so it is shared."""
+        if (method, nc_v1) not in self._params:
+            role = get_method(method).sweep
+            values: dict[str, Any] = {**self.spec.params, "max_depth": self.spec.max_depth,
+                                      **role.equal_bias}
+            values.update(role.point(nc_v1))
+            self._params[(method, nc_v1)] = parse_params(method, values)
+        return self._params[(method, nc_v1)]
 
     def point_key(self, series: str, eps: float, params: Any, extra: Any = None) -> str:
         return digest("sweep-point", series, self.prepared.scene.fingerprint,
