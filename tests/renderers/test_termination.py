@@ -237,3 +237,56 @@ def _camera_rays(mi, scene, lanes):
     u = dr.arange(mi.Float, lanes) / lanes
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(u, 0.5), mi.Point2f(0.5, 0.5))
     return ray
+
+
+class _PositionsCache:
+    """A cache whose 'statistics' at a surface point are the point itself."""
+
+    def statistics(self, si: Any, active: Any) -> Any:
+        import drjit as dr
+        import mitsuba as mi
+
+        return dr.select(active & si.is_valid(), si.p, mi.Point3f(0.0))
+
+
+class _LookAhead(TerminationPolicy):
+    """Records the statistics at the current and the next vertex; always continues."""
+
+    name = "look-ahead"
+    description = "records what the cache says here and one vertex ahead"
+    serves = frozenset({"incident"})
+    log: ClassVar[list[tuple[Any, Any]]] = []
+
+    def continuation(self, query: TerminationQuery) -> tuple[Any, Any]:
+        import drjit as dr
+        import mitsuba as mi
+
+        here, ahead = query.statistics("current"), query.statistics("next")
+        dr.eval(here, ahead)
+        self.log.append((np.asarray(here), np.asarray(ahead)))
+        return mi.Float(1.0), query.state
+
+
+def test_a_policy_reads_the_cache_here_and_one_vertex_ahead(mi, monkeypatch):
+    """The statistics 'next' of a vertex are those of the vertex the path reaches next
+    (traced by the query along the continuation), 'current' those of the vertex."""
+    import drjit as dr
+
+    from renderers.scenes import load_scene
+
+    monkeypatch.setitem(POLICIES, _LookAhead.name, _LookAhead)
+    monkeypatch.setattr(_LookAhead, "log", [])
+    scene = load_scene("cornell-box", 8)
+    params = parse_params("nirc", {"estimator": "biased", "max_depth": 3})
+    integrator, _trainer, cache = METHODS["nirc"].build(scene, params, 0)
+    integrator.cache = _PositionsCache()
+    integrator.policy = make_policy("look-ahead", {}, params.termination_settings())
+    dr.set_flag(dr.JitFlag.SymbolicLoops, False)   # each vertex's arrays are concrete
+    try:
+        integrator.sample(scene.scene, _sampler(mi, scene, 256), _camera_rays(mi, scene, 256))
+    finally:
+        dr.set_flag(dr.JitFlag.SymbolicLoops, True)
+    (here_0, ahead_0), (here_1, _ahead_1) = _LookAhead.log[:2]
+    reached = np.all(here_1 != 0, axis=0) & np.all(ahead_0 != 0, axis=0)
+    assert reached.mean() > 0.5 and np.any(here_0 != 0)
+    np.testing.assert_allclose(ahead_0[:, reached], here_1[:, reached], atol=1e-4)
