@@ -290,3 +290,34 @@ def test_a_policy_reads_the_cache_here_and_one_vertex_ahead(mi, monkeypatch):
     reached = np.all(here_1 != 0, axis=0) & np.all(ahead_0 != 0, axis=0)
     assert reached.mean() > 0.5 and np.any(here_0 != 0)
     np.testing.assert_allclose(ahead_0[:, reached], here_1[:, reached], atol=1e-4)
+
+
+class _CountVertices(TerminationPolicy):
+    """Counts the vertices it was asked at in the path state; stops at the second."""
+
+    name = "count"
+    description = "stop at the second vertex, counted in the path state"
+    serves = frozenset({"incident"})
+
+    def continuation(self, query: TerminationQuery) -> tuple[Any, Any]:
+        import drjit as dr
+
+        state = query.state
+        state.termination_value = dr.select(query.usable, state.termination_value + 1.0,
+                                            state.termination_value)
+        return dr.select(state.termination_value >= 2.0, 0.0, 1.0), state
+
+
+def test_a_policy_carries_its_own_value_along_the_path(mi, monkeypatch):
+    from renderers.scenes import load_scene
+
+    monkeypatch.setitem(POLICIES, _CountVertices.name, _CountVertices)
+    scene = load_scene("cornell-box", 8)
+    params = parse_params("nirc", {"estimator": "biased", "max_depth": 6})
+    integrator, _trainer, cache = METHODS["nirc"].build(scene, params, 0)
+    integrator.cache = cache
+    integrator.policy = make_policy("count", {}, params.termination_settings())
+    _image, _valid, aovs = integrator.sample(scene.scene, _sampler(mi, scene, 256),
+                                             _camera_rays(mi, scene, 256))
+    cache_depth = np.asarray(aovs[1])
+    assert set(np.unique(cache_depth)) <= {0.0, 2.0} and np.mean(cache_depth == 2) > 0.5
