@@ -7,12 +7,14 @@ from typing import TYPE_CHECKING, Any
 from rich.console import Group
 from rich.markup import escape
 from rich.table import Table
+from rich.text import Text
 
 from jobs.protocol.calibration import ADVICE
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
 from metrics.registry import LISTED, METRICS, PER_SEED, Metric
 
 if TYPE_CHECKING:
+    from jobs.protocol.comparison import RunComparison
     from jobs.protocol.report import Report
     from jobs.protocol.sweep import SweepResult
 
@@ -319,3 +321,90 @@ def sweep_table(result: SweepResult) -> Group:
         lines.append(f"rendered: {_work_line(result.work)}")
     lines += [f"{name}: {path}" for name, path in result.files.items()]
     return Group(*lines)
+
+
+def _flat(values: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested settings as 'a.b' rows."""
+    rows: dict[str, Any] = {}
+    for name, value in values.items():
+        if isinstance(value, dict) and value:
+            rows.update(_flat(value, f"{prefix}{name}."))
+        else:
+            rows[f"{prefix}{name}"] = value
+    return rows
+
+
+def _plain_table(title: str, values: dict[str, Any]) -> Table:
+    """:func:`key_value_table` of values shown as text, never read as rich markup."""
+    return key_value_table(escape(title), {escape(k): escape(_fmt(v)) for k, v in values.items()})
+
+
+def run_details_tables(run: RunResultDetail) -> Group:
+    """Everything stored about a run: the run table (metrics aggregated and per seed,
+    timings), its resolved method parameters, each cache's configuration, its provenance
+    and the settings of its reference."""
+    parts: list[Any] = [metrics_table(run)]
+    labels = {"name": run.name, **{f"tag {k}": v for k, v in run.tags.items()}}
+    if any(v is not None for v in labels.values()):
+        parts.append(_plain_table("name and tags", labels))
+    parts.append(_plain_table(f"{run.method} parameters (resolved)", _flat(run.params)))
+    for name, cache in run.caches.items():
+        parts.append(_plain_table(f"cache '{name}' configuration", _flat(cache)))
+    parts.append(_plain_table("provenance", {
+        "created": run.created_at, "commit": run.git_commit, "branch": run.git_branch,
+        "device": run.device_key, **_flat(run.device, "device."),
+        **_flat(run.versions, "version.")}))
+    reference = run.reference
+    if reference is not None:
+        parts.append(_plain_table(f"reference {reference.id}", {
+            "integrator": reference.integrator, "spp": reference.spp,
+            "max_depth": reference.max_depth, "passes": reference.passes,
+            "relative std. error reached": reference.rel_stderr, "key": reference.key,
+            **_flat(reference.split_half, "split-half ")}))
+    return Group(*parts)
+
+
+def comparison_table(comparison: RunComparison) -> Group:
+    """Runs side by side: what differs between them, then each later run's metrics
+    against the first's with the interval of the change."""
+    rows = comparison.runs
+    head = Table(title="runs compared (the first is the baseline)")
+    for column in ("setting", *(f"run {r.id}" for r in rows)):
+        head.add_column(column)
+    head.add_row("name", *(escape(r.name or "-") for r in rows))
+    head.add_row("created", *(r.created_at.strftime("%Y-%m-%d %H:%M") for r in rows))
+    for setting, values in comparison.differences.items():
+        head.add_row(escape(setting), *(escape(_fmt(v)) for v in values))
+    if not comparison.differences:
+        head.add_row("(settings)", *("the same" for _ in rows))
+    parts: list[Any] = [head]
+    for delta in comparison.deltas:
+        table = Table(title=f"run {delta.run} against run {delta.baseline}")
+        for column in ("metric", f"run {delta.baseline}", f"run {delta.run}", "change",
+                       "ratio", "95% interval of the change", "note"):
+            table.add_column(column, justify="left" if column in ("metric", "note")
+                             else "right")
+        for m in delta.metrics:
+            table.add_row(f"{m.label} ({m.direction} better)", *(
+                "-" if v is None else _fmt(v) for v in (m.baseline, m.value, m.delta, m.ratio)),
+                          escape(_ci_text(m.delta_ci95)) if m.delta_ci95 else "-",
+                          m.interval_note)
+        parts.append(table)
+    parts.append(f"note: {comparison.note}")
+    return Group(*parts)
+
+
+def reuse_line(result: RunResultDetail) -> str:
+    """What a render that found its run stored says: which run, from when, made by what,
+    and whether its timing can be trusted."""
+    flags = "; ".join(result.timing_flags) or "none"
+    return (f"reused run {result.id}, stored {result.created_at:%Y-%m-%d %H:%M} UTC: the same "
+            f"spec by commit {result.git_commit}, estimator v{result.estimator_version} on "
+            f"{result.device_key} (its timing flags: {flags}); --rerun renders it again")
+
+
+def render_tables(summary: Any) -> Group:
+    """What ``render`` prints of its RunSummary (jobs.protocol.executor): the run table,
+    after the line saying it was reused when it was."""
+    table = metrics_table(summary.result)
+    return Group(Text(reuse_line(summary.result)), table) if summary.reused else table

@@ -86,6 +86,9 @@ class RunResult(ResultMetrics):
 
     id: int
     created_at: datetime
+    name: str | None = Field(None, description="the label a user gave the run")
+    tags: dict[str, str] = Field(default_factory=dict, description="key=value tags a user "
+                                                                   "gave the run")
     scene: str
     scene_fingerprint: str
     method: str
@@ -115,6 +118,9 @@ class RunResult(ResultMetrics):
         default_factory=list, description="why the timing may not be trusted (a loaded "
                                           "machine)")
     device_key: str
+    git_commit: str | None = Field(None, description="commit of the code that made the run "
+                                                     "('-dirty': with uncommitted changes)")
+    git_branch: str | None = Field(None, description="branch of the commit, when known")
     quality: dict[str, Any]
     ref_floor_ratio_rbias2: float | None = Field(
         None, description="reference noise floor mean Var[R]/(R^2+eps) over |rBias^2|")
@@ -138,6 +144,7 @@ class RunResult(ResultMetrics):
         m, q = run.metrics, run.quality
         return {
             **row_values(m), "id": run.id, "created_at": run.created_at,
+            "name": run.name, "tags": run.tags or {},
             "scene": run.scene_name, "scene_fingerprint": run.scene_fingerprint,
             "method": run.method, "params": {k: v for k, v in run.params.items() if k != "spec"},
             "resolution": [run.width, run.height], "spp": run.spp, "frames": run.frames,
@@ -148,7 +155,8 @@ class RunResult(ResultMetrics):
             "kernel_seconds_per_frame": device_split(run.timings)[0],
             "harness_share": device_split(run.timings)[1],
             "timing_flags": timing_flags(run.timings),
-            "device_key": run.device_key, "quality": q, "verdict": q.get("verdict"),
+            "device_key": run.device_key, "git_commit": run.git_commit,
+            "git_branch": run.git_branch, "quality": q, "verdict": q.get("verdict"),
             "withheld": q.get("withheld", []), "estimator_version": run.estimator_version,
             "metric_version": run.metric_version,
             "current": is_current(run.method, run.estimator_version, run.metric_version),
@@ -177,6 +185,10 @@ class ReferenceInfo(BaseModel):
     id: int
     spp: int
     key: str
+    integrator: str | None = Field(None, description="'path' (Mitsuba's) or 'pt' (ours)")
+    max_depth: int | None = Field(None, description="longest path in segments (-1: unbounded)")
+    passes: int | None = None
+    rel_stderr: float | None = Field(None, description="relative standard error reached")
     split_half: dict[str, Any] = Field(
         default_factory=dict, description="split-half estimate of the reference's own error")
 
@@ -189,8 +201,6 @@ class RunResultDetail(RunResult):
     path_stats: dict[str, Any]
     device: dict[str, Any]
     versions: dict[str, Any]
-    git_commit: str | None
-    git_branch: str | None = Field(None, description="branch of the commit, when known")
     reference_id: int | None
     reference: ReferenceInfo | None = None
     caches: dict[str, Any] = Field(
@@ -208,10 +218,11 @@ class RunResultDetail(RunResult):
         return {
             **RunResult.fields_of(run), "metrics": run.metrics, "timings": run.timings,
             "path_stats": run.path_stats, "device": run.device, "versions": run.versions,
-            "git_commit": run.git_commit,
-            "git_branch": run.git_branch, "reference_id": run.reference_id,
+            "reference_id": run.reference_id,
             "reference": None if ref is None else ReferenceInfo(
-                id=ref.id, spp=ref.spp, key=ref.key, split_half=ref.split_half or {}),
+                id=ref.id, spp=ref.spp, key=ref.key, integrator=ref.integrator,
+                max_depth=ref.max_depth, passes=ref.passes, rel_stderr=ref.rel_stderr,
+                split_half=ref.split_half or {}),
             "caches": resolved_caches(run.seed_results),
             "per_seed": [SeedRow(seed=s.seed, metrics=s.metrics, timings=s.timings)
                          for s in run.seed_results],
