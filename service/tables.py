@@ -11,7 +11,15 @@ from rich.text import Text
 
 from jobs.protocol.calibration import ADVICE
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
-from metrics.registry import LISTED, METRICS, PER_SEED, Metric
+from metrics.registry import (
+    LISTED,
+    METRICS,
+    PER_SEED,
+    Aggregate,
+    Metric,
+    below_noise_floor,
+    mean_interval,
+)
 
 if TYPE_CHECKING:
     from jobs.protocol.comparison import RunComparison
@@ -84,16 +92,27 @@ def _ci_text(ci: Any) -> str:
     return f"[{ci[0]:.4g}, {ci[1]:.4g}]" if isinstance(ci, list | tuple) else str(ci)
 
 
-def _metric_rows(m: dict[str, Any]) -> dict[str, Any]:
-    """The run table's rows of every registered metric (values as :func:`_shown` gives them)."""
+def metric_text(key: str, value: Any) -> str:
+    """A stored metric as shown: a negative noise-corrected estimate reads 'below the
+    noise floor (value)' (metrics.registry.below_noise_floor), not as a small error."""
+    return f"below the noise floor ({_fmt(value)})" if below_noise_floor(key, value) \
+        else _fmt(value)
+
+
+def _metric_rows(m: dict[str, Any], run: RunResultDetail) -> dict[str, Any]:
+    """The run table's rows of every registered metric (values as :func:`_shown` gives
+    them), each interval with how it was made or why there is none."""
     rows: dict[str, Any] = {}
     for metric in METRICS:
         absent = "n/a (K = 1)" if metric.needs_k2 else "-"
-        rows[metric_label(metric)] = m.get(metric.key, absent)
+        if metric.aggregate is Aggregate.PER_CACHE and not run.caches:
+            continue    # a method without a cache has no per-cache statistics
+        rows[metric_label(metric)] = metric_text(metric.key, m.get(metric.key, absent))
         if metric.ci_key:
-            rows[f"{metric.label} 95% CI"] = _ci_text(m.get(metric.ci_key, "n/a (K = 1)"))
+            ci, note = mean_interval(metric, run.metrics)
+            rows[f"{metric.label} 95% CI"] = f"{_ci_text(ci)} (log scale)" if ci else note or "-"
         for label, key in metric.details:
-            rows[label] = m.get(key, absent)
+            rows[label] = metric_text(key, m.get(key, absent))
     return rows
 
 
@@ -116,7 +135,7 @@ def metrics_table(run: RunResultDetail) -> Group:
         "reference floor mean Var[R]/(R2+eps)": m.get("ref_floor"),
         "floor / rBias2, floor / MRSE": f"{_fmt(run.ref_floor_ratio_rbias2)}, "
                                         f"{_fmt(run.ref_floor_ratio_mrse)}",
-        **_metric_rows(m),
+        **_metric_rows(m, run),
         "ms per frame": _ms(run.seconds_per_frame),
         "kernel ms / harness share": _device_text(run),
         "ms render stage": _ms(run.render_seconds_per_frame),
@@ -212,7 +231,8 @@ def _metric_cells(row: RunResult) -> list[str]:
         value = getattr(row, m.field)
         ci = getattr(row, f"{m.field}_ci95") if m.ci_key else None
         cells.append("-" if value is None else
-                     f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else _fmt(value))
+                     f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else
+                     metric_text(m.key, value))
     return cells
 
 
@@ -386,7 +406,8 @@ def comparison_table(comparison: RunComparison) -> Group:
                              else "right")
         for m in delta.metrics:
             table.add_row(f"{m.label} ({m.direction} better)", *(
-                "-" if v is None else _fmt(v) for v in (m.baseline, m.value, m.delta, m.ratio)),
+                "-" if v is None else metric_text(key, v) for key, v in (
+                    (m.key, m.baseline), (m.key, m.value), ("", m.delta), ("", m.ratio))),
                           escape(_ci_text(m.delta_ci95)) if m.delta_ci95 else "-",
                           m.interval_note)
         parts.append(table)

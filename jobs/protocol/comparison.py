@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field
 from scipy import stats
 
 from jobs.protocol.results import RunResult
-from metrics.registry import LISTED, Metric
+from metrics.registry import LISTED, Metric, below_noise_floor
 
 #: Fewer seeds than this per run give no interval (a t interval on 1 or 2 degrees of
 #: freedom spans most of the axis).
@@ -36,12 +36,14 @@ class MetricDelta(BaseModel):
     """One metric of a run against the baseline's."""
 
     metric: str = Field(description="the metric's registry name")
+    key: str = Field(description="its stored key (metrics.registry)")
     label: str
     direction: str = Field(description="which way is better: lower or higher")
     baseline: float | None
     value: float | None
     delta: float | None = Field(description="value - baseline")
-    ratio: float | None = Field(description="value / baseline (null when the baseline is 0)")
+    ratio: float | None = Field(description="value / baseline (null when the baseline is 0 "
+                                            "or either is below the noise floor)")
     delta_ci95: list[float] | None = Field(
         description="Welch 95 % interval of the difference of the seed means (null: see "
                     "interval_note)")
@@ -86,7 +88,8 @@ def metric_delta(metric: Metric, baseline: Any, run: Any) -> MetricDelta:
     """``metric`` of the stored ``run`` against ``baseline`` (both loaded with their seeds)."""
     base, value = baseline.metrics.get(metric.key), run.metrics.get(metric.key)
     delta = None if base is None or value is None else value - base
-    ratio = None if delta is None or base == 0 else value / base
+    ratio = (None if delta is None or base == 0 or below_noise_floor(metric.key, base)
+             or below_noise_floor(metric.key, value) else value / base)
     ci, note = None, "no interval: the metric has no value per seed"
     if metric.seed_key:
         a, b = _seed_values(run, metric), _seed_values(baseline, metric)
@@ -98,7 +101,7 @@ def metric_delta(metric: Metric, baseline: Any, run: Any) -> MetricDelta:
             ci = [float(low), float(high)] if np.isfinite([low, high]).all() else None
             note = ("Welch 95 % interval of the difference of the seed means" if ci else
                     "no interval: the seeds' values do not vary")
-    return MetricDelta(metric=metric.name, label=metric.label, direction=metric.direction,
+    return MetricDelta(metric=metric.name, key=metric.key, label=metric.label, direction=metric.direction,
                        baseline=base, value=value, delta=delta, ratio=ratio,
                        delta_ci95=ci, interval_note=note)
 

@@ -42,7 +42,17 @@ def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
                               f"metrics.{m.key}; null when withheld or not computed)"))
         if m.ci_key:
             fields[f"{m.field}_ci95"] = (list[float] | None, Field(
-                None, description=f"Student-t 95 % interval of {m.label} over the seeds"))
+                None, description=f"95 % interval of the mean {m.label} over the seeds, on "
+                                  "the log scale (never below zero); null with fewer than "
+                                  "3 seeds"))
+            fields[f"{m.field}_ci_note"] = (str | None, Field(
+                None, description=f"how the {m.label} interval was made, or why there is "
+                                  "none"))
+    fields["below_noise_floor"] = (list[str], Field(
+        default_factory=list,
+        description="metrics (by field) whose noise-corrected estimate is negative: the "
+                    "quantity is below what the render and reference noise resolve; read "
+                    "the value as indistinguishable from 0, not as a number to rank by"))
     return fields
 
 

@@ -178,3 +178,27 @@ def test_runs_tag_and_apikey_list(store_dir):
     keys = json.loads(cli("apikey", "list", "--json", data=data))
     assert [k["name"] for k in keys] == ["ci-bot"] and keys[0]["revoked"] is None
     assert "ci-bot" in cli("apikey", "list", data=data)
+
+
+def test_intervals_and_signs_are_honest_in_tables_and_json(store_dir, tmp_path):
+    """Two seeds: no MRSE interval, and the table says why; a negative noise-corrected
+    rBias² reads 'below the noise floor'; pt has no per-cache rows."""
+    data, _ = store_dir
+    two = tmp_path / "two"
+    text = cli(*RENDER[:-4], "--seeds", "2", "--ref-spp", "16", data=two)
+    assert "no interval: 2 seeds (an interval needs 3 or more)" in text
+    assert "per cache" not in text
+    row = json.loads(cli("runs", "list", "--json", data=two))[0]
+    assert row["mrse_ci95"] is None and "2 seeds" in row["mrse_ci_note"]
+
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from jobs.record.models import Run
+
+    store = open_store(Settings(data_dir=two))
+    with store.session(write=True) as session:
+        run = session.get(Run, 1)
+        run.metrics = {**run.metrics, "rbias2": -0.00123}
+    assert "below the noise floor (-0.00123)" in cli("runs", "show", "1", data=two)
+    row = json.loads(cli("runs", "list", "--json", data=two))[0]
+    assert row["below_noise_floor"] == ["rbias2"] and row["rbias2"] == -0.00123
