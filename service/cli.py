@@ -159,6 +159,23 @@ def scenes(
 
 
 @app.command()
+def methods(
+    name: Annotated[str | None, typer.Argument(help="a method: list its parameters")] = None,
+    as_json: JsonOut = False,
+) -> None:
+    """The registered methods, or one method's parameters with their defaults, and what
+    each needs of a scene."""
+    from service.method_info import method_info
+    from service.tables import methods_table
+
+    infos = [method_info(name)] if name else [method_info(n) for n in METHODS]
+    if as_json:
+        print_json(infos if name is None else infos[0])
+    else:
+        console.print(methods_table(infos))
+
+
+@app.command()
 def reference(
     scene: Scene,
     res: Res = 64,

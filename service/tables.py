@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from typing import TYPE_CHECKING, Any
 
 from rich.console import Group
@@ -125,11 +126,12 @@ def metrics_table(run: RunResultDetail) -> Group:
     head = {
         "quality verdict": verdict_text(run.quality),
         "run": run.id,
-        "scene / method": f"{run.scene} / {run.method}",
+        "scene / method": f"{run.scene} / {run.method_label or run.method}",
         "resolution": "x".join(map(str, run.resolution)),
         "spp x frames": f"{run.spp} x {run.frames}",
         "seeds (K)": run.seeds,
-        "reference": f"{reference.spp} spp (reference {reference.id})" if reference else "-",
+        "reference": f"{reference_text(reference)} (reference {reference.id})"
+        if reference else "-",
         "reference floor MRSE (est.)":
             reference.split_half.get("reference_mrse_estimate") if reference else None,
         "reference floor mean Var[R]/(R2+eps)": m.get("ref_floor"),
@@ -153,7 +155,9 @@ def metrics_table(run: RunResultDetail) -> Group:
         seeds.add_row(str(s.seed), *(_fmt(_shown(s.metrics.get(m.seed_key))) for m in PER_SEED),
                       _fmt(_ms(s.metrics.get("seconds_per_frame"))),
                       str(s.metrics.get("nonfinite_pixels")))
-    parts: list[Any] = [key_value_table(f"{run.method} vs reference", head)]
+    parts: list[Any] = [key_value_table(
+        escape(f"{run.method_label or run.method} vs reference ({reference_text(reference)})"),
+        head)]
     if run.time_breakdown_ms:
         parts.append(stage_table(run))
     parts.append(seeds)
@@ -161,6 +165,16 @@ def metrics_table(run: RunResultDetail) -> Group:
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
     return Group(*parts)
+
+
+def reference_text(reference: Any) -> str:
+    """What a run's reference is: its integrator, spp and depth ('-' without one)."""
+    if reference is None:
+        return "-"
+    parts = [reference.integrator, f"{reference.spp} spp",
+             None if reference.max_depth is None else "unbounded depth"
+             if reference.max_depth == -1 else f"max_depth {reference.max_depth}"]
+    return ", ".join(part for part in parts if part)
 
 
 def _device_text(run: RunResult) -> str:
@@ -391,6 +405,7 @@ def comparison_table(comparison: RunComparison) -> Group:
     head = Table(title="runs compared (the first is the baseline)")
     for column in ("setting", *(f"run {r.id}" for r in rows)):
         head.add_column(column)
+    head.add_row("what ran", *(escape(r.method_label) for r in rows))
     head.add_row("name", *(escape(r.name or "-") for r in rows))
     head.add_row("created", *(r.created_at.strftime("%Y-%m-%d %H:%M") for r in rows))
     for setting, values in comparison.differences.items():
@@ -429,3 +444,29 @@ def render_tables(summary: Any) -> Group:
     after the line saying it was reused when it was."""
     table = metrics_table(summary.result)
     return Group(Text(reuse_line(summary.result)), table) if summary.reused else table
+
+
+def methods_table(infos: list[dict[str, Any]]) -> Group:
+    """The registered methods (service.method_info): one table of all, or with one
+    method the table of its parameters and defaults."""
+    if len(infos) > 1:
+        table = Table(title="methods (nirc-bench methods NAME: its parameters)")
+        for column in ("name", "what it is", "needs of a scene", "equal-time knob"):
+            table.add_column(column)
+        for info in infos:
+            table.add_row(info["name"], escape(info["description"]), escape(info["needs"]),
+                          info["knob"] or "-")
+        return Group(table)
+    info = infos[0]
+    table = Table(title=escape(f"{info['name']}: {info['description']}"))
+    for column in ("parameter", "type", "default", "what it is"):
+        table.add_column(column)
+    for param in info["params"]:
+        table.add_row(param["name"], escape(param["type"]),
+                      escape(json.dumps(param["default"])) if isinstance(
+                          param["default"], dict | list) else escape(str(param["default"])),
+                      escape(param["help"]))
+    lines = [f"needs of a scene: {info['needs']}",
+             f"equal-time knob: {info['knob'] or '-'}; estimator version {info['version']}",
+             "set a parameter with render --param NAME=VALUE (JSON values)"]
+    return Group(table, *(Text(line) for line in lines))

@@ -30,6 +30,41 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from jobs.protocol.versions import is_current
 from metrics.registry import LISTED, Metric, row_values
+from renderers.methods import METHODS
+
+#: Parameters named first in a method label, by how they are shown ('{}' is the value).
+HEADLINE_PARAMS = {"estimator": "{}", "termination": "{}", "nc": "N_c {}"}
+
+
+def _compact(value: Any) -> str:
+    if isinstance(value, list):
+        return ",".join(map(str, value))
+    if isinstance(value, dict):
+        return "{" + ",".join(f"{k}:{_compact(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def changed_params(method: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The parameters of a run of ``method`` whose value is not the method's default (none
+    for a method that is not registered here)."""
+    model = METHODS[method].params if method in METHODS else None
+    if model is None:
+        return {}
+    defaults = model().model_dump(mode="json")
+    return {name: params[name] for name in model.model_fields
+            if name in params and params[name] != defaults.get(name)}
+
+
+def method_label(method: str, params: dict[str, Any]) -> str:
+    """What ran, in a few words: the method, its headline parameters (estimator,
+    termination, N_c) whatever their value, then every other parameter not at its
+    default, e.g. 'nirc (biased, bth, N_c 4)' or 'pt (max_depth 4)'."""
+    fields = METHODS[method].params.model_fields if method in METHODS else {}
+    parts = [shown.format(_compact(params[name])) for name, shown in HEADLINE_PARAMS.items()
+             if name in fields and params.get(name) is not None]
+    parts += [f"{name} {_compact(value)}" for name, value in
+              changed_params(method, params).items() if name not in HEADLINE_PARAMS]
+    return f"{method} ({', '.join(parts)})" if parts else method
 
 
 def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
@@ -102,6 +137,9 @@ class RunResult(ResultMetrics):
     scene: str
     scene_fingerprint: str
     method: str
+    method_label: str = Field("", description="the method with its headline parameters and "
+                                              "those not at their default, e.g. 'nirc "
+                                              "(biased, bth, N_c 4)'")
     params: dict[str, Any]
     resolution: list[int]
     spp: int
@@ -156,7 +194,8 @@ class RunResult(ResultMetrics):
             **row_values(m), "id": run.id, "created_at": run.created_at,
             "name": run.name, "tags": run.tags or {},
             "scene": run.scene_name, "scene_fingerprint": run.scene_fingerprint,
-            "method": run.method, "params": {k: v for k, v in run.params.items() if k != "spec"},
+            "method": run.method, "method_label": method_label(run.method, run.params),
+            "params": {k: v for k, v in run.params.items() if k != "spec"},
             "resolution": [run.width, run.height], "spp": run.spp, "frames": run.frames,
             "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),
             "render_seconds_per_frame": render_seconds(run.timings),

@@ -12,9 +12,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from jobs.protocol.results import RunResult
+from jobs.protocol.results import RunResult, changed_params
 from jobs.record.store import Store
-from renderers.methods import METHODS
 
 
 class RunQueryError(ValueError):
@@ -33,25 +32,6 @@ class RunFilter(BaseModel):
     params: dict[str, Any] = Field(default_factory=dict)
     tags: dict[str, str] = Field(default_factory=dict)
     name: str | None = None
-
-
-def param_summary(method: str, params: dict[str, Any]) -> str:
-    """The parameters of a run that differ from its method's defaults, 'name=value'
-    joined by spaces ('' when all are defaults or the method is not registered)."""
-    model = METHODS[method].params if method in METHODS else None
-    if model is None:
-        return ""
-    defaults = model().model_dump(mode="json")
-    return " ".join(f"{name}={_compact(params[name])}" for name in model.model_fields
-                    if name in params and params[name] != defaults.get(name))
-
-
-def _compact(value: Any) -> str:
-    if isinstance(value, list):
-        return ",".join(map(str, value))
-    if isinstance(value, dict):
-        return "{" + ",".join(f"{k}:{_compact(v)}" for k, v in value.items()) + "}"
-    return str(value)
 
 
 #: Columns computed from a row: the parameters that differ from the method's defaults,
@@ -76,7 +56,8 @@ def run_value(row: RunResult, column: str) -> Any:
     if column.startswith("tags."):
         return row.tags.get(column.removeprefix("tags."))
     if column == "changed":
-        return param_summary(row.method, row.params)
+        return " ".join(f"{name}={value}" for name, value in
+                        changed_params(row.method, row.params).items())
     if column == "ms":
         return None if row.seconds_per_frame is None else 1e3 * row.seconds_per_frame
     return getattr(row, check_column(column))

@@ -46,8 +46,8 @@ def store_dir(tmp_path_factory, mi):
     return data, outputs
 
 
-def cli(*args: str, data) -> str:
-    result = CliRunner().invoke(app, [*args, "--data-dir", str(data)])
+def cli(*args: str, data=None) -> str:
+    result = CliRunner().invoke(app, [*args, *(["--data-dir", str(data)] if data else [])])
     assert result.exit_code == 0, (result.output, result.exception)
     return result.output
 
@@ -202,3 +202,27 @@ def test_intervals_and_signs_are_honest_in_tables_and_json(store_dir, tmp_path):
     assert "below the noise floor (-0.00123)" in cli("runs", "show", "1", data=two)
     row = json.loads(cli("runs", "list", "--json", data=two))[0]
     assert row["below_noise_floor"] == ["rbias2"] and row["rbias2"] == -0.00123
+
+
+def test_tables_say_what_ran_and_methods_lists_parameters(store_dir, capsys):
+    data, _ = store_dir
+    from jobs.protocol.results import method_label
+
+    assert method_label("nirc", {"estimator": "biased", "termination": "bth", "nc": [4],
+                                 "max_depth": -1}) == "nirc (biased, bth, N_c 4)"
+    assert method_label("pt", {"max_depth": -1, "rr_survival": 0.9}) == "pt"
+    text = cli("runs", "show", "3", data=data)
+    assert "cornell-box / pt (max_depth 4)" in text
+    assert "path, 16 spp, max_depth 4 (reference" in text     # the reference's settings
+    assert json.loads(cli("runs", "list", "--json", "--param", "max_depth=4",
+                          data=data))[0]["method_label"] == "pt (max_depth 4)"
+
+    listed = cli("methods")
+    assert all(name in listed for name in ("pt", "nirc", "nrc", "nvc-env"))
+    nirc = json.loads(cli("methods", "nirc", "--json"))
+    params = {p["name"]: p for p in nirc["params"]}
+    assert params["estimator"]["default"] == "biased" and "bth" in params["termination"]["type"]
+    assert "surface" in nirc["needs"] and nirc["knob"] == "nc"
+    wrong = cli_error(capsys, "render", "-s", "cornell-box", "-m", "nirc", "-p", "ncc=4",
+                      data=data)
+    assert "ncc" in wrong and "nirc's parameters are" in wrong and "termination" in wrong
