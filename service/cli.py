@@ -21,6 +21,7 @@ from typing import Annotated, Any
 
 import typer
 from rich.markup import escape
+from typer._click import exceptions as click_errors  # Typer's own copy of Click's
 
 from renderers.methods import BASELINE, METHODS, sweep_methods
 from service.cli_common import (
@@ -42,6 +43,7 @@ app = typer.Typer(
     help="Evaluate and benchmark radiance-caching renderers against converged references.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,      # help is plain text: 'a:b:step' is not an emoji code
     add_completion=False,
 )
 Scene = Annotated[str, typer.Option("--scene", "-s", help="built-in scene name or XML path")]
@@ -850,7 +852,8 @@ def stress(
 
 
 app.add_typer(runs_app, name="runs")
-apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True)
+apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True,
+                         rich_markup_mode=None)
 app.add_typer(apikey_app, name="apikey")
 
 
@@ -904,9 +907,21 @@ def apikey_revoke(prefix: Annotated[str, typer.Argument(help="the key's prefix")
 
 
 def main() -> None:
-    """Console-script entry point: run the app, turning errors into one-line messages."""
+    """Console-script entry point: run the app, turning errors into one-line messages
+    (the options' own checks included: one line naming the option, exit status 2)."""
     try:
-        app()
+        code = app(standalone_mode=False)
+    except click_errors.NoArgsIsHelpError as err:
+        console.print(err.format_message(), markup=False, highlight=False, emoji=False)
+        sys.exit(2)
+    except click_errors.UsageError as err:
+        command = err.ctx.command_path if err.ctx else "nirc-bench"
+        err_console.print(f"nirc-bench: error: {err.format_message()} (see {command} --help)",
+                          markup=False, highlight=False, soft_wrap=True)
+        sys.exit(2)
+    except typer.Abort:
+        err_console.print("nirc-bench: aborted", markup=False, highlight=False)
+        sys.exit(130)
     except USER_ERRORS as err:
         err_console.print(f"nirc-bench: error: {describe_user_error(err)}", markup=False,
                           highlight=False, soft_wrap=True)     # one line, not wrapped at 80
@@ -916,5 +931,7 @@ def main() -> None:
             raise
         err_console.print(
             f"nirc-bench: internal error ({type(err).__name__}): {err} "
-            "(set NIRC_BENCH_DEBUG=1 for the traceback)", markup=False, highlight=False)
+            "(set NIRC_BENCH_DEBUG=1 for the traceback)", markup=False, highlight=False,
+            soft_wrap=True)
         sys.exit(1)
+    sys.exit(code or 0)

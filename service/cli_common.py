@@ -12,8 +12,9 @@ from rich.console import Console
 
 # Tables are wide: when the output is not a terminal (a log, a pipe, CI), do not wrap at
 # 80 columns: wide enough that the sweep table keeps its rows whole.
-console = Console(width=None if sys.stdout.isatty() else 220)
-err_console = Console(stderr=True)
+# No emoji codes: 'a:b:step' is text, not ':b:'.
+console = Console(width=None if sys.stdout.isatty() else 220, emoji=False)
+err_console = Console(stderr=True, emoji=False)
 
 DataDir = Annotated[
     Path | None,
@@ -24,10 +25,16 @@ JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a t
 
 
 def open_settings(data_dir: Path | None) -> Any:
-    """The settings, with ``data_dir`` when given (else the environment's or ./data)."""
+    """The settings, with ``data_dir`` when given (else the environment's or ./data);
+    UsageError when the data folder is a file."""
     from jobs.record.config import Settings
+    from service.errors import UsageError
 
-    return Settings(data_dir=data_dir) if data_dir else Settings()
+    settings = Settings(data_dir=data_dir) if data_dir else Settings()
+    if settings.data_dir.exists() and not settings.data_dir.is_dir():
+        raise UsageError(f"the data folder {settings.data_dir} is a file, not a folder "
+                         "(--data-dir or NIRC_BENCH_DATA_DIR)")
+    return settings
 
 
 def open_store(settings: Any) -> Any:

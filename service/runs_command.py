@@ -17,7 +17,7 @@ from service.cli_common import DataDir, JsonOut, console, open_settings, open_st
 from service.errors import UsageError
 
 runs_app = typer.Typer(help="Stored runs: list, show, compare, export, name and tag them.",
-                       no_args_is_help=True)
+                       no_args_is_help=True, rich_markup_mode=None)
 
 #: The columns ``runs list`` shows unless --columns says otherwise.
 DEFAULT_COLUMNS = ("id", "created_at", "name", "scene", "method", "changed", "resolution",

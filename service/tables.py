@@ -322,15 +322,34 @@ def _work_line(work: dict[str, int]) -> str:
             f"(reused {work['points_reused']}), calibrations {work['calibrations']}")
 
 
+def saturated_runs(rows: list[Any]) -> list[tuple[Any, list[Any]]]:
+    """The rows with, for each, the following rows of its series it stands for: those
+    whose v1 mask is saturated (allows all pixels, or none) like it, so that they render
+    one configuration whatever their eps. Other rows stand for themselves."""
+    shown: list[tuple[Any, list[Any]]] = []
+    for row in rows:
+        if shown:
+            first, alike = shown[-1]
+            if (row.series == first.series and row.mask_pct is not None
+                    and row.mask_pct == first.mask_pct and row.mask_pct in (0.0, 100.0)):
+                alike.append(row)
+                continue
+        shown.append((row, []))
+    return shown
+
+
 def sweep_table(result: SweepResult) -> Group:
-    """The sweep's points (one row per series and eps / N_c), skipped methods, work done."""
+    """The sweep's points (one row per series and eps / N_c), skipped methods, work done.
+    Rows whose v1 mask is saturated like the row before them are shown once, and said so
+    (:func:`saturated_runs`; the JSON keeps every point)."""
     table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
     for _, header in SWEEP_COLUMNS:
         # The series label is what a reader looks rows up by: never wrapped.
         table.add_column(header, justify="left" if header == "series" else "right",
                          no_wrap=header == "series")
     metric_cells = {m.field: index for index, m in enumerate(LISTED)}
-    for row in result.rows:
+    collapsed: list[str] = []
+    for row, alike in saturated_runs(result.rows):
         metrics = _metric_cells(row)
         cells = []
         for key, _ in SWEEP_COLUMNS:
@@ -345,8 +364,15 @@ def sweep_table(result: SweepResult) -> Group:
                 cells.append("-" if value is None else _fmt(value))
         if not row.finite:
             cells[0] += " (non-finite pixels!)"
-        table.add_row(*cells)
-    lines: list[Any] = [table]
+        if alike:
+            cells[1] = f"{_fmt(row.eps)}–{_fmt(alike[-1].eps)}"
+            collapsed.append(
+                f"{row.series}: eps {_fmt(row.eps)} to {_fmt(alike[-1].eps)} shown as one row: "
+                f"the v1 mask allows {_fmt(row.mask_pct)} % of pixels at each of these "
+                f"{len(alike) + 1} points (saturated), so they render one configuration "
+                f"(runs {', '.join(str(r.id) for r in [row, *alike])}; --json lists each)")
+        table.add_row(*(escape(cell) for cell in cells))
+    lines: list[Any] = [table, *(Text(line) for line in collapsed)]
     lines += [f"skipped {s.method}: {s.reason}" for s in result.skipped]
     if result.stage_work:
         lines.append(f"rendered by its stage jobs: {_work_line(result.stage_work)}")

@@ -226,3 +226,49 @@ def test_tables_say_what_ran_and_methods_lists_parameters(store_dir, capsys):
     wrong = cli_error(capsys, "render", "-s", "cornell-box", "-m", "nirc", "-p", "ncc=4",
                       data=data)
     assert "ncc" in wrong and "nirc's parameters are" in wrong and "termination" in wrong
+
+
+def test_progress_lines_in_any_output_and_saturated_sweep_rows_collapse(store_dir):
+    """Not a terminal (the test runner): renders print plain progress lines. The sweep
+    table shows points whose v1 mask is saturated (100 % of pixels) once, and says so."""
+    from rich.console import Console
+
+    from jobs.protocol.sweep import SweepResult, point_row
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from service.tables import sweep_table
+
+    data, outputs = store_dir
+    assert "progress: reference" in outputs[0] and "progress: seed 3/3 2/2" in outputs[0]
+    assert outputs[0].count("progress: seed 1/3 2/2") == 1      # a finished stage: once
+    run = open_store(Settings(data_dir=data)).get_run(1)
+    masks = {0.05: 40.0, 0.1: 80.0, 0.15: 80.0, 0.2: 100.0, 0.5: 100.0, 1.0: 100.0}
+    rows = [point_row("nirc", eps, run).model_copy(update={"mask_pct": pct})
+            for eps, pct in masks.items()]
+    work = dict.fromkeys(("reference_rendered", "snapshots_trained", "snapshots_reused",
+                          "points_rendered", "points_reused", "calibrations"), 0)
+    result = SweepResult(sweep_id=1, key="k", kind="eps", scene="cornell-box",
+                         device_key=run.device_key, rows=rows, skipped=[], work=work)
+    console = Console(width=400, record=True)
+    console.print(sweep_table(result))
+    text = console.export_text()
+    assert "0.2–1" in text and "0.15" in text     # an unsaturated repeat stays a row
+    assert "eps 0.2 to 1 shown as one row: the v1 mask allows 100 % of pixels at each of " \
+           "these 3 points (saturated)" in text
+    assert sum(line.startswith("│ NIRC") for line in text.splitlines()) == 4
+
+
+def test_user_errors_are_one_line_and_text_is_never_markup(tmp_path, capsys):
+    """Option checks, a data folder that is a file, and 'a:b:step' (an emoji code to rich)
+    in help and errors: one line, exit status 2, the text as written."""
+    data = tmp_path / "data"
+    assert "Invalid value for '--res'" in cli_error(
+        capsys, "render", "-s", "cornell-box", "--res", "0", data=data)
+    assert "No such command 'nope'" in cli_error(capsys, "nope", data=data)
+    a_file = tmp_path / "notes.md"
+    a_file.write_text("not a folder")
+    assert "is a file, not a folder" in cli_error(capsys, "runs", "list", data=a_file)
+    assert "'1:b:2'" in cli_error(capsys, "sweep", "-s", "cornell-box", "--eps", "1:b:2",
+                                  data=data)
+    help_text = cli("sweep", "--help")
+    assert "a:b:step" in help_text and "\N{NEGATIVE SQUARED LATIN CAPITAL LETTER B}" not in help_text
