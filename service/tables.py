@@ -127,6 +127,8 @@ def metrics_table(run: RunResultDetail) -> Group:
         "quality verdict": verdict_text(run.quality),
         "run": run.id,
         "scene / method": f"{run.scene} / {run.method_label or run.method}",
+        **({"XML settings not used": "\n".join(run.scene_overrides)}
+           if run.scene_overrides else {}),
         "resolution": "x".join(map(str, run.resolution)),
         "spp x frames": f"{run.spp} x {run.frames}",
         "seeds (K)": run.seeds,

@@ -284,6 +284,25 @@ def prepare(spec: RenderSpec, store: Store, settings: Settings,
     return Prepared(scene=scene, reference=reference, device=device_info(), started=started)
 
 
+def replaced_settings(file_settings: dict[str, Any], spec: RenderSpec, resolution: Any,
+                      max_depth: int) -> list[str]:
+    """What the scene file sets (LoadedScene.file_settings) that this run replaced, one
+    line each, e.g. "film 1920x1080 -> 64x64 (the run's resolution)"."""
+    lines = []
+    film = file_settings.get("film")
+    if film and list(film) != list(resolution):
+        lines.append(f"film {'x'.join(map(str, film))} -> {resolution[0]}x{resolution[1]} "
+                     "(the run's resolution)")
+    if "integrator" in file_settings:
+        lines.append(f"integrator '{file_settings['integrator']}' -> {spec.method}'s own")
+    if "max_depth" in file_settings and file_settings["max_depth"] != max_depth:
+        lines.append(f"max_depth {file_settings['max_depth']} -> {max_depth} (the run's)")
+    if "spp" in file_settings and file_settings["spp"] != spec.spp:
+        lines.append(f"sampler {file_settings['spp']} spp -> {spec.spp} spp x {spec.frames} "
+                     "frames")
+    return lines
+
+
 def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender], store: Store,
               settings: Settings, *, idempotency_key: str | None = None,
               extra: dict[str, Any] | None = None, out_dir: Path | None = None) -> RunSummary:
@@ -350,7 +369,10 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
             "created_at": prepared.started, "finished_at": datetime.now(UTC),
             "status": "succeeded", "scene_name": scene.name,
             "scene_fingerprint": scene.fingerprint, "method": spec.method,
-            "params": {**param_json, "spec": spec.model_dump(mode="json"), **(extra or {})},
+            "params": {**param_json, "spec": spec.model_dump(mode="json"), **(extra or {}),
+                       "scene_overrides": replaced_settings(
+                           scene.file_settings, spec, scene.resolution,
+                           param_json.get("max_depth", -1))},
             "width": scene.resolution[0], "height": scene.resolution[1], "spp": spec.spp,
             "frames": spec.frames, "seeds": len(outputs), "reference_id": reference.id,
             "metrics": metrics, "timings": timings, "path_stats": path_stats,

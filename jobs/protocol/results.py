@@ -141,6 +141,10 @@ class RunResult(ResultMetrics):
                                               "those not at their default, e.g. 'nirc "
                                               "(biased, bth, N_c 4)'")
     params: dict[str, Any]
+    scene_overrides: list[str] = Field(
+        default_factory=list, description="what the scene's XML file sets that the run "
+                                          "replaced (film size, integrator, max_depth, "
+                                          "sampler spp), one line each")
     resolution: list[int]
     spp: int
     frames: int
@@ -195,7 +199,9 @@ class RunResult(ResultMetrics):
             "name": run.name, "tags": run.tags or {},
             "scene": run.scene_name, "scene_fingerprint": run.scene_fingerprint,
             "method": run.method, "method_label": method_label(run.method, run.params),
-            "params": {k: v for k, v in run.params.items() if k != "spec"},
+            "params": {k: v for k, v in run.params.items()
+                       if k not in ("spec", "scene_overrides")},
+            "scene_overrides": run.params.get("scene_overrides") or [],
             "resolution": [run.width, run.height], "spp": run.spp, "frames": run.frames,
             "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),
             "render_seconds_per_frame": render_seconds(run.timings),

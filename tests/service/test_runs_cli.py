@@ -272,3 +272,31 @@ def test_user_errors_are_one_line_and_text_is_never_markup(tmp_path, capsys):
                                   data=data)
     help_text = cli("sweep", "--help")
     assert "a:b:step" in help_text and "\N{NEGATIVE SQUARED LATIN CAPITAL LETTER B}" not in help_text
+
+
+SCENE_XML = """<scene version="3.0.0">
+  <default name="spp" value="64"/>
+  <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+  <sensor type="perspective">
+    <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/></film>
+  </sensor>
+  <shape type="rectangle"><bsdf type="diffuse"/></shape>
+  <emitter type="constant"/>
+</scene>
+"""
+
+
+def test_an_external_scene_lists_the_settings_the_run_replaced(tmp_path):
+    scene = tmp_path / "my-room.xml"
+    scene.write_text(SCENE_XML)
+    data = tmp_path / "data"
+    text = cli("render", "-s", str(scene), "--res", "8", "--spp", "1", "--frames", "2",
+               "--seeds", "2", "--ref-spp", "16", data=data)
+    replaced = ["film 32x24 -> 8x8 (the run's resolution)", "integrator 'path' -> pt's own",
+                "max_depth 3 -> -1 (the run's)", "sampler 64 spp -> 1 spp x 2 frames"]
+    for line in replaced:
+        assert line in text
+    stored = json.loads(cli("runs", "show", "1", "--json", data=data))
+    assert stored["scene_overrides"] == replaced and "scene_overrides" not in stored["params"]
