@@ -127,6 +127,7 @@ def metrics_table(run: RunResultDetail) -> Group:
         "quality verdict": verdict_text(run.quality),
         "run": run.id,
         "scene / method": f"{run.scene} / {run.method_label or run.method}",
+        "scene content (fingerprint)": run.scene_fingerprint,
         **({"XML settings not used": "\n".join(run.scene_overrides)}
            if run.scene_overrides else {}),
         "resolution": "x".join(map(str, run.resolution)),
