@@ -71,7 +71,12 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
 
     client = ServiceClient(server, api_key)
     if is_scene_file(spec.scene):   # a local scene file: the service gets a copy
-        spec = spec.model_copy(update={"scene": client.upload_scene(spec.scene)})
+        uploaded = client.upload_scene(spec.scene)
+        if not as_json:     # the run names the copy; its fingerprint is the file's
+            console.print(f"scene {Path(spec.scene).name} uploaded as {uploaded} (the same "
+                          "content fingerprint as a local run of the file)",
+                          markup=False, highlight=False)
+        spec = spec.model_copy(update={"scene": uploaded})
     job = client.submit(kind, spec.model_dump(mode="json"))
     if not as_json:
         console.print(f"job {job['id']} submitted to {server} ({job['status']})")
