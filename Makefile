@@ -20,7 +20,8 @@ demo: bootstrap
 # it at the end if it started it.
 WITH_SERVICES := bash scripts/with_test_services.sh
 # test-fast: the cheapest tests whose times, recorded on this machine by earlier runs,
-# sum to at most this many seconds (tests/time_budget.py); `make test` runs them all.
+# sum to at most this many seconds, untimed ones first, and no test starts after that
+# many seconds (tests/time_budget.py); `make test` runs them all.
 FAST_BUDGET_S ?= 240
 
 test: bootstrap

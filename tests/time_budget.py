@@ -3,13 +3,17 @@
 Every run records each test's time (setup + call + teardown) on this machine in pytest's
 cache (``.pytest_cache``). With ``--time-budget S``, the selected tests are ordered by
 their recorded time and the cheapest are kept while their sum stays within S; tests
-never timed here (new ones, or all of them in a fresh checkout) are kept too and said
-so, since their cost is unknown. The summary says what was left out and how long it
-took when last run: ``make test`` runs everything and refreshes the record.
+never timed here (new ones, or all of them in a fresh checkout) are kept too, since
+their cost is unknown, and run first. Whatever the record, the run stops starting tests once S seconds
+have passed (the test under way finishes; the rest are reported as skipped), so a
+fresh checkout also stays within the budget and records what it ran. The summary says what was left out, what was not
+reached, and how long it took when last run: ``make test`` runs everything and
+refreshes the record.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import pytest
@@ -38,6 +42,9 @@ class TimeBudget:
         self.kept_s = 0.0
         self.left_out: list[Any] = []
         self.untimed = 0
+        self.ran: set[str] = set()     # tests whose body ran: only their times are kept
+        self.started = time.monotonic()
+        self.stopped_after: int | None = None     # tests run when the budget ran out
 
     def pytest_collection_modifyitems(self, config: pytest.Config, items: list[Any]) -> None:
         budget = config.getoption("time_budget")
@@ -56,14 +63,33 @@ class TimeBudget:
             keep.add(item.nodeid)
         if self.left_out:
             config.hook.pytest_deselected(items=self.left_out)
-            items[:] = [item for item in items if item.nodeid in keep]
+        # Untimed tests first: a budget spent on them still records new times, so
+        # successive runs time the whole suite; then the timed ones, in file order.
+        items[:] = ([item for item in items if item.nodeid not in self.recorded]
+                    + [item for item in items
+                       if item.nodeid in self.recorded and item.nodeid in keep])
+
+    def pytest_runtestloop(self, session: pytest.Session) -> None:
+        self.started = time.monotonic()
+
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_runtest_setup(self, item: Any) -> None:
+        budget = self.config.getoption("time_budget")
+        if budget is None or time.monotonic() - self.started <= budget:
+            return
+        if self.stopped_after is None:
+            self.stopped_after = len(self.ran)
+        pytest.skip(f"the time budget of {budget:g} s is spent")
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
         self.measured[report.nodeid] = self.measured.get(report.nodeid, 0.0) + report.duration
+        if report.when == "call":
+            self.ran.add(report.nodeid)
 
     def pytest_sessionfinish(self, session: pytest.Session) -> None:
-        if self.config.cache is not None and self.measured:
-            self.config.cache.set(CACHE_KEY, {**self.recorded, **self.measured})
+        timed = {nodeid: s for nodeid, s in self.measured.items() if nodeid in self.ran}
+        if self.config.cache is not None and timed:
+            self.config.cache.set(CACHE_KEY, {**self.recorded, **timed})
 
     def pytest_terminal_summary(self, terminalreporter: Any) -> None:
         if self.config.getoption("time_budget") is None:
@@ -72,4 +98,8 @@ class TimeBudget:
         terminalreporter.write_line(
             f"time budget: kept tests recorded at {self.kept_s:.1f} s; left out "
             f"{len(self.left_out)} tests recorded at {left_s:.1f} s (make test runs them); "
-            f"{self.untimed} tests had no recorded time and ran")
+            f"{self.untimed} tests had no recorded time")
+        if self.stopped_after is not None:
+            terminalreporter.write_line(
+                f"time budget: spent after {self.stopped_after} tests; the rest were not "
+                "started (skipped)")
