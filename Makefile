@@ -28,7 +28,7 @@ test: bootstrap
 	$(WITH_SERVICES) $(PY) -m pytest -q
 
 test-fast: bootstrap
-	$(WITH_SERVICES) $(PY) -m pytest -q -m "not slow" --time-budget $(FAST_BUDGET_S)
+	$(WITH_SERVICES) $(PY) -m pytest -q -rfE -m "not slow" --time-budget $(FAST_BUDGET_S)
 
 bench: bootstrap
 	$(PY) -m benchmarks.bench_frame_cost
