@@ -363,6 +363,8 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
     metrics = withhold(metrics, verdict.withheld)
     per_seed = [withhold(s, verdict.withheld) for s in per_seed]
     versions = versions_of(spec.method)
+    replaced = replaced_settings(scene.file_settings, spec, scene.resolution,
+                                 param_json.get("max_depth", -1))
 
     run = store.add_run(
         {
@@ -370,9 +372,7 @@ def store_run(spec: RenderSpec, prepared: Prepared, seeds: Sequence[SeedRender],
             "status": "succeeded", "scene_name": scene.name,
             "scene_fingerprint": scene.fingerprint, "method": spec.method,
             "params": {**param_json, "spec": spec.model_dump(mode="json"), **(extra or {}),
-                       "scene_overrides": replaced_settings(
-                           scene.file_settings, spec, scene.resolution,
-                           param_json.get("max_depth", -1))},
+                       **({"scene_overrides": replaced} if replaced else {})},
             "width": scene.resolution[0], "height": scene.resolution[1], "spp": spec.spp,
             "frames": spec.frames, "seeds": len(outputs), "reference_id": reference.id,
             "metrics": metrics, "timings": timings, "path_stats": path_stats,

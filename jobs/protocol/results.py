@@ -32,6 +32,17 @@ from jobs.protocol.versions import is_current
 from metrics.registry import LISTED, Metric, row_values
 from renderers.methods import METHODS
 
+#: Keys a stored run's ``params`` holds besides the method's parameters: the spec it ran,
+#: and the XML scene settings it replaced (only for an XML scene that had any).
+RUN_RECORD_KEYS = ("spec", "scene_overrides")
+
+
+def method_params(params: dict[str, Any] | None) -> dict[str, Any]:
+    """A stored run's ``params`` without :data:`RUN_RECORD_KEYS`: what configured its
+    method (resolved parameters, and a calibration or sweep point's own keys)."""
+    return {k: v for k, v in (params or {}).items() if k not in RUN_RECORD_KEYS}
+
+
 #: Parameters named first in a method label, by how they are shown ('{}' is the value).
 HEADLINE_PARAMS = {"estimator": "{}", "termination": "{}", "nc": "N_c {}"}
 
@@ -199,8 +210,7 @@ class RunResult(ResultMetrics):
             "name": run.name, "tags": run.tags or {},
             "scene": run.scene_name, "scene_fingerprint": run.scene_fingerprint,
             "method": run.method, "method_label": method_label(run.method, run.params),
-            "params": {k: v for k, v in run.params.items()
-                       if k not in ("spec", "scene_overrides")},
+            "params": method_params(run.params),
             "scene_overrides": run.params.get("scene_overrides") or [],
             "resolution": [run.width, run.height], "spp": run.spp, "frames": run.frames,
             "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),
