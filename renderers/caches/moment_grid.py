@@ -166,7 +166,7 @@ class MomentGrid:
 
         Each vertex is one observation of the partition: its sample mean (for E[Y]), its
         mean of Y^2 and its U-statistic for E[Y | y]^2. A record's running averages take
-        the frame's observations with weight n / min(count + n, max_history)."""
+        the frame's observations with weight min(1, n / min(count + n, max_history))."""
         k = self.config.samples_per_vertex
         luminance = mi.luminance(samples)
         sum_rgb = mi.Color3f(*(dr.block_sum(samples[c], k) for c in range(3)))
@@ -185,7 +185,9 @@ class MomentGrid:
         dr.scatter_add(batch_marginal, marginal, slot, active)
 
         total = self.count + n
-        weight = n / dr.maximum(dr.minimum(total, self.config.max_history), 1.0)
+        # A frame with more observations than the history holds replaces the record.
+        weight = dr.minimum(n / dr.maximum(dr.minimum(total, self.config.max_history), 1.0),
+                            1.0)
         per_observation = dr.rcp(dr.maximum(n, 1.0))
         index = dr.arange(mi.UInt32, size)
         old_mean = dr.gather(mi.Color3f, self.mean, index)
