@@ -1,9 +1,8 @@
 """A discrete model of path termination into a radiance cache: a sampling tree whose
 estimators are evaluated exactly, by enumerating every path.
 
-Kandlbinder, Dittebrandt, Schipek and Dachsbacher, "Optimizing Path Termination for
-Radiance Caching Through Explicit Variance Trading" (Proc. ACM CGIT 7(3), 2024)
-validate their two termination rules on such trees (their Fig. 4 and 5). The trees
+The variance-trading paper ([VTT24], docs/references.md) validates its two
+termination rules on such trees (their Fig. 4 and 5). The trees
 themselves are only drawn there, so this module states one of its own in the same
 spirit (:func:`binary_tree`): leaves emit one unit, each inner node chooses its left
 child with probability 0.9, and for the MSE experiments inner nodes carry biased cache

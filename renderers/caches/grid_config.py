@@ -9,8 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 class MomentGridConfig(BaseModel):
     """A spatial hash of positions whose records track E[Y], E[Y^2] and E[E[Y|y]^2]
-    (Kandlbinder et al. 2024, Sec. 4.4 and 5; hashed grids after Binder, Fricke and
-    Keller, "Massively Parallel Path Space Filtering", 2019).
+    ([VTT24] Sec. 4.4 and 5; hashed grids after [BFK19]; docs/references.md).
 
     ========================  =====================================================
     ``cell_size``             edge of a grid cell, in scene units

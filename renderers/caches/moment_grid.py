@@ -1,5 +1,5 @@
-"""A hashed-grid radiance cache whose records track three moments (Kandlbinder,
-Dittebrandt, Schipek and Dachsbacher 2024, Sec. 4.4 and 5; docs/variance_trading.md).
+"""A hashed-grid radiance cache whose records track three moments (the
+variance-trading paper [VTT24], Sec. 4.4 and 5; docs/variance_trading.md).
 
 A record stands for a partition P of surface points y (a grid cell, optionally one of
 six normal bins). For the one-segment estimate Y at a point y of the partition (the
@@ -63,7 +63,7 @@ def marginal_second_moment(sum_y: mi.Float, sum_y2: mi.Float, k: int) -> mi.Floa
     """The U-statistic of E[Y | y]^2 from K independent samples at one point: the mean
     product over the K (K - 1) ordered pairs of distinct samples,
     ((sum Y)^2 - sum Y^2) / (K (K - 1)), unbiased since E[Y_i Y_j] = E[Y | y]^2 for
-    i != j (Lee, "U-statistics", 1990; the paper's Sec. 4.4)."""
+    i != j ([Lee90]; [VTT24] Sec. 4.4)."""
     return (dr.square(sum_y) - sum_y2) / (k * (k - 1))
 
 

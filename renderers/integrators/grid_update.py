@@ -1,5 +1,5 @@
-"""The update (propagation) pass of the hashed-grid moment cache (Kandlbinder et al.
-2024, Sec. 5; docs/variance_trading.md).
+"""The update (propagation) pass of the hashed-grid moment cache ([VTT24] Sec. 5;
+docs/references.md, docs/variance_trading.md).
 
 At every representative vertex y of the grid (:class:`~renderers.caches.moment_grid.MomentGrid`)
 the pass draws K independent one-segment estimates of the light y reflects, with the
