@@ -15,15 +15,20 @@ demo: bootstrap
 		--ref-spp 4096 --out $(DEMO_DIR)
 
 # The store/queue tests also run on a throw-away PostgreSQL server on loopback, and
-# the dashboard tests in a headless Chromium (both installed from Debian if missing).
-TEST_ENV := NIRC_BENCH_TEST_PG_URL=$$(bash scripts/test_postgres.sh) \
-	NIRC_BENCH_TEST_CHROMIUM=$$(bash scripts/test_browser.sh)
+# the dashboard tests in a headless Chromium: scripts/with_test_services.sh installs
+# Debian's postgresql and chromium when missing (as root), starts the server, and stops
+# it at the end if it started it.
+WITH_SERVICES := bash scripts/with_test_services.sh
+# test-fast: the cheapest tests whose times, recorded on this machine by earlier runs,
+# sum to at most this many seconds, untimed ones first, and no test starts after that
+# many seconds (tests/time_budget.py); `make test` runs them all.
+FAST_BUDGET_S ?= 240
 
 test: bootstrap
-	$(TEST_ENV) $(PY) -m pytest -q
+	$(WITH_SERVICES) $(PY) -m pytest -q
 
 test-fast: bootstrap
-	$(TEST_ENV) $(PY) -m pytest -q -m "not slow"
+	$(WITH_SERVICES) $(PY) -m pytest -q -rfE -m "not slow" --time-budget $(FAST_BUDGET_S)
 
 bench: bootstrap
 	$(PY) -m benchmarks.bench_frame_cost

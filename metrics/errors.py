@@ -42,7 +42,7 @@ from metrics.checks import (
     check_same_shape,
     finite_pixel_mask,
 )
-from metrics.statistics import MeanEstimate, mean_confidence_interval
+from metrics.statistics import MeanEstimate, interval_or_reason
 
 __all__ = [
     "DEFAULT_EPS",
@@ -160,10 +160,12 @@ def _floor_report(ref_floor: float | None, values: dict[str, float | None]) -> d
             ratio = ref_floor / abs(value)
         report[f"ref_floor_ratio_{name}"] = ratio
         if ref_floor is not None and value is not None and ref_floor > REF_FLOOR_WARN_RATIO * abs(value):
-            share = f"{ratio:.0%} of" if ratio is not None else "above"
+            sign = ("; the estimate is below the noise floors, i.e. indistinguishable "
+                    "from 0" if value < 0 else "")
             warnings.append(
-                f"reference floor {ref_floor:.3g} is {share} {name} ({value:.3g}, floor "
-                f"subtracted): the value rests on the reference's variance image")
+                f"reference floor {ref_floor:.3g} exceeds {REF_FLOOR_WARN_RATIO:.0%} of the "
+                f"magnitude of {name} ({abs(value):.3g}, floor subtracted{sign}): the value "
+                "rests on the reference's variance image")
     report["warnings"] = warnings
     return report
 
@@ -271,7 +273,9 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
       estimate, so it can be negative for an unbiased method; reported as computed)
     - ``rvar``        = mean S^2 w
     - ``mrse_per_seed`` = [MRSE(X_k)], ``mrse_mean`` their mean and
-      ``mrse_ci95`` = (lo, hi), the Student-t 95 % interval over the K values;
+      ``mrse_ci95`` = (lo, hi), its 95 % interval on the log scale, never below zero
+      (metrics.statistics.positive_mean_interval; None with K < 3), and
+      ``mrse_ci_note`` how it was made or why there is none;
       ``mrse_corrected`` = mrse_mean - ref_floor (None without a floor)
     - ``ref_floor_ratio_rbias2`` / ``ref_floor_ratio_mrse`` = ref_floor / |rbias2|
       and / |mrse_corrected|, and ``warnings`` (floor above 10 % of either).
@@ -316,7 +320,8 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
     if not valid.any():
         return {**counts, "rbias2": None, "rbias2_raw": None, "noise_floor": None,
                 "ref_floor": None, "rvar": None, "mrse_mean": None, "mrse_corrected": None,
-                "mrse_ci95": None, "mrse_per_seed": None,
+                "mrse_ci95": None, "mrse_ci_note": "no interval: no finite pixel",
+                "mrse_per_seed": None,
                 **_floor_report(None, {"rbias2": None, "mrse": None})}
 
     r = np.asarray(ref[valid], dtype=np.float64)
@@ -340,7 +345,8 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
     noise_floor = rvar / k
     ref_floor = _reference_floor(ref_variance, valid, w)
     rbias2 = rbias2_raw - noise_floor - (ref_floor or 0.0)
-    mrse_mean, lo, hi = mean_confidence_interval(mrse_per_seed, 0.95)
+    mrse_mean = float(np.mean(mrse_per_seed))
+    mrse_ci95, mrse_ci_note = interval_or_reason(mrse_per_seed)
     mrse_corrected = None if ref_floor is None else mrse_mean - ref_floor
     return {
         **counts,
@@ -351,7 +357,8 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
         "rvar": rvar,
         "mrse_mean": mrse_mean,
         "mrse_corrected": mrse_corrected,
-        "mrse_ci95": (lo, hi),
+        "mrse_ci95": mrse_ci95,
+        "mrse_ci_note": mrse_ci_note,
         "mrse_per_seed": mrse_per_seed,
         **_floor_report(ref_floor, {"rbias2": rbias2, "mrse": mrse_corrected}),
     }

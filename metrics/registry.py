@@ -27,6 +27,7 @@ from typing import Any, Literal
 import numpy as np
 
 from metrics.errors import efficiency, psnr_tonemapped
+from metrics.statistics import interval_or_reason
 
 
 class Aggregate(StrEnum):
@@ -34,8 +35,9 @@ class Aggregate(StrEnum):
 
     #: mean over seeds of the per-seed values (seeds without a value left out)
     MEAN = "mean"
-    #: mean over seeds with its Student-t 95 % interval under ``<seed_key>_ci95``
-    #: (metrics.errors.bias_variance; the single value when K = 1)
+    #: mean over seeds with its 95 % interval under ``<seed_key>_ci95``, on the log scale
+    #: so it stays above zero, none with K < 3 (metrics.errors.bias_variance,
+    #: metrics.statistics.positive_mean_interval; the single value when K = 1)
     MEAN_CI = "mean_ci"
     #: from the K renders jointly, like rBias^2 and rVar (metrics.errors.bias_variance)
     BIAS_VARIANCE = "bias_variance"
@@ -176,21 +178,55 @@ def seed_mean(metric: Metric, per_seed: list[Mapping[str, Any]]) -> float | None
     return float(np.mean(values)) if values else None
 
 
+def mean_interval(metric: Metric, metrics: Mapping[str, Any]) -> tuple[list[float] | None,
+                                                                         str | None]:
+    """The 95 % interval of a MEAN_CI ``metric`` of a run's ``metrics`` and how it was made
+    or why there is none (metrics.statistics.interval_or_reason), from the stored
+    per-seed values, so that runs stored before the log-scale interval read the same;
+    (None, None) when the metric has no value (withheld)."""
+    per_seed = metrics.get(f"{metric.seed_key}_per_seed")
+    if per_seed:
+        ci, note = interval_or_reason(per_seed)
+        return (list(ci) if ci else None), note
+    if metrics.get(metric.key) is None:
+        return None, None
+    stored = metrics.get(metric.ci_key)
+    if stored and min(stored) >= 0:     # no per-seed values kept: the stored interval
+        return list(stored), "95 % interval of the mean, as stored"
+    if stored:
+        return None, "no interval: the stored one crosses zero and the seeds' values are gone"
+    return None, interval_or_reason([metrics[metric.key]] * int(metrics.get("k") or 1))[1]
+
+
+#: Stored keys of estimates of a non-negative quantity less noise floors: unbiased, so
+#: they can come out negative when the quantity is below what the noise resolves.
+FLOOR_CORRECTED_KEYS = frozenset({"rbias2", "rbias2_per_cache_mean", "mrse_corrected"})
+
+
+def below_noise_floor(key: str, value: Any) -> bool:
+    """Whether the stored ``key``'s ``value`` is a noise-corrected estimate below zero:
+    the quantity is smaller than the noise floors resolve (read it as ~0)."""
+    return key in FLOOR_CORRECTED_KEYS and isinstance(value, int | float) and value < 0
+
+
 def row_values(metrics: Mapping[str, Any]) -> dict[str, Any]:
-    """A run's listed metrics under their ``field`` names (and ``<field>_ci95``)."""
+    """A run's listed metrics under their ``field`` names (and ``<field>_ci95`` with
+    ``<field>_ci_note``), and ``below_noise_floor``: the fields whose noise-corrected
+    value is negative."""
     row: dict[str, Any] = {}
     for m in LISTED:
         row[m.field] = metrics.get(m.key)
         if m.ci_key:
-            ci = metrics.get(m.ci_key)
-            row[f"{m.field}_ci95"] = list(ci) if ci else None
+            row[f"{m.field}_ci95"], row[f"{m.field}_ci_note"] = mean_interval(m, metrics)
+    row["below_noise_floor"] = [m.field for m in LISTED
+                                if below_noise_floor(m.key, metrics.get(m.key))]
     return row
 
 
 def metric_table() -> str:
     """The Markdown table of registered metrics (README.md, "Metrics"; checked by
     tests/metrics/test_registry.py; print it with ``python -m metrics.registry``)."""
-    over_seeds = {Aggregate.MEAN: "mean", Aggregate.MEAN_CI: "mean, 95 % CI",
+    over_seeds = {Aggregate.MEAN: "mean", Aggregate.MEAN_CI: "mean, 95 % CI (log scale, K >= 3)",
                   Aggregate.BIAS_VARIANCE: "jointly", Aggregate.PER_CACHE: "per cache, mean",
                   Aggregate.DERIVED: "derived"}
     lines = ["| metric | what it is | better | over the K seeds | stored as |",

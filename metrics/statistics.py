@@ -15,6 +15,9 @@
   renders whose pixels share samples (spatial reuse), where the block test's
   independent-pixel variances are too small.
 - :func:`mean_confidence_interval`: Student-t interval of a mean over seeds.
+- :func:`positive_mean_interval`: the interval of the mean of a non-negative quantity
+  (an error such as MRSE), on the log scale so that it never goes below zero;
+  :func:`interval_or_reason` says why there is none.
 
 Distributions (Student t, chi-square, normal tails) come from ``scipy.stats``
 and ``scipy.special``; SciPy is a declared dependency of the project.
@@ -54,6 +57,54 @@ def mean_confidence_interval(values: np.ndarray | list[float],
     half_width = (float(stats.t.ppf(0.5 * (1.0 + level), arr.size - 1))
                   * float(arr.std(ddof=1)) / math.sqrt(arr.size))
     return mean, mean - half_width, mean + half_width
+
+
+#: Fewer values than this give no interval of a mean: with 2 seeds the Student t has one
+#: degree of freedom (critical value 12.7), and the interval spans most of the axis.
+MIN_INTERVAL_VALUES = 3
+
+#: How :func:`positive_mean_interval` is made, as tables and the API state it.
+POSITIVE_INTERVAL_NOTE = ("95 % interval of the mean on the log scale (delta method, "
+                          "Student t with K-1 degrees of freedom)")
+
+
+def positive_mean_interval(values: np.ndarray | list[float],
+                           level: float = 0.95) -> tuple[float, float]:
+    """(lo, hi): a ``level`` confidence interval of the mean of non-negative ``values``
+    that stays above zero.
+
+    The interval is built for log(mean) by the delta method, whose standard error is
+    the coefficient of variation s / (mean sqrt(n)), with the Student-t critical
+    value on n - 1 degrees of freedom, and mapped back:
+    mean x exp(-+ t s / (mean sqrt(n))). Errors over seeds are right-skewed and
+    bounded by zero, which the symmetric interval mean +- t s / sqrt(n) ignores (with
+    few seeds its lower end goes negative). Needs at least
+    :data:`MIN_INTERVAL_VALUES` finite, non-negative values; all zero gives (0, 0).
+    """
+    arr = np.asarray(values, dtype=np.float64).ravel()
+    if arr.size < MIN_INTERVAL_VALUES:
+        raise MetricError(f"an interval needs at least {MIN_INTERVAL_VALUES} values, got "
+                          f"{arr.size}")
+    if not np.isfinite(arr).all() or (arr < 0).any():
+        raise MetricError("the interval of a non-negative mean needs finite values >= 0")
+    if not 0.0 < level < 1.0:
+        raise MetricError(f"confidence level must be in (0, 1), got {level}")
+    mean = float(arr.mean())
+    if mean == 0.0:
+        return 0.0, 0.0
+    half_width = (float(stats.t.ppf(0.5 * (1.0 + level), arr.size - 1))
+                  * float(arr.std(ddof=1)) / (mean * math.sqrt(arr.size)))
+    return mean * math.exp(-half_width), mean * math.exp(half_width)
+
+
+def interval_or_reason(values: list[float | None]) -> tuple[tuple[float, float] | None, str]:
+    """The 95 % :func:`positive_mean_interval` of the finite ``values`` with how it was
+    made, or None with why there is none (too few seeds)."""
+    finite = [v for v in values if v is not None and math.isfinite(v)]
+    if len(finite) < MIN_INTERVAL_VALUES:
+        return None, (f"no interval: {len(finite)} seed{'s' if len(finite) != 1 else ''} "
+                      f"(an interval needs {MIN_INTERVAL_VALUES} or more)")
+    return positive_mean_interval(finite), POSITIVE_INTERVAL_NOTE
 
 
 # ---------------------------------------------------------------------------

@@ -21,30 +21,32 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
+from rich.markup import escape
+from typer._click import exceptions as click_errors  # Typer's own copy of Click's
 
 from renderers.methods import BASELINE, METHODS, sweep_methods
+from service.cli_common import (
+    DataDir,
+    JsonOut,
+    console,
+    err_console,
+    open_settings,
+    open_store,
+    print_json,
+)
 from service.errors import USER_ERRORS, UsageError, describe_user_error
 from service.progress import progress_reporter
-from service.tables import metrics_table, reference_table, scenes_table
+from service.runs_command import parse_pairs, runs_app
+from service.tables import metrics_table, reference_table, render_tables, scenes_table
 
 app = typer.Typer(
     name="nirc-bench",
     help="Evaluate and benchmark radiance-caching renderers against converged references.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,      # help is plain text: 'a:b:step' is not an emoji code
     add_completion=False,
 )
-# Tables are wide: when the output is not a terminal (a log, CI), do not wrap at 80 columns.
-# Not a terminal (a log, a pipe, CI): wide enough that the sweep table keeps its rows whole.
-console = Console(width=None if sys.stdout.isatty() else 220)
-err_console = Console(stderr=True)
-
-DataDir = Annotated[
-    Path | None,
-    typer.Option("--data-dir", help="data folder (database, references, artifacts)",
-                 envvar="NIRC_BENCH_DATA_DIR"),
-]
 Scene = Annotated[str, typer.Option("--scene", "-s", help="built-in scene name or XML path")]
 Res = Annotated[int, typer.Option("--res", help="image width and height", min=1, max=8192)]
 MaxDepth = Annotated[int, typer.Option(
@@ -56,28 +58,11 @@ MethodMaxDepth = Annotated[int | None, typer.Option(
     help="longest path in segments for the render, its cache-training paths and the "
          "reference alike (-1 = unbounded: Russian roulette ends paths); default: the "
          "method's own (-1; 2 for the direct-light methods)")]
-JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a table")]
 Server = Annotated[str | None, typer.Option(
     "--server", envvar="NIRC_BENCH_SERVER",
     help="submit to a running service (e.g. http://host:8000) instead of running here")]
 ApiKeyOpt = Annotated[str | None, typer.Option(
     "--api-key", envvar="NIRC_BENCH_API_KEY", help="API key for --server")]
-
-
-def _settings(data_dir: Path | None):
-    from jobs.record.config import Settings
-
-    return Settings(data_dir=data_dir) if data_dir else Settings()
-
-
-def _store(settings):
-    from jobs.record.db import open_store
-
-    return open_store(settings)
-
-
-def _print_json(value: Any) -> None:
-    console.print_json(json.dumps(value, default=str))
 
 
 def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json: bool) -> None:
@@ -87,7 +72,12 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
 
     client = ServiceClient(server, api_key)
     if is_scene_file(spec.scene):   # a local scene file: the service gets a copy
-        spec = spec.model_copy(update={"scene": client.upload_scene(spec.scene)})
+        uploaded = client.upload_scene(spec.scene)
+        if not as_json:     # the run names the copy; its fingerprint is the file's
+            console.print(f"scene {Path(spec.scene).name} uploaded as {uploaded} (the same "
+                          "content fingerprint as a local run of the file)",
+                          markup=False, highlight=False)
+        spec = spec.model_copy(update={"scene": uploaded})
     job = client.submit(kind, spec.model_dump(mode="json"))
     if not as_json:
         console.print(f"job {job['id']} submitted to {server} ({job['status']})")
@@ -102,7 +92,7 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
     else:
         result = client.get(f"/api/v1/runs/{job['run_id']}")
     if as_json:
-        _print_json(result)
+        print_json(result)
         return
     if kind == "sweep":
         _print_remote_sweep(client, job, result)
@@ -148,12 +138,12 @@ def _run_embedded(job: Callable[[Any, Any, Any], Any], data_dir: Path | None, as
                   to_json: Callable[[Any], Any], table: Callable[[Any], Any]) -> Any:
     """Run ``job(store, settings, progress)`` in this process and print its result
     (JSON, or the table; progress bars unless JSON)."""
-    settings = _settings(data_dir)
-    store = _store(settings)
+    settings = open_settings(data_dir)
+    store = open_store(settings)
     with progress_reporter(console, quiet=as_json) as report:
         result = job(store, settings, report)
     if as_json:
-        _print_json(to_json(result))
+        print_json(to_json(result))
     else:
         console.print(table(result))
     return result
@@ -171,9 +161,26 @@ def scenes(
     init_backend()
     loaded = [load_scene(name, res) for name in builtin_names()]
     if as_json:
-        _print_json([scene.to_json() for scene in loaded])
+        print_json([scene.to_json() for scene in loaded])
     else:
         console.print(scenes_table(loaded))
+
+
+@app.command()
+def methods(
+    name: Annotated[str | None, typer.Argument(help="a method: list its parameters")] = None,
+    as_json: JsonOut = False,
+) -> None:
+    """The registered methods, or one method's parameters with their defaults, and what
+    each needs of a scene."""
+    from service.method_info import method_info
+    from service.tables import methods_table
+
+    infos = [method_info(name)] if name else [method_info(n) for n in METHODS]
+    if as_json:
+        print_json(infos if name is None else infos[0])
+    else:
+        console.print(methods_table(infos))
 
 
 @app.command()
@@ -196,10 +203,10 @@ def reference(
     from renderers.scenes import load_scene
 
     spec = ReferenceSpec(integrator=integrator, spp=spp, rel_stderr=rel_stderr)
-    settings = _settings(data_dir)
+    settings = open_settings(data_dir)
     init_backend()
     loaded = load_scene(scene, res)
-    store = _store(settings)
+    store = open_store(settings)
     with progress_reporter(console, quiet=as_json) as report:
         ref = get_or_render_reference(
             store, settings.references_dir, loaded, spec.settings(max_depth),
@@ -213,7 +220,7 @@ def reference(
             "spp": ref.spp, "split_half": ref.split_half, "reused": not ref.rendered_now,
             "path": str(out or ref.image_path)}
     if as_json:
-        _print_json(info)
+        print_json(info)
     else:
         console.print(reference_table(info))
 
@@ -298,12 +305,20 @@ def render(
         "--budget-pt-spp", min=1, max=1 << 16,
         help="equal time: calibrate to the frame time of PT at this spp")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="write images and summary.json here")] = None,
+    rerun: Annotated[bool, typer.Option(
+        "--rerun", help="render even if a run of this spec by this commit, estimator "
+                        "version and device is stored (default: reuse it)")] = False,
+    name: Annotated[str | None, typer.Option("--name", help="name the stored run")] = None,
+    tag: Annotated[list[str] | None, typer.Option(
+        "--tag", help="KEY=VALUE tag of the stored run (repeatable)")] = None,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
     server: Server = None,
     api_key: ApiKeyOpt = None,
 ) -> None:
-    """Render a method over K seeds, compare with the reference, store the run."""
+    """Render a method over K seeds, compare with the reference, store the run. A run of
+    the same spec stored by the same commit, estimator version and device is reused
+    (and said so) unless --rerun."""
     from jobs.protocol.executor import execute
     from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
@@ -319,10 +334,26 @@ def render(
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
                       time_budget=budget)
-    _run(server, api_key, "render", spec, as_json, data_dir,
-         lambda store, settings, report: execute(RenderJob.parse(spec), store, settings,
-                                                 progress=report, out_dir=out),
-         lambda s: s.to_json(), lambda s: metrics_table(s.result), out)
+    tags = parse_pairs(tag, "--tag")
+    if server and rerun:
+        raise UsageError("--rerun: the service keeps one job per spec and answers an "
+                         "identical one with it; change the spec (e.g. --seeds) to render "
+                         "again there")
+    if server and (name or tags):
+        raise UsageError("--name and --tag label a run in the local data folder; with "
+                         "--server, label it there (`nirc-bench runs tag` on its machine)")
+
+    def job(store: Any, settings: Any, report: Any) -> Any:
+        summary = execute(RenderJob.parse(spec), store, settings, progress=report, out_dir=out,
+                          reuse=not rerun)
+        if name is not None or tags:
+            stored = store.label_run(summary.run_id, name=name, set_tags=tags)
+            summary.result = summary.result.model_copy(
+                update={"name": stored.name, "tags": stored.tags})
+        return summary
+
+    _run(server, api_key, "render", spec, as_json, data_dir, job,
+         lambda s: s.to_json(), render_tables, out)
     if out is not None and not as_json:
         console.print(f"images and summary.json written to {out}")
 
@@ -344,7 +375,7 @@ def evaluate(
     values = image_metrics(test, ref, eps=eps, flip_exposures=hdr_exposures(ref))
     values.update(reference=str(reference_path), image=str(image), eps=eps)
     if as_json:
-        _print_json(values)
+        print_json(values)
     else:
         from service.tables import key_value_table
 
@@ -709,7 +740,7 @@ def serve(
     data_dir: DataDir = None,
 ) -> None:
     """Run the service: REST API (OpenAPI at /docs) + job queue on Dask."""
-    settings = _settings(data_dir)
+    settings = open_settings(data_dir)
     # Decided before anything starts: an open service must be asked for, not stumbled on.
     public = decide_public_read(public_read if public_read is not None
                                 else settings.public_read, host)
@@ -752,7 +783,7 @@ def worker(
     from jobs.execution.dispatch import QUIET_WORKER_CONFIG, dask_environment, worker_tls_options
     from jobs.execution.gpus import run_workers, worker_commands
 
-    settings = _with_tls(_settings(None), scheduler, tls_ca_file, tls_cert, tls_key,
+    settings = _with_tls(open_settings(None), scheduler, tls_ca_file, tls_cert, tls_key,
                          allow_plaintext_scheduler)
     tls = worker_tls_options(settings)
     commands = [([*argv, *tls], env) for argv, env in worker_commands(
@@ -779,8 +810,8 @@ def gc(
     with --apply."""
     from jobs.record import gc as retention
 
-    settings = _settings(data_dir)
-    store = _store(settings)
+    settings = open_settings(data_dir)
+    store = open_store(settings)
     try:
         plan = retention.plan(store, settings, keep_days)
         for removal in plan.removals:
@@ -836,13 +867,13 @@ def stress(
         from renderers.backend import init_backend
 
         init_backend()
-        paths = _settings(data_dir)
-        backend = EmbeddedBackend(_store(paths), paths)
+        paths = open_settings(data_dir)
+        backend = EmbeddedBackend(open_store(paths), paths)
     progress = None if as_json else (lambda what: err_console.print(
         f"stress: {what}", markup=False, highlight=False))
     report = run_suite(backend, settings, cases, progress)
     if as_json:
-        _print_json({**report.model_dump(mode="json"), "problems": report.problems()})
+        print_json({**report.model_dump(mode="json"), "problems": report.problems()})
     else:
         console.print(markdown_table(report), markup=False, highlight=False, soft_wrap=True)
         for problem in report.problems():
@@ -851,8 +882,32 @@ def stress(
         raise typer.Exit(1)
 
 
-apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True)
+app.add_typer(runs_app, name="runs")
+apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True,
+                         rich_markup_mode=None)
 app.add_typer(apikey_app, name="apikey")
+
+
+@apikey_app.command("list")
+def apikey_list(as_json: JsonOut = False, data_dir: DataDir = None) -> None:
+    """The keys: name, prefix, admin or not, when created and revoked (never the key)."""
+    from jobs.execution.apikeys import list_api_keys
+
+    keys = [{"name": k.name, "prefix": k.prefix, "admin": k.admin, "created": k.created_at,
+             "revoked": k.revoked_at}
+            for k in list_api_keys(open_store(open_settings(data_dir)))]
+    if as_json:
+        print_json(keys)
+        return
+    from rich.table import Table
+
+    table = Table(title=f"{len(keys)} API keys")
+    for column in ("name", "prefix", "admin", "created", "revoked"):
+        table.add_column(column)
+    for key in keys:
+        table.add_row(*(escape("-" if v is None else v.strftime("%Y-%m-%d %H:%M")
+                               if hasattr(v, "strftime") else str(v)) for v in key.values()))
+    console.print(table)
 
 
 @apikey_app.command("create")
@@ -865,7 +920,7 @@ def apikey_create(
     """Create a key; it is printed once and stored only as a digest."""
     from jobs.execution.apikeys import create_api_key
 
-    row, key = create_api_key(_store(_settings(data_dir)), name, admin=admin)
+    row, key = create_api_key(open_store(open_settings(data_dir)), name, admin=admin)
     console.print(key, markup=False, highlight=False)
     err_console.print(f"{'admin ' if admin else ''}API key '{name}' created (prefix "
                       f"{row.prefix}); it is not shown again.")
@@ -877,15 +932,27 @@ def apikey_revoke(prefix: Annotated[str, typer.Argument(help="the key's prefix")
     """Revoke a key by its prefix (the part after 'nb_')."""
     from jobs.execution.apikeys import revoke_api_key
 
-    if not revoke_api_key(_store(_settings(data_dir)), prefix):
+    if not revoke_api_key(open_store(open_settings(data_dir)), prefix):
         raise UsageError(f"no active API key with prefix '{prefix}'")
     console.print(f"revoked {prefix}")
 
 
 def main() -> None:
-    """Console-script entry point: run the app, turning errors into one-line messages."""
+    """Console-script entry point: run the app, turning errors into one-line messages
+    (the options' own checks included: one line naming the option, exit status 2)."""
     try:
-        app()
+        code = app(standalone_mode=False)
+    except click_errors.NoArgsIsHelpError as err:
+        console.print(err.format_message(), markup=False, highlight=False, emoji=False)
+        sys.exit(2)
+    except click_errors.UsageError as err:
+        command = err.ctx.command_path if err.ctx else "nirc-bench"
+        err_console.print(f"nirc-bench: error: {err.format_message()} (see {command} --help)",
+                          markup=False, highlight=False, soft_wrap=True)
+        sys.exit(2)
+    except typer.Abort:
+        err_console.print("nirc-bench: aborted", markup=False, highlight=False)
+        sys.exit(130)
     except USER_ERRORS as err:
         err_console.print(f"nirc-bench: error: {describe_user_error(err)}", markup=False,
                           highlight=False, soft_wrap=True)     # one line, not wrapped at 80
@@ -895,5 +962,7 @@ def main() -> None:
             raise
         err_console.print(
             f"nirc-bench: internal error ({type(err).__name__}): {err} "
-            "(set NIRC_BENCH_DEBUG=1 for the traceback)", markup=False, highlight=False)
+            "(set NIRC_BENCH_DEBUG=1 for the traceback)", markup=False, highlight=False,
+            soft_wrap=True)
         sys.exit(1)
+    sys.exit(code or 0)

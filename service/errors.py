@@ -5,7 +5,9 @@ from __future__ import annotations
 from pydantic import ValidationError
 
 from jobs.execution.gpus import GpuError
+from jobs.protocol.comparison import ComparisonError
 from jobs.protocol.ranges import RangeError
+from jobs.protocol.run_query import RunQueryError
 from jobs.record.db import SchemaVersionError
 from metrics.errors import MetricError
 from metrics.imageio import ImageReadError
@@ -22,6 +24,7 @@ class UsageError(ValueError):
 USER_ERRORS: tuple[type[BaseException], ...] = (
     BackendError, SceneError, MethodError, ImageReadError, MetricError, SchemaVersionError,
     ValidationError, FileNotFoundError, RangeError, RemoteError, UsageError, GpuError,
+    RunQueryError, ComparisonError,
 )
 
 

@@ -2,17 +2,28 @@
 
 from __future__ import annotations
 
+import json
 from typing import TYPE_CHECKING, Any
 
 from rich.console import Group
 from rich.markup import escape
 from rich.table import Table
+from rich.text import Text
 
 from jobs.protocol.calibration import ADVICE
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
-from metrics.registry import LISTED, METRICS, PER_SEED, Metric
+from metrics.registry import (
+    LISTED,
+    METRICS,
+    PER_SEED,
+    Aggregate,
+    Metric,
+    below_noise_floor,
+    mean_interval,
+)
 
 if TYPE_CHECKING:
+    from jobs.protocol.comparison import RunComparison
     from jobs.protocol.report import Report
     from jobs.protocol.sweep import SweepResult
 
@@ -82,16 +93,27 @@ def _ci_text(ci: Any) -> str:
     return f"[{ci[0]:.4g}, {ci[1]:.4g}]" if isinstance(ci, list | tuple) else str(ci)
 
 
-def _metric_rows(m: dict[str, Any]) -> dict[str, Any]:
-    """The run table's rows of every registered metric (values as :func:`_shown` gives them)."""
+def metric_text(key: str, value: Any) -> str:
+    """A stored metric as shown: a negative noise-corrected estimate reads 'below the
+    noise floor (value)' (metrics.registry.below_noise_floor), not as a small error."""
+    return f"below the noise floor ({_fmt(value)})" if below_noise_floor(key, value) \
+        else _fmt(value)
+
+
+def _metric_rows(m: dict[str, Any], run: RunResultDetail) -> dict[str, Any]:
+    """The run table's rows of every registered metric (values as :func:`_shown` gives
+    them), each interval with how it was made or why there is none."""
     rows: dict[str, Any] = {}
     for metric in METRICS:
         absent = "n/a (K = 1)" if metric.needs_k2 else "-"
-        rows[metric_label(metric)] = m.get(metric.key, absent)
+        if metric.aggregate is Aggregate.PER_CACHE and not run.caches:
+            continue    # a method without a cache has no per-cache statistics
+        rows[metric_label(metric)] = metric_text(metric.key, m.get(metric.key, absent))
         if metric.ci_key:
-            rows[f"{metric.label} 95% CI"] = _ci_text(m.get(metric.ci_key, "n/a (K = 1)"))
+            ci, note = mean_interval(metric, run.metrics)
+            rows[f"{metric.label} 95% CI"] = f"{_ci_text(ci)} (log scale)" if ci else note or "-"
         for label, key in metric.details:
-            rows[label] = m.get(key, absent)
+            rows[label] = metric_text(key, m.get(key, absent))
     return rows
 
 
@@ -104,17 +126,21 @@ def metrics_table(run: RunResultDetail) -> Group:
     head = {
         "quality verdict": verdict_text(run.quality),
         "run": run.id,
-        "scene / method": f"{run.scene} / {run.method}",
+        "scene / method": f"{run.scene} / {run.method_label or run.method}",
+        "scene content (fingerprint)": run.scene_fingerprint,
+        **({"XML settings not used": "\n".join(run.scene_overrides)}
+           if run.scene_overrides else {}),
         "resolution": "x".join(map(str, run.resolution)),
         "spp x frames": f"{run.spp} x {run.frames}",
         "seeds (K)": run.seeds,
-        "reference": f"{reference.spp} spp (reference {reference.id})" if reference else "-",
+        "reference": f"{reference_text(reference)} (reference {reference.id})"
+        if reference else "-",
         "reference floor MRSE (est.)":
             reference.split_half.get("reference_mrse_estimate") if reference else None,
         "reference floor mean Var[R]/(R2+eps)": m.get("ref_floor"),
         "floor / rBias2, floor / MRSE": f"{_fmt(run.ref_floor_ratio_rbias2)}, "
                                         f"{_fmt(run.ref_floor_ratio_mrse)}",
-        **_metric_rows(m),
+        **_metric_rows(m, run),
         "ms per frame": _ms(run.seconds_per_frame),
         "kernel ms / harness share": _device_text(run),
         "ms render stage": _ms(run.render_seconds_per_frame),
@@ -132,7 +158,9 @@ def metrics_table(run: RunResultDetail) -> Group:
         seeds.add_row(str(s.seed), *(_fmt(_shown(s.metrics.get(m.seed_key))) for m in PER_SEED),
                       _fmt(_ms(s.metrics.get("seconds_per_frame"))),
                       str(s.metrics.get("nonfinite_pixels")))
-    parts: list[Any] = [key_value_table(f"{run.method} vs reference", head)]
+    parts: list[Any] = [key_value_table(
+        escape(f"{run.method_label or run.method} vs reference ({reference_text(reference)})"),
+        head)]
     if run.time_breakdown_ms:
         parts.append(stage_table(run))
     parts.append(seeds)
@@ -140,6 +168,16 @@ def metrics_table(run: RunResultDetail) -> Group:
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
     return Group(*parts)
+
+
+def reference_text(reference: Any) -> str:
+    """What a run's reference is: its integrator, spp and depth ('-' without one)."""
+    if reference is None:
+        return "-"
+    parts = [reference.integrator, f"{reference.spp} spp",
+             None if reference.max_depth is None else "unbounded depth"
+             if reference.max_depth == -1 else f"max_depth {reference.max_depth}"]
+    return ", ".join(part for part in parts if part)
 
 
 def _device_text(run: RunResult) -> str:
@@ -210,7 +248,8 @@ def _metric_cells(row: RunResult) -> list[str]:
         value = getattr(row, m.field)
         ci = getattr(row, f"{m.field}_ci95") if m.ci_key else None
         cells.append("-" if value is None else
-                     f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else _fmt(value))
+                     f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else
+                     metric_text(m.key, value))
     return cells
 
 
@@ -286,8 +325,26 @@ def _work_line(work: dict[str, int]) -> str:
             f"(reused {work['points_reused']}), calibrations {work['calibrations']}")
 
 
+def saturated_runs(rows: list[Any]) -> list[tuple[Any, list[Any]]]:
+    """The rows with, for each, the following rows of its series it stands for: those
+    whose v1 mask is saturated (allows all pixels, or none) like it, so that they render
+    one configuration whatever their eps. Other rows stand for themselves."""
+    shown: list[tuple[Any, list[Any]]] = []
+    for row in rows:
+        if shown:
+            first, alike = shown[-1]
+            if (row.series == first.series and row.mask_pct is not None
+                    and row.mask_pct == first.mask_pct and row.mask_pct in (0.0, 100.0)):
+                alike.append(row)
+                continue
+        shown.append((row, []))
+    return shown
+
+
 def sweep_table(result: SweepResult) -> Group:
-    """The sweep's points (one row per series and eps / N_c), skipped methods, work done."""
+    """The sweep's points (one row per series and eps / N_c), skipped methods, work done.
+    Rows whose v1 mask is saturated like the row before them are shown once, and said so
+    (:func:`saturated_runs`; the JSON keeps every point)."""
     table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
     for key, header in SWEEP_COLUMNS:
         # The series label is what a reader looks rows up by: never wrapped.
@@ -295,7 +352,8 @@ def sweep_table(result: SweepResult) -> Group:
         table.add_column(header, justify="left" if header == "series" else "right",
                          no_wrap=header == "series")
     metric_cells = {m.field: index for index, m in enumerate(LISTED)}
-    for row in result.rows:
+    collapsed: list[str] = []
+    for row, alike in saturated_runs(result.rows):
         metrics = _metric_cells(row)
         cells = []
         for key, _ in SWEEP_COLUMNS:
@@ -310,8 +368,15 @@ def sweep_table(result: SweepResult) -> Group:
                 cells.append("-" if value is None else _fmt(value))
         if not row.finite:
             cells[0] += " (non-finite pixels!)"
-        table.add_row(*cells)
-    lines: list[Any] = [table]
+        if alike:
+            cells[1] = f"{_fmt(row.eps)}–{_fmt(alike[-1].eps)}"
+            collapsed.append(
+                f"{row.series}: eps {_fmt(row.eps)} to {_fmt(alike[-1].eps)} shown as one row: "
+                f"the v1 mask allows {_fmt(row.mask_pct)} % of pixels at each of these "
+                f"{len(alike) + 1} points (saturated), so they render one configuration "
+                f"(runs {', '.join(str(r.id) for r in [row, *alike])}; --json lists each)")
+        table.add_row(*(escape(cell) for cell in cells))
+    lines: list[Any] = [table, *(Text(line) for line in collapsed)]
     lines += [f"skipped {s.method}: {s.reason}" for s in result.skipped]
     if result.stage_work:
         lines.append(f"rendered by its stage jobs: {_work_line(result.stage_work)}")
@@ -320,3 +385,118 @@ def sweep_table(result: SweepResult) -> Group:
         lines.append(f"rendered: {_work_line(result.work)}")
     lines += [f"{name}: {path}" for name, path in result.files.items()]
     return Group(*lines)
+
+
+def _flat(values: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested settings as 'a.b' rows."""
+    rows: dict[str, Any] = {}
+    for name, value in values.items():
+        if isinstance(value, dict) and value:
+            rows.update(_flat(value, f"{prefix}{name}."))
+        else:
+            rows[f"{prefix}{name}"] = value
+    return rows
+
+
+def _plain_table(title: str, values: dict[str, Any]) -> Table:
+    """:func:`key_value_table` of values shown as text, never read as rich markup."""
+    return key_value_table(escape(title), {escape(k): escape(_fmt(v)) for k, v in values.items()})
+
+
+def run_details_tables(run: RunResultDetail) -> Group:
+    """Everything stored about a run: the run table (metrics aggregated and per seed,
+    timings), its resolved method parameters, each cache's configuration, its provenance
+    and the settings of its reference."""
+    parts: list[Any] = [metrics_table(run)]
+    labels = {"name": run.name, **{f"tag {k}": v for k, v in run.tags.items()}}
+    if any(v is not None for v in labels.values()):
+        parts.append(_plain_table("name and tags", labels))
+    parts.append(_plain_table(f"{run.method} parameters (resolved)", _flat(run.params)))
+    for name, cache in run.caches.items():
+        parts.append(_plain_table(f"cache '{name}' configuration", _flat(cache)))
+    parts.append(_plain_table("provenance", {
+        "created": run.created_at, "commit": run.git_commit, "branch": run.git_branch,
+        "device": run.device_key, **_flat(run.device, "device."),
+        **_flat(run.versions, "version.")}))
+    reference = run.reference
+    if reference is not None:
+        parts.append(_plain_table(f"reference {reference.id}", {
+            "integrator": reference.integrator, "spp": reference.spp,
+            "max_depth": reference.max_depth, "passes": reference.passes,
+            "relative std. error reached": reference.rel_stderr, "key": reference.key,
+            **_flat(reference.split_half, "split-half ")}))
+    return Group(*parts)
+
+
+def comparison_table(comparison: RunComparison) -> Group:
+    """Runs side by side: what differs between them, then each later run's metrics
+    against the first's with the interval of the change."""
+    rows = comparison.runs
+    head = Table(title="runs compared (the first is the baseline)")
+    for column in ("setting", *(f"run {r.id}" for r in rows)):
+        head.add_column(column)
+    head.add_row("what ran", *(escape(r.method_label) for r in rows))
+    head.add_row("name", *(escape(r.name or "-") for r in rows))
+    head.add_row("created", *(r.created_at.strftime("%Y-%m-%d %H:%M") for r in rows))
+    for setting, values in comparison.differences.items():
+        head.add_row(escape(setting), *(escape(_fmt(v)) for v in values))
+    if not comparison.differences:
+        head.add_row("(settings)", *("the same" for _ in rows))
+    parts: list[Any] = [head]
+    for delta in comparison.deltas:
+        table = Table(title=f"run {delta.run} against run {delta.baseline}")
+        for column in ("metric", f"run {delta.baseline}", f"run {delta.run}", "change",
+                       "ratio", "95% interval of the change", "note"):
+            table.add_column(column, justify="left" if column in ("metric", "note")
+                             else "right")
+        for m in delta.metrics:
+            table.add_row(f"{m.label} ({m.direction} better)", *(
+                "-" if v is None else metric_text(key, v) for key, v in (
+                    (m.key, m.baseline), (m.key, m.value), ("", m.delta), ("", m.ratio))),
+                          escape(_ci_text(m.delta_ci95)) if m.delta_ci95 else "-",
+                          m.interval_note)
+        parts.append(table)
+    parts.append(f"note: {comparison.note}")
+    return Group(*parts)
+
+
+def reuse_line(result: RunResultDetail) -> str:
+    """What a render that found its run stored says: which run, from when, made by what,
+    and whether its timing can be trusted."""
+    flags = "; ".join(result.timing_flags) or "none"
+    return (f"reused run {result.id}, stored {result.created_at:%Y-%m-%d %H:%M} UTC: the same "
+            f"spec by commit {result.git_commit}, estimator v{result.estimator_version} on "
+            f"{result.device_key} (its timing flags: {flags}); --rerun renders it again")
+
+
+def render_tables(summary: Any) -> Group:
+    """What ``render`` prints of its RunSummary (jobs.protocol.executor): the run table,
+    after the line saying it was reused when it was."""
+    table = metrics_table(summary.result)
+    return Group(Text(reuse_line(summary.result)), table) if summary.reused else table
+
+
+def methods_table(infos: list[dict[str, Any]]) -> Group:
+    """The registered methods (service.method_info): one table of all, or with one
+    method the table of its parameters and defaults."""
+    if len(infos) > 1:
+        table = Table(title="methods (nirc-bench methods NAME: its parameters)")
+        for column in ("name", "what it is", "needs of a scene", "equal-time knob"):
+            table.add_column(column)
+        for info in infos:
+            table.add_row(info["name"], escape(info["description"]), escape(info["needs"]),
+                          info["knob"] or "-")
+        return Group(table)
+    info = infos[0]
+    table = Table(title=escape(f"{info['name']}: {info['description']}"))
+    for column in ("parameter", "type", "default", "what it is"):
+        table.add_column(column)
+    for param in info["params"]:
+        table.add_row(param["name"], escape(param["type"]),
+                      escape(json.dumps(param["default"])) if isinstance(
+                          param["default"], dict | list) else escape(str(param["default"])),
+                      escape(param["help"]))
+    lines = [f"needs of a scene: {info['needs']}",
+             f"equal-time knob: {info['knob'] or '-'}; estimator version {info['version']}",
+             "set a parameter with render --param NAME=VALUE (JSON values)"]
+    return Group(table, *(Text(line) for line in lines))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+pytest_plugins = ["tests.time_budget"]
+
 
 @pytest.fixture(scope="session")
 def mi():

@@ -57,6 +57,12 @@ def verify_api_key(store: Store, key: str | None) -> ApiKey | None:
     return row
 
 
+def list_api_keys(store: Store) -> list[ApiKey]:
+    """Every key, oldest first, revoked ones included (rows hold digests, never keys)."""
+    with store.session() as session:
+        return list(session.scalars(select(ApiKey).order_by(ApiKey.id)))
+
+
 def revoke_api_key(store: Store, prefix: str) -> bool:
     with store.session(write=True) as session:
         row = session.scalars(select(ApiKey).where(ApiKey.prefix == prefix)).one_or_none()

@@ -35,7 +35,7 @@ from jobs.protocol.ci_stats import (
 )
 from jobs.protocol.ci_suite import TIME, BaselineRow, Entry, Suite, config_key
 from jobs.protocol.provenance import git_branch, git_commit
-from jobs.protocol.results import RunResultDetail
+from jobs.protocol.results import RunResultDetail, method_params
 from jobs.protocol.spec import RenderSpec
 from jobs.record.store import Store
 from metrics.registry import Metric
@@ -271,6 +271,5 @@ def stored_baseline(store: Store, ref: str) -> BaselineSource:
 
 def _same_config(run: Any, entry: Entry) -> bool:
     """Whether the stored ``run`` (jobs.record.models.Run) ran ``entry``'s configuration."""
-    params = {k: v for k, v in run.params.items() if k != "spec"}
-    return (params == entry.params and run.width == run.height == entry.resolution
+    return (method_params(run.params) == entry.params and run.width == run.height == entry.resolution
             and run.spp == entry.spp and run.frames == entry.frames)

@@ -11,8 +11,6 @@ transaction.
 
 from __future__ import annotations
 
-import json
-import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
@@ -22,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from jobs.protocol.calibration import calibrate_job
+from jobs.protocol.export import export_run
 from jobs.protocol.job import RenderJob
-from jobs.protocol.plots import plot_convergence
 from jobs.protocol.provenance import git_branch, git_commit, library_versions
 from jobs.protocol.quality import finite_record, judge_run
 from jobs.protocol.references import LoadedReference, get_or_render_reference
@@ -74,6 +72,27 @@ class RunSummary:
     metric_version: int
     result: RunResultDetail     # the stored run as users see it (jobs.protocol.results)
     files: dict[str, str] = field(default_factory=dict)
+    reused: bool = False        # a run stored earlier (:func:`find_same_run`), not rendered now
+
+    @classmethod
+    def of_stored(cls, run: Any, settings: Settings, *, reference_rendered_now: bool = False,
+                  reused: bool = False) -> RunSummary:
+        """The summary of the stored ``run`` (loaded as ``Store.get_run`` loads it): what a
+        render that made it reports, and what one that reuses it reports."""
+        reference = run.reference
+        reference_info = {} if reference is None else {
+            "id": reference.id, "key": reference.key, "spp": reference.spp,
+            "max_depth": reference.max_depth, "integrator": reference.integrator,
+            "split_half": reference.split_half,
+            "path": str(settings.references_dir / reference.image_path),
+            "rendered_now": reference_rendered_now}
+        return cls(
+            run_id=run.id, spec=RenderSpec.model_validate(run.params["spec"]),
+            scene_fingerprint=run.scene_fingerprint, reference=reference_info,
+            metrics=run.metrics, per_seed=[s.metrics for s in run.seed_results],
+            timings=run.timings, path_stats=run.path_stats, device=run.device,
+            quality=run.quality, estimator_version=run.estimator_version,
+            metric_version=run.metric_version, result=RunResultDetail.of(run), reused=reused)
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
@@ -95,31 +114,6 @@ def _seed_artifacts(store: ArtifactStore, scratch: Path, seed: int, image: np.nd
                       "error_map", ".png", "image/png", seed),
         ]
     return artifacts
-
-
-def _export(out_dir: Path, summary: RunSummary, reference: LoadedReference,
-            store: ArtifactStore, artifacts: list[dict[str, Any]]) -> dict[str, str]:
-    """Copy the run's files under readable names into ``out_dir`` (plus summary.json)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    files = {"reference": out_dir / "reference.exr",
-             "reference_preview": out_dir / "reference_preview.png"}
-    shutil.copyfile(reference.image_path, files["reference"])
-    write_png(files["reference_preview"], tonemap_preview(reference.mean))
-    for artifact in artifacts:
-        suffix = Path(artifact["path"]).suffix
-        name = f"{artifact['kind']}_seed{artifact['seed']}{suffix}"
-        files[name] = out_dir / name
-        shutil.copyfile(store.path_of(artifact["path"]), files[name])
-    if summary.spec.frames > 1:  # error over frames (the NIRC paper's Fig. 10)
-        curves = {f"seed {s['seed']}": {**s["convergence"],
-                                        "frame": list(range(len(s["convergence"]["frame_mrse"])))}
-                  for s in summary.per_seed}
-        files["convergence"] = plot_convergence(
-            curves, out_dir / "convergence.png",
-            f"{summary.spec.method} on {summary.spec.scene}: MRSE over frames")
-    files["summary"] = out_dir / "summary.json"
-    files["summary"].write_text(json.dumps(summary.to_json(), indent=2, default=str))
-    return {name: str(path) for name, path in files.items()}
 
 
 def mean_over_seeds(stats: list[dict[str, Any]]) -> dict[str, Any]:
@@ -292,6 +286,25 @@ def prepare(job: RenderJob, store: Store, settings: Settings,
     return Prepared(scene=scene, reference=reference, device=device_info(), started=started)
 
 
+def replaced_settings(file_settings: dict[str, Any], spec: RenderSpec, resolution: Any,
+                      max_depth: int) -> list[str]:
+    """What the scene file sets (LoadedScene.file_settings) that this run replaced, one
+    line each, e.g. "film 1920x1080 -> 64x64 (the run's resolution)"."""
+    lines = []
+    film = file_settings.get("film")
+    if film and list(film) != list(resolution):
+        lines.append(f"film {'x'.join(map(str, film))} -> {resolution[0]}x{resolution[1]} "
+                     "(the run's resolution)")
+    if "integrator" in file_settings:
+        lines.append(f"integrator '{file_settings['integrator']}' -> {spec.method}'s own")
+    if "max_depth" in file_settings and file_settings["max_depth"] != max_depth:
+        lines.append(f"max_depth {file_settings['max_depth']} -> {max_depth} (the run's)")
+    if "spp" in file_settings and file_settings["spp"] != spec.spp:
+        lines.append(f"sampler {file_settings['spp']} spp -> {spec.spp} spp x {spec.frames} "
+                     "frames")
+    return lines
+
+
 def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], store: Store,
               settings: Settings, *, idempotency_key: str | None = None,
               extra: dict[str, Any] | None = None, out_dir: Path | None = None) -> RunSummary:
@@ -352,16 +365,15 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
     metrics = withhold(metrics, verdict.withheld)
     per_seed = [withhold(s, verdict.withheld) for s in per_seed]
     versions = versions_of(spec.method)
-    reference_info = {"id": reference.id, "key": reference.key, "spp": reference.spp,
-                      "split_half": reference.split_half, "path": str(reference.image_path),
-                      "rendered_now": reference.rendered_now}
+    replaced = replaced_settings(scene.file_settings, spec, scene.resolution, job.max_depth)
 
     run = store.add_run(
         {
             "created_at": prepared.started, "finished_at": datetime.now(UTC),
             "status": "succeeded", "scene_name": scene.name,
             "scene_fingerprint": scene.fingerprint, "method": spec.method,
-            "params": {**param_json, "spec": spec.model_dump(mode="json"), **(extra or {})},
+            "params": {**param_json, "spec": spec.model_dump(mode="json"), **(extra or {}),
+                       **({"scene_overrides": replaced} if replaced else {})},
             "width": scene.resolution[0], "height": scene.resolution[1], "spp": spec.spp,
             "frames": spec.frames, "seeds": len(outputs), "reference_id": reference.id,
             "metrics": metrics, "timings": timings, "path_stats": path_stats,
@@ -374,13 +386,33 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
          for s, t in zip(per_seed, seed_timings, strict=True)],
         artifacts,
     )
-    summary = RunSummary(
-        run_id=run.id, spec=spec, scene_fingerprint=scene.fingerprint, reference=reference_info,
-        metrics=metrics, per_seed=per_seed, timings=timings, path_stats=path_stats,
-        device=device, quality=quality, result=RunResultDetail.of(run), **versions)
+    summary = RunSummary.of_stored(run, settings, reference_rendered_now=reference.rendered_now)
     if out_dir is not None:
-        summary.files = _export(out_dir, summary, reference, artifacts_store, artifacts)
+        summary.files = export_run(run, summary.to_json(), settings, out_dir)
     return summary
+
+
+def find_same_run(spec: RenderSpec, prepared: Prepared, store: Store) -> Any:
+    """The newest stored run of exactly ``spec`` on this scene (same fingerprint), against
+    the same reference, by the same commit, today's estimator and metric versions and on
+    this device (loaded as ``Store.get_run`` loads it), or None. Nothing matches when the
+    commit is unknown or has uncommitted changes ('-dirty'): the code that made a run
+    could not be told apart from today's."""
+    commit = git_commit()
+    if commit == "unknown" or commit.endswith("-dirty"):
+        return None
+    wanted = spec.model_dump(mode="json")
+    versions = versions_of(spec.method)
+    for run in store.list_runs(prepared.scene.name, spec.method,
+                               prepared.device["device_key"], git_ref=commit):
+        if (run.status == "succeeded" and run.git_commit == commit
+                and run.scene_fingerprint == prepared.scene.fingerprint
+                and run.reference_id == prepared.reference.id
+                and run.estimator_version == versions["estimator_version"]
+                and run.metric_version == versions["metric_version"]
+                and run.params.get("spec") == wanted):
+            return store.get_run(run.id)
+    return None
 
 
 def execute(
@@ -390,8 +422,12 @@ def execute(
     progress: Progress | None = None,
     out_dir: Path | None = None,
     idempotency_key: str | None = None,
+    reuse: bool = False,
 ) -> RunSummary:
     """Run ``job`` to completion and store the result; see the module docstring.
+
+    With ``reuse``, a run of the same spec stored earlier (:func:`find_same_run`) is
+    returned (``reused`` set; exported to ``out_dir`` if given) instead of rendering.
 
     With a ``time_budget`` the spp (pt) or N_c (biased nirc) is first calibrated
     to it on this device (jobs.protocol.calibration); the run stores the calibrated spec
@@ -403,6 +439,12 @@ def execute(
     method = get_method(job.method)
     prepared = prepare(job, store, settings, progress)
     check_applies(job.method, prepared.scene.features)
+    stored = find_same_run(job.spec, prepared, store) if reuse else None
+    if stored is not None:
+        summary = RunSummary.of_stored(stored, settings, reused=True)
+        if out_dir is not None:
+            summary.files = export_run(stored, summary.to_json(), settings, out_dir)
+        return summary
     extra: dict[str, Any] = {}
     if job.spec.time_budget is not None:
         if progress:

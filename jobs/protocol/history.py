@@ -54,6 +54,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 from scipy import stats
 
+from jobs.protocol.results import method_params
 from metrics.registry import Metric
 
 #: The family-wise error rate of the step test over one answer.
@@ -239,8 +240,8 @@ def _point(commit: str, runs: list[Any], metric: Metric) -> tuple[HistoryPoint, 
 
 
 def _setting(run: Any) -> str:
-    params = {k: v for k, v in (run.params or {}).items() if k != "spec"}
-    return json.dumps([run.width, run.height, run.spp, run.frames, params], sort_keys=True)
+    return json.dumps([run.width, run.height, run.spp, run.frames, method_params(run.params)],
+                      sort_keys=True)
 
 
 def build_history(runs: Iterable[Any], metric: Metric, *, scene: str, method: str,

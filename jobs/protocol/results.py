@@ -30,6 +30,52 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from jobs.protocol.versions import is_current
 from metrics.registry import LISTED, Metric, row_values
+from renderers.methods import METHODS
+
+#: Keys a stored run's ``params`` holds besides the method's parameters: the spec it ran,
+#: and the XML scene settings it replaced (only for an XML scene that had any).
+RUN_RECORD_KEYS = ("spec", "scene_overrides")
+
+
+def method_params(params: dict[str, Any] | None) -> dict[str, Any]:
+    """A stored run's ``params`` without :data:`RUN_RECORD_KEYS`: what configured its
+    method (resolved parameters, and a calibration or sweep point's own keys)."""
+    return {k: v for k, v in (params or {}).items() if k not in RUN_RECORD_KEYS}
+
+
+#: Parameters named first in a method label, by how they are shown ('{}' is the value).
+HEADLINE_PARAMS = {"estimator": "{}", "termination": "{}", "nc": "N_c {}"}
+
+
+def _compact(value: Any) -> str:
+    if isinstance(value, list):
+        return ",".join(map(str, value))
+    if isinstance(value, dict):
+        return "{" + ",".join(f"{k}:{_compact(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def changed_params(method: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The parameters of a run of ``method`` whose value is not the method's default (none
+    for a method that is not registered here)."""
+    model = METHODS[method].params if method in METHODS else None
+    if model is None:
+        return {}
+    defaults = model().model_dump(mode="json")
+    return {name: params[name] for name in model.model_fields
+            if name in params and params[name] != defaults.get(name)}
+
+
+def method_label(method: str, params: dict[str, Any]) -> str:
+    """What ran, in a few words: the method, its headline parameters (estimator,
+    termination, N_c) whatever their value, then every other parameter not at its
+    default, e.g. 'nirc (biased, bth, N_c 4)' or 'pt (max_depth 4)'."""
+    fields = METHODS[method].params.model_fields if method in METHODS else {}
+    parts = [shown.format(_compact(params[name])) for name, shown in HEADLINE_PARAMS.items()
+             if name in fields and params.get(name) is not None]
+    parts += [f"{name} {_compact(value)}" for name, value in
+              changed_params(method, params).items() if name not in HEADLINE_PARAMS]
+    return f"{method} ({', '.join(parts)})" if parts else method
 
 
 def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
@@ -42,7 +88,17 @@ def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
                               f"metrics.{m.key}; null when withheld or not computed)"))
         if m.ci_key:
             fields[f"{m.field}_ci95"] = (list[float] | None, Field(
-                None, description=f"Student-t 95 % interval of {m.label} over the seeds"))
+                None, description=f"95 % interval of the mean {m.label} over the seeds, on "
+                                  "the log scale (never below zero); null with fewer than "
+                                  "3 seeds"))
+            fields[f"{m.field}_ci_note"] = (str | None, Field(
+                None, description=f"how the {m.label} interval was made, or why there is "
+                                  "none"))
+    fields["below_noise_floor"] = (list[str], Field(
+        default_factory=list,
+        description="metrics (by field) whose noise-corrected estimate is negative: the "
+                    "quantity is below what the render and reference noise resolve; read "
+                    "the value as indistinguishable from 0, not as a number to rank by"))
     return fields
 
 
@@ -86,10 +142,20 @@ class RunResult(ResultMetrics):
 
     id: int
     created_at: datetime
+    name: str | None = Field(None, description="the label a user gave the run")
+    tags: dict[str, str] = Field(default_factory=dict, description="key=value tags a user "
+                                                                   "gave the run")
     scene: str
     scene_fingerprint: str
     method: str
+    method_label: str = Field("", description="the method with its headline parameters and "
+                                              "those not at their default, e.g. 'nirc "
+                                              "(biased, bth, N_c 4)'")
     params: dict[str, Any]
+    scene_overrides: list[str] = Field(
+        default_factory=list, description="what the scene's XML file sets that the run "
+                                          "replaced (film size, integrator, max_depth, "
+                                          "sampler spp), one line each")
     resolution: list[int]
     spp: int
     frames: int
@@ -115,6 +181,9 @@ class RunResult(ResultMetrics):
         default_factory=list, description="why the timing may not be trusted (a loaded "
                                           "machine)")
     device_key: str
+    git_commit: str | None = Field(None, description="commit of the code that made the run "
+                                                     "('-dirty': with uncommitted changes)")
+    git_branch: str | None = Field(None, description="branch of the commit, when known")
     quality: dict[str, Any]
     ref_floor_ratio_rbias2: float | None = Field(
         None, description="reference noise floor mean Var[R]/(R^2+eps) over |rBias^2|")
@@ -138,8 +207,11 @@ class RunResult(ResultMetrics):
         m, q = run.metrics, run.quality
         return {
             **row_values(m), "id": run.id, "created_at": run.created_at,
+            "name": run.name, "tags": run.tags or {},
             "scene": run.scene_name, "scene_fingerprint": run.scene_fingerprint,
-            "method": run.method, "params": {k: v for k, v in run.params.items() if k != "spec"},
+            "method": run.method, "method_label": method_label(run.method, run.params),
+            "params": method_params(run.params),
+            "scene_overrides": run.params.get("scene_overrides") or [],
             "resolution": [run.width, run.height], "spp": run.spp, "frames": run.frames,
             "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),
             "render_seconds_per_frame": render_seconds(run.timings),
@@ -148,7 +220,8 @@ class RunResult(ResultMetrics):
             "kernel_seconds_per_frame": device_split(run.timings)[0],
             "harness_share": device_split(run.timings)[1],
             "timing_flags": timing_flags(run.timings),
-            "device_key": run.device_key, "quality": q, "verdict": q.get("verdict"),
+            "device_key": run.device_key, "git_commit": run.git_commit,
+            "git_branch": run.git_branch, "quality": q, "verdict": q.get("verdict"),
             "withheld": q.get("withheld", []), "estimator_version": run.estimator_version,
             "metric_version": run.metric_version,
             "current": is_current(run.method, run.estimator_version, run.metric_version),
@@ -177,6 +250,10 @@ class ReferenceInfo(BaseModel):
     id: int
     spp: int
     key: str
+    integrator: str | None = Field(None, description="'path' (Mitsuba's) or 'pt' (ours)")
+    max_depth: int | None = Field(None, description="longest path in segments (-1: unbounded)")
+    passes: int | None = None
+    rel_stderr: float | None = Field(None, description="relative standard error reached")
     split_half: dict[str, Any] = Field(
         default_factory=dict, description="split-half estimate of the reference's own error")
 
@@ -189,8 +266,6 @@ class RunResultDetail(RunResult):
     path_stats: dict[str, Any]
     device: dict[str, Any]
     versions: dict[str, Any]
-    git_commit: str | None
-    git_branch: str | None = Field(None, description="branch of the commit, when known")
     reference_id: int | None
     reference: ReferenceInfo | None = None
     caches: dict[str, Any] = Field(
@@ -208,10 +283,11 @@ class RunResultDetail(RunResult):
         return {
             **RunResult.fields_of(run), "metrics": run.metrics, "timings": run.timings,
             "path_stats": run.path_stats, "device": run.device, "versions": run.versions,
-            "git_commit": run.git_commit,
-            "git_branch": run.git_branch, "reference_id": run.reference_id,
+            "reference_id": run.reference_id,
             "reference": None if ref is None else ReferenceInfo(
-                id=ref.id, spp=ref.spp, key=ref.key, split_half=ref.split_half or {}),
+                id=ref.id, spp=ref.spp, key=ref.key, integrator=ref.integrator,
+                max_depth=ref.max_depth, passes=ref.passes, rel_stderr=ref.rel_stderr,
+                split_half=ref.split_half or {}),
             "caches": resolved_caches(run.seed_results),
             "per_seed": [SeedRow(seed=s.seed, metrics=s.metrics, timings=s.timings)
                          for s in run.seed_results],

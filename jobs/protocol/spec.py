@@ -17,11 +17,13 @@ from pydantic import (
     ConfigDict,
     Field,
     SerializerFunctionWrapHandler,
+    ValidationInfo,
     field_validator,
     model_serializer,
     model_validator,
 )
 
+from jobs.protocol.ranges import parse_range
 from jobs.protocol.versions import sweep_estimator_versions, versions_of
 from metrics import METRIC_VERSION
 from renderers.methods import (
@@ -187,10 +189,13 @@ class SweepSpec(BaseModel):
     scene: str = Field(min_length=1, description=SCENE_DESCRIPTION)
     eps: list[float] | None = Field(
         None, description="relative-bias thresholds: use the cache at v1 where the per-pixel "
-                          "relative bias of the converged cache-at-v1 image is below eps")
+                          "relative bias of the converged cache-at-v1 image is below eps; a "
+                          "list, or the CLI's text forms '0.05:1.0' (step = start), "
+                          "'a:b:step', 'a,b,c'")
     nc: list[int] | None = Field(
         None, description="without eps: the N_c values of a biased-NIRC sweep; with eps: the "
-                          "N_c candidates of the 'NIRC equal time' series")
+                          "N_c candidates of the 'NIRC equal time' series; a list or text "
+                          "like '1:32' or '1,2,4'")
     parameter: ParameterSweep | None = Field(
         None, description="without eps and nc: the parameter and values of a parameter sweep")
     methods: list[str] = Field(default_factory=lambda: list(SWEEP_METHODS),
@@ -230,6 +235,15 @@ class SweepSpec(BaseModel):
     reference: ReferenceSpec = Field(default_factory=ReferenceSpec)
 
     _check_params = field_validator("params")(finite_params)
+
+    @field_validator("eps", "nc", mode="before")
+    @classmethod
+    def _parse_ranges(cls, value: Any, info: ValidationInfo) -> Any:
+        """The CLI's forms as well as a list: '0.05:1.0', 'a:b:step', 'a,b,c'
+        (jobs.protocol.ranges.parse_range)."""
+        if isinstance(value, str):
+            return parse_range(value, integer=info.field_name == "nc")
+        return value
 
     @field_validator("eps")
     @classmethod

@@ -184,6 +184,8 @@ class Run(Base):
     metric_version: Mapped[int] = mapped_column(Integer, server_default="1")
     error: Mapped[str | None] = mapped_column(Text)
     idempotency_key: Mapped[str | None] = mapped_column(String, unique=True)
+    name: Mapped[str | None] = mapped_column(String, index=True)        # the user's label
+    tags: Mapped[dict[str, Any]] = mapped_column(default=dict, server_default=text("'{}'"))
 
     reference: Mapped[Reference | None] = relationship(lazy="raise")
     seed_results: Mapped[list["SeedResult"]] = relationship(

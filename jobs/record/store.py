@@ -13,6 +13,7 @@ of failing with "database is locked" when a read transaction tries to upgrade.
 
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import Engine, and_, delete, false, or_, select
@@ -193,13 +194,17 @@ class Store:
         current: Mapping[str, int] | None = None,
         metric_version: int | None = None,
         git_ref: str | None = None,
+        created_after: datetime | None = None,
+        created_before: datetime | None = None,
     ) -> list[Run]:
         """Runs matching the given filters, newest first, without relationships.
 
         ``scene`` matches the scene name. ``current`` (method -> estimator version)
         keeps only runs of those methods at those versions, ``metric_version``
         only runs scored under it, ``git_ref`` only runs of that branch or of a
-        commit starting with it. Use ``get_run`` for seeds and artifacts.
+        commit starting with it, ``created_after`` / ``created_before`` only runs
+        started at or after / before those times. Use ``get_run`` for seeds and
+        artifacts.
         """
         query = select(Run).order_by(Run.created_at.desc(), Run.id.desc())
         if scene is not None:
@@ -216,6 +221,10 @@ class Store:
         if git_ref is not None:
             query = query.where(or_(Run.git_branch == git_ref,
                                     Run.git_commit.startswith(git_ref, autoescape=True)))
+        if created_after is not None:
+            query = query.where(Run.created_at >= created_after)
+        if created_before is not None:
+            query = query.where(Run.created_at < created_before)
         if limit is not None:
             query = query.limit(limit)
         with self.session() as session:
@@ -231,6 +240,21 @@ class Store:
                  .options(selectinload(Run.seed_results)))
         with self.session() as session:
             return list(session.scalars(query))
+
+    def label_run(self, run_id: int, *, name: str | None = None,
+                  set_tags: Mapping[str, str] | None = None,
+                  remove_tags: Sequence[str] = ()) -> Run | None:
+        """Give the run ``name`` (when given), add ``set_tags`` and drop ``remove_tags``;
+        the run as ``get_run`` loads it, or None when there is no such run."""
+        with self.session(write=True) as session:
+            run = session.get(Run, run_id)
+            if run is None:
+                return None
+            if name is not None:
+                run.name = name
+            tags = {**(run.tags or {}), **(set_tags or {})}
+            run.tags = {key: value for key, value in tags.items() if key not in remove_tags}
+        return self.get_run(run_id)
 
     def has_runs(self, *, scene: str | None = None, method: str | None = None) -> bool:
         """Whether any stored run has this scene name and/or method."""

@@ -47,6 +47,12 @@ class Visibility(Protocol):
     def __call__(self, scene: mi.Scene, sampler: mi.Sampler, si: mi.SurfaceInteraction3f,
                  active: mi.Bool) -> list[mi.Float]: ...
 
+    def frame_state(self) -> dict[str, Any]:
+        """The Dr.Jit data the visibility reads (renderers.frozen)."""
+        ...
+
+    def bind(self, state: dict[str, Any]) -> None: ...
+
 
 class CacheVisibility:
     """V_k(x) from a visibility cache: its sigmoid outputs at x (one per emitter)."""
@@ -56,6 +62,12 @@ class CacheVisibility:
 
     def __call__(self, scene, sampler, si, active):
         return self.cache.query_outputs(self.cache.surface_features(si.p))
+
+    def frame_state(self) -> dict[str, Any]:
+        return self.cache.inference_state()
+
+    def bind(self, state: dict[str, Any]) -> None:
+        self.cache.bind_inference(state)
 
 
 class TracedVisibility:
@@ -68,6 +80,12 @@ class TracedVisibility:
         if rays < 1:
             raise ValueError("TracedVisibility needs at least one ray per light")
         self.rays = rays
+
+    def frame_state(self) -> dict[str, Any]:
+        return {}
+
+    def bind(self, state: dict[str, Any]) -> None:
+        """Nothing to read: the shadow rays see the scene."""
 
     def __call__(self, scene, sampler, si, active):
         values = []
@@ -102,11 +120,23 @@ class NeuralDIIntegrator(PrimaryHitIntegrator):
             cached = self._lights = PolygonLights(scene)
         return cached
 
-    def direct(self, scene, sampler, si, active):
+    def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
+        return {"lights": self.lights(scene).frame_arrays(),
+                "visibility": self._visibility().frame_state()}
+
+    def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:
+        self.lights(scene).bind(state["lights"])
+        self._visibility().bind(state["visibility"])
+
+    def _visibility(self) -> Visibility:
         if self.visibility is None:
             raise ValueError("NeuralDIIntegrator needs a visibility source: "
                              "call with_visibility(CacheVisibility(cache)) first")
-        return self.lights(scene).shade(si, self.visibility(scene, sampler, si, active), active)
+        return self.visibility
+
+    def direct(self, scene, sampler, si, active):
+        return self.lights(scene).shade(si, self._visibility()(scene, sampler, si, active),
+                                        active)
 
 
 def register() -> None:

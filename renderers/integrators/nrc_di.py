@@ -52,6 +52,12 @@ class NRCDIIntegrator(PrimaryHitIntegrator):
         self.cache = cache
         return self
 
+    def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
+        return {"cache": self.cache.inference_state()}
+
+    def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:
+        self.cache.bind_inference(state["cache"])
+
     def direct(self, scene, sampler, si, active):
         if self.cache is None:
             raise ValueError("NRCDIIntegrator needs a cache: call with_cache(cache) first")

@@ -39,6 +39,8 @@ dozen flops per triangle edge.
 
 from __future__ import annotations
 
+from typing import Any
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -80,6 +82,15 @@ class PolygonLights:
                          for j in range(3)]
         rgb = np.stack(radiance) if radiance else np.zeros((0, 3))
         self.radiance = mi.Color3f(*(mi.Float(rgb[:, c]) for c in range(3)))
+
+    def frame_arrays(self) -> dict[str, Any]:
+        """The Dr.Jit data :meth:`shade` reads: a frozen frame takes it as an argument
+        (renderers.frozen: a recording may only read Dr.Jit values it was given)."""
+        return {"first": self.first, "vertices": self.vertices, "radiance": self.radiance}
+
+    def bind(self, arrays: dict[str, Any]) -> None:
+        self.first, self.vertices, self.radiance = (
+            arrays["first"], arrays["vertices"], arrays["radiance"])
 
     @dr.syntax
     def shade(self, si: mi.SurfaceInteraction3f, visibility: list[mi.Float],

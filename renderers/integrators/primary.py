@@ -14,6 +14,8 @@ surface (the frame loop's path statistics).
 
 from __future__ import annotations
 
+from typing import Any
+
 import drjit as dr
 import mitsuba as mi
 
@@ -23,6 +25,19 @@ class PrimaryHitIntegrator(mi.SamplingIntegrator):
 
     def aov_names(self) -> list[str]:
         return ["depth"]
+
+    # A frame is frozen (renderers.frozen) with the Dr.Jit data ``direct`` reads handed
+    # over as an argument every frame: a cache's weights change with training.
+
+    def frame_freezable(self) -> bool:
+        return True
+
+    def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
+        """The Dr.Jit data :meth:`direct` reads besides the scene (none here)."""
+        return {}
+
+    def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:
+        """Read :meth:`frame_state`'s data from ``state`` (a frozen frame's argument)."""
 
     def direct(self, scene: mi.Scene, sampler: mi.Sampler, si: mi.SurfaceInteraction3f,
                active: mi.Bool) -> mi.Color3f:

@@ -198,4 +198,9 @@ def parse_params(method: str, values: dict[str, Any]) -> MethodParams:
     try:
         return model(**values)
     except ValidationError as err:
-        raise MethodError(f"invalid {method} parameters: {format_validation_error(err)}") from None
+        unknown = [str(item["loc"][0]) for item in err.errors()
+                   if item["type"] == "extra_forbidden" and len(item["loc"]) == 1]
+        valid = (f"; {method}'s parameters are {', '.join(model.model_fields)} (nirc-bench "
+                 f"methods {method})" if unknown else "")
+        raise MethodError(f"invalid {method} parameters: {format_validation_error(err)}"
+                          f"{valid}") from None

@@ -12,8 +12,9 @@ References and results are keyed by fingerprint, so it must be
 Built-in scenes hash a canonical JSON of their ``mi.load_dict`` dictionary
 (transforms as rounded matrices, bitmaps and arrays by content hash) together
 with the library version. XML scenes hash their canonical XML (comments and
-formatting dropped, film width/height removed) together with the bytes of
-every file they reference.
+formatting dropped, film width/height removed, ``$`` defaults substituted) with
+every file they reference replaced by its content hash, so that renaming the files
+(as a service does when it stages an upload) keeps the fingerprint.
 """
 
 from __future__ import annotations
@@ -162,32 +163,51 @@ def _resolve(name: str, folder: Path) -> Path | None:
     return None
 
 
-def _hash_references(root: ET.Element, folder: Path, seen: set[Path], out: list[str]) -> None:
-    """Append "name:sha256" for every referenced file, following includes."""
-    for name in _referenced_names(root):
-        path = _resolve(name, folder)
-        if path is None:
-            # Mitsuba found it elsewhere or never needed it; the name still counts.
-            out.append(f"{name}:missing")
-            continue
-        data = path.read_bytes()
-        out.append(f"{name}:{hashlib.sha256(data).hexdigest()}")
-        resolved = path.resolve()
-        if path.suffix.lower() == ".xml" and resolved not in seen:
-            seen.add(resolved)
-            try:
-                included = ET.fromstring(data)
-            except ET.ParseError:
-                continue  # its bytes are hashed; Mitsuba reports the error itself
-            _hash_references(included, path.parent, seen, out)
+def _content_form(root: ET.Element, folder: Path, seen: set[Path]) -> str:
+    """The scene's canonical XML independent of how its files are named: film size
+    removed, ``$name`` parameters replaced by their defaults (and the defaults dropped),
+    and every file the scene reads replaced by its content: the SHA-256 of its bytes, or
+    for an included XML file the digest of its own content form. A scene and a copy of
+    it whose files were renamed (the upload a service stages) give the same form."""
+    copy = ET.fromstring(ET.tostring(root))     # a deep copy we may edit
+    _strip_film_size(copy)
+    defaults = _defaults(copy)
+    for default in list(copy.findall("default")):
+        copy.remove(default)
+    for element in copy.iter():
+        for key, value in element.attrib.items():
+            element.set(key, _substitute(value, defaults))
+        attribute = ("filename" if element.tag == "include" and element.get("filename")
+                     else "value" if element.get("name") == "filename" and element.get("value")
+                     else None)
+        if attribute is not None:
+            element.set(attribute, _file_content(element.get(attribute, ""), folder, seen))
+    return ET.canonicalize(ET.tostring(copy, encoding="unicode"), strip_text=True)
+
+
+def _file_content(name: str, folder: Path, seen: set[Path]) -> str:
+    """What stands for the file ``name`` in :func:`_content_form`."""
+    path = _resolve(name, folder)
+    if path is None:
+        # Mitsuba found it elsewhere or never needed it; the name still counts.
+        return f"missing:{name}"
+    data = path.read_bytes()
+    resolved = path.resolve()
+    if path.suffix.lower() == ".xml" and resolved not in seen:
+        seen.add(resolved)
+        try:
+            included = ET.fromstring(data)
+        except ET.ParseError:
+            pass    # its bytes count; Mitsuba reports the error itself
+        else:
+            return "xml:" + _digest(_content_form(included, path.parent, seen).encode())
+    return "sha256:" + hashlib.sha256(data).hexdigest()
 
 
 def xml_fingerprint(root: ET.Element, xml_path: Path) -> str:
-    """Fingerprint of a parsed XML scene (``root`` is not modified)."""
-    stripped = ET.fromstring(ET.tostring(root))  # a deep copy we may edit
-    _strip_film_size(stripped)
-    text = ET.canonicalize(ET.tostring(stripped, encoding="unicode"), strip_text=True)
-    references: list[str] = []
-    _hash_references(root, xml_path.parent, {xml_path.resolve()}, references)
-    document = {"kind": "xml", "scene": text, "files": references}
+    """Fingerprint of a parsed XML scene (``root`` is not modified): the digest of its
+    :func:`_content_form`, so the same scene with its files under other names (a copy
+    uploaded to a service) has the same fingerprint."""
+    text = _content_form(root, xml_path.parent, {xml_path.resolve()})
+    document = {"kind": "xml", "form": 2, "scene": text}
     return _digest(json.dumps(document, separators=(",", ":")).encode())

@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import stat
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -43,6 +43,9 @@ class LoadedScene:
     features: SceneFeatures
     resolution: Resolution  # (width, height) of the film
     description: str  # one line for humans
+    #: What an XML file sets that a run replaces (renderers.scenes.xml_settings): film
+    #: size before the resolution override, integrator, its max_depth, sampler spp.
+    file_settings: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """Everything but the ``mi.Scene``, as JSON-ready values."""
@@ -137,6 +140,7 @@ def _load_xml(path: str, resolution: Resolution | None) -> LoadedScene:
             f"Mitsuba XML scene {loaded.path.name} ({features.shape_count} shapes, "
             f"{features.emitter_count} emitters)"
         ),
+        file_settings=loaded.settings,
     )
 
 

@@ -35,6 +35,7 @@ from renderers.scenes.errors import SceneError, SceneNotFinite
 from renderers.scenes.fingerprint import xml_fingerprint
 from renderers.scenes.resolution import Resolution
 from renderers.scenes.runtime import mitsuba
+from renderers.scenes.xml_settings import xml_settings
 
 # A start tag from its '<' to its '>', skipping '>' inside quoted attributes.
 _START_TAG = re.compile(rb"<[^\s/>]+(?:[^\"'>]|\"[^\"]*\"|'[^']*')*>")
@@ -73,6 +74,7 @@ class XmlScene:
     scene: Any  # mi.Scene
     resolution: Resolution
     fingerprint: str
+    settings: dict[str, Any] = field(default_factory=dict)  # renderers.scenes.xml_settings
 
 
 def _scan_sensors(data: bytes) -> list[_Sensor]:
@@ -282,4 +284,5 @@ def load_xml_scene(name: str, resolution: Resolution | None) -> XmlScene:
     check_finite_scene(scene, path)
 
     width, height = (int(x) for x in scene.sensors()[0].film().size())
-    return XmlScene(path, scene, (width, height), xml_fingerprint(root, path))
+    return XmlScene(path, scene, (width, height), xml_fingerprint(root, path),
+                    xml_settings(root))

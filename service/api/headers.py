@@ -10,8 +10,9 @@
   guessed to be HTML or script; ``Referrer-Policy: no-referrer``: no URL of the
   service (job ids, scene names) leaves with a link.
 
-The OpenAPI pages (``/docs``, ``/redoc``) are FastAPI's, which load their viewer from
-a CDN with an inline script: they get the other headers, not the CSP.
+The OpenAPI pages (``/docs``, ``/redoc``) load their viewer from this service (the
+fastapi-offline package's copies, service/api/main.py) but start it with an inline
+script: they get the other headers, not the CSP.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ CONTENT_SECURITY_POLICY = (
     "frame-ancestors 'none'")
 HEADERS = [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
            (b"referrer-policy", b"no-referrer")]
-#: Paths of FastAPI's OpenAPI viewers, which need their CDN (no CSP there).
+#: Paths of the OpenAPI viewers, whose pages start them inline (no CSP there).
 VIEWER_PATHS = ("/docs", "/redoc")
 
 

@@ -1,4 +1,5 @@
-"""The FastAPI application: REST API (OpenAPI at /docs) over the job store and queue.
+"""The FastAPI application: REST API (OpenAPI at /docs and /redoc, served offline) over
+the job store and queue.
 
 ``create_app(settings, dispatcher)`` builds the app; the service (``nirc-bench
 serve``) passes a :class:`jobs.execution.dispatch.Dispatcher`, tests may pass None (jobs
@@ -30,6 +31,7 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
@@ -100,7 +102,9 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
                 stop.set()
             store.close()
 
-    app = FastAPI(title="nirc-bench", version="1",
+    # Swagger UI (/docs) and ReDoc (/redoc) load their scripts and styles from the
+    # installed fastapi-offline package, under /static-offline-docs: they work offline.
+    app = FastAPIOffline(title="nirc-bench", version="1",
                   description="Evaluate and benchmark radiance-caching renderers: submit "
                               "render jobs and sweeps, poll them, read results.",
                   lifespan=lifespan)

@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from jobs.protocol.comparison import RunComparison
 from jobs.protocol.history import History
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import is_current
@@ -76,6 +77,8 @@ class ArtifactOut(BaseModel):
 
 #: A result row (jobs.protocol.results: the one public model of a run).
 RunOut = RunResult
+#: Runs side by side (jobs.protocol.comparison).
+Comparison = RunComparison
 #: A metric over commits with its step changes (jobs.protocol.history).
 HistoryOut = History
 
@@ -88,17 +91,6 @@ class RunDetail(RunResultDetail):
     @classmethod
     def of(cls, run: Any, **extra: Any) -> RunDetail:
         return super().of(run, artifacts=[ArtifactOut.of(a) for a in run.artifacts], **extra)
-
-
-class Comparison(BaseModel):
-    runs: list[RunOut]
-    same_device: bool
-    same_reference_scene: bool
-    metric_version: int = Field(description="every compared run was scored under it")
-    estimator_versions: dict[str, list[int]] = Field(
-        description="method -> the estimator versions among the runs; two versions of one "
-                    "method are different estimators, not repeats")
-    note: str
 
 
 class SweepOut(BaseModel):

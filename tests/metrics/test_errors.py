@@ -459,3 +459,19 @@ def test_efficiency_is_inverse_mrse_times_time():
 def test_efficiency_rejects_degenerate_inputs(bad):
     with pytest.raises(MetricError):
         efficiency(*bad)
+
+
+def test_a_negative_corrected_bias_is_reported_below_the_noise_floor_by_magnitude():
+    """Renders whose mean is the reference exactly: rBias² less the noise floors is
+    negative; the warning speaks of its magnitude, not of a percentage of a negative
+    number, and the result row lists it as below the noise floor."""
+    ref = np.full((4, 4, 3), 0.5)
+    renders = np.stack([ref * 0.9, ref, ref * 1.1])
+    result = bias_variance(renders, ref, ref_variance=np.full_like(ref, 0.01))
+    assert result["rbias2"] < 0
+    (warning,) = [w for w in result["warnings"] if "rbias2" in w]
+    assert f"magnitude of rbias2 ({abs(result['rbias2']):.3g}" in warning
+    assert "below the noise floors" in warning and "-" not in warning.split("(")[1]
+    from metrics.registry import row_values
+
+    assert row_values(result)["below_noise_floor"] == ["rbias2"]

@@ -93,7 +93,9 @@ def test_result_rows_and_api_fields_come_from_the_registry():
     stored = {"mrse_mean": 0.5, "mrse_ci95": (0.4, 0.6), "flip_hdr_mean": 0.2, "rbias2": 0.1,
               "psnr_mean": 31.0}
     assert row_values(stored) == {"mrse": 0.5, "mrse_ci95": [0.4, 0.6], "flip": 0.2,
-                                  "rbias2": 0.1, "rvar": None, "psnr": 31.0}
+                                  "rbias2": 0.1, "rvar": None, "psnr": 31.0,
+                                  "mrse_ci_note": "95 % interval of the mean, as stored",
+                                  "below_noise_floor": []}
 
 
 def test_the_registry_is_served_as_json():

@@ -15,7 +15,9 @@ from metrics.statistics import (
     aggregate_test,
     agreement_test,
     image_mean_test,
+    interval_or_reason,
     mean_confidence_interval,
+    positive_mean_interval,
     sidak_alpha,
     z_test,
 )
@@ -412,3 +414,34 @@ def test_z_test_with_estimated_variances_needs_their_degrees_of_freedom():
     assert not shifted.passed
     with pytest.raises(MetricError, match="degrees of freedom"):
         z_test(*moments(), *moments(), dof=0)
+
+
+# ---- The interval of a non-negative mean (MRSE over seeds) ---------------------
+
+
+def test_two_seeds_give_no_interval_and_say_why():
+    ci, note = interval_or_reason([0.2, 0.4])
+    assert ci is None and "2 seeds" in note and "3 or more" in note
+    with pytest.raises(MetricError):
+        positive_mean_interval([0.2, 0.4])
+
+
+@pytest.mark.parametrize("values", [[1e-4, 2e-4, 6e-3], [1e-4] * 7 + [8e-3]])
+def test_an_error_near_zero_keeps_its_interval_above_zero(values):
+    """With K = 3 and K = 8 seeds of a quantity near zero the symmetric Student-t
+    interval goes below zero; the log-scale interval holds the mean and stays above it."""
+    mean, t_low, _ = mean_confidence_interval(values)
+    assert t_low < 0
+    (low, high), note = interval_or_reason(values)
+    assert 0 < low <= mean <= high and "log scale" in note
+    assert positive_mean_interval([0.0, 0.0, 0.0]) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("k", [3, 8])
+def test_the_positive_interval_covers_the_mean_at_its_level(k):
+    """Skewed errors (scaled chi-square, 5 degrees of freedom, mean 1): the interval
+    covers the true mean 95 % of the time, within three standard errors of 2000 draws."""
+    rng = np.random.default_rng(7)
+    covered = sum(low <= 1.0 <= high for low, high in (
+        positive_mean_interval(rng.chisquare(5, k) / 5) for _ in range(2000)))
+    assert covered / 2000 == pytest.approx(0.95, abs=3 * math.sqrt(0.95 * 0.05 / 2000))

@@ -10,8 +10,6 @@ from renderers.frozen import frozen_frames
 from renderers.methods import METHODS, get_method, parse_params
 from renderers.methods.base import FrameHooks
 
-#: The methods whose render stage is frozen; every method's cache training step is.
-FROZEN_RENDER = {"pt", "pt-power", "pt-spatial", "restir-di", "nvc-lights", "restir-nvc"}
 #: The scenes tried in order for a method (the first it applies to).
 SCENES = ("many-lights", "sky")
 

@@ -7,6 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
 
+from jobs.protocol.comparison import ComparisonError, compare_runs
 from jobs.protocol.versions import current_estimator_versions
 from jobs.record.artifacts import ArtifactStore
 from jobs.record.models import Artifact
@@ -91,33 +92,17 @@ def get_run(run_id: RowId, store: StoreDep) -> RunDetail:
 def compare(store: StoreDep,
             runs: Annotated[str, Query(pattern=r"^[1-9]\d{0,8}(,[1-9]\d{0,8}){1,19}$",
                                        description="2 to 20 run ids, e.g. 3,7")]) -> Comparison:
-    """Runs side by side; timings compare only when the device is the same. Runs scored
-    under different metric versions are refused (422); two estimator versions of one
-    method are flagged in the note."""
-    rows = []
-    for run_id in dict.fromkeys(int(part) for part in runs.split(",")):
-        rows.append(RunOut.of(_found(store.get_run(run_id), f"run {run_id}")))
-    metric_versions = sorted({r.metric_version for r in rows})
-    if len(metric_versions) > 1:
-        listed = ", ".join(f"run {r.id}: v{r.metric_version}" for r in rows)
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            "these runs were scored under different metric definitions "
-                            f"({listed}); their numbers are not comparable: compare runs of "
-                            "one metric version (re-run the old ones)")
-    estimators: dict[str, set[int]] = {}
-    for r in rows:
-        estimators.setdefault(r.method, set()).add(r.estimator_version)
-    same_device = len({r.device_key for r in rows}) == 1
-    same_scene = len({(r.scene_fingerprint, tuple(r.resolution)) for r in rows}) == 1
-    notes = ["timings comparable (same device)" if same_device else
-             "different devices: compare errors only, not timings"]
-    notes += [f"{method} runs of estimator versions {', '.join(map(str, sorted(v)))} are "
-              "different estimators, not repeats of one" for method, v in estimators.items()
-              if len(v) > 1]
-    return Comparison(runs=rows, same_device=same_device, same_reference_scene=same_scene,
-                      metric_version=metric_versions[0],
-                      estimator_versions={m: sorted(v) for m, v in estimators.items()},
-                      note="; ".join(notes))
+    """Runs side by side: the settings and parameters that differ, and each later run's
+    metrics against the first's (with the Welch 95 % interval of the difference where
+    both have 3 or more seeds); timings compare only when the device is the same. Runs
+    scored under different metric versions are refused (422); two estimator versions of
+    one method are flagged in the note."""
+    found = [_found(store.get_run(run_id), f"run {run_id}")
+             for run_id in dict.fromkeys(int(part) for part in runs.split(","))]
+    try:
+        return compare_runs(found)
+    except ComparisonError as err:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(err)) from None
 
 
 @router.get("/sweeps", response_model=list[SweepOut])

@@ -1,0 +1,151 @@
+"""Stored runs side by side: what differs between them and how their metrics moved.
+
+One comparison for ``GET /api/v1/compare`` and ``nirc-bench runs compare``. The first
+run is the baseline; every other run gets, per listed metric, its value, the change
+from the baseline and, for metrics with a value per seed when both runs have at least
+:data:`MIN_SEEDS_FOR_INTERVAL` seeds, the Welch 95 % interval of the difference of the
+seed means (``scipy.stats.ttest_ind`` with unequal variances). Runs scored under
+different metric versions are refused: their numbers measure different things.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, Field
+from scipy import stats
+
+from jobs.protocol.results import RunResult
+from metrics.registry import LISTED, Metric, below_noise_floor
+
+#: Fewer seeds than this per run give no interval (a t interval on 1 or 2 degrees of
+#: freedom spans most of the axis).
+MIN_SEEDS_FOR_INTERVAL = 3
+
+#: What a run is besides its method parameters, as the comparison lists differences.
+SETTINGS = ("scene", "scene_fingerprint", "method", "resolution", "spp", "frames", "seeds",
+            "device_key", "estimator_version")
+
+
+class ComparisonError(ValueError):
+    """Runs that cannot be compared (scored under different metric definitions)."""
+
+
+class MetricDelta(BaseModel):
+    """One metric of a run against the baseline's."""
+
+    metric: str = Field(description="the metric's registry name")
+    key: str = Field(description="its stored key (metrics.registry)")
+    label: str
+    direction: str = Field(description="which way is better: lower or higher")
+    baseline: float | None
+    value: float | None
+    delta: float | None = Field(description="value - baseline")
+    ratio: float | None = Field(description="value / baseline (null when the baseline is 0 "
+                                            "or either is below the noise floor)")
+    delta_ci95: list[float] | None = Field(
+        description="Welch 95 % interval of the difference of the seed means (null: see "
+                    "interval_note)")
+    interval_note: str = Field(description="how the interval was made, or why there is none")
+
+
+class RunDelta(BaseModel):
+    """A run's metrics against the baseline's (the first run compared)."""
+
+    run: int
+    baseline: int
+    metrics: list[MetricDelta]
+
+
+class RunComparison(BaseModel):
+    """Runs side by side, what differs between them, and how their metrics moved."""
+
+    runs: list[RunResult]
+    same_device: bool
+    same_reference_scene: bool
+    metric_version: int = Field(description="every compared run was scored under it")
+    estimator_versions: dict[str, list[int]] = Field(
+        description="method -> the estimator versions among the runs; two versions of one "
+                    "method are different estimators, not repeats")
+    differences: dict[str, list[Any]] = Field(
+        default_factory=dict,
+        description="every setting and method parameter whose value is not the same in "
+                    "all runs -> its value in each run, in order ('params.NAME' for a "
+                    "parameter; null where a run has none)")
+    deltas: list[RunDelta] = Field(
+        default_factory=list, description="each later run's metrics against the first's")
+    note: str
+
+
+def _seed_values(run: Any, metric: Metric) -> list[float]:
+    values = [s.metrics.get(metric.seed_key) for s in run.seed_results] \
+        if metric.seed_key else []
+    return [float(v) for v in values if v is not None and np.isfinite(v)]
+
+
+def metric_delta(metric: Metric, baseline: Any, run: Any) -> MetricDelta:
+    """``metric`` of the stored ``run`` against ``baseline`` (both loaded with their seeds)."""
+    base, value = baseline.metrics.get(metric.key), run.metrics.get(metric.key)
+    delta = None if base is None or value is None else value - base
+    ratio = (None if delta is None or base == 0 or below_noise_floor(metric.key, base)
+             or below_noise_floor(metric.key, value) else value / base)
+    ci, note = None, "no interval: the metric has no value per seed"
+    if metric.seed_key:
+        a, b = _seed_values(run, metric), _seed_values(baseline, metric)
+        if min(len(a), len(b)) < MIN_SEEDS_FOR_INTERVAL:
+            note = (f"no interval: fewer than {MIN_SEEDS_FOR_INTERVAL} seeds with a value "
+                    f"({len(b)} and {len(a)})")
+        else:
+            low, high = stats.ttest_ind(a, b, equal_var=False).confidence_interval(0.95)
+            ci = [float(low), float(high)] if np.isfinite([low, high]).all() else None
+            note = ("Welch 95 % interval of the difference of the seed means" if ci else
+                    "no interval: the seeds' values do not vary")
+    return MetricDelta(metric=metric.name, key=metric.key, label=metric.label, direction=metric.direction,
+                       baseline=base, value=value, delta=delta, ratio=ratio,
+                       delta_ci95=ci, interval_note=note)
+
+
+def differences(rows: list[RunResult]) -> dict[str, list[Any]]:
+    """The settings and parameters whose values differ between ``rows``."""
+    columns = {name: [getattr(r, name) for r in rows] for name in SETTINGS}
+    names = dict.fromkeys(name for r in rows for name in r.params)
+    columns.update({f"params.{name}": [r.params.get(name) for r in rows] for name in names})
+    return {name: values for name, values in columns.items()
+            if any(v != values[0] for v in values[1:])}
+
+
+def compare_runs(runs: list[Any]) -> RunComparison:
+    """Compare the stored ``runs`` (loaded as ``Store.get_run`` loads them; the first is
+    the baseline). ComparisonError when their metric versions differ."""
+    rows = [RunResult.of(run) for run in runs]
+    metric_versions = sorted({r.metric_version for r in rows})
+    if len(metric_versions) > 1:
+        listed = ", ".join(f"run {r.id}: v{r.metric_version}" for r in rows)
+        raise ComparisonError("these runs were scored under different metric definitions "
+                              f"({listed}); their numbers are not comparable: compare runs "
+                              "of one metric version (re-run the old ones)")
+    estimators: dict[str, set[int]] = {}
+    for r in rows:
+        estimators.setdefault(r.method, set()).add(r.estimator_version)
+    same_device = len({r.device_key for r in rows}) == 1
+    same_scene = len({(r.scene_fingerprint, tuple(r.resolution)) for r in rows}) == 1
+    notes = ["timings comparable (same device)" if same_device else
+             "different devices: compare errors only, not timings"]
+    notes += [f"{method} runs of estimator versions {', '.join(map(str, sorted(v)))} are "
+              "different estimators, not repeats of one" for method, v in estimators.items()
+              if len(v) > 1]
+    found = differences(rows)
+    references = [None if run.reference is None else
+                  f"{run.reference.id} ({run.reference.integrator}, {run.reference.spp} spp, "
+                  f"max_depth {run.reference.max_depth})" for run in runs]
+    if any(ref != references[0] for ref in references[1:]):
+        found["reference"] = references
+        notes.append("different references: errors are measured against different images")
+    deltas = [RunDelta(run=run.id, baseline=runs[0].id,
+                       metrics=[metric_delta(m, runs[0], run) for m in LISTED])
+              for run in runs[1:]]
+    return RunComparison(runs=rows, same_device=same_device, same_reference_scene=same_scene,
+                         metric_version=metric_versions[0],
+                         estimator_versions={m: sorted(v) for m, v in estimators.items()},
+                         differences=found, deltas=deltas, note="; ".join(notes))

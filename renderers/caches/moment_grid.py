@@ -1,0 +1,217 @@
+"""A hashed-grid radiance cache whose records track three moments (the
+variance-trading paper [VTT24], Sec. 4.4 and 5; docs/variance_trading.md).
+
+A record stands for a partition P of surface points y (a grid cell, optionally one of
+six normal bins). For the one-segment estimate Y at a point y of the partition (the
+next segment's light plus the cache at its end, sampled as the path tracer samples
+it) the record keeps running averages of
+
+* E[Y] (RGB): the cache's radiance rc;
+* E[Y^2] (luminance): the second moment;
+* E[E[Y | y]^2] (luminance): the *marginal* second moment, estimated per point with a
+  U-statistic over its K independent samples, ((sum Y)^2 - sum Y^2) / (K (K - 1)): every
+  ordered pair of distinct samples, whose product is an unbiased estimate of
+  E[Y | y]^2 (a sample paired with itself would add Var[Y | y] / K).
+
+from which (paper, Sec. 4.4 and appendix A)
+
+* the average local variance E[V[Y | y]] = E[Y^2] - E[E[Y | y]^2], which variance
+  bounding uses instead of the plain variance (that one also holds the spread of
+  E[Y | y] across the cell), and
+* the average squared bias E[(E[Y | y] - E[Y])^2] = E[E[Y | y]^2] - E[Y]^2 of using the
+  cell's value at any of its points, the MSE rule's local bias.
+
+Keys: the integer cell of a position (and the normal's bin) hashed twice, once for the
+slot and once as a checksum stored in the slot (0 = empty); linear probing over
+``max_probes`` slots; an insertion that loses a race for an empty slot probes on. A key
+that finds no slot is a miss, never another cell's record.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from renderers.caches.grid_config import MomentGridConfig
+
+#: 2^32 / golden ratio, and the constants of MurmurHash3's 32-bit finalizer.
+_GOLDEN = 0x9E3779B9
+_PRIMES = (0x8DA6B343, 0xD8163841, 0xCB1AB31F, 0x165667B1)
+
+
+def _finalize(h: mi.UInt32) -> mi.UInt32:
+    h ^= h >> 16
+    h *= 0x85EBCA6B
+    h ^= h >> 13
+    h *= 0xC2B2AE35
+    return h ^ (h >> 16)
+
+
+def normal_bin(normal: mi.Vector3f) -> mi.UInt32:
+    """0..5: the normal's dominant axis (x, y, z) times two, plus one when negative."""
+    a = dr.abs(normal)
+    is_x = (a.x >= a.y) & (a.x >= a.z)
+    is_y = ~is_x & (a.y >= a.z)
+    axis = dr.select(is_x, 0, dr.select(is_y, 1, 2))
+    component = dr.select(is_x, normal.x, dr.select(is_y, normal.y, normal.z))
+    return mi.UInt32(axis * 2 + dr.select(component < 0, 1, 0))
+
+
+def marginal_second_moment(sum_y: mi.Float, sum_y2: mi.Float, k: int) -> mi.Float:
+    """The U-statistic of E[Y | y]^2 from K independent samples at one point: the mean
+    product over the K (K - 1) ordered pairs of distinct samples,
+    ((sum Y)^2 - sum Y^2) / (K (K - 1)), unbiased since E[Y_i Y_j] = E[Y | y]^2 for
+    i != j ([Lee90]; [VTT24] Sec. 4.4)."""
+    return (dr.square(sum_y) - sum_y2) / (k * (k - 1))
+
+
+@dataclass
+class GridValue:
+    """What a lookup returns; zeros where ``found`` is False."""
+
+    radiance: mi.Color3f
+    local_variance: mi.Float
+    squared_bias: mi.Float
+    found: mi.Bool
+
+
+class MomentGrid:
+    """The table and its records (see the module doc). ``keys`` holds each slot's
+    checksum; per slot: ``count`` (vertex estimates averaged so far, capped at
+    ``max_history``), ``mean`` (RGB, 3 per slot), ``second`` and ``marginal``
+    (luminance); ``vertices`` the representative points (position and normal, 6 floats
+    each, ``vertices_per_record`` per slot) with ``vertex_used``."""
+
+    def __init__(self, config: MomentGridConfig) -> None:
+        self.config = config
+        size = config.table_size
+        self.keys = dr.zeros(mi.UInt32, size)
+        self.count = dr.zeros(mi.Float, size)
+        self.mean = dr.zeros(mi.Float, 3 * size)
+        self.second = dr.zeros(mi.Float, size)
+        self.marginal = dr.zeros(mi.Float, size)
+        self.vertices = dr.zeros(mi.Float, 6 * size * config.vertices_per_record)
+        self.vertex_used = dr.zeros(mi.UInt32, size * config.vertices_per_record)
+
+    # ---- keys ---------------------------------------------------------------------
+
+    def _hashes(self, position: mi.Point3f, normal: mi.Vector3f) -> tuple[mi.UInt32, mi.UInt32]:
+        cell = dr.floor(position / self.config.cell_size)
+        parts = [mi.UInt32(mi.Int32(cell.x)), mi.UInt32(mi.Int32(cell.y)),
+                 mi.UInt32(mi.Int32(cell.z)),
+                 normal_bin(normal) if self.config.normal_bins else mi.UInt32(0)]
+        slot, check = mi.UInt32(0), mi.UInt32(_GOLDEN)
+        for part, prime in zip(parts, _PRIMES, strict=True):
+            slot = _finalize(slot ^ (part * prime))
+            check = _finalize(check + part * (prime | 1) + _GOLDEN)
+        return slot & (self.config.table_size - 1), check | 1
+
+    def find(self, position: mi.Point3f, normal: mi.Vector3f,
+             active: mi.Bool = True, insert: bool = False) -> tuple[mi.UInt32, mi.Bool]:
+        """The slot of the record of (position, normal) and whether there is one; with
+        ``insert``, an empty slot on the probe sequence is claimed for it."""
+        start, check = self._hashes(position, normal)
+        mask = self.config.table_size - 1
+        searching = mi.Bool(active)
+        slot = mi.UInt32(0)
+        found = mi.Bool(False)
+        for probe in range(self.config.max_probes):
+            index = (start + probe) & mask
+            stored = dr.gather(mi.UInt32, self.keys, index, searching)
+            hit = searching & (stored == check)
+            if insert:
+                empty = searching & (stored == 0)
+                dr.scatter(self.keys, check, index, empty)
+                hit |= empty & (dr.gather(mi.UInt32, self.keys, index, empty) == check)
+            slot = dr.select(hit, index, slot)
+            found |= hit
+            searching &= ~hit
+        return slot, found
+
+    def jittered(self, position: mi.Point3f, normal: mi.Vector3f,
+                 sample: mi.Point2f) -> mi.Point3f:
+        """Stochastic interpolation (Binder et al.): the lookup point moved by up to half
+        a cell along the tangent plane, so neighbouring records blend in expectation."""
+        frame = mi.Frame3f(normal)
+        size = self.config.cell_size
+        return position + (sample.x - 0.5) * size * frame.s + (sample.y - 0.5) * size * frame.t
+
+    # ---- reading -------------------------------------------------------------------
+
+    def lookup(self, position: mi.Point3f, normal: mi.Vector3f,
+               sample: mi.Point2f | None = None, active: mi.Bool = True) -> GridValue:
+        """The record at a point (jittered when the config asks and ``sample`` is
+        given): rc, the average local variance and the average squared bias."""
+        if self.config.jitter and sample is not None:
+            position = self.jittered(position, normal, sample)
+        slot, found = self.find(position, normal, active)
+        found &= dr.gather(mi.Float, self.count, slot, found) > 0
+        radiance = dr.gather(mi.Color3f, self.mean, slot, found)
+        second = dr.gather(mi.Float, self.second, slot, found)
+        marginal = dr.gather(mi.Float, self.marginal, slot, found)
+        mean_luminance = mi.luminance(radiance)
+        return GridValue(radiance,
+                         dr.maximum(second - marginal, 0.0),
+                         dr.maximum(marginal - dr.square(mean_luminance), 0.0),
+                         found)
+
+    # ---- writing -------------------------------------------------------------------
+
+    def accumulate(self, slot: mi.UInt32, samples: mi.Color3f, active: mi.Bool) -> None:
+        """Fold one update into the records: ``samples`` holds K =
+        ``samples_per_vertex`` independent estimates Y per vertex, vertex-major (vertex v
+        owns entries v K .. v K + K - 1); ``slot`` and ``active`` are per vertex.
+
+        Each vertex is one observation of the partition: its sample mean (for E[Y]), its
+        mean of Y^2 and its U-statistic for E[Y | y]^2. A record's running averages take
+        the frame's observations with weight min(1, n / min(count + n, max_history))."""
+        k = self.config.samples_per_vertex
+        luminance = mi.luminance(samples)
+        sum_rgb = mi.Color3f(*(dr.block_sum(samples[c], k) for c in range(3)))
+        sum_y = dr.block_sum(luminance, k)
+        sum_y2 = dr.block_sum(dr.square(luminance), k)
+        marginal = marginal_second_moment(sum_y, sum_y2, k)
+
+        size = self.config.table_size
+        n = dr.zeros(mi.Float, size)
+        batch_mean = dr.zeros(mi.Float, 3 * size)
+        batch_second = dr.zeros(mi.Float, size)
+        batch_marginal = dr.zeros(mi.Float, size)
+        dr.scatter_add(n, 1.0, slot, active)
+        dr.scatter_add(batch_mean, sum_rgb / k, slot, active)   # Color3f: 3 floats per slot
+        dr.scatter_add(batch_second, sum_y2 / k, slot, active)
+        dr.scatter_add(batch_marginal, marginal, slot, active)
+
+        total = self.count + n
+        # A frame with more observations than the history holds replaces the record.
+        weight = dr.minimum(n / dr.maximum(dr.minimum(total, self.config.max_history), 1.0),
+                            1.0)
+        per_observation = dr.rcp(dr.maximum(n, 1.0))
+        index = dr.arange(mi.UInt32, size)
+        old_mean = dr.gather(mi.Color3f, self.mean, index)
+        new_mean = dr.gather(mi.Color3f, batch_mean, index) * per_observation
+        dr.scatter(self.mean, dr.lerp(old_mean, new_mean, weight), index)
+        self.second = dr.lerp(self.second, batch_second * per_observation, weight)
+        self.marginal = dr.lerp(self.marginal, batch_marginal * per_observation, weight)
+        self.count = dr.minimum(total, self.config.max_history)
+        dr.eval(self.mean, self.second, self.marginal, self.count)
+
+    def store_vertices(self, slot: mi.UInt32, position: mi.Point3f, normal: mi.Vector3f,
+                       choice: mi.Float, active: mi.Bool) -> None:
+        """Keep (position, normal) as one of its record's representatives, in the place
+        ``choice`` in [0, 1) picks (a later store there replaces it)."""
+        per_record = self.config.vertices_per_record
+        place = slot * per_record + dr.minimum(mi.UInt32(choice * per_record), per_record - 1)
+        dr.scatter(self.vertices, position, 2 * place, active)
+        dr.scatter(self.vertices, normal, 2 * place + 1, active)
+        dr.scatter(self.vertex_used, mi.UInt32(1), place, active)
+
+    def representatives(self) -> tuple[mi.UInt32, mi.Point3f, mi.Vector3f]:
+        """Every stored representative: its record's slot, position and normal."""
+        place = dr.compress(self.vertex_used != 0)
+        slot = place // self.config.vertices_per_record
+        position = dr.gather(mi.Point3f, self.vertices, 2 * place)
+        normal = dr.gather(mi.Vector3f, self.vertices, 2 * place + 1)
+        return slot, position, normal

@@ -1,0 +1,55 @@
+"""What a Mitsuba XML scene file sets that a run replaces: its film size, its
+integrator (and the integrator's max_depth) and its sampler's samples per pixel.
+
+A run renders at the spec's resolution, with its method's integrator and max_depth
+and the spec's spp, whatever the file says; these are read so that the run can say
+which of the file's settings it did not use. ``$name`` values take the file's
+``<default>`` (unresolved ones are reported as written). Settings in included files
+are not read.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from typing import Any
+
+
+def _value(element: ET.Element | None, defaults: dict[str, str]) -> str | None:
+    if element is None:
+        return None
+    value = element.get("value")
+    if value is not None and value.startswith("$"):
+        return defaults.get(value[1:], value)
+    return value
+
+
+def _number(text: str | None) -> int | str | None:
+    if text is None:
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        return text
+
+
+def xml_settings(root: ET.Element) -> dict[str, Any]:
+    """The settings of the scene ``root`` (the parsed <scene>) a run replaces, those it
+    has: ``film`` [width, height], ``integrator`` (type), ``max_depth``, ``spp``."""
+    defaults = {d.get("name", ""): d.get("value", "") for d in root.findall("default")}
+    found: dict[str, Any] = {}
+    film = root.find("sensor/film")
+    if film is not None:
+        size = [_number(_value(film.find(f"integer[@name='{name}']"), defaults))
+                for name in ("width", "height")]
+        if any(v is not None for v in size):
+            found["film"] = size
+    integrator = root.find("integrator")
+    if integrator is not None:
+        found["integrator"] = integrator.get("type")
+        depth = _number(_value(integrator.find("integer[@name='max_depth']"), defaults))
+        if depth is not None:
+            found["max_depth"] = depth
+    spp = _number(_value(root.find("sensor/sampler/integer[@name='sample_count']"), defaults))
+    if spp is not None:
+        found["spp"] = spp
+    return found

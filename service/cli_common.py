@@ -1,0 +1,49 @@
+"""What every command module of the CLI shares: its consoles, common options, the store."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+
+# Tables are wide: when the output is not a terminal (a log, a pipe, CI), do not wrap at
+# 80 columns: wide enough that the sweep table keeps its rows whole.
+# No emoji codes: 'a:b:step' is text, not ':b:'.
+console = Console(width=None if sys.stdout.isatty() else 220, emoji=False)
+err_console = Console(stderr=True, emoji=False)
+
+DataDir = Annotated[
+    Path | None,
+    typer.Option("--data-dir", help="data folder (database, references, artifacts)",
+                 envvar="NIRC_BENCH_DATA_DIR"),
+]
+JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a table")]
+
+
+def open_settings(data_dir: Path | None) -> Any:
+    """The settings, with ``data_dir`` when given (else the environment's or ./data);
+    UsageError when the data folder is a file."""
+    from jobs.record.config import Settings
+    from service.errors import UsageError
+
+    settings = Settings(data_dir=data_dir) if data_dir else Settings()
+    if settings.data_dir.exists() and not settings.data_dir.is_dir():
+        raise UsageError(f"the data folder {settings.data_dir} is a file, not a folder "
+                         "(--data-dir or NIRC_BENCH_DATA_DIR)")
+    return settings
+
+
+def open_store(settings: Any) -> Any:
+    """The store of ``settings`` (migrated to the current schema)."""
+    from jobs.record.db import open_store as open_db
+
+    return open_db(settings)
+
+
+def print_json(value: Any) -> None:
+    """``value`` as indented JSON on standard output (dates and paths as text)."""
+    console.print_json(json.dumps(value, default=str))

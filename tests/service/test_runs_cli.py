@@ -1,0 +1,302 @@
+"""``nirc-bench runs`` and render reuse on a store of tiny real runs of two methods
+(8x8 pixels, 2 frames of 1 spp): list, show, compare, export, names and tags, and
+``apikey list``; in process (Typer's runner) to keep it fast."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+import sys
+from unittest import mock
+
+import pytest
+from typer.testing import CliRunner
+
+from jobs.protocol.provenance import git_commit
+from service.cli import app, main
+
+RENDER = ("render", "-s", "cornell-box", "--res", "8", "--spp", "1", "--frames", "2",
+          "--seeds", "3", "--ref-spp", "16")
+
+
+@pytest.fixture(scope="module")
+def store_dir(tmp_path_factory, mi):
+    """A data folder with runs 1 (pt, named and tagged), 2 (its --rerun), 3 (pt,
+    max_depth 4, spp 2) and 4 (pt-power), and what the renders printed."""
+    data = tmp_path_factory.mktemp("runs") / "data"
+    saved = os.environ.get("NIRC_BENCH_GIT_COMMIT")
+    os.environ["NIRC_BENCH_GIT_COMMIT"] = "0123456789abcdef"   # a clean commit: reusable
+    git_commit.cache_clear()
+    try:
+        outputs = [cli(*RENDER, "--name", "baseline", "--tag", "exp=a", data=data),
+                   cli(*RENDER, data=data),
+                   cli(*RENDER, "--rerun", data=data),
+                   cli(*RENDER[:-4], "--spp", "2", "--seeds", "3", "--ref-spp", "16",
+                       "--max-depth", "4", data=data),
+                   cli(*RENDER, "-m", "pt-power", data=data)]
+    finally:
+        if saved is None:
+            os.environ.pop("NIRC_BENCH_GIT_COMMIT")
+        else:
+            os.environ["NIRC_BENCH_GIT_COMMIT"] = saved
+        git_commit.cache_clear()
+    return data, outputs
+
+
+def cli(*args: str, data=None) -> str:
+    result = CliRunner().invoke(app, [*args, *(["--data-dir", str(data)] if data else [])])
+    assert result.exit_code == 0, (result.output, result.exception)
+    return result.output
+
+
+def cli_error(capsys, *args: str, data) -> str:
+    """A user error: exit status 2 and one line on standard error (the console entry
+    point's handling, as ``nirc-bench`` runs it)."""
+    capsys.readouterr()
+    with mock.patch.object(sys, "argv", ["nirc-bench", *args, "--data-dir", str(data)]), \
+            pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    text = capsys.readouterr().err
+    assert text.startswith("nirc-bench: error: ") and text.count("\n") == 1, text
+    return text
+
+
+def test_render_reuses_a_stored_run_and_says_so_until_rerun(store_dir):
+    data, outputs = store_dir
+    assert "reused" not in outputs[0]
+    assert "reused run 1, stored" in outputs[1] and "commit 0123456789abcdef" in outputs[1]
+    assert "timing flags" in outputs[1] and "--rerun" in outputs[1]
+    assert "reused" not in outputs[2]
+    ids = [row["id"] for row in json.loads(cli("runs", "list", "--json", data=data))]
+    assert ids == [4, 3, 2, 1]      # the reused render stored nothing; --rerun stored run 2
+
+
+def test_runs_list_filters_sorts_and_chooses_columns(store_dir, capsys):
+    data, _ = store_dir
+
+    def ids(*args: str) -> list[int]:
+        return [row["id"] for row in json.loads(cli("runs", "list", "--json", *args,
+                                                    data=data))]
+
+    assert ids("--method", "pt-power") == [4]
+    assert ids("--param", "max_depth=4") == [3]
+    assert ids("--tag", "exp=a") == ids("--name", "baseline") == [1]
+    assert ids("--commit", "0123", "--scene", "cornell-box", "--limit", "2") == [4, 3]
+    assert ids("--since", "2000-01-01", "--until", "2001-01-01") == []
+    rows = list(csv.DictReader(io.StringIO(cli(
+        "runs", "list", "--csv", "--columns", "id,method,params.max_depth,spp,mrse",
+        "--sort", "mrse", data=data))))
+    assert list(rows[0]) == ["id", "method", "params.max_depth", "spp", "mrse"]
+    mrse = [float(row["mrse"]) for row in rows]
+    assert mrse == sorted(mrse) and len(rows) == 4
+    assert {row["params.max_depth"] for row in rows if row["id"] == "3"} == {"4"}
+    table = cli("runs", "list", data=data)
+    assert "max_depth=4" in table and "pt-power" in table and "baseline" in table
+    wrong = cli_error(capsys, "runs", "list", "--columns", "id,mrsee", data=data)
+    assert "unknown column 'mrsee'" in wrong and "params.NAME" in wrong
+
+
+def test_runs_show_prints_parameters_provenance_and_reference(store_dir, capsys):
+    data, _ = store_dir
+    text = cli("runs", "show", "3", data=data)
+    for fragment in ("parameters", "max_depth", "rr_survival", "provenance",
+                     "0123456789abcdef", "reference", "integrator", "per seed"):
+        assert fragment in text
+    detail = json.loads(cli("runs", "show", "3", "--json", data=data))
+    assert detail["reference"]["max_depth"] == 4 and len(detail["per_seed"]) == 3
+    assert "no run 99" in cli_error(capsys, "runs", "show", "99", data=data)
+
+
+def test_runs_compare_names_what_differs_and_refuses_other_metric_versions(store_dir, capsys):
+    data, _ = store_dir
+    comparison = json.loads(cli("runs", "compare", "1", "3", "--json", data=data))
+    assert comparison["differences"]["params.max_depth"] == [-1, 4]
+    assert comparison["differences"]["spp"] == [1, 2]
+    assert "reference" in comparison["differences"]     # max_depth 4: another reference
+    mrse = next(m for m in comparison["deltas"][0]["metrics"] if m["metric"] == "mrse")
+    assert mrse["delta"] == pytest.approx(mrse["value"] - mrse["baseline"])
+    low, high = mrse["delta_ci95"]      # 3 seeds each: a Welch interval around the change
+    assert low < mrse["delta"] < high
+    assert "params.max_depth" in cli("runs", "compare", "1", "3", data=data)
+
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from jobs.record.models import Run
+
+    store = open_store(Settings(data_dir=data))
+    with store.session(write=True) as session:
+        session.get(Run, 2).metric_version = 1
+    try:
+        refused = cli_error(capsys, "runs", "compare", "1", "2", data=data)
+    finally:
+        with store.session(write=True) as session:
+            session.get(Run, 2).metric_version = 2
+    assert "different metric definitions" in refused and "run 2: v1" in refused
+
+
+def test_runs_export_writes_every_stored_file(store_dir, capsys, tmp_path):
+    data, _ = store_dir
+    from jobs.record.artifacts import ArtifactStore
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+
+    settings = Settings(data_dir=data)
+    run = open_store(settings).get_run(3)
+    out = tmp_path / "export"
+    cli("runs", "export", "3", "--out", str(out), data=data)
+    expected = {"reference.exr", "reference.variance.exr", "reference_preview.png",
+                "convergence.png", "summary.json", "preview_seed0.png",
+                "error_map_seed0.png", *(f"image_seed{k}.exr" for k in range(3))}
+    assert {path.name for path in out.iterdir()} == expected
+
+    def sha(path) -> str:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+
+    seeds = {s.id: s.seed for s in run.seed_results}
+    artifacts = ArtifactStore(settings.artifacts_dir)
+    for artifact in run.artifacts:
+        name = f"{artifact.kind}_seed{seeds[artifact.seed_result_id]}"
+        assert sha(out / f"{name}{artifacts.path_of(artifact.path).suffix}") == artifact.sha256
+    assert sha(out / "reference.exr") == sha(settings.references_dir / run.reference.image_path)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["run_id"] == 3 and summary["result"]["params"]["max_depth"] == 4
+    assert summary["spec"]["spp"] == 2 and len(summary["per_seed"]) == 3
+    assert "is a file" in cli_error(capsys, "runs", "export", "3", "--out", str(out / "summary.json"),
+                              data=data)
+
+
+def test_runs_tag_and_apikey_list(store_dir):
+    data, _ = store_dir
+    assert "name paper-fig, tags exp=b" in cli("runs", "tag", "4", "--name", "paper-fig",
+                                                "--tag", "exp=b", data=data)
+    assert "tags -" in cli("runs", "tag", "4", "--untag", "exp", data=data)
+    cli("apikey", "create", "--name", "ci-bot", data=data)
+    keys = json.loads(cli("apikey", "list", "--json", data=data))
+    assert [k["name"] for k in keys] == ["ci-bot"] and keys[0]["revoked"] is None
+    assert "ci-bot" in cli("apikey", "list", data=data)
+
+
+def test_intervals_and_signs_are_honest_in_tables_and_json(store_dir, tmp_path):
+    """Two seeds: no MRSE interval, and the table says why; a negative noise-corrected
+    rBias² reads 'below the noise floor'; pt has no per-cache rows."""
+    data, _ = store_dir
+    two = tmp_path / "two"
+    text = cli(*RENDER[:-4], "--seeds", "2", "--ref-spp", "16", data=two)
+    assert "no interval: 2 seeds (an interval needs 3 or more)" in text
+    assert "per cache" not in text
+    row = json.loads(cli("runs", "list", "--json", data=two))[0]
+    assert row["mrse_ci95"] is None and "2 seeds" in row["mrse_ci_note"]
+
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from jobs.record.models import Run
+
+    store = open_store(Settings(data_dir=two))
+    with store.session(write=True) as session:
+        run = session.get(Run, 1)
+        run.metrics = {**run.metrics, "rbias2": -0.00123}
+    assert "below the noise floor (-0.00123)" in cli("runs", "show", "1", data=two)
+    row = json.loads(cli("runs", "list", "--json", data=two))[0]
+    assert row["below_noise_floor"] == ["rbias2"] and row["rbias2"] == -0.00123
+
+
+def test_tables_say_what_ran_and_methods_lists_parameters(store_dir, capsys):
+    data, _ = store_dir
+    from jobs.protocol.results import method_label
+
+    assert method_label("nirc", {"estimator": "biased", "termination": "bth", "nc": [4],
+                                 "max_depth": -1}) == "nirc (biased, bth, N_c 4)"
+    assert method_label("pt", {"max_depth": -1, "rr_survival": 0.9}) == "pt"
+    text = cli("runs", "show", "3", data=data)
+    assert "cornell-box / pt (max_depth 4)" in text
+    assert "path, 16 spp, max_depth 4 (reference" in text     # the reference's settings
+    assert json.loads(cli("runs", "list", "--json", "--param", "max_depth=4",
+                          data=data))[0]["method_label"] == "pt (max_depth 4)"
+
+    listed = cli("methods")
+    assert all(name in listed for name in ("pt", "nirc", "nrc", "nvc-env"))
+    nirc = json.loads(cli("methods", "nirc", "--json"))
+    params = {p["name"]: p for p in nirc["params"]}
+    assert params["estimator"]["default"] == "biased" and "bth" in params["termination"]["type"]
+    assert "surface" in nirc["needs"] and nirc["knob"] == "nc"
+    wrong = cli_error(capsys, "render", "-s", "cornell-box", "-m", "nirc", "-p", "ncc=4",
+                      data=data)
+    assert "ncc" in wrong and "nirc's parameters are" in wrong and "termination" in wrong
+
+
+def test_progress_lines_in_any_output_and_saturated_sweep_rows_collapse(store_dir):
+    """Not a terminal (the test runner): renders print plain progress lines. The sweep
+    table shows points whose v1 mask is saturated (100 % of pixels) once, and says so."""
+    from rich.console import Console
+
+    from jobs.protocol.sweep import SweepResult, point_row
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from service.tables import sweep_table
+
+    data, outputs = store_dir
+    assert "progress: reference" in outputs[0] and "progress: seed 3/3 2/2" in outputs[0]
+    assert outputs[0].count("progress: seed 1/3 2/2") == 1      # a finished stage: once
+    run = open_store(Settings(data_dir=data)).get_run(1)
+    masks = {0.05: 40.0, 0.1: 80.0, 0.15: 80.0, 0.2: 100.0, 0.5: 100.0, 1.0: 100.0}
+    rows = [point_row("nirc", eps, run).model_copy(update={"mask_pct": pct})
+            for eps, pct in masks.items()]
+    work = dict.fromkeys(("reference_rendered", "snapshots_trained", "snapshots_reused",
+                          "points_rendered", "points_reused", "calibrations"), 0)
+    result = SweepResult(sweep_id=1, key="k", kind="eps", scene="cornell-box",
+                         device_key=run.device_key, rows=rows, skipped=[], work=work)
+    console = Console(width=400, record=True)
+    console.print(sweep_table(result))
+    text = console.export_text()
+    assert "0.2–1" in text and "0.15" in text     # an unsaturated repeat stays a row
+    assert "eps 0.2 to 1 shown as one row: the v1 mask allows 100 % of pixels at each of " \
+           "these 3 points (saturated)" in text
+    assert sum(line.startswith("│ NIRC") for line in text.splitlines()) == 4
+
+
+def test_user_errors_are_one_line_and_text_is_never_markup(tmp_path, capsys):
+    """Option checks, a data folder that is a file, and 'a:b:step' (an emoji code to rich)
+    in help and errors: one line, exit status 2, the text as written."""
+    data = tmp_path / "data"
+    assert "Invalid value for '--res'" in cli_error(
+        capsys, "render", "-s", "cornell-box", "--res", "0", data=data)
+    assert "No such command 'nope'" in cli_error(capsys, "nope", data=data)
+    a_file = tmp_path / "notes.md"
+    a_file.write_text("not a folder")
+    assert "is a file, not a folder" in cli_error(capsys, "runs", "list", data=a_file)
+    assert "'1:b:2'" in cli_error(capsys, "sweep", "-s", "cornell-box", "--eps", "1:b:2",
+                                  data=data)
+    help_text = cli("sweep", "--help")
+    assert "a:b:step" in help_text and "\N{NEGATIVE SQUARED LATIN CAPITAL LETTER B}" not in help_text
+
+
+SCENE_XML = """<scene version="3.0.0">
+  <default name="spp" value="64"/>
+  <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+  <sensor type="perspective">
+    <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/></film>
+  </sensor>
+  <shape type="rectangle"><bsdf type="diffuse"/></shape>
+  <emitter type="constant"/>
+</scene>
+"""
+
+
+def test_an_external_scene_lists_the_settings_the_run_replaced(tmp_path):
+    scene = tmp_path / "my-room.xml"
+    scene.write_text(SCENE_XML)
+    data = tmp_path / "data"
+    text = cli("render", "-s", str(scene), "--res", "8", "--spp", "1", "--frames", "2",
+               "--seeds", "2", "--ref-spp", "16", data=data)
+    replaced = ["film 32x24 -> 8x8 (the run's resolution)", "integrator 'path' -> pt's own",
+                "max_depth 3 -> -1 (the run's)", "sampler 64 spp -> 1 spp x 2 frames"]
+    for line in replaced:
+        assert line in text
+    stored = json.loads(cli("runs", "show", "1", "--json", data=data))
+    assert stored["scene_overrides"] == replaced and "scene_overrides" not in stored["params"]
