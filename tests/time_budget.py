@@ -36,8 +36,9 @@ class TimeBudget:
 
     def __init__(self, config: pytest.Config) -> None:
         self.config = config
-        self.recorded: dict[str, float] = (config.cache.get(CACHE_KEY, {})
-                                           if config.cache else {})
+        # pytest's cache (where times are kept) is absent under `-p no:cacheprovider`.
+        self.cache = getattr(config, "cache", None)
+        self.recorded: dict[str, float] = self.cache.get(CACHE_KEY, {}) if self.cache else {}
         self.measured: dict[str, float] = {}
         self.kept_s = 0.0
         self.left_out: list[Any] = []
@@ -88,8 +89,8 @@ class TimeBudget:
 
     def pytest_sessionfinish(self, session: pytest.Session) -> None:
         timed = {nodeid: s for nodeid, s in self.measured.items() if nodeid in self.ran}
-        if self.config.cache is not None and timed:
-            self.config.cache.set(CACHE_KEY, {**self.recorded, **timed})
+        if self.cache is not None and timed:
+            self.cache.set(CACHE_KEY, {**self.recorded, **timed})
 
     def pytest_terminal_summary(self, terminalreporter: Any) -> None:
         if self.config.getoption("time_budget") is None:
