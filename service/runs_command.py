@@ -183,12 +183,14 @@ def export(
     previews and error maps, convergence plot, summary.json."""
     from jobs.protocol.executor import RunSummary
     from jobs.protocol.export import export_run
+    from jobs.protocol.spec import RenderSpec
 
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} is a file, not a folder")
     settings = open_settings(data_dir)
     run = _get_run(open_store(settings), run_id)
-    files = export_run(run, RunSummary.of_stored(run, settings).to_json(), settings, out)
+    spec = RenderSpec.model_validate(run.params["spec"])
+    files = export_run(run, RunSummary.of_stored(run, spec, settings).to_json(), settings, out)
     for name in sorted(files):
         console.print(f"{name}: {files[name]}", markup=False, highlight=False)
 

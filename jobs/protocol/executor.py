@@ -75,10 +75,10 @@ class RunSummary:
     reused: bool = False        # a run stored earlier (:func:`find_same_run`), not rendered now
 
     @classmethod
-    def of_stored(cls, run: Any, settings: Settings, *, reference_rendered_now: bool = False,
-                  reused: bool = False) -> RunSummary:
-        """The summary of the stored ``run`` (loaded as ``Store.get_run`` loads it): what a
-        render that made it reports, and what one that reuses it reports."""
+    def of_stored(cls, run: Any, spec: RenderSpec, settings: Settings, *,
+                  reference_rendered_now: bool = False, reused: bool = False) -> RunSummary:
+        """The summary of the stored ``run`` (loaded as ``Store.get_run`` loads it) of
+        ``spec``: what a render that made it reports, and what one that reuses it reports."""
         reference = run.reference
         reference_info = {} if reference is None else {
             "id": reference.id, "key": reference.key, "spp": reference.spp,
@@ -87,7 +87,7 @@ class RunSummary:
             "path": str(settings.references_dir / reference.image_path),
             "rendered_now": reference_rendered_now}
         return cls(
-            run_id=run.id, spec=RenderSpec.model_validate(run.params["spec"]),
+            run_id=run.id, spec=spec,
             scene_fingerprint=run.scene_fingerprint, reference=reference_info,
             metrics=run.metrics, per_seed=[s.metrics for s in run.seed_results],
             timings=run.timings, path_stats=run.path_stats, device=run.device,
@@ -386,7 +386,8 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
          for s, t in zip(per_seed, seed_timings, strict=True)],
         artifacts,
     )
-    summary = RunSummary.of_stored(run, settings, reference_rendered_now=reference.rendered_now)
+    summary = RunSummary.of_stored(run, spec, settings,
+                                   reference_rendered_now=reference.rendered_now)
     if out_dir is not None:
         summary.files = export_run(run, summary.to_json(), settings, out_dir)
     return summary
@@ -441,7 +442,7 @@ def execute(
     check_applies(job.method, prepared.scene.features)
     stored = find_same_run(job.spec, prepared, store) if reuse else None
     if stored is not None:
-        summary = RunSummary.of_stored(stored, settings, reused=True)
+        summary = RunSummary.of_stored(stored, job.spec, settings, reused=True)
         if out_dir is not None:
             summary.files = export_run(stored, summary.to_json(), settings, out_dir)
         return summary
