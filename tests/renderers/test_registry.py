@@ -206,7 +206,8 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
 
     calls = []
 
-    def fake_execute(spec, store, settings, progress=None):
+    def fake_execute(job, store, settings, progress=None):
+        spec = job.spec
         calls.append((spec.method, dict(spec.params), spec.spp,
                       spec.time_budget and spec.time_budget.model_dump(exclude_defaults=True)))
         metrics = {"mrse_mean": 1.0, "flip_hdr_mean": 0.1}
