@@ -160,8 +160,8 @@ def test_a_frame_too_large_for_the_buffer_evaluates_its_queries_in_the_loop(
     """Above MAX_QUERY_SLOTS no buffer is allocated: the queries are evaluated in the
     loop (masked, as before deferral), with the same random numbers, so the image
     equals the deferred one up to float summation order."""
-    from renderers.caches.oracle import ZeroCache
     from renderers.integrators import cached
+    from tests.support.oracle import ZeroCache
 
     scene = _scene(mi, tmp_path, PLASTIC)
     integrator = _integrator(scene, "nirc", estimator=estimator, nc=[3], max_depth=8)

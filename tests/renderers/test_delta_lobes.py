@@ -31,9 +31,9 @@ import pytest
 
 from metrics.statistics import agreement_test, image_mean_test, z_test
 from renderers.methods import METHODS
-from renderers.moments import render_moments
 from tests.renderers.lighting import luminance_moments
 from tests.renderers.scene_xml import perspective_sensor
+from tests.support.moments import render_moments
 
 RES = 16
 SEEDS = 16

@@ -28,8 +28,8 @@ import numpy as np
 import pytest
 
 from metrics.statistics import agreement_test
-from renderers.moments import render_moments
 from tests.renderers.scene_xml import perspective_sensor
+from tests.support.moments import render_moments
 
 RES = 16
 PLANTED = 1.03  # a 3 % brighter emitter
@@ -172,7 +172,6 @@ def test_no_method_produces_nonfinite_values(mi, tmp_path, monkeypatch):
     itself, at |cos| ~ 1e-20, so the solid-angle pdf is ~1e20 and the old
     power heuristic gave inf/inf (the twin below: it still produces NaNs).
     """
-    from renderers.caches.oracle import ZeroCache
     from renderers.integrators import path
     from renderers.methods import nirc as nirc_method
     from renderers.methods import nrc as nrc_method
@@ -181,6 +180,7 @@ def test_no_method_produces_nonfinite_values(mi, tmp_path, monkeypatch):
     from renderers.methods.cached import train_once
     from renderers.scenes import load_scene
     from renderers.timing import StageTimer
+    from tests.support.oracle import ZeroCache
 
     pt, nirc_plugin, nrc_plugin = _plugins()
     xml = tmp_path / "plane-light.xml"
@@ -223,7 +223,7 @@ def test_no_method_produces_nonfinite_values(mi, tmp_path, monkeypatch):
 
 def _last_light_only(mi, scene, termination: str, max_depth: int, spp: int = 2048):
     """(NIRC biased with a zero cache, our PT, Mitsuba's path) at ``max_depth``."""
-    from renderers.caches.oracle import ZeroCache
+    from tests.support.oracle import ZeroCache
 
     pt, nirc_plugin, _ = _plugins()
     nirc_moments = _y(render_moments(scene, _integrator(
@@ -264,8 +264,8 @@ def test_direct_light_test_rejects_a_stopped_path_without_its_emitter_hit(mi):
     """The twin of the ordering: NEE is MIS-weighted but the stopped path does not
     collect the BSDF-sampled share of direct light: rejected. (The code before the
     fix, NEE unweighted at the stop, measured: rejected too, see docs/estimators.md.)"""
-    from renderers.caches.oracle import ZeroCache
     from renderers.integrators import nirc, path
+    from tests.support.oracle import ZeroCache
 
     pt, _, _ = _plugins()
     class DropsEmitterHit(nirc.NIRCIntegrator):
@@ -319,7 +319,7 @@ def test_estimator_with_a_perfect_cache_agrees_with_pt(mi, room_reference, case,
     (plastic; a half-mirror half-diffuse blend). Twin: the reference 3 %
     brighter is rejected. The code before the fix was rejected on the
     mirror mix (see docs/estimators.md)."""
-    from renderers.caches.oracle import OracleCache, ZeroCache
+    from tests.support.oracle import OracleCache, ZeroCache
 
     _, nirc_plugin, nrc_plugin = _plugins()
     scene, reference = room_reference(material)
@@ -345,8 +345,8 @@ def test_unbiased_test_rejects_a_residual_of_the_wrong_sign(mi, room_reference):
     """Twin of nirc-unbiased-oracle with the deferred queries: the residual enters
     with +n f cos / p instead of -n f cos / p (Eq. 11), so the estimate is PT plus
     twice the cache's indirect light: rejected."""
-    from renderers.caches.oracle import OracleCache
     from renderers.integrators import nirc, path
+    from tests.support.oracle import OracleCache
 
     _plugins()
 
@@ -369,8 +369,8 @@ def test_queries_drawn_after_the_loop_agree_with_pt(mi, room_reference):
     directions in the deferred pass (deferred.py); with the oracle cache it
     agrees with PT in the plastic room. Twin: the same draws with L_c the sum
     instead of the mean of the N_c terms are rejected."""
-    from renderers.caches.oracle import OracleCache
     from renderers.integrators import nirc, path
+    from tests.support.oracle import OracleCache
 
     _, nirc_plugin, _ = _plugins()
 
@@ -395,7 +395,7 @@ def test_bth_with_a_perfect_cache_in_the_furnace(mi):
     """BTH + oracle in the furnace (uniform indirect radiance: BTH's direction-
     dependent stop is unbiased there) matches the known Le / (1 - rho) in every
     pixel. Twin: the known value of a 3 % brighter emitter is rejected."""
-    from renderers.caches.oracle import OracleCache
+    from tests.support.oracle import OracleCache
 
     _, nirc_plugin, _ = _plugins()
     scene = _load(mi, FURNACE)

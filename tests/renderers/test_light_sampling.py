@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 
 from metrics.statistics import agreement_test
-from renderers.moments import render_moments
 from tests.renderers.lighting import (
     ENV_AND_SPHERE,
     RES,
@@ -29,6 +28,7 @@ from tests.renderers.lighting import (
     pt_integrator,
     random_points,
 )
+from tests.support.moments import render_moments
 
 MAX_DEPTH = 4
 PLANTED = 1.03  # a 3 % brighter reference

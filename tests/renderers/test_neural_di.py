@@ -35,9 +35,9 @@ import pytest
 
 from metrics.errors import bias_variance
 from metrics.statistics import agreement_test
-from renderers.moments import render_moments
 from tests.renderers.lighting import luminance_moments
 from tests.renderers.scene_xml import perspective_sensor
+from tests.support.moments import render_moments
 
 RES = 16
 SPP = 1024

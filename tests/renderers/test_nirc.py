@@ -13,8 +13,8 @@ import pytest
 
 from metrics.statistics import z_test
 from renderers.methods import get_method, parse_params
-from renderers.moments import render_moments
 from tests.renderers.scene_xml import CLOSED_BOX, DIFFUSE
+from tests.support.moments import render_moments
 
 RES = 24
 MAX_DEPTH = 8

@@ -23,8 +23,8 @@ from __future__ import annotations
 import pytest
 
 from metrics.statistics import agreement_test
-from renderers.moments import render_moments
 from tests.renderers.lighting import ENV_AND_SPHERE, ShadowRayOracle, luminance_moments
+from tests.support.moments import render_moments
 
 RES = 16
 SPP = 1024
@@ -75,7 +75,7 @@ def _agreement(sky, integrator, reference):
 
 
 def _oracles(sky, env_zero=False):
-    from renderers.caches.oracle import OracleCache
+    from tests.support.oracle import OracleCache
 
     return OracleCache(sky.scene), ShadowRayOracle(sky.scene, zero=env_zero)
 
@@ -99,7 +99,7 @@ def test_unbiased_with_trained_caches_matches_path(mi, sky, reference):
 
 @pytest.mark.slow
 def test_unbiased_with_zero_caches_matches_path(mi, sky, reference):
-    from renderers.caches.oracle import ZeroCache
+    from tests.support.oracle import ZeroCache
 
     integrator = _integrator(sky, (ZeroCache(), ShadowRayOracle(sky.scene, zero=True)),
                              estimator="unbiased", nc=[1], env_nc=1)
@@ -122,8 +122,8 @@ def test_with_another_emitter_only_the_env_nee_is_replaced(mi, core_env_nee):
     emitter, so the core does no NEE at all.)"""
     from types import SimpleNamespace
 
-    from renderers.caches.oracle import OracleCache
     from renderers.integrators.lights import UniformLightSampler
+    from tests.support.oracle import OracleCache
 
     scene = mi.load_string(ENV_AND_SPHERE.format(res=RES))
     integrator = _integrator(SimpleNamespace(scene=scene),

@@ -35,11 +35,11 @@ import numpy as np
 import pytest
 
 from metrics.statistics import agreement_test, z_test
-from renderers.moments import render_moments
 from tests.renderers.lighting import RES, SPP, luminance_moments, trained_nvc_lights
 from tests.renderers.scene_xml import perspective_sensor
 from tests.renderers.test_nvc_lights import SHADOWED_FLOOR, _blind_to_light, _reference
 from tests.renderers.test_restir import _moments, _params
+from tests.support.moments import render_moments
 
 TRAIN_FRAMES = 4
 TRAIN_POINTS = {"world_points": 1024, "camera_points": 1024}

@@ -34,8 +34,8 @@ import numpy as np
 import pytest
 
 from metrics.statistics import agreement_test
-from renderers.moments import render_moments
 from tests.renderers.lighting import ENV_AND_SPHERE, ShadowRayOracle, luminance_moments
+from tests.support.moments import render_moments
 
 RES = 16
 SPP = 1024

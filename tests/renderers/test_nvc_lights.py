@@ -23,7 +23,6 @@ import numpy as np
 import pytest
 
 from metrics.statistics import agreement_test
-from renderers.moments import render_moments
 from tests.renderers.lighting import (
     ENV_AND_SPHERE,
     RES,
@@ -33,6 +32,7 @@ from tests.renderers.lighting import (
     trained_nvc_lights,
 )
 from tests.renderers.scene_xml import perspective_sensor
+from tests.support.moments import render_moments
 
 TRAIN_FRAMES = 8
 

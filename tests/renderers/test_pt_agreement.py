@@ -20,7 +20,7 @@ from __future__ import annotations
 import pytest
 
 from metrics.statistics import agreement_test
-from renderers.moments import render_moments
+from tests.support.moments import render_moments
 
 pytestmark = pytest.mark.slow
 

@@ -29,8 +29,8 @@ import pytest
 
 from metrics.errors import mrse
 from metrics.statistics import agreement_test, z_test
-from renderers.moments import FLOAT32_REL_PRECISION, render_moments
 from tests.renderers.lighting import RES, luminance_moments
+from tests.support.moments import FLOAT32_REL_PRECISION, render_moments
 
 REPLICAS = 2048          # independent chains per pixel: the samples of the tests
 REFERENCE_SPP = 4096

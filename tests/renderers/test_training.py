@@ -185,8 +185,8 @@ def test_furnace_pixels_equal_the_series(mi, kind, max_depth):
     roulette) and our core (fixed survival 0.9) have the same expectation.
     """
     from renderers.methods.pt import PTParams, path_integrator
-    from renderers.moments import render_moments
     from renderers.reference import ReferenceSettings, reference_integrator
+    from tests.support.moments import render_moments
 
     scene = _furnace(mi)
     if kind == "pt":
@@ -405,7 +405,7 @@ def test_nrc_query_multiplies_the_demodulation_back(mi):
     at x_1 (tiny spread constant): L = L_e + rho L_e (emission, direct light at
     x_0) + rho * C * rho (the cache term times the albedo at x_1)."""
     from renderers.methods import nrc
-    from renderers.moments import render_moments
+    from tests.support.moments import render_moments
 
     value = 3.0
     scene = _furnace(mi)
