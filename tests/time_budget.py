@@ -5,7 +5,7 @@ cache (``.pytest_cache``). With ``--time-budget S``, the selected tests are orde
 their recorded time and the cheapest are kept while their sum stays within S; tests
 never timed here (new ones, or all of them in a fresh checkout) are kept too, since
 their cost is unknown, and run first. Whatever the record, the run stops starting tests once S seconds
-have passed (the test under way finishes; the rest are reported as skipped), so a
+have passed (the test under way finishes; the rest are not started and counted in the summary), so a
 fresh checkout also stays within the budget and records what it ran. The summary says what was left out, what was not
 reached, and how long it took when last run: ``make test`` runs everything and
 refreshes the record.
@@ -46,6 +46,7 @@ class TimeBudget:
         self.ran: set[str] = set()     # tests whose body ran: only their times are kept
         self.started = time.monotonic()
         self.stopped_after: int | None = None     # tests run when the budget ran out
+        self.not_started = 0
 
     def pytest_collection_modifyitems(self, config: pytest.Config, items: list[Any]) -> None:
         budget = config.getoption("time_budget")
@@ -74,13 +75,16 @@ class TimeBudget:
         self.started = time.monotonic()
 
     @pytest.hookimpl(tryfirst=True)
-    def pytest_runtest_setup(self, item: Any) -> None:
+    def pytest_runtest_protocol(self, item: Any, nextitem: Any) -> bool | None:
+        """Once the budget is spent, the remaining tests are not started at all (not run,
+        not reported): returning True tells pytest this item is dealt with."""
         budget = self.config.getoption("time_budget")
         if budget is None or time.monotonic() - self.started <= budget:
-            return
+            return None
         if self.stopped_after is None:
             self.stopped_after = len(self.ran)
-        pytest.skip(f"the time budget of {budget:g} s is spent")
+        self.not_started += 1
+        return True
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
         self.measured[report.nodeid] = self.measured.get(report.nodeid, 0.0) + report.duration
@@ -102,5 +106,5 @@ class TimeBudget:
             f"{self.untimed} tests had no recorded time")
         if self.stopped_after is not None:
             terminalreporter.write_line(
-                f"time budget: spent after {self.stopped_after} tests; the rest were not "
-                "started (skipped)")
+                f"time budget: spent after {self.stopped_after} tests; the other "
+                f"{self.not_started} were not started")

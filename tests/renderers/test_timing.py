@@ -122,15 +122,10 @@ def _burners(count: int) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
 
 
-def test_a_cpu_burning_process_flags_the_timing_and_a_quiet_machine_does_not(pt_render):
-    from renderers.load import LoadMonitor, usable_cores
+def test_a_cpu_burning_process_flags_the_timing(pt_render):
+    """A render beside one CPU-bound process per core is flagged loaded, with the reason."""
+    from renderers.load import STALL_LIMIT, usable_cores
 
-    with LoadMonitor() as idle:     # this process asleep: only other work can stall
-        time.sleep(0.5)
-    if idle.result()["loaded"]:
-        pytest.skip("other work holds this machine's CPU: its quiet half cannot be shown")
-    quiet = pt_render(200).timings["load"]
-    assert quiet["loaded"] is False, quiet
     burners = _burners(usable_cores())
     try:
         time.sleep(0.3)
@@ -142,7 +137,24 @@ def test_a_cpu_burning_process_flags_the_timing_and_a_quiet_machine_does_not(pt_
     assert loaded["loaded"] is True, loaded
     assert loaded["reasons"] and "other work" in loaded["reasons"][0]
     if loaded["cpu_stall_fraction"] is not None:
-        assert loaded["cpu_stall_fraction"] > quiet["cpu_stall_fraction"]
+        assert loaded["cpu_stall_fraction"] > STALL_LIMIT
+
+
+def test_a_render_on_a_quiet_machine_is_not_flagged(pt_render, monkeypatch, tmp_path):
+    """The same render, the kernel reporting no CPU stall over it (a pressure file whose
+    counter does not move: a machine where nothing else runs), is not flagged, and the
+    window's stall is 0. On a shared machine the real counter cannot be held still, so the
+    kernel's report is the one thing replaced; the monitor and the frame loop are the
+    render's own."""
+    import renderers.load as load
+
+    pressure = tmp_path / "cpu"
+    pressure.write_text("some avg10=0.00 avg60=0.00 avg300=0.00 total=123456\n"
+                        "full avg10=0.00 avg60=0.00 avg300=0.00 total=0\n")
+    monkeypatch.setattr(load, "PRESSURE_FILE", pressure)
+    quiet = pt_render(200).timings["load"]
+    assert quiet["loaded"] is False and quiet["reasons"] == [], quiet
+    assert quiet["cpu_stall_fraction"] == 0.0 and quiet["basis"] == "cpu pressure"
 
 
 def test_the_load_verdict_falls_back_to_the_cpu_share_and_says_when_it_cannot_tell():
