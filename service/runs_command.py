@@ -143,10 +143,7 @@ def show(run_id: RunId, as_json: JsonOut = False, data_dir: DataDir = None) -> N
     from service.tables import run_details_tables
 
     detail = RunResultDetail.of(_get_run(open_store(open_settings(data_dir)), run_id))
-    if as_json:
-        print_json(detail.model_dump(mode="json"))
-    else:
-        console.print(run_details_tables(detail))
+    _show(detail, as_json, run_details_tables)
 
 
 @runs_app.command("compare")
@@ -167,10 +164,15 @@ def compare(
         raise UsageError("give two or more different run ids")
     store = open_store(open_settings(data_dir))
     comparison = compare_runs([_get_run(store, run_id) for run_id in ids])
+    _show(comparison, as_json, comparison_table)
+
+
+def _show(model: Any, as_json: bool, tables: Any) -> None:
+    """A result as JSON, or as the tables ``tables(model)`` draws."""
     if as_json:
-        print_json(comparison.model_dump(mode="json"))
+        print_json(model.model_dump(mode="json"))
     else:
-        console.print(comparison_table(comparison))
+        console.print(tables(model))
 
 
 @runs_app.command("export")

@@ -41,13 +41,15 @@ class UpdateState:
 
     DRJIT_STRUCT = {
         "emitted": mi.Spectrum,   # y's own emission, which the core gathers first
+        "found": mi.Bool,         # the ray re-found y (its first vertex)
         "hit_p": mi.Point3f,      # the vertex x the BSDF sample reached
         "hit_n": mi.Vector3f,
         "hit": mi.Bool,
     }
 
-    def __init__(self, emitted=None, hit_p=None, hit_n=None, hit=None):
+    def __init__(self, emitted=None, found=None, hit_p=None, hit_n=None, hit=None):
         self.emitted = emitted
+        self.found = found
         self.hit_p = hit_p
         self.hit_n = hit_n
         self.hit = hit
@@ -60,12 +62,13 @@ class GridUpdateIntegrator(PathIntegrator):
     grid: MomentGrid
 
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> Any:
-        return UpdateState(mi.Spectrum(0), dr.zeros(mi.Point3f), dr.zeros(mi.Vector3f),
-                           mi.Bool(False))
+        return UpdateState(mi.Spectrum(0), mi.Bool(False), dr.zeros(mi.Point3f),
+                           dr.zeros(mi.Vector3f), mi.Bool(False))
 
     def after_emission(self, vertex: Vertex, state: Any) -> Any:
         first = vertex.active & (vertex.depth == 0)
         state.emitted = dr.select(first, vertex.L, state.emitted)
+        state.found |= first & vertex.si.is_valid()
         return state
 
     def vertex_terms(self, vertex: Vertex, state: Any) -> tuple[VertexTerms | None, Any]:
@@ -100,7 +103,7 @@ def update_grid(scene: mi.Scene, integrator: GridUpdateIntegrator, seed: int,
     sampler.seed(seed, vertices * k)
     L, _, _, state = integrator.trace(scene, sampler, ray, mi.Bool(True))
     # A vertex the ray no longer finds (a moved or thin surface) gives no sample.
-    found = dr.block_sum(mi.Float(scene.ray_intersect_preliminary(ray).is_valid()), k) == k
+    found = dr.block_sum(dr.select(state.found, 1.0, 0.0), k) == k
     grid.accumulate(slot, L - state.emitted, found)
     store = state.hit & (sampler.next_1d() < hit_store_probability)
     hit_slot, inserted = grid.find(state.hit_p, state.hit_n, store, insert=True)
