@@ -40,6 +40,7 @@ import itertools
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
+from functools import cached_property
 
 #: The probability of choosing the left child (the paper's trees: 90 %).
 LEFT_PROBABILITY = 0.9
@@ -60,11 +61,11 @@ class Node:
     def is_leaf(self) -> bool:
         return not self.children
 
-    @property
+    @cached_property
     def reflected(self) -> float:
         return sum(weight * child.value for child, weight, _ in self.children)
 
-    @property
+    @cached_property
     def value(self) -> float:
         return self.emission + self.reflected
 
@@ -73,7 +74,7 @@ class Node:
         """rc(n): a leaf reflects nothing, so its cache is exact (zero)."""
         return self.reflected + (0.0 if self.is_leaf else self.bias)
 
-    @property
+    @cached_property
     def local_variance(self) -> float:
         """Var over the next vertex of E[g^surf | x_next] = (f / p) V(child) (Eq. 1)."""
         second = sum(p * (f / p * child.value) ** 2 for child, f, p in self.children)
@@ -83,7 +84,7 @@ class Node:
     def local_bias(self) -> float:
         return self.cache - self.reflected
 
-    @property
+    @cached_property
     def deferred_bias(self) -> float:
         """E over the next vertex of its squared local bias, prefix weight f / p included."""
         return sum(p * (f / p * child.local_bias) ** 2 for child, f, p in self.children)
@@ -109,10 +110,11 @@ def binary_tree(depth: int, weight: float = 0.45, biases: Mapping[str, float] | 
                     children=((build(name + "L"), weight, left_probability),
                               (build(name + "R"), weight, 1.0 - left_probability)))
 
-    unknown = set(biases) - {node.name for node in build("").nodes()} if biases else set()
+    tree = build("")
+    unknown = set(biases) - {node.name for node in tree.nodes() if not node.is_leaf}
     if unknown:
         raise ValueError(f"no inner nodes named {sorted(unknown)} in a tree of depth {depth}")
-    return build("")
+    return tree
 
 
 # ---- Termination rules -------------------------------------------------------------
