@@ -1,6 +1,6 @@
 """Benchmark: error against time per frame, with each method's speed-up at equal error over PT.
 
-Runs a small ``nirc-bench pareto`` (jobs/protocol/pareto.py) on a fresh data
+Runs a small ``nirc-bench pareto`` (jobs/pareto/pareto.py) on a fresh data
 folder: PT at several spp, every caching method of the registry at a few values
 of its equal-time knob and its comparison runs, each a stored run against the
 same reference, timed in interleaved rounds (online training included in
@@ -40,7 +40,7 @@ def main() -> None:
 
     from rich.console import Console
 
-    from jobs.protocol.pareto import ParetoSpec, knob_methods, run_pareto
+    from jobs.pareto.pareto import ParetoSpec, knob_methods, run_pareto
     from jobs.record.config import Settings
     from jobs.record.db import open_store
     from service.pareto_table import pareto_table

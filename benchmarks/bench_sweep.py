@@ -23,9 +23,9 @@ from jobs.protocol.ranges import parse_range
 
 def _sweep(data_dir: Path, **spec_values):
     from jobs.protocol.spec import ReferenceSpec, SweepSpec
-    from jobs.protocol.sweep import run_sweep
     from jobs.record.config import Settings
     from jobs.record.db import open_store
+    from jobs.sweeps.sweep import run_sweep
 
     settings = Settings(data_dir=data_dir)
     store = open_store(settings)

@@ -1,6 +1,6 @@
 """``nirc-bench ci`` end to end: runners (embedded or over REST), baseline, outputs, exit code.
 
-The comparison runs here in the client (jobs.protocol.ci); only the runs
+The comparison runs here in the client (jobs.ci.ci); only the runs
 themselves go to a service with ``--server``, which stores them like any job.
 """
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from jobs.protocol.ci import (
+from jobs.ci.ci import (
     BaselineSource,
     Runner,
     baseline_rows,
@@ -19,7 +19,7 @@ from jobs.protocol.ci import (
     run_suite,
     stored_baseline,
 )
-from jobs.protocol.ci_suite import CiError, load_suite, read_baseline, write_baseline
+from jobs.ci.ci_suite import CiError, load_suite, read_baseline, write_baseline
 from jobs.protocol.results import RunResultDetail
 from jobs.protocol.spec import RenderSpec
 from jobs.record.store import Store

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-from jobs.protocol.ci import CiResult, CiRow
+from jobs.ci.ci import CiResult, CiRow
 
 _VERDICT = {"pass": "pass", "regression": "**REGRESSION**", "not comparable": "not comparable"}
 

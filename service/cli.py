@@ -107,7 +107,7 @@ def _print_remote_sweep(client: Any, job: dict[str, Any], sweep: dict[str, Any])
     """The sweep's table as an embedded run prints it; its files are the service's
     artifacts (URLs), and the stages of ``job`` (as ``GET /jobs/{id}`` lists them)
     are named."""
-    from jobs.protocol.sweep import SweepResult
+    from jobs.sweeps.sweep import SweepResult
     from service.tables import sweep_table
 
     files = {a["kind"]: f"{client.http.base_url}{a['url']}" for a in sweep["artifacts"]}
@@ -395,7 +395,7 @@ def report(
     data_dir: DataDir = None,
 ) -> None:
     """Compare PT, NRC and NIRC on a scene (NIRC paper Fig. 7): equal spp and equal time."""
-    from jobs.protocol.report import comparison_report
+    from jobs.pareto.report import comparison_report
     from service.tables import comparison_tables
 
     _run_embedded(
@@ -458,7 +458,7 @@ def sweep(
     """
     from jobs.protocol.ranges import RangeError, parse_range
     from jobs.protocol.spec import ReferenceSpec, SweepSpec
-    from jobs.protocol.sweep import run_sweep
+    from jobs.sweeps.sweep import run_sweep
     from service.tables import sweep_table
 
     if eps is None and nc is None and sweep_parameter is None:
@@ -514,7 +514,7 @@ def _resolution(text: str, option: str) -> tuple[int, int]:
 def _parse_knob_values(texts: list[str]) -> dict[str, list[int]]:
     """``--knob-values``: 'METHOD=1,4,16' for one method, or '1,4,16' for every method
     with an equal-time knob other than the baseline (the registry's)."""
-    from jobs.protocol.pareto import knob_methods
+    from jobs.pareto.pareto import knob_methods
 
     values: dict[str, list[int]] = {}
     for text in texts:
@@ -577,7 +577,7 @@ def pareto(
     stored by an earlier call (same spec, scene, reference, device) is reused. With
     --project-res, each point's frame time projected to that resolution (labelled as a
     projection from this device; the errors stay those measured at --res)."""
-    from jobs.protocol.pareto import ParetoSpec, plan, run_pareto
+    from jobs.pareto.pareto import ParetoSpec, plan, run_pareto
     from service.pareto_table import pareto_table
 
     spp_values = _counts(pt_spp, "--pt-spp", "spp values")
@@ -621,7 +621,7 @@ def ci(
 ) -> None:
     """Regression gate: run a pinned suite, adding seeds until each row is decided, and
     compare with a baseline (docs/ci.md). Exit 0: pass, 1: regression, 2: could not run."""
-    from jobs.protocol.ci_suite import CiError
+    from jobs.ci.ci_suite import CiError
     from service.ci_command import CiOptions, run_ci
 
     options = CiOptions(suite=suite, baseline=baseline, baseline_ref=baseline_ref,
@@ -847,7 +847,7 @@ def stress(
     unbiased methods and what the user is told. Exits 1 if a method crashed, a non-finite
     value reached a metric or cache weight, or an unbiased method disagreed where it must
     agree."""
-    from jobs.protocol.stress import (
+    from jobs.stress.stress import (
         EmbeddedBackend,
         StressSettings,
         get_cases,

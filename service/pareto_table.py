@@ -9,8 +9,8 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-from jobs.protocol.pareto import PARETO_METRICS
-from jobs.protocol.tradeoff import Speedup
+from jobs.pareto.pareto import PARETO_METRICS
+from jobs.pareto.tradeoff import Speedup
 
 
 def _ms(seconds: float) -> str:

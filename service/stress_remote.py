@@ -4,7 +4,7 @@ Each case's scene is uploaded (``POST /api/v1/scenes``, the client reads its own
 files, the service none), every method is submitted as a render job, and the
 seeds' images are read back from the run's artifacts. The service does not
 serve a reference's pixels, so unbiased methods are tested for agreement
-against the baseline's seeds of the same case (jobs.protocol.stress).
+against the baseline's seeds of the same case (jobs.stress.stress).
 """
 
 from __future__ import annotations
@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from jobs.protocol.spec import RenderSpec
-from jobs.protocol.stress import Outcome, Refused
+from jobs.stress.stress import Outcome, Refused
 from metrics.imageio import read_exr
 from service.client import RemoteError, ServiceClient
 
 
 class RemoteBackend:
-    """A :class:`jobs.protocol.stress.Backend` on the service ``client`` talks to."""
+    """A :class:`jobs.stress.stress.Backend` on the service ``client`` talks to."""
 
     against = "baseline"
 

@@ -23,9 +23,9 @@ from metrics.registry import (
 )
 
 if TYPE_CHECKING:
+    from jobs.pareto.report import Report
     from jobs.protocol.comparison import RunComparison
-    from jobs.protocol.report import Report
-    from jobs.protocol.sweep import SweepResult
+    from jobs.sweeps.sweep import SweepResult
 
 
 def _fmt(value: Any) -> str:

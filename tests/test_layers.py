@@ -1,7 +1,9 @@
 """The layer rules of the code base, checked on every import statement, the ones
 inside functions included: ``service -> jobs -> renderers, metrics``; inside
-``jobs`` the record, the protocol and execution each import only the layers
-below them; and no two sub-packages import each other, directly or through others.
+``jobs`` the record, the core of a job (``jobs.protocol``), the studies built on it
+and execution each import only the layers below them; a study imports the core and
+the record, never another study (but for the edges :data:`STUDY_EDGES` names); and no
+two sub-packages import each other, directly or through others.
 """
 
 from __future__ import annotations
@@ -17,7 +19,11 @@ PACKAGES = ("service", "jobs", "renderers", "metrics")
 #: What each top-level package may import of the others.
 ALLOWED = {"service": {"jobs", "renderers", "metrics"}, "jobs": {"renderers", "metrics"},
            "renderers": {"metrics"}, "metrics": set()}
-JOBS_LAYERS = {"record": 0, "protocol": 1, "execution": 2}
+#: The studies: each builds on the core of a job and is run by execution or the service.
+STUDIES = ("sweeps", "pareto", "ci", "stress")
+JOBS_LAYERS = {"record": 0, "protocol": 1, **dict.fromkeys(STUDIES, 2), "execution": 3}
+#: (study, study) imports allowed: none (every study needs only the core).
+STUDY_EDGES: set[tuple[str, str]] = set()
 #: Sub-package circles allowed: none (the oracle caches, which import the path-tracing
 #: core, live in the test-support package tests/support).
 KNOWN_CIRCLES: set[tuple[str, str]] = set()
@@ -69,6 +75,30 @@ def test_the_jobs_layers_import_only_those_below():
     wrong = sorted((module, name) for module, names in EDGES.items()
                    if module.startswith("jobs.") for name in names
                    if name.startswith("jobs.") and layer(name) > layer(module))
+    assert wrong == []
+
+
+def test_every_jobs_package_has_a_layer():
+    """A new package under jobs/ is placed in the layers before it is used."""
+    packages = {path.parent.name for path in (ROOT / "jobs").glob("*/__init__.py")}
+    assert packages == set(JOBS_LAYERS)
+
+
+def test_a_study_imports_the_core_and_no_other_study():
+    def study(module: str) -> str | None:
+        parts = module.split(".")
+        return parts[1] if len(parts) > 1 and parts[0] == "jobs" and parts[1] in STUDIES else None
+
+    edges = {(study(module), study(name)) for module, names in EDGES.items() if study(module)
+             for name in names if study(name) and study(name) != study(module)}
+    assert edges <= STUDY_EDGES, sorted(edges - STUDY_EDGES)
+
+
+def test_the_core_imports_no_study():
+    wrong = sorted((module, name) for module, names in EDGES.items()
+                   if module.startswith("jobs.protocol") for name in names
+                   if name.split(".")[1:2] and name.split(".")[0] == "jobs"
+                   and name.split(".")[1] in STUDIES)
     assert wrong == []
 
 

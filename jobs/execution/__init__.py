@@ -1,3 +1,4 @@
 """Execution: the durable job queue, the render-process runner, Dask dispatch, the
-sweep task graph, GPU workers, API keys and work estimates. Imports
-``jobs.protocol`` and ``jobs.record``; nothing imports it back."""
+sweep task graph, GPU workers, API keys and work estimates. Imports the core
+(``jobs.protocol``), the studies it runs (``jobs.sweeps``) and ``jobs.record``;
+nothing imports it back."""

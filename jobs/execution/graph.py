@@ -1,6 +1,6 @@
 """A sweep as a task graph: its reference first, then the caches, then the points.
 
-A sweep (jobs/protocol/sweep.py) is a chain of content-keyed steps, each of which only
+A sweep (jobs/sweeps/sweep.py) is a chain of content-keyed steps, each of which only
 needs what earlier steps stored: the reference; per method and seed a trained
 cache with its converged cache-at-v1 image (a snapshot); per method the eps
 points, which need every seed's snapshot; finally the sweep job itself, which
@@ -28,7 +28,7 @@ from jobs.protocol.spec import SweepSpec
 @dataclass(frozen=True)
 class Stage:
     """One step of a sweep: ``name`` is unique within the sweep; ``after`` names the
-    stages it needs; ``task`` says what to run (jobs.protocol.sweep.run_stage)."""
+    stages it needs; ``task`` says what to run (jobs.sweeps.sweep.run_stage)."""
 
     name: str
     task: dict[str, Any]

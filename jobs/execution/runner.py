@@ -316,7 +316,7 @@ def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict
     from jobs.protocol.executor import execute
     from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import SweepSpec
-    from jobs.protocol.sweep import run_stage, run_sweep
+    from jobs.sweeps.sweep import run_stage, run_sweep
 
     if job.kind == "stage":
         work = run_stage(SweepSpec(**job.spec["sweep"]), job.spec["task"], store, settings,

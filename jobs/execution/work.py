@@ -26,12 +26,12 @@ from typing import Any
 from sqlalchemy import func, select
 
 from jobs.execution.graph import Stage, sweep_stages
-from jobs.protocol.snapshots import V1_PASSES
 from jobs.protocol.spec import ReferenceSpec, RenderSpec, SweepSpec
 from jobs.protocol.versions import reference_estimator_version
 from jobs.record.config import DATABASE_FILENAME, Settings
 from jobs.record.models import Artifact, Reference
 from jobs.record.store import Store
+from jobs.sweeps.snapshots import V1_PASSES
 from metrics import METRIC_VERSION
 from renderers.methods import METHODS, equal_time_pairs
 

@@ -1,4 +1,6 @@
-"""The evaluation protocol: job specs, the executor (the one place that joins
-rendering, metrics and storage), references, cache snapshots, sweeps, equal-time
-calibration, reports, plots, quality verdicts and versions. Imports only
-``jobs.record`` of ``jobs``."""
+"""The core of one job: specs and the typed job, the executor (the one place that
+joins rendering, metrics and storage), references, results, quality verdicts,
+versions, provenance, the scene store, equal-time calibration and the cost model,
+plots, exports and queries over stored runs. Imports only ``jobs.record`` of
+``jobs``; the studies (``jobs.sweeps``, ``jobs.pareto``, ``jobs.ci``,
+``jobs.stress``) build on it and it never imports them."""

@@ -151,7 +151,7 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
                 title: str) -> Path:
     """Plot error ``key`` against seconds per frame, log-log, to a PNG at ``path``.
 
-    Each point (a jobs.protocol.pareto.ParetoPoint's ``model_dump``) has ``series``,
+    Each point (a jobs.pareto.pareto.ParetoPoint's ``model_dump``) has ``series``,
     ``seconds_per_frame``, ``seconds_spread`` = [min, max] (drawn as a horizontal
     bar), ``key`` and ``front_<key>``. One line per series, through its points in
     the given (knob) order; the front is a black step line with ringed points. Points

@@ -9,8 +9,8 @@ model                        used by
 :class:`RunResult`           ``GET /api/v1/results`` and ``/compare`` rows;
                              the report's rows (:class:`ReportRow` adds a
                              label); the sweep's rows
-                             (jobs.protocol.sweep.SweepRow adds its columns);
-                             the pareto points (jobs.protocol.pareto.ParetoPoint)
+                             (jobs.sweeps.sweep.SweepRow adds its columns);
+                             the pareto points (jobs.pareto.pareto.ParetoPoint)
 :class:`RunResultDetail`     ``GET /api/v1/runs/{id}`` (the API adds artifact
                              URLs); the table ``nirc-bench render`` prints,
                              embedded or from a service
@@ -310,7 +310,7 @@ def resolved_caches(seed_results: Any) -> dict[str, Any]:
 
 
 class ReportRow(RunResult):
-    """A row of the method comparison (jobs.protocol.report): a run under its label."""
+    """A row of the method comparison (jobs.pareto.report): a run under its label."""
 
     model_config = ConfigDict(extra="ignore")
 

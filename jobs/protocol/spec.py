@@ -181,7 +181,7 @@ def _knob_method() -> str:
 class SweepSpec(BaseModel):
     """A sweep: the adaptive equal-bias protocol over eps (NIRC paper Sec. 6.3), a
     sweep over N_c of biased NIRC, or a sweep over any declared parameter of any method
-    (``parameter``). Expanded by ``jobs.protocol.sweep`` into render jobs that share the
+    (``parameter``). Expanded by ``jobs.sweeps.sweep`` into render jobs that share the
     reference (and, for the first, the trained caches)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)

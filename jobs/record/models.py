@@ -384,7 +384,7 @@ class Job(Base):
     A sweep runs as a task graph of *stage* jobs (kind ``stage``, ``parent_id``
     the sweep's job; jobs/execution/graph.py), each queued, retried and isolated like
     any job; a stage's ``work`` counts what it rendered and what it found
-    stored (jobs/protocol/sweep.py), and its sweep's result sums them.
+    stored (jobs/sweeps/sweep.py), and its sweep's result sums them.
     """
 
     __tablename__ = "jobs"

@@ -233,7 +233,7 @@ class Store:
     def list_history_runs(self, scene: str, method: str, *, limit: int) -> list[Run]:
         """The newest ``limit`` succeeded runs of ``method`` on the scene named ``scene``,
         newest first, with their seed results loaded (the CI history,
-        jobs/protocol/history.py)."""
+        jobs/ci/history.py)."""
         query = (select(Run).where(Run.scene_name == scene, Run.method == method,
                                    Run.status == "succeeded")
                  .order_by(Run.created_at.desc(), Run.id.desc()).limit(limit)

@@ -33,7 +33,7 @@ Two estimators use it:
   22-23, then the spread heuristic), the spread heuristic alone (``sph``) or
   the per-pixel policy of Sec. 6.3 (``adaptive``: at the first vertex v1 where
   the pixel's v1 mask allows, the mask coming from the relative bias of the
-  converged cache-at-v1 image, jobs/protocol/sweep.py; later by the spread
+  converged cache-at-v1 image, jobs/sweeps/sweep.py; later by the spread
   heuristic). N_c may differ at v1 and later where the policy takes two values
   (``nc='8,1'``: 8 neural samples at v1, 1 afterwards — the paper's "NIRC
   equal time" series varies the first). BTH is biased even with a perfect

@@ -91,7 +91,7 @@ class Knob:
 
 @dataclass(frozen=True)
 class SweepRole:
-    """How a caching method takes part in a sweep (jobs/protocol/sweep.py).
+    """How a caching method takes part in a sweep (jobs/sweeps/sweep.py).
 
     ``label`` names its series in tables and plots. ``equal_bias``: the parameters
     every adaptive equal-bias point of the method has (a termination policy that
@@ -115,7 +115,7 @@ class SweepRole:
 
 @dataclass(frozen=True)
 class ComparisonRun:
-    """One run of a method in the method comparison (jobs/protocol/report.py, NIRC paper Fig. 7).
+    """One run of a method in the method comparison (jobs/pareto/report.py, NIRC paper Fig. 7).
 
     ``rank`` orders runs and rows across methods; ``params`` go on top of the
     comparison's shared ones (max_depth; pre-training for methods that have it);

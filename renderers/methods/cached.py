@@ -93,7 +93,7 @@ class CacheTrainingParams(PTParams):
                 "rr_mode": self.rr_mode, "rr_survival": self.rr_survival}
 
 
-#: A caching method's adaptive equal-bias points (jobs/protocol/sweep.py): adaptive
+#: A caching method's adaptive equal-bias points (jobs/sweeps/sweep.py): adaptive
 #: termination reads the sweep's v1 mask; the sweep's snapshots are the training.
 ADAPTIVE_EQUAL_BIAS: dict[str, Any] = {"termination": "adaptive", "pretrain_frames": 0}
 

@@ -7,8 +7,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from jobs.ci.history import History
 from jobs.protocol.comparison import RunComparison
-from jobs.protocol.history import History
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import is_current
 
@@ -79,7 +79,7 @@ class ArtifactOut(BaseModel):
 RunOut = RunResult
 #: Runs side by side (jobs.protocol.comparison).
 Comparison = RunComparison
-#: A metric over commits with its step changes (jobs.protocol.history).
+#: A metric over commits with its step changes (jobs.ci.history).
 HistoryOut = History
 
 

@@ -7,7 +7,7 @@ import json
 from collections.abc import Callable
 from typing import Any
 
-from jobs.protocol.ci_suite import BaselineRow, Entry, Suite
+from jobs.ci.ci_suite import BaselineRow, Entry, Suite
 from jobs.protocol.results import RunResultDetail, SeedRow
 from jobs.protocol.spec import RenderSpec
 from jobs.protocol.versions import estimator_version

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from jobs.protocol.ci import file_baseline, run_suite
-from jobs.protocol.ci_stats import (
+from jobs.ci.ci import file_baseline, run_suite
+from jobs.ci.ci_stats import (
     accept_levels,
     compare,
     decide,
@@ -24,7 +24,7 @@ from jobs.protocol.ci_stats import (
     smallest_rank_p,
     spent,
 )
-from jobs.protocol.ci_suite import (
+from jobs.ci.ci_suite import (
     CI_METRICS,
     CiError,
     Suite,

@@ -3,8 +3,8 @@
 
 from __future__ import annotations
 
-from jobs.protocol.ci import stored_baseline
-from jobs.protocol.ci_suite import CI_METRICS, Suite
+from jobs.ci.ci import stored_baseline
+from jobs.ci.ci_suite import CI_METRICS, Suite
 from tests.jobs.ci_fakes import fake_run
 from tests.jobs.factories import run_fields
 

@@ -237,7 +237,7 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     PSNR (one registry entry) appears in each without code of its own there."""
     from rich.console import Console
 
-    from jobs.protocol.sweep import SweepResult, point_row
+    from jobs.sweeps.sweep import SweepResult, point_row
     from metrics.registry import LISTED, METRICS, PER_SEED, Aggregate
     from service.api.schemas import RunOut
     from service.tables import metric_label, metrics_table, sweep_table

@@ -1,4 +1,4 @@
-"""The step test of the CI history (jobs/protocol/history.py), checked statistically:
+"""The step test of the CI history (jobs/ci/history.py), checked statistically:
 its family-wise false-step rate on flat histories stays at alpha (and a detector without
 Holm's correction, which the same check rejects, does not), it finds a planted step at
 its commit, and the interval for the median covers at its stated level."""
@@ -10,7 +10,7 @@ import math
 import numpy as np
 from scipy import stats
 
-from jobs.protocol.history import STEP_ALPHA, detect_steps, median_interval, welch_p
+from jobs.ci.history import STEP_ALPHA, detect_steps, median_interval, welch_p
 
 COMMITS, SEEDS, REPEATS = 10, 4, 400
 

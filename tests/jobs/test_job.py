@@ -160,7 +160,7 @@ def test_the_executor_renders_and_stores_the_typed_parameters(mi, data_dir):
 
 #: The modules below the entry points: none of them validates a method's parameters.
 BELOW_THE_EDGES = ("jobs/protocol/executor.py", "jobs/protocol/calibration.py",
-                   "jobs/protocol/references.py", "jobs/protocol/snapshots.py",
+                   "jobs/protocol/references.py", "jobs/sweeps/snapshots.py",
                    "jobs/execution/queue.py")
 
 

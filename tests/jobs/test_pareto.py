@@ -10,8 +10,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import jobs.protocol.pareto as pareto_module
-from jobs.protocol.pareto import (
+import jobs.pareto.pareto as pareto_module
+from jobs.pareto.pareto import (
     PARETO_METRICS,
     ParetoPoint,
     ParetoSpec,

@@ -1,4 +1,4 @@
-"""The stress suite (jobs.protocol.stress, docs/stress.md): every registered method on
+"""The stress suite (jobs.stress.stress, docs/stress.md): every registered method on
 adversarial scenes finishes and reports its counts; what it must catch, it catches.
 
 The module's suite runs the cheapest cases that still reach every method and every
@@ -19,9 +19,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from jobs.protocol import stress
 from jobs.protocol.scene_store import load_spec_scene, save_upload
-from jobs.protocol.stress import (
+from jobs.record.config import Settings
+from jobs.record.db import open_store
+from jobs.stress import stress
+from jobs.stress.stress import (
     EmbeddedBackend,
     StressSettings,
     get_cases,
@@ -29,8 +31,6 @@ from jobs.protocol.stress import (
     run_suite,
     variants,
 )
-from jobs.record.config import Settings
-from jobs.record.db import open_store
 from renderers.methods import METHODS, Method
 from renderers.scenes import SceneError
 

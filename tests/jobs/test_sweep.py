@@ -17,15 +17,15 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from jobs.protocol.spec import ParameterSweep, ReferenceSpec, SweepSpec
-from jobs.protocol.sweep import (
+from jobs.record.config import Settings
+from jobs.record.db import open_store
+from jobs.sweeps.sweep import (
     avg_path_length_authors,
     ir_bounces_pct,
     ir_bounces_pct_authors,
     run_sweep,
     v1_mask,
 )
-from jobs.record.config import Settings
-from jobs.record.db import open_store
 
 SMALL = {"cache": {"batch_size": 1024}, "min_train_paths": 1024}
 
@@ -154,7 +154,7 @@ def test_masks_use_the_noise_corrected_bias_of_the_snapshots(sweep_env):
     and variances; on these 32-spp images the raw map would admit fewer pixels."""
     from jobs.protocol.executor import prepare
     from jobs.protocol.job import RenderJob
-    from jobs.protocol.snapshots import _load
+    from jobs.sweeps.snapshots import _load
     from metrics.bias_maps import bias_map, passes
 
     settings_, store, result = sweep_env
@@ -203,7 +203,7 @@ def test_a_snapshot_stored_without_its_variance_is_not_loaded(sweep_env):
     that get_or_make_snapshot answers by making the snapshot again."""
     from types import SimpleNamespace
 
-    from jobs.protocol.snapshots import _load
+    from jobs.sweeps.snapshots import _load
 
     settings_, store, result = sweep_env
     row = store.find_snapshot(result.snapshots[0].key)
@@ -280,7 +280,7 @@ def test_a_scene_without_usable_first_vertices_is_skipped_with_a_reason(tmp_path
 def _run_staged(spec: SweepSpec, store, settings_):
     """Every stage in graph order (as the Dask workers would), then the sweep job."""
     from jobs.execution.graph import sweep_stages
-    from jobs.protocol.sweep import run_stage
+    from jobs.sweeps.sweep import run_stage
 
     stage_work: dict[str, int] = {}
     for stage in sweep_stages(spec):

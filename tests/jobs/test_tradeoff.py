@@ -1,11 +1,11 @@
-"""Error against time (jobs/protocol/tradeoff.py) on synthetic data with known answers."""
+"""Error against time (jobs/pareto/tradeoff.py) on synthetic data with known answers."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from jobs.protocol.tradeoff import (
+from jobs.pareto.tradeoff import (
     Sample,
     Speedup,
     baseline_curve,

@@ -10,10 +10,10 @@ from alembic import command
 
 from jobs.execution.queue import JobQueue, spec_key
 from jobs.protocol.references import reference_key
-from jobs.protocol.snapshots import snapshot_key
 from jobs.protocol.spec import RenderSpec, SweepSpec
 from jobs.record.db import alembic_config, migrate
 from jobs.record.store import Store
+from jobs.sweeps.snapshots import snapshot_key
 from renderers import methods
 from renderers.methods.nrc import NRCParams
 from renderers.reference import ReferenceSettings

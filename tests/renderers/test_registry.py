@@ -83,7 +83,7 @@ def test_knobs_keep_todays_candidates():
 
 def test_sweep_roles_keep_todays_series_and_labels():
     from jobs.protocol.spec import SWEEP_METHODS, SweepSpec
-    from jobs.protocol.sweep import SERIES_LABELS
+    from jobs.sweeps.sweep import SERIES_LABELS
 
     assert sweep_methods() == SWEEP_METHODS == ("nirc", "nrc")
     assert SERIES_LABELS == {"nirc": "NIRC", "nrc": "NRC", "nirc-equal-time": "NIRC equal time"}
@@ -201,7 +201,7 @@ def test_the_integrator_takes_its_parameters_only_from_the_methods_model(mi):
 
 def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
     """The report reads its runs from the registry; runs, labels and rows are today's."""
-    import jobs.protocol.report as report_module
+    import jobs.pareto.report as report_module
     from jobs.protocol.results import RunResultDetail
 
     calls = []

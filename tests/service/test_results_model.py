@@ -11,9 +11,9 @@ from jobs.protocol.executor import execute
 from jobs.protocol.job import RenderJob
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
-from jobs.protocol.sweep import point_row
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from jobs.sweeps.sweep import point_row
 from service.api.main import create_app
 from service.tables import breakdown_table, metrics_table
 

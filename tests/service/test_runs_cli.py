@@ -233,9 +233,9 @@ def test_progress_lines_in_any_output_and_saturated_sweep_rows_collapse(store_di
     table shows points whose v1 mask is saturated (100 % of pixels) once, and says so."""
     from rich.console import Console
 
-    from jobs.protocol.sweep import SweepResult, point_row
     from jobs.record.config import Settings
     from jobs.record.db import open_store
+    from jobs.sweeps.sweep import SweepResult, point_row
     from service.tables import sweep_table
 
     data, outputs = store_dir

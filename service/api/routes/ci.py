@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, status
 
-from jobs.protocol.history import MAX_HISTORY_RUNS, STEP_ALPHA, build_history
+from jobs.ci.history import MAX_HISTORY_RUNS, STEP_ALPHA, build_history
 from metrics.registry import BY_NAME
 from renderers.methods import METHODS
 from renderers.scenes import builtin_names
@@ -38,7 +38,7 @@ def history(store: StoreDep, metric: Name, scene: Name, method: Name,
     """The metric's values per commit of one method on one scene (median over the seeds of
     the commit's runs, an interval for it, n), one series per setting (resolution, spp,
     frames, parameters), with version breaks and detected step changes marked
-    (jobs/protocol/history.py; docs/service.md, "CI history")."""
+    (jobs/ci/history.py; docs/service.md, "CI history")."""
     if metric not in BY_NAME:
         raise _unknown(f"unknown metric {metric!r}; available: {', '.join(BY_NAME)}")
     if method not in METHODS and not store.has_runs(method=method):

@@ -34,7 +34,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from jobs.protocol.ci_stats import Spending, UnpairedTest
+from jobs.ci.ci_stats import Spending, UnpairedTest
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from metrics.registry import CI_GATED, Aggregate, Metric
 from renderers.methods import MethodError, format_validation_error, parse_params

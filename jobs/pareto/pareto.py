@@ -26,7 +26,7 @@ that resolution: a projection from this device, beside the errors measured at th
 point's own resolution. Then, for MRSE and FLIP: the Pareto front over all
 points, and for every non-baseline point its speed-up at equal error over the
 baseline with a bootstrap interval over seeds and timing samples
-(jobs.protocol.tradeoff; docs/pareto.md). A point is a :class:`ParetoPoint`:
+(jobs.pareto.tradeoff; docs/pareto.md). A point is a :class:`ParetoPoint`:
 the public result of its stored run (jobs.protocol.results.RunResult) with
 these columns.
 """
@@ -44,6 +44,14 @@ from typing import Any
 import numpy as np
 from pydantic import Field, create_model
 
+from jobs.pareto.tradeoff import (
+    BOOTSTRAP_METHOD,
+    RESAMPLES,
+    Sample,
+    Speedup,
+    bootstrap_speedup,
+    pareto_front,
+)
 from jobs.protocol import cost_model
 from jobs.protocol.calibration import (
     DEFAULT_MAX_SPREAD,
@@ -57,14 +65,6 @@ from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
 from jobs.protocol.scene_store import load_spec_scene
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
-from jobs.protocol.tradeoff import (
-    BOOTSTRAP_METHOD,
-    RESAMPLES,
-    Sample,
-    Speedup,
-    bootstrap_speedup,
-    pareto_front,
-)
 from jobs.record.config import Settings
 from jobs.record.store import DuplicateKeyError, Store
 from metrics.registry import BY_NAME, Metric

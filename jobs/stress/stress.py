@@ -1,6 +1,6 @@
 """The numerical-stability stress suite (``nirc-bench stress``, docs/stress.md).
 
-Adversarial scenes (:mod:`jobs.protocol.stress_scenes`) run through every
+Adversarial scenes (:mod:`jobs.stress.stress_scenes`) run through every
 registered method as ordinary render jobs, embedded or on a service, and each
 (case, method) is reduced to one :class:`StressRow`: did it run (or why not),
 how many non-finite pixels, training losses, skipped steps and cache weights
@@ -46,9 +46,9 @@ from typing import Any, Literal, Protocol, get_args, get_origin
 import numpy as np
 from pydantic import BaseModel, Field
 
-from jobs.protocol import stress_scenes as scenes
 from jobs.protocol.plots import dropped_points
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.stress import stress_scenes as scenes
 from metrics.statistics import AgreementResult, agreement_test, image_mean_test, z_test
 from renderers.methods import BASELINE, METHODS, Method, NotApplicable, check_applies
 from renderers.scenes import SceneError

@@ -1,7 +1,7 @@
 """Error against time: the Pareto front, and the speed-up at equal error over the baseline.
 
 Pure arithmetic on measured points (seconds per frame, error), no rendering;
-``jobs/protocol/pareto.py`` measures the points and docs/pareto.md states the
+``jobs/pareto/pareto.py`` measures the points and docs/pareto.md states the
 method:
 
 - the **front**: the points no other point beats in both time and error;

@@ -3,7 +3,7 @@
 Adaptive equal-bias sweep, per caching method (NIRC, NRC) and seed k:
 
 1. train a cache and render the converged image V of terminating every path
-   into it at the first vertex v1 (a *snapshot*, jobs/protocol/snapshots.py: computed
+   into it at the first vertex v1 (a *snapshot*, jobs/sweeps/snapshots.py: computed
    once per scene/settings/seed, reused by every eps and every later sweep);
 2. the per-pixel relative bias b_p of V against the reference R with the noise
    of both removed (metrics/bias_maps.py; V is rendered in independent passes
@@ -77,11 +77,11 @@ from jobs.protocol.executor import (
 from jobs.protocol.job import RenderJob
 from jobs.protocol.plots import plot_convergence, plot_sweep
 from jobs.protocol.results import RunResult, Skipped
-from jobs.protocol.snapshots import Snapshot, get_or_make_snapshot
 from jobs.protocol.spec import SweepSpec
 from jobs.record.artifacts import ArtifactStore, artifact_record
 from jobs.record.config import Settings
 from jobs.record.store import Store
+from jobs.sweeps.snapshots import Snapshot, get_or_make_snapshot
 from metrics.bias_maps import bias_map, passes
 from renderers.methods import (
     EQUAL_TIME_SUFFIX,
@@ -129,7 +129,7 @@ class SweepRow(RunResult):
 
 
 class SweepSnapshot(BaseModel):
-    """A trained cache a sweep used (jobs.protocol.snapshots), with its cost."""
+    """A trained cache a sweep used (jobs.sweeps.snapshots), with its cost."""
 
     method: str
     seed: int

@@ -1,6 +1,6 @@
 """``nirc-bench ci``: run a pinned suite with sequential effort and compare it with a baseline.
 
-Each entry of the suite (jobs.protocol.ci_suite) is rendered in groups of
+Each entry of the suite (jobs.ci.ci_suite) is rendered in groups of
 seeds (``seed_start + 0 .. group - 1``, then the next group, ...) until every
 metric row of the entry is decided or the cap is reached; each group is one
 stored run (with its commit and branch), so the history of results builds up
@@ -10,7 +10,7 @@ and frame time only on the same device; other rows are ``not comparable``.
 
 The level of the whole suite (``suite.level``) is split evenly over its rows
 (Bonferroni), and each row's share is spent over the looks
-(jobs.protocol.ci_stats): the chance that the suite fails while no row got worse by
+(jobs.ci.ci_stats): the chance that the suite fails while no row got worse by
 its minimum change or more is at most ``suite.level``. docs/ci.md has the argument
 and the chosen numbers.
 """
@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from jobs.protocol.ci_stats import (
+from jobs.ci.ci_stats import (
     TEST_NAMES,
     accept_levels,
     compare,
@@ -33,7 +33,7 @@ from jobs.protocol.ci_stats import (
     look_sizes,
     smallest_rank_p,
 )
-from jobs.protocol.ci_suite import TIME, BaselineRow, Entry, Suite, config_key
+from jobs.ci.ci_suite import TIME, BaselineRow, Entry, Suite, config_key
 from jobs.protocol.provenance import git_branch, git_commit
 from jobs.protocol.results import RunResultDetail, method_params
 from jobs.protocol.spec import RenderSpec

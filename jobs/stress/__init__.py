@@ -1,0 +1,2 @@
+"""The stress study: generated hard scenes rendered by every method, and which of them
+fail how. Imports the core (``jobs.protocol``) and the record; no other study."""
