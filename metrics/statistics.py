@@ -15,6 +15,8 @@
   renders whose pixels share samples (spatial reuse), where the block test's
   independent-pixel variances are too small.
 - :func:`mean_confidence_interval`: Student-t interval of a mean over seeds.
+- :func:`welch_test`: Welch's two-sample t-test of two sets of values (seeds, commits),
+  the one the run comparison, the CI gate and the metric history use.
 - :func:`positive_mean_interval`: the interval of the mean of a non-negative quantity
   (an error such as MRSE), on the log scale so that it never goes below zero;
   :func:`interval_or_reason` says why there is none.
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import special, stats
@@ -385,6 +388,21 @@ def z_test(mean_a: np.ndarray, var_a: np.ndarray, mean_b: np.ndarray, var_b: np.
         worst_index=tuple(int(i) for i in worst),
         passed=n_failed == 0,
     )
+
+
+def welch_test(a: np.ndarray | list[float], b: np.ndarray | list[float],
+               alternative: str = "two-sided") -> Any:
+    """Welch's t-test of mean(a) - mean(b): two samples with unequal variances, the
+    t statistic over sqrt(s_a^2 / n_a + s_b^2 / n_b) read with the Welch-Satterthwaite
+    degrees of freedom (SciPy's ``ttest_ind(equal_var=False)``, Welch 1947).
+
+    ``alternative``: ``"two-sided"``, ``"greater"`` (mean(a) > mean(b)) or ``"less"``.
+    The result has ``pvalue``, ``statistic``, ``df`` and ``confidence_interval(level)``
+    of the difference of the means. Two constant samples give NaN (the statistic is
+    undefined); callers decide what that means for them.
+    """
+    return stats.ttest_ind(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64),
+                           equal_var=False, alternative=alternative)
 
 
 # ---------------------------------------------------------------------------

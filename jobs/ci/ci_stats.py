@@ -19,7 +19,7 @@ design           test
 ===============  ==========================================================
 paired           both sides hold the same seed numbers: Student's t on the
                  per-seed differences to the moved baseline (``ttest_rel``)
-unpaired         Welch's t (``ttest_ind(equal_var=False)``) or the
+unpaired         Welch's t (``metrics.statistics.welch_test``) or the
                  Mann-Whitney U test (``mannwhitneyu``), as the suite says
 ===============  ==========================================================
 
@@ -67,6 +67,8 @@ from typing import Any, Literal
 
 import numpy as np
 from scipy import special, stats
+
+from metrics.statistics import welch_test
 
 Direction = Literal["lower", "higher"]
 Spending = Literal["obrien-fleming", "pocock"]
@@ -161,8 +163,7 @@ def compare(candidate: Sequence[float], baseline: Sequence[float], direction: Di
                                                       alternative=alternative).pvalue)
                              for alternative in ("greater", "less"))
     else:
-        p_worse, p_within = _t_tails(stats.ttest_ind(worse_c, moved_b, equal_var=False,
-                                                     alternative="greater"))
+        p_worse, p_within = _t_tails(welch_test(worse_c, moved_b, alternative="greater"))
     return Look(test, float(b.mean()), float(c.mean()), change, p_worse, p_within)
 
 

@@ -23,7 +23,7 @@ Step test, per compared pair of consecutive points (a, b)::
 
 (s² the unbiased sample variances) and the Welch-Satterthwaite degrees of freedom
 ``(s_a²/n_a + s_b²/n_b)² / ((s_a²/n_a)² / (n_a - 1) + (s_b²/n_b)² / (n_b - 1))``,
-two-sided (SciPy's ``ttest_ind(equal_var=False)``). A pair with fewer than two values on a side is
+two-sided (``metrics.statistics.welch_test``). A pair with fewer than two values on a side is
 not tested; a pair whose two samples are both constant has p = 1 if they are
 equal and p = 0 otherwise. The p-values of all pairs tested in one answer are
 adjusted by Holm's step-down procedure (Holm 1979)::
@@ -56,6 +56,7 @@ from scipy import stats
 
 from jobs.protocol.results import method_params
 from metrics.registry import Metric
+from metrics.statistics import welch_test
 
 #: The family-wise error rate of the step test over one answer.
 STEP_ALPHA = 0.05
@@ -172,14 +173,14 @@ def median_interval(values: Sequence[float], level: float = 0.95
 
 
 def welch_p(a: Sequence[float], b: Sequence[float]) -> float | None:
-    """Two-sided p-value of Welch's t-test between ``a`` and ``b`` (SciPy's
-    ``ttest_ind(equal_var=False)``; None: n < 2 on a side). Two constant sides are
+    """Two-sided p-value of Welch's t-test between ``a`` and ``b``
+    (:func:`metrics.statistics.welch_test`; None: n < 2 on a side). Two constant sides are
     equal (p 1) or a certain step (p 0): the t statistic is undefined there."""
     if len(a) < 2 or len(b) < 2:
         return None
     if np.ptp(a) == 0.0 and np.ptp(b) == 0.0:
         return 1.0 if a[0] == b[0] else 0.0
-    return float(stats.ttest_ind(b, a, equal_var=False).pvalue)
+    return float(welch_test(b, a).pvalue)
 
 
 def holm(pvalues: Sequence[float]) -> list[float]:

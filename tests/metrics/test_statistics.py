@@ -1,12 +1,14 @@
 """PassAccumulator, the Šidák-corrected z-test, the aggregate block test, the image-mean
-test and Student-t intervals."""
+test, Student-t intervals and Welch's two-sample t-test."""
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from metrics.checks import MetricError
 from metrics.statistics import (
@@ -19,8 +21,43 @@ from metrics.statistics import (
     mean_confidence_interval,
     positive_mean_interval,
     sidak_alpha,
+    welch_test,
     z_test,
 )
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# ---- Welch's t-test ---------------------------------------------------------------
+
+def test_welch_test_by_hand():
+    """t = (mean_a - mean_b) / sqrt(s_a^2 / n_a + s_b^2 / n_b) with the
+    Welch-Satterthwaite degrees of freedom, computed here from the formulas."""
+    a, b = [1.0, 2.0, 3.0, 4.0], [2.0, 4.0, 6.0]
+    va, vb = np.var(a, ddof=1) / len(a), np.var(b, ddof=1) / len(b)
+    t = (np.mean(a) - np.mean(b)) / math.sqrt(va + vb)
+    dof = (va + vb) ** 2 / (va ** 2 / (len(a) - 1) + vb ** 2 / (len(b) - 1))
+    result = welch_test(a, b)
+    assert result.statistic == pytest.approx(t)
+    assert result.df == pytest.approx(dof)
+    assert result.pvalue == pytest.approx(2.0 * stats.t.sf(abs(t), dof))
+    assert welch_test(a, b, alternative="less").pvalue == pytest.approx(stats.t.cdf(t, dof))
+    low, high = result.confidence_interval(0.95)
+    half = stats.t.ppf(0.975, dof) * math.sqrt(va + vb)
+    assert (low, high) == pytest.approx((t * math.sqrt(va + vb) - half,
+                                         t * math.sqrt(va + vb) + half))
+
+
+def test_welch_test_is_the_only_unequal_variance_t_test():
+    """The run comparison, the CI gate and the metric history use welch_test; no other
+    module calls SciPy's unequal-variance t-test itself."""
+    callers = sorted(str(path.relative_to(ROOT))
+                     for package in ("service", "jobs", "renderers", "metrics")
+                     for path in (ROOT / package).rglob("*.py")
+                     if "equal_var" in path.read_text() and path.name != "statistics.py")
+    assert callers == []
+    users = {path.name for path in (ROOT / "jobs").rglob("*.py") if "welch_test(" in path.read_text()}
+    assert users >= {"comparison.py", "ci_stats.py", "history.py"}
+
 
 # ---- Student-t confidence interval -----------------------------------------------
 
