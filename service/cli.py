@@ -18,7 +18,7 @@ import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -38,6 +38,9 @@ from service.errors import USER_ERRORS, UsageError, describe_user_error
 from service.progress import progress_reporter
 from service.runs_command import parse_pairs, runs_app
 from service.tables import metrics_table, reference_table, render_tables, scenes_table
+
+if TYPE_CHECKING:
+    from service.config import ServiceSettings
 
 app = typer.Typer(
     name="nirc-bench",
@@ -681,8 +684,9 @@ def decide_public_read(choice: bool | None, host: str) -> bool:
         "key: --public-read or --no-public-read (or NIRC_BENCH_PUBLIC_READ=true/false)")
 
 
-def _with_tls(settings: Any, scheduler: str, ca_file: Path | None, cert: Path | None,
-              key: Path | None, allow_plaintext: bool = False) -> Any:
+def _with_tls(settings: ServiceSettings, scheduler: str, ca_file: Path | None,
+              cert: Path | None, key: Path | None,
+              allow_plaintext: bool = False) -> ServiceSettings:
     """``settings`` with the TLS files of a tls:// ``scheduler`` (options over the
     environment's settings), checked; a plain scheduler off loopback is refused unless
     ``allow_plaintext`` (or the setting of that name) accepts it, with a warning."""
@@ -740,7 +744,9 @@ def serve(
     data_dir: DataDir = None,
 ) -> None:
     """Run the service: REST API (OpenAPI at /docs) + job queue on Dask."""
-    settings = open_settings(data_dir)
+    from service.config import ServiceSettings
+
+    settings = ServiceSettings.of(open_settings(data_dir))
     # Decided before anything starts: an open service must be asked for, not stumbled on.
     public = decide_public_read(public_read if public_read is not None
                                 else settings.public_read, host)
@@ -761,7 +767,8 @@ def serve(
     from service.api.main import create_app
 
     os.umask(0o077)     # references, logs, snapshots: owner-only, like the database
-    dispatcher = Dispatcher(settings, scheduler, timeout_s=job_timeout, gpus=gpus)
+    dispatcher = Dispatcher(settings, scheduler, timeout_s=job_timeout, gpus=gpus,
+                            tls=settings.scheduler_tls)
     try:
         uvicorn.run(create_app(settings, dispatcher), host=host, port=port)
     finally:
@@ -782,10 +789,11 @@ def worker(
     one CPU worker, or one per GPU, each seeing only its GPU (CUDA_VISIBLE_DEVICES)."""
     from jobs.execution.dispatch import QUIET_WORKER_CONFIG, dask_environment, worker_tls_options
     from jobs.execution.gpus import run_workers, worker_commands
+    from service.config import ServiceSettings
 
-    settings = _with_tls(open_settings(None), scheduler, tls_ca_file, tls_cert, tls_key,
-                         allow_plaintext_scheduler)
-    tls = worker_tls_options(settings)
+    settings = _with_tls(ServiceSettings.of(open_settings(None)), scheduler, tls_ca_file,
+                         tls_cert, tls_key, allow_plaintext_scheduler)
+    tls = worker_tls_options(settings.scheduler_tls)
     commands = [([*argv, *tls], env) for argv, env in worker_commands(
         scheduler, gpus, {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})]
     os.umask(0o077)     # what the workers write into the data folder: owner-only

@@ -12,8 +12,8 @@ CPU workers advertise the Dask resource ``CPU=1`` and GPU workers ``GPU=1``;
 every job asks for the one of its device class. On SLURM the same command runs
 as a batch job (scripts/slurm/nirc-bench-worker.sbatch, README).
 
-Scale-out connections are TLS with certificates (``tls://`` addresses and
-``Settings.tls_*``, see :func:`scheduler_security`): a Dask scheduler runs any
+Scale-out connections are TLS with certificates (``tls://`` addresses and the
+service's ``tls_*`` settings as a :class:`SchedulerTLS`, see :func:`scheduler_security`): a Dask scheduler runs any
 code its clients send on its workers, so only holders of a certificate signed by
 the deployment's CA may connect. The embedded cluster never leaves loopback.
 
@@ -41,6 +41,8 @@ import logging
 import os
 import socket
 import threading
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from jobs.execution.gpus import (
@@ -80,25 +82,36 @@ def dask_environment(config: dict[str, Any]) -> dict[str, str]:
             for key, value in config.items()}
 
 
-def scheduler_security(settings: Settings, address: str) -> Any:
+@dataclass(frozen=True)
+class SchedulerTLS:
+    """The PEM files of mutual TLS with a scheduler: the CA that signed the scheduler's
+    and workers' certificates, and this process's own certificate and private key."""
+
+    ca_file: Path
+    cert: Path | None
+    key: Path | None
+
+
+def scheduler_security(tls: SchedulerTLS | None, address: str) -> Any:
     """The Dask ``Security`` of a client of the scheduler at ``address``: mutual TLS for
-    ``tls://`` (the CA, this process's certificate and key from ``settings``; a peer
+    ``tls://`` (the CA, this process's certificate and key from ``tls``; a peer
     without a certificate of that CA is refused), None for other addresses."""
     from distributed.security import Security
 
     if not address.startswith("tls://"):
         return None
-    return Security(tls_ca_file=str(settings.tls_ca_file),
-                    tls_client_cert=str(settings.tls_cert),
-                    tls_client_key=str(settings.tls_key), require_encryption=True)
+    if tls is None:
+        raise ValueError(f"the scheduler {address} needs TLS files (CA, certificate, key)")
+    return Security(tls_ca_file=str(tls.ca_file), tls_client_cert=str(tls.cert),
+                    tls_client_key=str(tls.key), require_encryption=True)
 
 
-def worker_tls_options(settings: Settings) -> list[str]:
+def worker_tls_options(tls: SchedulerTLS | None) -> list[str]:
     """``dask worker`` options giving it the same CA, certificate and key."""
-    if settings.tls_ca_file is None:
+    if tls is None:
         return []
-    return ["--tls-ca-file", str(settings.tls_ca_file), "--tls-cert", str(settings.tls_cert),
-            "--tls-key", str(settings.tls_key)]
+    return ["--tls-ca-file", str(tls.ca_file), "--tls-cert", str(tls.cert),
+            "--tls-key", str(tls.key)]
 
 
 def run_job_task(job_id: int, settings_json: dict[str, Any], timeout_s: float | None,
@@ -121,8 +134,10 @@ class Dispatcher:
     """Submits job ids to a Dask cluster (embedded ``LocalCluster`` or a scheduler)."""
 
     def __init__(self, settings: Settings, scheduler: str | None = None,
-                 timeout_s: float | None = None, gpus: int | None = None) -> None:
-        """``gpus``: GPU workers of the embedded cluster (None: one per GPU found)."""
+                 timeout_s: float | None = None, gpus: int | None = None,
+                 tls: SchedulerTLS | None = None) -> None:
+        """``gpus``: GPU workers of the embedded cluster (None: one per GPU found);
+        ``tls``: the files of a ``tls://`` ``scheduler``'s connection."""
         import dask
         from distributed import Client, LocalCluster
 
@@ -138,7 +153,7 @@ class Dispatcher:
         self.gpu_workers: list[Any] = []
         dask.config.set(QUIET_WORKER_CONFIG)
         if scheduler:
-            self.client = Client(scheduler, security=scheduler_security(settings, scheduler))
+            self.client = Client(scheduler, security=scheduler_security(tls, scheduler))
             return
         gpus = detect_gpu_count() if gpus is None else gpus
         gpu_devices(gpus)       # fail now, not in the workers, if they are not there

@@ -39,9 +39,9 @@ from renderers.scenes.errors import SceneNotFinite
 from renderers.scenes.vetting import (
     STAGED_SCENE,
     Blob,
-    Limits,
     SceneRefused,
     StagedScene,
+    scene_limits,
     vet_root_scene,
     vet_upload,
 )
@@ -49,11 +49,6 @@ from renderers.scenes.vetting import (
 #: ``upload:<digest>`` (sent by a client) or ``staged:<digest>`` (a scene-root file
 #: copied at submission).
 SCENE_ID = re.compile(r"^(upload|staged):([0-9a-f]{32})$")
-
-
-def limits_of(settings: Settings) -> Limits:
-    return Limits(max_file_bytes=settings.scene_max_file_bytes,
-                  max_total_bytes=settings.scene_max_bytes)
 
 
 def unavailable_message() -> str:
@@ -107,7 +102,7 @@ def save_upload(xml: bytes, files: dict[str, Blob], settings: Settings,
     new. Raises SceneRefused (SceneTooLarge) for a scene that may not be stored, and
     :class:`NoRoom` for a new one larger than ``room`` (bytes left in the data
     folder's budget; None: no budget)."""
-    staged = vet_upload(xml, files, limits_of(settings))
+    staged = vet_upload(xml, files, scene_limits())
     if room is not None and staged.total_bytes > room and not is_stored(staged, settings):
         raise NoRoom(f"the scene is {staged.total_bytes / 1e6:.1f} MB and the data folder "
                      f"has {max(room, 0) / 1e6:.1f} MB left of this service's limit "
@@ -133,7 +128,7 @@ def rest_scene(scene: str, settings: Settings) -> str:
         if stored_scene_file(scene, settings) is None:
             raise SceneRefused(unavailable_message())
         return scene
-    staged = vet_root_scene(scene, settings.scene_roots, limits_of(settings),
+    staged = vet_root_scene(scene, settings.scene_roots, scene_limits(),
                             missing=unavailable_message())
     store_scene(staged, settings)
     return f"staged:{staged.digest}"

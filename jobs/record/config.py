@@ -6,6 +6,9 @@ FastAPI full-stack template's ``core/config.py``. The embedded default keeps
 everything in ``./data`` under the working directory: a SQLite database plus
 the artifact and reference folders beside it. Scenes over REST are limited to
 built-ins, uploads and the configured scene roots (docs/service.md).
+
+What only the service reads (HTTP access and limits, the scale-out scheduler's TLS)
+is the service's own configuration: ``service/config.py``, which extends these.
 """
 
 import json
@@ -40,9 +43,6 @@ class Settings(BaseSettings):
     # ended without claiming them, running ones whose lease expired) and dispatches
     # them again (jobs/execution/dispatch.py).
     redispatch_interval_s: float = Field(10.0, gt=0.0)
-    # The longest a long poll (GET /api/v1/jobs/{id}?wait_s=) holds a request open,
-    # below the idle timeouts of proxies in front of the service.
-    long_poll_max_s: float = Field(30.0, ge=0.0)
     # ---- Bounded work and disk (docs/operations.md; estimates in jobs/execution/work.py) ----
     # The most path samples (pixels x spp x frames x seeds, references and sweep
     # stages included) one submission may ask for; more is refused with 422.
@@ -77,10 +77,8 @@ class Settings(BaseSettings):
     # none by default. The environment variable is a JSON list or an os.pathsep-
     # separated one: NIRC_BENCH_SCENE_ROOTS=/srv/scenes:/data/more-scenes.
     scene_roots: Annotated[list[Path], NoDecode] = Field(default_factory=list)
-    # Size limits of a scene given over REST (uploaded, or copied from a scene root):
-    # each file, and all of its files together.
-    scene_max_file_bytes: int = Field(64 << 20, ge=1)
-    scene_max_bytes: int = Field(256 << 20, ge=1)
+    # The size limit of scenes (each file, all files together) is one for every scene,
+    # by path or over REST, read where it is used: renderers.scenes.vetting.scene_limits.
 
     @field_validator("scene_roots", mode="before")
     @classmethod
@@ -96,29 +94,6 @@ class Settings(BaseSettings):
     @classmethod
     def _absolute_scene_roots(cls, value: list[Path]) -> list[Path]:
         return [root.expanduser().absolute() for root in value]
-
-    # ---- Access and limits of the service (docs/security.md) ----
-    # Whether GETs (results, jobs with their specs and errors, worker addresses) are
-    # open to anyone who can reach the service. None: on if `serve` binds to
-    # loopback; on any other address `serve` refuses to start until it is chosen.
-    public_read: bool | None = None
-    # How long a dashboard login lasts (its server-side session; the cookie holds only
-    # the session's token).
-    session_max_age_s: float = Field(12 * 3600.0, gt=0.0)
-    # The largest request body accepted (413 beyond, counted as it streams in).
-    max_body_bytes: int = Field(1_000_000, ge=1024)
-    # Long polls waiting at once; more are answered 429 (each costs a database read
-    # per poll interval, not a thread).
-    long_poll_max_waiters: int = Field(256, ge=1)
-    # TLS of the scale-out Dask connections (tls:// scheduler addresses): the CA that
-    # signed the scheduler's and workers' certificates, and this process's own
-    # certificate and private key (PEM files).
-    tls_ca_file: Path | None = None
-    tls_cert: Path | None = None
-    tls_key: Path | None = None
-    # A tcp:// scheduler off loopback (no encryption, no authentication: whoever reaches
-    # it runs code on the workers) is refused unless this is on.
-    allow_plaintext_scheduler: bool = False
 
     @field_validator("data_dir")
     @classmethod

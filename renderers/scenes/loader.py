@@ -29,6 +29,7 @@ from renderers.scenes.library import BUILTINS, LIBRARY_VERSION, get_builtin
 from renderers.scenes.parts import set_film_resolution
 from renderers.scenes.resolution import DEFAULT_RESOLUTION, Resolution, normalize_resolution
 from renderers.scenes.runtime import mitsuba
+from renderers.scenes.vetting import MAX_FILE_BYTES_VARIABLE, scene_limits
 from renderers.scenes.xml_scene import is_scene_file, load_xml_scene
 
 
@@ -79,12 +80,6 @@ def _load_builtin(name: str, resolution: Resolution | None) -> LoadedScene:
     )
 
 
-#: Size caps of a scene given by path: its XML (and included XML) files, and every
-#: other file it references (meshes, textures); environment variables override them.
-MAX_SCENE_XML_BYTES = int(os.environ.get("NIRC_BENCH_MAX_SCENE_XML_BYTES", 64 << 20))
-MAX_SCENE_FILE_BYTES = int(os.environ.get("NIRC_BENCH_MAX_SCENE_FILE_BYTES", 4 << 30))
-
-
 def _checked_file(path: Path, what: str, cap: int) -> bool:
     """Whether ``path`` exists; refuses (SceneError) anything but a regular file of at
     most ``cap`` bytes: opening a FIFO or a device would block the render forever."""
@@ -97,16 +92,18 @@ def _checked_file(path: Path, what: str, cap: int) -> bool:
                          "folder); scenes and the files they use must be regular files")
     if info.st_size > cap:
         raise SceneError(f"{what} {path}: {info.st_size} bytes, more than the {cap} this "
-                         "service accepts")
+                         f"service accepts ({MAX_FILE_BYTES_VARIABLE})")
     return True
 
 
 def check_scene_files(xml_path: Path, seen: set[Path] | None = None) -> None:
     """Before anything opens them: the XML at ``xml_path``, its includes and every file
     it names (``filename``) wherever Mitsuba would look (absolute, beside the XML, the
-    working folder) are regular files within the size caps."""
+    working folder) are regular files within the scenes' size limit (each file at most
+    :func:`renderers.scenes.vetting.scene_limits`' ``max_file_bytes``)."""
     seen = set() if seen is None else seen
-    if not _checked_file(xml_path, "scene file", MAX_SCENE_XML_BYTES):
+    cap = scene_limits().max_file_bytes
+    if not _checked_file(xml_path, "scene file", cap):
         return                  # missing: load_xml_scene explains
     seen.add(xml_path.resolve())
     try:
@@ -118,7 +115,6 @@ def check_scene_files(xml_path: Path, seen: set[Path] | None = None) -> None:
         for candidate in ((relative,) if relative.is_absolute()
                           else (xml_path.parent / relative, Path.cwd() / relative)):
             is_xml = candidate.suffix.lower() == ".xml"
-            cap = MAX_SCENE_XML_BYTES if is_xml else MAX_SCENE_FILE_BYTES
             if _checked_file(candidate, "file used by the scene", cap) and is_xml \
                     and candidate.resolve() not in seen:
                 check_scene_files(candidate, seen)

@@ -100,6 +100,33 @@ class Limits:
     max_files: int = 1000
 
 
+#: The scene-size limits' environment variables and defaults (bytes): each file of a
+#: scene (its XML, includes, meshes, textures), and all of its files together.
+MAX_FILE_BYTES_VARIABLE, MAX_TOTAL_BYTES_VARIABLE = (
+    "NIRC_BENCH_SCENE_MAX_FILE_BYTES", "NIRC_BENCH_SCENE_MAX_BYTES")
+DEFAULT_MAX_FILE_BYTES, DEFAULT_MAX_TOTAL_BYTES = 64 << 20, 256 << 20
+
+
+def scene_limits() -> Limits:
+    """The one size limit of scenes: what a scene given by path may hold (every file
+    within ``max_file_bytes``, checked by the loader before anything opens it) and what
+    the service stores (an upload or a scene root's copy, also within
+    ``max_total_bytes``). Read from the environment at every call, never at import, so
+    a process sees its own environment."""
+    values = []
+    for variable, default in ((MAX_FILE_BYTES_VARIABLE, DEFAULT_MAX_FILE_BYTES),
+                              (MAX_TOTAL_BYTES_VARIABLE, DEFAULT_MAX_TOTAL_BYTES)):
+        text = os.environ.get(variable, "").strip()
+        try:
+            value = int(text) if text else default
+        except ValueError:
+            raise ValueError(f"{variable}={text!r}: a number of bytes is needed") from None
+        if value < 1:
+            raise ValueError(f"{variable}={value}: the limit must be at least 1 byte")
+        values.append(value)
+    return Limits(max_file_bytes=values[0], max_total_bytes=values[1])
+
+
 @dataclass(frozen=True)
 class StagedScene:
     """A vetted scene ready to be stored: ``files`` (staged name -> content) hold the

@@ -17,12 +17,12 @@ from fastapi.security import APIKeyCookie, APIKeyHeader
 
 from jobs.execution.apikeys import session_key, verify_api_key
 from jobs.execution.queue import JobQueue
-from jobs.record.config import Settings
 from jobs.record.models import ApiKey
 from jobs.record.store import Store
+from service.config import ServiceSettings
 
 
-def get_settings(request: Request) -> Settings:
+def get_settings(request: Request) -> ServiceSettings:
     return request.app.state.settings
 
 
@@ -92,7 +92,7 @@ def require_read_access(request: Request, store: Annotated[Store, Depends(get_st
 
 StoreDep = Annotated[Store, Depends(get_store)]
 QueueDep = Annotated[JobQueue, Depends(get_queue)]
-SettingsDep = Annotated[Settings, Depends(get_settings)]
+SettingsDep = Annotated[ServiceSettings, Depends(get_settings)]
 DispatcherDep = Annotated[Any, Depends(get_dispatcher)]
 WriteAccess = Depends(require_api_key)
 CallerDep = Annotated[ApiKey, Depends(require_api_key)]

@@ -1,7 +1,7 @@
 """Bounds on what one request may make the service hold, store or send back.
 
-* The body: at most ``Settings.max_body_bytes`` (413 naming the limit). A declared
-  Content-Length over the limit is refused before anything is read; a body sent
+* The body: at most ``max_body_bytes`` of service/config.py (413 naming the limit).
+  A declared Content-Length over the limit is refused before anything is read; a body sent
   without one (chunked) is counted as it streams in and refused when it passes the
   limit, so a client cannot make the service buffer more than the limit.
 * Free-form JSON inside an accepted body (``params`` is a dict of anything): string

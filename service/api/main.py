@@ -11,25 +11,24 @@ failure is answered in JSON: 507 when the service cannot write (disk full), 503
 while the database is unavailable (service/api/failures.py). A request that fails validation is
 answered 422 with the errors as JSON, even when the bad value is NaN or Infinity
 (which a JSON body may carry, but a JSON answer cannot), and with any echoed input
-cut short (service/api/limits.py, which also bounds bodies).
+cut short; every 422 has that one shape (service/api/unprocessable.py; the body
+limits: service/api/limits.py).
 
-Reads need an API key unless ``settings.public_read`` (None counts as on: the app
+Reads need an API key unless ``settings.public_read`` (service/config.py) (None counts as on: the app
 alone does not know where it listens, and ``serve`` decides None before it gets
 here, refusing a non-loopback address without an explicit choice).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
-from fastapi import Depends, FastAPI, Request, status
-from fastapi.encoders import jsonable_encoder
+from fastapi import Depends, FastAPI
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
@@ -39,31 +38,14 @@ from jobs.record.db import open_store
 from service.api.deps import ReadAccess
 from service.api.failures import add_failure_handlers
 from service.api.headers import SecurityHeaders
-from service.api.limits import BodySizeLimit, bounded_json_body, truncate_echo
+from service.api.limits import BodySizeLimit, bounded_json_body
 from service.api.routes import auth, ci, jobs, results, scenes
+from service.api.unprocessable import validation_failed
+from service.config import ServiceSettings
 
 #: The dashboard's files (HTML, CSS, JavaScript with its own SVG plots): served from
 #: here, never from a CDN.
 DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
-
-
-def _json_safe(value: Any) -> Any:
-    """``value`` with NaN and infinities spelled as the JSON body spelled them."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
-    if isinstance(value, dict):
-        return {key: _json_safe(item) for key, item in value.items()}
-    if isinstance(value, list):
-        return [_json_safe(item) for item in value]
-    return value
-
-
-async def validation_failed(request: Request, exc: RequestValidationError) -> JSONResponse:
-    """FastAPI's 422 answer, which would fail with a 500 on a NaN it has to echo, and
-    would repeat a huge input whole."""
-    errors = [truncate_echo(error) for error in jsonable_encoder(exc.errors())]
-    return JSONResponse(status_code=status.HTTP_422_UNPROCESSABLE_CONTENT,
-                        content={"detail": _json_safe(errors)})
 
 
 def _write_operations_need_the_header(app: FastAPI) -> None:
@@ -85,7 +67,9 @@ def _write_operations_need_the_header(app: FastAPI) -> None:
 
 
 def create_app(settings: Settings | None = None, dispatcher: Any = None) -> FastAPI:
-    settings = settings or Settings()
+    """The app over the store of ``settings``: the service's own settings, or a store's
+    completed with the service's from the environment (ServiceSettings.of)."""
+    settings = ServiceSettings.of(settings) if settings is not None else ServiceSettings()
     store = open_store(settings)     # migrates the database before the first request
     queue = JobQueue(store)
 
@@ -112,7 +96,7 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.state.dispatcher = dispatcher
     app.add_exception_handler(RequestValidationError, validation_failed)
     add_failure_handlers(app)
-    # A scene upload reads its body under its own cap (scene_max_bytes).
+    # A scene upload reads its body under its own cap (the scenes' size limit).
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes,
                        exempt=(("POST", scenes.UPLOAD_PATH),))
     app.add_middleware(SecurityHeaders)

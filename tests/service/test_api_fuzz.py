@@ -17,13 +17,13 @@ from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
 
 from jobs.execution.apikeys import create_api_key
-from jobs.record.config import Settings
 from service.api.main import create_app
+from service.config import ServiceSettings
 from tests.pg import postgres_database
 
 _DATA = Path(tempfile.mkdtemp(prefix="nirc-fuzz-")) / "data"
 # Queued jobs never finish here: no long poll may hold a generated request open.
-APP = create_app(Settings(data_dir=_DATA, database_url=None, long_poll_max_s=0))
+APP = create_app(ServiceSettings(data_dir=_DATA, database_url=None, long_poll_max_s=0))
 _, KEY = create_api_key(APP.state.store, "fuzz")
 schema = schemathesis.openapi.from_asgi("/openapi.json", APP)
 FUZZ = settings(max_examples=30, deadline=None,
@@ -39,8 +39,8 @@ def test_no_server_errors(case):
 @pytest.fixture(scope="module")
 def pg_app():
     with postgres_database() as url:
-        app = create_app(Settings(data_dir=_DATA.parent / "pg", database_url=url,
-                                  long_poll_max_s=0))
+        app = create_app(ServiceSettings(data_dir=_DATA.parent / "pg", database_url=url,
+                                         long_poll_max_s=0))
         _, key = create_api_key(app.state.store, "fuzz")
         yield app, key
         app.state.store.close()

@@ -118,7 +118,9 @@ def test_the_branch_filter_keeps_the_runs_of_that_branch(api_and_store):
 def test_unknown_names_are_422_with_the_name(api_and_store, query, message):
     http, _ = api_and_store
     answer = http.get(f"/api/v1/ci/history?{query}")
-    assert answer.status_code == 422 and message in answer.json()["detail"]
+    assert answer.status_code == 422
+    error, = answer.json()["detail"]
+    assert message in error["msg"] and error["loc"] == ["query", message.split()[1]]
 
 
 @pytest.mark.parametrize("extra", ["&limit=0", "&limit=501", "&res=0x4", "&res=abc",

@@ -26,6 +26,7 @@ import uvicorn
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from service.config import ServiceSettings
 from tests.service.conftest import open_page, wait_until
 from tests.service.live import Process, Service, Worker, free_port, service_env
 
@@ -103,8 +104,8 @@ def app_with(tmp_path, monkeypatch):
     clients = []
 
     def make(public_read: bool | None) -> tuple:
-        client = TestClient(create_app(Settings(data_dir=tmp_path / "data",
-                                                public_read=public_read)))
+        client = TestClient(create_app(ServiceSettings(data_dir=tmp_path / "data",
+                                                       public_read=public_read)))
         clients.append(client)
         return client, key
 
@@ -227,8 +228,8 @@ def test_a_plain_scheduler_off_loopback_is_refused_unless_allowed(tmp_path):
                                  text=True, timeout=60)
         assert refused.returncode == 2, refused.stderr
         assert "--allow-plaintext-scheduler" in refused.stderr
-    allowed = _with_tls(Settings(data_dir=tmp_path), "tcp://192.0.2.1:8786", None, None, None,
-                        allow_plaintext=True)
+    allowed = _with_tls(ServiceSettings(data_dir=tmp_path), "tcp://192.0.2.1:8786", None, None,
+                        None, allow_plaintext=True)
     assert allowed.allow_plaintext_scheduler
 
 
@@ -267,7 +268,7 @@ def site(tmp_path):
     from jobs.execution.apikeys import create_api_key
     from service.api.main import create_app
 
-    settings = Settings(data_dir=tmp_path / "data", public_read=False)
+    settings = ServiceSettings(data_dir=tmp_path / "data", public_read=False)
     store = open_store(settings)
     _, key = create_api_key(store, "browser")
     port = free_port()

@@ -31,6 +31,7 @@ from jobs.execution.apikeys import create_api_key
 from jobs.record.config import Settings
 from jobs.record.db import open_store
 from service.api.main import create_app
+from service.config import ServiceSettings
 from tests.service.live import Service
 
 MAX_FILE_BYTES = 100_000
@@ -106,13 +107,19 @@ def live(layout, tmp_path_factory) -> Iterator[Target]:
 def in_process(layout, tmp_path_factory) -> Iterator[Target]:
     """The app in this process (no dispatcher: jobs stay queued)."""
     settings = Settings(data_dir=tmp_path_factory.mktemp("app") / "data", database_url=None,
-                        scene_roots=[layout["root"]], scene_max_file_bytes=MAX_FILE_BYTES,
-                        scene_max_bytes=MAX_BYTES)
+                        scene_roots=[layout["root"]])
     store = open_store(settings)
     _, key = create_api_key(store, "tests")
-    with TestClient(create_app(settings, None)) as client:
+    with pytest.MonkeyPatch.context() as patch, TestClient(create_app(settings, None)) as client:
+        _scene_limits(patch)
         yield Target(client, key)
     store.close()
+
+
+def _scene_limits(patch: pytest.MonkeyPatch) -> None:
+    """The scenes' size limit of these tests, set the way an operator sets it."""
+    patch.setenv("NIRC_BENCH_SCENE_MAX_FILE_BYTES", str(MAX_FILE_BYTES))
+    patch.setenv("NIRC_BENCH_SCENE_MAX_BYTES", str(MAX_BYTES))
 
 
 @pytest.fixture(params=["in-process", "live"])
@@ -347,11 +354,11 @@ def test_a_tar_upload_holds_only_regular_files_under_relative_names(api):
         assert PASSWD_LINE not in refused.text
 
 
-def test_a_scene_upload_has_its_own_body_cap_not_the_service_wide_one(tmp_path):
+def test_a_scene_upload_has_its_own_body_cap_not_the_service_wide_one(tmp_path, monkeypatch):
     """Bodies are capped service-wide (max_body_bytes), but a tar upload carries its
     files: it is read under the scene limits instead (and still refused beyond them)."""
-    settings = Settings(data_dir=tmp_path / "data", database_url=None, max_body_bytes=2000,
-                        scene_max_file_bytes=MAX_FILE_BYTES, scene_max_bytes=MAX_BYTES)
+    _scene_limits(monkeypatch)
+    settings = ServiceSettings(data_dir=tmp_path / "data", database_url=None, max_body_bytes=2000)
     store = open_store(settings)
     _, key = create_api_key(store, "tests")
     mesh = QUAD + b"# padding\n" * 1000          # ~10 kB: over the service-wide cap

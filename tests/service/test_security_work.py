@@ -174,9 +174,9 @@ def test_scene_files_over_the_size_cap_are_refused(tmp_path, monkeypatch):
     scene = tmp_path / "scene.xml"
     scene.write_text('<scene version="3.0.0"><shape type="ply">'
                      '<string name="filename" value="mesh.ply"/></shape></scene>')
-    monkeypatch.setattr(loader, "MAX_SCENE_FILE_BYTES", 99)
+    monkeypatch.setenv("NIRC_BENCH_SCENE_MAX_FILE_BYTES", "99")      # the XML is 99 bytes
     with pytest.raises(SceneError, match="100 bytes, more than the 99"):
         loader.check_scene_files(scene)
-    monkeypatch.setattr(loader, "MAX_SCENE_XML_BYTES", 10)
+    monkeypatch.setenv("NIRC_BENCH_SCENE_MAX_FILE_BYTES", "10")
     with pytest.raises(SceneError, match="scene file .* more than the 10"):
         loader.load_scene(str(scene), 16)

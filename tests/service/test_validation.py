@@ -6,6 +6,7 @@ cache overrides the method's preset cannot build, are 422 naming the field (neve
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
@@ -107,3 +108,12 @@ def test_a_valid_submission_with_numbers_in_float_fields_is_accepted(client):
     body = {**RENDER, "eps": 1, "params": {"rr_survival": 1}, "seeds": 3}
     assert _post(client, "/api/v1/jobs", body).status_code == 202
 
+
+
+def test_every_422_is_built_in_one_place():
+    """Routes raise service.api.unprocessable's error; only that module writes a 422
+    answer, so every refusal has the one shape ``{"detail": [{"loc", "msg", "type"}]}``."""
+    service = Path(__file__).resolve().parents[2] / "service"
+    writers = sorted(str(path.relative_to(service)) for path in service.rglob("*.py")
+                     if "HTTP_422" in path.read_text() or "status_code=422" in path.read_text())
+    assert writers == ["api/unprocessable.py"]

@@ -39,7 +39,7 @@ def test_compare_refuses_mixed_metric_versions_and_flags_estimators(api_and_stor
     old_pt = store.add_run(run_fields(estimator_version=1, metric_version=2))
     refused = http.get("/api/v1/compare", params={"runs": f"{new.id},{old_metric.id}"})
     assert refused.status_code == 422
-    assert "different metric definitions" in refused.json()["detail"]
+    assert "different metric definitions" in refused.json()["detail"][0]["msg"]
     flagged = http.get("/api/v1/compare", params={"runs": f"{new.id},{old_pt.id}"}).json()
     assert flagged["estimator_versions"] == {"pt": [1, 2]} and flagged["metric_version"] == 2
     assert "pt runs of estimator versions 1, 2 are different estimators" in flagged["note"]

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Query, status
+from fastapi import APIRouter, Query
+from fastapi.exceptions import RequestValidationError
 
 from jobs.ci.history import MAX_HISTORY_RUNS, STEP_ALPHA, build_history
 from metrics.registry import BY_NAME
@@ -12,6 +13,7 @@ from renderers.methods import METHODS
 from renderers.scenes import builtin_names
 from service.api.deps import StoreDep
 from service.api.schemas import HistoryOut
+from service.api.unprocessable import unprocessable
 
 router = APIRouter(prefix="/api/v1/ci", tags=["ci"])
 
@@ -23,8 +25,8 @@ Resolution = Annotated[str | None, Query(pattern=r"^[1-9]\d{0,4}(x[1-9]\d{0,4})?
                                                      "square image")]
 
 
-def _unknown(message: str) -> HTTPException:
-    return HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, message)
+def _unknown(message: str, name: str) -> RequestValidationError:
+    return unprocessable(message, ("query", name))
 
 
 @router.get("/history", response_model=HistoryOut)
@@ -40,13 +42,13 @@ def history(store: StoreDep, metric: Name, scene: Name, method: Name,
     frames, parameters), with version breaks and detected step changes marked
     (jobs/ci/history.py; docs/service.md, "CI history")."""
     if metric not in BY_NAME:
-        raise _unknown(f"unknown metric {metric!r}; available: {', '.join(BY_NAME)}")
+        raise _unknown(f"unknown metric {metric!r}; available: {', '.join(BY_NAME)}", "metric")
     if method not in METHODS and not store.has_runs(method=method):
         raise _unknown(f"unknown method {method!r}: not registered and no stored run has it; "
-                       f"registered: {', '.join(METHODS)}")
+                       f"registered: {', '.join(METHODS)}", "method")
     if scene not in builtin_names() and not store.has_runs(scene=scene):
         raise _unknown(f"unknown scene {scene!r}: not a built-in scene (GET /api/v1/scenes) "
-                       "and no stored run has it")
+                       "and no stored run has it", "scene")
     resolution = None
     if res is not None:
         width, _, height = res.partition("x")

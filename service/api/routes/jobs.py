@@ -14,6 +14,7 @@ import time
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
+from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
@@ -30,6 +31,7 @@ from renderers.methods import MethodError, format_validation_error, get_method
 from renderers.scenes.vetting import SceneRefused
 from service.api.deps import CallerDep, DispatcherDep, QueueDep, RowId, SettingsDep
 from service.api.schemas import JobOut
+from service.api.unprocessable import unprocessable
 
 router = APIRouter(prefix="/api/v1", tags=["jobs"])
 
@@ -44,9 +46,8 @@ IdempotencyKey = Annotated[str | None, Header(max_length=200,
 DeviceClass = Annotated[Literal["cpu", "gpu"], Query(description="worker class to run on")]
 
 
-def _unprocessable(field: str, message: str) -> HTTPException:
-    return HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                         [{"loc": ["body", field], "msg": message, "type": "value_error"}])
+def _unprocessable(field: str, message: str) -> RequestValidationError:
+    return unprocessable(message, ("body", field))
 
 
 def _check_scene(scene: str, settings: Settings) -> str:
@@ -100,24 +101,22 @@ def _check_work(kind: str, spec: RenderJob | SweepSpec, store, settings,
                                                       spec.reference, job.max_depth))
     if estimate.samples > settings.max_job_work:
         parts = ", ".join(f"{name} {samples:.3g}" for name, samples in estimate.parts.items())
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, [{"loc": ["body"], "msg": (
+        raise unprocessable(
             f"this {kind} job is estimated at {estimate.samples:.3g} path samples "
             f"({parts}); this service allows {settings.max_job_work:.3g} per job "
-            "(max_job_work): lower the resolution, spp, frames or seeds"),
-            "type": "value_error"}])
+            "(max_job_work): lower the resolution, spp, frames or seeds")
     if settings.max_job_seconds is not None:
         methods = list(spec.methods) if kind == "sweep" else [spec.method]
         time = estimate_seconds(estimate, methods, spec.scene, store, device_class)
         if time.seconds > settings.max_job_seconds:
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, [{"loc": ["body"], "msg": (
+            raise unprocessable(
                 f"this {kind} job is estimated to take {time.seconds:.0f} s on this "
                 f"service ({time.describe()}; from {_sources(time.sources)}); this service "
                 f"allows {settings.max_job_seconds:.0f} s per job (max_job_seconds): lower "
-                "the resolution, spp, frames, seeds or the number of sweep points"),
-                "type": "value_error", "ctx": {"estimated_s": round(time.seconds, 1),
-                                               "parts_s": {part: round(seconds, 1) for part, seconds
-                                                           in time.parts.items()},
-                                               "limit_s": settings.max_job_seconds}}])
+                "the resolution, spp, frames, seeds or the number of sweep points",
+                ctx={"estimated_s": round(time.seconds, 1),
+                     "parts_s": {part: round(seconds, 1) for part, seconds in time.parts.items()},
+                     "limit_s": settings.max_job_seconds})
     if settings.max_data_bytes is not None:
         used = data_bytes(store, settings)
         if used + estimate.artifact_bytes > settings.max_data_bytes:
@@ -148,9 +147,7 @@ def _enqueue(kind: str, parsed: RenderJob | SweepSpec, queue, dispatcher, respon
                                     owner_key_id=caller.id,
                                     max_unfinished=settings.max_jobs_per_key)
     except IdempotencyKeyReused as err:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, [
-            {"loc": ["header", "Idempotency-Key"], "msg": str(err),
-             "type": "value_error"}]) from None
+        raise unprocessable(str(err), ("header", "Idempotency-Key")) from None
     except TooManyJobs as err:
         raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, str(err),
                             headers={"Retry-After": "60"}) from None

@@ -27,6 +27,7 @@ from service.api.schemas import (
     SceneOut,
     SweepOut,
 )
+from service.api.unprocessable import unprocessable
 
 router = APIRouter(prefix="/api/v1", tags=["results"])
 
@@ -102,7 +103,7 @@ def compare(store: StoreDep,
     try:
         return compare_runs(found)
     except ComparisonError as err:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(err)) from None
+        raise unprocessable(str(err), ("query", "runs")) from None
 
 
 @router.get("/sweeps", response_model=list[SweepOut])

@@ -30,10 +30,11 @@ from pathlib import Path
 
 from fastapi import APIRouter, HTTPException, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
+from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from jobs.execution.work import data_bytes
-from jobs.protocol.scene_store import NoRoom, limits_of, save_upload
+from jobs.protocol.scene_store import NoRoom, save_upload
 from jobs.record.artifacts import make_private_dir
 from renderers.scenes.vetting import (
     STAGED_SCENE,
@@ -41,11 +42,13 @@ from renderers.scenes.vetting import (
     Limits,
     SceneRefused,
     SceneTooLarge,
+    scene_limits,
     upload_name,
 )
 from service.api.deps import SettingsDep, StoreDep, WriteAccess
 from service.api.limits import is_unicode
 from service.api.schemas import SceneUploadOut
+from service.api.unprocessable import unprocessable
 
 router = APIRouter(prefix="/api/v1", tags=["scenes"])
 
@@ -73,9 +76,8 @@ def _too_large(message: str) -> HTTPException:
     return HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, message)
 
 
-def _unprocessable(loc: list[str], message: str) -> HTTPException:
-    return HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                         [{"loc": ["body", *loc], "msg": message, "type": "value_error"}])
+def _unprocessable(loc: list[str], message: str) -> RequestValidationError:
+    return unprocessable(message, ("body", *loc))
 
 
 def _declared_over(request: Request, limit: int) -> bool:
@@ -166,9 +168,8 @@ async def _json_upload(request: Request, limit: int) -> tuple[bytes, dict[str, B
     try:
         upload = SceneUpload.model_validate(parsed)
     except ValidationError as err:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            [{"loc": ["body", *map(str, e["loc"])], "msg": e["msg"],
-                              "type": e["type"]} for e in err.errors()]) from None
+        raise RequestValidationError([{"loc": ["body", *map(str, e["loc"])], "msg": e["msg"],
+                                       "type": e["type"]} for e in err.errors()]) from None
     # JSON may spell a lone surrogate, which no file can hold (service/api/limits.py).
     if not is_unicode(upload.xml) or not all(map(is_unicode, upload.files)):
         raise _unprocessable([], "the XML or a file name holds a lone UTF-16 surrogate "
@@ -189,7 +190,7 @@ async def upload_scene(request: Request, response: Response, settings: SettingsD
                        store: StoreDep) -> SceneUploadOut:
     """Upload a Mitsuba XML scene and the files it reads; answers its id
     (``upload:<digest>``), to use as the ``scene`` of jobs and sweeps."""
-    limits = limits_of(settings)
+    limits = scene_limits()
     kind = request.headers.get("content-type", "application/json").split(";")[0].strip()
     folder = make_private_dir(settings.data_dir / "tmp")
     scratch = Path(tempfile.mkdtemp(prefix="upload-", dir=folder))
