@@ -13,9 +13,9 @@ every job asks for the one of its device class. On SLURM the same command runs
 as a batch job (scripts/slurm/nirc-bench-worker.sbatch, README).
 
 Scale-out connections are TLS with certificates (``tls://`` addresses and the
-service's ``tls_*`` settings as a :class:`SchedulerTLS`, see :func:`scheduler_security`): a Dask scheduler runs any
-code its clients send on its workers, so only holders of a certificate signed by
-the deployment's CA may connect. The embedded cluster never leaves loopback.
+service's ``tls_*`` settings as a :class:`SchedulerTLS`, see
+:func:`scheduler_security`): a Dask scheduler runs any code its clients send on its
+workers, so only holders of a certificate signed by the deployment's CA may connect. The embedded cluster never leaves loopback.
 
 A Dask task only calls :func:`jobs.execution.runner.run_job`, which claims the job in
 the database, so a task that Dask runs twice (a worker lost mid-task) cannot
