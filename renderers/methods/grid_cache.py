@@ -14,9 +14,9 @@ cache holds.
 The policies (``termination``, with their own ``termination_params``): `var-bound`
 (threshold t, absolute or relative), `mse-min` (sample target s, margin, clamp) and
 `area-spread` (c). The cache's configuration is a typed
-:class:`~renderers.caches.grid_config.MomentGridConfig` (``grid``: overrides; the
-cell edge is ``cell_fraction`` of the scene's largest extent unless ``grid`` sets
-``cell_size``), stored with the run as ``method_stats['caches']['grid']``. The
+:class:`~renderers.caches.grid_config.MomentGridConfig` (``cache``: overrides; the
+cell edge is ``cell_fraction`` of the scene's largest extent unless ``cache`` sets
+``cell_size``), stored with the run as ``method_stats['caches']['cache']``. The
 Russian-roulette survival probability (``rr_survival``, with ``rr_depth``) is stated
 in every result's path statistics: bias and path length depend on it (Sec. 6).
 
@@ -57,6 +57,10 @@ def grid_config(cell_size: float = 1.0, **overrides: Any) -> Any:
     placeholder cell edge where the method derives it from the scene)."""
     from renderers.caches.grid_config import MomentGridConfig
 
+    unknown = set(overrides) - set(MomentGridConfig.model_fields)
+    if unknown:
+        raise ValueError(f"unknown cache config field(s) {sorted(unknown)}; valid fields "
+                         f"are {sorted(MomentGridConfig.model_fields)}")
     return MomentGridConfig(**{**GRID_DEFAULTS, "cell_size": cell_size, **overrides})
 
 
@@ -65,11 +69,11 @@ class GridCacheParams(PTParams, TerminationChoice):
 
     termination: GridTermination = Field(
         "var-bound", description="termination policy (renderers/integrators/termination)")
-    grid: dict[str, Any] = Field(default_factory=dict,
-                                 description="grid config overrides (MomentGridConfig)")
+    cache: dict[str, Any] = Field(default_factory=dict,
+                                  description="cache config overrides (MomentGridConfig)")
     cell_fraction: float = Field(1 / 16, gt=0.0, le=1.0,
                                  description="cell edge / the scene's largest extent "
-                                             "(unless grid.cell_size is given)")
+                                             "(unless cache.cell_size is given)")
     prefill_frames: int = Field(48, ge=0, le=100_000,
                                 description="propagation passes before the first frame")
     hit_store_probability: float = Field(0.02, ge=0.0, le=1.0,
@@ -77,7 +81,7 @@ class GridCacheParams(PTParams, TerminationChoice):
                                                      "hit becomes a representative")
 
     def cache_presets(self) -> dict[str, Any]:
-        return {"grid": grid_config}
+        return {"cache": grid_config}
 
     def termination_settings(self) -> Any:
         from renderers.integrators.termination import TerminationSettings
@@ -89,7 +93,7 @@ class GridCacheParams(PTParams, TerminationChoice):
         """The grid configuration of ``scene`` (a renderers.scenes scene)."""
         extents = scene.scene.bbox().extents()
         cell = self.cell_fraction * max(float(extents[i]) for i in range(3))
-        return grid_config(**{"cell_size": cell, **self.grid})
+        return grid_config(**{"cell_size": cell, **self.cache})
 
 
 def build(scene: Any, params: GridCacheParams, seed: int) -> tuple[Any, Any, Any]:
@@ -156,7 +160,7 @@ def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], 
         "rr_survival": params.rr_survival,
         "grid_records": grid.records(),
         "updated_vertices_per_frame": sum(updated) / max(len(updated), 1),
-        "caches": {"grid": {"config": grid.config.model_dump(mode="json"),
+        "caches": {"cache": {"config": grid.config.model_dump(mode="json"),
                             "per_frame": {"propagation_passes": 1,
                                           "samples_per_vertex":
                                               grid.config.samples_per_vertex}}},
@@ -180,6 +184,6 @@ def diffuse_only(features: Any) -> tuple[bool, str]:
 METHOD = Method(
     "grid-cache", "hashed-grid radiance cache with three moments, variance-trading "
     "termination", GridCacheParams, render, version=1,
-    integrators=("renderers.integrators.grid_cache",), requires=diffuse_only,
+    integrators=("renderers.integrators.grid_cache",), requires=diffuse_only, build=build,
     label="Grid cache", unbiased=False, correlated_frames=True,
     stage_sizes=lambda _params, _pixels, _spp: {"propagation": 1.0})

@@ -130,6 +130,7 @@ def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
 
 def test_every_method_applies_to_every_built_in_scene(mi):
     """Today's behaviour: no built-in scene is skipped by any method, except by
+    `grid-cache` the scenes with glossy or delta BSDFs (its records have no direction),
     `nvc-lights` and `restir-nvc` the scenes with one emitter (nothing to select),
     by `nvc-env` and `nirc-nvc-env` those without an environment map, by `restir-di`, `restir-nvc` and
     `neural-di` the scene lit by an environment (`sky`) and by `neural-di` the scene with
@@ -149,6 +150,9 @@ def test_every_method_applies_to_every_built_in_scene(mi):
                 assert METHODS[name].applies_to(features) == \
                     (False, "an environment emitter: restir-di samples points on area "
                             "emitters only")
+            elif name == "grid-cache" and (features.has_glossy or features.has_delta):
+                applies, reason = METHODS[name].applies_to(features)
+                assert not applies and "diffuse surfaces only" in reason, scene_name
             elif name == "neural-di" and features.emitter_count > 32:
                 assert METHODS[name].applies_to(features) == \
                     (False, "more than 32 emitters: one cache output per light")
