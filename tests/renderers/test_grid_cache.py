@@ -17,7 +17,7 @@ import json
 import numpy as np
 import pytest
 
-from renderers.methods import METHODS, MethodError, parse_params
+from renderers.methods import MethodError, parse_params
 from renderers.termination_model import (
     MSEMinimizing,
     PathState,
