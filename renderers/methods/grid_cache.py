@@ -32,7 +32,7 @@ from typing import Any, Literal
 from pydantic import Field
 
 from renderers.integrators.termination import policy_names
-from renderers.methods.base import FrameHooks, Method, RenderOutput, run_frames
+from renderers.methods.base import ComparisonRun, FrameHooks, Method, RenderOutput, run_frames
 from renderers.methods.cached import TerminationChoice
 from renderers.methods.pt import PTParams
 from renderers.seeding import derive_seed
@@ -186,4 +186,7 @@ METHOD = Method(
     "termination", GridCacheParams, render, version=1,
     integrators=("renderers.integrators.grid_cache",), requires=diffuse_only, build=build,
     label="Grid cache", unbiased=False, correlated_frames=True,
+    # In the method comparison and the Pareto plot: its default policy (var-bound,
+    # absolute t = 0.1), with PT matched to its frame time.
+    comparison=(ComparisonRun(5, "Grid cache", "Grid cache (var-bound)", role="matched"),),
     stage_sizes=lambda _params, _pixels, _spp: {"propagation": 1.0})
