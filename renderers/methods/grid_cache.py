@@ -185,7 +185,7 @@ METHOD = Method(
     "grid-cache", "hashed-grid radiance cache with three moments, variance-trading "
     "termination", GridCacheParams, render, version=1,
     integrators=("renderers.integrators.grid_cache",), requires=diffuse_only, build=build,
-    label="Grid cache", unbiased=False, correlated_frames=True,
+    label="Grid cache", unbiased=False,
     # In the method comparison and the Pareto plot: its default policy (var-bound,
     # absolute t = 0.1), with PT matched to its frame time.
     comparison=(ComparisonRun(5, "Grid cache", "Grid cache (var-bound)", role="matched"),),
