@@ -16,6 +16,7 @@ recomputed.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -50,10 +51,11 @@ def _spans_decades(values: Sequence[float]) -> bool:
 
 
 def value_scale(values: Sequence[float], log_axis: bool) -> alt.Scale:
-    """Log where the metric is read on a log axis and its drawn values span a decade."""
+    """Log where the metric is read on a log axis and its drawn values span a decade;
+    else linear from zero (a lone value never makes an empty domain)."""
     if log_axis and _spans_decades(values):
         return alt.Scale(type="log")
-    return alt.Scale(zero=False)
+    return alt.Scale(zero=True)
 
 
 def axis_title(metric: Mapping[str, Any]) -> str:
@@ -73,7 +75,8 @@ def _finish(chart: alt.TopLevelMixin) -> dict[str, Any]:
 
 
 def _title(text: str, notes: Sequence[str]) -> alt.Title:
-    return alt.Title(text, subtitle=list(notes) or None, anchor="start")
+    return alt.Title(text, subtitle=list(notes), anchor="start") if notes \
+        else alt.Title(text, anchor="start")
 
 
 def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
@@ -120,8 +123,9 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
         strokeDash=[5, 3], color="#222", point=False).encode(x="ms:Q", y=alt.Y("value:Q", scale=y_scale))
     title = _title(f"{metric['label']} vs time — {group.title}",
                    ["dashed: Pareto front of this group", *_not_drawn(len(usable) - len(drawn))])
-    return _finish(alt.layer(line, bars, dots).properties(width=WIDTH, height=HEIGHT,
-                                                           title=title))
+    layers = [line] if len(front) > 1 else []
+    layers += [bars] if any(p["lo"] for p in points) else []
+    return _finish(alt.layer(*layers, dots).properties(width=WIDTH, height=HEIGHT, title=title))
 
 
 def history_chart(metric: Mapping[str, Any], setting: str,
@@ -171,8 +175,9 @@ def history_chart(metric: Mapping[str, Any], setting: str,
         x=x, color=alt.Color("colour:N", scale=None), tooltip=["what:N", "commit:N"])
     title = _title(f"{metric['label']} over commits — {setting} ({metric['direction']} is better)",
                    ["red: detected step; grey: version change", *_not_drawn(below)])
-    return _finish(alt.layer(rules, bars, line).properties(width=WIDTH, height=HEIGHT,
-                                                           title=title))
+    layers = [rules] if marks else []
+    layers += [bars] if any(r["lo"] for r in rows) else []
+    return _finish(alt.layer(*layers, line).properties(width=WIDTH, height=HEIGHT, title=title))
 
 
 def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
@@ -187,13 +192,16 @@ def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
                      for i, v in enumerate(curve.get(key) or []) if v is not None and v > 0]
     if run["frames"] < 2 or not rows:
         return None
+    every = max(1, math.ceil(run["frames"] / 12))
     x = alt.X("frame:Q", title="frame", scale=alt.Scale(domain=[0, run["frames"] - 1], nice=False),
-              axis=alt.Axis(tickMinStep=1, format="d"))
+              axis=alt.Axis(values=list(range(0, run["frames"], every)), format="d"))
     y = alt.Y("value:Q", title="MRSE (relative, unitless)",
               scale=value_scale([r["value"] for r in rows], True))
     chart = alt.Chart(alt.Data(values=rows)).mark_line(point=True).encode(
         x=x, y=y, color=alt.Color("seed:N", legend=LEGEND),
-        strokeDash=alt.StrokeDash("kind:N", legend=alt.Legend(orient="bottom", title=None)),
+        strokeDash=alt.StrokeDash("kind:N", scale=alt.Scale(domain=["frame", "accumulated"],
+                                                            range=[[1, 0], [5, 3]]),
+                                  legend=alt.Legend(orient="bottom", title=None)),
         tooltip=["seed:N", "kind:N", "frame:Q", alt.Tooltip("value:Q", title="MRSE", format=".4g")],
     ).add_params(alt.selection_interval(bind="scales"))
     return _finish(chart.properties(width=WIDTH, height=HEIGHT, title=_title(

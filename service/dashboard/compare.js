@@ -154,4 +154,5 @@ export async function comparisonView(container, run, other) {
 
   await chooseAB();
   await redraw();
+  container.dataset.ready = "true";
 }

@@ -19,7 +19,7 @@ from service.api.deps import RowId, StoreDep
 router = APIRouter(prefix="/api/v1/charts", tags=["charts"])
 
 Name = Annotated[str, Query(min_length=1, max_length=500, pattern=r"^[^\x00]*$")]
-#: The errors drawn against time (as `nirc-bench pareto` draws them).
+#: The errors drawn against time, by result field (as `nirc-bench pareto` draws them).
 TIME_METRICS = ("mrse", "flip")
 
 
@@ -35,7 +35,7 @@ def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dic
                                        "metric_version": METRIC_VERSION}
     runs = [RunResult.of(run).model_dump(mode="json")
             for run in store.list_runs(scene, None, None, limit=1000, **versions)]
-    metrics = [m for m in _listed() if m["name"] in TIME_METRICS]
+    metrics = [m for m in _listed() if m["field"] in TIME_METRICS]
     groups = []
     for group, members in split_groups(runs).items():
         charts = [chart for m in metrics if (chart := error_time_chart(group, members, m))]
