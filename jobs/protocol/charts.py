@@ -129,10 +129,12 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
 
 
 def history_chart(metric: Mapping[str, Any], setting: str,
-                  series: Sequence[tuple[str, Sequence[Mapping[str, Any]]]]) -> dict[str, Any]:
+                  series: Sequence[tuple[str, Sequence[Mapping[str, Any]]]]
+                  ) -> dict[str, Any] | None:
     """A metric over commits of one setting: one line per method configuration
     (label, points of GET /api/v1/ci/history), its stored intervals as bars; red rules
-    at detected steps, grey dashed ones at version changes (never compared across)."""
+    at detected steps, grey dashed ones at version changes (never compared across).
+    None when no commit has a value."""
     log = metric["log_axis"]
     rows, marks, below = [], [], 0
     for label, points in series:
@@ -152,6 +154,8 @@ def history_chart(metric: Mapping[str, Any], setting: str,
                          "lo": ci[0], "hi": ci[1], "n": p["n"], "config": label,
                          "runs": ", ".join(map(str, p["runs"])),
                          "href": run_link(p["runs"][-1])})
+    if not rows:
+        return None
     order = sorted({(r["time"], r["commit"]) for r in rows})
     commits = list(dict.fromkeys(commit for _, commit in order))
     x = alt.X("commit:N", sort=commits, title="commit, oldest to newest",

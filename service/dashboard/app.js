@@ -175,7 +175,7 @@ async function historyPage(scene, method) {
     const section = document.createElement("section");
     section.innerHTML = `<h4>${esc(m.label)}</h4><div class="plots"></div>`;
     box.appendChild(section);
-    if (!m.charts.length) note(section, `No run of ${method} on ${scene} with a clean commit.`);
+    if (!m.charts.length) note(section, `No value of ${m.label} in a run of ${method} on ${scene} with a clean commit.`);
     for (const c of m.charts) await chart(section.querySelector(".plots"), c.spec);
     for (const s of m.history.series) for (const p of s.points.filter((p) => p.step)) steps.push([m, s, p]);
   }

@@ -95,7 +95,7 @@ def test_scene_page_draws_one_group_per_setting_with_library_charts(chromium, si
     assert page.locator("#pareto .vega-embed svg.marks").count() == 6
     assert page.locator("#sweep .vega-embed svg.marks").count() == 4
     # Hover: the tooltip shows the run's parameters; the point links to the run.
-    point = page.locator("#pareto .vega-embed g.mark-symbol path").first
+    point = page.locator("#pareto .vega-embed g.mark-symbol.role-mark path").first
     point.hover()
     wait_until(page, "document.querySelector('#vg-tooltip-element.visible') !== null")
     tip = page.inner_text("#vg-tooltip-element")

@@ -60,10 +60,10 @@ def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]
             setting = f"{width}×{height}, {series['spp']} spp, {series['frames']} frames"
             settings.setdefault(setting, []).append(
                 (method_label(method, series["params"]), series["points"]))
+        charts = [{"setting": setting, "spec": spec} for setting, series in settings.items()
+                  if (spec := history_chart(metric.to_json(), setting, series))]
         answer.append({"metric": metric.name, "label": metric.label, "history": history,
-                       "charts": [{"setting": setting,
-                                   "spec": history_chart(metric.to_json(), setting, series)}
-                                  for setting, series in settings.items()]})
+                       "charts": charts})
     return {"scene": scene, "method": method, "metrics": answer}
 
 
