@@ -36,11 +36,11 @@ from fastapi_offline import FastAPIOffline
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from service.api import vendor
 from service.api.deps import ReadAccess
 from service.api.failures import add_failure_handlers
 from service.api.headers import SecurityHeaders
 from service.api.limits import BodySizeLimit, bounded_json_body, truncate_echo
-from service.api import vendor
 from service.api.routes import auth, charts, ci, jobs, pixels, results, scenes
 
 #: The dashboard's files (HTML, CSS, JavaScript, the vendored image slider): served
