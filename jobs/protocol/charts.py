@@ -216,14 +216,16 @@ def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
 def sweep_chart(sweep_id: int, rows: Sequence[Mapping[str, Any]],
                 metric: Mapping[str, Any]) -> dict[str, Any] | None:
     """A sweep's metric against the share of indirect-radiance bounces, one line per
-    series (the 'equal time' series dashed)."""
+    series (the 'equal time' series dashed), each point linked to its run."""
     field, log = metric["field"], metric["log_axis"]
     usable = [r for r in rows if r.get(field) is not None]
     drawn = [r for r in usable if r[field] > 0 or not log]
     if not drawn:
         return None
     values = [{"pct": r["ir_bounces_pct"], "value": r[field], "config": r["series"],
-               "eps": r.get("eps"), "equal_time": "equal time" in r["series"]} for r in drawn]
+               "eps": r.get("eps"), "equal_time": "equal time" in r["series"],
+               "run": r.get("id"), "href": run_link(r["id"]) if r.get("id") else None}
+              for r in drawn]
     chart = alt.Chart(alt.Data(values=values)).mark_line(point=True).encode(
         x=alt.X("pct:Q", title="indirect-radiance bounces (%)"),
         y=alt.Y("value:Q", title=axis_title(metric),
@@ -233,7 +235,9 @@ def sweep_chart(sweep_id: int, rows: Sequence[Mapping[str, Any]],
         strokeDash=alt.StrokeDash("equal_time:N", legend=None),
         tooltip=[alt.Tooltip("config:N", title="series"), alt.Tooltip("eps:Q", title="eps"),
                  alt.Tooltip("pct:Q", title="% IR bounces", format=".3g"),
-                 alt.Tooltip("value:Q", title=metric["label"], format=".4g")],
+                 alt.Tooltip("value:Q", title=metric["label"], format=".4g"),
+                 alt.Tooltip("run:Q", title="run")],
+        href="href:N",
     ).add_params(alt.selection_interval(bind="scales"))
     return _finish(chart.properties(width=WIDTH, height=HEIGHT, title=_title(
         f"{metric['label']} — sweep {sweep_id}", _not_drawn(len(usable) - len(drawn)))))

@@ -37,13 +37,14 @@ class Layer(StrEnum):
     variance = "variance"
 
 
-#: What each layer's values are (the X-Quantity header; the page names the colour bar so).
+#: What each layer's values are (the X-Quantity header, Latin-1 as headers are; the page
+#: names the colour bar so).
 QUANTITY = {
     Layer.reference: "radiance (linear RGB)",
     Layer.image: "radiance (linear RGB)",
-    Layer.error: "relative squared error (X-R)²/(R²+eps), mean of RGB",
-    Layer.bias: "relative bias (M-R)/sqrt(R²+eps) over the seeds",
-    Layer.variance: "relative variance S²/(R²+eps) over the seeds",
+    Layer.error: "relative squared error (X-R)^2/(R^2+eps), mean of RGB",
+    Layer.bias: "relative bias (M-R)/sqrt(R^2+eps) over the seeds",
+    Layer.variance: "relative variance S^2/(R^2+eps) over the seeds",
 }
 MAP_KINDS = {Layer.bias: RELATIVE_BIAS_MAP, Layer.variance: RELATIVE_VARIANCE_MAP}
 
@@ -67,13 +68,8 @@ def _pixels(image: np.ndarray, layer: Layer) -> Response:
                     media_type="application/octet-stream",
                     headers={"X-Width": str(width), "X-Height": str(height),
                              "X-Channels": str(channels),
-                             "X-Quantity": _ascii(QUANTITY[layer]),
+                             "X-Quantity": QUANTITY[layer],
                              "Cache-Control": "private, max-age=3600"})
-
-
-def _ascii(text: str) -> str:
-    """Header values are Latin-1: the squares and roots spelled out."""
-    return text.replace("²", "^2")
 
 
 @router.get("/runs/{run_id}/pixels/{layer}", response_class=Response,
