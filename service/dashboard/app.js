@@ -177,12 +177,12 @@ async function historyPage(scene, method) {
     box.appendChild(section);
     if (!m.charts.length) note(section, `No value of ${m.label} in a run of ${method} on ${scene} with a clean commit.`);
     for (const c of m.charts) await chart(section.querySelector(".plots"), c.spec);
-    for (const s of m.history.series) for (const p of s.points.filter((p) => p.step)) steps.push([m, s, p]);
+    for (const p of m.steps) steps.push([m, p]);
   }
   document.getElementById("steps").innerHTML = steps.length
     ? `<table><tr><th class="text">metric</th><th class="text">commit</th><th class="text">setting</th><th>change of the median</th><th>p (Holm)</th><th>runs</th></tr>${
-      steps.map(([m, s, p]) => `<tr class="step"><td class="text">${esc(m.label)}</td><td class="text"><code>${esc(p.commit.slice(0, 12))}</code></td>
-        <td class="text">${esc(`${s.resolution.join("×")}, ${s.spp} spp, ${s.frames} frames`)}</td><td>${num(p.change)}</td><td>${num(p.p_holm, 2)}</td>
+      steps.map(([m, p]) => `<tr class="step"><td class="text">${esc(m.label)}</td><td class="text"><code>${esc(p.commit.slice(0, 12))}</code></td>
+        <td class="text">${esc(`${p.config}: ${p.setting}`)}</td><td>${num(p.change)}</td><td>${num(p.p_holm, 2)}</td>
         <td>${p.runs.map((id) => runLink(id, id)).join(", ")}</td></tr>`).join("")}</table>`
     : "<p class='muted'>No step detected.</p>";
 }

@@ -1,5 +1,5 @@
 """The dashboard's history page in a real headless Chromium: per listed metric one chart
-per setting, one line per method configuration (its parameters in its label), the
+per device and setting, one line per method configuration (its parameters in its label), the
 detected step marked, and the table of detected steps."""
 
 from __future__ import annotations
@@ -16,12 +16,13 @@ from tests.service.test_ci_history import store_history
 @pytest.fixture(scope="module")
 def site(tmp_path_factory):
     """Eight commits of pt on cornell-box: at 64² with max_depth 8 (MRSE stepping up at
-    the fifth) and max_depth 4 (flat), and at 32² (flat)."""
+    the fifth) and max_depth 4 (flat), at 32² (flat), and at 64² on another device."""
     settings = Settings(data_dir=tmp_path_factory.mktemp("history") / "data")
     store = open_store(settings)
     store_history(store, [0.1] * 4 + [0.13] * 4)
     store_history(store, [0.2] * 8, seed=1, params={"max_depth": 4})
     store_history(store, [0.3] * 8, seed=2, width=32, height=32)
+    store_history(store, [0.4] * 8, seed=3, device_key="llvm:other-cpu")
     with serve(create_app(settings)) as url:
         yield url
     store.close()
@@ -33,10 +34,11 @@ def test_history_page_draws_a_chart_per_setting_and_marks_the_step(chromium, sit
     mrse = page.locator("#history section").first
     assert mrse.locator("h4").inner_text() == "MRSE"
     charts = mrse.locator(".vega-embed")
-    assert charts.count() == 2                  # 64×64 and 32×32: never on one chart
-    titles = [charts.nth(i).locator(".role-title-text").text_content() for i in range(2)]
-    assert any("64×64" in t for t in titles) and any("32×32" in t for t in titles)
-    wide = charts.nth(titles.index(next(t for t in titles if "64×64" in t)))
+    assert charts.count() == 3                  # 64² and 32², 64² on another device
+    titles = [charts.nth(i).locator(".role-title-text").text_content() for i in range(3)]
+    assert sum("32×32" in t for t in titles) == 1
+    assert sum("64×64" in t and "llvm:other-cpu" in t for t in titles) == 1
+    wide = charts.nth(next(i for i, t in enumerate(titles) if "64×64" in t and "test-cpu" in t))
     legend = wide.locator(".role-legend-label text").all_text_contents()
     assert sorted(legend) == ["pt (max_depth 4)", "pt (max_depth 8)"]
     assert wide.locator("g.mark-symbol.role-mark path").count() == 16

@@ -47,23 +47,30 @@ def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dic
 @router.get("/history")
 def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]:
     """Per listed metric its history over commits (GET /api/v1/ci/history), one chart per
-    setting (resolution, spp, frames), one line per method configuration."""
+    device and setting (resolution, spp, frames), one line per method configuration."""
     runs = store.list_history_runs(scene, method, limit=MAX_HISTORY_RUNS)
+    devices = sorted({run.device_key for run in runs})
     answer = []
     for metric in METRICS:
         if not metric.field:
             continue
-        history = build_history(runs, metric, scene=scene, method=method).model_dump(mode="json")
+        histories = [build_history(runs, metric, scene=scene, method=method, device=device)
+                     .model_dump(mode="json") for device in devices]
         settings: dict[str, list[tuple[str, list[dict[str, Any]]]]] = {}
-        for series in history["series"]:
-            width, height = series["resolution"]
-            setting = f"{width}×{height}, {series['spp']} spp, {series['frames']} frames"
-            settings.setdefault(setting, []).append(
-                (method_label(method, series["params"]), series["points"]))
+        for device, history in zip(devices, histories, strict=True):
+            for series in history["series"]:
+                width, height = series["resolution"]
+                setting = (f"{width}×{height}, {series['spp']} spp, {series['frames']} "
+                           f"frames, {device}")
+                settings.setdefault(setting, []).append(
+                    (method_label(method, series["params"]), series["points"]))
         charts = [{"setting": setting, "spec": spec} for setting, series in settings.items()
                   if (spec := history_chart(metric.to_json(), setting, series))]
-        answer.append({"metric": metric.name, "label": metric.label, "history": history,
-                       "charts": charts})
+        answer.append({"metric": metric.name, "label": metric.label, "charts": charts,
+                       "steps": [{**point, "setting": setting, "config": label}
+                                 for setting, series in settings.items()
+                                 for label, points in series for point in points
+                                 if point["step"]]})
     return {"scene": scene, "method": method, "metrics": answer}
 
 
