@@ -9,13 +9,16 @@ const SIZE = 320;   // CSS pixels of every image view
 
 const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 
+// The per-pixel maps a run stored (runs of 2+ seeds): [layer, artifact kind, label].
+const MAPS = [["bias", "rel_bias_map", "relative bias map"], ["variance", "rel_variance_map", "relative variance map"]];
+
 // The layers one can look at: [key, label, run id, layer, seed].
 function choices(run, other) {
   const of = (r, prefix) => [
     ...r.per_seed.map((s) => [`${r.id}:image:${s.seed}`, `${prefix}image, seed ${s.seed}`, r.id, "image", s.seed]),
     ...r.per_seed.map((s) => [`${r.id}:error:${s.seed}`, `${prefix}error map, seed ${s.seed}`, r.id, "error", s.seed]),
-    [`${r.id}:bias`, `${prefix}relative bias map`, r.id, "bias", null],
-    [`${r.id}:variance`, `${prefix}relative variance map`, r.id, "variance", null]];
+    ...MAPS.filter(([, kind]) => r.artifacts.some((a) => a.kind === kind))
+      .map(([layer, , label]) => [`${r.id}:${layer}`, `${prefix}${label}`, r.id, layer, null])];
   return [[`${run.id}:reference`, "reference", run.id, "reference", null], ...of(run, ""),
     ...(other ? of(other, `run ${other.id}: `) : [])];
 }
@@ -83,7 +86,8 @@ export async function comparisonView(container, run, other) {
   const grid = container.querySelector("#compare-grid");
   const gridKeys = [`${run.id}:reference`, `${run.id}:image:${firstSeed}`, `${run.id}:error:${firstSeed}`,
     `${run.id}:bias`, `${run.id}:variance`,
-    ...(other ? [`${other.id}:image:${other.per_seed[0]?.seed ?? 0}`, `${other.id}:error:${other.per_seed[0]?.seed ?? 0}`] : [])];
+    ...(other ? [`${other.id}:image:${other.per_seed[0]?.seed ?? 0}`, `${other.id}:error:${other.per_seed[0]?.seed ?? 0}`] : [])]
+    .filter((key) => byKey.has(key));
   for (const key of gridKeys) {
     const figure = document.createElement("figure");
     figure.innerHTML = `<canvas width="${SIZE}" height="${SIZE}" data-layer="${esc(key)}"></canvas><figcaption>${esc(byKey.get(key)[1])}</figcaption><div class="bar"></div>`;

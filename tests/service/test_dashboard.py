@@ -35,14 +35,14 @@ CANVAS_SUM = ("(s => {{ const c = document.querySelector(s); const d = c.getCont
 @pytest.fixture(scope="module")
 def site(tmp_path_factory, mi):
     """A service on loopback with runs at two resolutions (16² at 1 and 2 spp, 3 seeds,
-    4 frames; 24² with 2 seeds, 1 frame), a sweep, a queued job and a finished one."""
+    4 frames; 24² with 1 seed, 1 frame), a sweep, a queued job and a finished one."""
     settings = Settings(data_dir=tmp_path_factory.mktemp("dash") / "data")
     store = open_store(settings)
     spec = RenderSpec(scene="cornell-box", resolution=16, spp=1, frames=4, seeds=3,
                       reference=ReferenceSpec(spp=64, spp_per_pass=8))
     runs = [execute(RenderJob.parse(s), store, settings).run_id for s in (
         spec, spec.model_copy(update={"spp": 2}),
-        spec.model_copy(update={"resolution": 24, "frames": 1, "seeds": 2}))]
+        spec.model_copy(update={"resolution": 24, "frames": 1, "seeds": 1}))]
     sweep = store.start_sweep(key="k", kind="eps", scene_name="cornell-box",
                               scene_fingerprint="f", spec={}, result={}, device_key="test",
                               estimator_versions=current_estimator_versions(),
@@ -147,6 +147,17 @@ def test_run_page_compares_images(chromium, site):
     wait_until(page, "document.getElementById('readout').innerText.includes('pixel')")
     assert "reference" in page.inner_text("#readout")
     page.screenshot(path=str(ARTIFACTS / "dashboard-compare.png"), full_page=True)
+    assert errors == []
+
+
+def test_a_one_seed_run_offers_no_bias_or_variance_map_and_no_convergence(chromium, site):
+    url, runs = site
+    page, errors = visit(chromium, f"{url}/#/run/{runs[2]}")
+    wait_until(page, "document.getElementById('compare').dataset.ready === 'true'")
+    assert page.locator("#compare-grid figure > canvas").count() == 3
+    options = page.locator("#layer-a option").all_inner_texts()
+    assert options == ["reference", "image, seed 0", "error map, seed 0"]
+    assert "one frame" in page.inner_text("#convergence")
     assert errors == []
 
 
