@@ -1,7 +1,8 @@
 """Vega-Lite specs of the dashboard's charts, built with Altair.
 
 The dashboard renders them with vega-embed (served by the app, no CDN); the same
-dicts render to SVG or PNG files with vl-convert, so a page and a file agree.
+dicts render to PNG files with vl-convert (:func:`chart_png`, e.g. ``render --out``'s
+convergence.png), so a page and a file agree.
 
 Every chart follows the same rules: one colour per method configuration, the same on
 every page (jobs.protocol.chart_groups.colour_of, given as an explicit scale); legends
@@ -18,9 +19,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import altair as alt
+import vl_convert
 
 from jobs.protocol.chart_groups import Group, colour_of, config_label
 from jobs.protocol.tradeoff import pareto_front
@@ -72,6 +75,12 @@ def _finish(chart: alt.TopLevelMixin) -> dict[str, Any]:
     spec = chart.to_dict()
     spec.pop("$schema", None)       # a URL; the page names the mode instead
     return spec
+
+
+def chart_png(spec: Mapping[str, Any], path: Path) -> Path:
+    """``spec`` drawn to a PNG file by vl-convert: the library the dashboard draws it with."""
+    path.write_bytes(vl_convert.vegalite_to_png(dict(spec), scale=2))
+    return path
 
 
 def _title(text: str, notes: Sequence[str]) -> alt.Title:
@@ -206,7 +215,8 @@ def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
         strokeDash=alt.StrokeDash("kind:N", scale=alt.Scale(domain=["frame", "accumulated"],
                                                             range=[[1, 0], [5, 3]]),
                                   legend=alt.Legend(orient="bottom", title=None,
-                                                    symbolType="stroke")),
+                                                    symbolType="stroke",
+                                                    symbolStrokeColor="#333")),
         tooltip=["seed:N", "kind:N", "frame:Q", alt.Tooltip("value:Q", title="MRSE", format=".4g")],
     ).add_params(alt.selection_interval(bind="scales"))
     return _finish(chart.properties(width=WIDTH, height=HEIGHT, title=_title(
