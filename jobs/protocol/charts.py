@@ -214,9 +214,7 @@ def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
         x=x, y=y, color=alt.Color("seed:N", legend=LEGEND),
         strokeDash=alt.StrokeDash("kind:N", scale=alt.Scale(domain=["frame", "accumulated"],
                                                             range=[[1, 0], [5, 3]]),
-                                  legend=alt.Legend(orient="bottom", title=None,
-                                                    symbolType="stroke",
-                                                    symbolStrokeColor="#333")),
+                                  legend=None),     # the subtitle says which is which
         tooltip=["seed:N", "kind:N", "frame:Q", alt.Tooltip("value:Q", title="MRSE", format=".4g")],
     ).add_params(alt.selection_interval(bind="scales"))
     return _finish(chart.properties(width=WIDTH, height=HEIGHT, title=_title(
