@@ -179,12 +179,20 @@ def test_the_dashboard_is_served_without_external_assets(api):
     client = api[0]
     page = client.get("/")
     assert page.status_code == 200 and "text/html" in page.headers["content-type"]
-    for asset in ("/static/app.js", "/static/plot.js", "/static/style.css"):
+    for asset in ("/static/app.js", "/static/charts.js", "/static/compare.js",
+                  "/static/pixels.js", "/static/style.css",
+                  "/static/vendor/img-comparison-slider/index.js",
+                  "/static/vendor/img-comparison-slider/styles.css"):
         response = client.get(asset)
         assert response.status_code == 200, asset
         text = response.text.replace("http://www.w3.org/2000/svg", "")
         assert "http://" not in text and "https://" not in text, asset   # no CDN
     assert "https://" not in page.text and "http://" not in page.text
+    # The chart library: served by the app (its code names URLs in strings, but the
+    # browser tests check that no page requests anything from another origin).
+    bundle = client.get("/vendor/vega.js")
+    assert bundle.status_code == 200 and "javascript" in bundle.headers["content-type"]
+    assert "window.vegaEmbed" in bundle.text
     assert client.get("/api/v1/sweeps").json() == []
     assert client.get("/api/v1/references/999/preview.png").status_code == 404
 
