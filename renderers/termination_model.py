@@ -37,10 +37,18 @@ reflected radiance there.
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TypeVar
+
+import drjit as dr
+
+T = TypeVar("T")
+
+#: Floor of a local variance divided by (a zero P only occurs where S + P <= t fails
+#: because S alone is over t: then alpha is 0 whatever P is).
+_TINY = 1e-30
 
 #: The probability of choosing the left child (the paper's trees: 90 %).
 LEFT_PROBABILITY = 0.9
@@ -117,6 +125,40 @@ def binary_tree(depth: int, weight: float = 0.45, biases: Mapping[str, float] | 
     return tree
 
 
+# ---- Decision formulas, shared with the renderer ------------------------------------
+#
+# The policies of renderers/integrators/termination (var_bound.py, mse_min.py) call
+# these same functions on Dr.Jit arrays, one lane per path, so the model's tests cover
+# the renderer's decisions. They use only operations that Dr.Jit defines for Python
+# floats and arrays alike.
+
+def variance_bound_weight(path_variance: T, local: T, threshold: T | float) -> T:
+    """The continuation weight of variance bounding ([VTT24] Sec. 4.2): 1 while the
+    path variance S plus this vertex's prefixed local variance P stays at or under t
+    (l(X) = argmax_l sum_{j<l} P_j <= t), else the blend weight of Eq. 5,
+    alpha = sqrt((t - S) / P), so that S + alpha^2 P = t (0 once S has reached t)."""
+    within = path_variance + local <= threshold
+    alpha = dr.sqrt(dr.maximum(threshold - path_variance, 0.0)
+                    / dr.maximum(local, _TINY))
+    return dr.select(within, 1.0, dr.minimum(alpha, 1.0))
+
+
+def mse_min_terminates(path_variance: T, local: T, prefix_sq: T, local_bias_sq: T,
+                       deferred_bias_sq: T, samples: float, margin: float,
+                       clamp: float) -> T:
+    """The greedy comparison of MSE minimization ([VTT24] Sec. 4.3, Eq. 4 split at this
+    vertex): terminate when the current MSE, S / s + g^2 b^2, is at most ``margin``
+    times the deferred MSE, (S + P) / s + g^2 min(d, clamp / margin b^2). S: path
+    variance so far; P: this vertex's prefixed local variance; g^2: the squared prefix
+    weight; b^2: the local squared bias; d: the deferred squared bias, E[(f / p)^2
+    b_next^2] (the prefix weight of the next segment included). The reading of the
+    margin and the clamp is this project's (docs/variance_trading.md)."""
+    current = path_variance / samples + prefix_sq * local_bias_sq
+    deferred_bias = dr.minimum(deferred_bias_sq, clamp / margin * local_bias_sq)
+    deferred = (path_variance + local) / samples + prefix_sq * deferred_bias
+    return current <= margin * deferred
+
+
 # ---- Termination rules -------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -142,10 +184,8 @@ def variance_bounding(threshold: float) -> Rule:
     with alpha = sqrt((t - sum_{j<l} P_j) / P_l) (Eq. 5), so the path's variance
     reaches t exactly."""
     def rule(state: PathState) -> float:
-        local = state.prefixed_local_variance
-        if state.path_variance + local <= threshold:
-            return 1.0
-        return math.sqrt(max(threshold - state.path_variance, 0.0) / local)
+        return float(variance_bound_weight(state.path_variance,
+                                           state.prefixed_local_variance, threshold))
     return rule
 
 
@@ -170,12 +210,11 @@ class MSEMinimizing:
     clamp: float = 0.9
 
     def __call__(self, state: PathState) -> float:
-        g2, node = state.prefix_weight ** 2, state.node
-        current = state.path_variance / self.samples + g2 * node.local_bias ** 2
-        deferred_bias = min(node.deferred_bias, self.clamp / self.margin * node.local_bias ** 2)
-        deferred = ((state.path_variance + state.prefixed_local_variance) / self.samples
-                    + g2 * deferred_bias)
-        return 0.0 if current <= self.margin * deferred else 1.0
+        node = state.node
+        stop = mse_min_terminates(state.path_variance, state.prefixed_local_variance,
+                                  state.prefix_weight ** 2, node.local_bias ** 2,
+                                  node.deferred_bias, self.samples, self.margin, self.clamp)
+        return 0.0 if stop else 1.0
 
 
 def frontier_rule(stops: frozenset[str]) -> Rule:

@@ -74,9 +74,13 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
     from service.client import ServiceClient
 
     client = ServiceClient(server, api_key)
+    local_scene: str | None = None
     if is_scene_file(spec.scene):   # a local scene file: the service gets a copy
         uploaded = client.upload_scene(spec.scene)
-        if not as_json:     # the run names the copy; its fingerprint is the file's
+        # The table names the file as a local run does (its path here); the service's
+        # run names the copy, and the content fingerprint is the file's in both.
+        local_scene = str(Path(spec.scene).expanduser().resolve())
+        if not as_json:
             console.print(f"scene {Path(spec.scene).name} uploaded as {uploaded} (the same "
                           "content fingerprint as a local run of the file)",
                           markup=False, highlight=False)
@@ -98,23 +102,28 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
         print_json(result)
         return
     if kind == "sweep":
-        _print_remote_sweep(client, job, result)
+        _print_remote_sweep(client, job, result, local_scene)
         return
     from jobs.protocol.results import RunResultDetail
 
     # The table an embedded render prints, from the same public model the API serves.
-    console.print(metrics_table(RunResultDetail.model_validate(result)))
+    shown = result if local_scene is None else {**result, "scene": local_scene}
+    console.print(metrics_table(RunResultDetail.model_validate(shown)))
 
 
-def _print_remote_sweep(client: Any, job: dict[str, Any], sweep: dict[str, Any]) -> None:
-    """The sweep's table as an embedded run prints it; its files are the service's
+def _print_remote_sweep(client: Any, job: dict[str, Any], sweep: dict[str, Any],
+                        local_scene: str | None) -> None:
+    """The sweep's table as an embedded run prints it (``local_scene``: the path of an
+    uploaded scene file, named as a local run names it); its files are the service's
     artifacts (URLs), and the stages of ``job`` (as ``GET /jobs/{id}`` lists them)
     are named."""
     from jobs.sweeps.sweep import SweepResult
     from service.tables import sweep_table
 
     files = {a["kind"]: f"{client.http.base_url}{a['url']}" for a in sweep["artifacts"]}
-    console.print(sweep_table(SweepResult.model_validate({**sweep["result"], "files": files})))
+    shown = {**sweep["result"], "files": files,
+             **({"scene": local_scene} if local_scene is not None else {})}
+    console.print(sweep_table(SweepResult.model_validate(shown)))
     stages = job.get("stages") or []
     if stages:
         console.print(f"ran on the service as {len(stages)} stage jobs "

@@ -10,7 +10,8 @@ no service should accept (``Settings.max_job_work``) and to give a job without
 an explicit ``--job-timeout`` a timeout of its size (:func:`default_timeout_s`).
 
 ``artifact_bytes`` estimates the files a job writes (uncompressed RGB float32
-EXRs, PNG previews, cache weights), for the disk limit ``Settings.max_data_bytes``.
+EXRs: images, and a run's relative-bias and relative-variance maps; PNG previews,
+cache weights), for the disk limit ``Settings.max_data_bytes``.
 Each part also counts its frames (or reference passes) and its renders (each with
 its own start-up): what a job's *time* depends on besides its samples, used by
 jobs/execution/timecost.py to bound jobs in seconds.
@@ -39,6 +40,9 @@ from renderers.methods import METHODS, equal_time_pairs
 IMAGE_BYTES_PER_PIXEL = 12
 #: Bytes per pixel of a PNG preview or error map (RGB 8 bit, uncompressed).
 PREVIEW_BYTES_PER_PIXEL = 3
+#: Per-pixel maps a run of 2+ seeds stores beside its images: relative bias and
+#: relative variance over the seeds (RGB float32 EXRs, like an image).
+PIXEL_MAPS = 2
 #: A trained cache's stored weights (.npz), a rough allowance per snapshot.
 SNAPSHOT_WEIGHTS_BYTES = 16 << 20
 
@@ -61,6 +65,11 @@ class WorkEstimate:
         self.parts[part] = self.parts.get(part, 0) + samples
         self.frames[part] = self.frames.get(part, 0) + frames
         self.renders[part] = self.renders.get(part, 0) + renders
+
+
+def pixel_maps(seeds: int) -> int:
+    """How many per-pixel maps a run of ``seeds`` seeds stores (none with one seed)."""
+    return PIXEL_MAPS if seeds >= 2 else 0
 
 
 def _reference(estimate: WorkEstimate, pixels: int, reference: ReferenceSpec) -> None:
@@ -89,7 +98,8 @@ def render_work(spec: RenderSpec, reference_stored: bool = False) -> WorkEstimat
             spp = max(candidates)
     frames_kept = spec.frames * spec.seeds if spec.keep_frames else 0
     estimate.add("seeds", pixels * spp * spec.frames * spec.seeds,
-                 pixels * (IMAGE_BYTES_PER_PIXEL * (spec.seeds + frames_kept)
+                 pixels * (IMAGE_BYTES_PER_PIXEL * (spec.seeds + frames_kept
+                                                    + pixel_maps(spec.seeds))
                            + 2 * PREVIEW_BYTES_PER_PIXEL),
                  frames=spec.frames * spec.seeds, renders=spec.seeds)
     return estimate
@@ -100,7 +110,8 @@ def stage_work(spec: SweepSpec, task: dict[str, Any]) -> WorkEstimate:
     (``{"stage": "sweep"}``: the 'NIRC equal time' series and the plots)."""
     estimate = WorkEstimate()
     pixels = spec.resolution ** 2
-    point_bytes = pixels * (IMAGE_BYTES_PER_PIXEL * spec.seeds + 2 * PREVIEW_BYTES_PER_PIXEL)
+    point_bytes = pixels * (IMAGE_BYTES_PER_PIXEL * (spec.seeds + pixel_maps(spec.seeds))
+                            + 2 * PREVIEW_BYTES_PER_PIXEL)
     match task["stage"]:
         case "reference":
             _reference(estimate, pixels, spec.reference)

@@ -1,7 +1,7 @@
 """The method comparison of the NIRC paper's Fig. 7, at equal spp and at equal time.
 
 The runs are the registry's (each method's ``comparison``, ordered by rank):
-PT 1 spp, PT 2 spp, NRC (biased), NIRC biased, NIRC unbiased — each run
+PT 1 spp, PT 2 spp, NRC (biased), NIRC biased, NIRC unbiased, the grid cache — each run
 through the executor (so every row is a stored run against the same reference)
 and reported with the listed metrics of metrics.registry (MRSE with its CI, rBias²,
 rVar, FLIP, PSNR, ...) and milliseconds per frame (total, and the render stage

@@ -29,6 +29,8 @@ from typing import Literal
 
 import numpy as np
 
+from jobs.protocol.front import finite, pareto_front
+
 #: Defaults of the bootstrap: replicates, confidence level, generator seed.
 RESAMPLES = 2000
 CONFIDENCE = 0.95
@@ -56,20 +58,6 @@ class Sample:
     @property
     def time(self) -> float:
         return float(np.median(self.seconds))
-
-
-def pareto_front(seconds: Sequence[float | None], errors: Sequence[float | None]) -> list[bool]:
-    """Which points are on the front: no other point has time <= and error <= with one
-    of them strictly smaller. A point without a finite time or error is not on it."""
-    points = [(t, e) if _usable(t) and _usable(e) else None
-              for t, e in zip(seconds, errors, strict=True)]
-    return [p is not None and not any(q is not None and q[0] <= p[0] and q[1] <= p[1]
-                                      and q != p for q in points)
-            for p in points]
-
-
-def _usable(value: float | None) -> bool:
-    return value is not None and bool(np.isfinite(value))
 
 
 @dataclass(frozen=True)
@@ -137,7 +125,7 @@ _RELATION: dict[Placement, Literal["=", ">", "<"]] = {"in": "=", "below": ">", "
 
 def speedup(curve: Curve, error: float, seconds: float) -> Speedup:
     """t_baseline(error) / seconds, or its bound outside the baseline's range."""
-    if not (_usable(error) and error > 0 and _usable(seconds) and seconds > 0):
+    if not (finite(error) and error > 0 and finite(seconds) and seconds > 0):
         return Speedup(None, "n/a", note="no positive finite error and time")
     baseline_s, placement = equal_error_seconds(curve, error)
     note = {"in": "",

@@ -29,7 +29,13 @@ from jobs.protocol.results import RunResultDetail
 from jobs.protocol.scene_store import load_spec_scene
 from jobs.protocol.spec import RenderSpec
 from jobs.protocol.versions import versions_of
-from jobs.record.artifacts import ArtifactStore, artifact_record, encode_image
+from jobs.record.artifacts import (
+    RELATIVE_BIAS_MAP,
+    RELATIVE_VARIANCE_MAP,
+    ArtifactStore,
+    artifact_record,
+    encode_image,
+)
 from jobs.record.config import Settings
 from jobs.record.store import Store
 from metrics.checks import MetricError
@@ -41,6 +47,7 @@ from metrics.errors import (
     relative_squared_error_map,
 )
 from metrics.imageio import write_exr, write_png
+from metrics.pixel_maps import relative_bias_variance_maps
 from metrics.preview import error_map_preview, tonemap_preview
 from metrics.quality import withhold
 from metrics.registry import METRICS, Aggregate, per_seed_values, seed_mean
@@ -114,6 +121,18 @@ def _seed_artifacts(store: ArtifactStore, scratch: Path, seed: int, image: np.nd
                       "error_map", ".png", "image/png", seed),
         ]
     return artifacts
+
+
+def _pixel_map_artifacts(store: ArtifactStore, scratch: Path, images: list[np.ndarray],
+                         reference: LoadedReference, eps: float) -> list[dict]:
+    """The run's relative-bias and relative-variance maps over its seeds (EXR, float32;
+    metrics.pixel_maps), for the dashboard's comparison view: none with one seed."""
+    if len(images) < 2:
+        return []
+    bias, variance = relative_bias_variance_maps(images, reference.mean, eps)
+    return [artifact_record(store, encode_image(write_exr, image, scratch / "m.exr"), kind,
+                            ".exr", "image/x-exr")
+            for kind, image in ((RELATIVE_BIAS_MAP, bias), (RELATIVE_VARIANCE_MAP, variance))]
 
 
 def mean_over_seeds(stats: list[dict[str, Any]]) -> dict[str, Any]:
@@ -346,6 +365,8 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
                                        encode_image(write_exr, frame, scratch / "f.exr"),
                                        f"frame{number:05d}", ".exr", "image/x-exr", seed))
 
+    artifacts += _pixel_map_artifacts(artifacts_store, scratch,
+                                      [o.accumulated for o in outputs], reference, spec.eps)
     seed_timings = [output.timings for output in outputs]
     # One statistic over every timed frame of every seed: the frame time, the stages
     # and the breakdown of the median frame (renderers.timing.pooled).

@@ -6,8 +6,9 @@ run exported long after it was rendered gives the same folder as ``render --out`
 - ``reference.exr``, ``reference.variance.exr``, ``reference_preview.png``;
 - per seed ``image_seed<k>.exr`` and, where stored, ``preview_seed<k>.png``,
   ``error_map_seed<k>.png`` and the kept frames ``frame<n>_seed<k>.exr``;
-- ``convergence.png`` (MRSE over frames of every seed) when the run has more than one
-  frame;
+- the run's ``rel_bias_map.exr`` and ``rel_variance_map.exr`` (runs of 2+ seeds);
+- ``convergence.png`` (MRSE over frames of every seed; the dashboard's chart of it,
+  drawn by vl-convert) when the run has more than one frame;
 - ``summary.json``: the run as ``render --json`` prints it.
 """
 
@@ -18,7 +19,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from jobs.protocol.plots import plot_convergence
+from jobs.protocol.charts import chart_png, convergence_chart
+from jobs.protocol.results import RunResultDetail
 from jobs.record.artifacts import ArtifactStore
 from jobs.record.config import Settings
 from metrics.imageio import read_exr, write_png
@@ -49,13 +51,10 @@ def export_run(run: Any, summary: dict[str, Any], settings: Settings,
             else f"{artifact.kind}{suffix}"
         files[name] = out_dir / name
         shutil.copyfile(artifacts.path_of(artifact.path), files[name])
-    curves = {f"seed {s.seed}": {**s.metrics["convergence"],
-                                 "frame": list(range(len(s.metrics["convergence"]["frame_mrse"])))}
-              for s in run.seed_results if s.metrics.get("convergence")}
-    if run.frames > 1 and curves:   # error over frames (the NIRC paper's Fig. 10)
-        files["convergence"] = plot_convergence(
-            curves, out_dir / "convergence.png", f"{run.method} on {run.scene_name}: MRSE "
-                                                 "over frames")
+    # Error over frames (the NIRC paper's Fig. 10), as the dashboard draws it.
+    convergence = convergence_chart(RunResultDetail.of(run).model_dump(mode="json"))
+    if convergence is not None:
+        files["convergence"] = chart_png(convergence, out_dir / "convergence.png")
     files["summary"] = out_dir / "summary.json"
     files["summary"].write_text(json.dumps(summary, indent=2, default=str))
     return {name: str(path) for name, path in files.items()}

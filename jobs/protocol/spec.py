@@ -161,7 +161,10 @@ class ParameterSweep(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
-    name: str = Field(min_length=1, description="a parameter every method of the sweep declares")
+    name: str = Field(min_length=1, description="a parameter every method of the sweep "
+                                                "declares, or a field inside a parameter "
+                                                "that is a mapping, by a dotted path (e.g. "
+                                                "'termination_params.threshold')")
     values: list[ParameterValue] = Field(min_length=1, max_length=1000,
                                          description="the values, in the order swept")
 
@@ -171,6 +174,29 @@ class ParameterSweep(BaseModel):
         if len({(type(v), v) for v in values}) != len(values):
             raise ValueError("the swept values must be distinct")
         return values
+
+
+_MISSING = object()
+
+
+def _nested(values: dict[str, Any], path: list[str]) -> Any:
+    """The value at a dotted path of parameters, or _MISSING."""
+    for key in path:
+        if not isinstance(values, dict) or key not in values:
+            return _MISSING
+        values = values[key]
+    return values
+
+
+def _with_nested(values: dict[str, Any], path: list[str], value: Any) -> dict[str, Any]:
+    """``values`` with the field at ``path`` set (the mappings on the way copied, kept
+    fields kept): a dotted parameter sweep varies one field of a mapping parameter, e.g.
+    a termination policy's own parameters."""
+    if len(path) == 1:
+        return {**values, path[0]: value}
+    inner = values.get(path[0])
+    inner = dict(inner) if isinstance(inner, dict) else {}
+    return {**values, path[0]: _with_nested(inner, path[1:], value)}
 
 
 def _knob_method() -> str:
@@ -310,11 +336,12 @@ class SweepSpec(BaseModel):
     def _check_parameter(self, sweep: ParameterSweep) -> None:
         if self.eps is not None or self.nc is not None:
             raise ValueError("a parameter sweep takes neither eps nor nc values")
-        if sweep.name in self.params or sweep.name == "max_depth":
+        path = sweep.name.split(".")
+        if _nested(self.params, path) is not _MISSING or sweep.name == "max_depth":
             raise ValueError(f"{sweep.name} is swept: set it in parameter.values, not here")
         for method in self.methods:
-            if sweep.name not in METHODS[method].params.model_fields:
-                raise ValueError(f"{method} has no parameter {sweep.name!r}")
+            if path[0] not in METHODS[method].params.model_fields:
+                raise ValueError(f"{method} has no parameter {path[0]!r}")
             for value in sweep.values:
                 try:
                     self.parameter_point(method, value)
@@ -326,8 +353,8 @@ class SweepSpec(BaseModel):
         sweep's parameters and depth, the value, and ``train_frames`` pre-training
         frames where the method trains a cache."""
         assert self.parameter is not None
-        values: dict[str, Any] = {**self.params, "max_depth": self.max_depth,
-                                  self.parameter.name: value}
+        values = _with_nested({**self.params, "max_depth": self.max_depth},
+                              self.parameter.name.split("."), value)
         if "pretrain_frames" in METHODS[method].params.model_fields:
             values.setdefault("pretrain_frames", self.train_frames)
         return parse_params(method, values)

@@ -29,6 +29,9 @@ _CHUNK = 1 << 20            # bytes read at a time when hashing or copying files
 _TEMP_PREFIX = ".tmp-"      # temporary files; never a valid content-addressed name
 PRIVATE_DIR_MODE = 0o700
 PRIVATE_FILE_MODE = 0o600
+#: Kinds of a run's per-pixel maps over its seeds (metrics.pixel_maps), one EXR each.
+RELATIVE_BIAS_MAP = "rel_bias_map"
+RELATIVE_VARIANCE_MAP = "rel_variance_map"
 
 
 def make_private_dir(path: Path) -> Path:

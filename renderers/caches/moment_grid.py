@@ -208,6 +208,10 @@ class MomentGrid:
         dr.scatter(self.vertices, normal, 2 * place + 1, active)
         dr.scatter(self.vertex_used, mi.UInt32(1), place, active)
 
+    def records(self) -> int:
+        """How many records hold an estimate."""
+        return int(dr.sum(dr.select(self.count > 0, 1, 0), axis=None)[0])
+
     def representatives(self) -> tuple[mi.UInt32, mi.Point3f, mi.Vector3f]:
         """Every stored representative: its record's slot, position and normal."""
         place = dr.compress(self.vertex_used != 0)

@@ -102,6 +102,9 @@ def update_grid(scene: mi.Scene, integrator: GridUpdateIntegrator, seed: int,
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(seed, vertices * k)
     L, _, _, state = integrator.trace(scene, sampler, ray, mi.Bool(True))
+    # One launch of the loop for all its outputs: each reduction below would otherwise
+    # re-run the whole loop kernel for its own input (docs/design.md, pitfalls).
+    dr.eval(L, state, sampler)
     # A vertex the ray no longer finds (a moved or thin surface) gives no sample.
     found = dr.block_sum(dr.select(state.found, 1.0, 0.0), k) == k
     grid.accumulate(slot, L - state.emitted, found)

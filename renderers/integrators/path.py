@@ -34,7 +34,9 @@ alpha scales everything after the emission the continuation ray hits (the next
 segment, from the direct light at the next vertex on), so that a cache term
 weighted 1 - alpha and the continuation weighted alpha blend (integrators that
 set ``continuation_weights``; the variance-bounding termination of Kandlbinder
-et al. 2024, Eq. 5).
+et al. 2024, Eq. 5). ``VertexTerms.segment_weight`` scales the path one step
+earlier, from the vertex's own NEE on: the blend for a cache whose value already
+holds the vertex's direct light (the moment grid; grid_cache.py).
 
 A method ends a path with ``VertexTerms.stop_indirect`` (its term replaced
 the indirect light at the vertex: the continuation ray is still traced, only
@@ -111,6 +113,10 @@ class VertexTerms:
     Where ``skip_nee`` is set no NEE is done at this vertex. ``continue_weight``
     (integrators with ``continuation_weights`` only): the weight in [0, 1] of the
     path after the emission its continuation ray hits (module doc); None: 1.
+    ``segment_weight``: the weight of everything from this vertex's NEE on (its direct
+    light, the emission its continuation ray hits and the rest of the path), for a
+    cache that holds the full reflected radiance, direct light included (the moment
+    grid, grid_cache.py); None: 1.
     """
 
     L_add: mi.Spectrum
@@ -118,6 +124,7 @@ class VertexTerms:
     stop_indirect: mi.Bool
     skip_nee: mi.Bool
     continue_weight: mi.Float | None = None
+    segment_weight: mi.Float | None = None
 
 
 class PathIntegrator(mi.SamplingIntegrator):
@@ -305,6 +312,9 @@ class PathIntegrator(mi.SamplingIntegrator):
                 if weighted:
                     pending = (mi.Float(1.0) if terms.continue_weight is None
                                else mi.Float(terms.continue_weight))
+                if terms.segment_weight is not None:
+                    # The rest of the path from this vertex's direct light on.
+                    beta *= terms.segment_weight
 
             L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_light, L)
 

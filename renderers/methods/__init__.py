@@ -32,6 +32,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from renderers.methods import (
+    grid_cache,
     neural_di,
     nirc,
     nirc_nvc_env,
@@ -63,7 +64,7 @@ class NotApplicable(MethodError):
 BUILTIN: dict[str, Method] = {module.METHOD.name: module.METHOD
                               for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
                                              restir_di, restir_nvc, neural_di, nrc_di, nirc, nirc_nvc_env,
-                                             nrc)}
+                                             nrc, grid_cache)}
 
 #: The entry-point group other packages register methods under.
 ENTRY_POINT_GROUP = "nirc_bench.methods"

@@ -155,7 +155,7 @@ def _referenced_names(root: ET.Element) -> list[str]:
     return [_substitute(name, defaults) for name in names]
 
 
-def _resolve(name: str, folder: Path) -> Path | None:
+def resolve_referenced(name: str, folder: Path) -> Path | None:
     path = Path(name)
     for candidate in (path,) if path.is_absolute() else (folder / path, Path.cwd() / path):
         if candidate.is_file():
@@ -187,7 +187,7 @@ def _content_form(root: ET.Element, folder: Path, seen: set[Path]) -> str:
 
 def _file_content(name: str, folder: Path, seen: set[Path]) -> str:
     """What stands for the file ``name`` in :func:`_content_form`."""
-    path = _resolve(name, folder)
+    path = resolve_referenced(name, folder)
     if path is None:
         # Mitsuba found it elsewhere or never needed it; the name still counts.
         return f"missing:{name}"

@@ -285,4 +285,4 @@ def load_xml_scene(name: str, resolution: Resolution | None) -> XmlScene:
 
     width, height = (int(x) for x in scene.sensors()[0].film().size())
     return XmlScene(path, scene, (width, height), xml_fingerprint(root, path),
-                    xml_settings(root))
+                    xml_settings(root, path.parent, frozenset({path.resolve()})))

@@ -35,16 +35,17 @@ from fastapi_offline import FastAPIOffline
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from service.api import vendor
 from service.api.deps import ReadAccess
 from service.api.failures import add_failure_handlers
 from service.api.headers import SecurityHeaders
 from service.api.limits import BodySizeLimit, bounded_json_body
-from service.api.routes import auth, ci, jobs, results, scenes
+from service.api.routes import auth, charts, ci, jobs, pixels, results, scenes
 from service.api.unprocessable import validation_failed
 from service.config import ServiceSettings
 
-#: The dashboard's files (HTML, CSS, JavaScript with its own SVG plots): served from
-#: here, never from a CDN.
+#: The dashboard's files (HTML, CSS, JavaScript, the vendored image slider): served
+#: from here, never from a CDN; the chart library from service/api/vendor.py.
 DASHBOARD_DIR = Path(__file__).resolve().parent.parent / "dashboard"
 
 
@@ -106,9 +107,13 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.include_router(jobs.router, dependencies=guards)
     app.include_router(results.router, dependencies=guards)
     app.include_router(ci.router, dependencies=guards)
+    app.include_router(charts.router, dependencies=guards)
+    app.include_router(pixels.router, dependencies=guards)
     app.include_router(auth.router, dependencies=[Depends(bounded_json_body)])
     app.include_router(scenes.router)
     _write_operations_need_the_header(app)
+    app.include_router(vendor.router)
+    vendor.warm_up()
     app.mount("/static", StaticFiles(directory=DASHBOARD_DIR), name="static")
 
     @app.get("/", include_in_schema=False)

@@ -1,6 +1,9 @@
-// The nirc-bench dashboard: results overview, per-scene plots and images, history over commits, live jobs.
-// Plain JavaScript against the REST API (/api/v1); plots by plot.js (bundled here).
-"use strict";
+// The nirc-bench dashboard: results overview, per-scene charts, a run's page with its image
+// comparison, history over commits, jobs. Plain JavaScript modules against the REST API
+// (/api/v1); charts are Vega-Lite specs the service builds (charts.js), images float pixels
+// (compare.js). Every number links to the run it came from (#/run/ID).
+import { chart, note } from "./charts.js";
+import { comparisonView } from "./compare.js";
 
 // Raised when the service wants an API key for reads: the view becomes the login form.
 class NeedsKey extends Error {}
@@ -12,114 +15,88 @@ const api = (path) => fetch(`/api/v1${path}`).then((r) => {
 const view = () => document.getElementById("view");
 const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 const num = (v, d = 3) => (v === null || v === undefined ? "–" : Number(v).toPrecision(d));
-const DEVICE_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b"];
-// The errors of the error-vs-time plots (registry fields), as `nirc-bench pareto` plots them.
-const PARETO_FIELDS = ["mrse", "flip"];
+const enc = encodeURIComponent;
+const runLink = (id, text) => `<a href="#/run/${id}" title="run ${id}">${text}</a>`;
 let timer = null;
 // Results of older estimator or metric versions are hidden unless the header's box is ticked.
 const old = () => (document.getElementById("include-old").checked ? "&include_old=true" : "");
 
-function label(run) {
-  const p = run.params || {};
-  const extra = [p.estimator, p.termination, p.nc ? `Nc ${p.nc}` : null].filter(Boolean).join(" ");
-  const stale = run.current ? "" : ` [old: estimator v${run.estimator_version}, metrics v${run.metric_version}]`;
-  return `${run.method}${extra ? ` (${extra})` : ""} ${run.spp} spp${stale}`;
-}
+// A run's method configuration (its label), marked when older versions computed it.
+const label = (run) => `${run.method_label || run.method}${run.current ? "" : ` [old: estimator v${run.estimator_version}, metrics v${run.metric_version}]`}`;
+// What must match for two runs to be compared (as jobs/protocol/chart_groups.py groups them).
+const protocol = (run) => ("sweep" in (run.params || {}) ? "frozen cache" : "online training");
+const setting = (run) => `${run.resolution.join("×")}, ${run.spp} spp, ${run.frames} frame${run.frames === 1 ? "" : "s"}, ${protocol(run)}`;
 
-// A metric cell: a value, "withheld" when the run's quality verdict makes it meaningless, or "–".
-const metric = (run, name, value) => (value === null && (run.withheld || []).includes(name) ? "withheld" : num(value));
-// The metric registry (GET /api/v1/metrics): columns and plots are built from it, once per page load.
+// The metric registry (GET /api/v1/metrics): columns are built from it, once per page load.
 let registry = null;
 const metricRegistry = async () => (registry ??= await api("/metrics"));
 const better = (m) => `${m.description}${m.unit ? ` [${m.unit}]` : ""}; ${m.direction} is better`;
 const unitLabel = (m) => (m.unit ? `${m.label} (${m.unit})` : m.label);
+
+// A metric cell, linked to its run: "withheld" when the run's verdict makes it meaningless,
+// "below the noise floor (value)" for a negative noise-corrected estimate; the interval is
+// the API's (log scale, never below zero, none with fewer than 3 seeds), never recomputed.
+function metricCells(run, m) {
+  const value = run[m.field];
+  let text = value === null || value === undefined
+    ? ((run.withheld || []).includes(m.verdict_name) ? "withheld" : "–")
+    : (run.below_noise_floor || []).includes(m.field) ? `below the noise floor (${num(value)})` : num(value);
+  text = value === null || value === undefined ? text : runLink(run.id, text);
+  const ci = m.ci_field ? run[m.ci_field] : undefined;
+  const interval = m.ci_field ? `<td title="${esc(run[`${m.field}_ci_note`])}">${ci ? runLink(run.id, `[${num(ci[0])}, ${num(ci[1])}]`) : "–"}</td>` : "";
+  return `<td>${text}</td>${interval}`;
+}
+const metricHeads = (listed) => listed.map((m) => `<th title="${esc(better(m))}">${esc(unitLabel(m))}</th>${m.ci_field ? "<th>95% CI</th>" : ""}`).join("");
 const reasons = (run) => (run.quality.reasons || []).map((r) => `${r.code}: ${r.message}`).join("\n");
 const verdictCell = (run) => `<td class="text verdict verdict-${esc(run.verdict ?? "none")}" title="${esc(reasons(run))}">${esc(run.verdict ?? "not judged")}</td>`;
+
+function resultsTable(runs, listed) {
+  return `<table class="results"><tr><th class="text">method</th><th class="text">setting</th><th class="text">device</th>
+    <th class="text">verdict</th>${metricHeads(listed)}<th>ms/frame</th><th>run</th></tr>${runs.map((r) => `<tr>
+    <td class="text">${esc(label(r))}</td><td class="text">${esc(setting(r))}</td><td class="text">${esc(r.device_key)}</td>${verdictCell(r)}
+    ${listed.map((m) => metricCells(r, m)).join("")}<td>${runLink(r.id, num(r.seconds_per_frame * 1e3))}</td><td>${runLink(r.id, r.id)}</td></tr>`).join("")}</table>`;
+}
 
 async function overview() {
   const runs = await api(`/results?limit=1000${old()}`);
   const listed = (await metricRegistry()).filter((m) => m.field);
   const latest = new Map();
-  for (const run of runs) {  // newest first: keep the first per (scene, method label + versions, device)
-    const key = `${run.scene}|${label(run)}|${run.device_key}`;
+  for (const run of runs) {  // newest first: the latest per scene, configuration, setting and device
+    const key = `${run.scene}|${label(run)}|${setting(run)}|${run.device_key}`;
     if (!latest.has(key)) latest.set(key, run);
   }
   const scenes = [...new Set([...latest.values()].map((r) => r.scene))].sort();
-  const heads = listed.map((m) => `<th title="${esc(better(m))}">${esc(unitLabel(m))}</th>${m.ci_field ? "<th>95% CI</th>" : ""}`).join("");
-  const cells = (r) => listed.map((m) => {
-    const ci = m.ci_field ? (r[m.ci_field] ? `[${num(r[m.ci_field][0])}, ${num(r[m.ci_field][1])}]` : metric(r, m.verdict_name, null)) : null;
-    return `<td>${metric(r, m.verdict_name, r[m.field])}</td>${ci === null ? "" : `<td>${ci}</td>`}`;
-  }).join("");
-  let html = "<h2>Latest results</h2>";
+  let html = "<h2>Latest results</h2><p class='muted'>The latest run of each method configuration per setting and device; rows of different settings or devices are not comparable. Every number opens its run.</p>";
   if (!scenes.length) html += "<p class='muted'>No results yet: submit a job (POST /api/v1/jobs) or run <code>nirc-bench render</code>.</p>";
   for (const scene of scenes) {
-    html += `<h3><a href="#/scene/${encodeURIComponent(scene)}">${esc(scene)}</a> <a class="muted" href="#/history/${encodeURIComponent(scene)}">history</a></h3><table><tr>
-      <th class="text">method</th><th class="text">device</th><th class="text">verdict</th>${heads}
-      <th>ms/frame</th><th>run</th></tr>`;
-    for (const r of [...latest.values()].filter((r) => r.scene === scene)) {
-      html += `<tr><td class="text">${esc(label(r))}</td><td class="text">${esc(r.device_key)}</td>${verdictCell(r)}
-        ${cells(r)}<td>${num(r.seconds_per_frame * 1e3)}</td><td><a href="#/scene/${encodeURIComponent(scene)}/${r.id}">${r.id}</a></td></tr>`;
-    }
-    html += "</table>";
+    const mine = [...latest.values()].filter((r) => r.scene === scene)
+      .sort((a, b) => setting(a).localeCompare(setting(b)) || a.device_key.localeCompare(b.device_key));
+    html += `<h3><a href="#/scene/${enc(scene)}">${esc(scene)}</a> <a class="muted" href="#/history/${enc(scene)}">history</a></h3>${resultsTable(mine, listed)}`;
   }
   view().innerHTML = html;
 }
 
-function paretoFront(points) {
-  const sorted = [...points].sort((a, b) => a[0] - b[0] || a[1] - b[1]);
-  const front = [];
-  for (const p of sorted) if (!front.length || p[1] < front[front.length - 1][1]) front.push(p);
-  return front;
-}
-
-async function scenePage(scene, runId) {
-  const runs = await api(`/results?scene=${encodeURIComponent(scene)}&limit=1000${old()}`);
-  const sweeps = await api(`/sweeps?scene=${encodeURIComponent(scene)}&limit=1${old()}`);
+async function scenePage(scene) {
+  const [charts, sweeps, runs] = await Promise.all([api(`/charts/scene?scene=${enc(scene)}${old()}`),
+    api(`/sweeps?scene=${enc(scene)}&limit=1${old()}`), api(`/results?scene=${enc(scene)}&limit=1000${old()}`)]);
   const v = view();
-  v.innerHTML = `<h2>${esc(scene)}</h2><h3>Error vs time (per device; <code>nirc-bench pareto</code> adds speed-ups)</h3><div class="plots" id="pareto"></div>
-    <h3>Adaptive equal-bias sweep</h3><div class="plots" id="sweep"></div>
-    <h3>Run</h3><p><select id="run"></select></p><p id="verdict"></p>
-    <h3>Time per frame</h3><div id="timing"></div>
-    <h3>Convergence over frames</h3><div class="plots" id="convergence"></div>
-    <h3>Images (click to crop)</h3><div class="images" id="images"></div>`;
-  // Error vs time (nirc-bench pareto's view): times compare only on one device, so one plot per
-  // device and error (MRSE, FLIP), one series per method (and estimator), the Pareto front dashed.
-  const variant = (r) => [r.method, (r.params || {}).estimator].filter(Boolean).join(" ");
-  const errors = (await metricRegistry()).filter((m) => PARETO_FIELDS.includes(m.field));
-  for (const d of [...new Set(runs.map((r) => r.device_key))]) {
-    for (const m of errors) {
-      const mine = runs.filter((r) => r.device_key === d && r[m.field] > 0);
-      const point = (r) => [r.seconds_per_frame * 1e3, r[m.field]];
-      const series = [...new Set(mine.map(variant))].map((name, i) => ({ name, scatter: true,
-        color: DEVICE_COLORS[i % 5], points: mine.filter((r) => variant(r) === name).map(point) }));
-      series.push({ name: "Pareto front", color: "#000", dashed: true, points: paretoFront(mine.map(point)) });
-      linePlot(document.getElementById("pareto"), { title: `${m.label} vs ms per frame (${d})`,
-        xlabel: "ms per frame (online training included)", ylabel: unitLabel(m), logx: true, logy: true,
-        series, width: 560, height: 320 });
-    }
+  v.innerHTML = `<h2>${esc(scene)}</h2><p><a href="#/history/${enc(scene)}">history over commits</a></p>
+    <h3>Error vs time</h3><p class="muted">One group per resolution, spp, frames, protocol, device and versions: only comparable runs share a chart, and each Pareto front is of its group. Hover a point for the run's parameters; click it to open the run; wheel to zoom, drag to pan.</p>
+    <div id="pareto"></div><h3>Adaptive equal-bias sweep</h3><div class="plots" id="sweep"></div>
+    <h3>Runs</h3><div id="runs"></div>`;
+  const pareto = document.getElementById("pareto");
+  if (!charts.groups.length) note(pareto, "No runs of this scene yet.");
+  for (const group of charts.groups) {
+    const section = document.createElement("section");
+    section.className = "group";
+    section.innerHTML = `<h4>${esc(group.title)}</h4><div class="plots"></div>`;
+    pareto.appendChild(section);
+    for (const spec of group.charts) await chart(section.querySelector(".plots"), spec);
   }
-
   const sweepEl = document.getElementById("sweep");
-  if (!sweeps.length) sweepEl.innerHTML = "<p class='muted'>No sweep of this scene yet (<code>nirc-bench sweep --scene NAME --eps 0.05:1.0</code>).</p>";
-  else {
-    const rows = sweeps[0].result.rows || [];
-    const names = [...new Set(rows.map((r) => r.series))];
-    const stale = sweeps[0].current ? "" : ", old versions";
-    // One plot per sweep-plotted metric of the registry that this sweep's rows hold.
-    const panels = (await metricRegistry()).filter((m) => m.sweep_plot && rows.some((r) => r[m.field] !== undefined))
-      .map((m) => [m.field, unitLabel(m), m.log_axis]);
-    for (const [key, title, log] of panels) {
-      linePlot(sweepEl, { title: `${title} (sweep ${sweeps[0].id}${stale})`, xlabel: "% indirect-radiance bounces", ylabel: title,
-        logy: log, series: names.map((n) => ({ name: n, dashed: n.includes("equal time"),
-          points: rows.filter((r) => r.series === n).map((r) => [r.ir_bounces_pct, r[key]]) })) });
-    }
-  }
-
-  const select = document.getElementById("run");
-  select.innerHTML = runs.map((r) => `<option value="${r.id}">${r.id}: ${esc(label(r))} — ${esc(r.device_key)} — ${esc(r.verdict ?? "not judged")}</option>`).join("");
-  if (runId) select.value = runId;
-  select.onchange = () => { location.hash = `#/scene/${encodeURIComponent(scene)}/${select.value}`; };
-  if (runs.length) await runDetail(select.value || runs[0].id);
+  if (!sweeps.length) note(sweepEl, "No sweep of this scene yet (nirc-bench sweep --scene NAME --eps 0.05:1.0).");
+  else for (const spec of (await api(`/charts/sweeps/${sweeps[0].id}`)).charts) await chart(sweepEl, spec);
+  document.getElementById("runs").innerHTML = resultsTable(runs, (await metricRegistry()).filter((m) => m.field));
 }
 
 // The run's median frame by stage: wall, kernel (Dr.Jit's kernel history) and harness
@@ -147,41 +124,35 @@ function timingTable(run) {
     ${(run.timing_flags || []).map((f) => `<p class="muted">${esc(f)}</p>`).join("")}`;
 }
 
-async function runDetail(runId) {
-  const run = await api(`/runs/${runId}`);
-  document.getElementById("verdict").innerHTML = `quality verdict: <b class="verdict-${esc(run.verdict ?? "none")}">${esc(run.verdict ?? "not judged")}</b>`
-    + (run.quality.reasons || []).map((r) => `<br><span class="muted">${esc(r.code)}: ${esc(r.message)}</span>`).join("");
-  document.getElementById("timing").innerHTML = timingTable(run);
+async function runPage(runId, otherId) {
+  const [run, other, charts] = await Promise.all([api(`/runs/${runId}`), otherId ? api(`/runs/${otherId}`) : null, api(`/charts/runs/${runId}`)]);
+  const listed = (await metricRegistry()).filter((m) => m.field);
+  const params = Object.entries(run.params || {}).map(([k, v]) => `${k}=${typeof v === "object" ? JSON.stringify(v) : v}`).join(", ");
+  view().innerHTML = `<h2>Run ${run.id}: ${esc(label(run))}</h2>
+    <p><a href="#/scene/${enc(run.scene)}">${esc(run.scene)}</a> — ${esc(setting(run))}, ${run.seeds} seeds — ${esc(run.device_key)}
+    — commit <code>${esc(run.git_commit ?? "unknown")}</code> — ${esc(run.created_at)}</p>
+    <p class="muted">parameters: ${esc(params || "defaults")}</p>
+    <p>quality verdict: <b class="verdict-${esc(run.verdict ?? "none")}">${esc(run.verdict ?? "not judged")}</b>
+    ${(run.quality.reasons || []).map((r) => `<br><span class="muted">${esc(r.code)}: ${esc(r.message)}</span>`).join("")}</p>
+    ${resultsTable([run], listed)}
+    <h3>Image comparison</h3>
+    <form id="other-run" class="compare-controls">side by side with run <input id="other-id" type="number" min="1" value="${esc(otherId ?? "")}" size="6"> <button type="submit">show</button></form>
+    <div id="compare"></div>
+    <h3>Time per frame</h3><div id="timing">${timingTable(run)}</div>
+    <h3>Convergence over frames</h3><div class="plots" id="convergence"></div>`;
+  document.getElementById("other-run").onsubmit = (ev) => {
+    ev.preventDefault();
+    const id = document.getElementById("other-id").value;
+    location.hash = id ? `#/run/${run.id}/${enc(id)}` : `#/run/${run.id}`;
+  };
   const conv = document.getElementById("convergence");
-  const seeds = run.per_seed.filter((s) => s.metrics.convergence);
-  linePlot(conv, { title: `run ${run.id}: MRSE over frames`, xlabel: "frame", ylabel: "MRSE", logy: true, width: 560,
-    series: seeds.flatMap((s, i) => [
-      { name: `seed ${s.seed}`, color: DEVICE_COLORS[i % 5], points: s.metrics.convergence.frame_mrse.map((y, x) => [x, y]) },
-      { name: `seed ${s.seed} accumulated`, color: DEVICE_COLORS[i % 5], dashed: true,
-        points: s.metrics.convergence.accumulated_mrse.map((y, x) => [x, y]) }]) });
-  const art = (kind) => run.artifacts.find((a) => a.kind === kind);
-  const images = [["reference", run.reference_id ? `/api/v1/references/${run.reference_id}/preview.png` : null],
-    [label(run), art("preview")?.url], ["error map", art("error_map")?.url]];
-  const box = document.getElementById("images");
-  box.innerHTML = images.map(([name, src]) => `<figure><div class="crop">${src ? `<img src="${src}" alt="${esc(name)}">` : ""}</div>
-    <figcaption>${esc(name)}</figcaption></figure>`).join("");
-  const imgs = [...box.querySelectorAll("img")];
-  const fit = () => imgs.forEach((img) => { img.style.width = "256px"; img.style.transform = "none"; });
-  fit();
-  box.querySelectorAll(".crop").forEach((crop) => crop.addEventListener("click", (ev) => {
-    const rect = crop.getBoundingClientRect();
-    const fx = (ev.clientX - rect.left) / rect.width, fy = (ev.clientY - rect.top) / rect.height;
-    const zoom = imgs[0] && imgs[0].style.transform.includes("scale") ? 1 : 4;
-    if (zoom === 1) return fit();
-    imgs.forEach((img) => {
-      img.style.transform = `translate(${-(fx * 256 * 4 - 128)}px, ${-(fy * 256 * 4 - 128)}px) scale(4)`;
-    });
-  }));
+  if (charts.convergence) await chart(conv, charts.convergence);
+  else note(conv, charts.note);
+  await comparisonView(document.getElementById("compare"), run, other);
 }
 
-// History over commits (GET /api/v1/ci/history): one plot per listed metric of the registry,
-// one line per setting (median over the seeds of a commit's runs, with its interval);
-// detected steps are red lines, version changes (never compared) grey dashed ones.
+// History over commits (GET /api/v1/charts/history): per listed metric, one chart per
+// setting, one line per method configuration; the detected steps listed below.
 async function historyPage(scene, method) {
   const runs = await api(`/results?limit=1000${old()}`);
   const scenes = [...new Set([...(await api("/scenes")).map((s) => s.name), ...runs.map((r) => r.scene)])];
@@ -191,51 +162,62 @@ async function historyPage(scene, method) {
   const options = (names, chosen) => names.map((n) => `<option${n === chosen ? " selected" : ""}>${esc(n)}</option>`).join("");
   view().innerHTML = `<h2>History over commits</h2>
     <p><select id="history-scene">${options(scenes, scene)}</select> <select id="history-method">${options(methods, method)}</select></p>
-    <p class="muted">Median over the seeds of each commit's runs, with an interval for it. Red: a detected step
-    (Welch t-test between consecutive commits, Holm-adjusted); grey dashed: a version change, never compared across.</p>
-    <div class="plots" id="history"></div><h3>Detected steps</h3><div id="steps"></div>`;
-  const go = () => { location.hash = `#/history/${encodeURIComponent(document.getElementById("history-scene").value)}/${encodeURIComponent(document.getElementById("history-method").value)}`; };
+    <p class="muted">Median over the seeds of each commit's runs, with its interval; one chart per setting, one line per method configuration.
+    Red: a detected step (Welch t-test between consecutive commits, Holm-adjusted); grey dashed: a version change, never compared across.</p>
+    <div id="history"></div><h3>Detected steps</h3><div id="steps"></div>`;
+  const go = () => { location.hash = `#/history/${enc(document.getElementById("history-scene").value)}/${enc(document.getElementById("history-method").value)}`; };
   document.getElementById("history-scene").onchange = go;
   document.getElementById("history-method").onchange = go;
+  const answer = await api(`/charts/history?scene=${enc(scene)}&method=${enc(method)}`);
+  const box = document.getElementById("history");
   const steps = [];
-  for (const m of (await metricRegistry()).filter((m) => m.field)) {
-    const h = await api(`/ci/history?metric=${encodeURIComponent(m.name)}&scene=${encodeURIComponent(scene)}&method=${encodeURIComponent(method)}`);
-    const points = h.series.flatMap((s) => s.points).sort((a, b) => (a.time < b.time ? -1 : a.time > b.time ? 1 : 0));
-    const commits = [...new Set(points.map((p) => p.commit))];
-    const x = new Map(commits.map((c, i) => [c, i]));
-    const every = Math.ceil(commits.length / 8);
-    const setting = (s) => `${s.resolution.join("×")}, ${s.spp} spp, ${s.frames} frames`;
-    const series = h.series.map((s) => ({ name: setting(s),
-      points: s.points.filter((p) => p.median !== null).map((p) => [x.get(p.commit), p.median]),
-      ranges: s.points.filter((p) => p.ci).map((p) => [x.get(p.commit), p.ci[0], p.ci[1]]) }));
-    const markers = h.series.flatMap((s) => s.points.flatMap((p) => (p.step
-      ? [{ x: x.get(p.commit) - 0.5, label: "step", color: "#d62728" }]
-      : p.break_before ? [{ x: x.get(p.commit) - 0.5, label: "version", color: "#888", dashed: true }] : [])));
-    linePlot(document.getElementById("history"), { title: `${unitLabel(m)} over commits (${m.direction} is better)`,
-      xlabel: "commit, oldest to newest", ylabel: unitLabel(m), logy: m.log_axis, series, markers, width: 560, height: 320,
-      xticks: commits.map((c, i) => [i, c.slice(0, 7)]).filter((_, i) => i % every === 0) });
-    for (const s of h.series) for (const p of s.points.filter((p) => p.step)) steps.push([m, s, p, setting(s)]);
+  for (const m of answer.metrics) {
+    const section = document.createElement("section");
+    section.innerHTML = `<h4>${esc(m.label)}</h4><div class="plots"></div>`;
+    box.appendChild(section);
+    if (!m.charts.length) note(section, `No value of ${m.label} in a run of ${method} on ${scene} with a clean commit.`);
+    for (const c of m.charts) await chart(section.querySelector(".plots"), c.spec);
+    for (const p of m.steps) steps.push([m, p]);
   }
   document.getElementById("steps").innerHTML = steps.length
     ? `<table><tr><th class="text">metric</th><th class="text">commit</th><th class="text">setting</th><th>change of the median</th><th>p (Holm)</th><th>runs</th></tr>${
-      steps.map(([m, , p, name]) => `<tr class="step"><td class="text">${esc(unitLabel(m))}</td><td class="text"><code>${esc(p.commit.slice(0, 12))}</code></td>
-        <td class="text">${esc(name)}</td><td>${num(p.change)}</td><td>${num(p.p_holm, 2)}</td><td>${p.runs.join(", ")}</td></tr>`).join("")}</table>`
+      steps.map(([m, p]) => `<tr class="step"><td class="text">${esc(m.label)}</td><td class="text"><code>${esc(p.commit.slice(0, 12))}</code></td>
+        <td class="text">${esc(`${p.config}: ${p.setting}`)}</td><td>${num(p.change)}</td><td>${num(p.p_holm, 2)}</td>
+        <td>${p.runs.map((id) => runLink(id, id)).join(", ")}</td></tr>`).join("")}</table>`
     : "<p class='muted'>No step detected.</p>";
+}
+
+const time = (t) => (t ? new Date(t).toISOString().replace("T", " ").slice(0, 19) : "–");
+function duration(job) {
+  if (!job.started_at) return "–";
+  const s = ((job.finished_at ? new Date(job.finished_at) : new Date()) - new Date(job.started_at)) / 1000;
+  return s < 120 ? `${s.toFixed(1)} s` : `${(s / 60).toFixed(1)} min`;
+}
+function specText(spec) {
+  const res = Array.isArray(spec.resolution) ? spec.resolution.join("×") : spec.resolution && `${spec.resolution}×${spec.resolution}`;
+  return [res, spec.spp && `${spec.spp} spp`, spec.frames && `${spec.frames} frames`,
+    spec.seeds && `${spec.seeds} seeds`, spec.eps && `eps ${spec.eps}`].filter(Boolean).join(", ");
 }
 
 async function jobsPage() {
   const jobs = await api("/jobs?limit=100");
-  let html = `<h2>Jobs</h2><table><tr><th>id</th><th class="text">kind</th><th class="text">status</th>
-    <th class="text">progress</th><th>attempts</th><th class="text">worker</th><th class="text">error</th><th>result</th></tr>`;
-  for (const j of jobs) {
+  const rows = jobs.map((j) => {
+    const spec = j.spec || {};
     const p = j.progress && j.progress.total ? `${esc(j.progress.stage)} ${j.progress.done}/${j.progress.total}` : "";
-    const result = j.run_id ? `run ${j.run_id}` : j.sweep_id ? `sweep ${j.sweep_id}` : "";
-    const kind = j.kind === "stage" ? `stage of ${j.parent_id}: ${esc(j.spec.name)}` : j.kind;
-    html += `<tr><td>${j.id}</td><td class="text">${kind}</td><td class="text status-${j.status}">${j.status}</td>
+    const result = j.run_id ? runLink(j.run_id, `run ${j.run_id}`)
+      : j.sweep_id ? `<a href="#/scene/${enc(spec.scene ?? "")}">sweep ${j.sweep_id}</a>` : "";
+    const kind = j.kind === "stage" ? `stage of ${j.parent_id}: ${esc(spec.name)}` : esc(j.kind);
+    const scene = spec.scene ? `<a href="#/scene/${enc(spec.scene)}">${esc(spec.scene)}</a>` : "–";
+    return `<tr><td>${j.id}</td><td class="text">${kind}</td><td class="text">${scene}</td><td class="text">${esc(spec.method ?? (spec.methods || []).join(", "))}</td>
+      <td class="text">${esc(specText(spec))}</td><td class="text">${time(j.created_at)}</td><td class="text">${time(j.started_at)}</td>
+      <td class="text">${time(j.finished_at)}</td><td>${duration(j)}</td><td class="text status-${esc(j.status)}">${esc(j.status)}</td>
       <td class="text">${p}</td><td>${j.attempts}/${j.max_attempts}</td><td class="text">${esc(j.worker)}</td>
       <td class="text">${esc(j.error)}</td><td>${result}</td></tr>`;
-  }
-  view().innerHTML = html + "</table><p class='muted'>refreshes every 2 s</p>";
+  }).join("");
+  view().innerHTML = `<h2>Jobs</h2><table class="jobs"><tr><th>id</th><th class="text">kind</th><th class="text">scene</th><th class="text">method</th>
+    <th class="text">spec</th><th class="text">submitted (UTC)</th><th class="text">started</th><th class="text">ended</th><th>duration</th>
+    <th class="text">state</th><th class="text">progress</th><th>attempts</th><th class="text">worker</th><th class="text">error</th><th>result</th></tr>${rows}</table>
+    <p class='muted'>refreshes every 2 s</p>`;
 }
 
 // The key goes to the service once; it answers with an HttpOnly cookie (unreadable here)
@@ -263,13 +245,15 @@ async function route() {
   const parts = location.hash.replace(/^#\/?/, "").split("/").map(decodeURIComponent);
   try {
     if (parts[0] === "jobs") { await jobsPage(); timer = setTimeout(route, 2000); }
-    else if (parts[0] === "scene" && parts[1]) await scenePage(parts[1], parts[2]);
+    else if (parts[0] === "scene" && parts[1]) await (parts[2] ? runPage(parts[2]) : scenePage(parts[1]));
+    else if (parts[0] === "run" && parts[1]) await runPage(parts[1], parts[2]);
     else if (parts[0] === "history") await historyPage(parts[1], parts[2]);
     else await overview();
   } catch (err) {
     if (err instanceof NeedsKey) loginForm(err.message);
     else view().innerHTML = `<p class="status-failed">${esc(err.message)}</p>`;
   }
+  document.body.dataset.ready = location.hash || "#/";
 }
 
 document.getElementById("logout").addEventListener("click", async (event) => {

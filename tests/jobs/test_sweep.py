@@ -380,3 +380,45 @@ def test_the_nc_sweep_takes_a_termination_the_method_accepts():
     assert small_spec(eps=None, termination="sph").termination == "sph"
     with pytest.raises(ValueError, match="termination"):
         small_spec(eps=None, termination="magic")
+
+
+# ---- A parameter inside a mapping parameter (a dotted path) --------------------------
+
+def _policy_spec(**overrides) -> SweepSpec:
+    """grid-cache's var-bound threshold, a field of its termination_params."""
+    values = dict(scene="cornell-box", resolution=8, seeds=2, methods=["grid-cache"],
+                  parameter=ParameterSweep(name="termination_params.threshold",
+                                           values=[0.0, 10.0]),
+                  params={"termination": "var-bound", "prefill_frames": 4,
+                          "termination_params": {"relative": False}},
+                  reference=ReferenceSpec(spp=64))
+    return SweepSpec(**{**values, **overrides})
+
+
+def test_a_dotted_parameter_sets_one_field_of_a_mapping_parameter():
+    spec = _policy_spec()
+    params = spec.parameter_point("grid-cache", 0.5)
+    assert params.termination_params == {"relative": False, "threshold": 0.5}
+    assert params.termination == "var-bound" and params.prefill_frames == 4
+    with pytest.raises(ValueError, match="threshold"):
+        _policy_spec(parameter=ParameterSweep(name="termination_params.threshold",
+                                              values=[-1.0]))
+    with pytest.raises(ValueError, match="has no parameter 'nowhere'"):
+        _policy_spec(parameter=ParameterSweep(name="nowhere.threshold", values=[1.0]))
+    with pytest.raises(ValueError, match="is swept"):
+        _policy_spec(params={"termination_params": {"threshold": 1.0}})
+
+
+def test_a_policy_parameter_sweep_renders_its_rows(tmp_path, mi):
+    """The generic sweep runs grid-cache's var-bound over its threshold, nothing
+    policy-specific in jobs/: t = 0 ends every path at its first hit, t = 10 hardly any."""
+    settings_ = Settings(data_dir=tmp_path / "data")
+    store = open_store(settings_)
+    try:
+        result = run_sweep(_policy_spec(), store, settings_)
+    finally:
+        store.close()
+    assert [(row.series, row.value) for row in result.rows] == [("grid-cache", 0.0),
+                                                                  ("grid-cache", 10.0)]
+    assert all(row.finite for row in result.rows)
+    assert result.rows[0].avg_path_length < result.rows[1].avg_path_length

@@ -130,6 +130,7 @@ def test_applies_to_skips_caches_without_a_surface_and_nothing_else():
 
 def test_every_method_applies_to_every_built_in_scene(mi):
     """Today's behaviour: no built-in scene is skipped by any method, except by
+    `grid-cache` the scenes with glossy or delta BSDFs (its records have no direction),
     `nvc-lights` and `restir-nvc` the scenes with one emitter (nothing to select),
     by `nvc-env` and `nirc-nvc-env` those without an environment map, by `restir-di`, `restir-nvc` and
     `neural-di` the scene lit by an environment (`sky`) and by `neural-di` the scene with
@@ -149,6 +150,9 @@ def test_every_method_applies_to_every_built_in_scene(mi):
                 assert METHODS[name].applies_to(features) == \
                     (False, "an environment emitter: restir-di samples points on area "
                             "emitters only")
+            elif name == "grid-cache" and (features.has_glossy or features.has_delta):
+                applies, reason = METHODS[name].applies_to(features)
+                assert not applies and "diffuse surfaces only" in reason, scene_name
             elif name == "neural-di" and features.emitter_count > 32:
                 assert METHODS[name].applies_to(features) == \
                     (False, "more than 32 emitters: one cache output per light")
@@ -234,16 +238,20 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
         ("nrc", cache, 1, None),
         ("nirc", {**cache, "estimator": "biased", "nc": [4]}, 1, None),
         ("nirc", {**cache, "estimator": "unbiased", "nc": [3, 1, 1]}, 1, None),
+        ("grid-cache", {"max_depth": 8}, 1, None),
         ("nirc", {**cache, "estimator": "biased"}, 1,
          {"pt_spp": 2, "candidates": [1, 2, 4, 8, 16, 32]}),
-        ("pt", {"max_depth": 8}, 1, {"ms": 10.0}), ("pt", {"max_depth": 8}, 1, {"ms": 10.0})]
+        ("pt", {"max_depth": 8}, 1, {"ms": 10.0}), ("pt", {"max_depth": 8}, 1, {"ms": 10.0}),
+        ("pt", {"max_depth": 8}, 1, {"ms": 10.0})]
     assert [row.label for row in report.equal_spp] == [
-        "PT 1 spp", "PT 2 spp", "NRC biased", "NIRC biased (N_c 4)", "NIRC unbiased (N_c 3,1,1)"]
+        "PT 1 spp", "PT 2 spp", "NRC biased", "NIRC biased (N_c 4)", "NIRC unbiased (N_c 3,1,1)",
+        "Grid cache (var-bound)"]
     assert [row.label for row in report.equal_time] == [
         "PT 2 spp (budget)", "NIRC biased (N_c 8)", "NRC", "PT 3 spp (= NRC time)",
-        "NIRC unbiased", "PT 3 spp (= NIRC unbiased time)"]
+        "NIRC unbiased", "PT 3 spp (= NIRC unbiased time)",
+        "Grid cache", "PT 3 spp (= Grid cache time)"]
     assert report.device == "dev" and report.skipped == []
-    assert [row.id for row in report.equal_spp] == [1, 2, 3, 4, 5]   # the runs' own results
+    assert [row.id for row in report.equal_spp] == [1, 2, 3, 4, 5, 6]   # the runs' own results
 
 
 def test_every_cache_override_field_is_checked_at_parse_time():

@@ -1,13 +1,18 @@
 """Path termination as a policy object (renderers/integrators/termination).
 
-The policies reproduce, bit for bit, the images the caching integrators
-rendered before termination was a policy object: ``golden/termination_before.npz``
-holds 16x16 renders (max_depth 6, 2 spp, 2 frames after 3 pre-training frames,
-seed parts ('ref', 7)) made by the code that branched on the termination string,
-and, for adaptive termination, integrator renders with a fixed v1 mask on an
-untrained cache. Bitwise equality needs the same Dr.Jit LLVM code generation
-(this machine's CPU features); a mismatch elsewhere says to regenerate them from
-the commit before the change, not that the estimator changed.
+The policies reproduce the images the caching integrators rendered before
+termination was a policy object: ``golden/termination_before.npz`` holds 16x16
+renders (max_depth 6, 2 spp, 2 frames after 3 pre-training frames, seed parts
+('ref', 7)) made by the code that branched on the termination string, and, for
+adaptive termination, integrator renders with a fixed v1 mask on an untrained cache.
+
+They are compared to within GOLDEN_ATOL, not bit for bit: Dr.Jit's LLVM backend
+vectorises for the CPU it runs on (8 lanes with AVX2, 16 with AVX-512), which
+changes the order of float sums in the caches' training and in the per-lane
+reductions. Measured on an AVX2 machine against images made on another CPU, the
+same code differed by at most 8.2e-5 per value (2.2e-5 relative on average); a
+termination that changes (``sph_c`` doubled) differs by 0.010-0.094 at most, and
+``test_a_changed_termination_is_outside_the_tolerance`` keeps that margin checked.
 """
 
 from __future__ import annotations
@@ -32,6 +37,9 @@ from renderers.methods import METHODS, MethodError, parse_params
 
 GOLDEN = Path(__file__).parent / "golden" / "termination_before.npz"
 RES = 16
+#: Largest difference of one value allowed between a render and its golden image
+#: (module doc: 25x the cross-CPU difference measured, 5x under a planted change).
+GOLDEN_ATOL = 2e-3
 
 #: name in the golden file -> (method, parameters, scene)
 CONFIGS: dict[str, tuple[str, dict[str, Any], str]] = {
@@ -61,14 +69,28 @@ def golden() -> dict[str, np.ndarray]:
     return dict(np.load(GOLDEN))
 
 
-@pytest.mark.parametrize("name", list(CONFIGS))
-def test_policies_reproduce_the_images_from_before(mi, golden, name):
+def _render(name: str, params: Any) -> np.ndarray:
     from renderers.scenes import load_scene
 
     method, _params_json, scene_name = CONFIGS[name]
-    out = METHODS[method].render(load_scene(scene_name, RES), _params(name),
+    out = METHODS[method].render(load_scene(scene_name, RES), params,
                                  seed_parts=("ref", 7), spp=2, frames=2)
-    np.testing.assert_array_equal(np.asarray(out.accumulated), golden[name])
+    return np.asarray(out.accumulated)
+
+
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_policies_reproduce_the_images_from_before(mi, golden, name):
+    np.testing.assert_allclose(_render(name, _params(name)), golden[name],
+                               rtol=0, atol=GOLDEN_ATOL)
+
+
+def test_a_changed_termination_is_outside_the_tolerance(mi, golden):
+    """The golden comparison can fail: NRC's spread threshold doubled (the smallest
+    change measured among the configurations the threshold reaches) moves some
+    value by more than GOLDEN_ATOL."""
+    params = _params("nrc_adaptive")
+    changed = _render("nrc_adaptive", params.model_copy(update={"sph_c": 2 * params.sph_c}))
+    assert np.abs(changed - golden["nrc_adaptive"]).max() > 2 * GOLDEN_ATOL
 
 
 @pytest.mark.parametrize("name", ["nirc_adaptive", "nrc_adaptive"])
@@ -81,18 +103,20 @@ def test_adaptive_policy_reproduces_masked_images_from_before(mi, golden, name):
     integrator.cache = cache
     integrator.set_v1_mask((np.indices((RES, RES)).sum(axis=0) % 3) != 0)
     image = np.asarray(mi.render(scene.scene, integrator=integrator, spp=3, seed=5))
-    np.testing.assert_array_equal(image, golden[f"{name}_mask"])
+    np.testing.assert_allclose(image, golden[f"{name}_mask"], rtol=0, atol=GOLDEN_ATOL)
 
 
 def test_each_policy_is_declared_in_its_own_module():
     for name, cls in POLICIES.items():
         assert cls.name == name and cls.description and cls.serves
-        assert cls.__module__ == f"{termination.__name__}.{name}"
+        # A module name cannot hold the hyphen of 'var-bound': its underscore stands in.
+        assert cls.__module__ == f"{termination.__name__}.{name.replace('-', '_')}"
 
 
 def test_methods_accept_the_policies_of_the_cache_they_have():
     assert set(policy_names("incident")) == {"bth", "sph", "adaptive"}
     assert set(policy_names("outgoing")) == {"sph", "adaptive"}
+    assert set(policy_names("grid")) == {"var-bound", "mse-min", "area-spread"}
     with pytest.raises(MethodError, match="termination"):
         parse_params("nrc", {"termination": "bth"})
     with pytest.raises(MethodError, match="termination"):

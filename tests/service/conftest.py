@@ -35,11 +35,16 @@ def chromium():
 
 
 def open_page(chromium, url: str):
-    """A page at ``url`` and the list its console errors and uncaught exceptions go to."""
+    """A page at ``url`` and the list its console errors, uncaught exceptions and
+    requests to any other origin than ``url``'s go to (the dashboard loads nothing from
+    elsewhere)."""
     page = chromium.new_page(viewport={"width": 1300, "height": 1800})
     errors: list[str] = []
+    origin = "/".join(url.split("/")[:3]) + "/"
     page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
     page.on("pageerror", lambda err: errors.append(str(err)))
+    page.on("request", lambda request: None if request.url.startswith((origin, "data:"))
+            else errors.append(f"request to another origin: {request.url}"))
     page.goto(url)
     return page, errors
 

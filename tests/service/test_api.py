@@ -93,12 +93,33 @@ def test_write_endpoints_need_a_valid_key(api):
     ({"method": "nope"}, "params"),
     ({"seeds": "many"}, "seeds"),
     ({"unknown_field": 1}, "unknown_field"),
+    ({"method": "grid-cache", "params": {"termination": "mse-min",
+                                         "termination_params": {"samples": -1}}}, "samples"),
 ])
 def test_invalid_specs_are_422_naming_the_field(api, change, field):
     client = api[0]
     response = client.post("/api/v1/jobs", json={**SPEC, **change})
     assert response.status_code == 422, response.text
     assert field in str(response.json()["detail"])
+
+
+def test_a_grid_cache_job_runs_with_its_policy_and_states_its_roulette(api):
+    """A variance-trading policy over REST: its parameters are stored with the run, the
+    grid's typed configuration with the seeds, and the roulette's survival probability
+    in the path statistics."""
+    client = api[0]
+    params = {"termination": "var-bound", "prefill_frames": 2, "rr_survival": 0.8,
+              "termination_params": {"threshold": 0.5, "relative": True}}
+    response = client.post("/api/v1/jobs", json={**SPEC, "method": "grid-cache",
+                                                 "params": params})
+    assert response.status_code == 202, response.text
+    job = _wait(client, response.json()["id"])
+    assert job["status"] == "succeeded", job
+    run = client.get(f"/api/v1/runs/{job['run_id']}").json()
+    assert run["params"]["termination_params"] == {"threshold": 0.5, "relative": True}
+    assert run["path_stats"]["rr_survival"] == 0.8
+    assert run["caches"]["cache"]["config"]["samples_per_vertex"] > 1
+    assert "var-bound" in run["method_label"] and "termination_params" in run["method_label"]
 
 
 def test_unknown_ids_are_404(api):
@@ -158,12 +179,20 @@ def test_the_dashboard_is_served_without_external_assets(api):
     client = api[0]
     page = client.get("/")
     assert page.status_code == 200 and "text/html" in page.headers["content-type"]
-    for asset in ("/static/app.js", "/static/plot.js", "/static/style.css"):
+    for asset in ("/static/app.js", "/static/charts.js", "/static/compare.js",
+                  "/static/pixels.js", "/static/style.css",
+                  "/static/vendor/img-comparison-slider/index.js",
+                  "/static/vendor/img-comparison-slider/styles.css"):
         response = client.get(asset)
         assert response.status_code == 200, asset
         text = response.text.replace("http://www.w3.org/2000/svg", "")
         assert "http://" not in text and "https://" not in text, asset   # no CDN
     assert "https://" not in page.text and "http://" not in page.text
+    # The chart library: served by the app (its code names URLs in strings, but the
+    # browser tests check that no page requests anything from another origin).
+    bundle = client.get("/vendor/vega.js")
+    assert bundle.status_code == 200 and "javascript" in bundle.headers["content-type"]
+    assert "window.vegaEmbed" in bundle.text
     assert client.get("/api/v1/sweeps").json() == []
     assert client.get("/api/v1/references/999/preview.png").status_code == 404
 

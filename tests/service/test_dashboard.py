@@ -1,8 +1,11 @@
 """The dashboard in a real headless Chromium (Debian's, driven by Playwright): the
-overview, a scene page and the job list render their tables, plots and images with
-no console errors; screenshots are kept in test-artifacts/."""
+overview, a scene page with its charts (Vega-Lite through the served vega-embed), a
+run's page with the image comparison, and the job list, with no console errors and
+nothing loaded from another origin; screenshots are kept in test-artifacts/."""
 
 from __future__ import annotations
+
+import json
 
 import pytest
 
@@ -23,73 +26,152 @@ SWEEP_ROWS = [{"series": series, "eps": eps, "ir_bounces_pct": 100 * (1 - eps),
               for series, scale in (("NIRC", 1.0), ("NRC", 2.0), ("NIRC equal time", 0.8))
               for eps in (0.25, 0.5, 1.0)]
 
+#: A checksum of a canvas's displayed pixels (to see them change).
+CANVAS_SUM = ("(s => {{ const c = document.querySelector(s); const d = c.getContext('2d')"
+              ".getImageData(0, 0, c.width, c.height).data; let h = 0; for (let i = 0; "
+              "i < d.length; i++) h = (h * 31 + d[i]) % 1000000007; return h; }})('{}')")
+
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory, mi):
-    """A service on loopback with two runs (one with 4 frames), a sweep and a job."""
+    """A service on loopback with runs at two resolutions (16² at 1 and 2 spp, 3 seeds,
+    4 frames; 24² with 1 seed, 1 frame), a sweep, a queued job and a finished one."""
     settings = Settings(data_dir=tmp_path_factory.mktemp("dash") / "data")
     store = open_store(settings)
-    spec = RenderSpec(scene="cornell-box", resolution=16, spp=1, frames=4, seeds=2,
+    spec = RenderSpec(scene="cornell-box", resolution=16, spp=1, frames=4, seeds=3,
                       reference=ReferenceSpec(spp=64, spp_per_pass=8))
-    execute(RenderJob.parse(spec), store, settings)
-    execute(RenderJob.parse(spec.model_copy(update={"spp": 2})), store, settings)
+    runs = [execute(RenderJob.parse(s), store, settings).run_id for s in (
+        spec, spec.model_copy(update={"spp": 2}),
+        spec.model_copy(update={"resolution": 24, "frames": 1, "seeds": 1}))]
     sweep = store.start_sweep(key="k", kind="eps", scene_name="cornell-box",
                               scene_fingerprint="f", spec={}, result={}, device_key="test",
                               estimator_versions=current_estimator_versions(),
                               metric_version=METRIC_VERSION)
     store.finish_sweep(sweep.id, status="succeeded", result={"rows": SWEEP_ROWS},
                        finished_at=None)
-    JobQueue(store).submit("render", spec.model_dump(mode="json"), "queued-job")
+    queue = JobQueue(store)
+    queue.submit("render", spec.model_dump(mode="json"), "queued-job")
+    done, _ = queue.submit("render", spec.model_copy(update={"spp": 2}).model_dump(mode="json"),
+                           "done-job")
+    queue.claim(done.id, "test-worker")
+    queue.succeed(done.id, run_id=runs[1])
     with serve(create_app(settings)) as url:
-        yield url
+        yield url, runs
     store.close()
 
 
-def test_overview_lists_the_latest_results(chromium, site):
-    page, errors = open_page(chromium, f"{site}/#/")
-    page.wait_for_selector("table td")
+def visit(chromium, url: str):
+    """A page at ``url`` once the dashboard has drawn it, and its errors (open_page)."""
+    page, errors = open_page(chromium, url)
+    wait_until(page, "document.body.dataset.ready !== undefined")
+    return page, errors
+
+
+def test_overview_lists_the_latest_results_with_every_number_linked(chromium, site):
+    url, runs = site
+    page, errors = visit(chromium, f"{url}/#/")
     assert "cornell-box" in page.inner_text("main")
-    assert page.locator("table tr").count() >= 3   # header + pt 1 spp + pt 2 spp
-    assert page.locator("td.verdict").first.inner_text() == "ok"
-    # The metric columns are the registry's listed metrics (GET /api/v1/metrics), PSNR included.
-    headers = page.locator("table").first.locator("th").all_inner_texts()
-    assert headers[3:] == ["MRSE", "95% CI", "FLIP", "rBias²", "rVar", "PSNR (dB)", "ms/frame",
-                           "run"]
+    assert page.locator("table.results tr").count() == 4   # header + one per configuration
+    headers = page.locator("table.results").first.locator("th").all_inner_texts()
+    assert headers[4:] == ["MRSE", "95% CI", "FLIP", "rBias²", "rVar", "PSNR (dB)",
+                           "ms/frame", "run"]
+    # Every number is a link to the run it came from.
+    row = page.locator("table.results tr").nth(1)
+    links = {a.get_attribute("href") for a in row.locator("td a").all()}
+    assert len(links) == 1 and links.pop() in {f"#/run/{run}" for run in runs}
+    assert row.locator("td a").count() >= 8
     ARTIFACTS.mkdir(exist_ok=True)
-    page.screenshot(path=str(ARTIFACTS / "dashboard-overview.png"))
+    page.screenshot(path=str(ARTIFACTS / "dashboard-overview.png"), full_page=True)
     assert errors == []
 
 
-def test_scene_page_draws_plots_and_images(chromium, site):
-    page, errors = open_page(chromium, f"{site}/#/scene/cornell-box")
-    wait_until(page, "document.querySelectorAll('svg.plot').length >= 7")
-    plots = page.locator("svg.plot")
-    # Error vs time (MRSE and FLIP, one device), 4 sweep panels, convergence: each has
-    # drawn points, not "no data"; the error-vs-time plots mark the Pareto front.
-    pareto = page.locator("#pareto svg.plot")
-    assert pareto.count() == 2
-    assert all("Pareto front" in pareto.nth(i).text_content() for i in range(2))
-    for i in range(plots.count()):
-        assert plots.nth(i).locator("circle").count() > 0, plots.nth(i).inner_text()
-    wait_until(page,
-        "[...document.querySelectorAll('#images img')].every(i => i.complete && i.naturalWidth > 0)")
-    assert page.locator("#images img").count() == 3      # reference, method, error map
-    # The run's median frame by stage: wall, kernel and harness milliseconds.
-    page.wait_for_selector("table.timing td")
-    timing = page.locator("table.timing")
-    assert timing.locator("th").all_inner_texts() == ["stage", "wall ms", "kernel ms",
-                                                      "harness ms", "harness %", "launches"]
-    stages = timing.locator("tr td.text").all_inner_texts()
-    assert stages[0] == "render" and stages[-1] == "other"
-    assert "harness share" in page.inner_text("#timing")
-    page.locator(".crop").first.click()                 # crop: all images zoom together
-    assert "scale(4)" in page.locator("#images img").first.get_attribute("style")
+def test_scene_page_draws_one_group_per_setting_with_library_charts(chromium, site):
+    url, runs = site
+    page, errors = visit(chromium, f"{url}/#/scene/cornell-box")
+    groups = page.locator("#pareto section.group h4").all_inner_texts()
+    assert len(groups) == 3, groups          # 16² at 1 spp, 16² at 2 spp, 24²: never mixed
+    assert sum("24×24" in g for g in groups) == 1 and sum("16×16" in g for g in groups) == 2
+    # MRSE and FLIP per group, drawn by Vega (SVG with its marks), the sweep's 4 panels.
+    assert page.locator("#pareto .vega-embed svg.marks").count() == 6
+    assert page.locator("#sweep .vega-embed svg.marks").count() == 4
+    # Hover: the tooltip shows the run's parameters; the point links to the run.
+    point = page.locator("#pareto .vega-embed g.mark-symbol.role-mark path").first
+    point.hover()
+    wait_until(page, "document.querySelector('#vg-tooltip-element.visible') !== null")
+    tip = page.inner_text("#vg-tooltip-element")
+    assert "rr_survival=0.9" in tip and "run" in tip and "spp" in tip
+    # Wheel zoom changes the axis.
+    labels = ("[...document.querySelector('#pareto .vega-embed')"
+              ".querySelectorAll('.role-axis-label text')].map(t => t.textContent).join()")
+    before = page.evaluate(labels)
+    assert before
+    box = page.locator("#pareto .vega-embed svg.marks").first.bounding_box()
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 3)
+    page.mouse.wheel(0, -400)
+    wait_until(page, f"{labels} !== {json.dumps(before)}")
     page.screenshot(path=str(ARTIFACTS / "dashboard-scene.png"), full_page=True)
     assert errors == []
 
 
-def test_job_list_shows_live_status(chromium, site):
-    page, errors = open_page(chromium, f"{site}/#/jobs")
+def test_run_page_compares_images(chromium, site):
+    url, runs = site
+    page, errors = visit(chromium, f"{url}/#/run/{runs[0]}/{runs[2]}")
+    wait_until(page, "document.getElementById('compare').dataset.ready === 'true'")
+    # Reference, image, error, bias, variance of the run; image and error of the other.
+    assert page.locator("#compare-grid figure > canvas").count() == 7
+    assert f"run {runs[2]}: image, seed 0" in page.inner_text("#compare-grid")
+    bars = page.locator(".colour-bar-label").all_inner_texts()
+    assert any("relative squared error" in b for b in bars)
+    assert any("relative bias" in b for b in bars) and any("relative variance" in b for b in bars)
+    # The exposure changes the displayed pixels of the HDR images.
+    a = CANVAS_SUM.format("#canvas-a")
+    before = page.evaluate(a)
+    page.evaluate("(() => { const e = document.getElementById('exposure'); e.value = '3';"
+                  " e.dispatchEvent(new Event('input')); })()")
+    wait_until(page, f"{a} !== {before}")
+    # The slider moves the split between A and B.
+    slider = page.locator("#ab")
+    page.evaluate("document.getElementById('ab').value = 10")
+    left = slider.screenshot()
+    page.evaluate("document.getElementById('ab').value = 90")
+    assert slider.screenshot() != left
+    # Zoom on one image zooms every image (one transform), and the readout shows values.
+    grid = page.locator("#compare-grid figure > canvas")
+    other = CANVAS_SUM.format("#compare-grid figure:nth-child(3) > canvas")
+    before = page.evaluate(other)
+    box = grid.first.bounding_box()
+    page.mouse.move(box["x"] + box["width"] / 3, box["y"] + box["height"] / 3)
+    page.mouse.wheel(0, -200)
+    wait_until(page, f"{other} !== {before}")
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    wait_until(page, "document.getElementById('readout').innerText.includes('pixel')")
+    assert "reference" in page.inner_text("#readout")
+    page.screenshot(path=str(ARTIFACTS / "dashboard-compare.png"), full_page=True)
+    assert errors == []
+
+
+def test_a_one_seed_run_offers_no_bias_or_variance_map_and_no_convergence(chromium, site):
+    url, runs = site
+    page, errors = visit(chromium, f"{url}/#/run/{runs[2]}")
+    wait_until(page, "document.getElementById('compare').dataset.ready === 'true'")
+    assert page.locator("#compare-grid figure > canvas").count() == 3
+    options = page.locator("#layer-a option").all_inner_texts()
+    assert options == ["reference", "image, seed 0", "error map, seed 0"]
+    assert "one frame" in page.inner_text("#convergence")
+    assert errors == []
+
+
+def test_job_list_shows_what_each_job_is_and_links_its_run(chromium, site):
+    url, runs = site
+    page, errors = visit(chromium, f"{url}/#/jobs")
     page.wait_for_selector("td.status-queued")
+    headers = page.locator("table.jobs th").all_inner_texts()
+    for column in ("scene", "method", "spec", "submitted (UTC)", "started", "ended",
+                   "duration", "state", "result"):
+        assert column in headers
+    done = page.locator("table.jobs tr", has=page.locator("td.status-succeeded"))
+    assert "cornell-box" in done.inner_text() and "16×16, 2 spp, 4 frames, 3 seeds" in \
+        done.inner_text()
+    assert done.locator(f"a[href='#/run/{runs[1]}']").count() == 1
     page.screenshot(path=str(ARTIFACTS / "dashboard-jobs.png"))
     assert errors == []

@@ -150,7 +150,8 @@ def test_runs_export_writes_every_stored_file(store_dir, capsys, tmp_path):
     cli("runs", "export", "3", "--out", str(out), data=data)
     expected = {"reference.exr", "reference.variance.exr", "reference_preview.png",
                 "convergence.png", "summary.json", "preview_seed0.png",
-                "error_map_seed0.png", *(f"image_seed{k}.exr" for k in range(3))}
+                "error_map_seed0.png", "rel_bias_map.exr", "rel_variance_map.exr",
+                *(f"image_seed{k}.exr" for k in range(3))}
     assert {path.name for path in out.iterdir()} == expected
 
     def sha(path) -> str:
@@ -159,7 +160,8 @@ def test_runs_export_writes_every_stored_file(store_dir, capsys, tmp_path):
     seeds = {s.id: s.seed for s in run.seed_results}
     artifacts = ArtifactStore(settings.artifacts_dir)
     for artifact in run.artifacts:
-        name = f"{artifact.kind}_seed{seeds[artifact.seed_result_id]}"
+        seed = seeds.get(artifact.seed_result_id)     # None: the run's own (its maps)
+        name = artifact.kind if seed is None else f"{artifact.kind}_seed{seed}"
         assert sha(out / f"{name}{artifacts.path_of(artifact.path).suffix}") == artifact.sha256
     assert sha(out / "reference.exr") == sha(settings.references_dir / run.reference.image_path)
     summary = json.loads((out / "summary.json").read_text())

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import base64
 import io
-import json
 import os
+import re
 import subprocess
 import sys
 import tarfile
@@ -30,6 +30,7 @@ from fastapi.testclient import TestClient
 from jobs.execution.apikeys import create_api_key
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from renderers.scenes import load_scene
 from service.api.main import create_app
 from service.config import ServiceSettings
 from tests.service.live import Service
@@ -305,7 +306,8 @@ def test_a_scene_mitsuba_refuses_fails_without_quoting_its_files(live):
 
 def test_the_cli_uploads_a_local_scene_the_service_may_not_read(live, layout):
     """`render --server` with a local XML path (outside every scene root): the CLI
-    uploads the scene and the files it reads, the job renders the uploaded copy."""
+    uploads the scene and the files it reads, the job renders the uploaded copy, and
+    the table names the file and its content fingerprint as a local run's does."""
     local = layout["base"] / "client"
     write(local / "scene.xml", scene('<shape type="obj"><string name="filename" '
                                      'value="../client-meshes/quad.obj"/></shape>'))
@@ -313,10 +315,18 @@ def test_the_cli_uploads_a_local_scene_the_service_may_not_read(live, layout):
     done = subprocess.run(
         [sys.executable, "-m", "service", "render", "--scene", str(local / "scene.xml"),
          "--res", "16", "--spp", "1", "--frames", "1", "--seeds", "1", "--ref-spp", "8",
-         "--server", live.service.url, "--api-key", live.key, "--json"],
-        capture_output=True, text=True, timeout=300)
+         "--server", live.service.url, "--api-key", live.key],
+        capture_output=True, text=True, timeout=300,
+        env={**os.environ, "COLUMNS": "400"})
     assert done.returncode == 0, done.stderr[-2000:]
-    assert json.loads(done.stdout)["scene"].startswith("upload:")
+    uploaded = re.search(r"uploaded as (upload:[0-9a-f]{32})", done.stdout)
+    assert uploaded, done.stdout
+    run = live.get(f"results?scene={uploaded.group(1)}").json()
+    assert len(run) == 1 and run[0]["scene"] == uploaded.group(1), run
+    fingerprint = load_scene(str(local / "scene.xml")).fingerprint
+    assert run[0]["scene_fingerprint"] == fingerprint
+    assert f"{(local / 'scene.xml').resolve()} / pt" in done.stdout, done.stdout
+    assert fingerprint in done.stdout
 
 
 def tar_of(files: dict[str, bytes], links: dict[str, str] | None = None) -> bytes:

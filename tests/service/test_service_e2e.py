@@ -71,11 +71,10 @@ def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashbo
         assert f"{service.url}/api/v1/artifacts/" in again.stdout    # the plots' URLs
 
         page, errors = open_page(chromium, f"{service.url}/#/scene/cornell-box")
-        wait_until(page,
-            "document.querySelectorAll('#sweep svg.plot circle').length > 0")
-        assert f"(sweep {result['id']})" in page.inner_text("#sweep")
-        wait_until(page, "[...document.querySelectorAll('#images img')]"
-                               ".every(i => i.complete && i.naturalWidth > 0)")
+        wait_until(page, "document.body.dataset.ready !== undefined")
+        assert page.locator("#sweep .vega-embed g.mark-symbol.role-mark path").count() > 0
+        assert f"sweep {result['id']}" in page.locator("#sweep .role-title-text").first \
+            .text_content()
         ARTIFACTS.mkdir(exist_ok=True)
         name = f"dashboard-e2e-sweep-{'postgresql' if database_url else 'sqlite'}.png"
         page.screenshot(path=str(ARTIFACTS / name), full_page=True)

@@ -25,7 +25,9 @@ the next vertex). What a policy may read is a :class:`TerminationQuery`:
 Each policy is declared in its own module of this package with its own typed
 parameters (a pydantic model, ``Params``), the caches it serves (``serves``:
 'incident' for NIRC's cache of incident radiance, 'outgoing' for NRC's cache
-of outgoing radiance) and what it needs of N_c. Importing this package imports
+of outgoing radiance, 'grid' for the hashed grid with three moments of the
+`grid-cache` method, whose records hold the full reflected radiance and the
+statistics the variance-trading policies read) and what it needs of N_c. Importing this package imports
 every module in it (:func:`_discover`), so adding a policy adds one file; the
 methods' parameter models list the policies of the kind they serve. Reading the
 registry does not import Mitsuba: policies import it where they evaluate.
@@ -45,7 +47,7 @@ if TYPE_CHECKING:
     from renderers.integrators.cached import CacheState
     from renderers.integrators.path import Vertex
 
-CacheKind = Literal["incident", "outgoing"]
+CacheKind = Literal["incident", "outgoing", "grid"]
 
 
 class NoParams(BaseModel):

@@ -1,0 +1,252 @@
+"""Vega-Lite specs of the dashboard's charts, built with Altair.
+
+The dashboard renders them with vega-embed (served by the app, no CDN); the same
+dicts render to PNG files with vl-convert (:func:`chart_png`, e.g. ``render --out``'s
+convergence.png), so a page and a file agree.
+
+Every chart follows the same rules: one colour per method configuration, the same on
+every page (jobs.protocol.chart_groups.colour_of, given as an explicit scale); legends
+beside or below the plot, never over it; axis titles with units; a log axis where the
+values are positive and span more than a decade; wheel zoom and drag pan; a tooltip
+with the run's parameters, and a click on a point opens its run (``href``). Values of
+a log axis that are zero or negative (a noise-corrected rBias² below the noise floor)
+are not drawn and the chart's subtitle counts them. Intervals are the ones the API
+stores (log-scale, never below zero, none with fewer than 3 seeds): drawn, never
+recomputed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import altair as alt
+import vl_convert
+
+from jobs.protocol.chart_groups import Group, colour_of, config_label
+from jobs.protocol.front import pareto_front
+
+WIDTH, HEIGHT = 520, 300
+#: Where a chart's legend goes: below the plot, one entry a line, labels never cut.
+LEGEND = alt.Legend(orient="bottom", direction="vertical", labelLimit=0, title=None)
+
+
+def run_link(run_id: int) -> str:
+    """The dashboard's page of a run (a hash route: the page never reloads)."""
+    return f"#/run/{run_id}"
+
+
+def params_text(params: Mapping[str, Any] | None) -> str:
+    return ", ".join(f"{key}={value}" for key, value in sorted((params or {}).items())
+                     if key not in ("spec", "scene_overrides", "calibration"))
+
+
+def colour_scale(labels: Sequence[str]) -> alt.Scale:
+    domain = sorted(set(labels))
+    return alt.Scale(domain=domain, range=[colour_of(label) for label in domain])
+
+
+def _spans_decades(values: Sequence[float]) -> bool:
+    positive = [v for v in values if v > 0]
+    return len(positive) == len(values) and bool(positive) and max(positive) > 10 * min(positive)
+
+
+def value_scale(values: Sequence[float], log_axis: bool) -> alt.Scale:
+    """Log where the metric is read on a log axis and its drawn values span a decade;
+    else linear from zero (a lone value never makes an empty domain)."""
+    if log_axis and _spans_decades(values):
+        return alt.Scale(type="log")
+    return alt.Scale(zero=True)
+
+
+def axis_title(metric: Mapping[str, Any]) -> str:
+    unit = metric.get("unit")
+    return f"{metric['label']} ({unit})" if unit else f"{metric['label']} (relative, unitless)"
+
+
+def _not_drawn(count: int) -> list[str]:
+    return [f"{count} value{'s' if count != 1 else ''} ≤ 0 (below the noise floor) not drawn "
+            "on the log axis"] if count else []
+
+
+def _finish(chart: alt.TopLevelMixin) -> dict[str, Any]:
+    spec = chart.to_dict()
+    spec.pop("$schema", None)       # a URL; the page names the mode instead
+    return spec
+
+
+def chart_png(spec: Mapping[str, Any], path: Path) -> Path:
+    """``spec`` drawn to a PNG file by vl-convert: the library the dashboard draws it with."""
+    path.write_bytes(vl_convert.vegalite_to_png(dict(spec), scale=2))
+    return path
+
+
+def _title(text: str, notes: Sequence[str]) -> alt.Title:
+    return alt.Title(text, subtitle=list(notes), anchor="start") if notes \
+        else alt.Title(text, anchor="start")
+
+
+def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
+                     metric: Mapping[str, Any]) -> dict[str, Any] | None:
+    """Error against milliseconds per frame of one group's runs, each run a point with its
+    stored interval, the group's Pareto front dashed. None when no run has the metric."""
+    field, ci_field = metric["field"], metric.get("ci_field")
+    usable = [r for r in runs if r.get(field) is not None and r.get("seconds_per_frame")]
+    if not usable:
+        return None
+    log = metric["log_axis"]
+    drawn = [r for r in usable if r[field] > 0 or not log]
+    points = [{"run": r["id"], "ms": 1e3 * r["seconds_per_frame"], "value": r[field],
+               "config": config_label(r), "params": params_text(r["params"]),
+               "spp": r["spp"], "frames": r["frames"], "seeds": r["seeds"],
+               "device": r["device_key"], "href": run_link(r["id"]),
+               "lo": (r.get(ci_field) or [None, None])[0] if ci_field else None,
+               "hi": (r.get(ci_field) or [None, None])[1] if ci_field else None}
+              for r in drawn]
+    on_front = pareto_front([p["ms"] for p in points], [p["value"] for p in points])
+    front = sorted((p for p, on in zip(points, on_front, strict=True) if on),
+                   key=lambda p: p["ms"])
+    y_title = axis_title(metric)
+    x = alt.X("ms:Q", title="milliseconds per frame (online training included)",
+              scale=value_scale([p["ms"] for p in points], True))
+    y_scale = value_scale([p["value"] for p in points], log)
+    y = alt.Y("value:Q", title=y_title, scale=y_scale)
+    colour = alt.Color("config:N", scale=colour_scale([p["config"] for p in points]),
+                       legend=LEGEND)
+    tooltip = [alt.Tooltip("config:N", title="method"), alt.Tooltip("run:Q", title="run"),
+               alt.Tooltip("value:Q", title=metric["label"], format=".4g"),
+               alt.Tooltip("lo:Q", title="95 % interval from", format=".4g"),
+               alt.Tooltip("hi:Q", title="95 % interval to", format=".4g"),
+               alt.Tooltip("ms:Q", title="ms per frame", format=".4g"),
+               "spp:Q", "frames:Q", "seeds:Q", "device:N",
+               alt.Tooltip("params:N", title="parameters")]
+    data = alt.Data(values=points)
+    zoom = alt.selection_interval(bind="scales")
+    dots = alt.Chart(data).mark_point(filled=True, size=70).encode(
+        x=x, y=y, color=colour, tooltip=tooltip, href="href:N").add_params(zoom)
+    bars = alt.Chart(data).transform_filter("datum.lo != null && datum.lo > 0").mark_rule().encode(
+        x="ms:Q", y=alt.Y("lo:Q", scale=y_scale), y2="hi:Q", color=colour)
+    line = alt.Chart(alt.Data(values=front)).mark_line(
+        strokeDash=[5, 3], color="#222", point=False).encode(x="ms:Q", y=alt.Y("value:Q", scale=y_scale))
+    title = _title(f"{metric['label']} vs time — {group.title}",
+                   ["dashed: Pareto front of this group", *_not_drawn(len(usable) - len(drawn))])
+    layers = [line] if len(front) > 1 else []
+    layers += [bars] if any(p["lo"] for p in points) else []
+    return _finish(alt.layer(*layers, dots).properties(width=WIDTH, height=HEIGHT, title=title))
+
+
+def history_chart(metric: Mapping[str, Any], setting: str,
+                  series: Sequence[tuple[str, Sequence[Mapping[str, Any]]]]
+                  ) -> dict[str, Any] | None:
+    """A metric over commits of one setting: one line per method configuration
+    (label, points of GET /api/v1/ci/history), its stored intervals as bars; red rules
+    at detected steps, grey dashed ones at version changes (never compared across).
+    None when no commit has a value."""
+    log = metric["log_axis"]
+    rows, marks, below = [], [], 0
+    for label, points in series:
+        for p in points:
+            commit = p["commit"][:7]
+            if p.get("step"):
+                marks.append({"commit": commit, "what": "step", "colour": "#d62728"})
+            elif p.get("break_before"):
+                marks.append({"commit": commit, "what": "version change", "colour": "#888"})
+            if p["median"] is None:
+                continue
+            if log and p["median"] <= 0:
+                below += 1
+                continue
+            ci = p.get("ci") or [None, None]
+            rows.append({"commit": commit, "time": p["time"], "value": p["median"],
+                         "lo": ci[0], "hi": ci[1], "n": p["n"], "config": label,
+                         "runs": ", ".join(map(str, p["runs"])),
+                         "href": run_link(p["runs"][-1])})
+    if not rows:
+        return None
+    order = sorted({(r["time"], r["commit"]) for r in rows})
+    commits = list(dict.fromkeys(commit for _, commit in order))
+    x = alt.X("commit:N", sort=commits, title="commit, oldest to newest",
+              axis=alt.Axis(labelAngle=-45))
+    y_scale = value_scale([r["value"] for r in rows], log)
+    colour = alt.Color("config:N", scale=colour_scale([r["config"] for r in rows]),
+                       legend=LEGEND)
+    data = alt.Data(values=rows)
+    zoom = alt.selection_interval(bind="scales", encodings=["y"])
+    line = alt.Chart(data).mark_line(point=alt.OverlayMarkDef(filled=True, size=50)).encode(
+        x=x, y=alt.Y("value:Q", title=axis_title(metric), scale=y_scale), color=colour,
+        tooltip=[alt.Tooltip("config:N", title="method"), "commit:N",
+                 alt.Tooltip("value:Q", title=f"median {metric['label']}", format=".4g"),
+                 alt.Tooltip("lo:Q", title="interval from", format=".4g"),
+                 alt.Tooltip("hi:Q", title="interval to", format=".4g"),
+                 alt.Tooltip("n:Q", title="values"), alt.Tooltip("runs:N", title="runs")],
+        href="href:N").add_params(zoom)
+    bars = alt.Chart(data).transform_filter("datum.lo != null && datum.lo > 0").mark_rule().encode(
+        x=x, y=alt.Y("lo:Q", scale=y_scale), y2="hi:Q", color=colour)
+    rules = alt.Chart(alt.Data(values=marks)).mark_rule(strokeWidth=1.5, strokeDash=[4, 3]).encode(
+        x=x, color=alt.Color("colour:N", scale=None), tooltip=["what:N", "commit:N"])
+    title = _title(f"{metric['label']} over commits — {setting} ({metric['direction']} is better)",
+                   ["red: detected step; grey: version change", *_not_drawn(below)])
+    layers = [rules] if marks else []
+    layers += [bars] if any(r["lo"] for r in rows) else []
+    return _finish(alt.layer(*layers, line).properties(width=WIDTH, height=HEIGHT, title=title))
+
+
+def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
+    """MRSE over the frames of a run, per seed (solid: the frame alone; dashed: the
+    frames accumulated so far). None for a run of one frame: nothing converges."""
+    rows = []
+    for seed in run["per_seed"]:
+        curve = seed["metrics"].get("convergence") or {}
+        for kind, key in (("frame", "frame_mrse"), ("accumulated", "accumulated_mrse")):
+            rows += [{"frame": i, "value": v, "seed": f"seed {seed['seed']}", "kind": kind,
+                      "href": run_link(run["id"])}
+                     for i, v in enumerate(curve.get(key) or []) if v is not None and v > 0]
+    if run["frames"] < 2 or not rows:
+        return None
+    every = max(1, math.ceil(run["frames"] / 12))
+    x = alt.X("frame:Q", title="frame", scale=alt.Scale(domain=[0, run["frames"] - 1], nice=False),
+              axis=alt.Axis(values=list(range(0, run["frames"], every)), format="d"))
+    y = alt.Y("value:Q", title="MRSE (relative, unitless)",
+              scale=value_scale([r["value"] for r in rows], True))
+    chart = alt.Chart(alt.Data(values=rows)).mark_line(point=True).encode(
+        x=x, y=y, color=alt.Color("seed:N", legend=LEGEND),
+        strokeDash=alt.StrokeDash("kind:N", scale=alt.Scale(domain=["frame", "accumulated"],
+                                                            range=[[1, 0], [5, 3]]),
+                                  legend=None),     # the subtitle says which is which
+        tooltip=["seed:N", "kind:N", "frame:Q", alt.Tooltip("value:Q", title="MRSE", format=".4g")],
+    ).add_params(alt.selection_interval(bind="scales"))
+    return _finish(chart.properties(width=WIDTH, height=HEIGHT, title=_title(
+        f"run {run['id']}: MRSE over frames — {config_label(run)}",
+        ["solid: each frame; dashed: frames accumulated"])))
+
+
+def sweep_chart(sweep_id: int, rows: Sequence[Mapping[str, Any]],
+                metric: Mapping[str, Any]) -> dict[str, Any] | None:
+    """A sweep's metric against the share of indirect-radiance bounces, one line per
+    series (the 'equal time' series dashed), each point linked to its run."""
+    field, log = metric["field"], metric["log_axis"]
+    usable = [r for r in rows if r.get(field) is not None]
+    drawn = [r for r in usable if r[field] > 0 or not log]
+    if not drawn:
+        return None
+    values = [{"pct": r["ir_bounces_pct"], "value": r[field], "config": r["series"],
+               "eps": r.get("eps"), "equal_time": "equal time" in r["series"],
+               "run": r.get("id"), "href": run_link(r["id"]) if r.get("id") else None}
+              for r in drawn]
+    chart = alt.Chart(alt.Data(values=values)).mark_line(point=True).encode(
+        x=alt.X("pct:Q", title="indirect-radiance bounces (%)"),
+        y=alt.Y("value:Q", title=axis_title(metric),
+                scale=value_scale([v["value"] for v in values], log)),
+        color=alt.Color("config:N", scale=colour_scale([v["config"] for v in values]),
+                        legend=LEGEND),
+        strokeDash=alt.StrokeDash("equal_time:N", legend=None),
+        tooltip=[alt.Tooltip("config:N", title="series"), alt.Tooltip("eps:Q", title="eps"),
+                 alt.Tooltip("pct:Q", title="% IR bounces", format=".3g"),
+                 alt.Tooltip("value:Q", title=metric["label"], format=".4g"),
+                 alt.Tooltip("run:Q", title="run")],
+        href="href:N",
+    ).add_params(alt.selection_interval(bind="scales"))
+    return _finish(chart.properties(width=WIDTH, height=HEIGHT, title=_title(
+        f"{metric['label']} — sweep {sweep_id}", _not_drawn(len(usable) - len(drawn)))))

@@ -1,0 +1,192 @@
+"""`grid-cache`: path tracing terminated into a hashed-grid radiance cache with three
+moments by a variance-trading policy ([VTT24]; docs/variance_trading.md).
+
+Every frame first runs the cache's propagation pass (timed as the stage
+``propagation``: the path tracer's share of exploration, each pixel's first hit kept
+as a representative with the config's ``primary_store_probability``, then
+renderers/integrators/grid_update.py over every representative), then renders with
+the core asking the policy at every vertex (``render``; renderers/integrators/
+grid_cache.py). Static scenes are pre-filled for ``prefill_frames`` passes first
+(the paper fills and propagates "until it reaches an equilibrium state", Sec. 6):
+radiance propagates one bounce per pass, so the pre-fill bounds the bounces the
+cache holds.
+
+The policies (``termination``, with their own ``termination_params``): `var-bound`
+(threshold t, absolute or relative), `mse-min` (sample target s, margin, clamp) and
+`area-spread` (c). The cache's configuration is a typed
+:class:`~renderers.caches.grid_config.MomentGridConfig` (``cache``: overrides; the
+cell edge is ``cell_fraction`` of the scene's largest extent unless ``cache`` sets
+``cell_size``), stored with the run as ``method_stats['caches']['cache']``. The
+Russian-roulette survival probability (``rr_survival``, with ``rr_depth``) is stated
+in every result's path statistics: bias and path length depend on it (Sec. 6).
+
+Diffuse scenes only: a record holds reflected radiance without an outgoing direction,
+as in the paper (Sec. 6), so scenes with glossy or delta BSDFs are refused.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Literal
+
+from pydantic import Field
+
+from renderers.integrators.termination import policy_names
+from renderers.methods.base import ComparisonRun, FrameHooks, Method, RenderOutput, run_frames
+from renderers.methods.cached import TerminationChoice
+from renderers.methods.pt import PTParams
+from renderers.seeding import derive_seed
+
+#: The policies that serve the moment grid (the registry's).
+GridTermination = Literal[policy_names("grid")]  # type: ignore[valid-type]
+
+GRID_AOVS = ("depth", "cache_depth", "cache_vertices", "weighted_length")
+
+
+#: Where this method's grid differs from MomentGridConfig's (the paper's) defaults,
+#: sized for a CPU at small resolutions (docs/variance_trading.md): 8 samples per
+#: vertex instead of 32 and 2 representatives per record instead of 4 keep a
+#: propagation pass near a render pass; primary vertices are kept with 10 % instead of
+#: 1 % because a 64x64 frame has 500 times fewer pixels than the paper's 1080p.
+GRID_DEFAULTS: dict[str, Any] = {"samples_per_vertex": 8, "vertices_per_record": 2,
+                                 "primary_store_probability": 0.1}
+
+
+def grid_config(cell_size: float = 1.0, **overrides: Any) -> Any:
+    """The typed grid configuration: this method's defaults, then ``overrides`` (a
+    placeholder cell edge where the method derives it from the scene)."""
+    from renderers.caches.grid_config import MomentGridConfig
+
+    unknown = set(overrides) - set(MomentGridConfig.model_fields)
+    if unknown:
+        raise ValueError(f"unknown cache config field(s) {sorted(unknown)}; valid fields "
+                         f"are {sorted(MomentGridConfig.model_fields)}")
+    return MomentGridConfig(**{**GRID_DEFAULTS, "cell_size": cell_size, **overrides})
+
+
+class GridCacheParams(PTParams, TerminationChoice):
+    """Parameters of `grid-cache` (PT core included; module doc)."""
+
+    termination: GridTermination = Field(
+        "var-bound", description="termination policy (renderers/integrators/termination)")
+    cache: dict[str, Any] = Field(default_factory=dict,
+                                  description="cache config overrides (MomentGridConfig)")
+    cell_fraction: float = Field(1 / 16, gt=0.0, le=1.0,
+                                 description="cell edge / the scene's largest extent "
+                                             "(unless cache.cell_size is given)")
+    prefill_frames: int = Field(48, ge=0, le=100_000,
+                                description="propagation passes before the first frame")
+    hit_store_probability: float = Field(0.02, ge=0.0, le=1.0,
+                                         description="chance that a propagation sample's "
+                                                     "hit becomes a representative")
+
+    def cache_presets(self) -> dict[str, Any]:
+        return {"cache": grid_config}
+
+    def termination_settings(self) -> Any:
+        from renderers.integrators.termination import TerminationSettings
+
+        # area-spread has its own c; the neural methods' sph_c is not a parameter here.
+        return TerminationSettings(0.01)
+
+    def resolved_grid(self, scene: Any) -> Any:
+        """The grid configuration of ``scene`` (a renderers.scenes scene)."""
+        extents = scene.scene.bbox().extents()
+        cell = self.cell_fraction * max(float(extents[i]) for i in range(3))
+        return grid_config(**{"cell_size": cell, **self.cache})
+
+
+def build(scene: Any, params: GridCacheParams, seed: int) -> tuple[Any, Any, Any]:
+    """(render integrator, update integrator, grid) of a `grid-cache` render."""
+    import mitsuba as mi
+
+    from renderers.caches.moment_grid import MomentGrid
+    from renderers.integrators import grid_cache
+
+    METHOD.register_integrators()
+    core = {"max_depth": params.max_depth, "rr_depth": params.rr_depth,
+            "rr_mode": params.rr_mode, "rr_survival": params.rr_survival}
+    grid = MomentGrid(params.resolved_grid(scene))
+    integrator = mi.load_dict({"type": grid_cache.PLUGIN_NAME, **core})
+    # The update pass samples as the path tracer does (its NEE, BSDF and light selection).
+    updater = mi.load_dict({"type": grid_cache.UPDATE_PLUGIN_NAME, **core})
+    integrator.grid = updater.grid = grid
+    integrator.policy = params.termination_policy()
+    return integrator, updater, grid
+
+
+def propagate(scene: Any, updater: Any, grid: Any, params: GridCacheParams, seed: int) -> int:
+    """One pass: the render's share of exploration, then the update of every
+    representative; returns the vertices updated."""
+    from renderers.integrators.grid_update import store_primary_vertices, update_grid
+
+    mi_scene = scene.scene
+    store_primary_vertices(mi_scene, grid, mi_scene.sensors()[0], derive_seed(seed, "store"),
+                           grid.config.primary_store_probability)
+    return update_grid(mi_scene, updater, derive_seed(seed, "update"),
+                       params.hit_store_probability)
+
+
+def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], spp: int,
+           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
+    """Pre-fill, then per frame: a propagation pass, then the render pass."""
+    import mitsuba as mi
+
+    from renderers.timing import synchronize
+
+    integrator, updater, grid = build(scene, params, derive_seed(*seed_parts, "cache"))
+    start = time.perf_counter()
+    for index in range(params.prefill_frames):
+        propagate(scene, updater, grid, params, derive_seed(*seed_parts, "prefill", index))
+    prefill_s = time.perf_counter() - start
+    updated: list[int] = []
+
+    def frame(index: int, seed: int, timer: Any) -> Any:
+        with timer.stage("propagation"):
+            vertices = propagate(scene, updater, grid, params, derive_seed(seed, "propagate"))
+        if index >= 0:
+            updated.append(vertices)
+        with timer.stage("render"):
+            image = mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
+            synchronize(image)
+        return image
+
+    output = run_frames(frame, seed_parts=seed_parts, frames=frames, spp=spp,
+                        aov_names=GRID_AOVS, hooks=hooks)
+    output.path_stats.update(rr_survival=params.rr_survival, rr_depth=params.rr_depth,
+                             rr_mode=params.rr_mode)
+    output.method_stats = {
+        "prefill_frames": params.prefill_frames, "prefill_s": prefill_s,
+        "rr_survival": params.rr_survival,
+        "grid_records": grid.records(),
+        "updated_vertices_per_frame": sum(updated) / max(len(updated), 1),
+        "caches": {"cache": {"config": grid.config.model_dump(mode="json"),
+                            "per_frame": {"propagation_passes": 1,
+                                          "samples_per_vertex":
+                                              grid.config.samples_per_vertex}}},
+    }
+    return output
+
+
+def diffuse_only(features: Any) -> tuple[bool, str]:
+    """The paper's scenes are diffuse only (Sec. 6): a record holds reflected radiance
+    without an outgoing direction, which a glossy or delta BSDF would need."""
+    if features.shape_count == 0:
+        return False, "the scene has no surface for the cache to live on"
+    if features.has_glossy or features.has_delta:
+        kind = "glossy" if features.has_glossy else "delta"
+        return False, (f"the scene has {kind} BSDFs; the grid cache holds reflected "
+                       "radiance without direction, for diffuse surfaces only ([VTT24] "
+                       "Sec. 6)")
+    return True, ""
+
+
+METHOD = Method(
+    "grid-cache", "hashed-grid radiance cache with three moments, variance-trading "
+    "termination", GridCacheParams, render, version=1,
+    integrators=("renderers.integrators.grid_cache",), requires=diffuse_only, build=build,
+    label="Grid cache", unbiased=False,
+    # In the method comparison and the Pareto plot: its default policy (var-bound,
+    # absolute t = 0.1), with PT matched to its frame time.
+    comparison=(ComparisonRun(5, "Grid cache", "Grid cache (var-bound)", role="matched"),),
+    stage_sizes=lambda _params, _pixels, _spp: {"propagation": 1.0})

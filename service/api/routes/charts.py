@@ -1,0 +1,98 @@
+"""Chart specs for the dashboard: Vega-Lite dicts (jobs/protocol/charts.py) of stored
+results, each chart holding only comparable runs (jobs/protocol/chart_groups.py)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, HTTPException, Query, status
+
+from jobs.protocol.chart_groups import split_groups
+from jobs.protocol.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
+from jobs.ci.history import MAX_HISTORY_RUNS, build_history
+from jobs.protocol.results import RunResult, RunResultDetail, method_label
+from jobs.protocol.versions import current_estimator_versions
+from metrics import METRIC_VERSION
+from metrics.registry import METRICS
+from service.api.deps import RowId, StoreDep
+
+router = APIRouter(prefix="/api/v1/charts", tags=["charts"])
+
+Name = Annotated[str, Query(min_length=1, max_length=500, pattern=r"^[^\x00]*$")]
+#: The errors drawn against time, by result field (as `nirc-bench pareto` draws them).
+TIME_METRICS = ("mrse", "flip")
+
+
+def _listed() -> list[dict[str, Any]]:
+    return [m.to_json() for m in METRICS if m.field]
+
+
+@router.get("/scene")
+def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dict[str, Any]:
+    """Error-vs-time charts of a scene's runs: per group of comparable runs (resolution,
+    spp, frames, protocol, device, versions) one chart per error, with its Pareto front."""
+    versions = {} if include_old else {"current": current_estimator_versions(),
+                                       "metric_version": METRIC_VERSION}
+    runs = [RunResult.of(run).model_dump(mode="json")
+            for run in store.list_runs(scene, None, None, limit=1000, **versions)]
+    metrics = [m for m in _listed() if m["field"] in TIME_METRICS]
+    groups = []
+    for group, members in split_groups(runs).items():
+        charts = [chart for m in metrics if (chart := error_time_chart(group, members, m))]
+        groups.append({"title": group.title, "runs": [r["id"] for r in members],
+                       "charts": charts})
+    return {"scene": scene, "groups": groups}
+
+
+@router.get("/history")
+def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]:
+    """Per listed metric its history over commits (GET /api/v1/ci/history), one chart per
+    device and setting (resolution, spp, frames), one line per method configuration."""
+    runs = store.list_history_runs(scene, method, limit=MAX_HISTORY_RUNS)
+    devices = sorted({run.device_key for run in runs})
+    answer = []
+    for metric in METRICS:
+        if not metric.field:
+            continue
+        histories = [build_history(runs, metric, scene=scene, method=method, device=device)
+                     .model_dump(mode="json") for device in devices]
+        settings: dict[str, list[tuple[str, list[dict[str, Any]]]]] = {}
+        for device, history in zip(devices, histories, strict=True):
+            for series in history["series"]:
+                width, height = series["resolution"]
+                setting = (f"{width}×{height}, {series['spp']} spp, {series['frames']} "
+                           f"frames, {device}")
+                settings.setdefault(setting, []).append(
+                    (method_label(method, series["params"]), series["points"]))
+        charts = [{"setting": setting, "spec": spec} for setting, series in settings.items()
+                  if (spec := history_chart(metric.to_json(), setting, series))]
+        answer.append({"metric": metric.name, "label": metric.label, "charts": charts,
+                       "steps": [{**point, "setting": setting, "config": label}
+                                 for setting, series in settings.items()
+                                 for label, points in series for point in points
+                                 if point["step"]]})
+    return {"scene": scene, "method": method, "metrics": answer}
+
+
+@router.get("/runs/{run_id}")
+def run_charts(run_id: RowId, store: StoreDep) -> dict[str, Any]:
+    """A run's convergence over frames (null, with why, for a run of one frame)."""
+    run = store.get_run(run_id)
+    if run is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no run {run_id}")
+    detail = RunResultDetail.of(run).model_dump(mode="json")
+    chart = convergence_chart(detail)
+    return {"run": run_id, "convergence": chart,
+            "note": None if chart else "no convergence curve: the run has one frame "
+                                       "(or stored none)"}
+
+
+@router.get("/sweeps/{sweep_id}")
+def sweep_charts(sweep_id: RowId, store: StoreDep) -> dict[str, Any]:
+    """A sweep's curves, one chart per metric the registry plots for sweeps."""
+    sweep = store.get_sweep(sweep_id)
+    if sweep is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no sweep {sweep_id}")
+    rows = (sweep.result or {}).get("rows") or []
+    charts = [sweep_chart(sweep_id, rows, m.to_json()) for m in METRICS if m.sweep_plot]
+    return {"sweep": sweep_id, "charts": [chart for chart in charts if chart]}
