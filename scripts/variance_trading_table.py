@@ -34,9 +34,9 @@ def fmt(value: Any, digits: int = 3) -> str:
 
 def main() -> None:
     from jobs.protocol.spec import ParameterSweep, ReferenceSpec, SweepSpec
-    from jobs.sweeps.sweep import run_sweep
     from jobs.record.config import Settings
     from jobs.record.db import open_store
+    from jobs.sweeps.sweep import run_sweep
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--res", type=int, default=64)

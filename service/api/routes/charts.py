@@ -7,9 +7,9 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, status
 
+from jobs.ci.history import MAX_HISTORY_RUNS, build_history
 from jobs.protocol.chart_groups import split_groups
 from jobs.protocol.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
-from jobs.ci.history import MAX_HISTORY_RUNS, build_history
 from jobs.protocol.results import RunResult, RunResultDetail, method_label
 from jobs.protocol.versions import current_estimator_versions
 from metrics import METRIC_VERSION
