@@ -20,8 +20,8 @@ from jobs.ci.ci import (
     stored_baseline,
 )
 from jobs.ci.ci_suite import CiError, load_suite, read_baseline, write_baseline
+from jobs.protocol.job import RenderJob
 from jobs.protocol.results import RunResultDetail
-from jobs.protocol.spec import RenderSpec
 from jobs.record.store import Store
 from service.ci_report import headline, junit, markdown
 
@@ -43,25 +43,25 @@ class CiOptions:
 
 
 def embedded_runner(data_dir: Path | None) -> tuple[Runner, Store]:
-    """Runs each spec in this process through the executor; also returns the store."""
+    """Runs each job in this process through the executor; also returns the store."""
     from jobs.protocol.executor import execute
-    from jobs.protocol.job import RenderJob
     from jobs.record.config import Settings
     from jobs.record.db import open_store
 
     settings = Settings(data_dir=data_dir) if data_dir else Settings()
     store = open_store(settings)
-    return (lambda spec: execute(RenderJob.parse(spec), store, settings).result), store
+    return (lambda job: execute(job, store, settings).result), store
 
 
 def remote_runner(server: str, api_key: str | None) -> Runner:
-    """Submits each spec to the service at ``server`` and reads the stored run back."""
+    """Submits each job's spec to the service at ``server`` (which parses it at its own
+    entry) and reads the stored run back."""
     from service.client import RemoteError, ServiceClient
 
     client = ServiceClient(server, api_key)
 
-    def run(spec: RenderSpec) -> RunResultDetail:
-        job = client.wait(client.submit("render", spec.model_dump(mode="json"))["id"])
+    def run(render: RenderJob) -> RunResultDetail:
+        job = client.wait(client.submit("render", render.spec.model_dump(mode="json"))["id"])
         if job["status"] != "succeeded":
             raise RemoteError(f"job {job['id']} {job['status']}: {job['error']}")
         return RunResultDetail.model_validate(client.get(f"/api/v1/runs/{job['run_id']}"))

@@ -34,14 +34,14 @@ from jobs.ci.ci_stats import (
     smallest_rank_p,
 )
 from jobs.ci.ci_suite import TIME, BaselineRow, Entry, Suite, config_key
+from jobs.protocol.job import RenderJob
 from jobs.protocol.provenance import git_branch, git_commit
 from jobs.protocol.results import RunResultDetail, method_params
-from jobs.protocol.spec import RenderSpec
 from jobs.record.store import Store
 from metrics.registry import Metric
 
-#: Runs a spec to completion and returns the stored run (embedded or over REST).
-Runner = Callable[[RenderSpec], RunResultDetail]
+#: Runs a typed job to completion and returns the stored run (embedded or over REST).
+Runner = Callable[[RenderJob], RunResultDetail]
 #: The baseline row of (entry, the entry's first candidate run, metric), or None.
 BaselineSource = Callable[[Entry, RunResultDetail, Metric], BaselineRow | None]
 Verdict = Literal["pass", "regression", "not comparable"]
@@ -208,7 +208,7 @@ def run_suite(suite: Suite, runner: Runner, baseline_of: BaselineSource, *, suit
             done = sizes[look - 1] if look else 0
             if progress:
                 progress(f"{entry.label}: seeds {done + 1}-{size}")
-            results.append(runner(entry.spec(size - done, seed_start + done)))
+            results.append(runner(entry.job(size - done, seed_start + done)))
             runs.append(results[-1].id)
             for state in states:
                 cand = row_of(entry, results, state.metric)
@@ -235,7 +235,7 @@ def baseline_rows(suite: Suite, runner: Runner, *, seed_start: int = 0,
     for entry in suite.entries():
         if progress:
             progress(f"{entry.label}: {suite.max_seeds} seeds")
-        result = runner(entry.spec(suite.max_seeds, seed_start))
+        result = runner(entry.job(suite.max_seeds, seed_start))
         rows += [row_of(entry, [result], metric) for metric in suite.gated()]
     return rows
 

@@ -32,9 +32,18 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from jobs.ci.ci_stats import Spending, UnpairedTest
+from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from metrics.registry import CI_GATED, Aggregate, Metric
 from renderers.methods import MethodError, format_validation_error, parse_params
@@ -70,7 +79,9 @@ class Entry(BaseModel):
     label: str
     scene: str
     method: str
-    params: dict[str, Any]      # validated by the method, as stored with a run
+    params: dict[str, Any]      # the dump of ``method_params``, as stored with a run
+    #: The method's parameter model, validated once when the suite is expanded.
+    method_params: Any = Field(exclude=True, repr=False)
     resolution: int
     spp: int
     frames: int
@@ -81,6 +92,11 @@ class Entry(BaseModel):
                           resolution=self.resolution, spp=self.spp, frames=self.frames,
                           seeds=seeds, seed_start=seed_start,
                           reference=ReferenceSpec(spp=self.ref_spp))
+
+    def job(self, seeds: int, seed_start: int) -> RenderJob:
+        """The typed job of ``seeds`` seeds from ``seed_start``: the parameters are the
+        ones validated at expansion, not parsed again."""
+        return RenderJob.of(self.spec(seeds, seed_start), self.method_params)
 
 
 class Suite(BaseModel):
@@ -130,15 +146,31 @@ class Suite(BaseModel):
     def gated(self) -> list[Metric]:
         return [CI_METRICS[name] for name in self.metrics]
 
+    _entries: list[Entry] | None = PrivateAttr(None)
+
+    def model_copy(self, *, update: dict[str, Any] | None = None, deep: bool = False) -> Suite:
+        """A copy with ``update``; its entries are expanded anew from its own fields."""
+        copy = super().model_copy(update=update, deep=deep)
+        copy._entries = None
+        return copy
+
     def entries(self) -> list[Entry]:
-        """Every scene with every method, parameters validated by the method."""
+        """Every scene with every method, parameters validated by the method: once per
+        suite (the first call; later calls return the same entries)."""
+        if self._entries is None:
+            self._entries = self._expand()
+        return self._entries
+
+    def _expand(self) -> list[Entry]:
         entries = []
         for scene in self.scenes:
             for m in self.methods:
-                params = parse_params(m.method, m.params).model_dump(mode="json")
+                method_params = parse_params(m.method, m.params)
                 label = m.label or m.method
                 entries.append(Entry(label=f"{label} @ {scene}" if len(self.scenes) > 1 else label,
-                                     scene=scene, method=m.method, params=params,
+                                     scene=scene, method=m.method,
+                                     params=method_params.model_dump(mode="json"),
+                                     method_params=method_params,
                                      resolution=self.resolution, spp=self.spp,
                                      frames=self.frames, ref_spp=self.ref_spp))
         labels = [e.label for e in entries]

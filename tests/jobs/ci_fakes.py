@@ -8,8 +8,8 @@ from collections.abc import Callable
 from typing import Any
 
 from jobs.ci.ci_suite import BaselineRow, Entry, Suite
+from jobs.protocol.job import RenderJob
 from jobs.protocol.results import RunResultDetail, SeedRow
-from jobs.protocol.spec import RenderSpec
 from jobs.protocol.versions import estimator_version
 from metrics import METRIC_VERSION
 
@@ -44,7 +44,8 @@ class FakeRunner:
         self.ids = itertools.count(1)
         self.seeds: dict[str, int] = {}
 
-    def __call__(self, spec: RenderSpec) -> RunResultDetail:
+    def __call__(self, job: RenderJob) -> RunResultDetail:
+        spec = job.spec
         label = self.labels[(spec.method, json.dumps(spec.params, sort_keys=True))]
         self.seeds[label] = self.seeds.get(label, 0) + spec.seeds
         seeds = range(spec.seed_start, spec.seed_start + spec.seeds)

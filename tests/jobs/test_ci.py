@@ -31,7 +31,7 @@ from jobs.ci.ci_suite import (
     load_suite,
     read_baseline,
 )
-from tests.jobs.ci_fakes import FakeRunner, baseline_row
+from tests.jobs.ci_fakes import FakeRunner, baseline_row, fake_run
 
 ROOT = Path(__file__).resolve().parents[2]
 PROJECT_SUITE = ROOT / "ci" / "suite.toml"
@@ -373,3 +373,19 @@ def test_the_project_suite_and_its_baseline_agree():
             row = baseline(entry, None, metric)
             assert row is not None, (entry.label, metric)
             assert len(row.values) == suite.max_seeds and None not in row.values
+
+
+def test_the_runner_gets_the_parameters_validated_when_the_suite_was_expanded():
+    """The CI suite parses each method's parameters once, at expansion: the job its
+    runner receives carries that very parameter object, not a new parse of the spec."""
+    suite = Suite.model_validate({"scenes": ["cornell-box"], "methods": [{"method": "pt"}]})
+    entry = suite.entries()[0]
+    received = []
+
+    def runner(job):
+        received.append(job)
+        return fake_run(1, job.spec.method, {0: {"mrse": 0.04}})
+
+    run(suite, runner, file_baseline([]))
+    assert received and all(job.params is entry.method_params for job in received)
+    assert received[0].spec.params == entry.params

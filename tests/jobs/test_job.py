@@ -161,7 +161,7 @@ def test_the_executor_renders_and_stores_the_typed_parameters(mi, data_dir):
 #: The modules below the entry points: none of them validates a method's parameters.
 BELOW_THE_EDGES = ("jobs/protocol/executor.py", "jobs/protocol/calibration.py",
                    "jobs/protocol/references.py", "jobs/sweeps/snapshots.py",
-                   "jobs/execution/queue.py")
+                   "jobs/execution/queue.py", "jobs/ci/ci.py")
 
 
 @pytest.mark.parametrize("path", BELOW_THE_EDGES)

@@ -31,7 +31,15 @@ def render(scenes, name: str, frozen: bool, frames: int = 3):
                              hooks=FrameHooks(keep_frames=True))
 
 
-@pytest.mark.parametrize("name", list(METHODS))
+#: Methods with nothing frozen whose two runs of the same code are not bit-equal, so a
+#: frozen/unfrozen comparison says nothing about freezing: the grid cache (its frame is
+#: traced every frame, ``frame_freezable`` False) sums its observations with float
+#: atomics (``dr.scatter_add`` in renderers/caches/moment_grid.py), whose order varies
+#: between runs on a multi-core CPU, and its cache feeds back into later frames.
+NOT_REPRODUCIBLE = {"grid-cache"}
+
+
+@pytest.mark.parametrize("name", [name for name in METHODS if name not in NOT_REPRODUCIBLE])
 def test_frozen_and_unfrozen_frames_give_the_same_images(scenes, name):
     frozen, unfrozen = render(scenes, name, True), render(scenes, name, False)
     for a, b in zip(frozen.frames, unfrozen.frames, strict=True):
