@@ -482,26 +482,20 @@ class _Sweep:
             **self.spec.params, "max_depth": self.spec.max_depth,
             **get_method(method).sweep.knob_point(nc, self.spec.termination),
             "pretrain_frames": self.spec.train_frames})
-        job = self.point_job(method, params)
-        key = digest("sweep-nc-point", job.spec.model_dump(mode="json"), self.device_key,
-                     self.prepared.reference.key, job.spec.versions(), length=32)
-        run = self.store.find_run_by_idempotency_key(key)
-        if run is not None:
-            self.work["points_reused"] += 1
-            return run
-        summary = execute(job, self.store, self.settings, idempotency_key=key,
-                          progress=self.report)
-        self.work["points_rendered"] += 1
-        return self.store.get_run(summary.run_id)
+        return self._stored_or_rendered("sweep-nc-point", self.point_job(method, params))
 
 
     def parameter_point(self, method: str, value: Any) -> Any:
         """The stored run of ``method`` at one value of a parameter sweep, rendering it
         if missing (every value with the same seeds and the sweep's reference)."""
-        job = self.point_job(method, self.spec.parameter_point(method, value))
-        key = digest("sweep-parameter-point", job.spec.model_dump(mode="json"),
-                     self.device_key, self.prepared.reference.key, job.spec.versions(),
-                     length=32)
+        return self._stored_or_rendered(
+            "sweep-parameter-point", self.point_job(method, self.spec.parameter_point(method, value)))
+
+    def _stored_or_rendered(self, kind: str, job: RenderJob) -> Any:
+        """The stored run of a point ``job`` (keyed by ``kind``, its spec, the device, the
+        reference and the versions), rendering and storing it if missing."""
+        key = digest(kind, job.spec.model_dump(mode="json"), self.device_key,
+                     self.prepared.reference.key, job.spec.versions(), length=32)
         run = self.store.find_run_by_idempotency_key(key)
         if run is not None:
             self.work["points_reused"] += 1
