@@ -50,7 +50,6 @@ from jobs.pareto.tradeoff import (
     Sample,
     Speedup,
     bootstrap_speedup,
-    pareto_front,
 )
 from jobs.protocol import cost_model
 from jobs.protocol.calibration import (
@@ -60,6 +59,7 @@ from jobs.protocol.calibration import (
     probe_timings,
 )
 from jobs.protocol.executor import Prepared, execute, prepare
+from jobs.protocol.front import pareto_front
 from jobs.protocol.job import RenderJob
 from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
