@@ -66,7 +66,7 @@ def method_timings(scenes: Scenes, method: str, scene: str, params: Any, res: in
 
 def mitsuba_path(mi: Any, scenes: Scenes, res: int, frames: int, frozen: bool) -> dict[str, Any]:
     """Mitsuba's ``path`` at 1 spp on door through ``mi.render`` (or a frozen function of
-    it, warmed up until its recording count stops changing), timed like a method."""
+    it, warmed up until its recording count settles), timed like a method."""
     import drjit as dr
 
     from renderers.timing import (

@@ -15,8 +15,11 @@ demands of a frame function:
   array, converting to NumPy): those re-record or go stale.
 
 The recording count settles only after about three calls (the first call records
-literals, the next ones make changing literals opaque), so a frozen frame loop warms
-up until the count stops changing (renderers.methods.base.run_frames).
+literals, the next ones make changing literals opaque); a function whose inputs change
+width between calls (a caching frame's compacted vertices and queries,
+renderers.methods.staged) records a few more times (measured: up to 4 per function,
+sometimes after two calls without a new one). So a frozen frame loop warms up until
+the count has held over ``SETTLED_CALLS`` calls (renderers.methods.base.run_frames).
 
 Freezing is on by default; ``with frozen_frames(False):`` runs the same code
 unfrozen (to compare the two: the frozen and unfrozen frames of a method must give
@@ -37,7 +40,9 @@ import drjit as dr
 _ENABLED: ContextVar[bool] = ContextVar("frozen_frames", default=True)
 
 #: Warm-up frames a frozen frame loop renders at most while its recordings settle.
-MAX_WARMUP_FRAMES = 8
+MAX_WARMUP_FRAMES = 12
+#: Calls without a new recording after which a frozen frame loop's warm-up ends.
+SETTLED_CALLS = 3
 
 
 @contextmanager

@@ -147,11 +147,22 @@ class CachedPathIntegrator(PathIntegrator):
         # Cache vertices per lane a buffer holds where no exact bound exists
         # (biased NIRC); raised to what a frame needed, kept for later frames.
         self.vertex_slots = 1
+        # Set while a staged frame renders (renderers.methods.staged).
+        self.staged: Any = None
 
     def frame_freezable(self) -> bool:
-        """Not yet: the frame reads the cache's weights from Python and reads counts back
-        to size its deferred query buffers (renderers.frozen)."""
-        return False
+        """Whether the stages of a frame (renderers.methods.staged) may be frozen: the
+        core's condition, and every channel's cache hands over the arrays its queries
+        read (``inference_state``; a test's oracle may not)."""
+        return super().frame_freezable() and all(
+            hasattr(channel.cache, "inference_state") for channel in self.query_channels())
+
+    def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
+        return {**super().frame_state(scene), "v1_mask": self.v1_mask}
+
+    def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:
+        super().bind_frame_state(scene, state)
+        self.v1_mask = state["v1_mask"]
 
     def set_v1_mask(self, mask: np.ndarray | None) -> None:
         """Per-pixel (H, W) booleans: where paths may terminate into the cache at v1.
@@ -190,7 +201,19 @@ class CachedPathIntegrator(PathIntegrator):
         return [self]
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
-        """Trace the paths, recording cache queries; then evaluate the recorded ones."""
+        """Trace the paths, recording cache queries; then evaluate the recorded ones.
+
+        In a staged frame (renderers.methods.staged) the same render is cut in two:
+        with ``staged.recording`` it only traces and records (the buffers and the most
+        cache vertices a lane had are left in ``staged.recorded``); with
+        ``staged.lane_values`` it traces nothing and returns those per-lane values,
+        which the film then splats with the same samples as the traced render."""
+        staged = self.staged
+        if staged is not None and staged.lane_values is not None:
+            zero = mi.Float(0)
+            lane = dr.arange(mi.UInt32, dr.width(ray.d.x))
+            return (dr.gather(mi.Spectrum, staged.lane_values, lane), mi.Bool(False),
+                    [zero, zero, zero])
         lanes = dr.width(ray.d.x)
         channels = self.query_channels()
         layouts = [channel.query_layout() for channel in channels]
@@ -204,6 +227,13 @@ class CachedPathIntegrator(PathIntegrator):
                                    InlineQueries(channel.cache, channel.surface_inputs,
                                                  channel, key))
             L, valid_ray, depth, state = self.trace(scene, sampler, ray, active)
+            if staged is not None and staged.recording:
+                # The most cache vertices of a lane, on the device: the host reads it
+                # after the frozen pass (a read-back inside would re-record it).
+                staged.recorded = [(channel.queries.arrays(),
+                                    dr.max(getattr(state, channel.counter), axis=None))
+                                   for channel in channels]
+                return self._finish(channels, L, valid_ray, depth, state, None)
             synchronize(L, valid_ray, depth, state)
             needed = [int(dr.max(getattr(state, channel.counter), axis=None)[0])
                       for channel in channels]
@@ -212,14 +242,7 @@ class CachedPathIntegrator(PathIntegrator):
                 break
             # Some lane had more cache vertices than slots: trace the frame again
             # with the same random numbers and room for all of them.
-            for channel, n, layout in zip(channels, needed, layouts, strict=True):
-                if n > layout.vertices:
-                    channel.vertex_slots = n
-            layouts = [channel.query_layout() for channel in channels]
-            for channel, n, layout in zip(channels, needed, layouts, strict=True):
-                if layout.vertices < n:
-                    raise RuntimeError(f"a path used the cache at {n} vertices, more than the "
-                                       f"bound {layout.vertices} of {type(channel).__name__}")
+            layouts = self.grow_layouts(channels, needed)
             sampler = replay.clone()
         count = None
         if deferred:
@@ -231,11 +254,30 @@ class CachedPathIntegrator(PathIntegrator):
                         L, queries = mi.Spectrum(L) + cached, queries + evaluated
                 synchronize(L)
             count = QueryCount(queries, lanes, sum(layout.slots for layout in layouts))
+        return self._finish(channels, L, valid_ray, depth, state, count)
+
+    def _finish(self, channels: list[QueryChannel], L: mi.Spectrum, valid_ray: mi.Bool,
+                depth: mi.UInt32, state: CacheState, count: QueryCount | None) -> tuple:
         for channel in channels:
             channel.queries = None
-        self.query_counts.append(count)
+        if self.staged is None or not self.staged.recording:
+            self.query_counts.append(count)
         return L, valid_ray, [mi.Float(depth), mi.Float(state.cache_depth),
                               mi.Float(state.cache_vertices)]
+
+    @staticmethod
+    def grow_layouts(channels: list[QueryChannel], needed: list[int]) -> list[QueryLayout]:
+        """Raise the vertex slots of every channel some lane of which had ``needed`` cache
+        vertices, more than its layout held; the new layouts."""
+        for channel, n in zip(channels, needed, strict=True):
+            if n > channel.query_layout().vertices:
+                channel.vertex_slots = n
+        layouts = [channel.query_layout() for channel in channels]
+        for channel, n, layout in zip(channels, needed, layouts, strict=True):
+            if layout.vertices < n:
+                raise RuntimeError(f"a path used the cache at {n} vertices, more than the "
+                                   f"bound {layout.vertices} of {type(channel).__name__}")
+        return layouts
 
     def _stage(self, name: str) -> AbstractContextManager[None]:
         return self.timer.stage(name) if self.timer is not None else nullcontext()

@@ -206,49 +206,102 @@ class QueryBuffer:
         dr.scatter(self.draws, mi.UInt32(count), slot, active & recorded)
         return mi.Spectrum(0)
 
+    #: The buffer's Dr.Jit arrays (:meth:`arrays`): what a staged frame hands from one
+    #: frozen pass to the next (renderers.methods.staged).
+    ARRAYS = ("origin", "ray_direction", "maxt", "beta", "draws", "recorded", "direction",
+              "weight", "used", "key")
+
+    def arrays(self) -> dict[str, Any]:
+        return {name: getattr(self, name) for name in self.ARRAYS}
+
+    @classmethod
+    def from_arrays(cls, lanes: int, layout: QueryLayout, arrays: dict[str, Any]) -> QueryBuffer:
+        """The buffer of :meth:`arrays` (``lanes`` wide, ``layout``), for the deferred
+        passes (not for recording: it has no ``lane``)."""
+        buffer = cls.__new__(cls)
+        buffer.lanes, buffer.layout = lanes, layout
+        for name, value in arrays.items():
+            setattr(buffer, name, value)
+        return buffer
+
     def evaluate(self, scene: mi.Scene, source: QuerySource) -> tuple[mi.Spectrum, int]:
         """Per lane sum_q beta_v weight_q n(x_v, w_q) over the used queries only
-        (width ``lanes``), and how many queries were evaluated."""
-        queries = self.layout.queries
+        (width ``lanes``), and how many queries were evaluated: the two compactions
+        (``dr.compress``, whose widths only the host knows) around the two passes."""
         vertices = dr.compress(self.recorded)
         if dr.width(vertices) == 0:
             return dr.zeros(mi.Spectrum, self.lanes), 0
+        surface = self.vertex_pass(scene, source, vertices, *self.draw_lanes(source, vertices))
+        index = dr.compress(self.used)
+        if dr.width(index) == 0:
+            return dr.zeros(mi.Spectrum, self.lanes), 0
+        return (self.query_pass(source.cache, surface, compact_positions(self, vertices), index),
+                dr.width(index))
+
+    def draw_lanes(self, source: QuerySource, vertices: mi.UInt32) -> tuple[Any, Any]:
+        """The lanes of the deferred draws (:meth:`vertex_pass`): one per (vertex, slot),
+        slot-major, as (position in ``vertices``, slot); None where a vertex draws at
+        most one query (a lane per vertex already). Built outside the pass: their width
+        is the compressed count, which a frozen pass cannot read."""
+        slots = source.drawn_slots
+        if self.key is None or slots <= 1:
+            return None, None
+        count = dr.width(vertices)
+        at = dr.arange(mi.UInt32, count * slots)
+        return at % count, at // count
+
+    def vertex_pass(self, scene: mi.Scene, source: QuerySource, vertices: mi.UInt32,
+                    compact: mi.UInt32 | None, slot: mi.UInt32 | None) -> Any:
+        """Re-create the recorded ``vertices`` (``dr.compress(recorded)``), draw their
+        queries into the query slots and return their per-surface values: the cache
+        inputs where a vertex has one slot, else the surface features (Sec. 4.5),
+        computed once per vertex. Every size comes from its inputs' widths."""
         ray = mi.Ray3f(dr.gather(mi.Point3f, self.origin, vertices),
                        dr.gather(mi.Vector3f, self.ray_direction, vertices))
         ray.maxt = dr.gather(mi.Float, self.maxt, vertices)
         si, bsdf = recreate_vertex(scene, ray)
         inputs = source.surface_inputs(si, bsdf)
         if self.key is not None:
-            self._draw_queries(source, si, bsdf, vertices)
+            self._draw_queries(source, si, bsdf, vertices, compact, slot)
         dr.eval(inputs, self.direction, self.weight, self.used)   # one kernel per vertex
-        index = dr.compress(self.used)
-        count = dr.width(index)
-        if count == 0:
-            return dr.zeros(mi.Spectrum, self.lanes), 0
-        vertex = index // queries
-        n = source.cache.query(self._surface_features(source.cache, inputs, vertices, vertex),
-                               dr.gather(mi.Vector3f, self.direction, index))
+        if self.layout.queries == 1:
+            return inputs
+        surface = source.cache.surface_features(**inputs)
+        dr.eval(surface)   # once per vertex, before the per-query gathers
+        return surface
+
+    def query_pass(self, cache: Any, surface: Any, compact: mi.UInt32,
+                   index: mi.UInt32) -> mi.Spectrum:
+        """Per lane sum over the used queries ``index`` (``dr.compress(used)``) of
+        beta_v weight_q n(x_v, w_q), in slot order; ``surface`` from :meth:`vertex_pass`,
+        ``compact`` (:func:`compact_positions`) maps a vertex slot to its row."""
+        vertex = index // self.layout.queries
+        at = dr.gather(mi.UInt32, compact, vertex)
+        if self.layout.queries == 1:   # a vertex is a query: its features per query
+            features = cache.surface_features(
+                **{name: dr.gather(type(value), value, at) for name, value in surface.items()})
+        else:
+            features = [dr.gather(type(row), row, at) for row in surface]
+        n = cache.query(features, dr.gather(mi.Vector3f, self.direction, index))
         value = (mi.Spectrum(n) * dr.gather(mi.Spectrum, self.weight, index)
                  * dr.gather(mi.Spectrum, self.beta, vertex))
         per_slot = dr.zeros(mi.Spectrum, self.lanes * self.layout.slots)
         dr.scatter(per_slot, value, index)
-        return dr.block_reduce(dr.ReduceOp.Add, per_slot, self.layout.slots), count
+        return dr.block_reduce(dr.ReduceOp.Add, per_slot, self.layout.slots)
 
     def _draw_queries(self, source: QuerySource, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF,
-                      vertices: mi.UInt32) -> None:
+                      vertices: mi.UInt32, compact: mi.UInt32 | None,
+                      slot: mi.UInt32 | None) -> None:
         """The queries the recorded vertices draw (slots 0 .. draws - 1), into the query
-        slots: one lane per (vertex, slot), so each buffer takes a single scatter (a
-        second scatter into the same buffer would first launch a kernel for the first)."""
-        slots = source.drawn_slots
-        if slots == 1:   # a lane per vertex already
+        slots: one lane per (vertex, slot) (:meth:`draw_lanes`), so each buffer takes a
+        single scatter (a second scatter into the same buffer would first launch a
+        kernel for the first)."""
+        if compact is None:   # a lane per vertex already
             vertex, slot = vertices, mi.UInt32(0)
         else:
-            # Slot-major lanes: where vertices draw fewer than ``slots``, the unused
+            # Slot-major lanes: where vertices draw fewer than ``drawn_slots``, the unused
             # slots form whole SIMD packets, which the BSDF call skips.
             dr.eval(si, bsdf)   # per vertex, gathered per query
-            count = dr.width(vertices)
-            at = dr.arange(mi.UInt32, count * slots)
-            compact, slot = at % count, at // count
             vertex = dr.gather(mi.UInt32, vertices, compact)
             si = dr.gather(mi.SurfaceInteraction3f, si, compact)
             bsdf = dr.gather(mi.BSDFPtr, bsdf, compact)
@@ -261,21 +314,13 @@ class QueryBuffer:
         dr.scatter(self.weight, weight, query, use)
         dr.scatter(self.used, True, query, use)
 
-    def _surface_features(self, cache: Any, inputs: dict[str, Any], vertices: mi.UInt32,
-                          vertex: mi.UInt32) -> list[Any]:
-        """The per-surface features (Sec. 4.5) of each query's vertex ``vertex`` from
-        the ``inputs`` of the recorded ``vertices``: computed once per vertex and
-        gathered per query, or per query where a vertex has a single slot (then
-        a vertex is a query)."""
-        compact = dr.zeros(mi.UInt32, self.lanes * self.layout.vertices)
-        dr.scatter(compact, dr.arange(mi.UInt32, dr.width(vertices)), vertices)
-        at = dr.gather(mi.UInt32, compact, vertex)
-        if self.layout.queries == 1:
-            return cache.surface_features(
-                **{name: dr.gather(type(value), value, at) for name, value in inputs.items()})
-        surface = cache.surface_features(**inputs)
-        dr.eval(surface)   # once per vertex, before the per-query gathers
-        return [dr.gather(type(row), row, at) for row in surface]
+
+def compact_positions(buffer: QueryBuffer, vertices: mi.UInt32) -> mi.UInt32:
+    """Per vertex slot of ``buffer``, its row in ``vertices`` (the compressed recorded
+    slots): where a query finds its vertex's surface values."""
+    compact = dr.zeros(mi.UInt32, buffer.lanes * buffer.layout.vertices)
+    dr.scatter(compact, dr.arange(mi.UInt32, dr.width(vertices)), vertices)
+    return compact
 
 
 class InlineQueries:

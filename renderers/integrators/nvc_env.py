@@ -110,6 +110,10 @@ class OneOutput:
     def query(self, surface: list[mi.Float], direction: mi.Vector3f) -> mi.Spectrum:
         return mi.Spectrum(self.cache.query(surface, direction)[0])
 
+    def __getattr__(self, name: str) -> Any:
+        """Everything else is the wrapped cache's (its inference state, for frozen passes)."""
+        return getattr(self.cache, name)
+
 
 def surface_inputs(si: mi.SurfaceInteraction3f) -> dict[str, Any]:
     """A vertex's inputs as the query buffer stores them: the visibility cache reads

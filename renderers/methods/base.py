@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 from renderers.backend import host_runs_kernels
-from renderers.frozen import MAX_WARMUP_FRAMES, Frozen, freezing
+from renderers.frozen import MAX_WARMUP_FRAMES, SETTLED_CALLS, Frozen, freezing
 from renderers.load import LoadMonitor
 from renderers.seeding import derive_seed
 from renderers.timing import (
@@ -280,7 +280,8 @@ class WithParts:
 
     def __init__(self, frame: FrameFn, *parts: Any, counted: tuple[Any, ...] = ()) -> None:
         self.frame = frame
-        self.frozen = [part for part in parts if hasattr(part, "recordings")]
+        self.frozen = [part for part in parts
+                       if getattr(part, "recordings", lambda: None)() is not None]
         self.counted = [c for c in counted if c.recordings() is not None]
         recorded = [*self.frozen, *self.counted]
         if recorded:
@@ -301,11 +302,16 @@ def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:
     frozen (:class:`FrozenRender`) where the integrator says its frame can be
     (``frame_freezable()``: no state read from Python objects, no host read-back).
 
-    A caching integrator (renderers.integrators.cached) times its deferred cache
-    inference as the nested stage 'inference'; 'render' is then path tracing only.
+    A caching integrator (renderers.integrators.cached, with deferred cache queries)
+    renders in stages (renderers.methods.staged), frozen where it can be: 'render' is
+    then path tracing only, 'inference' the deferred cache queries.
     """
     import mitsuba as mi
 
+    if hasattr(integrator, "query_channels"):   # deferred cache queries: in stages
+        from renderers.methods.staged import StagedRender
+
+        return StagedRender(scene, integrator, spp)
     if freezing() and getattr(integrator, "frame_freezable", lambda: False)():
         return FrozenRender(scene, integrator, spp)
 
@@ -380,7 +386,7 @@ def run_frames(
     Dr.Jit's kernel history is on for the warm-up and the timed frames alike
     (renderers.timing), and the machine's load is measured over the timed frames
     (renderers.load). A frame function with ``recordings()`` (frozen,
-    renderers.frozen) warms up until its recording count stops changing, and the
+    renderers.frozen) warms up until its recording count has settled, and the
     counts after the warm-up and after the timed frames are reported (``frozen``).
     """
     recordings = getattr(render_frame, "recordings", None)
@@ -430,10 +436,11 @@ def _warm_up(render_frame: FrameFn, seed_parts: tuple[Any, ...],
              recordings: Callable[[], int] | None) -> Warmup:
     """The untimed warm-up: one frame, then, for a frozen frame function, calls of its
     ``settle`` (the frozen parts alone, which change no state; else the frame again)
-    until its recording count stops changing (at most MAX_WARMUP_FRAMES in all). So a
-    cache trains in one warm-up frame whether its frames are frozen or not."""
+    until its recording count has held over SETTLED_CALLS calls (at most
+    MAX_WARMUP_FRAMES in all). So a cache trains in one warm-up frame whether its
+    frames are frozen or not."""
     seconds, compile_s, frames = 0.0, 0.0, 0
-    before = -1
+    before, held = -1, 0
     settle = getattr(render_frame, "settle", render_frame)
     while True:
         timer = StageTimer()
@@ -444,6 +451,7 @@ def _warm_up(render_frame: FrameFn, seed_parts: tuple[Any, ...],
         seconds += timer.frame_s
         compile_s = None if timer.kernels is None or compile_s is None else \
             compile_s + sum(k.compile_s for k in timer.kernels.values())
-        if recordings is None or frames >= MAX_WARMUP_FRAMES or recordings() == before:
+        held = held + 1 if recordings is not None and recordings() == before else 0
+        if recordings is None or frames >= MAX_WARMUP_FRAMES or held >= SETTLED_CALLS:
             return Warmup(seconds, compile_s, frames)
         before = recordings()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from renderers.frozen import frozen_frames
+from renderers.frozen import MAX_WARMUP_FRAMES, SETTLED_CALLS, frozen_frames
 from renderers.methods import METHODS, get_method, parse_params
 from renderers.methods.base import FrameHooks
 
@@ -38,6 +38,14 @@ def render(scenes, name: str, frozen: bool, frames: int = 3):
 #: between runs on a multi-core CPU, and its cache feeds back into later frames.
 NOT_REPRODUCIBLE = {"grid-cache"}
 
+#: Methods whose frame runs in stages (renderers.methods.staged): its vertex and query
+#: passes take compacted inputs, whose width changes every frame. Measured with Dr.Jit
+#: 1.5: such a function records again at some new widths, up to 4 recordings in all
+#: (over 60 calls of random widths; sometimes only after 20 calls), so a width met
+#: first in a timed frame may add a recording: at most this many in these 3 frames.
+STAGED = {"nirc", "nrc", "nvc-env", "nirc-nvc-env"}
+VARYING_WIDTH_SLACK = 2
+
 
 @pytest.mark.parametrize("name", [name for name in METHODS if name not in NOT_REPRODUCIBLE])
 def test_frozen_and_unfrozen_frames_give_the_same_images(scenes, name):
@@ -45,10 +53,15 @@ def test_frozen_and_unfrozen_frames_give_the_same_images(scenes, name):
     for a, b in zip(frozen.frames, unfrozen.frames, strict=True):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(frozen.accumulated, unfrozen.accumulated)
-    # The recordings settled in the warm-up and stayed so over the timed frames.
+    # The recordings settled in the warm-up and stayed so over the timed frames; a
+    # caching frame's passes over compacted (varying-width) inputs may record once more
+    # where a timed frame's width is of a kind the warm-up did not meet.
     record = frozen.timings["frozen"]
-    assert record["recordings_after_frames"] == record["recordings_after_warmup"] >= 1
-    assert 1 < record["warmup_frames"] <= 8
+    slack = VARYING_WIDTH_SLACK if name in STAGED else 0
+    assert (record["recordings_after_warmup"] <= record["recordings_after_frames"]
+            <= record["recordings_after_warmup"] + slack)
+    assert record["recordings_after_warmup"] >= 1
+    assert SETTLED_CALLS < record["warmup_frames"] <= MAX_WARMUP_FRAMES
     assert unfrozen.timings["frozen"] is None and unfrozen.timings["warmup_frames"] == 1
 
 
