@@ -155,6 +155,20 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
         self.unbiased_every = params.unbiased_every
         self.spread = make_policy("sph", {}, TerminationSettings(params.sph_c))
 
+    def frame_freezable(self) -> bool:
+        """The core's condition, and the cache hands over what its queries read."""
+        return super().frame_freezable() and hasattr(self.cache, "inference_state")
+
+    def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
+        """The core's, and the cache's inference weights (the paths query the cache)."""
+        cache = self.cache.inference_state() if hasattr(self.cache, "inference_state") else None
+        return {**super().frame_state(scene), "cache": cache}
+
+    def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:
+        super().bind_frame_state(scene, state)
+        if state["cache"] is not None:
+            self.cache.bind_inference(state["cache"])
+
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> CacheState:
         return new_cache_state()
 

@@ -38,6 +38,7 @@ from typing import Any
 import drjit as dr
 import mitsuba as mi
 
+from renderers.frozen import Frozen, freezing, weak_method
 from renderers.integrators import path
 from renderers.integrators.cached import cache_inputs, demodulation
 from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
@@ -65,6 +66,11 @@ class TrainingPathIntegrator(PathIntegrator):
             raise ValueError("key_vertex must be 'departure' or 'arrival'")
         self.buffers: dict[str, Any] = {}
         self.n_paths = 0
+        # The records of a frame, frozen (renderers.frozen) where the frame can be: all
+        # inputs opaque from the first call (the seed changes every frame).
+        self._records_fn = (Frozen(weak_method(self._trace_records), auto_opaque=False)
+                            if freezing() else None)
+        self._last_call: tuple[Any, int, int] | None = None   # for settle()
 
     def configure(self, params: Any) -> None:
         """Take the method's validated parameters: plain training paths need none
@@ -114,7 +120,35 @@ class TrainingPathIntegrator(PathIntegrator):
             dr.scatter(self.buffers[name], RECORD_FIELDS[name](value), slot, active)
 
     def trace_records(self, scene: mi.Scene, n_paths: int, seed: int) -> dict[str, Any]:
-        """Trace ``n_paths`` training paths from random pixels; return the record arrays."""
+        """Trace ``n_paths`` training paths from random pixels; return the record arrays.
+        Frozen where the frame can be (``frame_freezable``): the seed and what the paths
+        read (``frame_state``) are the recording's arguments."""
+        self._last_call = (scene, n_paths, seed)
+        if self._records_fn is None or not self.frame_freezable():
+            return self._trace_records(scene, mi.UInt32(seed), n_paths,
+                                       self.frame_state(scene))
+        state = self.frame_state(scene)
+        try:
+            return self._records_fn(scene, mi.UInt32(seed), n_paths, state)
+        finally:
+            self.bind_frame_state(scene, state)   # a recording bound its own inputs
+
+    def recordings(self) -> int | None:
+        """Recordings of the frozen records pass (None when it is not frozen)."""
+        return self._records_fn.recordings() if self._records_fn is not None else None
+
+    def settle(self) -> None:
+        """Trace the last call's records again with another seed and drop them (a pure
+        function of its arguments: nothing changes), so that its recordings settle in
+        a warm-up."""
+        if self._last_call is not None:
+            scene, n_paths, seed = self._last_call
+            dr.eval(self.trace_records(scene, n_paths, seed + 1))
+            self._last_call = (scene, n_paths, seed)
+
+    def _trace_records(self, scene: mi.Scene, seed: mi.UInt32, n_paths: int,
+                       state: dict[str, Any]) -> dict[str, Any]:
+        self.bind_frame_state(scene, state)
         sensor = scene.sensors()[0]
         size = n_paths * self.record_depth
         self.n_paths = n_paths

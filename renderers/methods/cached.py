@@ -226,7 +226,7 @@ def render_with_cache(
         return image
 
     caches = (cache,) if extra_cache is None else (cache, extra_cache)
-    output = run_frames(WithParts(render_frame, render, counted=caches),
+    output = run_frames(WithParts(render_frame, render, counted=(*caches, trainer)),
                         seed_parts=seed_parts, frames=frames,
                         spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)
