@@ -82,6 +82,7 @@ import mitsuba as mi
 import numpy as np
 
 from renderers.caches import TrainingRecords
+from renderers.frozen import Frozen, freezing, weak_method
 from renderers.integrators.lights import SpatialLightSampler, invert_cdf
 from renderers.seeding import derive_seed
 
@@ -323,44 +324,81 @@ def visibility_records(scene: mi.Scene, world_points: int, camera_points: int,
                        seed: int, clusters: LightClusters | None = None) -> TrainingRecords:
     """One frame of training data: positions and 0/1 visibility per light, or per cluster
     of ``clusters`` toward one light uniform in it (module docstring)."""
-    n = world_points + camera_points
-    count = len(scene.emitters()) if clusters is None else clusters.count
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(dr.opaque(mi.UInt32, seed), n)
+    return VisibilityRecords(world_points, camera_points, clusters, frozen=False)(scene, seed)
 
-    # World-space points: uniform in the scene's bounding box.
-    box = scene.bbox()
-    u = mi.Vector3f(sampler.next_1d(), *sampler.next_2d())
-    p_world = box.min + u * (box.max - box.min)
-    # Screen-space points: first hits of rays through uniformly random film positions.
-    ray, _ = scene.sensors()[0].sample_ray(time=0.0, sample1=sampler.next_1d(),
-                                           sample2=sampler.next_2d(), sample3=sampler.next_2d())
-    hit = scene.ray_intersect(ray)
-    world = dr.arange(mi.UInt32, n) < world_points
-    position = dr.select(world, p_world, hit.p)
-    normal = dr.select(world, mi.Normal3f(0), hit.n)  # no offset for points off surfaces
 
-    # One shadow ray per (point, output), lane = point * count + output.
-    lane = dr.arange(mi.UInt32, n * count)
-    point, light = lane // count, lane % count
-    si = dr.zeros(mi.SurfaceInteraction3f, n * count)
-    si.p = dr.gather(mi.Point3f, position, point)
-    si.n = dr.gather(mi.Normal3f, normal, point)
-    sampler.seed(dr.opaque(mi.UInt32, derive_seed(seed, "shadow rays")), n * count)
-    if clusters is not None:  # output = cluster: one of its lights, uniformly
-        order, sizes, starts = (mi.UInt32(a) for a in clusters.members())
-        size = dr.gather(mi.UInt32, sizes, light)
-        k = dr.minimum(mi.UInt32(sampler.next_1d() * mi.Float(size)), size - 1)
-        light = dr.gather(mi.UInt32, order, dr.gather(mi.UInt32, starts, light) + k)
-    emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), light)
-    ds, weight = emitter.sample_direction(si, sampler.next_2d(), True)
-    visible = (ds.pdf > 0) & (dr.max(mi.unpolarized_spectrum(weight)) > 0)
-    visible &= ~scene.ray_test(si.spawn_ray_to(ds.p), visible)
+class VisibilityRecords:
+    """:func:`visibility_records` of a cache's settings, frozen (renderers.frozen) where
+    freezing is on: the seeds and the clusters' tables are the recording's arguments."""
 
-    visible = dr.select(visible, 1.0, 0.0)
-    dr.eval(visible)  # once, not once per gather below
-    target = [dr.gather(mi.Float, visible, dr.arange(mi.UInt32, n) * count + i)
-              for i in range(count)]
-    records = TrainingRecords(position=position, target=target, valid=world | hit.is_valid())
-    dr.eval(records.position, records.target, records.valid)
-    return records
+    def __init__(self, world_points: int, camera_points: int,
+                 clusters: LightClusters | None, frozen: bool | None = None) -> None:
+        self.world_points, self.camera_points, self.clusters = (world_points, camera_points,
+                                                                clusters)
+        frozen = freezing() if frozen is None else frozen
+        self._fn = (Frozen(weak_method(self._records), auto_opaque=False) if frozen
+                    else self._records)
+        self._last: tuple[mi.Scene, int] | None = None   # for settle()
+
+    def __call__(self, scene: mi.Scene, seed: int) -> TrainingRecords:
+        self._last = (scene, seed)
+        members = (None if self.clusters is None
+                   else tuple(mi.UInt32(a) for a in self.clusters.members()))
+        return self._fn(scene, mi.UInt32(seed), mi.UInt32(derive_seed(seed, "shadow rays")),
+                        members)
+
+    def recordings(self) -> int | None:
+        return self._fn.recordings() if isinstance(self._fn, Frozen) else None
+
+    def settle(self) -> None:
+        """The last call's records again with another seed, dropped (a pure function:
+        nothing changes), so that its recordings settle in a warm-up."""
+        if self._last is not None:
+            scene, seed = self._last
+            dr.eval(self(scene, seed + 1))
+            self._last = (scene, seed)
+
+    def _records(self, scene: mi.Scene, seed: mi.UInt32, shadow_seed: mi.UInt32,
+                 members: tuple[mi.UInt32, ...] | None) -> TrainingRecords:
+        world_points, camera_points = self.world_points, self.camera_points
+        n = world_points + camera_points
+        count = len(scene.emitters()) if self.clusters is None else self.clusters.count
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed, n)
+
+        # World-space points: uniform in the scene's bounding box.
+        box = scene.bbox()
+        u = mi.Vector3f(sampler.next_1d(), *sampler.next_2d())
+        p_world = box.min + u * (box.max - box.min)
+        # Screen-space points: first hits of rays through uniformly random film positions.
+        ray, _ = scene.sensors()[0].sample_ray(time=0.0, sample1=sampler.next_1d(),
+                                               sample2=sampler.next_2d(), sample3=sampler.next_2d())
+        hit = scene.ray_intersect(ray)
+        world = dr.arange(mi.UInt32, n) < world_points
+        position = dr.select(world, p_world, hit.p)
+        normal = dr.select(world, mi.Normal3f(0), hit.n)  # no offset for points off surfaces
+
+        # One shadow ray per (point, output), lane = point * count + output.
+        lane = dr.arange(mi.UInt32, n * count)
+        point, light = lane // count, lane % count
+        si = dr.zeros(mi.SurfaceInteraction3f, n * count)
+        si.p = dr.gather(mi.Point3f, position, point)
+        si.n = dr.gather(mi.Normal3f, normal, point)
+        sampler.seed(shadow_seed, n * count)
+        if members is not None:  # output = cluster: one of its lights, uniformly
+            order, sizes, starts = members
+            size = dr.gather(mi.UInt32, sizes, light)
+            k = dr.minimum(mi.UInt32(sampler.next_1d() * mi.Float(size)), size - 1)
+            light = dr.gather(mi.UInt32, order, dr.gather(mi.UInt32, starts, light) + k)
+        emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), light)
+        ds, weight = emitter.sample_direction(si, sampler.next_2d(), True)
+        visible = (ds.pdf > 0) & (dr.max(mi.unpolarized_spectrum(weight)) > 0)
+        visible &= ~scene.ray_test(si.spawn_ray_to(ds.p), visible)
+
+        visible = dr.select(visible, 1.0, 0.0)
+        dr.eval(visible)  # once, not once per gather below
+        target = [dr.gather(mi.Float, visible, dr.arange(mi.UInt32, n) * count + i)
+                  for i in range(count)]
+        records = TrainingRecords(position=position, target=target, valid=world | hit.is_valid())
+        dr.eval(records.position, records.target, records.valid)
+        return records

@@ -135,12 +135,14 @@ class NVCLightsParams(PTParams, VisibilityCacheParams):
 def light_selection(scene: Any, params: VisibilityCacheParams, seed: int,
                     cluster_candidates: int = 8) -> tuple[type, Any]:
     """(light selector type bound to a new untrained cache, the cache), per light or
-    clustered by ``params``. A clustered cache carries its clusters (``cache.clusters``,
-    None per light) for :func:`train_frame`."""
+    clustered by ``params``. The cache carries its clusters (``cache.clusters``, None per
+    light) and its frame's training records (``cache.training_records``) for
+    :func:`train_frame`."""
     from renderers.caches import visibility_config
     from renderers.integrators.nvc_lights import (
         ClusteredNVCLightSampler,
         NVCLightSampler,
+        VisibilityRecords,
         cluster_lights,
     )
 
@@ -150,6 +152,8 @@ def light_selection(scene: Any, params: VisibilityCacheParams, seed: int,
     outputs = count if clusters is None else clusters.count
     cache = make_cache(scene, functools.partial(visibility_config, outputs), params, seed)
     cache.clusters = clusters
+    cache.training_records = VisibilityRecords(params.world_points, params.camera_points,
+                                               clusters)
     if clusters is None:
         return NVCLightSampler.bound_to(cache, params.clamp), cache
     return ClusteredNVCLightSampler.bound_to_clusters(
@@ -167,12 +171,10 @@ def build(scene: Any, params: NVCLightsParams, seed: int) -> tuple[Any, Any]:
 def train_frame(scene: Any, cache: Any, params: VisibilityCacheParams, seed: int,
                 timer: StageTimer) -> None:
     """One frame of online training: shadow rays to every light (or one light per
-    cluster), then the cache's step."""
-    from renderers.integrators.nvc_lights import visibility_records
-
+    cluster: the cache's ``training_records``, :func:`light_selection`), then the
+    cache's step."""
     with timer.stage("training_paths"):
-        records = visibility_records(scene.scene, params.world_points, params.camera_points,
-                                     seed, getattr(cache, "clusters", None))
+        records = cache.training_records(scene.scene, seed)
     with timer.stage("training"):
         cache.train(records)
 
@@ -221,7 +223,9 @@ def visibility_cache_render(build: Callable[[Any, Any, int], tuple[Any, Any]],
                 frame_queries.append(list(counts))
             return image
 
-        output = run_frames(WithParts(render_frame, render_only, counted=(cache,)),
+        counted = (cache, getattr(cache, "training_records", None))
+        output = run_frames(WithParts(render_frame, render_only,
+                                      counted=tuple(c for c in counted if c is not None)),
                             seed_parts=seed_parts,
                             frames=frames, spp=spp,
                             aov_names=tuple(integrator.aov_names()), hooks=hooks)
