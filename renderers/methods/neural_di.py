@@ -20,15 +20,14 @@ cache output per light; a closed form per polygon).
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 
 from renderers.methods.base import Knob, Method, fixed_stages
-from renderers.methods.cached import make_cache
 from renderers.methods.nvc_lights import (
     MAX_LIGHTS,
     one_output_visibility_config,
     train_frame,
+    visibility_cache,
     visibility_cache_render,
 )
 from renderers.methods.primary import PrimaryCacheParams, lit_surface
@@ -46,14 +45,12 @@ def build(scene: Any, params: NeuralDIParams, seed: int) -> tuple[Any, Any]:
     """(integrator, visibility cache): the primary-hit estimator over an untrained cache."""
     import mitsuba as mi
 
-    from renderers.caches import visibility_config
     from renderers.integrators.neural_di import PLUGIN_NAME, CacheVisibility, register
 
     register()
     integrator = mi.load_dict({"type": PLUGIN_NAME})
     integrator.lights(scene.scene)  # a scene it cannot shade fails here, before training
-    cache = make_cache(scene, functools.partial(visibility_config, len(scene.scene.emitters())),
-                       params, seed)
+    cache = visibility_cache(scene, params, seed, len(scene.scene.emitters()))
     return integrator.with_visibility(CacheVisibility(cache)), cache
 
 

@@ -138,11 +138,9 @@ def light_selection(scene: Any, params: VisibilityCacheParams, seed: int,
     clustered by ``params``. The cache carries its clusters (``cache.clusters``, None per
     light) and its frame's training records (``cache.training_records``) for
     :func:`train_frame`."""
-    from renderers.caches import visibility_config
     from renderers.integrators.nvc_lights import (
         ClusteredNVCLightSampler,
         NVCLightSampler,
-        VisibilityRecords,
         cluster_lights,
     )
 
@@ -150,14 +148,26 @@ def light_selection(scene: Any, params: VisibilityCacheParams, seed: int,
     wanted = params.cluster_count(count)
     clusters = cluster_lights(scene.scene, wanted) if wanted else None
     outputs = count if clusters is None else clusters.count
-    cache = make_cache(scene, functools.partial(visibility_config, outputs), params, seed)
-    cache.clusters = clusters
-    cache.training_records = VisibilityRecords(params.world_points, params.camera_points,
-                                               clusters)
+    cache = visibility_cache(scene, params, seed, outputs, clusters)
     if clusters is None:
         return NVCLightSampler.bound_to(cache, params.clamp), cache
     return ClusteredNVCLightSampler.bound_to_clusters(
         cache, clusters, params.clamp, cluster_candidates), cache
+
+
+def visibility_cache(scene: Any, params: VisibilityCacheParams, seed: int, outputs: int,
+                     clusters: Any = None) -> Any:
+    """A new visibility cache of ``outputs`` (one per light, or per cluster of ``clusters``)
+    carrying what :func:`train_frame` reads: its clusters (``cache.clusters``) and its
+    frame's training records (``cache.training_records``)."""
+    from renderers.caches import visibility_config
+    from renderers.integrators.nvc_lights import VisibilityRecords
+
+    cache = make_cache(scene, functools.partial(visibility_config, outputs), params, seed)
+    cache.clusters = clusters
+    cache.training_records = VisibilityRecords(params.world_points, params.camera_points,
+                                               clusters)
+    return cache
 
 
 def build(scene: Any, params: NVCLightsParams, seed: int) -> tuple[Any, Any]:
