@@ -36,9 +36,10 @@ Shadow rays per pixel and frame: 1 (the candidate's), plus 2 for temporal
 reuse and 2 k for spatial reuse with k neighbours (the pairwise MIS weights'
 visibility: from the pixel toward each neighbour's sample and from each
 neighbour toward the pixel's sample), 9 with the defaults (15 up to estimator
-version 2, whose Talbot MIS cast (k+1) k for spatial reuse). Applies to scenes whose emitters are all
-area emitters (a light sample is a point on a surface); environment and delta
-emitters are not supported and such scenes are skipped with the reason.
+version 2, whose Talbot MIS cast (k+1) k for spatial reuse). Applies to scenes
+whose emitters are all area emitters (a light sample is a point on a surface);
+environment and delta emitters are not supported and such scenes are skipped
+with the reason.
 """
 
 from __future__ import annotations
