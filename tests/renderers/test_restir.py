@@ -14,7 +14,9 @@ z-test and aggregate block test, luminance only):
   the image mean agrees over the replicas;
 * planted: the source pdf of the power-sampled candidates taken as uniform
   (1/32 instead of the power pmf) is rejected, and so are spatial reuse's MIS
-  weights with the other pixels' targets taken without their shadow rays.
+  weights with the other pixels' targets taken without their shadow rays, and
+  two errors in its pairwise weights: the canonical weight without its 1/k, and
+  the canonical sample's pair weights without the neighbours' shadow rays.
 
 Temporal reuse must also do its job: on a static scene the error of frame 8 is
 well below frame 1's with reuse, and not without.
@@ -218,7 +220,7 @@ def test_wrong_pairwise_mis_weights_are_rejected(mi, many_lights, reference, mon
                                                  plant, params, frames):
     """Planted errors in the pairwise weights of spatial reuse, rejected by the per-pixel
     test: the canonical weight without its 1/k (the weights sum to more than 1; measured:
-    193 of 256 pixels flagged, image mean 49 % bright after one frame), and the canonical
+    ~190 of 256 pixels flagged, image mean ~49 % bright after one frame), and the canonical
     sample's pair weights b_i(y_c) with neighbours that cannot see y_c still taking a
     share (the weights sum to less than 1; 159 of 256 flagged, 5.6 % dark after 4 frames;
     one frame of spatial reuse alone flags only 4)."""
