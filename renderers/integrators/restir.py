@@ -116,17 +116,20 @@ def target(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
     return value, mi.luminance(value)
 
 
-def stream(chosen: Reservoir, w_sum: mi.Float, candidate: Reservoir, w: mi.Float,
-           u: mi.Float) -> tuple[Reservoir, mi.Float]:
-    """Weighted reservoir sampling: keep ``candidate`` with probability w / (w_sum + w)."""
+def stream(chosen: tuple[Reservoir, mi.Float], w_sum: mi.Float,
+           candidate: tuple[Reservoir, mi.Float], w: mi.Float,
+           u: mi.Float) -> tuple[tuple[Reservoir, mi.Float], mi.Float]:
+    """Weighted reservoir sampling of (sample, its target p̂_x): keep ``candidate`` with
+    probability w / (w_sum + w)."""
     w_sum = w_sum + w
     return dr.select(u * w_sum < w, candidate, chosen), w_sum
 
 
-def finish(scene: mi.Scene, si: mi.SurfaceInteraction3f, chosen: Reservoir, w_sum: mi.Float,
-           M: mi.Float, active: mi.Bool) -> Reservoir:
-    """The reservoir's unbiased contribution weight W = Σ w / p̂_x(y_s) (0 where p̂ = 0)."""
-    _, p_hat = target(scene, si, chosen, active)
+def finish(chosen: tuple[Reservoir, mi.Float], w_sum: mi.Float, M: mi.Float,
+           active: mi.Bool) -> Reservoir:
+    """The reservoir's unbiased contribution weight W = Σ w / p̂_x(y_s) (0 where p̂ = 0),
+    p̂_x(y_s) streamed with the sample (not evaluated again)."""
+    chosen, p_hat = chosen
     chosen.W = dr.select(active & (p_hat > 0), w_sum / p_hat, 0)
     chosen.M = dr.select(active, M, 0)
     return chosen
@@ -142,7 +145,7 @@ def initial(scene: mi.Scene, lights: LightSampler, si: mi.SurfaceInteraction3f,
             sampler: mi.Sampler, candidates: int) -> Reservoir:
     """RIS of ``candidates`` light samples y ~ P(e) pdf_A(y | e) toward p̂_x."""
     active = si.is_valid()
-    chosen, w_sum = dr.zeros(Reservoir, dr.width(active)), mi.Float(0)
+    chosen, w_sum = (dr.zeros(Reservoir, dr.width(active)), mi.Float(0)), mi.Float(0)
     draw = lights.sampler_at(si, active)  # per-point selection weights, once
     for _ in range(candidates):
         index, pmf, _ = draw(sampler.next_1d(active))
@@ -152,8 +155,8 @@ def initial(scene: mi.Scene, lights: LightSampler, si: mi.SurfaceInteraction3f,
         _, p_hat = target(scene, si, candidate, active)
         source = pmf * ps.pdf  # area measure
         w = dr.select(active & (source > 0), p_hat / (candidates * source), 0)
-        chosen, w_sum = stream(chosen, w_sum, candidate, w, sampler.next_1d(active))
-    chosen = finish(scene, si, chosen, w_sum, mi.Float(candidates), active)
+        chosen, w_sum = stream(chosen, w_sum, (candidate, p_hat), w, sampler.next_1d(active))
+    chosen = finish(chosen, w_sum, mi.Float(candidates), active)
     # The one shadow ray: an occluded choice keeps its M but gets W = 0 (visibility reuse).
     chosen.W = dr.select(visible(scene, si, chosen, active & (chosen.W > 0)), chosen.W, 0)
     return chosen
@@ -182,7 +185,7 @@ def combine(scene: mi.Scene, si: mi.SurfaceInteraction3f,
     (canonical, _), others = inputs[0], inputs[1:]
     k = len(others)
     share = canonical.M / k  # the canonical input's confidence in each of its k pairs
-    chosen, w_sum = dr.zeros(Reservoir, dr.width(active)), mi.Float(0)
+    chosen, w_sum = (dr.zeros(Reservoir, dr.width(active)), mi.Float(0)), mi.Float(0)
     # p̂V_c(y_c) = p̂_c(y_c): a kept sample is visible from its own point (W > 0 only then)
     _, p_c_yc = target(scene, si, canonical, active & (canonical.W > 0))
     m_c = mi.Float(0)
@@ -196,13 +199,13 @@ def combine(scene: mi.Scene, si: mi.SurfaceInteraction3f,
         _, p_i_yi = target(scene, si_i, r, live)
         p_c_yi = visible_target(scene, si, r, live)
         w = balance(r.M * p_i_yi, share * p_c_yi) / k * p_c_yi * r.W
-        chosen, w_sum = stream(chosen, w_sum, r, w, sampler.next_1d(active))
+        chosen, w_sum = stream(chosen, w_sum, (r, p_c_yi), w, sampler.next_1d(active))
     # m_c(y_c) = (1/k) Σ_i b_i(y_c); w_c = m_c(y_c) p̂V_c(y_c) W_c
     w = m_c / k * p_c_yc * canonical.W
-    chosen, w_sum = stream(chosen, w_sum, canonical, w, sampler.next_1d(active))
+    chosen, w_sum = stream(chosen, w_sum, (canonical, p_c_yc), w, sampler.next_1d(active))
     M = sum((r.M for r, _ in others), canonical.M)
     # A chosen sample has w > 0, so it is visible from x: W = Σ w / p̂_x(y_s).
-    return finish(scene, si, chosen, w_sum, M, active)
+    return finish(chosen, w_sum, M, active)
 
 
 def delta_emission(scene: mi.Scene, si: mi.SurfaceInteraction3f, sampler: mi.Sampler,

@@ -182,7 +182,7 @@ def _canonical_without_1_over_k(restir, monkeypatch):
         canonical, k = inputs[0][0], len(inputs) - 1
 
         def scaled(chosen, w_sum, candidate, w, u):
-            return stream(chosen, w_sum, candidate, w * k if candidate is canonical else w, u)
+            return stream(chosen, w_sum, candidate, w * k if candidate[0] is canonical else w, u)
 
         monkeypatch.setattr(restir, "stream", scaled)
         try:
