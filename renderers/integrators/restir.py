@@ -22,16 +22,23 @@ Per lane (one per pixel and replica) and frame, with x the pixel's first hit:
                 occluded choice keeps M and gets W = 0, so the reservoir's target
                 is p̂V)
     reuse       GRIS (Lin et al. 2022) over reservoirs (y_j, W_j, M_j) of shading
-                points x_j (the pixel's own, the previous frame's, neighbours'):
-                w_j = m_j(y_j) p̂V_x(y_j) W_j with the generalised balance
-                heuristic m_j(y) = M_j p̂V_{x_j}(y) / Σ_k M_k p̂V_{x_k}(y) (Talbot),
-                W = Σ w / p̂_x(y_s),  M = Σ M_j
+                points x_j: the canonical input c = 0 (the pixel's own, at x_c = x) and
+                k others i = 1..k (the previous frame's, or k neighbours'), with
+                confidence-weighted pairwise MIS [Bit22]: per pair (c, i)
+                the balance heuristic of c at confidence M_c / k and i at M_i,
+                    a_i(y) = M_i p̂V_{x_i}(y) / (M_i p̂V_{x_i}(y) + (M_c/k) p̂V_x(y)),
+                    b_i(y) = 1 - a_i(y),
+                m_i(y) = a_i(y) / k,  m_c(y) = (1/k) Σ_i b_i(y),
+                w_j = m_j(y_j) p̂V_x(y_j) W_j,  W = Σ w / p̂_x(y_s),  M = Σ M_j
     shading     L = Le(x) + f(x, x→y) Le(y) G(x, y) · W   (W > 0: y visible from x)
                     + f_δ(x, ω) Le(y_δ) / p(ω)   (ω drawn by the BSDF; only when the
                     drawn lobe is a delta lobe, y_δ the first hit along ω)
 
-The m_j sum to 1 over the inputs for every y, and an input that cannot hold
-y (p̂V_{x_j}(y) = 0) gets m = 0, so each reservoir's W stays an unbiased
+For every y with p̂V_x(y) > 0 the pair's denominator is positive and
+Σ_i m_i + m_c = (1/k) Σ_i (a_i + b_i) = 1; an input that cannot hold y gets
+m = 0 (a_i = 0 where p̂V_{x_i}(y) = 0; where p̂V_x(y) = 0 the sample's w is 0
+whatever m_c is); an input with M_i = 0 (no hit at x_i) has a_i = 0, so its
+pair's share goes to c. So each reservoir's W stays an unbiased
 contribution weight of its target at its own x: the image is unbiased with
 reuse on (docs/estimators.md, "restir-di"). The target evaluates the BSDF,
 which is 0 on delta lobes (a mirror, the coating of smooth plastic, glass), so
@@ -39,8 +46,12 @@ the light reflected or refracted by a delta lobe at x is not a light sample at
 all: one BSDF sample per lane adds it where the BSDF drew a delta lobe (the
 second line of the shading), as Mitsuba's ``path`` at max_depth 2 collects an
 emitter hit after a delta bounce with MIS weight 1. The visibility in the weights
-costs one shadow ray per pair of inputs (j, k), k != j (a kept sample is
-visible from its own x_j). The confidence weights M are clamped before
+costs 2 shadow rays per non-canonical input: p̂V_x(y_i) from x (a_i(y_i) and
+w_i) and p̂V_{x_i}(y_c) from x_i (b_i(y_c)); V_{x_i}(y_i) = 1 needs none, since a
+kept sample is visible from its own x_i (W_i > 0 only then). So 2k rays where
+the Talbot heuristic m_j(y) = M_j p̂V_{x_j}(y) / Σ_l M_l p̂V_{x_l}(y) (estimator
+versions 1 and 2) needs every pair: (k+1) k. With k = 1 (temporal reuse) both
+are the same weights. The confidence weights M are clamped before
 temporal reuse (M_prev <= m_clamp · C), which changes the weights, not their
 sum. The path ends at the first hit: the image is the emission seen by the
 camera plus direct light there (Mitsuba's ``path`` at max_depth 2). Emitters
@@ -105,17 +116,20 @@ def target(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
     return value, mi.luminance(value)
 
 
-def stream(chosen: Reservoir, w_sum: mi.Float, candidate: Reservoir, w: mi.Float,
-           u: mi.Float) -> tuple[Reservoir, mi.Float]:
-    """Weighted reservoir sampling: keep ``candidate`` with probability w / (w_sum + w)."""
+def stream(chosen: tuple[Reservoir, mi.Float], w_sum: mi.Float,
+           candidate: tuple[Reservoir, mi.Float], w: mi.Float,
+           u: mi.Float) -> tuple[tuple[Reservoir, mi.Float], mi.Float]:
+    """Weighted reservoir sampling of (sample, its target p̂_x): keep ``candidate`` with
+    probability w / (w_sum + w)."""
     w_sum = w_sum + w
     return dr.select(u * w_sum < w, candidate, chosen), w_sum
 
 
-def finish(scene: mi.Scene, si: mi.SurfaceInteraction3f, chosen: Reservoir, w_sum: mi.Float,
-           M: mi.Float, active: mi.Bool) -> Reservoir:
-    """The reservoir's unbiased contribution weight W = Σ w / p̂_x(y_s) (0 where p̂ = 0)."""
-    _, p_hat = target(scene, si, chosen, active)
+def finish(chosen: tuple[Reservoir, mi.Float], w_sum: mi.Float, M: mi.Float,
+           active: mi.Bool) -> Reservoir:
+    """The reservoir's unbiased contribution weight W = Σ w / p̂_x(y_s) (0 where p̂ = 0),
+    p̂_x(y_s) streamed with the sample (not evaluated again)."""
+    chosen, p_hat = chosen
     chosen.W = dr.select(active & (p_hat > 0), w_sum / p_hat, 0)
     chosen.M = dr.select(active, M, 0)
     return chosen
@@ -131,7 +145,7 @@ def initial(scene: mi.Scene, lights: LightSampler, si: mi.SurfaceInteraction3f,
             sampler: mi.Sampler, candidates: int) -> Reservoir:
     """RIS of ``candidates`` light samples y ~ P(e) pdf_A(y | e) toward p̂_x."""
     active = si.is_valid()
-    chosen, w_sum = dr.zeros(Reservoir, dr.width(active)), mi.Float(0)
+    chosen, w_sum = (dr.zeros(Reservoir, dr.width(active)), mi.Float(0)), mi.Float(0)
     draw = lights.sampler_at(si, active)  # per-point selection weights, once
     for _ in range(candidates):
         index, pmf, _ = draw(sampler.next_1d(active))
@@ -141,40 +155,57 @@ def initial(scene: mi.Scene, lights: LightSampler, si: mi.SurfaceInteraction3f,
         _, p_hat = target(scene, si, candidate, active)
         source = pmf * ps.pdf  # area measure
         w = dr.select(active & (source > 0), p_hat / (candidates * source), 0)
-        chosen, w_sum = stream(chosen, w_sum, candidate, w, sampler.next_1d(active))
-    chosen = finish(scene, si, chosen, w_sum, mi.Float(candidates), active)
+        chosen, w_sum = stream(chosen, w_sum, (candidate, p_hat), w, sampler.next_1d(active))
+    chosen = finish(chosen, w_sum, mi.Float(candidates), active)
     # The one shadow ray: an occluded choice keeps its M but gets W = 0 (visibility reuse).
     chosen.W = dr.select(visible(scene, si, chosen, active & (chosen.W > 0)), chosen.W, 0)
     return chosen
 
 
+def visible_target(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
+                   active: mi.Bool) -> mi.Float:
+    """p̂V_x(y) = p̂_x(y) V(x, y): the shadow ray only where p̂_x(y) > 0 (0 where inactive)."""
+    _, p_hat = target(scene, si, r, active)
+    return dr.select(visible(scene, si, r, active & (p_hat > 0)), p_hat, 0)
+
+
+def balance(mine: mi.Float, other: mi.Float) -> mi.Float:
+    """The two-strategy balance heuristic mine / (mine + other) (0 where both are 0)."""
+    total = mine + other
+    return dr.select(total > 0, mine / total, 0)
+
+
 def combine(scene: mi.Scene, si: mi.SurfaceInteraction3f,
             inputs: list[tuple[Reservoir, mi.SurfaceInteraction3f]],
             sampler: mi.Sampler) -> Reservoir:
-    """GRIS of ``inputs`` (reservoir, its shading point; the pixel's own first) toward
-    p̂V at ``si``, with Talbot MIS m_j(y) = M_j p̂V_{x_j}(y) / Σ_k M_k p̂V_{x_k}(y).
-
-    A kept sample is visible from its own x_j (W_j > 0 only then), so V_{x_j}(y_j) = 1
-    needs no ray; every other pair (j, k) costs one shadow ray."""
+    """GRIS of ``inputs`` (reservoir, its shading point; the pixel's own first, the
+    canonical input c) toward p̂V at ``si`` with pairwise MIS [Bit22] (module
+    docstring): 2 shadow rays per non-canonical input."""
     active = si.is_valid()
-    chosen, w_sum = dr.zeros(Reservoir, dr.width(active)), mi.Float(0)
-    for j, (r, _) in enumerate(inputs):
-        # p̂V_{x_k}(y_j) of this input's sample y_j at every input's shading point x_k
-        targets = []
-        for k, (r_k, si_k) in enumerate(inputs):
-            live = active & (r_k.M > 0) & (r.W > 0)
-            _, p_hat = target(scene, si_k, r, live)
-            if k != j:
-                p_hat = dr.select(visible(scene, si_k, r, live & (p_hat > 0)), p_hat, 0)
-            targets.append(p_hat)
-        mis = [r_k.M * p_hat for (r_k, _), p_hat in zip(inputs, targets, strict=True)]
-        total = sum(mis[1:], mis[0])
-        m = dr.select(total > 0, mis[j] / total, 0)
-        w = m * targets[0] * r.W
-        chosen, w_sum = stream(chosen, w_sum, r, w, sampler.next_1d(active))
-    M = sum((r.M for r, _ in inputs[1:]), inputs[0][0].M)
+    (canonical, _), others = inputs[0], inputs[1:]
+    k = len(others)
+    share = canonical.M / k  # the canonical input's confidence in each of its k pairs
+    chosen, w_sum = (dr.zeros(Reservoir, dr.width(active)), mi.Float(0)), mi.Float(0)
+    # p̂V_c(y_c) = p̂_c(y_c): a kept sample is visible from its own point (W > 0 only then)
+    _, p_c_yc = target(scene, si, canonical, active & (canonical.W > 0))
+    m_c = mi.Float(0)
+    for r, si_i in others:
+        # The canonical sample's share of pair i: b_i(y_c) = (M_c/k) p̂V_c / (M_i p̂V_i + (M_c/k) p̂V_c)
+        p_i_yc = visible_target(scene, si_i, canonical, active & (r.M > 0) & (canonical.W > 0))
+        m_c += balance(share * p_c_yc, r.M * p_i_yc)
+        # Neighbour i's sample: m_i(y_i) = a_i(y_i) / k, a_i = M_i p̂V_i / (M_i p̂V_i + (M_c/k) p̂V_c),
+        # V_i(y_i) = 1 for a kept sample; w_i = m_i(y_i) p̂V_c(y_i) W_i
+        live = active & (r.M > 0) & (r.W > 0)
+        _, p_i_yi = target(scene, si_i, r, live)
+        p_c_yi = visible_target(scene, si, r, live)
+        w = balance(r.M * p_i_yi, share * p_c_yi) / k * p_c_yi * r.W
+        chosen, w_sum = stream(chosen, w_sum, (r, p_c_yi), w, sampler.next_1d(active))
+    # m_c(y_c) = (1/k) Σ_i b_i(y_c); w_c = m_c(y_c) p̂V_c(y_c) W_c
+    w = m_c / k * p_c_yc * canonical.W
+    chosen, w_sum = stream(chosen, w_sum, (canonical, p_c_yc), w, sampler.next_1d(active))
+    M = sum((r.M for r, _ in others), canonical.M)
     # A chosen sample has w > 0, so it is visible from x: W = Σ w / p̂_x(y_s).
-    return finish(scene, si, chosen, w_sum, M, active)
+    return finish(chosen, w_sum, M, active)
 
 
 def delta_emission(scene: mi.Scene, si: mi.SurfaceInteraction3f, sampler: mi.Sampler,

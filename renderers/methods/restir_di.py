@@ -9,8 +9,9 @@ Mitsuba's ``path`` at max_depth 2 (no indirect light; the paper compares at
 primary hits too). One sample (and one reservoir) per pixel and frame; ``spp``
 renders that many independent reservoir chains per pixel and averages them.
 The estimator (renderers.integrators.restir; docs/estimators.md, "restir-di")
-is unbiased with and without reuse: Talbot MIS over the reused reservoirs with
-visibility-checked targets, not the biased 1/M normalisation; the light that a
+is unbiased with and without reuse: pairwise MIS (the pixel's own reservoir as
+the canonical input) over the reused reservoirs with visibility-checked
+targets, not the biased 1/M normalisation; the light that a
 delta lobe (a mirror, smooth plastic's coating) reflects at the first hit, which
 no light sample can carry, comes from one BSDF sample per pixel.
 
@@ -32,10 +33,13 @@ spatial_radius      32        of this radius in pixels (paper Sec. 4.1: 32 px)
 ==================  ========  =====================================================
 
 Shadow rays per pixel and frame: 1 (the candidate's), plus 2 for temporal
-reuse and (k+1) k for spatial reuse with k neighbours (the Talbot MIS weights'
-visibility), 15 with the defaults. Applies to scenes whose emitters are all
-area emitters (a light sample is a point on a surface); environment and delta
-emitters are not supported and such scenes are skipped with the reason.
+reuse and 2 k for spatial reuse with k neighbours (the pairwise MIS weights'
+visibility: from the pixel toward each neighbour's sample and from each
+neighbour toward the pixel's sample), 9 with the defaults (15 up to estimator
+version 2, whose Talbot MIS cast (k+1) k for spatial reuse). Applies to scenes
+whose emitters are all area emitters (a light sample is a point on a surface);
+environment and delta emitters are not supported and such scenes are skipped
+with the reason.
 """
 
 from __future__ import annotations
@@ -120,7 +124,7 @@ class ReSTIRFrame:
 
 def shadow_rays(params: ReSTIRDIParams) -> int:
     """Shadow rays per pixel sample and frame once reuse runs (module docstring)."""
-    spatial = (params.spatial_neighbours + 1) * params.spatial_neighbours if params.spatial else 0
+    spatial = 2 * params.spatial_neighbours if params.spatial else 0
     return 1 + 2 * params.temporal + spatial
 
 
@@ -138,7 +142,7 @@ def applies(features: Any) -> tuple[bool, str]:
 
 METHOD = Method("restir-di",
                 "screen-space ReSTIR DI (8 candidates, temporal + spatial reuse, unbiased "
-                "Talbot MIS): direct light at primary hits only (max_depth 2)",
-                ReSTIRDIParams, render, version=2, requires=applies, label="ReSTIR DI",
+                "pairwise MIS): direct light at primary hits only (max_depth 2)",
+                ReSTIRDIParams, render, version=3, requires=applies, label="ReSTIR DI",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
                 correlated_pixels=True, correlated_frames=True)
