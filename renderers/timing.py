@@ -107,8 +107,8 @@ def drain_kernels() -> KernelTally:
 class StageTimer:
     """Wall and kernel time per named stage within one frame.
 
-    Stages may nest (the deferred cache ``inference`` runs inside ``mi.render``,
-    timed as ``render``): a stage's time excludes the time of the stages nested
+    Stages may nest (a caching integrator's ``inference`` where it runs inside
+    ``mi.render``, timed as ``render``): a stage's time excludes the time of the stages nested
     in it, so the stages of a frame add up to its wall time, and so do their
     kernel times. Kernel time is known only while Dr.Jit's kernel history is on
     (:func:`kernel_history`); otherwise ``kernels`` is None.

@@ -128,7 +128,9 @@ class CachedPathIntegrator(PathIntegrator):
     ``MAX_QUERY_SLOTS``, whose queries were drawn and evaluated in the loop)
     and, if ``timer`` is set, times the deferred pass (re-creating the
     vertices, drawing their queries, the cache) as the stage ``inference``
-    (nested in the caller's ``render`` stage, which then excludes it).
+    (nested in the caller's ``render`` stage, which then excludes it). A
+    method's frames run the same passes in stages instead
+    (renderers.methods.staged), which append their own ``QueryCount``.
     """
 
     #: The most queries a cache vertex draws itself (``QueryBuffer.draw``; 0: none).
