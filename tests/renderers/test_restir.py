@@ -174,41 +174,40 @@ def test_spatial_mis_weights_without_visibility_are_rejected(mi, many_lights, re
     assert not result.passed, result.summary()
 
 
-def _canonical_without_1_over_k(restir, monkeypatch):
-    """The canonical sample's weight m_c = Σ_i b_i instead of (1/k) Σ_i b_i: its w times k."""
-    combine, stream = restir.combine, restir.stream
+def _swapped_during_combine(restir, monkeypatch, name, replace):
+    """Plant: ``restir.<name>`` is ``replace(original, si, inputs)`` while ``combine`` runs."""
+    combine, original = restir.combine, getattr(restir, name)
 
     def planted(scene, si, inputs, sampler):
-        canonical, k = inputs[0][0], len(inputs) - 1
-
-        def scaled(chosen, w_sum, candidate, w, u):
-            return stream(chosen, w_sum, candidate, w * k if candidate[0] is canonical else w, u)
-
-        monkeypatch.setattr(restir, "stream", scaled)
+        monkeypatch.setattr(restir, name, replace(original, si, inputs))
         try:
             return combine(scene, si, inputs, sampler)
         finally:
-            monkeypatch.setattr(restir, "stream", stream)
+            monkeypatch.setattr(restir, name, original)
 
     monkeypatch.setattr(restir, "combine", planted)
+
+
+def _canonical_without_1_over_k(restir, monkeypatch):
+    """The canonical sample's weight m_c = Σ_i b_i instead of (1/k) Σ_i b_i: its w times k."""
+
+    def scaled(stream, _si, inputs):
+        canonical, k = inputs[0][0], len(inputs) - 1
+        return lambda chosen, w_sum, candidate, w, u: stream(
+            chosen, w_sum, candidate, w * k if candidate[0] is canonical else w, u)
+
+    _swapped_during_combine(restir, monkeypatch, "stream", scaled)
 
 
 def _canonical_pairs_without_visibility(restir, monkeypatch):
     """b_i(y_c) with the neighbour's target p̂_i(y_c) without its shadow ray (the rays from
     the pixel's own x toward the neighbours' samples stay)."""
-    combine, visible = restir.combine, restir.visible
 
-    def planted(scene, si, inputs, sampler):
-        def from_own_point(scene_, si_k, r, active):
-            return visible(scene_, si_k, r, active) if si_k is si else active
+    def from_own_point(visible, si, _inputs):
+        return lambda scene, si_k, r, active: (visible(scene, si_k, r, active) if si_k is si
+                                               else active)
 
-        monkeypatch.setattr(restir, "visible", from_own_point)
-        try:
-            return combine(scene, si, inputs, sampler)
-        finally:
-            monkeypatch.setattr(restir, "visible", visible)
-
-    monkeypatch.setattr(restir, "combine", planted)
+    _swapped_during_combine(restir, monkeypatch, "visible", from_own_point)
 
 
 @pytest.mark.slow
