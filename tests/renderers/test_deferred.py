@@ -175,3 +175,30 @@ def test_a_frame_too_large_for_the_buffer_evaluates_its_queries_in_the_loop(
     integrator.cache = ZeroCache()   # the cache term is not 0 (else the test says nothing)
     without = np.asarray(mi.render(scene.scene, integrator=integrator, spp=1, seed=4))
     assert not np.allclose(without[..., :3], deferred[..., :3], rtol=1e-3)
+
+
+@pytest.mark.parametrize("estimator", ["biased", "unbiased"])
+def test_a_frame_in_stages_renders_the_integrators_own_image(mi, tmp_path, estimator):
+    """A method's frame in frozen stages (renderers.methods.staged: the trace, the deferred
+    passes, the film splat of each lane's cache sum) against ``mi.render`` of the same
+    integrator and seeds (one splat of path + cache): equal up to float rounding, with
+    the same queries. On plastic a biased trace also outgrows its buffer and is traced
+    again (the recording's key includes the buffer's size)."""
+    from renderers.frozen import frozen_frames
+    from renderers.methods.staged import StagedRender
+    from renderers.timing import StageTimer
+
+    scene = _scene(mi, tmp_path, PLASTIC)
+    values = {"estimator": estimator, "nc": [2], "max_depth": 8,
+              **({"termination": "bth"} if estimator == "biased" else {})}
+    with frozen_frames(True):
+        integrator = _integrator(scene, "nirc", **values)
+        frame = StagedRender(scene, integrator, 1)
+        staged = [np.asarray(frame(index, 10 + index, StageTimer())) for index in range(4)]
+    assert frame.recordings() >= 4   # trace, vertex and query passes, splat
+    direct = _integrator(scene, "nirc", **values)
+    for index, image in enumerate(staged):
+        film, queries = _render(mi, scene, direct, seed=10 + index)
+        assert integrator.query_counts[index].queries == queries > 0
+        np.testing.assert_allclose(image, film, rtol=1e-4, atol=1e-6)
+    assert integrator.vertex_slots == direct.vertex_slots
