@@ -335,6 +335,9 @@ class VisibilityRecords:
                  clusters: LightClusters | None, frozen: bool | None = None) -> None:
         self.world_points, self.camera_points, self.clusters = (world_points, camera_points,
                                                                 clusters)
+        # The clusters' tables on the device once, not every frame.
+        self.members = (None if clusters is None
+                        else tuple(mi.UInt32(a) for a in clusters.members()))
         frozen = freezing() if frozen is None else frozen
         self._fn = (Frozen(weak_method(self._records), auto_opaque=False) if frozen
                     else self._records)
@@ -342,10 +345,8 @@ class VisibilityRecords:
 
     def __call__(self, scene: mi.Scene, seed: int) -> TrainingRecords:
         self._last = (scene, seed)
-        members = (None if self.clusters is None
-                   else tuple(mi.UInt32(a) for a in self.clusters.members()))
         return self._fn(scene, mi.UInt32(seed), mi.UInt32(derive_seed(seed, "shadow rays")),
-                        members)
+                        self.members)
 
     def recordings(self) -> int | None:
         return self._fn.recordings() if isinstance(self._fn, Frozen) else None
