@@ -5,7 +5,10 @@ Four tables, each measured in this one run with interleaved rounds and medians:
 1. **Frame time at 8², 64², 128²** per method: wall ms per frame (the stage total
    of the median frame), kernel ms (Dr.Jit's kernel history), the harness share
    (wall outside kernels) and kernel launches per frame; Mitsuba's own ``path``
-   through ``mi.render`` (plain and frozen with ``dr.freeze``) as the reference.
+   through ``mi.render`` (plain and frozen with ``dr.freeze``) as the reference, and
+   Mitsuba's ``depth`` (one camera ray per pixel) frozen on each scene of the rows:
+   the least a frozen call that reads that scene costs (Dr.Jit walks every variable of
+   the scene's objects on each call: docs/timing.md, "The floor of a frozen call").
 2. **The fixed cost at 8²**, split into harness (wall - kernel of every part),
    the method's own fixed work (kernel time of stages whose size does not grow
    with the image: training at its record floor, the visibility caches' training
@@ -64,8 +67,17 @@ def method_timings(scenes: Scenes, method: str, scene: str, params: Any, res: in
         frames=frames, hooks=FrameHooks(kernel_time=kernel_time)).timings
 
 
-def mitsuba_path(mi: Any, scenes: Scenes, res: int, frames: int, frozen: bool) -> dict[str, Any]:
-    """Mitsuba's ``path`` at 1 spp on door through ``mi.render`` (or a frozen function of
+#: Rows of Mitsuba's own integrators: label -> (integrator, scene, frozen).
+MITSUBA_ROWS: dict[str, tuple[str, str, bool]] = {
+    "path (Mitsuba)": ("path", "door", False),
+    "path (Mitsuba, frozen)": ("path", "door", True),
+    "depth (Mitsuba, frozen, door)": ("depth", "door", True),
+    "depth (Mitsuba, frozen, many-lights)": ("depth", "many-lights", True),
+}
+
+
+def mitsuba_render(mi: Any, scenes: Scenes, row: str, res: int, frames: int) -> dict[str, Any]:
+    """A :data:`MITSUBA_ROWS` row at 1 spp through ``mi.render`` (or a frozen function of
     it, warmed up until its recording count settles), timed like a method."""
     import drjit as dr
 
@@ -78,8 +90,9 @@ def mitsuba_path(mi: Any, scenes: Scenes, res: int, frames: int, frozen: bool) -
         synchronize,
     )
 
-    scene = scenes("door", res).scene
-    integrator = mi.load_dict({"type": "path"})
+    integrator_type, scene_name, frozen = MITSUBA_ROWS[row]
+    scene = scenes(scene_name, res).scene
+    integrator = mi.load_dict({"type": integrator_type})
 
     def render(seed: Any) -> Any:
         return mi.render(scene, integrator=integrator, spp=1, seed=seed)
@@ -123,14 +136,14 @@ def frame_table(mi: Any, scenes: Scenes, cases: tuple[tuple, ...], params: dict[
                 resolutions: list[int],
                 frames: int, rounds: int) -> dict[tuple[str, int], dict[str, Any]]:
     """Table 1; returns the median round's timings per (row, resolution)."""
-    rows = [label for label, *_ in cases] + ["path (Mitsuba)", "path (Mitsuba, frozen)"]
+    rows = [label for label, *_ in cases] + list(MITSUBA_ROWS)
     configs = [(row, res) for res in resolutions for row in rows]
     scene_of = {label: (method, scene) for label, method, scene, _ in cases}
 
     def measure(config: tuple[str, int]) -> dict[str, Any]:
         row, res = config
-        if row.startswith("path"):
-            return mitsuba_path(mi, scenes, res, frames, frozen="frozen" in row)
+        if row in MITSUBA_ROWS:
+            return mitsuba_render(mi, scenes, row, res, frames)
         method, scene = scene_of[row]
         return method_timings(scenes, method, scene, params[row], res, frames)
 
@@ -139,7 +152,7 @@ def frame_table(mi: Any, scenes: Scenes, cases: tuple[tuple, ...], params: dict[
               for c, t in times.items()}
     print(f"\n1. frame time (median of {rounds} interleaved rounds of {frames} frames; "
           "ms of the median frame; harness = wall outside kernels)")
-    header = f"{'method':<30}" + "".join(f"{f'{r}x{r}: ms kernel harness launches':>42}"
+    header = f"{'method':<38}" + "".join(f"{f'{r}x{r}: ms kernel harness launches':>42}"
                                          for r in resolutions)
     print(header)
     for row in rows:
@@ -147,7 +160,7 @@ def frame_table(mi: Any, scenes: Scenes, cases: tuple[tuple, ...], params: dict[
         for res in resolutions:
             ms, kernel, share, launches = frame_row(chosen[row, res])
             cells.append(f"{ms:>12.3g}{kernel:>9.3g}{100 * share:>9.0f}%{launches:>11.0f}")
-        print(f"{row:<30}" + "".join(f"{c:>42}" for c in cells))
+        print(f"{row:<38}" + "".join(f"{c:>42}" for c in cells))
     loaded = [f"{row} {res}" for (row, res), t in chosen.items() if (t.get("load") or {}).get("loaded")]
     print("loaded while timed: " + (", ".join(loaded) if loaded else "none"))
     return chosen
