@@ -4,7 +4,7 @@ One comparison for ``GET /api/v1/compare`` and ``nirc-bench runs compare``. The 
 run is the baseline; every other run gets, per listed metric, its value, the change
 from the baseline and, for metrics with a value per seed when both runs have at least
 :data:`MIN_SEEDS_FOR_INTERVAL` seeds, the Welch 95 % interval of the difference of the
-seed means (:func:`metrics.statistics.welch_test`). Runs scored under
+seed means (:func:`metrics.statistics.welch_interval`). Runs scored under
 different metric versions are refused: their numbers measure different things.
 """
 
@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field
 
 from jobs.protocol.results import RunResult
 from metrics.registry import LISTED, Metric, below_noise_floor
-from metrics.statistics import welch_test
+from metrics.statistics import welch_interval
 
 #: Fewer seeds than this per run give no interval (a t interval on 1 or 2 degrees of
 #: freedom spans most of the axis).
@@ -97,7 +97,7 @@ def metric_delta(metric: Metric, baseline: Any, run: Any) -> MetricDelta:
             note = (f"no interval: fewer than {MIN_SEEDS_FOR_INTERVAL} seeds with a value "
                     f"({len(b)} and {len(a)})")
         else:
-            low, high = welch_test(a, b).confidence_interval(0.95)
+            low, high = welch_interval(a, b, 0.95)
             ci = [float(low), float(high)] if np.isfinite([low, high]).all() else None
             note = ("Welch 95 % interval of the difference of the seed means" if ci else
                     "no interval: the seeds' values do not vary")
