@@ -14,6 +14,14 @@ _LIBRARIES = ("nirc-bench", "mitsuba", "drjit", "numpy", "flip-evaluator", "Open
 
 
 def library_versions() -> dict[str, str]:
+    """The installed versions of the libraries a result depends on (a copy)."""
+    return dict(_installed_versions())
+
+
+@cache
+def _installed_versions() -> dict[str, str]:
+    # Read once per process: the modules a process has loaded do not change with a
+    # later install, and reading the packages' metadata costs ~30 ms (per job).
     versions = {}
     for name in _LIBRARIES:
         try:
