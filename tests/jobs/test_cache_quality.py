@@ -1,10 +1,13 @@
 """After training, the biased caches beat PT at 1 spp (NIRC paper Sec. 6.2, Fig. 7).
 
 Each method runs through the executor against the same 4096-spp reference with
-K = 3 seeds (each seed trains its own cache for 60 frames, batch 4096). MRSE is
-the mean over seeds; rBias2 is reported by every run and must be far below
-PT's error. Measured here (32x32): cornell-box PT 0.27, NIRC biased 0.072,
-NRC 0.22; door PT 29.9 (fireflies), NIRC biased 0.27, NRC 5.9.
+K = 3 seeds (each seed trains its own cache for the scene's pre-training frames,
+batch 4096). MRSE is the mean over seeds; rBias2 is reported by every run and must
+be far below PT's error. Measured here (32x32): cornell-box (60 frames) PT 0.27,
+NIRC biased 0.072, NRC 0.22; door (30 frames) PT 15.3 (fireflies), NIRC biased 1.40,
+NRC 0.43 (60 frames: 0.52 and 0.56). Door's margin is an order of magnitude after 30
+frames, so it trains for 30 (half the test's time); cornell-box's NRC margin is
+narrow, so it trains for 60.
 """
 
 from __future__ import annotations
@@ -19,11 +22,10 @@ from jobs.record.db import open_store
 
 pytestmark = pytest.mark.slow
 
-TRAINING = {"pretrain_frames": 60, "cache": {"batch_size": 4096}}
 
-
-@pytest.mark.parametrize("scene", ["cornell-box", "door"])
-def test_trained_biased_caches_beat_pt_at_one_spp(mi, data_dir, scene):
+@pytest.mark.parametrize("scene, pretrain_frames", [("cornell-box", 60), ("door", 30)])
+def test_trained_biased_caches_beat_pt_at_one_spp(mi, data_dir, scene, pretrain_frames):
+    training = {"pretrain_frames": pretrain_frames, "cache": {"batch_size": 4096}}
     settings = Settings()
     store = open_store(settings)
     base = RenderSpec(scene=scene, resolution=32, frames=1, seeds=3,
@@ -34,7 +36,7 @@ def test_trained_biased_caches_beat_pt_at_one_spp(mi, data_dir, scene):
                        settings).metrics
 
     pt = run("pt", {})
-    for method, params in (("nirc", {"estimator": "biased", **TRAINING}), ("nrc", TRAINING)):
+    for method, params in (("nirc", {"estimator": "biased", **training}), ("nrc", training)):
         m = run(method, params)
         assert m["mrse_mean"] < pt["mrse_mean"], (method, m["mrse_mean"], pt["mrse_mean"])
         assert m["rbias2_raw"] >= 0 and "rbias2" in m and "noise_floor" in m
