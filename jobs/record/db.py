@@ -150,7 +150,6 @@ def migrate(engine: Engine) -> None:
     one transaction holding SQLite's write lock (or a PostgreSQL advisory lock),
     so the later process waits and then finds nothing to do.
     """
-    config = alembic_config()
     heads, known = _revisions()
     with engine.execution_options(**{BEGIN_IMMEDIATE_OPTION: True}).begin() as connection:
         if connection.dialect.name == "postgresql":
@@ -172,6 +171,7 @@ def migrate(engine: Engine) -> None:
         if current == heads:
             return
         # env.py runs the migrations on this connection, inside this transaction.
+        config = alembic_config()
         config.attributes["connection"] = connection
         command.upgrade(config, "head")
 
