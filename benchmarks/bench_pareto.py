@@ -40,7 +40,8 @@ def main() -> None:
 
     from rich.console import Console
 
-    from jobs.pareto.pareto import ParetoSpec, knob_methods, run_pareto
+    from jobs.pareto.pareto import run_pareto
+    from jobs.pareto.plan import ParetoSpec, knob_methods
     from jobs.record.config import Settings
     from jobs.record.db import open_store
     from service.pareto_table import pareto_table

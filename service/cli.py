@@ -526,7 +526,7 @@ def _resolution(text: str, option: str) -> tuple[int, int]:
 def _parse_knob_values(texts: list[str]) -> dict[str, list[int]]:
     """``--knob-values``: 'METHOD=1,4,16' for one method, or '1,4,16' for every method
     with an equal-time knob other than the baseline (the registry's)."""
-    from jobs.pareto.pareto import knob_methods
+    from jobs.pareto.plan import knob_methods
 
     values: dict[str, list[int]] = {}
     for text in texts:
@@ -589,8 +589,7 @@ def pareto(
     stored by an earlier call (same spec, scene, reference, device) is reused. With
     --project-res, each point's frame time projected to that resolution (labelled as a
     projection from this device; the errors stay those measured at --res)."""
-    from jobs.pareto.pareto import ParetoSpec, plan, run_pareto
-    from service.pareto_table import pareto_table
+    from jobs.pareto.plan import ParetoSpec, plan
 
     spp_values = _counts(pt_spp, "--pt-spp", "spp values")
     spec = ParetoSpec(
@@ -601,7 +600,10 @@ def pareto(
         timing_rounds=timing_rounds, probe_frames=probe_frames, resamples=resamples,
         project_res=_resolution(project_res, "--project-res") if project_res else None,
         cost_resolutions=_counts(cost_res, "--cost-res", "resolutions"))
-    plan(spec)      # bad options fail before anything renders
+    plan(spec)      # bad options fail before anything that renders is imported
+    from jobs.pareto.pareto import run_pareto
+    from service.pareto_table import pareto_table
+
     _run_embedded(
         lambda store, settings, report: run_pareto(spec, store, settings, progress=report,
                                                    out_dir=out),

@@ -31,7 +31,6 @@ from statistics import median_low
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from jobs.protocol.calibration import DEFAULT_MAX_SPREAD, DEFAULT_ROUNDS, interleaved_rounds
 from renderers.timing import OTHER, FrameTime, merge_loads
@@ -91,6 +90,8 @@ def fit_line(sizes: Sequence[float], seconds: Sequence[float],
              confidence: float = CONFIDENCE) -> LinearFit:
     """Least-squares a + b * size with Student-t intervals (scipy.stats.linregress);
     a constant (the mean) when every size is the same."""
+    from scipy import stats  # ~1 s to import: only where a model is fitted
+
     x = np.asarray(sizes, dtype=float)
     y = np.asarray(seconds, dtype=float)
     if x.size != y.size or x.size < 2:

@@ -19,7 +19,6 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from jobs.protocol.charts import chart_png, convergence_chart
 from jobs.protocol.results import RunResultDetail
 from jobs.record.artifacts import ArtifactStore
 from jobs.record.config import Settings
@@ -51,7 +50,10 @@ def export_run(run: Any, summary: dict[str, Any], settings: Settings,
             else f"{artifact.kind}{suffix}"
         files[name] = out_dir / name
         shutil.copyfile(artifacts.path_of(artifact.path), files[name])
-    # Error over frames (the NIRC paper's Fig. 10), as the dashboard draws it.
+    # Error over frames (the NIRC paper's Fig. 10), as the dashboard draws it. Altair
+    # and its PNG renderer take ~0.6 s to import: only a run that is exported pays it.
+    from jobs.protocol.charts import chart_png, convergence_chart
+
     convergence = convergence_chart(RunResultDetail.of(run).model_dump(mode="json"))
     if convergence is not None:
         files["convergence"] = chart_png(convergence, out_dir / "convergence.png")

@@ -75,7 +75,6 @@ from jobs.protocol.executor import (
     store_run,
 )
 from jobs.protocol.job import RenderJob
-from jobs.protocol.plots import plot_convergence, plot_sweep
 from jobs.protocol.results import RunResult, Skipped
 from jobs.protocol.spec import SweepSpec
 from jobs.record.artifacts import ArtifactStore, artifact_record
@@ -562,6 +561,9 @@ def _convergence_curves(sweep: _Sweep) -> dict[str, dict[str, Any]]:
 
 def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[dict[str, Any]]:
     """Plots + result.json into ``out_dir``; returns the plots' artifact records."""
+    # Matplotlib takes ~1 s to import: a render process that runs no sweep does not.
+    from jobs.protocol.plots import plot_convergence, plot_sweep
+
     out_dir.mkdir(parents=True, exist_ok=True)
     title = f"{sweep.prepared.scene.name} ({sweep.device_key})"
     files: dict[str, Path] = {}

@@ -14,16 +14,13 @@ import jobs.pareto.pareto as pareto_module
 from jobs.pareto.pareto import (
     PARETO_METRICS,
     ParetoPoint,
-    ParetoSpec,
     Timing,
     _evaluate,
     baseline_flags,
-    interleave,
-    plan,
     point_key,
     run_pareto,
-    run_spec,
 )
+from jobs.pareto.plan import ParetoSpec, interleave, plan, run_spec
 from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
 from jobs.record.config import Settings

@@ -98,7 +98,7 @@ def test_pareto_projects_each_point_from_its_cost_model(tmp_path):
 
 
 def test_knob_values_name_one_method_or_every_method_with_a_knob():
-    from jobs.pareto.pareto import knob_methods
+    from jobs.pareto.plan import knob_methods
     from service.cli import _parse_knob_values
 
     assert _parse_knob_values(["1,4"]) == dict.fromkeys(knob_methods(), [1, 4])
