@@ -3,8 +3,8 @@
 ``nirc-bench pareto`` renders the baseline (PT) at several spp and every other
 method of the registry at several values of its equal-time knob (biased NIRC's
 N_c), plus its comparison runs that are not on that knob's curve (NRC, NIRC
-unbiased); a method with neither is skipped, and so is one whose
-``applies_to`` rules the scene out (with the reason). Every point is a run
+unbiased), as planned by jobs.pareto.plan; a method with neither is skipped, and so
+is one whose ``applies_to`` rules the scene out (with the reason). Every point is a run
 through the executor, stored against the same reference under the point's key
 (:func:`point_key`: its RenderSpec's content address with today's estimator
 and metric versions, the scene fingerprint, the reference and the device): a
