@@ -15,11 +15,17 @@ demands of a frame function:
   array, converting to NumPy): those re-record or go stale.
 
 The recording count settles only after about three calls (the first call records
-literals, the next ones make changing literals opaque); a function whose inputs change
-width between calls (a caching frame's compacted vertices and queries,
-renderers.methods.staged) records a few more times (measured: up to 4 per function,
-sometimes after two calls without a new one). So a frozen frame loop warms up until
-the count has held over ``SETTLED_CALLS`` calls (renderers.methods.base.run_frames).
+literals, the next ones make changing literals opaque), so a frozen frame loop warms
+up until the count has held over ``SETTLED_CALLS`` calls
+(renderers.methods.base.run_frames).
+
+A function whose inputs change width between calls (a caching frame's compacted
+vertices and queries) records again whenever a changing width equals the width of
+another array of its inputs, the scene's included: Dr.Jit keys a recording on which
+inputs share a width (one kernel serves arrays of one width), so such a call does not
+match the recordings made without the coincidence. Those passes therefore take their
+changing widths padded past every width of their other inputs (:func:`input_widths`,
+:func:`distinct_width`); their recordings then settle like any other.
 
 Freezing is on by default; ``with frozen_frames(False):`` runs the same code
 unfrozen (to compare the two: the frozen and unfrozen frames of a method must give
@@ -100,3 +106,43 @@ class Frozen:
 
     def recordings(self) -> int:
         return int(self._fn.n_recordings)
+
+
+def input_widths(*inputs: Any) -> frozenset[int]:
+    """The widths of the Dr.Jit arrays a frozen function's call walks in ``inputs``: its
+    PyTrees and the members of the C++ objects in them (a scene's shapes, emitters,
+    sensors, their BSDFs and textures, ...), as ``dr.freeze`` walks them.
+
+    Objects registered for the same classes but not reachable from ``inputs`` (those of
+    another scene alive in the process) are walked by a call too and are not counted
+    here: a width of theirs can still make a pass record once more."""
+    with dr.scoped_set_flag(dr.JitFlag.EnableObjectTraversal, True):
+        indices = dr.detail.collect_indices(inputs)
+    # Only the width is read: any array type of the backend can hold the index.
+    import mitsuba as mi
+
+    probe = mi.UInt32(0)
+    return frozenset(dr.width(dr.detail.update_indices(probe, [index & 0xFFFFFFFF]))
+                     for index in set(indices))
+
+
+def distinct_width(width: int, taken: frozenset[int], multiple: int = 1) -> int:
+    """The least width >= ``width`` (and >= 2: a one-element array is a kind of its own
+    to Dr.Jit) that is not in ``taken`` and whose ``multiple``-fold is not either (the
+    lanes a pass derives from it): a changing width padded so that it never equals
+    another input's."""
+    padded = max(width, 2)
+    while padded in taken or (multiple > 1 and padded * multiple in taken):
+        padded += 1
+    return padded
+
+
+def padded(indices: Any, width: int) -> Any:
+    """``indices`` (e.g. a ``dr.compress`` result) repeated at its last entry up to
+    ``width``: the extra lanes redo the last entry's work and write the same values
+    to the same places."""
+    count = dr.width(indices)
+    if width == count:
+        return indices
+    at = dr.minimum(dr.arange(type(indices), width), count - 1)
+    return dr.gather(type(indices), indices, at)

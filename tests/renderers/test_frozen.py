@@ -3,6 +3,8 @@ settle in the warm-up, and state held in Python caught when it is declared wrong
 
 from __future__ import annotations
 
+import gc
+
 import numpy as np
 import pytest
 
@@ -14,16 +16,33 @@ from renderers.methods.base import FrameHooks
 SCENES = ("many-lights", "sky")
 
 
+class OneSceneAtATime:
+    """The scenes by name at 8x8, one alive at a time: a frozen call walks the objects
+    of every scene alive in the process, and a width of another scene's arrays is not
+    among those a pass pads past (renderers.frozen.input_widths)."""
+
+    def __init__(self) -> None:
+        self.name: str | None = None
+        self.scene = None
+
+    def __getitem__(self, name: str):
+        from renderers.scenes import load_scene
+
+        if name != self.name:
+            self.name, self.scene = None, None   # freed (with what rendered it) first
+            gc.collect()
+            self.name, self.scene = name, load_scene(name, 8)
+        return self.scene
+
+
 @pytest.fixture(scope="module")
 def scenes(mi):
-    from renderers.scenes import load_scene
-
-    return {name: load_scene(name, 8) for name in SCENES}
+    return OneSceneAtATime()
 
 
 def render(scenes, name: str, frozen: bool, frames: int = 3):
     method = get_method(name)
-    scene = next(s for s in scenes.values() if method.applies_to(s.features)[0])
+    scene = next(scenes[s] for s in SCENES if method.applies_to(scenes[s].features)[0])
     params = parse_params(name, {"max_depth": 2} if "max_depth" in method.params.model_fields
                           else {})
     with frozen_frames(frozen):
@@ -38,14 +57,6 @@ def render(scenes, name: str, frozen: bool, frames: int = 3):
 #: between runs on a multi-core CPU, and its cache feeds back into later frames.
 NOT_REPRODUCIBLE = {"grid-cache"}
 
-#: Methods whose frame runs in stages (renderers.methods.staged): its vertex and query
-#: passes take compacted inputs, whose width changes every frame. Measured with Dr.Jit
-#: 1.5: such a function records again at some new widths, up to 4 recordings in all
-#: (over 60 calls of random widths; sometimes only after 20 calls), so a width met
-#: first in a timed frame may add a recording: at most this many in these 3 frames.
-STAGED = {"nirc", "nrc", "nvc-env", "nirc-nvc-env"}
-VARYING_WIDTH_SLACK = 2
-
 
 @pytest.mark.parametrize("name", [name for name in METHODS if name not in NOT_REPRODUCIBLE])
 def test_frozen_and_unfrozen_frames_give_the_same_images(scenes, name):
@@ -53,16 +64,48 @@ def test_frozen_and_unfrozen_frames_give_the_same_images(scenes, name):
     for a, b in zip(frozen.frames, unfrozen.frames, strict=True):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(frozen.accumulated, unfrozen.accumulated)
-    # The recordings settled in the warm-up and stayed so over the timed frames; a
-    # caching frame's passes over compacted (varying-width) inputs may record once more
-    # where a timed frame's width is of a kind the warm-up did not meet.
+    # The recordings settled in the warm-up and stayed so over the timed frames (a
+    # caching frame's passes over compacted inputs too: their widths are padded).
     record = frozen.timings["frozen"]
-    slack = VARYING_WIDTH_SLACK if name in STAGED else 0
-    assert (record["recordings_after_warmup"] <= record["recordings_after_frames"]
-            <= record["recordings_after_warmup"] + slack)
+    assert record["recordings_after_frames"] == record["recordings_after_warmup"]
     assert record["recordings_after_warmup"] >= 1
     assert SETTLED_CALLS < record["warmup_frames"] <= MAX_WARMUP_FRAMES
     assert unfrozen.timings["frozen"] is None and unfrozen.timings["warmup_frames"] == 1
+
+
+@pytest.mark.parametrize("pad", [True, False])
+def test_a_changing_width_padded_past_the_inputs_widths_records_once(scenes, pad):
+    """A pass over compacted indices (a caching frame's vertices or queries) called with
+    every width from 1 to past the scene's widest array: padded past its other inputs'
+    widths (renderers.frozen.distinct_width), it records once and computes the same
+    values. Planted: unpadded, a width equal to one of the scene's arrays' (or 1)
+    records again."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from renderers.frozen import Frozen, distinct_width, input_widths, padded
+
+    scene = scenes["many-lights"].scene
+    table = dr.arange(mi.Float, 4096)
+    taken = input_widths(scene, table)
+    assert 4096 in taken and len(taken - {0, 1, 4096}) >= 3   # the scene's arrays counted
+    with frozen_frames(True):
+        fn = Frozen(lambda scene, table, index: dr.gather(mi.Float, table, index) * 2,
+                    auto_opaque=False)
+
+    def call(width: int) -> None:
+        index = dr.compress(dr.arange(mi.UInt32, 3 * width) % 3 == 0)   # 0, 3, 6, ...
+        if pad:
+            index = padded(index, distinct_width(width, taken))
+        values = fn(scene, table, index)
+        np.testing.assert_array_equal(values.numpy()[:width], 6 * np.arange(width))
+
+    for _ in range(2):   # the warm-up: a frozen function records again on its second call
+        call(1000)
+    settled = fn.recordings()
+    for width in range(1, max(w for w in taken if w < 4096) + 2):
+        call(width)
+    assert (fn.recordings() == settled) == pad
 
 
 def test_a_python_value_the_frame_reads_and_changes_is_caught(scenes):
