@@ -108,6 +108,44 @@ class Frozen:
         return int(self._fn.n_recordings)
 
 
+class FrozenRecords:
+    """A frame's training records as a pure function of the scene and the frame's seed,
+    ``records(scene, *arguments(seed))``, frozen where freezing is on (every input
+    opaque from the first call: the seeds change every frame). :meth:`settle` repeats
+    the last call with the next seed and drops its records (nothing changes), so that
+    the recordings settle in a warm-up. Subclasses define :meth:`arguments` and
+    :meth:`records`."""
+
+    def __init__(self, frozen: bool | None = None) -> None:
+        frozen = freezing() if frozen is None else frozen
+        self._fn = (Frozen(weak_method(self.records), auto_opaque=False) if frozen
+                    else self.records)
+        self._last: tuple[Any, int] | None = None   # for settle()
+
+    def __call__(self, scene: Any, seed: int) -> Any:
+        self._last = (scene, seed)
+        return self._fn(scene, *self.arguments(seed))
+
+    def arguments(self, seed: int) -> tuple[Any, ...]:
+        """The Dr.Jit values :meth:`records` takes after the scene for a frame's seed
+        (opaque seeds: a traced call would compile a kernel for every literal seed)."""
+        raise NotImplementedError
+
+    def records(self, scene: Any, *arguments: Any) -> Any:
+        """The frame's records, reading no Dr.Jit value but its arguments."""
+        raise NotImplementedError
+
+    def recordings(self) -> int | None:
+        """Recordings of the frozen function (None when it is not frozen)."""
+        return self._fn.recordings() if isinstance(self._fn, Frozen) else None
+
+    def settle(self) -> None:
+        if self._last is not None:
+            scene, seed = self._last
+            dr.eval(self(scene, seed + 1))
+            self._last = (scene, seed)
+
+
 def input_widths(*inputs: Any) -> frozenset[int]:
     """The widths of the Dr.Jit arrays a frozen function's call walks in ``inputs``: its
     PyTrees and the members of the C++ objects in them (a scene's shapes, emitters,

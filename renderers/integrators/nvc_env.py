@@ -46,10 +46,11 @@ with unbounded depth the buffer starts with one vertex slot per lane and a
 frame that needed more is traced again with the same random numbers
 (cached.py), keeping the count for later frames.
 
-Training data (:func:`visibility_records`): every frame, first hits of
-camera rays through random film positions and the vertex one cosine-sampled
-bounce further (where GI paths shade), each with one direction drawn as the
-estimator draws it (p_env); the target is 1 if the shadow ray escapes.
+Training data (:func:`visibility_records`; frozen, :class:`EnvVisibilityRecords`):
+every frame, first hits of camera rays through random film positions and the
+vertex one cosine-sampled bounce further (where GI paths shade), each with one
+direction drawn as the estimator draws it (p_env); the target is 1 if the shadow
+ray escapes.
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.caches import TrainingRecords
+from renderers.frozen import FrozenRecords
 from renderers.integrators import path
 from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs
 from renderers.integrators.deferred import QueryLayout
@@ -230,38 +232,59 @@ def visibility_records(scene: mi.Scene, points: int, seed: int,
     """One frame of training data (module docstring): ``points`` camera first hits and as
     many second vertices, each with one p_env direction and its 0/1 shadow-ray outcome
     (``target='radiance'``: L_env(w) times that outcome, RGB, with NIRC's inputs)."""
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(dr.opaque(mi.UInt32, seed), points)
-    ray, _ = scene.sensors()[0].sample_ray(time=0.0, sample1=sampler.next_1d(),
-                                           sample2=sampler.next_2d(), sample3=sampler.next_2d())
-    first = scene.ray_intersect(ray)
-    bounce = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())
-    second = scene.ray_intersect(first.spawn_ray(first.to_world(bounce)), first.is_valid())
+    return EnvVisibilityRecords(points, target, frozen=False)(scene, seed)
 
-    # Lanes 0 .. points - 1: the first hits; points .. 2 points - 1: the second vertices.
-    index = dr.arange(mi.UInt32, 2 * points) % points
-    is_first = dr.arange(mi.UInt32, 2 * points) < points
 
-    def both(a: Any, b: Any) -> Any:
-        return dr.select(is_first, dr.gather(type(a), a, index), dr.gather(type(b), b, index))
+class EnvVisibilityRecords(FrozenRecords):
+    """:func:`visibility_records` of a cache's settings, frozen (renderers.frozen) where
+    freezing is on: the two seeds are the recording's arguments."""
 
-    si = dr.zeros(mi.SurfaceInteraction3f, 2 * points)
-    si.p, si.n = both(first.p, second.p), both(first.n, second.n)  # what the rays read
-    valid = both(first.is_valid(), second.is_valid())
+    def __init__(self, points: int, target: str = "visibility",
+                 frozen: bool | None = None) -> None:
+        self.points, self.target = points, target
+        super().__init__(frozen)
 
-    sampler.seed(dr.opaque(mi.UInt32, derive_seed(seed, "shadow rays")), 2 * points)
-    ds, env_weight = scene.environment().sample_direction(si, sampler.next_2d(), valid)
-    escapes = valid & (ds.pdf > 0) & ~scene.ray_test(si.spawn_ray_to(ds.p), valid)
-    if target == "visibility":
-        records = TrainingRecords(position=si.p, target=[dr.select(escapes, 1.0, 0.0)],
-                                  direction=ds.d, valid=valid)
-    else:
-        radiance = dr.select(escapes, env_weight * ds.pdf, 0.0)   # L_env(w) V(x, w)
-        inputs = both_inputs(first, second, both)
-        records = TrainingRecords(target=[radiance[0], radiance[1], radiance[2]],
-                                  direction=ds.d, valid=valid, **inputs)
-    dr.eval(records.position, records.target, records.direction, records.valid)
-    return records
+    def arguments(self, seed: int) -> tuple[Any, ...]:
+        return (dr.opaque(mi.UInt32, seed),
+                dr.opaque(mi.UInt32, derive_seed(seed, "shadow rays")))
+
+    def records(self, scene: mi.Scene, seed: mi.UInt32,
+                shadow_seed: mi.UInt32) -> TrainingRecords:
+        points = self.points
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed, points)
+        ray, _ = scene.sensors()[0].sample_ray(time=0.0, sample1=sampler.next_1d(),
+                                               sample2=sampler.next_2d(),
+                                               sample3=sampler.next_2d())
+        first = scene.ray_intersect(ray)
+        bounce = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())
+        second = scene.ray_intersect(first.spawn_ray(first.to_world(bounce)), first.is_valid())
+
+        # Lanes 0 .. points - 1: the first hits; points .. 2 points - 1: the second vertices.
+        index = dr.arange(mi.UInt32, 2 * points) % points
+        is_first = dr.arange(mi.UInt32, 2 * points) < points
+
+        def both(a: Any, b: Any) -> Any:
+            return dr.select(is_first, dr.gather(type(a), a, index),
+                             dr.gather(type(b), b, index))
+
+        si = dr.zeros(mi.SurfaceInteraction3f, 2 * points)
+        si.p, si.n = both(first.p, second.p), both(first.n, second.n)  # what the rays read
+        valid = both(first.is_valid(), second.is_valid())
+
+        sampler.seed(shadow_seed, 2 * points)
+        ds, env_weight = scene.environment().sample_direction(si, sampler.next_2d(), valid)
+        escapes = valid & (ds.pdf > 0) & ~scene.ray_test(si.spawn_ray_to(ds.p), valid)
+        if self.target == "visibility":
+            records = TrainingRecords(position=si.p, target=[dr.select(escapes, 1.0, 0.0)],
+                                      direction=ds.d, valid=valid)
+        else:
+            radiance = dr.select(escapes, env_weight * ds.pdf, 0.0)   # L_env(w) V(x, w)
+            inputs = both_inputs(first, second, both)
+            records = TrainingRecords(target=[radiance[0], radiance[1], radiance[2]],
+                                      direction=ds.d, valid=valid, **inputs)
+        dr.eval(records.position, records.target, records.direction, records.valid)
+        return records
 
 
 def both_inputs(first: mi.SurfaceInteraction3f, second: mi.SurfaceInteraction3f,

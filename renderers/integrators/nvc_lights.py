@@ -82,7 +82,7 @@ import mitsuba as mi
 import numpy as np
 
 from renderers.caches import TrainingRecords
-from renderers.frozen import Frozen, freezing, weak_method
+from renderers.frozen import FrozenRecords
 from renderers.integrators.lights import SpatialLightSampler, invert_cdf
 from renderers.seeding import derive_seed
 
@@ -327,7 +327,7 @@ def visibility_records(scene: mi.Scene, world_points: int, camera_points: int,
     return VisibilityRecords(world_points, camera_points, clusters, frozen=False)(scene, seed)
 
 
-class VisibilityRecords:
+class VisibilityRecords(FrozenRecords):
     """:func:`visibility_records` of a cache's settings, frozen (renderers.frozen) where
     freezing is on: the seeds and the clusters' tables are the recording's arguments."""
 
@@ -338,29 +338,14 @@ class VisibilityRecords:
         # The clusters' tables on the device once, not every frame.
         self.members = (None if clusters is None
                         else tuple(mi.UInt32(a) for a in clusters.members()))
-        frozen = freezing() if frozen is None else frozen
-        self._fn = (Frozen(weak_method(self._records), auto_opaque=False) if frozen
-                    else self._records)
-        self._last: tuple[mi.Scene, int] | None = None   # for settle()
+        super().__init__(frozen)
 
-    def __call__(self, scene: mi.Scene, seed: int) -> TrainingRecords:
-        self._last = (scene, seed)
-        return self._fn(scene, mi.UInt32(seed), mi.UInt32(derive_seed(seed, "shadow rays")),
-                        self.members)
+    def arguments(self, seed: int) -> tuple[Any, ...]:
+        return (dr.opaque(mi.UInt32, seed),
+                dr.opaque(mi.UInt32, derive_seed(seed, "shadow rays")), self.members)
 
-    def recordings(self) -> int | None:
-        return self._fn.recordings() if isinstance(self._fn, Frozen) else None
-
-    def settle(self) -> None:
-        """The last call's records again with another seed, dropped (a pure function:
-        nothing changes), so that its recordings settle in a warm-up."""
-        if self._last is not None:
-            scene, seed = self._last
-            dr.eval(self(scene, seed + 1))
-            self._last = (scene, seed)
-
-    def _records(self, scene: mi.Scene, seed: mi.UInt32, shadow_seed: mi.UInt32,
-                 members: tuple[mi.UInt32, ...] | None) -> TrainingRecords:
+    def records(self, scene: mi.Scene, seed: mi.UInt32, shadow_seed: mi.UInt32,
+                members: tuple[mi.UInt32, ...] | None) -> TrainingRecords:
         world_points, camera_points = self.world_points, self.camera_points
         n = world_points + camera_points
         count = len(scene.emitters()) if self.clusters is None else self.clusters.count

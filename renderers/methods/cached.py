@@ -225,8 +225,12 @@ def render_with_cache(
             frame_queries.append(list(integrator.query_counts))
         return image
 
-    caches = (cache,) if extra_cache is None else (cache, extra_cache)
-    output = run_frames(WithParts(render_frame, render, counted=(*caches, trainer)),
+    # What settles in the warm-up besides the render: the training steps, the training
+    # paths and a second cache's training records.
+    extra = (() if extra_cache is None
+             else (extra_cache, getattr(extra_cache, "training_records", None)))
+    counted = tuple(c for c in (cache, *extra, trainer) if c is not None)
+    output = run_frames(WithParts(render_frame, render, counted=counted),
                         seed_parts=seed_parts, frames=frames,
                         spp=spp,
                         aov_names=CACHE_AOVS, hooks=hooks)

@@ -43,7 +43,12 @@ from renderers.methods.cached import (
     training_stage_sizes,
 )
 from renderers.methods.nirc import NIRCParams
-from renderers.methods.nvc_env import NVCEnvParams, applies, env_visibility_config
+from renderers.methods.nvc_env import (
+    NVCEnvParams,
+    applies,
+    env_visibility_config,
+    visibility_cache,
+)
 from renderers.methods.nvc_env import train_frame as train_env_frame
 from renderers.seeding import derive_seed
 
@@ -77,7 +82,7 @@ def build(scene: Any, params: NIRCEnvParams, seed: int) -> tuple[Any, Any, Any, 
     integrator, trainer = load_integrators(nirc_nvc_env.NIRC_NVC_ENV_PLUGIN, params,
                                            key_vertex="departure")
     env = params.env()
-    visibility = make_cache(scene, env.cache_preset(), env, derive_seed(seed, "visibility"))
+    visibility = visibility_cache(scene, env, derive_seed(seed, "visibility"))
     integrator.configure_env(env, visibility)
     return integrator, trainer, make_cache(scene, nirc_config, params, seed), visibility
 

@@ -109,19 +109,29 @@ def build(scene: Any, params: NVCEnvParams, seed: int) -> tuple[Any, Any]:
     from renderers.integrators import nvc_env
 
     nvc_env.register()
-    cache = make_cache(scene, params.cache_preset(), params, seed)
+    cache = visibility_cache(scene, params, seed)
     integrator = mi.load_dict({"type": nvc_env.NVC_ENV_PLUGIN, **params.core()})
     integrator.configure(params, cache)
     return integrator, cache
 
 
+def visibility_cache(scene: Any, params: NVCEnvParams, seed: int) -> Any:
+    """A new cache of ``params.target`` carrying its frame's training records
+    (``cache.training_records``, frozen where freezing is on), which
+    :func:`train_frame` reads."""
+    from renderers.integrators.nvc_env import EnvVisibilityRecords
+
+    cache = make_cache(scene, params.cache_preset(), params, seed)
+    cache.training_records = EnvVisibilityRecords(params.camera_points, params.target)
+    return cache
+
+
 def train_frame(scene: Any, cache: Any, params: NVCEnvParams, seed: int,
                 timer: StageTimer) -> None:
-    """One frame of online training: shadow rays toward the environment, then the step."""
-    from renderers.integrators.nvc_env import visibility_records
-
+    """One frame of online training: shadow rays toward the environment (the cache's
+    ``training_records``), then the step."""
     with timer.stage("training_paths"):
-        records = visibility_records(scene.scene, params.camera_points, seed, params.target)
+        records = cache.training_records(scene.scene, seed)
     with timer.stage("training"):
         cache.train(records)
 
