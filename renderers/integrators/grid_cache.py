@@ -108,9 +108,14 @@ class GridCacheIntegrator(PathIntegrator):
     def aov_names(self) -> list[str]:
         return ["depth", "cache_depth", "cache_vertices", "weighted_length"]
 
-    def frame_freezable(self) -> bool:
-        """Not frozen: the frame reads the grid's arrays from Python attributes."""
-        return False
+    def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
+        """The core's, and the grid's arrays (its lookups read them; the propagation pass
+        changes them every frame)."""
+        return {**super().frame_state(scene), "grid": self.grid.arrays()}
+
+    def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:
+        super().bind_frame_state(scene, state)
+        self.grid.bind(state["grid"])
 
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> GridState:
         base = new_cache_state()

@@ -262,8 +262,10 @@ class FrozenRender:
     def __call__(self, _index: int, seed: int, timer: StageTimer) -> Any:
         with timer.stage("render"):
             # The state is asked anew every frame: a cache's weights change with training.
-            image = self.render(self.scene, self.seed_type(seed),
-                                self.integrator.frame_state(self.scene))
+            state = self.integrator.frame_state(self.scene)
+            image = self.render(self.scene, self.seed_type(seed), state)
+            # A recording bound the integrator to its own inputs: bind the frame's again.
+            self.integrator.bind_frame_state(self.scene, state)
             synchronize(image)
         return image
 
