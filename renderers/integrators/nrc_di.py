@@ -34,6 +34,7 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.caches import TrainingRecords
+from renderers.frozen import FrozenRecords
 from renderers.integrators import path
 from renderers.integrators.primary import PrimaryHitIntegrator
 
@@ -69,30 +70,47 @@ def direct_light_records(scene: mi.Scene, world_points: int, camera_points: int,
                          seed: int) -> TrainingRecords:
     """One frame of training data: surface points and one NEE sample of their direct
     light each (module docstring)."""
-    n = world_points + camera_points
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(dr.opaque(mi.UInt32, seed), n)
+    return DirectLightRecords(world_points, camera_points, frozen=False)(scene, seed)
 
-    # World-space rays: uniform origins in the bounding box, uniform directions.
-    box = scene.bbox()
-    u = mi.Vector3f(sampler.next_1d(), *sampler.next_2d())
-    world_ray = mi.Ray3f(box.min + u * (box.max - box.min),
-                         mi.warp.square_to_uniform_sphere(sampler.next_2d()))
-    # Screen-space rays: through uniformly random film positions.
-    camera_ray, _ = scene.sensors()[0].sample_ray(time=0.0, sample1=sampler.next_1d(),
-                                                  sample2=sampler.next_2d(),
-                                                  sample3=sampler.next_2d())
-    world = dr.arange(mi.UInt32, n) < world_points
-    si = scene.ray_intersect(mi.Ray3f(dr.select(world, world_ray.o, camera_ray.o),
-                                      dr.select(world, world_ray.d, camera_ray.d)))
-    valid = si.is_valid()
 
-    ds, emitted = scene.sample_emitter_direction(si, sampler.next_2d(valid), True, valid)
-    f = si.bsdf().eval(mi.BSDFContext(), si, si.to_local(ds.d), valid & (ds.pdf > 0))
-    target = dr.select(valid & (ds.pdf > 0), mi.Color3f(f * emitted), 0.0)
-    records = TrainingRecords(position=si.p, target=target, valid=valid)
-    dr.eval(records.position, records.target, records.valid)
-    return records
+class DirectLightRecords(FrozenRecords):
+    """:func:`direct_light_records` of a cache's settings, frozen (renderers.frozen) where
+    freezing is on: the seed is the recording's argument."""
+
+    def __init__(self, world_points: int, camera_points: int,
+                 frozen: bool | None = None) -> None:
+        self.world_points, self.camera_points = world_points, camera_points
+        super().__init__(frozen)
+
+    def arguments(self, seed: int) -> tuple[Any, ...]:
+        return (dr.opaque(mi.UInt32, seed),)
+
+    def records(self, scene: mi.Scene, seed: mi.UInt32) -> TrainingRecords:
+        world_points = self.world_points
+        n = world_points + self.camera_points
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed, n)
+
+        # World-space rays: uniform origins in the bounding box, uniform directions.
+        box = scene.bbox()
+        u = mi.Vector3f(sampler.next_1d(), *sampler.next_2d())
+        world_ray = mi.Ray3f(box.min + u * (box.max - box.min),
+                             mi.warp.square_to_uniform_sphere(sampler.next_2d()))
+        # Screen-space rays: through uniformly random film positions.
+        camera_ray, _ = scene.sensors()[0].sample_ray(time=0.0, sample1=sampler.next_1d(),
+                                                      sample2=sampler.next_2d(),
+                                                      sample3=sampler.next_2d())
+        world = dr.arange(mi.UInt32, n) < world_points
+        si = scene.ray_intersect(mi.Ray3f(dr.select(world, world_ray.o, camera_ray.o),
+                                          dr.select(world, world_ray.d, camera_ray.d)))
+        valid = si.is_valid()
+
+        ds, emitted = scene.sample_emitter_direction(si, sampler.next_2d(valid), True, valid)
+        f = si.bsdf().eval(mi.BSDFContext(), si, si.to_local(ds.d), valid & (ds.pdf > 0))
+        target = dr.select(valid & (ds.pdf > 0), mi.Color3f(f * emitted), 0.0)
+        records = TrainingRecords(position=si.p, target=target, valid=valid)
+        dr.eval(records.position, records.target, records.valid)
+        return records
 
 
 def register() -> None:

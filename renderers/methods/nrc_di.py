@@ -39,21 +39,21 @@ def build(scene: Any, params: NRCDIParams, seed: int) -> tuple[Any, Any]:
     import mitsuba as mi
 
     from renderers.caches import direct_light_config
-    from renderers.integrators.nrc_di import PLUGIN_NAME, register
+    from renderers.integrators.nrc_di import PLUGIN_NAME, DirectLightRecords, register
 
     register()
     cache = make_cache(scene, direct_light_config, params, seed)
+    # Its frame's training records, frozen where freezing is on (train_frame reads them).
+    cache.training_records = DirectLightRecords(params.world_points, params.camera_points)
     return mi.load_dict({"type": PLUGIN_NAME}).with_cache(cache), cache
 
 
 def train_frame(scene: Any, cache: Any, params: NRCDIParams, seed: int,
                 timer: StageTimer) -> None:
-    """One frame of online training: one NEE sample per point, then the cache's step."""
-    from renderers.integrators.nrc_di import direct_light_records
-
+    """One frame of online training: one NEE sample per point (the cache's
+    ``training_records``), then the cache's step."""
     with timer.stage("training_paths"):
-        records = direct_light_records(scene.scene, params.world_points, params.camera_points,
-                                       seed)
+        records = cache.training_records(scene.scene, seed)
     with timer.stage("training"):
         cache.train(records)
 

@@ -116,13 +116,13 @@ def test_planted_targets_without_the_brdfs_one_over_pi_leave_a_large_error(mi, t
                                                                             monkeypatch):
     from renderers.integrators import nrc_di
 
-    records = nrc_di.direct_light_records
+    records = nrc_di.DirectLightRecords.records
 
-    def planted(*args, **kwargs):
-        r = records(*args, **kwargs)
+    def planted(self, *args):
+        r = records(self, *args)
         r.target = r.target * math.pi
         return r
 
-    monkeypatch.setattr(nrc_di, "direct_light_records", planted)
+    monkeypatch.setattr(nrc_di.DirectLightRecords, "records", planted)
     errors = _errors(mi, *trivial, checkpoints=(TRAIN_FRAMES,))
     assert errors[TRAIN_FRAMES] > 0.01
