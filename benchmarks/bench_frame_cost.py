@@ -38,7 +38,23 @@ CASES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
     ("nvc-lights d2 (many-lights)", "nvc-lights", "many-lights", {"max_depth": 2}),
     ("pt d2 (many-lights)", "pt", "many-lights", {"max_depth": 2}),
     ("pt-power d2 (many-lights)", "pt-power", "many-lights", {"max_depth": 2}),
+    ("nvc-env (sky)", "nvc-env", "sky", {}),
+    ("nrc-di (many-lights)", "nrc-di", "many-lights", {}),
+    ("grid-cache (many-lights)", "grid-cache", "many-lights", {"prefill_frames": 8}),
 )
+
+#: The goals of a steady-state frame (docs/timing.md, "Goals"): for these rows, the
+#: harness share of the median frame at most this at that resolution ...
+HARNESS_GOALS = {128: 0.10, 8: 0.25}
+GOAL_ROWS = ("pt (door)", "nirc biased N_c 4 (door)", "nrc (door)",
+             "restir-di d2 (many-lights)", "nvc-lights d2 (many-lights)")
+#: ... and `pt`'s 8x8 frame at most this many times Mitsuba's frozen `path`'s.
+PT_OVER_FROZEN_PATH = 1.5
+#: ... and `restir-di`'s per-pixel cost b at most this many times `pt-power`'s (table 3).
+RESTIR_OVER_PT_POWER = 4.0
+#: The floor row of each goal row's scene (a frozen call that reads the scene).
+FLOOR_ROWS = {"door": "depth (Mitsuba, frozen, door)",
+              "many-lights": "depth (Mitsuba, frozen, many-lights)"}
 
 
 class Scenes:
@@ -163,7 +179,33 @@ def frame_table(mi: Any, scenes: Scenes, cases: tuple[tuple, ...], params: dict[
         print(f"{row:<38}" + "".join(f"{c:>42}" for c in cells))
     loaded = [f"{row} {res}" for (row, res), t in chosen.items() if (t.get("load") or {}).get("loaded")]
     print("loaded while timed: " + (", ".join(loaded) if loaded else "none"))
+    goals(cases, chosen, resolutions)
     return chosen
+
+
+def goals(cases: tuple, chosen: dict[tuple[str, int], dict[str, Any]],
+          resolutions: list[int]) -> None:
+    """The goals of :data:`HARNESS_GOALS` and :data:`PT_OVER_FROZEN_PATH` on table 1's
+    median frames, each met or not, with the floor of a frozen call of the row's scene
+    (its harness ms) beside the row's harness ms."""
+    scene_of = {label: scene for label, _method, scene, _ in cases}
+    print("\ngoals (table 1's median frames):")
+    for res, limit in HARNESS_GOALS.items():
+        if res not in resolutions:
+            continue
+        for row in (r for r in GOAL_ROWS if r in scene_of):
+            ms, kernel, share, _ = frame_row(chosen[row, res])
+            floor_ms, floor_kernel, _, _ = frame_row(chosen[FLOOR_ROWS[scene_of[row]], res])
+            verdict = "met" if share <= limit else "NOT met"
+            print(f"  harness <= {100 * limit:.0f} % at {res}x{res}: {row:<30} "
+                  f"{100 * share:5.1f} % ({ms - kernel:.3g} ms; floor of its scene "
+                  f"{floor_ms - floor_kernel:.3g} ms)  {verdict}")
+    if 8 in resolutions and "pt (door)" in scene_of:
+        ratio = (frame_row(chosen["pt (door)", 8])[0]
+                 / frame_row(chosen["path (Mitsuba, frozen)", 8])[0])
+        verdict = "met" if ratio <= PT_OVER_FROZEN_PATH else "NOT met"
+        print(f"  pt (door) 8x8 / Mitsuba's frozen path 8x8 <= {PT_OVER_FROZEN_PATH}: "
+              f"{ratio:.2f}  {verdict}")
 
 
 def fixed_cost_table(cases: tuple, chosen: dict[tuple[str, int], dict[str, Any]],
@@ -199,8 +241,9 @@ def cost_model_table(scenes: Scenes, cases: tuple, params: dict[str, Any], devic
 
     print(f"\n3. per-stage cost model (fitted at {', '.join(f'{r}x{r}' for r in resolutions)}"
           f"; {rounds} interleaved rounds of {frames} frames; 95 % intervals)")
+    models = {}
     for label, method, scene, _ in cases:
-        model = cost_model.measure(
+        model = models[label] = cost_model.measure(
             get_method(method), params[label], 1, device_key,
             lambda res, p, spp, method=method, scene=scene: method_timings(
                 scenes, method, scene, p, res, frames),
@@ -221,6 +264,13 @@ def cost_model_table(scenes: Scenes, cases: tuple, params: dict[str, Any], devic
                   f"{100 * (projection.harness_share or 0):.1f} % (projection from this device)")
         for note in projection.notes:
             print(f"      {note}")
+    restir, power = (models.get(row) for row in ("restir-di d2 (many-lights)",
+                                                   "pt-power d2 (many-lights)"))
+    if restir is not None and power is not None:
+        ratio = restir.stages["render"].wall.slope / power.stages["render"].wall.slope
+        verdict = "met" if ratio <= RESTIR_OVER_PT_POWER else "NOT met"
+        print(f"goal: restir-di's b / pt-power's b (render, max_depth 2) <= "
+              f"{RESTIR_OVER_PT_POWER}: {ratio:.2f}  {verdict}")
 
 
 def history_overhead(scenes: Scenes, cases: tuple, params: dict[str, Any], frames: int,
