@@ -88,12 +88,14 @@ class DeterministicGridLookup(dr.CustomOp):
         n = max(dr.width(g) for g in grad_out)
 
         # ---- Fixed-point scale: a power of two with no overflow possible ----
-        g_max = mi.Float(0.0)
-        for g in grad_out:
-            g_max = dr.maximum(g_max, dr.max(dr.abs(g)))
-        finite = mi.Bool(True)
-        for g in grad_out:
-            finite &= dr.all(dr.isfinite(g))
+        # The largest |g| and whether every g is finite, over all rows at once: the rows
+        # are combined lane by lane first, so each is one kernel and one reduction
+        # (a reduction per row was two launches per feature of every level).
+        abs_max, row_finite = dr.abs(grad_out[0]), dr.isfinite(grad_out[0])
+        for g in grad_out[1:]:
+            abs_max, row_finite = dr.maximum(abs_max, dr.abs(g)), row_finite & dr.isfinite(g)
+        g_max = dr.maximum(dr.max(abs_max), 0.0)
+        finite = dr.all(row_finite)
         # |sum| <= n * 2^D * g_max (weights <= 1); keep it below 2^_ACC_BITS.
         bound = Float64(dr.maximum(g_max, 1e-30)) * float(n * 2**grid.dimension)
         scale = dr.exp2(dr.floor(_ACC_BITS - dr.log2(bound)))
