@@ -85,9 +85,9 @@ class MomentGrid:
     (luminance); ``vertices`` the representative points (position and normal, 6 floats
     each, ``vertices_per_record`` per slot) with ``vertex_used``."""
 
-    #: The Dr.Jit arrays that are the grid's state (:meth:`arrays`, :meth:`bind`): what a
-    #: frozen pass that reads or updates the grid takes and returns (renderers.frozen).
-    ARRAYS = ("keys", "count", "mean", "second", "marginal", "vertices", "vertex_used")
+    #: The arrays a lookup reads (:meth:`lookup_arrays`, :meth:`bind_lookup`): what a frozen
+    #: render that looks the grid up takes as its arguments (renderers.frozen).
+    LOOKUP_ARRAYS = ("keys", "count", "mean", "second", "marginal")
 
     def __init__(self, config: MomentGridConfig) -> None:
         self.config = config
@@ -219,26 +219,18 @@ class MomentGrid:
 
     def representatives(self) -> tuple[mi.UInt32, mi.Point3f, mi.Vector3f]:
         """Every stored representative: its record's slot, position and normal."""
-        return self.representatives_at(self.representative_places())
-
-    def representative_places(self) -> mi.UInt32:
-        """The places of the stored representatives (a compaction: its width is known on
-        the host only)."""
-        return dr.compress(self.vertex_used != 0)
-
-    def representatives_at(self, place: mi.UInt32) -> tuple[mi.UInt32, mi.Point3f, mi.Vector3f]:
-        """The representatives at ``place``: their records' slots, positions and normals."""
+        place = dr.compress(self.vertex_used != 0)
         slot = place // self.config.vertices_per_record
         position = dr.gather(mi.Point3f, self.vertices, 2 * place)
         normal = dr.gather(mi.Vector3f, self.vertices, 2 * place + 1)
         return slot, position, normal
 
-    def arrays(self) -> dict[str, Any]:
-        """The grid's state (:data:`ARRAYS`)."""
-        return {name: getattr(self, name) for name in self.ARRAYS}
+    def lookup_arrays(self) -> dict[str, Any]:
+        """The arrays a lookup reads (:data:`LOOKUP_ARRAYS`)."""
+        return {name: getattr(self, name) for name in self.LOOKUP_ARRAYS}
 
-    def bind(self, arrays: dict[str, Any]) -> None:
-        """Hold ``arrays`` (:meth:`arrays` of this grid, or a frozen pass's result) as its
-        state."""
-        for name in self.ARRAYS:
+    def bind_lookup(self, arrays: dict[str, Any]) -> None:
+        """Look up ``arrays`` (:meth:`lookup_arrays` of this grid, as a frozen render
+        received them) from now on."""
+        for name in self.LOOKUP_ARRAYS:
             setattr(self, name, arrays[name])

@@ -109,13 +109,13 @@ class GridCacheIntegrator(PathIntegrator):
         return ["depth", "cache_depth", "cache_vertices", "weighted_length"]
 
     def frame_state(self, scene: mi.Scene) -> dict[str, Any]:
-        """The core's, and the grid's arrays (its lookups read them; the propagation pass
-        changes them every frame)."""
-        return {**super().frame_state(scene), "grid": self.grid.arrays()}
+        """The core's, and the arrays the grid's lookups read (the propagation pass changes
+        them every frame)."""
+        return {**super().frame_state(scene), "grid": self.grid.lookup_arrays()}
 
     def bind_frame_state(self, scene: mi.Scene, state: dict[str, Any]) -> None:
         super().bind_frame_state(scene, state)
-        self.grid.bind(state["grid"])
+        self.grid.bind_lookup(state["grid"])
 
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> GridState:
         base = new_cache_state()

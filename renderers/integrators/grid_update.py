@@ -30,9 +30,7 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.caches.moment_grid import MomentGrid
-from renderers.frozen import Frozen, distinct_width, freezing, input_widths, padded, weak_method
 from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
-from renderers.seeding import derive_seed
 
 #: Offset of the ray that re-finds a stored vertex, as a share of the scene's extent.
 RECOVERY_OFFSET = 1e-4
@@ -89,48 +87,35 @@ class GridUpdateIntegrator(PathIntegrator):
 def update_grid(scene: mi.Scene, integrator: GridUpdateIntegrator, seed: int,
                 hit_store_probability: float) -> int:
     """One pass over the grid's representatives; returns how many vertices it updated."""
-    place = integrator.grid.representative_places()
-    vertices = dr.width(place)
+    grid = integrator.grid
+    slot, position, normal = grid.representatives()
+    vertices = dr.width(slot)
     if vertices == 0:
         return 0
-    update_representatives(scene, integrator, place, dr.full(mi.Bool, True, vertices), seed,
-                           hit_store_probability)
-    return vertices
-
-
-def update_representatives(scene: mi.Scene, integrator: GridUpdateIntegrator,
-                           place: mi.UInt32, valid: mi.Bool, seed: int | mi.UInt32,
-                           hit_store_probability: float) -> None:
-    """The update of the representatives at ``place`` (``MomentGrid.representative_places``)
-    where ``valid``: K samples each, folded into their records, and the hit vertices
-    kept as representatives. Every size comes from ``place``'s width (a frozen pass:
-    :class:`Propagation`); an invalid lane (padding) traces but changes nothing."""
-    grid = integrator.grid
-    slot, position, normal = grid.representatives_at(place)
     k = grid.config.samples_per_vertex
-    owner = dr.arange(mi.UInt32, dr.width(place) * k) // k
+    owner = dr.arange(mi.UInt32, vertices * k) // k
     p = dr.gather(mi.Point3f, position, owner)
     n = dr.gather(mi.Vector3f, normal, owner)
     offset = RECOVERY_OFFSET * dr.norm(scene.bbox().extents())
     ray = mi.Ray3f(p + offset * n, -n)
     ray.maxt = 2.0 * offset
     sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed, dr.width(owner))
+    sampler.seed(seed, vertices * k)
     L, _, _, state = integrator.trace(scene, sampler, ray, mi.Bool(True))
     # One launch of the loop for all its outputs: each reduction below would otherwise
     # re-run the whole loop kernel for its own input (docs/design.md, pitfalls).
     dr.eval(L, state, sampler)
     # A vertex the ray no longer finds (a moved or thin surface) gives no sample.
     found = dr.block_sum(dr.select(state.found, 1.0, 0.0), k) == k
-    grid.accumulate(slot, L - state.emitted, found & valid)
-    store = (state.hit & dr.gather(mi.Bool, valid, owner)
-             & (sampler.next_1d() < hit_store_probability))
+    grid.accumulate(slot, L - state.emitted, found)
+    store = state.hit & (sampler.next_1d() < hit_store_probability)
     hit_slot, inserted = grid.find(state.hit_p, state.hit_n, store, insert=True)
     grid.store_vertices(hit_slot, state.hit_p, state.hit_n, sampler.next_1d(), inserted)
+    return vertices
 
 
-def store_primary_vertices(scene: mi.Scene, grid: MomentGrid, sensor: mi.Sensor,
-                           seed: int | mi.UInt32, probability: float) -> None:
+def store_primary_vertices(scene: mi.Scene, grid: MomentGrid, sensor: mi.Sensor, seed: int,
+                           probability: float) -> None:
     """The path tracer's share of exploration: each pixel's first hit kept as its cell's
     representative with ``probability`` (the paper: 1 %)."""
     film_size = sensor.film().crop_size()
@@ -145,90 +130,3 @@ def store_primary_vertices(scene: mi.Scene, grid: MomentGrid, sensor: mi.Sensor,
     store = si.is_valid() & (sampler.next_1d() < probability)
     slot, inserted = grid.find(si.p, si.sh_frame.n, store, insert=True)
     grid.store_vertices(slot, si.p, si.sh_frame.n, sampler.next_1d(), inserted)
-
-
-class Propagation:
-    """One propagation pass per call (:func:`store_primary_vertices`, then
-    :func:`update_grid`) of ``integrator``'s grid on ``scene``, frozen where freezing is
-    on and the integrator's frame can be: the two parts are each a frozen function of
-    the scene, the grid's arrays, the light selector's and a seed, returning the grid's
-    arrays. The update's representatives are a compaction whose width only the host
-    knows: it takes them padded past every width of its other inputs
-    (renderers.frozen.distinct_width; a width equal to another input's makes Dr.Jit
-    record again), the extra lanes marked invalid (they trace, but change nothing).
-
-    ``store_probability``: a pixel's first hit kept (the config's
-    ``primary_store_probability``); ``hit_store_probability``: an update sample's hit."""
-
-    def __init__(self, scene: mi.Scene, integrator: GridUpdateIntegrator,
-                 store_probability: float, hit_store_probability: float,
-                 frozen: bool | None = None) -> None:
-        self.scene, self.integrator, self.grid = scene, integrator, integrator.grid
-        self.store_probability = store_probability
-        self.hit_store_probability = hit_store_probability
-        frozen = (freezing() if frozen is None else frozen) and integrator.frame_freezable()
-        wrap = (lambda fn: Frozen(weak_method(fn), auto_opaque=False)) if frozen else (
-            lambda fn: fn)
-        self.frozen = frozen
-        self._store, self._update = wrap(self.store), wrap(self.update)
-        self._taken: frozenset[int] | None = None   # the update's fixed inputs' widths
-        self._last: int | None = None   # the last call's seed, for settle()
-
-    def __call__(self, seed: int) -> int:
-        """One pass with ``seed``; returns how many representatives it updated."""
-        self._last = seed
-        scene, grid = self.scene, self.grid
-        state = self.integrator.frame_state(scene)
-        try:
-            grid.bind(self._store(scene, grid.arrays(), state,
-                                  dr.opaque(mi.UInt32, derive_seed(seed, "store"))))
-            place = grid.representative_places()
-            vertices = dr.width(place)
-            if vertices == 0:
-                return 0
-            width = vertices
-            if self.frozen:
-                if self._taken is None:
-                    self._taken = input_widths(scene, grid.arrays(), state)
-                width = distinct_width(vertices, self._taken, grid.config.samples_per_vertex)
-                place = padded(place, width)
-            valid = dr.arange(mi.UInt32, width) < vertices
-            grid.bind(self._update(scene, grid.arrays(), state, place, valid,
-                                   dr.opaque(mi.UInt32, derive_seed(seed, "update"))))
-        finally:
-            self.integrator.bind_frame_state(scene, state)   # a recording bound its own
-        return vertices
-
-    def store(self, scene: mi.Scene, arrays: dict[str, Any], state: dict[str, Any],
-              seed: mi.UInt32) -> dict[str, Any]:
-        self.grid.bind(arrays)
-        self.integrator.bind_frame_state(scene, state)
-        store_primary_vertices(scene, self.grid, scene.sensors()[0], seed,
-                               self.store_probability)
-        return self.grid.arrays()
-
-    def update(self, scene: mi.Scene, arrays: dict[str, Any], state: dict[str, Any],
-               place: mi.UInt32, valid: mi.Bool, seed: mi.UInt32) -> dict[str, Any]:
-        self.grid.bind(arrays)
-        self.integrator.bind_frame_state(scene, state)
-        update_representatives(scene, self.integrator, place, valid, seed,
-                               self.hit_store_probability)
-        return self.grid.arrays()
-
-    def recordings(self) -> int | None:
-        """Recordings of the two frozen parts (None when they are not frozen)."""
-        return (self._store.recordings() + self._update.recordings() if self.frozen
-                else None)
-
-    def settle(self) -> None:
-        """The last call's pass again with the next seed on copies of the grid's arrays,
-        dropped (the grid keeps its state), so that the recordings settle in a warm-up."""
-        if self._last is None:
-            return
-        kept, seed = self.grid.arrays(), self._last
-        self.grid.bind({name: type(value)(value) for name, value in kept.items()})
-        try:
-            self(seed + 1)
-        finally:
-            self.grid.bind(kept)
-            self._last = seed

@@ -123,48 +123,43 @@ def build(scene: Any, params: GridCacheParams, seed: int) -> tuple[Any, Any, Any
     return integrator, updater, grid
 
 
-def propagation(scene: Any, updater: Any, params: GridCacheParams,
-                frozen: bool | None = None) -> Any:
-    """The propagation pass of ``updater``'s grid (renderers.integrators.grid_update
-    ``Propagation``: the render's share of exploration, then the update of every
-    representative), frozen where freezing is on unless ``frozen`` says."""
-    from renderers.integrators.grid_update import Propagation
+def propagate(scene: Any, updater: Any, grid: Any, params: GridCacheParams, seed: int) -> int:
+    """One pass: the render's share of exploration, then the update of every
+    representative; returns the vertices updated. Traced, not frozen: a frozen update
+    replays wrongly (docs/timing.md, "Frozen frames")."""
+    from renderers.integrators.grid_update import store_primary_vertices, update_grid
 
-    return Propagation(scene.scene, updater, updater.grid.config.primary_store_probability,
-                       params.hit_store_probability, frozen)
-
-
-def propagate(scene: Any, updater: Any, params: GridCacheParams, seed: int) -> int:
-    """One traced propagation pass; returns the vertices updated."""
-    return propagation(scene, updater, params, frozen=False)(seed)
+    mi_scene = scene.scene
+    store_primary_vertices(mi_scene, grid, mi_scene.sensors()[0], derive_seed(seed, "store"),
+                           grid.config.primary_store_probability)
+    return update_grid(mi_scene, updater, derive_seed(seed, "update"),
+                       params.hit_store_probability)
 
 
 def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], spp: int,
            frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
-    """Pre-fill, then per frame: a propagation pass, then the render pass (each frozen
-    where freezing is on)."""
+    """Pre-fill, then per frame: a propagation pass, then the render pass (frozen where
+    freezing is on)."""
     from renderers.timing import synchronize
 
     integrator, updater, grid = build(scene, params, derive_seed(*seed_parts, "cache"))
-    propagate_pass = propagation(scene, updater, params)
     start = time.perf_counter()
     for index in range(params.prefill_frames):
-        propagate_pass(derive_seed(*seed_parts, "prefill", index))
+        propagate(scene, updater, grid, params, derive_seed(*seed_parts, "prefill", index))
     prefill_s = time.perf_counter() - start
     updated: list[int] = []
     render_only = render_stage(scene, integrator, spp)
 
     def frame(index: int, seed: int, timer: Any) -> Any:
         with timer.stage("propagation"):
-            vertices = propagate_pass(derive_seed(seed, "propagate"))
-            synchronize(grid.arrays())
+            vertices = propagate(scene, updater, grid, params, derive_seed(seed, "propagate"))
+            synchronize(grid.keys)   # and the pass's pending stores, not in the render's time
         if index >= 0:
             updated.append(vertices)
         return render_only(index, seed, timer)
 
-    output = run_frames(WithParts(frame, render_only, counted=(propagate_pass,)),
-                        seed_parts=seed_parts, frames=frames, spp=spp,
-                        aov_names=GRID_AOVS, hooks=hooks)
+    output = run_frames(WithParts(frame, render_only), seed_parts=seed_parts, frames=frames,
+                        spp=spp, aov_names=GRID_AOVS, hooks=hooks)
     output.path_stats.update(rr_survival=params.rr_survival, rr_depth=params.rr_depth,
                              rr_mode=params.rr_mode)
     output.method_stats = {

@@ -97,7 +97,7 @@ def filled(mi):
     params = parse_params("grid-cache", {"cache": {"jitter": False}})
     integrator, updater, grid = build(scene, params, 11)
     for index in range(PREFILL):
-        propagate(scene, updater, params, index)
+        propagate(scene, updater, grid, params, index)
     return scene, params, integrator, updater, grid
 
 
