@@ -140,6 +140,7 @@ class FrozenRecords:
         return self._fn.recordings() if isinstance(self._fn, Frozen) else None
 
     def settle(self) -> None:
+        """The last call again with the next seed, its records dropped."""
         if self._last is not None:
             scene, seed = self._last
             dr.eval(self(scene, seed + 1))

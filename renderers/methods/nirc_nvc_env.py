@@ -49,7 +49,7 @@ from renderers.methods.nvc_env import (
     env_visibility_config,
     visibility_cache,
 )
-from renderers.methods.nvc_env import train_frame as train_env_frame
+from renderers.methods.nvc_lights import train_frame as train_env_frame
 from renderers.seeding import derive_seed
 
 

@@ -19,10 +19,9 @@ from typing import Any
 
 from renderers.methods.base import Knob, Method, fixed_stages
 from renderers.methods.cached import make_cache
-from renderers.methods.nvc_lights import visibility_cache_render
+from renderers.methods.nvc_lights import train_frame, visibility_cache_render
 from renderers.methods.primary import PrimaryCacheParams, lit_surface
 from renderers.methods.pt import SPP_CANDIDATES
-from renderers.timing import StageTimer
 
 
 class NRCDIParams(PrimaryCacheParams):
@@ -43,19 +42,9 @@ def build(scene: Any, params: NRCDIParams, seed: int) -> tuple[Any, Any]:
 
     register()
     cache = make_cache(scene, direct_light_config, params, seed)
-    # Its frame's training records, frozen where freezing is on (train_frame reads them).
+    # Its frame's training records, frozen where freezing is on (what train_frame reads).
     cache.training_records = DirectLightRecords(params.world_points, params.camera_points)
     return mi.load_dict({"type": PLUGIN_NAME}).with_cache(cache), cache
-
-
-def train_frame(scene: Any, cache: Any, params: NRCDIParams, seed: int,
-                timer: StageTimer) -> None:
-    """One frame of online training: one NEE sample per point (the cache's
-    ``training_records``), then the cache's step."""
-    with timer.stage("training_paths"):
-        records = cache.training_records(scene.scene, seed)
-    with timer.stage("training"):
-        cache.train(records)
 
 
 render = visibility_cache_render(build, train_frame)

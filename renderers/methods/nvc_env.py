@@ -53,9 +53,8 @@ from pydantic import Field
 
 from renderers.methods.base import Knob, Method, fixed_stages
 from renderers.methods.cached import has_surface, make_cache
-from renderers.methods.nvc_lights import visibility_cache_render
+from renderers.methods.nvc_lights import train_frame, visibility_cache_render
 from renderers.methods.pt import SPP_CANDIDATES, PTParams
-from renderers.timing import StageTimer
 
 #: NIRC's direction encoding (nirc_config): spherical harmonics, 5 bands.
 DIRECTION_ENCODING = {"kind": "sh", "sh_bands": 5}
@@ -117,23 +116,13 @@ def build(scene: Any, params: NVCEnvParams, seed: int) -> tuple[Any, Any]:
 
 def visibility_cache(scene: Any, params: NVCEnvParams, seed: int) -> Any:
     """A new cache of ``params.target`` carrying its frame's training records
-    (``cache.training_records``, frozen where freezing is on), which
-    :func:`train_frame` reads."""
+    (``cache.training_records``, frozen where freezing is on), which the visibility
+    caches' ``train_frame`` (renderers.methods.nvc_lights) reads."""
     from renderers.integrators.nvc_env import EnvVisibilityRecords
 
     cache = make_cache(scene, params.cache_preset(), params, seed)
     cache.training_records = EnvVisibilityRecords(params.camera_points, params.target)
     return cache
-
-
-def train_frame(scene: Any, cache: Any, params: NVCEnvParams, seed: int,
-                timer: StageTimer) -> None:
-    """One frame of online training: shadow rays toward the environment (the cache's
-    ``training_records``), then the step."""
-    with timer.stage("training_paths"):
-        records = cache.training_records(scene.scene, seed)
-    with timer.stage("training"):
-        cache.train(records)
 
 
 render = visibility_cache_render(build, train_frame)

@@ -180,9 +180,9 @@ def build(scene: Any, params: NVCLightsParams, seed: int) -> tuple[Any, Any]:
 
 def train_frame(scene: Any, cache: Any, params: VisibilityCacheParams, seed: int,
                 timer: StageTimer) -> None:
-    """One frame of online training: shadow rays to every light (or one light per
-    cluster: the cache's ``training_records``, :func:`light_selection`), then the
-    cache's step."""
+    """One frame of online training: the cache's ``training_records`` of the frame
+    (shadow rays to every light or one light per cluster, :func:`light_selection`; the
+    environment's for `nvc-env`, NEE samples for `nrc-di`), then the cache's step."""
     with timer.stage("training_paths"):
         records = cache.training_records(scene.scene, seed)
     with timer.stage("training"):
