@@ -293,11 +293,17 @@ class Prepared:
 
 
 def prepare(job: RenderJob, store: Store, settings: Settings,
-            progress: Progress | None = None) -> Prepared:
-    """Initialise the backend, load the scene and get (or render) its reference."""
+            progress: Progress | None = None, *, check_method: bool = False) -> Prepared:
+    """Initialise the backend, load the scene and get (or render) its reference.
+
+    ``check_method``: refuse (NotApplicable) a method that does not apply to the scene
+    before its reference is got: the scene's features come with loading it, while a
+    reference not stored yet can take minutes to render."""
     init_backend()
     spec = job.spec
     scene = load_spec_scene(spec.scene, spec.resolution, settings)
+    if check_method:
+        check_applies(job.method, scene.features)
     started = datetime.now(UTC)
     reference = get_or_render_reference(
         store, settings.references_dir, scene, spec.reference.settings(job.max_depth),
@@ -446,7 +452,8 @@ def execute(
     idempotency_key: str | None = None,
     reuse: bool = False,
 ) -> RunSummary:
-    """Run ``job`` to completion and store the result; see the module docstring.
+    """Run ``job`` to completion and store the result; see the module docstring. A method
+    that does not apply to the scene is refused (NotApplicable) before anything renders.
 
     With ``reuse``, a run of the same spec stored earlier (:func:`find_same_run`) is
     returned (``reused`` set; exported to ``out_dir`` if given) instead of rendering.
@@ -459,8 +466,7 @@ def execute(
     second run under the same key raises ``DuplicateKeyError``.
     """
     method = get_method(job.method)
-    prepared = prepare(job, store, settings, progress)
-    check_applies(job.method, prepared.scene.features)
+    prepared = prepare(job, store, settings, progress, check_method=True)
     stored = find_same_run(job.spec, prepared, store) if reuse else None
     if stored is not None:
         summary = RunSummary.of_stored(stored, job.spec, settings, reused=True)

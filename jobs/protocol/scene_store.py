@@ -30,11 +30,14 @@ import dataclasses
 import os
 import re
 import shutil
+import sys
 import tempfile
+import threading
 from pathlib import Path
 
 from jobs.record.config import Settings
-from renderers.scenes import LoadedScene, SceneError, builtin_names, load_scene
+from renderers.backend import init_backend
+from renderers.scenes import LoadedScene, SceneError, SceneFeatures, builtin_names, load_scene
 from renderers.scenes.errors import SceneNotFinite
 from renderers.scenes.vetting import (
     STAGED_SCENE,
@@ -49,6 +52,15 @@ from renderers.scenes.vetting import (
 #: ``upload:<digest>`` (sent by a client) or ``staged:<digest>`` (a scene-root file
 #: copied at submission).
 SCENE_ID = re.compile(r"^(upload|staged):([0-9a-f]{32})$")
+#: The resolution a built-in scene is loaded at for its features: none of them but
+#: ``resolution`` depends on it.
+FEATURES_RESOLUTION = 8
+#: The variant features are loaded with in a process that has chosen none (the
+#: service's API process): the CPU's, so that no GPU context is opened for them.
+FEATURES_VARIANT = "llvm_ad_rgb"
+
+_features: dict[str, SceneFeatures] = {}
+_features_lock = threading.Lock()
 
 
 def unavailable_message() -> str:
@@ -132,6 +144,20 @@ def rest_scene(scene: str, settings: Settings) -> str:
                             missing=unavailable_message())
     store_scene(staged, settings)
     return f"staged:{staged.digest}"
+
+
+def builtin_features(name: str) -> SceneFeatures:
+    """The features of the built-in scene ``name`` (what decides which methods apply to
+    it), loaded once per process: known without rendering anything, so that a job whose
+    method does not apply can be refused before it is queued. Raises BackendError where
+    no scene can be loaded (no usable libLLVM)."""
+    with _features_lock:
+        if name not in _features:
+            mitsuba = sys.modules.get("mitsuba")
+            if mitsuba is None or mitsuba.variant() is None:
+                init_backend(FEATURES_VARIANT)
+            _features[name] = load_scene(name, FEATURES_RESOLUTION).features
+        return _features[name]
 
 
 def load_spec_scene(scene: str, resolution: int, settings: Settings) -> LoadedScene:

@@ -116,6 +116,16 @@ def test_the_reference_is_rendered_once_and_reused(env):
     assert len(list(settings.references_dir.glob("*.variance.exr"))) == 1
 
 
+def test_a_method_that_does_not_apply_is_refused_before_its_reference(env):
+    """grid-cache holds diffuse radiance only: on the glossy Cornell box it is refused
+    from the scene's features, before a reference (minutes at a real spp) is rendered."""
+    settings, store = env
+    spec = SPEC.model_copy(update={"scene": "cornell-glossy", "method": "grid-cache"})
+    with pytest.raises(methods.NotApplicable, match="glossy"):
+        execute(RenderJob.parse(spec), store, settings)
+    assert not list(settings.references_dir.glob("*.exr"))
+
+
 def test_a_damaged_reference_file_is_rendered_again(env):
     settings, store = env
     first = execute(RenderJob.parse(SPEC), store, settings)

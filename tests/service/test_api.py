@@ -103,6 +103,19 @@ def test_invalid_specs_are_422_naming_the_field(api, change, field):
     assert field in str(response.json()["detail"])
 
 
+def test_a_method_that_does_not_apply_is_refused_before_it_is_queued(api):
+    """grid-cache on the glossy Cornell box: 422 naming why, from the scene's features,
+    and no job queued (before: queued, and refused by its render after the reference)."""
+    client = api[0]
+    response = client.post("/api/v1/jobs", json={**SPEC, "scene": "cornell-glossy",
+                                                 "method": "grid-cache"})
+    assert response.status_code == 422, response.text
+    detail = response.json()["detail"][0]
+    assert detail["loc"] == ["body", "method"]
+    assert "does not apply" in detail["msg"] and "glossy" in detail["msg"]
+    assert client.get("/api/v1/jobs").json() == []
+
+
 def test_a_grid_cache_job_runs_with_its_policy_and_states_its_roulette(api):
     """A variance-trading policy over REST: its parameters are stored with the run, the
     grid's typed configuration with the seeds, and the roulette's survival probability

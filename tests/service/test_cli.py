@@ -51,6 +51,16 @@ def test_malformed_xml_is_a_clear_error(tmp_path):
     assert_clean_error(proc, "bad.xml")
 
 
+def test_a_method_that_does_not_apply_is_refused_before_its_reference(tmp_path):
+    """One line, exit 2, and no reference rendered for a job that cannot run (before: the
+    reference first, 241 s at --res 64 --ref-spp 65536, then the refusal)."""
+    proc = run_cli("render", "--scene", "cornell-glossy", "--method", "grid-cache", "--res",
+                   "8", "--ref-spp", "64", data_dir=tmp_path)
+    assert_clean_error(proc, "grid-cache", "does not apply", "glossy")
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert not list((tmp_path / "references").glob("*.exr"))
+
+
 @pytest.mark.parametrize("args, fragment", [
     (("--res", "0"), "--res"),
     (("--spp", "-3"), "--spp"),

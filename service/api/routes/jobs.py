@@ -23,11 +23,19 @@ from jobs.execution.queue import IdempotencyKeyReused, TooManyJobs, spec_key
 from jobs.execution.timecost import estimate_seconds
 from jobs.execution.work import data_bytes, reference_stored, render_work, sweep_work
 from jobs.protocol.job import RenderJob
-from jobs.protocol.scene_store import rest_scene
+from jobs.protocol.scene_store import builtin_features, rest_scene
 from jobs.protocol.spec import RenderSpec, SweepSpec
 from jobs.record.config import Settings
 from jobs.record.models import FINAL_JOB_STATES, ApiKey
-from renderers.methods import MethodError, format_validation_error, get_method
+from renderers.backend import BackendError
+from renderers.methods import (
+    MethodError,
+    NotApplicable,
+    check_applies,
+    format_validation_error,
+    get_method,
+)
+from renderers.scenes import builtin_names
 from renderers.scenes.vetting import SceneRefused
 from service.api.deps import CallerDep, DispatcherDep, QueueDep, RowId, SettingsDep
 from service.api.schemas import JobOut
@@ -79,7 +87,24 @@ def _check_render(spec: RenderSpec, settings: Settings) -> RenderJob:
         job = RenderJob.parse(spec, strict=True)
     except MethodError as err:
         raise _unprocessable("params", str(err)) from None
-    return job.with_spec(scene=_check_scene(spec.scene, settings))
+    job = job.with_spec(scene=_check_scene(spec.scene, settings))
+    _check_applies(job)
+    return job
+
+
+def _check_applies(job: RenderJob) -> None:
+    """Refuse (422) a method that does not apply to a built-in scene, from the scene's
+    features, before the job is queued. A stored scene is not loaded here (an upload
+    may be large; its render process loads it) and neither is anything where no scene
+    can be loaded: the render process refuses those first thing, before the reference."""
+    if job.spec.scene not in builtin_names():
+        return
+    try:
+        check_applies(job.method, builtin_features(job.spec.scene))
+    except NotApplicable as err:
+        raise _unprocessable("method", str(err)) from None
+    except BackendError:
+        return
 
 
 def _check_work(kind: str, spec: RenderJob | SweepSpec, store, settings,
