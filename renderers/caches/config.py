@@ -166,8 +166,10 @@ class OptimizerConfig(_Frozen):
             return self.lr
         import drjit as dr
 
-        t = dr.minimum(dr.float32_array_t(type(step))(step) / self.lr_decay_steps, 1.0)
-        return self.lr + (self.lr_end - self.lr) * t
+        # In double precision, rounded once to single: the value a host-side schedule
+        # (Python floats) would hand to Adam, bit for bit.
+        t = dr.minimum(dr.float64_array_t(type(step))(step) / self.lr_decay_steps, 1.0)
+        return dr.float32_array_t(type(step))(self.lr + (self.lr_end - self.lr) * t)
 
 
 class ConvergedTrainingConfig(_Frozen):
