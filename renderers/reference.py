@@ -14,6 +14,15 @@ metric computed against it.
 
 By default references use Mitsuba's built-in ``path`` integrator, independent of
 the code under test (our ``pt`` is tested for agreement with it).
+
+Mean and variance are accumulated in float64 and kept as float32, the precision
+they are stored in (EXR). A value beyond float32's range (about 3.4e38: the
+variance of the mean where an emitter of radiance 1e30 is seen is about 1e60) is
+kept as an infinity of its sign, on purpose and without a cast that overflows:
+its readers take it as "overflowed" (the run's quality verdict says so, the
+error metrics leave the pixel out, the stress suite's agreement cannot test it),
+where a finite clamp at the float32 maximum would understate it by ~20 orders of
+magnitude and let the metrics compute on it.
 """
 
 from __future__ import annotations
@@ -66,10 +75,19 @@ class ReferenceSettings:
         return asdict(self)
 
 
+def as_float32(values: np.ndarray) -> np.ndarray:
+    """``values`` as float32, a magnitude beyond its range as an infinity of its sign
+    (module docstring)."""
+    limit = float(np.finfo(np.float32).max)
+    return np.where(np.abs(values) > limit, np.copysign(np.inf, values),
+                    values).astype(np.float32)
+
+
 @dataclass
 class ReferenceImage:
     mean: np.ndarray               # (H, W, 3) float32
-    variance: np.ndarray           # (H, W, 3) float32, variance of ``mean`` per pixel
+    variance: np.ndarray           # (H, W, 3) float32, variance of ``mean`` per pixel;
+                                   # +inf where it exceeds float32 (module docstring)
     spp: int
     passes: int
     rel_stderr: float
@@ -144,8 +162,8 @@ def render_reference(
         enough=lambda: (settings.rel_stderr is not None and acc.count >= settings.min_passes
                         and acc.relative_stderr() <= settings.rel_stderr))
     return ReferenceImage(
-        mean=acc.mean.astype(np.float32),
-        variance=acc.variance_of_mean.astype(np.float32),
+        mean=as_float32(acc.mean),
+        variance=as_float32(acc.variance_of_mean),
         spp=acc.count * pass_spp,
         passes=acc.count,
         rel_stderr=float(acc.relative_stderr()),

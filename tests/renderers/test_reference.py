@@ -2,10 +2,24 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
 from renderers.reference import ReferenceSettings, render_reference
+from tests.renderers.scene_xml import perspective_sensor
+
+#: A floor lit by a small area light of radiance 1e30 (both seen by the camera).
+BLINDING = """<scene version="3.0.0">
+    """ + perspective_sensor("60", "0, 2, 3", "0, 0, 0", res="8") + """
+    <shape type="rectangle"><transform name="to_world"><scale value="2"/>
+        <rotate x="1" angle="-90"/></transform><bsdf type="diffuse"/></shape>
+    <shape type="rectangle"><transform name="to_world"><scale value="0.3"/>
+        <rotate x="1" angle="90"/><translate y="1"/></transform>
+        <emitter type="area"><rgb name="radiance" value="1e30, 1e30, 1e30"/></emitter></shape>
+</scene>
+"""
 
 
 @pytest.fixture(scope="module")
@@ -56,6 +70,20 @@ def test_split_half_floor_matches_the_variance_image(scene):
     predicted = np.mean(ref.variance / (ref.mean.astype(np.float64) ** 2 + 0.01))
     # Loose: both sides are dominated by the few pixels with rare bright paths.
     assert 0.3 < floor["reference_mrse_estimate"] / predicted < 3.0
+
+
+def test_a_variance_beyond_float32_is_infinite_without_an_overflowing_cast(mi):
+    """Where a 1e30 emitter lights the floor, the variance of the pixel's mean (~1e58)
+    exceeds float32's 3.4e38: it is kept as +inf, which the readers take as overflowed,
+    the mean stays finite, and no cast overflows (a RuntimeWarning before)."""
+    scene = mi.load_string(BLINDING)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        ref = render_reference(scene, ReferenceSettings(spp=16, spp_per_pass=2),
+                               seed_parts=("blinding",))
+    assert np.isfinite(ref.mean).all() and ref.mean.max() > 1e25
+    assert np.isposinf(ref.variance).any() and not np.isnan(ref.variance).any()
+    assert ref.variance.dtype == np.float32
 
 
 @pytest.mark.parametrize("settings", [
