@@ -19,13 +19,24 @@ literals, the next ones make changing literals opaque), so a frozen frame loop w
 up until the count has held over ``SETTLED_CALLS`` calls
 (renderers.methods.base.run_frames).
 
-A function whose inputs change width between calls (a caching frame's compacted
-vertices and queries) records again whenever a changing width equals the width of
-another array of its inputs, the scene's included: Dr.Jit keys a recording on which
-inputs share a width (one kernel serves arrays of one width), so such a call does not
-match the recordings made without the coincidence. Those passes therefore take their
-changing widths padded past every width of their other inputs (:func:`input_widths`,
-:func:`distinct_width`); their recordings then settle like any other.
+**A replay only ever sees the input widths and Python values it was recorded with.**
+Every call hands ``dr.freeze`` a key made anew for the call (:class:`CallKey`): the
+width of each Dr.Jit array among its arguments and the value of each other leaf, so
+a call that differs from every recording in any of them records again. Dr.Jit's own
+key is not enough, for two reasons (docs/timing.md, "The width rule"):
+
+- it does not key on widths: a replay at other widths takes each kernel's size from
+  a heuristic over its inputs' sizes, which may fall back to the recorded size;
+- it does not compare a Python value that appeared earlier in the same call's inputs
+  (its traversal stores a repeated object as a back-reference, and CPython shares
+  one object per small int), so a call whose buffer layout was (lanes, 40, 8)
+  replayed the recording of (lanes, 25, 8) next to a cache whose weight matrices
+  are 25 and 40 wide, scattered past the recorded buffers and corrupted the heap
+  (``scripts/drjit_defects/freeze_dedup_key.py`` shows it in a few lines).
+
+A pass over compacted lanes (a caching frame's vertices and queries) therefore takes
+them padded to a :class:`Capacity`, a width that only grows, with headroom over the
+counts seen so far: its recordings settle like any other function's.
 
 Freezing is on by default; ``with frozen_frames(False):`` runs the same code
 unfrozen (to compare the two: the frozen and unfrozen frames of a method must give
@@ -34,7 +45,10 @@ the same images).
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import gc
+import math
 import weakref
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -49,6 +63,9 @@ _ENABLED: ContextVar[bool] = ContextVar("frozen_frames", default=True)
 MAX_WARMUP_FRAMES = 12
 #: Calls without a new recording after which a frozen frame loop's warm-up ends.
 SETTLED_CALLS = 3
+#: Recordings of one frozen function after which Dr.Jit warns (its default, 10, is
+#: reached legitimately by a pass whose buffers grow: one recording per layout).
+WARN_AFTER = 32
 
 
 @contextmanager
@@ -91,15 +108,21 @@ class Frozen:
     again after settling (4 instead of 2)."""
 
     def __init__(self, fn: Callable[..., Any], auto_opaque: bool = True) -> None:
-        self._fn = dr.freeze(fn, auto_opaque=auto_opaque)
+        def keyed(_key: CallKey, *args: Any) -> Any:
+            return fn(*args)
+
+        # Each width or value of a call records once (the module docstring): a
+        # changing count is padded to a Capacity, so a function records a few times.
+        self._fn = dr.freeze(keyed, auto_opaque=auto_opaque, warn_after=WARN_AFTER)
 
     def __call__(self, *args: Any) -> Any:
+        key = CallKey.of(args)
         # No garbage collection inside a call: collecting another frozen function (an
         # object cycle freed late) while this one records aborted the process.
         collecting = gc.isenabled()
         gc.disable()
         try:
-            return self._fn(*args)
+            return self._fn(key, *args)
         finally:
             if collecting:
                 gc.enable()
@@ -147,33 +170,88 @@ class FrozenRecords:
             self._last = (scene, seed)
 
 
-def input_widths(*inputs: Any) -> frozenset[int]:
-    """The widths of the Dr.Jit arrays a frozen function's call walks in ``inputs``: its
-    PyTrees and the members of the C++ objects in them (a scene's shapes, emitters,
-    sensors, their BSDFs and textures, ...), as ``dr.freeze`` walks them.
+class CallKey:
+    """What a replay must match of a call besides Dr.Jit's own key: the width (a
+    tensor's shape) of every Dr.Jit array in the call's PyTrees and the value of every
+    other leaf, in Dr.Jit's order of traversal (tuples, lists, dicts, ``DRJIT_STRUCT``
+    and dataclass fields). Made anew for each call, so that Dr.Jit, which compares a
+    Python object of the inputs by value only where it meets it first, compares this
+    one (it is never a repeat).
 
-    Objects registered for the same classes but not reachable from ``inputs`` (those of
-    another scene alive in the process) are walked by a call too and are not counted
-    here: a width of theirs can still make a pass record once more."""
-    with dr.scoped_set_flag(dr.JitFlag.EnableObjectTraversal, True):
-        indices = dr.detail.collect_indices(inputs)
-    # Only the width is read: any array type of the backend can hold the index.
-    import mitsuba as mi
+    Other objects (a scene, its shapes and emitters) enter by type and identity, as
+    Dr.Jit compares them: the arrays of a scene are Dr.Jit's to walk, and keep their
+    widths while it renders (a scene whose meshes change size is a new scene)."""
 
-    probe = mi.UInt32(0)
-    return frozenset(dr.width(dr.detail.update_indices(probe, [index & 0xFFFFFFFF]))
-                     for index in set(indices))
+    __slots__ = ("parts", "_hash")
+
+    def __init__(self, parts: tuple[Any, ...]) -> None:
+        self.parts = parts
+        self._hash = hash(parts)
+
+    @classmethod
+    def of(cls, tree: Any) -> CallKey:
+        parts: list[Any] = []
+        _collect(tree, parts)
+        return cls(tuple(parts))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, CallKey) and self.parts == other.parts
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __repr__(self) -> str:
+        return f"CallKey{self.parts}"
 
 
-def distinct_width(width: int, taken: frozenset[int], multiple: int = 1) -> int:
-    """The least width >= ``width`` (and >= 2: a one-element array is a kind of its own
-    to Dr.Jit) that is not in ``taken`` and whose ``multiple``-fold is not either (the
-    lanes a pass derives from it): a changing width padded so that it never equals
-    another input's."""
-    padded = max(width, 2)
-    while padded in taken or (multiple > 1 and padded * multiple in taken):
-        padded += 1
-    return padded
+def _collect(node: Any, parts: list[Any]) -> None:
+    """Append ``node``'s widths and leaf values to ``parts`` (:class:`CallKey`)."""
+    if dr.is_array_v(node):
+        parts.append(tuple(node.shape) if dr.is_tensor_v(node) else dr.width(node))
+    elif isinstance(node, tuple | list):
+        parts.append(len(node))
+        for item in node:
+            _collect(item, parts)
+    elif isinstance(node, dict):
+        for name, value in node.items():
+            parts.append(name)
+            _collect(value, parts)
+    elif (fields := getattr(type(node), "DRJIT_STRUCT", None)) is not None:
+        for name in fields:
+            _collect(getattr(node, name), parts)
+    elif dataclasses.is_dataclass(node) and not isinstance(node, type):
+        for field in dataclasses.fields(node):
+            _collect(getattr(node, field.name), parts)
+    elif isinstance(node, _VALUES):
+        parts.append(node)
+    else:   # an object compared by identity, as Dr.Jit compares it; not kept alive
+        parts.append((type(node).__qualname__, id(node)))
+
+
+#: Leaves compared by value (anything else by identity).
+_VALUES = (int, float, complex, str, bytes, type(None), enum.Enum)
+
+
+class Capacity:
+    """A width for a count that changes from call to call (a compaction's), that only
+    grows: padded to it, a frozen pass sees the same few widths and records once per
+    width (the module docstring). When a count exceeds it, it becomes the count plus
+    headroom, ``count / 16 + 6 sqrt(count)`` (a few times the spread measured between
+    frames, about 1.5 sqrt(count)), rounded up to a multiple of 16 lanes and at most
+    ``most``, the count's bound."""
+
+    ROUND = 16
+
+    def __init__(self) -> None:
+        self.width = 0
+
+    def fit(self, count: int, most: int) -> int:
+        """The width to pad ``count`` lanes to (``count`` <= ``most``)."""
+        if count > self.width:
+            wanted = count + count / 16 + 6 * math.sqrt(count)
+            rounded = -(-math.ceil(wanted) // self.ROUND) * self.ROUND
+            self.width = max(count, min(rounded, most))
+        return self.width
 
 
 def padded(indices: Any, width: int) -> Any:

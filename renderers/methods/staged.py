@@ -35,7 +35,7 @@ from typing import Any
 import drjit as dr
 import mitsuba as mi
 
-from renderers.frozen import Frozen, distinct_width, freezing, input_widths, padded, weak_method
+from renderers.frozen import Capacity, Frozen, freezing, padded, weak_method
 from renderers.integrators.cached import MAX_QUERY_SLOTS
 from renderers.integrators.deferred import (
     QueryBuffer,
@@ -67,19 +67,19 @@ def inference_state(cache: Any) -> dict[str, Any] | None:
 class ChannelPasses:
     """The vertex and query passes of one query channel, frozen or not.
 
-    Frozen, the compacted vertices and queries enter their pass padded
-    (renderers.frozen.distinct_width) so that their width never equals that of
-    another input (the scene's arrays, the cache's, the buffers): a pass fed a width
-    that does records again. The extra lanes repeat the last vertex or query, whose
-    work writes the same values to the same slots, so the image is unchanged."""
+    Frozen, the compacted vertices and queries enter their pass padded to a
+    :class:`renderers.frozen.Capacity` per buffer layout (a frozen call records once
+    per width it is given, so a width that changed every frame would record every
+    frame). The extra lanes repeat the last vertex or query, whose work writes the
+    same values to the same slots, so the image is unchanged."""
 
     def __init__(self, channel: QueryChannel, frozen: bool) -> None:
         self.channel, self.frozen = channel, frozen
         wrap = (lambda fn: Frozen(fn, auto_opaque=False)) if frozen else (lambda fn: fn)
         self.vertex = wrap(weak_method(self._vertex))
         self.query = wrap(weak_method(self._query))
-        #: Per buffer layout, the widths of the passes' fixed inputs.
-        self._taken: dict[tuple[int, int, int], frozenset[int]] = {}
+        #: Per buffer layout, the capacities of the vertices and of the queries.
+        self._capacity: dict[tuple[int, int, int], tuple[Capacity, Capacity]] = {}
 
     def evaluate(self, scene: mi.Scene, buffer: QueryBuffer) -> tuple[mi.Spectrum | None, int]:
         """The channel's per-lane cache sums (None: no query) and the queries evaluated."""
@@ -89,9 +89,10 @@ class ChannelPasses:
         if dr.width(vertices) == 0:
             return None, 0
         if self.frozen:
-            taken = self.widths_taken(scene, state, buffer, layout)
-            draws = self.channel.drawn_slots if buffer.key is not None else 1
-            vertices = padded(vertices, distinct_width(dr.width(vertices), taken, draws))
+            vertex_capacity, query_capacity = self._capacity.setdefault(
+                layout, (Capacity(), Capacity()))
+            vertices = padded(vertices, vertex_capacity.fit(
+                dr.width(vertices), buffer.lanes * buffer.layout.vertices))
         compact, slot = buffer.draw_lanes(self.channel, vertices)
         try:
             surface, used, direction, weight = self.vertex(
@@ -101,22 +102,13 @@ class ChannelPasses:
             if count == 0:
                 return None, 0
             if self.frozen:
-                index = padded(index, distinct_width(count, taken | {dr.width(vertices)}))
+                index = padded(index, query_capacity.fit(count, buffer.lanes
+                                                          * buffer.layout.slots))
             values = self.query(state, surface, compact_positions(buffer, vertices), index,
                                 direction, weight, buffer.beta, layout)
         finally:
             self._bind(state)   # a recording bound the cache to its own inputs
         return values, count
-
-    def widths_taken(self, scene: mi.Scene, state: dict[str, Any] | None, buffer: QueryBuffer,
-                     layout: tuple[int, int, int]) -> frozenset[int]:
-        """The widths of the passes' inputs other than the compacted ones (the scene, the
-        cache's state, the buffers, the vertex rows of ``compact_positions``): the same
-        in every frame of a layout."""
-        if layout not in self._taken:
-            self._taken[layout] = input_widths(scene, state, buffer.arrays()) | {
-                buffer.lanes * buffer.layout.vertices}
-        return self._taken[layout]
 
     def _bind(self, state: dict[str, Any] | None) -> None:
         if state is not None:

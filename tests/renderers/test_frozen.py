@@ -18,8 +18,7 @@ SCENES = ("many-lights", "sky")
 
 class OneSceneAtATime:
     """The scenes by name at 8x8, one alive at a time: a frozen call walks the objects
-    of every scene alive in the process, and a width of another scene's arrays is not
-    among those a pass pads past (renderers.frozen.input_widths)."""
+    of every scene alive in the process (and so pays for every one alive)."""
 
     def __init__(self) -> None:
         self.name: str | None = None
@@ -69,7 +68,7 @@ def test_frozen_and_unfrozen_frames_give_the_same_images(scenes, name):
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(frozen.accumulated, unfrozen.accumulated)
     # The recordings settled in the warm-up and stayed so over the timed frames (a
-    # caching frame's passes over compacted inputs too: their widths are padded).
+    # caching frame's passes over compacted inputs too: padded to a capacity).
     record = frozen.timings["frozen"]
     assert record["recordings_after_frames"] == record["recordings_after_warmup"]
     assert record["recordings_after_warmup"] >= 1
@@ -77,39 +76,83 @@ def test_frozen_and_unfrozen_frames_give_the_same_images(scenes, name):
     assert unfrozen.timings["frozen"] is None and unfrozen.timings["warmup_frames"] == 1
 
 
-@pytest.mark.parametrize("pad", [True, False])
-def test_a_changing_width_padded_past_the_inputs_widths_records_once(scenes, pad):
-    """A pass over compacted indices (a caching frame's vertices or queries) called with
-    every width from 1 to past the scene's widest array: padded past its other inputs'
-    widths (renderers.frozen.distinct_width), it records once and computes the same
-    values. Planted: unpadded, a width equal to one of the scene's arrays' (or 1)
-    records again."""
+def _sized(table, shapes, count):
+    """A pass whose output's size is a Python value (as a caching pass's buffer layout)."""
     import drjit as dr
     import mitsuba as mi
 
-    from renderers.frozen import Frozen, distinct_width, input_widths, padded
+    return dr.zeros(mi.Float, count) + dr.gather(mi.Float, table, mi.UInt32(3))
 
-    scene = scenes["many-lights"].scene
+
+def _widths(fn, counts, shapes):
+    """The widths ``fn`` returned, called with every count."""
+    import drjit as dr
+    import mitsuba as mi
+
     table = dr.arange(mi.Float, 4096)
-    taken = input_widths(scene, table)
-    assert 4096 in taken and len(taken - {0, 1, 4096}) >= 3   # the scene's arrays counted
+    widths = []
+    for count in counts:
+        out = fn(table, shapes, count)
+        dr.eval(out)
+        widths.append(dr.width(out))
+    return widths
+
+
+def test_a_frozen_call_replays_only_the_widths_and_values_it_was_recorded_with(mi):
+    """A call whose Python value (a buffer's size) equals an int met earlier in its
+    inputs: Dr.Jit alone does not compare that value (its traversal keeps a repeated
+    object as a back-reference, and CPython shares small ints) and replays the first
+    recording with its buffer size; renderers.frozen.Frozen keys every call on its
+    widths and values and records again. Planted: plain ``dr.freeze`` fails the same
+    check (the defect the key is for; scripts/drjit_defects/freeze_dedup_key.py)."""
+    import drjit as dr
+
+    from renderers.frozen import Frozen
+
+    counts, shapes = (25, 25, 40, 40, 25), (25, 40)   # ``shapes`` holds the counts' ints
     with frozen_frames(True):
-        fn = Frozen(lambda scene, table, index: dr.gather(mi.Float, table, index) * 2,
+        frozen = Frozen(_sized, auto_opaque=False)
+    assert _widths(frozen, counts, shapes) == list(counts)
+    assert frozen.recordings() == 2   # one per value, each replayed after
+    planted = dr.freeze(_sized, auto_opaque=False)
+    assert _widths(planted, counts[:3], shapes) == [25, 25, 25]   # wrong: 40
+
+
+def test_a_capacity_only_grows_with_headroom_within_its_bound():
+    from renderers.frozen import Capacity
+
+    capacity = Capacity()
+    first = capacity.fit(1000, 10**6)
+    assert first % Capacity.ROUND == 0 and 1000 + 62 + 6 * 31 <= first < 1000 + 62 + 6 * 32 + 16
+    assert capacity.fit(900, 10**6) == first == capacity.fit(first, 10**6)   # no shrink
+    assert capacity.fit(first + 1, 10**6) > first + 1
+    assert Capacity().fit(1000, 1010) == 1010   # never past the count's bound
+    assert Capacity().fit(7, 7) == 7
+
+
+@pytest.mark.parametrize("pad", [True, False])
+def test_a_pass_over_a_changing_count_padded_to_a_capacity_records_once(mi, pad):
+    """A pass over compacted indices (a caching frame's vertices or queries) called with
+    counts that vary as between frames (1000 +- 5 %): padded to a Capacity it records
+    once and computes the right values; planted: unpadded, every new count records."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from renderers.frozen import Capacity, Frozen, padded
+
+    table = dr.arange(mi.Float, 4096)
+    with frozen_frames(True):
+        fn = Frozen(lambda table, index: dr.gather(mi.Float, table, index) * 2,
                     auto_opaque=False)
-
-    def call(width: int) -> None:
-        index = dr.compress(dr.arange(mi.UInt32, 3 * width) % 3 == 0)   # 0, 3, 6, ...
+    capacity = Capacity()
+    rng = np.random.default_rng(1)
+    for width in [1000, *rng.integers(950, 1051, size=30)]:
+        index = dr.compress(dr.arange(mi.UInt32, 3 * int(width)) % 3 == 0)   # 0, 3, ...
         if pad:
-            index = padded(index, distinct_width(width, taken))
-        values = fn(scene, table, index)
+            index = padded(index, capacity.fit(int(width), 4096))
+        values = fn(table, index)
         np.testing.assert_array_equal(values.numpy()[:width], 6 * np.arange(width))
-
-    for _ in range(2):   # the warm-up: a frozen function records again on its second call
-        call(1000)
-    settled = fn.recordings()
-    for width in range(1, max(w for w in taken if w < 4096) + 2):
-        call(width)
-    assert (fn.recordings() == settled) == pad
+    assert (fn.recordings() == 1) == pad
 
 
 def test_a_python_value_the_frame_reads_and_changes_is_caught(scenes):
