@@ -340,7 +340,8 @@ def summarize(frames: Sequence[FrameTime], warmup: Warmup,
 def pooled(seed_timings: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """One summary over the timed frames of several seeds (each a :func:`summarize`
     result), so that a run's frame time, stages and breakdown come from one statistic
-    over the same frames. Warm-up and compilation are the first seed's; the load is
+    over the same frames. Warm-up, compilation and the frozen functions' recordings
+    are the first seed's (every seed's recordings in ``frozen_seeds``); the load is
     flagged when any seed's was."""
     frames = [FrameTime.from_json(f) for t in seed_timings for f in t["frames_detail"]]
     first = seed_timings[0]
@@ -348,6 +349,7 @@ def pooled(seed_timings: Sequence[dict[str, Any]]) -> dict[str, Any]:
                         merge_loads([t.get("load") for t in seed_timings]))
     del summary["frames_detail"], summary["per_frame"]   # kept per seed
     summary["frozen"] = first.get("frozen")
+    summary["frozen_seeds"] = [t.get("frozen") for t in seed_timings]
     return summary
 
 

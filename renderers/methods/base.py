@@ -288,6 +288,8 @@ class WithParts:
         recorded = [*self.frozen, *self.counted]
         if recorded:
             self.recordings = lambda: sum(part.recordings() for part in recorded)
+            self.growth_recordings = lambda: sum(growth_recordings(part)
+                                                 for part in self.frozen)
 
     def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
         return self.frame(index, seed, timer)
@@ -297,6 +299,13 @@ class WithParts:
             part(index, seed, timer)
         for counted in self.counted:
             counted.settle()
+
+
+def growth_recordings(frame: Any) -> int:
+    """Recordings a frame function made in frames whose buffers grew (0: it has none
+    that grow): a caching frame's passes record anew for a larger buffer layout."""
+    count = getattr(frame, "growth_recordings", 0)
+    return count() if callable(count) else count
 
 
 def render_stage(scene: Any, integrator: Any, spp: int) -> FrameFn:
@@ -397,6 +406,7 @@ def run_frames(
         if hooks.warmup:
             warmup = _warm_up(render_frame, seed_parts, recordings)
         settled = recordings() if recordings else None
+        grown = growth_recordings(render_frame)
 
         accumulated: np.ndarray | None = None
         path_stats = PathStats(aov_names)
@@ -425,7 +435,9 @@ def run_frames(
     timings = summarize(timed, warmup, load.result())
     timings["frozen"] = None if recordings is None else {
         "recordings_after_warmup": settled, "recordings_after_frames": recordings(),
-        "warmup_frames": warmup.frames}
+        "warmup_frames": warmup.frames,
+        # Of the recordings after the warm-up, those of frames whose buffers grew.
+        "recordings_for_growth": growth_recordings(render_frame) - grown}
     return RenderOutput(
         accumulated=accumulated,
         frames=kept if hooks.keep_frames else None,

@@ -90,7 +90,7 @@ class ChannelPasses:
             return None, 0
         if self.frozen:
             vertex_capacity, query_capacity = self._capacity.setdefault(
-                layout, (Capacity(), Capacity()))
+                layout, (Capacity(buffer.lanes), Capacity(buffer.lanes)))
             vertices = padded(vertices, vertex_capacity.fit(
                 dr.width(vertices), buffer.lanes * buffer.layout.vertices))
         compact, slot = buffer.draw_lanes(self.channel, vertices)
@@ -149,6 +149,9 @@ class StagedRender:
         self.splat = wrap(weak_method(self._splat))
         self.channels = [ChannelPasses(channel, frozen)
                          for channel in integrator.query_channels()]
+        #: Recordings made in frames whose buffers grew (a lane had more cache vertices
+        #: than any before): new layouts record every pass anew, by design.
+        self.growth_recordings = 0
 
     def recordings(self) -> int | None:
         frozen = [self.trace, self.splat, *(f for c in self.channels for f in (c.vertex, c.query))]
@@ -167,6 +170,7 @@ class StagedRender:
                 synchronize(image)
             return image
         state = integrator.frame_state(scene)
+        recordings_before, grew = self.recordings(), False
         with timer.stage("render"):
             while True:
                 image, recorded = self.trace(scene, mi.UInt32(seed), state,
@@ -176,7 +180,7 @@ class StagedRender:
                 if all(n <= layout.vertices for n, layout in zip(needed, layouts, strict=True)):
                     break
                 # Some lane had more cache vertices than slots: trace again with room.
-                layouts = integrator.grow_layouts(channels, needed)
+                layouts, grew = integrator.grow_layouts(channels, needed), True
             synchronize(image)
         with timer.stage("inference"):
             total, queries = None, 0
@@ -193,6 +197,8 @@ class StagedRender:
             synchronize(image)
         integrator.query_counts.append(
             QueryCount(queries, self.lanes, sum(layout.slots for layout in layouts)))
+        if grew and recordings_before is not None:
+            self.growth_recordings += self.recordings() - recordings_before
         return image
 
     def _trace(self, scene: mi.Scene, seed: mi.UInt32, state: dict[str, Any],

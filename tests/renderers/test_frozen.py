@@ -121,13 +121,14 @@ def test_a_frozen_call_replays_only_the_widths_and_values_it_was_recorded_with(m
 def test_a_capacity_only_grows_with_headroom_within_its_bound():
     from renderers.frozen import Capacity
 
-    capacity = Capacity()
+    capacity = Capacity(lanes=1024)   # headroom 1/16 + 5/32
     first = capacity.fit(1000, 10**6)
-    assert first % Capacity.ROUND == 0 and 1000 + 62 + 6 * 31 <= first < 1000 + 62 + 6 * 32 + 16
+    assert first % Capacity.ROUND == 0 and 1219 <= first < 1219 + Capacity.ROUND
     assert capacity.fit(900, 10**6) == first == capacity.fit(first, 10**6)   # no shrink
     assert capacity.fit(first + 1, 10**6) > first + 1
-    assert Capacity().fit(1000, 1010) == 1010   # never past the count's bound
-    assert Capacity().fit(7, 7) == 7
+    assert Capacity(16384).fit(10**5, 10**6) < Capacity(1024).fit(10**5, 10**6)
+    assert Capacity(1024).fit(1000, 1010) == 1010   # never past the count's bound
+    assert Capacity(1024).fit(7, 7) == 7
 
 
 @pytest.mark.parametrize("pad", [True, False])
@@ -144,7 +145,7 @@ def test_a_pass_over_a_changing_count_padded_to_a_capacity_records_once(mi, pad)
     with frozen_frames(True):
         fn = Frozen(lambda table, index: dr.gather(mi.Float, table, index) * 2,
                     auto_opaque=False)
-    capacity = Capacity()
+    capacity = Capacity(lanes=1024)
     rng = np.random.default_rng(1)
     for width in [1000, *rng.integers(950, 1051, size=30)]:
         index = dr.compress(dr.arange(mi.UInt32, 3 * int(width)) % 3 == 0)   # 0, 3, ...
