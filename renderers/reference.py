@@ -16,13 +16,13 @@ By default references use Mitsuba's built-in ``path`` integrator, independent of
 the code under test (our ``pt`` is tested for agreement with it).
 
 Mean and variance are accumulated in float64 and kept as float32, the precision
-they are stored in (EXR). A value beyond float32's range (about 3.4e38: the
-variance of the mean where an emitter of radiance 1e30 is seen is about 1e60) is
-kept as an infinity of its sign, on purpose and without a cast that overflows:
-its readers take it as "overflowed" (the run's quality verdict says so, the
-error metrics leave the pixel out, the stress suite's agreement cannot test it),
-where a finite clamp at the float32 maximum would understate it by ~20 orders of
-magnitude and let the metrics compute on it.
+they are stored in (EXR). A value beyond float32's range (about 3.4e38; where an
+emitter of radiance 1e30 lights a pixel, the variance of its mean is 1e51 to
+1e57) is kept as an infinity of its sign, on purpose and without a cast that
+overflows: its readers take it as "overflowed" (the run's quality verdict says
+so, the error metrics leave the pixel out, the stress suite's agreement cannot
+test it), where a finite clamp at the float32 maximum would understate it by up
+to ~19 orders of magnitude and let the metrics compute on it.
 """
 
 from __future__ import annotations

@@ -73,8 +73,8 @@ def test_split_half_floor_matches_the_variance_image(scene):
 
 
 def test_a_variance_beyond_float32_is_infinite_without_an_overflowing_cast(mi):
-    """Where a 1e30 emitter lights the floor, the variance of the pixel's mean (~1e58)
-    exceeds float32's 3.4e38: it is kept as +inf, which the readers take as overflowed,
+    """Where a 1e30 emitter lights the floor, the variance of the pixel's mean (up to
+    ~1e55) exceeds float32's 3.4e38: it is kept as +inf, which the readers take as overflowed,
     the mean stays finite, and no cast overflows (a RuntimeWarning before)."""
     scene = mi.load_string(BLINDING)
     with warnings.catch_warnings():
