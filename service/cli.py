@@ -1,8 +1,11 @@
 """The ``nirc-bench`` command line (Typer).
 
 Embedded by default: the SQLite database and artifacts live in the data folder
-(``./data``, or ``NIRC_BENCH_DATA_DIR`` / ``--data-dir``), and jobs run in this
-process through the same executor the service workers use.
+(``./data``, or ``NIRC_BENCH_DATA_DIR`` / ``--data-dir``), and jobs run through the
+same executor the service workers use: ``render`` as the service runs a job, in a
+render process of its own (jobs/execution/embedded.py), so that a native crash fails
+the job with a record instead of killing the command; the other commands in this
+process.
 
 Errors a user can cause (unknown scene, malformed XML, bad numbers, a corrupt
 EXR, no usable libLLVM, ...) print one line and exit with status 2; anything
@@ -148,8 +151,9 @@ def _run(server: str | None, api_key: str | None, kind: str, spec: Any, as_json:
 
 def _run_embedded(job: Callable[[Any, Any, Any], Any], data_dir: Path | None, as_json: bool,
                   to_json: Callable[[Any], Any], table: Callable[[Any], Any]) -> Any:
-    """Run ``job(store, settings, progress)`` in this process and print its result
-    (JSON, or the table; progress bars unless JSON)."""
+    """Run ``job(store, settings, progress)`` here (``render``'s job hands its render to
+    a render process of its own) and print its result (JSON, or the table; progress
+    bars unless JSON)."""
     settings = open_settings(data_dir)
     store = open_store(settings)
     with progress_reporter(console, quiet=as_json) as report:
@@ -330,8 +334,9 @@ def render(
 ) -> None:
     """Render a method over K seeds, compare with the reference, store the run. A run of
     the same spec stored by the same commit, estimator version and device is reused
-    (and said so) unless --rerun."""
-    from jobs.protocol.executor import execute
+    (and said so) unless --rerun. The render runs in a process of its own: if it
+    crashes, the job is stored as failed with the signal and the stage it was in."""
+    from jobs.execution.embedded import RenderFailed, render_here
     from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
 
@@ -356,16 +361,22 @@ def render(
                          "--server, label it there (`nirc-bench runs tag` on its machine)")
 
     def job(store: Any, settings: Any, report: Any) -> Any:
-        summary = execute(RenderJob.parse(spec), store, settings, progress=report, out_dir=out,
-                          reuse=not rerun)
+        summary = render_here(RenderJob.parse(spec), store, settings, report, reuse=not rerun,
+                              out_dir=out)
         if name is not None or tags:
             stored = store.label_run(summary.run_id, name=name, set_tags=tags)
             summary.result = summary.result.model_copy(
                 update={"name": stored.name, "tags": stored.tags})
         return summary
 
-    _run(server, api_key, "render", spec, as_json, data_dir, job,
-         lambda s: s.to_json(), render_tables, out)
+    try:
+        _run(server, api_key, "render", spec, as_json, data_dir, job,
+             lambda s: s.to_json(), render_tables, out)
+    except RenderFailed as err:
+        if err.user_error:
+            raise UsageError(str(err)) from None
+        err_console.print(f"nirc-bench: {err}", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(1) from None
     if out is not None and not as_json:
         console.print(f"images and summary.json written to {out}")
 

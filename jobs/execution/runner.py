@@ -3,14 +3,19 @@
 A render can take the process down with it (a Dr.Jit/LLVM abort, a leak), so
 jobs never run in the worker itself but in a child process — a new interpreter
 (``python -m jobs.execution.runner --serve FD``; spawned, not forked: nothing of the
-parent's JIT state is inherited) that reads job ids on stdin and answers each
-with a status line on a pipe of its own, file descriptor FD. Its stdout and
+parent's JIT state is inherited) that reads job ids on stdin (``ID``, or ``ID reuse``:
+a run of the same spec stored earlier may be the result, ``execute``'s ``reuse``) and
+answers each with a status line on a pipe of its own, file descriptor FD, after
+progress lines (``progress DONE TOTAL STAGE``, at most every
+``PIPE_PROGRESS_INTERVAL_S`` but for a new or finished stage), which tell the parent
+the stage a dying child was in. Its stdout and
 stderr go to its log file: Mitsuba's log, warnings included, and anything a
 library prints land there and can never be read as a status. Starting Python + Mitsuba + the JIT costs seconds, so a healthy
 child serves further jobs (at most ``MAX_JOBS_PER_CHILD``, then it is
 replaced, so a slow leak cannot grow without bound); any failure retires it.
-The parent — a Dask task in the service, or a test — claims the job, hands it
-to the child and watches:
+The parent — a Dask task in the service, the CLI's own render
+(jobs/execution/embedded.py), or a test — claims the job, hands it to the child and
+watches:
 
 * status 0: the child stored the result and marked the job succeeded;
 * status 3: the job's input is wrong (unknown scene, bad parameters) or its
@@ -27,7 +32,8 @@ to the child and watches:
   times out or is canceled (the parent kills the child): the attempt failed;
   the job goes back to the queue until ``max_attempts``. A child that exits on
   its own is given time to finish exiting, so its real exit status is reported
-  (never "killed by SIGKILL" for a process that was already ending).
+  (never "killed by SIGKILL" for a process that was already ending), with the
+  stage it last reported ("killed by SIGABRT during stage 'seed 2/4' (3/16)").
 
 The runner itself survives its database failing under it. A heartbeat that
 cannot be written is retried while the lease lasts; once a whole lease has passed
@@ -58,8 +64,9 @@ import tempfile
 import threading
 import time
 import traceback
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, TextIO
 
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
@@ -80,6 +87,10 @@ DEFERRED = "deferred"
 EXIT_GRACE_S = 5.0
 #: Seconds between progress writes to the database.
 PROGRESS_INTERVAL_S = 1.0
+#: Seconds between progress lines on the status pipe within one stage.
+PIPE_PROGRESS_INTERVAL_S = 0.1
+#: The first word of a progress line on the status pipe.
+PROGRESS_LINE = "progress"
 #: Jobs a child serves before it is replaced by a fresh one.
 MAX_JOBS_PER_CHILD = 100
 #: The Mitsuba variant a job's device class renders with (renderers/backend.py).
@@ -92,19 +103,35 @@ _DASK_WORKER_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_TH
 _ANSI_COLOR = re.compile(r"\x1b\[[0-9;]*m")
 
 
+@dataclass(frozen=True)
+class Follow:
+    """What a caller that waits on its job itself (the CLI's own render) gets besides
+    the final status, and asks of the render."""
+
+    #: Each progress report of the render, as the render process makes it.
+    progress: Callable[[str, int, int], None] | None = None
+    #: Each attempt's end: the render process's status, or -1 when it died or was
+    #: stopped, and why the attempt failed.
+    attempt: Callable[[int, str], None] | None = None
+    #: A run of the same spec stored earlier may be the result (``execute``'s reuse).
+    reuse: bool = False
+
+
 def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | None = None,
-            poll_s: float = 1.0, upstream: Sequence[str] = ()) -> str:
+            poll_s: float = 1.0, upstream: Sequence[str] = (),
+            follow: Follow = Follow()) -> str:
     """Claim and run ``job_id`` until it succeeds, fails for good or is canceled.
 
     ``upstream``: the final statuses of the stages this job needs (a sweep's task
     graph); if one did not succeed, the job is abandoned without running.
     Returns the job's final status (or its current one if another worker has it),
-    or :data:`DEFERRED` when it is left to be dispatched again.
+    or :data:`DEFERRED` when it is left to be dispatched again. An interrupt
+    (Ctrl-C) kills the render process and cancels the job before it is raised on.
     """
     store = open_store(settings)
     queue = JobQueue(store)
     try:
-        return _run(queue, job_id, settings, worker, timeout_s, poll_s, upstream)
+        return _run(queue, job_id, settings, worker, timeout_s, poll_s, upstream, follow)
     except Exception as err:
         if storage_failure(err) is None:
             raise
@@ -115,7 +142,8 @@ def run_job(job_id: int, settings: Settings, *, worker: str, timeout_s: float | 
 
 
 def _run(queue: JobQueue, job_id: int, settings: Settings, worker: str,
-         timeout_s: float | None, poll_s: float, upstream: Sequence[str]) -> str:
+         timeout_s: float | None, poll_s: float, upstream: Sequence[str],
+         follow: Follow) -> str:
     lease_s = settings.job_lease_s
     if DEFERRED in upstream:
         return DEFERRED
@@ -144,9 +172,16 @@ def _run(queue: JobQueue, job_id: int, settings: Settings, worker: str,
             time.sleep(poll_s)
             continue
         child = _child_for(settings, claimed.device_class)
-        status, reason = child.run(job_id, queue,
-                                   _timeout_of(claimed, settings, timeout_s, queue.store),
-                                   poll_s, lease_s)
+        try:
+            status, reason = child.run(job_id, queue,
+                                       _timeout_of(claimed, settings, timeout_s, queue.store),
+                                       poll_s, lease_s, follow)
+        except KeyboardInterrupt:
+            queue.cancel(job_id)
+            queue.fail(job_id, child.close("interrupted (Ctrl-C) while running"), retry=False)
+            raise
+        if follow.attempt:
+            follow.attempt(status, reason)
         if status in (0, EXIT_JOB_FAILED):
             return queue.get(job_id).status
         storage = status == EXIT_STORAGE
@@ -185,6 +220,11 @@ def _timeout_of(job: Any, settings: Settings, timeout_s: float | None, store: An
 class _Child:
     """One render process serving jobs over a line protocol (see the module doc)."""
 
+    #: The stage the current job last reported: (stage, done, total).
+    stage: tuple[str, int, int] | None = None
+    #: What was read of the status pipe after its last complete line.
+    pending: bytes = b""
+
     def __init__(self, settings: Settings, device_class: str) -> None:
         self.settings = settings
         self.device_class = device_class
@@ -197,7 +237,8 @@ class _Child:
         # The log is a file, not a pipe: a chatty child must never block on it.
         self.log = tempfile.TemporaryFile("w+")
         status_read, status_write = os.pipe()
-        self.status = os.fdopen(status_read, "r")
+        # Unbuffered: a line read ahead into a buffer would be invisible to select().
+        self.status = os.fdopen(status_read, "rb", buffering=0)
         try:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "jobs.execution.runner", "--serve", str(status_write)], env=env,
@@ -212,27 +253,35 @@ class _Child:
                 == (self.settings.data_dir, self.settings.database_url, self.device_class))
 
     def run(self, job_id: int, queue: JobQueue, timeout_s: float | None, poll_s: float,
-            lease_s: float) -> tuple[int, str]:
+            lease_s: float, follow: Follow = Follow()) -> tuple[int, str]:
         """Run one attempt; returns (status, reason if the attempt failed): the child's
-        status, or -1 when it died or was stopped."""
+        status, or -1 when it died or was stopped. The lease is renewed, and the
+        timeout and a cancel looked for, every ``poll_s`` however often the child
+        reports progress."""
         self.jobs += 1
+        self.stage = None
         try:
-            self.proc.stdin.write(f"{job_id}\n")
+            self.proc.stdin.write(f"{job_id}{' reuse' if follow.reuse else ''}\n")
             self.proc.stdin.flush()
         except BrokenPipeError:
             return -1, self.close("the render process was gone before the job started")
-        started = last_beat = time.monotonic()
+        started = last_beat = next_check = time.monotonic()
         while True:
-            ready, _, _ = select.select([self.status], [], [], poll_s)
+            ready, _, _ = select.select([self.status], [], [],
+                                        max(0.0, next_check - time.monotonic()))
             if ready:
-                line = self.status.readline()
-                if not line:                     # EOF: the child died mid-job
+                chunk = self.status.read(1 << 16)
+                if not chunk:                    # EOF: the child died mid-job
                     return -1, self.close(ended=True)
-                code, _, reason = line.strip().partition(" ")
-                # A storage failure leaves the child healthy: it serves the next job.
-                if int(code) not in (0, EXIT_STORAGE):
-                    self.close()
-                return int(code), reason
+                self.pending += chunk
+                while b"\n" in self.pending:
+                    line, _, self.pending = self.pending.partition(b"\n")
+                    answer = self._answer(line.decode(errors="replace"), follow)
+                    if answer is not None:
+                        return answer
+            if time.monotonic() < next_check:
+                continue
+            next_check = time.monotonic() + poll_s
             try:
                 queue.heartbeat(job_id)
                 canceled = queue.cancel_requested(job_id)
@@ -250,6 +299,21 @@ class _Child:
                 return -1, self.close(f"timed out after {timeout_s:g} s (attempt killed)")
             if canceled:
                 return -1, self.close("canceled while running")
+
+    def _answer(self, line: str, follow: Follow) -> tuple[int, str] | None:
+        """A progress line noted (and passed to ``follow.progress``), or the job's
+        status line as (status, reason)."""
+        word, _, rest = line.strip().partition(" ")
+        if word == PROGRESS_LINE:
+            done, total, stage = rest.split(" ", 2)
+            self.stage = stage, int(done), int(total)
+            if follow.progress:
+                follow.progress(*self.stage)
+            return None
+        # A storage failure leaves the child healthy: it serves the next job.
+        if int(word) not in (0, EXIT_STORAGE):
+            self.close()
+        return int(word), rest
 
     def close(self, reason: str | None = None, *, ended: bool = False) -> str:
         """Retire the child (killing it if needed); returns why the attempt failed.
@@ -279,6 +343,9 @@ class _Child:
             what = f"the render process was killed by {name}"
         else:
             what = f"the render process exited with status {exitcode}"
+        if self.stage is not None:
+            stage, done, total = self.stage
+            what += f" during stage '{stage}' ({done}/{total})"
         return f"{what}: {tail[-1]}" if tail else what
 
 
@@ -310,9 +377,11 @@ def die_with_parent() -> None:
 # The child process
 # ---------------------------------------------------------------------------
 
-def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict[str, Any]:
+def execute_job(job: Any, store: Any, settings: Settings, progress: Any,
+                reuse: bool = False) -> dict[str, Any]:
     """Run a job's spec through the one executor; returns what ``JobQueue.succeed``
-    records: the result ids, or a stage's work counters."""
+    records: the result ids, and a stage's work counters or a render's (whether its
+    reference was rendered now, and whether its run is one stored earlier: ``reuse``)."""
     from jobs.protocol.executor import execute
     from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import SweepSpec
@@ -331,17 +400,27 @@ def execute_job(job: Any, store: Any, settings: Settings, progress: Any) -> dict
     if stored is not None:  # an earlier attempt stored it, then died
         return {"run_id": stored.id}
     summary = execute(RenderJob.parse(job.spec), store, settings, progress=progress,
-                      idempotency_key=key)
-    return {"run_id": summary.run_id}
+                      idempotency_key=key, reuse=reuse)
+    return {"run_id": summary.run_id,
+            "work": {"reference_rendered": int(summary.reference.get("rendered_now", False)),
+                     "run_reused": int(summary.reused)}}
 
 
-def _throttled(queue: JobQueue, job_id: int):
-    last = [0.0]
+def _reporter(queue: JobQueue, job_id: int, pipe: TextIO | None):
+    """report(stage, done, total): to the job's row at most every PROGRESS_INTERVAL_S
+    (and when a stage finishes), and as a progress line on ``pipe`` at most every
+    PIPE_PROGRESS_INTERVAL_S (and when a stage starts or finishes)."""
+    stored, sent = [0.0], [0.0, ""]
 
     def report(stage: str, done: int, total: int) -> None:
         now = time.monotonic()
-        if now - last[0] >= PROGRESS_INTERVAL_S or done == total:
-            last[0] = now
+        if pipe is not None and (stage != sent[1] or done == total
+                                 or now - sent[0] >= PIPE_PROGRESS_INTERVAL_S):
+            sent[:] = now, stage
+            pipe.write(f"{PROGRESS_LINE} {done} {total} {' '.join(stage.split())}\n")
+            pipe.flush()
+        if now - stored[0] >= PROGRESS_INTERVAL_S or done == total:
+            stored[0] = now
             try:
                 queue.set_progress(job_id, stage, done, total)
             except Exception as err:
@@ -353,14 +432,16 @@ def _throttled(queue: JobQueue, job_id: int):
     return report
 
 
-def run_one(job_id: int, store: Any, settings: Settings) -> int:
-    """Run a claimed job, store the result, mark it; returns its status code."""
+def run_one(job_id: int, store: Any, settings: Settings, pipe: TextIO | None = None,
+            reuse: bool = False) -> int:
+    """Run a claimed job, store the result, mark it; returns its status code. Progress
+    goes to the job's row and, as progress lines, to ``pipe`` (the status pipe)."""
     queue = JobQueue(store)
     job = queue.get(job_id)
     if job is None or job.status != JobStatus.RUNNING.value:
         return EXIT_JOB_FAILED
     try:
-        result = execute_job(job, store, settings, _throttled(queue, job_id))
+        result = execute_job(job, store, settings, _reporter(queue, job_id, pipe), reuse)
     # Bad input, or a device class this worker cannot render: the same on every attempt.
     except (ValueError, FileNotFoundError, BackendError) as err:
         queue.fail(job_id, f"{type(err).__name__}: {err}", retry=False)
@@ -371,7 +452,8 @@ def run_one(job_id: int, store: Any, settings: Settings) -> int:
 
 def serve(status_fd: int) -> int:
     """Child entry point: run the job ids read from stdin, one status line each on
-    ``status_fd`` (nothing else writes there; stdout is the log).
+    ``status_fd``, after the job's progress lines (nothing else writes there; stdout is
+    the log).
 
     A storage failure (a full disk, a file size limit, the database locked) is
     answered ``4 <cause>`` on the status pipe: the log may be on the full disk
@@ -383,8 +465,10 @@ def serve(status_fd: int) -> int:
     store = open_store(settings)
     with os.fdopen(status_fd, "w") as status_out:
         for line in sys.stdin:
+            job_id, *flags = line.split()
             try:
-                answer = str(run_one(int(line), store, settings))
+                answer = str(run_one(int(job_id), store, settings, status_out,
+                                     reuse="reuse" in flags))
             except Exception as err:  # noqa: BLE001 - reported, then exit
                 if storage_failure(err) is not None:
                     answer = f"{EXIT_STORAGE} {describe(err)}"

@@ -486,6 +486,8 @@ def execute(
     rendered = []
     for seed in range(spec.seed_start, spec.seed_start + spec.seeds):
         label = f"seed {seed + 1 - spec.seed_start}/{spec.seeds}"
+        if progress:    # the stage starts (a cache's training comes before its frames)
+            progress(label, 0, spec.frames)
         rendered.append(render_seed(
             lambda hooks, seed=seed: method.render(
                 prepared.scene, params,

@@ -40,7 +40,8 @@ class JobOut(BaseModel):
     sweep_id: int | None
     parent_id: int | None
     work: dict[str, int] | None = Field(
-        None, description="a stage job's work: what it rendered and what it found stored")
+        None, description="a stage job's work: what it rendered and what it found stored; "
+                          "a render job's: reference_rendered and run_reused (0 or 1)")
     created_at: datetime
     started_at: datetime | None
     finished_at: datetime | None

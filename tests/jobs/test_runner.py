@@ -15,7 +15,7 @@ import psutil
 import pytest
 
 from jobs.execution.queue import JobQueue
-from jobs.execution.runner import _Child, run_job
+from jobs.execution.runner import Follow, _Child, run_job
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
@@ -50,6 +50,27 @@ def test_a_job_runs_in_a_child_and_stores_its_run(store, settings):
     run = store.get_run(done.run_id)
     assert run.idempotency_key == f"job-{job.id}" and run.seeds == 2
     assert done.progress["done"] == done.progress["total"]
+
+
+def test_its_caller_follows_the_progress_and_may_take_a_stored_run(store, settings,
+                                                                     monkeypatch):
+    """The render process's progress reaches the caller stage by stage, each seed from its
+    start; with reuse, a second job of the spec is answered with the first one's run."""
+    monkeypatch.setenv("NIRC_BENCH_GIT_COMMIT", "0123456789abcdef")    # clean: reusable
+    queue = JobQueue(store)
+    reports: list[tuple[str, int, int]] = []
+    first = _submit(queue, SPEC.model_dump(mode="json"), "first")
+    assert run_job(first.id, settings, worker="test",
+                   follow=Follow(progress=lambda *report: reports.append(report))) == "succeeded"
+    seeds = [report for report in reports if report[0].startswith("seed")]
+    assert seeds[0] == ("seed 1/2", 0, 2) and seeds[-1] == ("seed 2/2", 2, 2)
+    assert ("seed 2/2", 0, 2) in seeds and reports[0][0] == "reference"
+    assert queue.get(first.id).work == {"reference_rendered": 1, "run_reused": 0}
+    second = _submit(queue, SPEC.model_dump(mode="json"), "second")
+    assert run_job(second.id, settings, worker="test", follow=Follow(reuse=True)) == "succeeded"
+    done = queue.get(second.id)
+    assert done.run_id == queue.get(first.id).run_id
+    assert done.work == {"reference_rendered": 0, "run_reused": 1}
 
 
 def test_bad_input_fails_once_with_the_message(store, settings):
