@@ -79,17 +79,17 @@ def render_here(job: RenderJob, store: Store, settings: Settings,
     row, _ = queue.submit("render", spec.model_dump(mode="json"),
                           f"{spec_key('render', spec, devices)}:embedded:{uuid.uuid4().hex}",
                           device_class=devices, max_attempts=1)
-    codes: list[int] = []
+    attempts: list[tuple[int, str]] = []
     status = run_job(row.id, settings, worker=f"cli-{os.getpid()}@{socket.gethostname()}",
                      timeout_s=math.inf,
                      follow=Follow(progress=progress, reuse=reuse,
-                                   attempt=lambda code, _reason: codes.append(code)))
+                                   attempt=lambda code, reason: attempts.append((code, reason))))
     if status == DEFERRED:      # back in the queue (a storage failure): nothing would run it
         status = queue.abandon(row.id, queue.get(row.id).error or "not run")
     done = queue.get(row.id)
     if status != JobStatus.SUCCEEDED.value:
-        if codes == [EXIT_JOB_FAILED]:
-            raise RenderFailed(str(done.error), user_error=True)
+        if [code for code, _ in attempts] == [EXIT_JOB_FAILED]:
+            raise RenderFailed(attempts[0][1], user_error=True)  # the error's own message
         raise RenderFailed(f"render failed: {done.error}; the job is stored as {status} "
                            f"(job {row.id})", user_error=False)
     run = store.get_run(done.run_id)

@@ -20,8 +20,8 @@ watches:
 * status 0: the child stored the result and marked the job succeeded;
 * status 3: the job's input is wrong (unknown scene, bad parameters) or its
   device class cannot render here (a GPU job on a worker without a usable
-  GPU): the child marked it failed with the message; retrying would fail the
-  same way;
+  GPU): the child marked it failed with the message (the line carries it too, for
+  a caller that shows it); retrying would fail the same way;
 * status 4: the child could not write the data folder or the database (disk
   full, a file size limit, the database locked past its timeout); the line
   carries the cause. The job goes back to the queue without using up an attempt
@@ -433,21 +433,22 @@ def _reporter(queue: JobQueue, job_id: int, pipe: TextIO | None):
 
 
 def run_one(job_id: int, store: Any, settings: Settings, pipe: TextIO | None = None,
-            reuse: bool = False) -> int:
-    """Run a claimed job, store the result, mark it; returns its status code. Progress
-    goes to the job's row and, as progress lines, to ``pipe`` (the status pipe)."""
+            reuse: bool = False) -> str:
+    """Run a claimed job, store the result, mark it; returns its status line: the code,
+    and for bad input the message (one line). Progress goes to the job's row and, as
+    progress lines, to ``pipe`` (the status pipe)."""
     queue = JobQueue(store)
     job = queue.get(job_id)
     if job is None or job.status != JobStatus.RUNNING.value:
-        return EXIT_JOB_FAILED
+        return str(EXIT_JOB_FAILED)
     try:
         result = execute_job(job, store, settings, _reporter(queue, job_id, pipe), reuse)
     # Bad input, or a device class this worker cannot render: the same on every attempt.
     except (ValueError, FileNotFoundError, BackendError) as err:
         queue.fail(job_id, f"{type(err).__name__}: {err}", retry=False)
-        return EXIT_JOB_FAILED
+        return f"{EXIT_JOB_FAILED} {' '.join(str(err).split())}"
     queue.succeed(job_id, **result)
-    return 0
+    return "0"
 
 
 def serve(status_fd: int) -> int:
@@ -467,8 +468,8 @@ def serve(status_fd: int) -> int:
         for line in sys.stdin:
             job_id, *flags = line.split()
             try:
-                answer = str(run_one(int(job_id), store, settings, status_out,
-                                     reuse="reuse" in flags))
+                answer = run_one(int(job_id), store, settings, status_out,
+                                 reuse="reuse" in flags)
             except Exception as err:  # noqa: BLE001 - reported, then exit
                 if storage_failure(err) is not None:
                     answer = f"{EXIT_STORAGE} {describe(err)}"

@@ -58,6 +58,7 @@ def test_a_method_that_does_not_apply_is_refused_before_its_reference(tmp_path):
                    "8", "--ref-spp", "64", data_dir=tmp_path)
     assert_clean_error(proc, "grid-cache", "does not apply", "glossy")
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert proc.stderr.startswith("nirc-bench: error: method 'grid-cache' does not apply")
     assert not list((tmp_path / "references").glob("*.exr"))
 
 
