@@ -6,6 +6,7 @@ themselves go to a service with ``--server``, which stores them like any job.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +41,8 @@ class CiOptions:
     data_dir: Path | None
     server: str | None
     api_key: str | None
+    #: Run the suite's soak (``[soak]``) after the gate (embedded runs only).
+    soak: bool = True
 
 
 def embedded_runner(data_dir: Path | None) -> tuple[Runner, Store]:
@@ -101,10 +104,38 @@ def run_ci(options: CiOptions, console: Console, err_console: Console) -> int:
     result = run_suite(suite, runner, source, suite_name=str(options.suite),
                        baseline_name=name, seed_start=options.seed_start, progress=progress)
     text = markdown(result)
+    soak_problems: list[str] = []
+    if suite.soak is not None and options.soak and store is not None:
+        soak_text, soak_problems = run_soak_of(suite.soak, store, options.data_dir, progress)
+        text += "\n\n" + soak_text
     console.print(text, markup=False, highlight=False, soft_wrap=True)
     for path, content in ((options.summary, text), (options.junit, junit(result))):
         if path is not None:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(content)
     err_console.print(f"nirc-bench ci: {headline(result)}", markup=False, highlight=False)
-    return result.exit_code
+    for problem in soak_problems:
+        err_console.print(f"nirc-bench ci: soak: {problem}", markup=False, highlight=False,
+                          soft_wrap=True)
+    return max(result.exit_code, 1 if soak_problems else 0)
+
+
+def run_soak_of(wanted: dict[str, int], store: Store, data_dir: Path | None,
+                progress: Callable[[str], None]) -> tuple[str, list[str]]:
+    """The suite's soak (jobs.stress.soak) through the CLI's own render: its table and
+    its problems."""
+    from pydantic import ValidationError
+
+    from jobs.execution.embedded import render_here
+    from jobs.protocol.scene_store import builtin_features
+    from jobs.record.config import Settings
+    from jobs.stress.soak import SoakSettings, markdown_table, run_soak
+
+    try:
+        settings = SoakSettings(**wanted)
+    except ValidationError as err:
+        raise CiError(f"the suite's [soak]: {err.errors()[0]['msg']}") from None
+    paths = Settings(data_dir=data_dir) if data_dir else Settings()
+    report = run_soak(lambda job: render_here(job, store, paths), builtin_features, settings,
+                      progress=lambda what: progress(f"soak: {what}"))
+    return markdown_table(report), report.problems()

@@ -640,19 +640,23 @@ def ci(
     summary: Annotated[Path | None, typer.Option(
         "--summary", help="also write the Markdown summary here")] = None,
     junit: Annotated[Path | None, typer.Option("--junit", help="write JUnit XML here")] = None,
+    soak: Annotated[bool, typer.Option(
+        "--soak/--no-soak", help="run the suite's soak ([soak]) after the gate")] = True,
     data_dir: DataDir = None,
     server: Server = None,
     api_key: ApiKeyOpt = None,
 ) -> None:
     """Regression gate: run a pinned suite, adding seeds until each row is decided, and
-    compare with a baseline (docs/ci.md). Exit 0: pass, 1: regression, 2: could not run."""
+    compare with a baseline (docs/ci.md); then the suite's soak, if it has one (every
+    method for many frames, docs/stress.md). Exit 0: pass, 1: a regression or a soak
+    problem, 2: could not run."""
     from jobs.ci.ci_suite import CiError
     from service.ci_command import CiOptions, run_ci
 
     options = CiOptions(suite=suite, baseline=baseline, baseline_ref=baseline_ref,
                         update_baseline=update_baseline, seed_start=seed_start,
                         summary=summary, junit=junit, data_dir=data_dir, server=server,
-                        api_key=api_key)
+                        api_key=api_key, soak=soak)
     try:
         code = run_ci(options, console, err_console)
     except Exception as err:  # noqa: BLE001 - exit 1 means a regression: all else is 2
@@ -862,11 +866,20 @@ def gc(
 def stress(
     case: Annotated[list[str] | None, typer.Option(
         "--case", help="a stress case (repeat; default: all, docs/stress.md)")] = None,
-    res: Annotated[int, typer.Option("--res", min=4, max=512)] = 16,
+    res: Annotated[int | None, typer.Option(
+        "--res", min=4, max=512, help="resolution (default 16; --soak 32)")] = None,
     spp: Annotated[int, typer.Option("--spp", min=1, max=1024)] = 4,
-    frames: Annotated[int, typer.Option("--frames", min=1, max=64)] = 2,
-    seeds: Annotated[int, typer.Option("--seeds", min=2, max=64)] = 8,
-    reference_spp: Annotated[int, typer.Option("--reference-spp", min=8, max=1 << 20)] = 1024,
+    frames: Annotated[int | None, typer.Option(
+        "--frames", min=1, max=4096, help="frames (default 2, at most 64; --soak 64)")] = None,
+    seeds: Annotated[int | None, typer.Option(
+        "--seeds", min=1, max=64, help="seeds (default 8, at least 2; --soak 4)")] = None,
+    reference_spp: Annotated[int | None, typer.Option(
+        "--reference-spp", min=8, max=1 << 20, help="reference spp (default 1024; --soak 64)"
+    )] = None,
+    soak: Annotated[bool, typer.Option(
+        "--soak", help="the soak instead: every method for many frames (docs/stress.md)")] = False,
+    method: Annotated[list[str] | None, typer.Option(
+        "--method", help="with --soak: a method to soak (repeat; default: all)")] = None,
     as_json: JsonOut = False,
     server: Server = None,
     api_key: ApiKeyOpt = None,
@@ -876,7 +889,20 @@ def stress(
     method, non-finite pixels, losses and skipped steps, the largest pixel, agreement of
     unbiased methods and what the user is told. Exits 1 if a method crashed, a non-finite
     value reached a metric or cache weight, or an unbiased method disagreed where it must
-    agree."""
+    agree. With --soak: every method rendered for many frames as `render` renders it;
+    exits 1 on a crash, a non-finite value, or a recording after the warm-up."""
+    if soak:
+        if case or server:
+            raise UsageError("--soak runs on this machine over the built-in scenes: "
+                             "--case and --server do not apply")
+        _soak(res, frames, seeds, reference_spp, method, as_json, data_dir)
+        return
+    if method:
+        raise UsageError("--method applies to --soak only (the stress suite runs every method)")
+    res, frames = res or 16, frames or 2
+    seeds, reference_spp = seeds or 8, reference_spp or 1024
+    if frames > 64 or seeds < 2:
+        raise UsageError("the stress suite takes at most 64 frames and at least 2 seeds")
     from jobs.stress.stress import (
         EmbeddedBackend,
         StressSettings,
@@ -902,6 +928,41 @@ def stress(
     progress = None if as_json else (lambda what: err_console.print(
         f"stress: {what}", markup=False, highlight=False))
     report = run_suite(backend, settings, cases, progress)
+    if as_json:
+        print_json({**report.model_dump(mode="json"), "problems": report.problems()})
+    else:
+        console.print(markdown_table(report), markup=False, highlight=False, soft_wrap=True)
+        for problem in report.problems():
+            console.print(f"problem: {problem}", markup=False, highlight=False, soft_wrap=True)
+    if report.problems():
+        raise typer.Exit(1)
+
+
+def _soak(res: int | None, frames: int | None, seeds: int | None,
+          reference_spp: int | None, methods: list[str] | None, as_json: bool,
+          data_dir: Path | None) -> None:
+    """``stress --soak``: jobs.stress.soak through the CLI's own render (a render process
+    per job), printed as a table or JSON; exits 1 on a problem."""
+    from jobs.execution.embedded import render_here
+    from jobs.protocol.scene_store import builtin_features
+    from jobs.stress.soak import SoakSettings, markdown_table, run_soak
+
+    unknown = [name for name in methods or () if name not in METHODS]
+    if unknown:
+        raise UsageError(f"unknown method(s) {', '.join(unknown)}; choose from "
+                         f"{', '.join(METHODS)}")
+    wanted = {"resolution": res, "frames": frames, "seeds": seeds,
+              "reference_spp": reference_spp}
+    settings = SoakSettings(**{k: v for k, v in wanted.items() if v is not None})
+    paths = open_settings(data_dir)
+    store = open_store(paths)
+    progress = None if as_json else (lambda what: err_console.print(
+        f"soak: {what}", markup=False, highlight=False))
+    try:
+        report = run_soak(lambda job: render_here(job, store, paths), builtin_features,
+                          settings, methods, progress)
+    finally:
+        store.close()
     if as_json:
         print_json({**report.model_dump(mode="json"), "problems": report.problems()})
     else:

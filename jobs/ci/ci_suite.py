@@ -110,6 +110,9 @@ class Suite(BaseModel):
     spp: int = Field(1, ge=1, le=1 << 16)
     frames: int = Field(8, ge=1, le=100_000)
     ref_spp: int = Field(1024, ge=8, le=1 << 24)
+    #: The soak run after the gate (jobs.stress.soak's settings: resolution, frames,
+    #: seeds, reference_spp), embedded runs only; None: no soak.
+    soak: dict[str, int] | None = None
     metrics: list[str] = Field(default_factory=lambda: [m.name for m in CI_GATED], min_length=1)
     min_change: dict[str, float] = Field(
         default_factory=dict, description="per-metric overrides of the registry's ci_min_change")
