@@ -74,7 +74,7 @@ METHOD = Method("neural-di",
                 "neural DI: closed-form unshadowed polygon light x visibility-cache "
                 "prediction, no shadow rays (biased): direct light at primary hits only "
                 "(max_depth 2)",
-                NeuralDIParams, render, version=1,
+                NeuralDIParams, render, version=2,
                 integrators=("renderers.integrators.neural_di",), requires=applies,
                 label="Neural DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False,
                 stage_sizes=fixed_stages("training_paths", "training"))

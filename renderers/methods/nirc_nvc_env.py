@@ -107,7 +107,7 @@ def render(scene: Any, params: NIRCEnvParams, *, seed_parts: tuple[Any, ...], sp
 METHOD = Method(
     "nirc-nvc-env", "NIRC for indirect light + a neural visibility cache for the "
                     "environment's direct light (two-level estimator)",
-    NIRCEnvParams, render, version=1,
+    NIRCEnvParams, render, version=2,
     integrators=("renderers.integrators.nirc_nvc_env", *TRAINING_INTEGRATORS),
     knob=dataclasses.replace(nirc.METHOD.knob, requirement="biased nirc-nvc-env"),
     requires=applies, label="NIRC + NVC env",

@@ -54,6 +54,6 @@ METHOD = Method("nrc-di",
                 "NRC DI: a hash-grid + 2x32 MLP cache of the direct light, trained online "
                 "on one-sample NEE, rendered as its prediction (biased): primary hits only "
                 "(max_depth 2)",
-                NRCDIParams, render, version=1, integrators=("renderers.integrators.nrc_di",),
+                NRCDIParams, render, version=2, integrators=("renderers.integrators.nrc_di",),
                 requires=lit_surface, label="NRC DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False,
                 stage_sizes=fixed_stages("training_paths", "training"))

@@ -138,6 +138,6 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = Method("nvc-env",
                 "direct environment light as a two-level estimator: N_c env-map samples "
                 "weighted by a neural visibility cache + a one-shadow-ray residual",
-                NVCEnvParams, render, version=1, integrators=("renderers.integrators.nvc_env",),
+                NVCEnvParams, render, version=2, integrators=("renderers.integrators.nvc_env",),
                 requires=applies, label="NVC env", knob=Knob("spp", SPP_CANDIDATES),
                 stage_sizes=fixed_stages("training_paths", "training"))

@@ -261,6 +261,6 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = Method("nvc-lights",
                 "path tracing with lights selected by a neural visibility cache "
                 "(power / distance^2 x cosine bound x max(V, clamp)) at every vertex",
-                NVCLightsParams, render, version=1, integrators=PATH_INTEGRATORS,
+                NVCLightsParams, render, version=2, integrators=PATH_INTEGRATORS,
                 requires=applies, label="NVC lights", knob=Knob("spp", SPP_CANDIDATES),
                 unbiased=True, stage_sizes=fixed_stages("training_paths", "training"))
