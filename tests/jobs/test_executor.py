@@ -337,3 +337,47 @@ def test_a_method_with_temporal_reuse_reports_no_per_cache_statistics(env):
     assert summary.metrics["rbias2_per_cache_mean"] is None
     assert "temporal reuse" in summary.metrics["per_cache_unavailable"]
     assert summary.metrics["rbias2"] is not None
+
+
+def test_a_scene_an_earlier_job_left_is_freed_before_the_next_job_renders(env, monkeypatch):
+    """A scene of an earlier job of the process, held only by a reference cycle, would be
+    freed by a garbage collection in the middle of the next job's frames, which makes
+    every frozen function that walks the scenes record again (measured: nirc-nvc-env
+    recorded 8 times after its warm-up once a freed pt job's scene went; docs/timing.md).
+    The executor collects before it renders. Planted: without its collections the
+    earlier scene is still alive when the next job renders."""
+    import gc
+    import weakref
+
+    from jobs.protocol import executor
+
+    class Scene:   # a weak-referenceable stand-in for the earlier job's scene
+        pass
+
+    alive: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+
+    def leave_a_scene_in_a_cycle() -> None:
+        left: dict = {"scene": Scene()}
+        left["cycle"] = left
+        alive["scene"] = left["scene"]
+
+    seen_at_render: list[bool] = []
+    real_render_seed = executor.render_seed
+
+    def watching(*args, **kwargs):
+        seen_at_render.append("scene" in alive)
+        return real_render_seed(*args, **kwargs)
+
+    settings, store = env
+    monkeypatch.setattr(executor, "render_seed", watching)
+    job = RenderJob.parse(SPEC.model_copy(update={"seeds": 1}))
+    gc.disable()
+    try:
+        leave_a_scene_in_a_cycle()
+        execute(job, store, settings)
+        leave_a_scene_in_a_cycle()
+        monkeypatch.setattr(executor.gc, "collect", lambda *args: 0)   # planted
+        execute(job, store, settings)
+    finally:
+        gc.enable()
+    assert seen_at_render == [False, True]
