@@ -648,7 +648,7 @@ def ci(
 ) -> None:
     """Regression gate: run a pinned suite, adding seeds until each row is decided, and
     compare with a baseline (docs/ci.md); then the suite's soak, if it has one (every
-    method for many frames, docs/stress.md). Exit 0: pass, 1: a regression or a soak
+    method for many frames, docs/soak.md). Exit 0: pass, 1: a regression or a soak
     problem, 2: could not run."""
     from jobs.ci.ci_suite import CiError
     from service.ci_command import CiOptions, run_ci
@@ -877,7 +877,7 @@ def stress(
         "--reference-spp", min=8, max=1 << 20, help="reference spp (default 1024; --soak 64)"
     )] = None,
     soak: Annotated[bool, typer.Option(
-        "--soak", help="the soak instead: every method for many frames (docs/stress.md)")] = False,
+        "--soak", help="the soak instead: every method for many frames (docs/soak.md)")] = False,
     method: Annotated[list[str] | None, typer.Option(
         "--method", help="with --soak: a method to soak (repeat; default: all)")] = None,
     as_json: JsonOut = False,
