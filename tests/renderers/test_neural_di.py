@@ -157,7 +157,7 @@ def test_registered_with_the_papers_defaults_and_a_fixed_depth():
     assert (params.max_depth, params.world_points, params.camera_points) == (2, 4096, 4096)
     with pytest.raises(MethodError, match="max_depth"):
         parse_params("neural-di", {"max_depth": 3})
-    assert METHODS["neural-di"].version == 1
+    assert METHODS["neural-di"].version == 2
 
 
 @pytest.mark.parametrize(("features", "reason"), [

@@ -72,7 +72,7 @@ def test_registered_with_a_fixed_depth_and_the_visibility_network():
     assert parse_params("nrc-di", {}).max_depth == 2
     with pytest.raises(MethodError, match="max_depth"):
         parse_params("nrc-di", {"max_depth": 3})
-    assert METHODS["nrc-di"].version == 1
+    assert METHODS["nrc-di"].version == 2
     config, nvc = direct_light_config(), visibility_config(3)
     assert (config.position, config.mlp, config.optimizer) == (nvc.position, nvc.mlp,
                                                                nvc.optimizer)

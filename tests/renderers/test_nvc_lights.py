@@ -64,7 +64,7 @@ def test_registered_with_pt_parameters_and_the_papers_defaults():
         (2, 0.001, 4096, 4096)
     with pytest.raises(MethodError, match="clamp"):
         parse_params("nvc-lights", {"clamp": -1})
-    assert METHODS["nvc-lights"].version == 1
+    assert METHODS["nvc-lights"].version == 2
 
 
 @pytest.mark.parametrize("method", ["nvc-lights", "restir-nvc"])
