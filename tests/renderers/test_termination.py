@@ -5,6 +5,10 @@ termination was a policy object: ``golden/termination_before.npz`` holds 16x16
 renders (max_depth 6, 2 spp, 2 frames after 3 pre-training frames, seed parts
 ('ref', 7)) made by the code that branched on the termination string, and, for
 adaptive termination, integrator renders with a fixed v1 mask on an untrained cache.
+``nirc_nvc_env`` was rendered again when its visibility cache's learning-rate schedule was
+repaired: the first image came from a training that stepped each parameter with a power
+of Adam's debiasing factor (0.10 away); the stored one equals, to 2.4e-7, the render of
+the code from before the cache's training step was frozen.
 
 They are compared to within GOLDEN_ATOL, not bit for bit: Dr.Jit's LLVM backend
 vectorises for the CPU it runs on (8 lanes with AVX2, 16 with AVX-512), which
