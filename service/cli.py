@@ -1032,7 +1032,7 @@ def main() -> None:
     """Console-script entry point: run the app, turning errors into one-line messages
     (the options' own checks included: one line naming the option, exit status 2)."""
     try:
-        code = app(standalone_mode=False)
+        code = app(prog_name="nirc-bench", standalone_mode=False)
     except click_errors.NoArgsIsHelpError as err:
         console.print(err.format_message(), markup=False, highlight=False, emoji=False)
         sys.exit(2)
