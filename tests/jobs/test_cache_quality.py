@@ -3,11 +3,12 @@
 Each method runs through the executor against the same 4096-spp reference with
 K = 3 seeds (each seed trains its own cache for the scene's pre-training frames,
 batch 4096). MRSE is the mean over seeds; rBias2 is reported by every run and must
-be far below PT's error. Measured here (32x32): cornell-box (60 frames) PT 0.27,
-NIRC biased 0.072, NRC 0.22; door (30 frames) PT 15.3 (fireflies), NIRC biased 1.40,
-NRC 0.43 (60 frames: 0.52 and 0.56). Door's margin is an order of magnitude after 30
-frames, so it trains for 30 (half the test's time); cornell-box's NRC margin is
-narrow, so it trains for 60.
+be far below PT's error. Measured here (32x32, deterministic seeds): cornell-box after
+30 frames PT 0.35, NIRC biased 0.077, NRC 0.10 (after 60: 0.17 and 0.18); door after
+15 frames PT 15.3 (fireflies), NIRC biased 0.72, NRC 0.50, rBias2 at most 0.30 (after
+30: 1.39 and 0.45). The longer training bought no margin, so each scene trains for the
+shorter count. Untrained caches (0 frames) pass too (cornell-box 0.13 and 0.14, door
+3.6 and 0.16): the test bounds the trained caches' error, not what training gains.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from jobs.record.db import open_store
 pytestmark = pytest.mark.slow
 
 
-@pytest.mark.parametrize("scene, pretrain_frames", [("cornell-box", 60), ("door", 30)])
+@pytest.mark.parametrize("scene, pretrain_frames", [("cornell-box", 30), ("door", 15)])
 def test_trained_biased_caches_beat_pt_at_one_spp(mi, data_dir, scene, pretrain_frames):
     training = {"pretrain_frames": pretrain_frames, "cache": {"batch_size": 4096}}
     settings = Settings()
