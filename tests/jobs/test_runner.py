@@ -130,16 +130,32 @@ def test_a_timeout_kills_the_attempt_and_gives_up_after_max_attempts(store, sett
 @pytest.mark.parametrize("when", ["queued", "running"])
 def test_cancel(store, settings, when):
     queue = JobQueue(store)
-    spec = SPEC.model_copy(update={"frames": 100_000, "resolution": 32})  # outlasts 3 s
+    spec = SPEC.model_copy(update={"frames": 100_000, "resolution": 32})  # outlasts the test
     job = _submit(queue, spec.model_dump(mode="json"), f"cancel-{when}")
     if when == "queued":
         queue.cancel(job.id)
         assert run_job(job.id, settings, worker="test") == "canceled"
         return
-    timer = threading.Timer(3.0, lambda: queue.cancel(job.id))
-    timer.start()
+    canceler = _cancel_once_rendering(queue, job.id)
     assert run_job(job.id, settings, worker="test") == "canceled"
+    canceler.join()
     assert queue.get(job.id).run_id is None
+
+
+def _cancel_once_rendering(queue: JobQueue, job_id: int) -> threading.Thread:
+    """A thread that cancels the job as soon as it renders a seed (its scene loaded,
+    its reference made): a running job, not one still starting."""
+    def cancel() -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if queue.get(job_id).progress.get("stage", "").startswith("seed"):
+                queue.cancel(job_id)
+                return
+            time.sleep(0.05)
+
+    thread = threading.Thread(target=cancel)
+    thread.start()
+    return thread
 
 
 def test_a_failed_stage_fails_what_depends_on_it(store, settings):
@@ -202,10 +218,9 @@ def test_a_job_is_stopped_after_mitsuba_warned(store, settings, warning_scene, s
         assert run_job(slow.id, settings, worker="test", timeout_s=2.0) == "failed"
         assert "timed out" in queue.get(slow.id).error
     else:
-        timer = threading.Timer(3.0, lambda: queue.cancel(slow.id))
-        timer.start()
+        canceler = _cancel_once_rendering(queue, slow.id)    # after its own warning
         assert run_job(slow.id, settings, worker="test") == "canceled"
-        timer.join()
+        canceler.join()
     assert queue.get(slow.id).run_id is None
     done = queue.get(warns.id)
     assert done.status == "succeeded" and done.error is None and done.attempts == 1
