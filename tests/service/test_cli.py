@@ -6,6 +6,8 @@ import json
 import os
 import subprocess
 import sys
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +20,16 @@ def run_cli(*args: str, data_dir: Path, env: dict[str, str] | None = None,
     full_env.pop("NIRC_BENCH_DEBUG", None)
     return subprocess.run([sys.executable, "-m", "service", *args], capture_output=True,
                           text=True, env=full_env, timeout=timeout)
+
+
+def started_together(calls: Sequence[tuple[str, ...]], folder: Path
+                     ) -> Iterator[dict[tuple[str, ...], Future]]:
+    """Each of ``calls`` run as :func:`run_cli` (its own data folder under ``folder``), a
+    few at a time, from now on: the calls of the error cases share nothing, and each is
+    a process that spends seconds starting before it fails. Yields {call: its future}."""
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        yield {call: pool.submit(run_cli, *call, data_dir=folder / str(i))
+               for i, call in enumerate(calls)}
 
 
 def assert_clean_error(proc: subprocess.CompletedProcess, *fragments: str) -> None:
@@ -62,16 +74,42 @@ def test_a_method_that_does_not_apply_is_refused_before_its_reference(tmp_path):
     assert not list((tmp_path / "references").glob("*.exr"))
 
 
-@pytest.mark.parametrize("args, fragment", [
+OUT_OF_RANGE = [
     (("--res", "0"), "--res"),
     (("--spp", "-3"), "--spp"),
     (("--seeds", "0"), "--seeds"),
     (("--param", "max_depth=0"), "max_depth"),
     (("--param", "rr_survival=1.5"), "rr_survival"),
     (("--method", "magic"), "unknown method"),
-])
-def test_out_of_range_numbers_are_clear_errors(tmp_path, args, fragment):
-    proc = run_cli("render", "--scene", "cornell-box", *args, data_dir=tmp_path)
+]
+
+BAD_SWEEP = [
+    (("--eps", "0.05:1.0:0"), "step"),
+    (("--eps", "1.0:0.05"), "eps"),
+    (("--eps", "a:b"), "not a number"),
+    (("--eps", "0.5", "--methods", "nirc,pt"), "methods"),
+    (("--nc", "0:4"), "nc"),
+    ((), "--eps"),
+]
+
+
+def _render_call(args: tuple[str, ...]) -> tuple[str, ...]:
+    return ("render", "--scene", "cornell-box", *args)
+
+
+def _sweep_call(args: tuple[str, ...]) -> tuple[str, ...]:
+    return ("sweep", "--scene", "cornell-box", *args)
+
+
+@pytest.fixture(scope="module")
+def error_calls(tmp_path_factory) -> Iterator[dict[tuple[str, ...], Future]]:
+    calls = [_render_call(a) for a, _ in OUT_OF_RANGE] + [_sweep_call(a) for a, _ in BAD_SWEEP]
+    yield from started_together(calls, tmp_path_factory.mktemp("errors"))
+
+
+@pytest.mark.parametrize("args, fragment", OUT_OF_RANGE)
+def test_out_of_range_numbers_are_clear_errors(error_calls, args, fragment):
+    proc = error_calls[_render_call(args)].result()
     assert_clean_error(proc, fragment)
 
 
@@ -166,16 +204,9 @@ SWEEP_SMALL = ("--scene", "cornell-box", "--res", "8", "--seeds", "2", "--train-
                "-p", "min_train_paths=1024")
 
 
-@pytest.mark.parametrize("args, fragment", [
-    (("--eps", "0.05:1.0:0"), "step"),
-    (("--eps", "1.0:0.05"), "eps"),
-    (("--eps", "a:b"), "not a number"),
-    (("--eps", "0.5", "--methods", "nirc,pt"), "methods"),
-    (("--nc", "0:4"), "nc"),
-    ((), "--eps"),
-])
-def test_bad_sweep_arguments_are_clear_errors(tmp_path, args, fragment):
-    proc = run_cli("sweep", "--scene", "cornell-box", *args, data_dir=tmp_path)
+@pytest.mark.parametrize("args, fragment", BAD_SWEEP)
+def test_bad_sweep_arguments_are_clear_errors(error_calls, args, fragment):
+    proc = error_calls[_sweep_call(args)].result()
     assert_clean_error(proc, fragment)
     assert proc.returncode == 2
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
+from concurrent.futures import Future
 
 import pytest
 
 from jobs.pareto.pareto import ParetoPoint
-from tests.service.test_cli import assert_clean_error, run_cli
+from tests.service.test_cli import assert_clean_error, run_cli, started_together
 
 SMALL = ("pareto", "--scene", "cornell-box", "--res", "16", "--frames", "2", "--seeds", "2",
          "--ref-spp", "256", "--pretrain-frames", "0", "--timing-rounds", "2",
@@ -57,7 +59,7 @@ def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
         assert f"{point['mrse']:.4g}" in again.stdout
 
 
-@pytest.mark.parametrize("args, fragment", [
+BAD_ARGUMENTS = [
     (("--pt-spp", "4"), "at least two"),
     (("--pt-spp", "0,2"), ">= 1"),
     (("--pt-spp", "a,b"), "not a number"),
@@ -70,9 +72,22 @@ def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
     (("--project-res", "1920"), "WIDTHxHEIGHT"),
     (("--project-res", "0x1080"), "1..16384"),
     (("--project-res", "64x64", "--cost-res", "8"), "at least two --cost-res"),
-])
-def test_bad_pareto_arguments_are_clear_errors(tmp_path, args, fragment):
-    proc = run_cli("pareto", "--scene", "cornell-box", *args, data_dir=tmp_path)
+]
+
+
+def _call(args: tuple[str, ...]) -> tuple[str, ...]:
+    return ("pareto", "--scene", "cornell-box", *args)
+
+
+@pytest.fixture(scope="module")
+def error_calls(tmp_path_factory) -> Iterator[dict[tuple[str, ...], Future]]:
+    yield from started_together([_call(args) for args, _ in BAD_ARGUMENTS],
+                                tmp_path_factory.mktemp("errors"))
+
+
+@pytest.mark.parametrize("args, fragment", BAD_ARGUMENTS)
+def test_bad_pareto_arguments_are_clear_errors(error_calls, args, fragment):
+    proc = error_calls[_call(args)].result()
     assert_clean_error(proc, fragment)
     assert proc.returncode == 2
 
