@@ -306,6 +306,7 @@ def prepare(job: RenderJob, store: Store, settings: Settings,
     # freed now, not by a collection in the middle of this job's frames: every frozen
     # call walks the objects of all scenes alive, so a scene freed then made each frozen
     # function record again (measured: 8 recordings at once, nirc-nvc-env after pt).
+    gc.unfreeze()
     gc.collect()
     spec = job.spec
     scene = load_spec_scene(spec.scene, spec.resolution, settings)
@@ -315,6 +316,11 @@ def prepare(job: RenderJob, store: Store, settings: Settings,
     reference = get_or_render_reference(
         store, settings.references_dir, scene, spec.reference.settings(job.max_depth),
         progress=(lambda done, total: progress("reference", done, total)) if progress else None)
+    # What is alive now (modules, this scene, its reference) lives until the next job's
+    # collection above: moved out of the collector's generations, it is not walked again by
+    # each seed's collection (render_seed), which then costs what the seeds left, not the
+    # process's whole heap (0.18 s per seed with ~200k objects alive, measured).
+    gc.freeze()
     return Prepared(scene=scene, reference=reference, device=device_info(), started=started)
 
 
