@@ -54,7 +54,6 @@ GPU worker still renders on the CPU it asked for.
 
 from __future__ import annotations
 
-import gc
 import os
 import re
 import select
@@ -68,8 +67,6 @@ import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, TextIO
-
-import numpy as np
 
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
@@ -461,24 +458,6 @@ def run_one(job_id: int, store: Any, settings: Settings, pipe: TextIO | None = N
     return "0"
 
 
-def _freeze_imports() -> None:
-    """Import what every render job imports (colour-science too, which its first preview
-    imports: with SciPy and Matplotlib, ~4 s under load, paid at the first job
-    otherwise), then move every object alive now (modules, classes, functions: ~200k,
-    never freed) out of the garbage collector's sight (``gc.freeze``). Each job runs
-    two full collections (jobs.protocol.executor: a scene of an earlier job is freed
-    before the frames); walking these objects took most of each (measured on a busy
-    two-core machine: 0.22 s a collection before, 0.01 s after). What a job creates
-    is collected as before."""
-    import jobs.protocol.executor  # noqa: F401
-    import jobs.sweeps.sweep  # noqa: F401
-    from metrics.tonemap import to_display_srgb
-
-    to_display_srgb(np.zeros((1, 1, 3), np.float32))   # imports colour-science
-    gc.collect()
-    gc.freeze()
-
-
 def serve(status_fd: int) -> int:
     """Child entry point: run the job ids read from stdin, one status line each on
     ``status_fd``, after the job's progress lines (nothing else writes there; stdout is
@@ -492,7 +471,6 @@ def serve(status_fd: int) -> int:
     """
     settings = Settings()
     store = open_store(settings)
-    _freeze_imports()
     with os.fdopen(status_fd, "w") as status_out:
         for line in sys.stdin:
             job_id, *flags = line.split()
