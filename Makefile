@@ -19,16 +19,14 @@ demo: bootstrap
 # Debian's postgresql and chromium when missing (as root), starts the server, and stops
 # it at the end if it started it.
 WITH_SERVICES := bash scripts/with_test_services.sh
-# test-fast: the cheapest tests whose times, recorded on this machine by earlier runs,
-# sum to at most this many seconds, untimed ones first, and no test starts after that
-# many seconds (tests/time_budget.py); `make test` runs them all.
-FAST_BUDGET_S ?= 240
-
+# test-fast: the fixed subset listed in tests/fast_tests.txt (marked `fast`), a few
+# minutes on 2 cores; it fails naming any product module none of its tests exercised
+# (tests/fast_subset.py). `make test` runs them all.
 test: bootstrap
 	$(WITH_SERVICES) $(PY) -m pytest -q
 
 test-fast: bootstrap
-	$(WITH_SERVICES) $(PY) -m pytest -q -rfE -m "not slow" --time-budget $(FAST_BUDGET_S)
+	$(WITH_SERVICES) $(PY) -m pytest -q -rfE --fast-subset
 
 bench: bootstrap
 	$(PY) -m benchmarks.bench_frame_cost

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-pytest_plugins = ["tests.time_budget"]
+pytest_plugins = ["tests.fast_subset"]
 
 
 @pytest.fixture(scope="session")
