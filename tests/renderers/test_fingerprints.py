@@ -130,12 +130,15 @@ def _brighter(scene: Any, factor: float) -> None:
     params.update()
 
 
+#: The planted tests compare with the stored fingerprints: not while they are written.
+planted = pytest.mark.skipif(WRITE, reason="writing fingerprints")
+
+
+@planted
 @pytest.mark.parametrize("name", list(METHODS))
 def test_emitters_one_percent_brighter_fail_the_fingerprint(stored, name):
     """Planted: the same render with every emitter 1 % brighter is outside the
     tolerance (by more than twice), for every method."""
-    if WRITE:
-        pytest.skip("writing fingerprints")
     method = get_method(name)
     scene = _scene(method)[1]
     _brighter(scene, 1.01)
@@ -148,12 +151,11 @@ NEURAL = [name for name, method in METHODS.items()
           if "cache" in method.params.model_fields and name != "grid-cache"]
 
 
+@planted
 @pytest.mark.parametrize("name", NEURAL)
 def test_a_learning_rate_one_percent_higher_fails_the_fingerprint(stored, name):
     """Planted: the cache's learning rate 1 % higher (the preset's, read from the
     method's own cache config) is outside the tolerance."""
-    if WRITE:
-        pytest.skip("writing fingerprints")
     params = _params(name)
     presets = params.cache_presets()
     config = presets["cache"](**params.cache) if "cache" in presets else None
