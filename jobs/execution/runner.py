@@ -99,12 +99,6 @@ VARIANT_OF_DEVICE_CLASS = {"cpu": "llvm_ad_rgb", "gpu": "cuda_ad_rgb"}
 #: a render process uses every core and the allocator's defaults.
 _DASK_WORKER_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                             "MALLOC_TRIM_THRESHOLD_")
-#: Set in a render process unless the caller sets it: its OpenMP threads (FLIP's,
-#: metrics/flip.py) sleep at a barrier instead of spinning. With more busy threads than
-#: cores (two render processes on two cores, a service beside them) a spinning thread
-#: holds the core the thread it waits for needs: one HDR-FLIP of a 4x4 image measured
-#: 0.3-0.4 s so, 0.3 ms passive (the same numbers).
-_OPENMP_WAIT_POLICY = ("OMP_WAIT_POLICY", "PASSIVE")
 #: Mitsuba colours its log lines even in a file; a failure reason is plain text.
 _ANSI_COLOR = re.compile(r"\x1b\[[0-9;]*m")
 
@@ -237,7 +231,6 @@ class _Child:
         self.jobs = 0
         env = {key: value for key, value in os.environ.items()
                if key not in _DASK_WORKER_VARIABLES}
-        env.setdefault(*_OPENMP_WAIT_POLICY)
         env.update(NIRC_BENCH_DATA_DIR=str(settings.data_dir),
                    NIRC_BENCH_DATABASE_URL=str(settings.database_url),
                    NIRC_BENCH_VARIANT=VARIANT_OF_DEVICE_CLASS[device_class])
