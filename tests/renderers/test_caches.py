@@ -3,6 +3,7 @@ training robustness, reproducibility, and inference inside Mitsuba loops."""
 
 from __future__ import annotations
 
+import copy
 import json
 
 import drjit as dr
@@ -271,6 +272,39 @@ def test_coopvec_inference_matches_tensor_mode(trained):
     coop = as_numpy(query_records(cache, records))
     tensor = cache.predict_tensor(records).numpy()
     np.testing.assert_allclose(coop, tensor, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("split", [True, False])
+def test_half_precision_inference_is_float32_inference_rounded(trained, split):
+    """CUDA's cooperative vectors take float16 only: the half-precision network (run
+    here on the CPU, which takes both) gives the float32 network's outputs to float16
+    rounding; it is not the float32 network unchanged, nor a wrong one."""
+    from renderers.caches.inference import PackedMLP, half_precision
+
+    assert half_precision(dr.JitBackend.CUDA) and not half_precision(dr.JitBackend.LLVM)
+    cache, records, _ = trained
+    rows = cache.encoder.surface(records.position, records.normal, records.roughness,
+                                 records.albedo, position_encoding=cache._infer_position)
+    direction = cache.encoder.direction(records.direction)
+    n_surface = cache.config.n_surface_features
+
+    def outputs(half, network=cache.tensor_network):
+        mlp = PackedMLP(network, n_surface, split_first_layer=split, half=half)
+        out = mlp.finish(mlp.surface(rows), direction)
+        assert all(type(o) is mi.Float for o in out)
+        return as_numpy(out)
+
+    full, half = outputs(False), outputs(True)
+    scale = np.abs(full).max()
+    assert scale > 0.1
+    assert not np.array_equal(full, half)  # the weights really were rounded
+    np.testing.assert_allclose(half, full, atol=5e-3 * scale)
+    # A planted defect the tolerance rejects: one output weight perturbed by 2 %.
+    planted = copy.deepcopy(cache.tensor_network)
+    last = planted.layers[-1]
+    last.weights = last.weights * 1.02
+    with pytest.raises(AssertionError):
+        np.testing.assert_allclose(outputs(True, planted), full, atol=5e-3 * scale)
 
 
 def test_non_finite_targets_are_dropped_and_counted():
