@@ -299,6 +299,18 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
         f"chosen {cal['knob']}": chosen,
         "device": cal["device_key"],
     }
+    untimed: dict[str, list[str]] = {}   # why -> knob values (old records: none)
+    for value, why in (cal.get("not_timed") or {}).items():
+        untimed.setdefault(why, []).append(value)
+    if untimed:
+        rows["not timed"] = "; ".join(f"{cal['knob']} {', '.join(values)}: {why}"
+                                      for why, values in untimed.items())
+    if cal.get("probes_per_round"):
+        frames = cal.get("timed_frames")
+        rows["calibration cost"] = (
+            f"{cal['wall_s']:.3g} s, "
+            + (f"{frames} timed frames, " if frames is not None else "")
+            + f"renders timed per round {', '.join(map(str, cal['probes_per_round']))}")
     if cal.get("unstable"):
         rows["UNSTABLE"] = "; ".join(r for r in cal.get("reasons", []) if r.startswith("unstable"))
     if cal.get("loaded"):

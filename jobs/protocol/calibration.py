@@ -7,13 +7,19 @@ is stored with the result it justified (docs/protocol.md, "Equal time").
 
 How it measures, because these machines are shared and their speed drifts:
 
-- every candidate is timed, not only until the first one over budget: the
-  frame time need not grow with the knob (with BTH, more neural samples can
-  stop paths earlier);
-- the measurements are interleaved in ``rounds`` rounds; each round times the
-  budget (when it is measured, e.g. PT at some spp or an NRC point) and then
-  every candidate, in ascending order on even rounds and descending on odd
-  ones, so a slow drift of the machine affects every value alike;
+- the measurements are interleaved in rounds; each round times the budget
+  (when it is measured, e.g. PT at some spp or an NRC point) and then the
+  candidates still in play, in ascending order on even rounds and descending
+  on odd ones, so a slow drift of the machine affects every value alike; each
+  candidate in play is timed in ``rounds`` rounds (:func:`search`);
+- a candidate is out of play when its frame time, or the one a log-log line
+  through the medians timed so far predicts for it, exceeds
+  :data:`PREDICTION_CUT` x the budget (it cannot fit, and timing it would cost
+  more than the rest of the search); for a knob whose frame time grows with its
+  value (``monotone``: spp), also every candidate above one whose fastest round
+  is over the limit by more than the allowed spread. A knob that is not
+  monotone (with BTH, more neural samples can stop paths earlier) has every
+  other candidate timed, also past a slow one;
 - the decision uses medians over rounds: the chosen value is the largest
   candidate whose median fits median(budget) + tolerance;
 - the spread (min and max over rounds) of every timing is stored. The
@@ -25,11 +31,15 @@ How it measures, because these machines are shared and their speed drifts:
   may be larger than any candidate tried; ``fits`` False says that not even
   the smallest fits (it is then chosen);
 - ``loaded`` says that other work held the CPU during a probe (renderers.load);
-  an unstable or loaded calibration says what to do about it (:data:`ADVICE`).
+  an unstable or loaded calibration says what to do about it (:data:`ADVICE`);
+- what the calibration cost is stored with it: wall seconds, probes per round
+  and timed frames.
 """
 
 from __future__ import annotations
 
+import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from functools import cache
@@ -40,6 +50,9 @@ import numpy as np
 #: Default number of interleaved rounds and the allowed spread (fraction of the budget).
 DEFAULT_ROUNDS = 3
 DEFAULT_MAX_SPREAD = 0.1
+#: A candidate whose frame time (measured, else predicted) exceeds this many budgets is
+#: not timed (again).
+PREDICTION_CUT = 4.0
 #: What to do about a calibration whose timings cannot be trusted.
 ADVICE = ("what to do: calibrate again with nothing else running on the machine (the load "
           "flag says whether something was), or with more rounds (a time budget's 'rounds') "
@@ -67,6 +80,11 @@ class Calibration:
     reasons: list[str] = field(default_factory=list)
     order: list[str] = field(default_factory=list)  # the measurement order ('budget', 'nc=4')
     device_key: str = ""
+    monotone: bool = False          # the search stopped above a candidate clearly over budget
+    not_timed: dict[int, str] = field(default_factory=dict)  # knob value -> why not
+    wall_s: float = 0.0             # seconds the calibration took
+    probes_per_round: list[int] = field(default_factory=list)  # renders timed (budget included)
+    timed_frames: int | None = None  # frames timed in all (None: frames per probe unknown)
 
     def note_load(self, load: dict[str, Any] | None) -> None:
         """Record the machine's load over the probes (renderers.timing.merge_loads)."""
@@ -82,6 +100,7 @@ class Calibration:
         data = asdict(self)
         data["measured_s"] = {str(k): v for k, v in self.measured_s.items()}
         data["spread_s"] = {str(k): v for k, v in self.spread_s.items()}
+        data["not_timed"] = {str(k): v for k, v in self.not_timed.items()}
         return data
 
 
@@ -113,14 +132,112 @@ def interleaved_rounds(values: Sequence[Any], measure: Callable[[Any], Any], rou
     return timed
 
 
+def predicted_seconds(medians: dict[int, float], value: int) -> float | None:
+    """The frame time at knob ``value`` from the medians of the candidates timed so
+    far: the least-squares line log t = c + k log v (None from fewer than two).
+
+    For a frame costing a + b v (a, b >= 0), log t is convex in log v, so beyond
+    the timed values the line falls below the cost: the cut errs towards timing."""
+    positive = {v: t for v, t in medians.items() if t > 0}
+    if len(positive) < 2:
+        return None
+    slope, intercept = np.polyfit(np.log(list(positive)), np.log(list(positive.values())), 1)
+    return float(np.exp(intercept + slope * np.log(value)))
+
+
+@dataclass
+class Search:
+    """The timings of :func:`search`: per candidate, of the budget, their order, the
+    renders timed in each round and why a candidate was not timed when its turn came."""
+
+    times: dict[int, list[float]]
+    leads: list[float] = field(default_factory=list)
+    order: list[str] = field(default_factory=list)
+    probes_per_round: list[int] = field(default_factory=list)
+    passed_over: dict[int, str] = field(default_factory=dict)
+
+
+def seconds_of(value: Any, what: str) -> float:
+    """A probe's seconds per frame, refused when not a finite non-negative number."""
+    seconds = float(value)
+    if not (math.isfinite(seconds) and seconds >= 0):
+        raise ValueError(f"the probe of {what} timed {seconds} s per frame")
+    return seconds
+
+
+def search(knob: str, values: Sequence[int], measure: Callable[[int], float],
+           budget: float | Callable[[], float], *, tolerance_s: float, rounds: int,
+           max_spread: float, monotone: bool) -> Search:
+    """Time the ascending ``values`` in interleaved rounds (module docstring): each
+    round times the budget when it is a function, then, in ascending order on even
+    rounds and descending on odd ones, every candidate timed fewer than ``rounds``
+    times that is still in play when its turn comes. Rounds go on while a candidate in
+    play lacks timings (one that came back into play because a slow first timing was
+    not repeated gets its rounds after the others) and stop after a round that timed
+    no candidate."""
+    fixed = not callable(budget)
+    state = Search(times={v: [] for v in values})
+
+    def budget_s() -> float:
+        return float(budget) if fixed else float(np.median(state.leads))  # type: ignore[arg-type]
+
+    def passed_over(value: int) -> str | None:
+        """Why ``value`` is out of play now (None: it is in play)."""
+        limit = budget_s() + tolerance_s
+        over = limit + max(tolerance_s, max_spread * budget_s())
+        timed = {v: t for v, t in state.times.items() if t}
+        if monotone:
+            clearly_over = [v for v, t in timed.items() if min(t) > over]
+            if clearly_over and value > min(clearly_over):
+                return (f"{knob} {min(clearly_over)} is over the budget by more than the "
+                        f"allowed spread in every round, and the cost grows with {knob}")
+        medians = {v: float(np.median(t)) for v, t in timed.items()}
+        expected = medians[value] if value in medians else predicted_seconds(medians, value)
+        if expected is not None and expected > PREDICTION_CUT * budget_s():
+            how = "timed" if value in medians else "predicted"
+            return (f"{how} {1e3 * expected:.3g} ms per frame, over {PREDICTION_CUT:g} x the "
+                    f"budget")
+        return None
+
+    def due(value: int) -> bool:
+        return len(state.times[value]) < rounds and passed_over(value) is None
+
+    index = 0
+    while index == 0 or any(due(v) for v in values):
+        probes = 0
+        if not fixed:
+            state.leads.append(seconds_of(budget(), "the budget"))  # type: ignore[operator]
+            state.order.append("budget")
+            probes += 1
+        timed_any = False
+        for value in values if index % 2 == 0 else reversed(values):
+            if len(state.times[value]) >= rounds:
+                continue
+            reason = passed_over(value)
+            if reason is not None:
+                state.passed_over[value] = reason
+                continue
+            state.times[value].append(seconds_of(measure(value), f"{knob} {value}"))
+            state.order.append(f"{knob}={value}")
+            probes, timed_any = probes + 1, True
+        state.probes_per_round.append(probes)
+        index += 1
+        if not timed_any:
+            break
+    return state
+
+
 def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], float],
               budget: float | Callable[[], float], *, budget_source: str,
               tolerance_s: float = 0.0, device_key: str = "", rounds: int = DEFAULT_ROUNDS,
-              max_spread: float = DEFAULT_MAX_SPREAD) -> Calibration:
-    """Time every candidate (``measure(value)``: seconds per frame) and the budget
-    (a number, or a function measuring it) in ``rounds`` interleaved rounds and
-    choose the largest candidate whose median fits median(budget) + tolerance
-    (module docstring). When none fits, the smallest is chosen and ``fits`` is False.
+              max_spread: float = DEFAULT_MAX_SPREAD, monotone: bool = False,
+              probe_frames: int | None = None) -> Calibration:
+    """Time the candidates (``measure(value)``: seconds per frame) and the budget
+    (a number, or a function measuring it) in interleaved rounds (:func:`search`;
+    ``monotone``: the frame time grows with the knob) and choose the largest
+    candidate whose median fits median(budget) + tolerance (module docstring). When
+    none fits, the smallest is chosen and ``fits`` is False. ``probe_frames``: the
+    frames each probe times (for the record's ``timed_frames``).
     """
     values = sorted(set(int(c) for c in candidates))
     if not values:
@@ -130,20 +247,26 @@ def calibrate(knob: str, candidates: Sequence[int], measure: Callable[[int], flo
     fixed = not callable(budget)
     if fixed and not budget > 0:
         raise ValueError(f"the time budget must be positive, got {budget}")
-    timed = interleaved_rounds(values, measure, rounds, name=lambda v: f"{knob}={v}",
-                               lead=None if fixed else budget)
-    times, budgets, order = timed.times, timed.lead, timed.order
-    budget_s = float(budget) if fixed else float(np.median(budgets))
+    started = time.perf_counter()
+    state = search(knob, values, measure, budget, tolerance_s=tolerance_s, rounds=rounds,
+                   max_spread=max_spread, monotone=monotone)
+    times = {v: t for v, t in state.times.items() if t}
+    budgets = state.leads
+    budget_s = float(budget) if fixed else float(np.median(budgets))  # type: ignore[arg-type]
     if not budget_s > 0:
         raise ValueError(f"the measured time budget must be positive, got {budget_s}")
 
     limit = budget_s + tolerance_s
+    probes = sum(state.probes_per_round)
     record = Calibration(
         knob=knob, budget_s=budget_s, budget_source=budget_source, tolerance_s=tolerance_s,
         measured_s={v: float(np.median(t)) for v, t in times.items()},
         spread_s={v: [min(t), max(t)] for v, t in times.items()},
         budget_spread_s=None if fixed else [min(budgets), max(budgets)],
-        rounds=rounds, order=order, device_key=device_key)
+        rounds=rounds, order=state.order, device_key=device_key, monotone=monotone,
+        not_timed={v: state.passed_over[v] for v in values if v not in times},
+        wall_s=time.perf_counter() - started, probes_per_round=state.probes_per_round,
+        timed_frames=None if probe_frames is None else probes * probe_frames)
     fitting = [v for v, s in record.measured_s.items() if s <= limit]
     record.fits = bool(fitting)
     record.chosen = max(fitting) if fitting else values[0]
@@ -277,7 +400,8 @@ def calibrate_job(job: Any, scene: Any, device_key: str) -> tuple[Any, Calibrati
     record = calibrate(knob, budget.candidates or default_candidates, measure, budget_value,
                        budget_source=source, tolerance_s=budget.tolerance_ms / 1e3,
                        device_key=device_key, rounds=budget.rounds,
-                       max_spread=budget.max_spread)
+                       max_spread=budget.max_spread, monotone=bool(spec_knob.monotone),
+                       probe_frames=budget.probe_frames)
     record.note_load(log.merged())
     if knob == "spp":
         return job.with_spec(time_budget=None, spp=record.chosen), record

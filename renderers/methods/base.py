@@ -80,6 +80,10 @@ class Knob:
     ``name`` is ``'spp'`` (the frame's samples per pixel) or a parameter the
     method's ``apply(params JSON, value)`` sets; ``usable(params JSON)`` says
     whether these parameters have the knob at all (``requirement`` says when).
+    ``monotone``: the frame time grows with the value, so the calibration stops
+    at a candidate clearly over the budget. Unless given it is true for spp (more
+    samples per pixel trace more paths) and false for any other knob (with BTH,
+    a larger N_c can stop paths earlier and cost less).
     """
 
     name: str
@@ -87,6 +91,11 @@ class Knob:
     apply: Callable[[dict[str, Any], int], dict[str, Any]] | None = None
     usable: Callable[[dict[str, Any]], bool] = lambda _params: True
     requirement: str = ""
+    monotone: bool | None = None
+
+    def __post_init__(self) -> None:
+        if self.monotone is None:
+            object.__setattr__(self, "monotone", self.name == "spp")
 
 
 @dataclass(frozen=True)

@@ -10,11 +10,15 @@ from __future__ import annotations
 import itertools
 
 import pytest
+from rich.console import Console
 
 from jobs.protocol.calibration import calibrate, calibrate_job, caveats
 from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import RenderSpec, TimeBudget
+from renderers.methods.base import Knob
 from renderers.methods.nirc import with_nc_at_v1
+from renderers.methods.pt import SPP_CANDIDATES
+from service.tables import calibration_table
 
 
 class Clock:
@@ -56,7 +60,65 @@ def test_non_monotone_times_choose_a_larger_candidate_past_a_slow_one():
     record = calibrate("nc", [1, 2, 4, 8, 16, 32], clock.measure, 0.020,
                        budget_source="test", rounds=3)
     assert record.chosen == 16          # the old walk stopped at 8 and chose 4
-    assert set(record.measured_s) == {1, 2, 4, 8, 16, 32}
+    assert set(record.measured_s) == {1, 2, 4, 8, 16, 32} and not record.not_timed
+    # Declared monotone, the same timings stop the search at 8 (25 ms: clearly over).
+    clock = Clock({1: 0.010, 2: 0.012, 4: 0.016, 8: 0.025, 16: 0.019, 32: 0.030})
+    record = calibrate("nc", [1, 2, 4, 8, 16, 32], clock.measure, 0.020,
+                       budget_source="test", rounds=3, monotone=True)
+    assert record.chosen == 4 and set(record.not_timed) == {16, 32}
+
+
+LINEAR = {spp: 0.010 * spp for spp in SPP_CANDIDATES}     # 10 ms per sample per pixel
+
+
+def test_a_monotone_knob_stops_above_the_first_candidate_clearly_over():
+    """spp 4 (40 ms) is over the 35 ms budget by more than the allowed 3.5 ms: nothing
+    above it is timed; without the flag every candidate under the 4x cut is."""
+    clock = Clock(LINEAR)
+    record = calibrate("spp", SPP_CANDIDATES, clock.measure, 0.035, budget_source="test",
+                       rounds=3, monotone=True, probe_frames=5)
+    assert record.chosen == 3 and record.fits and not record.unstable
+    assert clock.calls == ["nc=1", "nc=2", "nc=3", "nc=4", "nc=4", "nc=3", "nc=2", "nc=1",
+                           "nc=1", "nc=2", "nc=3", "nc=4"]
+    assert record.probes_per_round == [4, 4, 4] and record.timed_frames == 12 * 5
+    assert set(record.not_timed) == set(SPP_CANDIDATES) - {1, 2, 3, 4}
+    assert "spp 4 is over the budget" in record.not_timed[512]
+    assert record.to_json()["not_timed"]["6"] == record.not_timed[6]
+    unflagged = Clock(LINEAR)
+    calibrate("spp", SPP_CANDIDATES, unflagged.measure, 0.035, budget_source="test",
+              rounds=3)
+    assert sorted(set(unflagged.calls)) == sorted(f"nc={v}" for v in (1, 2, 3, 4, 6, 8, 12))
+
+
+def test_no_candidate_predicted_over_four_budgets_is_timed():
+    """A non-monotone knob keeps its full search except this cut: from nc 1, 2 and 4
+    the log-log line predicts 80 ms for nc 8, over 4 x 15 ms; a candidate timed over
+    the cut is not timed again."""
+    clock = Clock({1: 0.010, 2: 0.020, 4: 0.040, 8: 0.080, 16: 0.160, 32: 0.320})
+    record = calibrate("nc", [1, 2, 4, 8, 16, 32], clock.measure, 0.015,
+                       budget_source="test", rounds=3)
+    assert record.chosen == 1 and set(record.measured_s) == {1, 2, 4}
+    assert set(record.not_timed) == {8, 16, 32}
+    assert record.not_timed[8].startswith("predicted 80 ms per frame")
+    assert clock.calls.count("nc=4") == 3
+    once = Clock({1: 0.010, 2: 0.100})
+    record = calibrate("nc", [1, 2], once.measure, 0.012, budget_source="test", rounds=3)
+    assert once.calls == ["nc=1", "nc=2", "nc=1", "nc=1"] and record.spread_s[2] == [0.1, 0.1]
+
+
+def test_noise_does_not_stop_a_monotone_search_too_early():
+    """spp 4's first round is slow (25 ms against a 20 ms budget, allowed spread 2 ms):
+    the search stops above it, but its next round (12 ms) puts spp 8 back in play,
+    which then gets its rounds and is chosen. A candidate over the limit by less than
+    the allowed spread (spp 8 at 21 ms in its first round) does not stop it either."""
+    clock = Clock({1: 0.005, 2: 0.008, 4: [0.025, 0.012, 0.012], 8: [0.021, 0.019, 0.019],
+                   16: 0.030, 32: 0.060})
+    record = calibrate("spp", [1, 2, 4, 8, 16, 32], clock.measure, 0.020,
+                       budget_source="test", rounds=3, monotone=True)
+    assert record.chosen == 8 and record.measured_s[4] == pytest.approx(0.012)
+    assert clock.calls.count("nc=8") == 3 and clock.calls.count("nc=16") == 3
+    assert set(record.not_timed) == {32} and len(record.probes_per_round) == 5
+    assert clock.calls[:4] == ["nc=1", "nc=2", "nc=4", "nc=4"]   # spp 8 waited for round 2
 
 
 def test_a_fitting_top_candidate_is_reported_as_capped():
@@ -152,3 +214,36 @@ def test_calibrate_job_keeps_the_later_vertex_nc(monkeypatch):
     assert calibrated.spec.params["nc"] == [4, 1] and record.chosen == 4
     assert calibrated.params.nc == [4, 1] and calibrated.spec.time_budget is None
     assert all(nc[1:] == [1] for nc in seen) and len(seen) == 8   # 4 candidates x 2 rounds
+
+
+def test_calibrate_job_stops_the_spp_search_and_reports_its_cost(monkeypatch):
+    """pt's spp knob is monotone by default (nirc's N_c is not): at 1 ms per spp and a
+    4.5 ms budget the probes stop at spp 6, in both rounds."""
+    import renderers.methods as methods
+
+    seen: list[int] = []
+    real = methods.get_method("pt")
+
+    class FakeMethod:
+        params = real.params
+
+        def render(self, scene, values, seed_parts, spp, frames):
+            seen.append(spp)
+
+            class Output:
+                timings = {"frame_median_s": 0.001 * spp}
+            return Output()
+
+    monkeypatch.setattr(methods, "get_method", lambda name: FakeMethod())
+    spec = RenderSpec(scene="cornell-box", method="pt",
+                      time_budget=TimeBudget(ms=4.5, rounds=2, probe_frames=2))
+    calibrated, record = calibrate_job(RenderJob.parse(spec), scene=None, device_key="test")
+    assert calibrated.spec.spp == record.chosen == 4 and record.monotone
+    assert seen == [1, 2, 3, 4, 6, 6, 4, 3, 2, 1]
+    assert record.timed_frames == 10 * 2 and record.wall_s > 0
+    console = Console(width=400, record=True)
+    console.print(calibration_table("calibration", record.to_json()))
+    text = console.export_text()
+    assert "spp 8, 12, 16" in text and "20 timed frames" in text
+    assert Knob("spp", (1,)).monotone and not Knob("nc", (1,)).monotone
+    assert not Knob("spp", (1,), monotone=False).monotone
