@@ -108,14 +108,17 @@ class Frozen:
     again after settling (4 instead of 2)."""
 
     def __init__(self, fn: Callable[..., Any], auto_opaque: bool = True) -> None:
+        # Dr.Jit walks this function's closure and globals too: neither reaches a scene.
         def keyed(_key: CallKey, *args: Any) -> Any:
-            return fn(*args)
+            return fn(*(arg.scene if isinstance(arg, SceneArrays) else arg for arg in args))
 
         # Each width or value of a call records once (the module docstring): a
         # changing count is padded to a Capacity, so a function records a few times.
         self._fn = dr.freeze(keyed, auto_opaque=auto_opaque, warn_after=WARN_AFTER)
+        self._scene: SceneLayout | None = None   # of the last scene handed over
 
     def __call__(self, *args: Any) -> Any:
+        args = tuple(self._arrays(arg) if is_scene(arg) else arg for arg in args)
         key = CallKey.of(args)
         # No garbage collection inside a call: collecting another frozen function (an
         # object cycle freed late) while this one records aborted the process.
@@ -129,6 +132,11 @@ class Frozen:
 
     def recordings(self) -> int:
         return int(self._fn.n_recordings)
+
+    def _arrays(self, scene: Any) -> SceneArrays:
+        if self._scene is None or self._scene.scene is not scene:
+            self._scene = SceneLayout(scene)
+        return self._scene.arrays()
 
 
 class FrozenRecords:
@@ -224,12 +232,112 @@ def _collect(node: Any, parts: list[Any]) -> None:
             _collect(getattr(node, field.name), parts)
     elif isinstance(node, _VALUES):
         parts.append(node)
+    elif isinstance(node, OwnArrays):   # Dr.Jit compares their count, and so does the key
+        parts.append(len(node.indices))
+    elif is_scene(node):
+        raise TypeError("a frozen call's inputs hold a scene inside another value: hand "
+                        "the scene over as an argument of its own (it enters as its "
+                        "arrays, SceneArrays)")
     else:   # an object compared by identity, as Dr.Jit compares it; not kept alive
         parts.append((type(node).__qualname__, id(node)))
 
 
 #: Leaves compared by value (anything else by identity).
 _VALUES = (int, float, complex, str, bytes, type(None), enum.Enum)
+
+
+def is_scene(value: Any) -> bool:
+    """Whether ``value`` is a Mitsuba scene (of any variant)."""
+    return any(cls.__name__ == "Scene" and cls.__module__ == "mitsuba"
+               for cls in type(value).__mro__)
+
+
+def object_traversal() -> Any:
+    """The block in which Mitsuba's objects list their Dr.Jit arrays (they list none
+    outside it, where a loop or a virtual call would walk them by mistake)."""
+    return dr.scoped_set_flag(dr.JitFlag.EnableObjectTraversal, True)
+
+
+class SceneArrays:
+    """What a frozen call is handed of a scene: its pointer arrays (of its shapes,
+    emitters and sensors) and its own arrays (:class:`OwnArrays`). Dr.Jit walks the
+    fields of ``DRJIT_STRUCT`` only, so it never meets :attr:`scene`, which the frozen
+    function gets in this value's place.
+
+    Handed the scene itself, Dr.Jit walks every object of the scene twice per call:
+    once through the scene's own traversal and once through its registry, which it
+    walks for the pointer arrays it met (docs/timing.md, "The floor of a frozen call").
+    The registry walk alone covers every shape, emitter and sensor (and what they
+    hold: meshes, textures, BSDFs, the film), and the pointer arrays make Dr.Jit take
+    it."""
+
+    DRJIT_STRUCT = {"shapes": object, "emitters": object, "sensors": object, "own": object}
+
+    def __init__(self, scene: Any, own: OwnArrays) -> None:
+        self.scene = scene
+        self.shapes, self.emitters = scene.shapes_dr(), scene.emitters_dr()
+        self.sensors = scene.sensors_dr()
+        self.own = own
+
+
+class OwnArrays:
+    """The Dr.Jit variables a scene holds outside its shapes, emitters and sensors,
+    listed to Dr.Jit by their indices (``_traverse_1_cb_ro``): with Mitsuba 3.9 on the
+    LLVM backend, the ray-tracing acceleration structure's four (Embree's scene and
+    entry points, the shapes' registry ids), which Mitsuba keeps for the scene's life
+    (a rebuild after the geometry moved reuses them); and the emitters' and shapes'
+    sampling distributions where the scene has them (rebuilt when an emitter
+    changes). Each variable is listed as an input, never replaced: the frame reads the
+    scene's own."""
+
+    def __init__(self, indices: list[int]) -> None:
+        self.indices = indices
+
+    def _traverse_1_cb_ro(self, visit: Callable[[int, str, str], None]) -> None:
+        for index in self.indices:
+            visit(index, "", "")
+
+    def _traverse_1_cb_rw(self, visit: Callable[[int, str, str], int]) -> None:
+        for index in self.indices:
+            visit(index, "", "")
+
+
+class SceneLayout:
+    """Where a scene's own arrays (:class:`OwnArrays`) are in its traversal, found once:
+    the variables of its traversal that none of its shapes, emitters and sensors holds.
+    Those listed before the first of its objects' (the acceleration structure) are kept
+    for the scene's life; any after (a sampling distribution, rebuilt with what it
+    samples) are read from a walk of the scene on each call, ~0.2 ms on many-lights."""
+
+    def __init__(self, scene: Any) -> None:
+        self.scene = scene
+        self._find(self._walk())
+
+    def _find(self, walk: list[int]) -> None:
+        scene = self.scene
+        with object_traversal():
+            held = set(dr.detail.collect_indices(
+                [*scene.shapes(), *scene.emitters(), *scene.sensors(), scene.shapes_dr(),
+                 scene.emitters_dr(), scene.sensors_dr()]))
+        own = [at for at, index in enumerate(walk) if index and index not in held]
+        first_held = next((at for at, index in enumerate(walk) if index in held), len(walk))
+        self.length = len(walk)
+        self.kept = [walk[at] for at in own if at < first_held]
+        self.rebuilt = [at for at in own if at > first_held]
+
+    def _walk(self) -> list[int]:
+        with object_traversal():
+            return dr.detail.collect_indices(self.scene)
+
+    def arrays(self) -> SceneArrays:
+        """The scene's arrays now."""
+        if not self.rebuilt:
+            return SceneArrays(self.scene, OwnArrays(self.kept))
+        walk = self._walk()
+        if len(walk) != self.length:   # a distribution appeared or went: find them anew
+            self._find(walk)
+        return SceneArrays(self.scene, OwnArrays(
+            self.kept + [walk[at] for at in self.rebuilt if walk[at]]))
 
 
 class Capacity:

@@ -1,0 +1,196 @@
+"""What a frozen call is handed of a scene (renderers.frozen.SceneArrays): its pointer
+arrays and its own arrays, never the scene object, so that a replay walks each of the
+scene's objects once (through Dr.Jit's registry) and not a second time through the
+scene's own traversal; and a frozen frame still follows the scene when it changes."""
+
+from __future__ import annotations
+
+import gc
+
+import numpy as np
+import pytest
+
+from renderers.frozen import frozen_frames
+from tests.renderers.test_frozen import OneSceneAtATime, render
+
+
+@pytest.fixture(scope="module")
+def scenes(mi):
+    return OneSceneAtATime()
+
+
+class Walked:
+    """Dr.Jit's frozen function (what ``dr.freeze`` calls with a call's whole input:
+    arguments, closure, globals), noting the Dr.Jit variables its walk of each input
+    meets before the registry (``dr.detail.collect_indices`` walks a PyTree and
+    Mitsuba's objects as the frozen function's traversal does)."""
+
+    def __init__(self, frozen, walks: list[list[int]]) -> None:
+        self._frozen, self._walks = frozen, walks
+
+    def __call__(self, call_input):
+        import drjit as dr
+
+        from renderers.frozen import object_traversal
+
+        with object_traversal():
+            self._walks.append(dr.detail.collect_indices(call_input))
+        return self._frozen(call_input)
+
+    def __getattr__(self, name: str):
+        return getattr(self._frozen, name)
+
+
+@pytest.fixture
+def walks(monkeypatch):
+    """Every frozen call's input walk, for the functions frozen in the test."""
+    import drjit as dr
+
+    walked: list[list[int]] = []
+    freeze = dr.freeze
+
+    def noting(*args, **kwargs):
+        function = freeze(*args, **kwargs)
+        function.frozen = Walked(function.frozen, walked)
+        return function
+
+    monkeypatch.setattr(dr, "freeze", noting)
+    return walked
+
+
+def objects_variables(scene) -> set[int]:
+    """The variables the scene's shapes, emitters and sensors hold (what the registry
+    walk, which the pointer arrays call for, covers)."""
+    import drjit as dr
+
+    from renderers.frozen import object_traversal
+
+    with object_traversal():
+        return set(dr.detail.collect_indices(
+            [*scene.shapes(), *scene.emitters(), *scene.sensors()])) - {0}
+
+
+def walked_twice(walks: list[list[int]], scene) -> list[int]:
+    """Per frozen call, the variables of the scene's objects its input walk met (each is
+    walked again by the registry)."""
+    held = objects_variables(scene)
+    return [len(held.intersection(walk)) for walk in walks]
+
+
+#: One method per kind of frozen call that reads the scene: a frozen mi.render (pt), a
+#: frame of its own (ReSTIR), a caching frame in stages with its training paths (nrc),
+#: training records (nvc-lights' VisibilityRecords).
+METHODS = ("pt", "restir-di", "nrc", "nvc-lights")
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_no_frozen_call_walks_the_scene_objects_outside_the_registry(scenes, walks, name):
+    output = render(scenes, name, True, frames=2)
+    assert output.timings["frozen"]["recordings_after_warmup"] >= 1
+    scene = scenes["many-lights"].scene
+    # A few are met by chance: Dr.Jit shares one variable among equal literals, so an
+    # argument may hold a constant an object holds too.
+    assert walks and max(walked_twice(walks, scene)) < 0.01 * len(objects_variables(scene))
+
+
+def test_a_scene_handed_over_itself_is_walked_twice(scenes, walks, monkeypatch):
+    """Planted: the scene handed to the frozen frame as it is (the check that swaps it
+    for its arrays answers no). The input walk then meets every variable of the
+    scene's objects, which the registry walks again: thousands per call."""
+    import renderers.frozen as frozen
+
+    monkeypatch.setattr(frozen, "is_scene", lambda _value: False)
+    render(scenes, "pt", True, frames=2)
+    scene = scenes["many-lights"].scene
+    twice = walked_twice(walks, scene)
+    assert min(twice) > 0.9 * len(objects_variables(scene))
+
+
+def test_a_frozen_call_never_takes_a_scene_inside_another_value(scenes):
+    """A scene nested in an argument would be walked whole: refused with a message."""
+    from renderers.frozen import Frozen
+
+    with frozen_frames(True):
+        frozen = Frozen(lambda _arguments: None)
+    with pytest.raises(TypeError, match="argument of its own"):
+        frozen({"scene": scenes["many-lights"].scene})
+
+
+def test_dr_freeze_hands_its_frozen_function_the_arguments_and_the_closure(mi):
+    """Pins what the tests above rely on of Dr.Jit 1.5's ``dr.freeze``: its wrapper calls
+    ``.frozen`` with one dict holding the call's arguments and the function's closure
+    variables; ``collect_indices`` lists a Mitsuba object's variables only while object
+    traversal is on, and only the fields of a ``DRJIT_STRUCT``."""
+    import drjit as dr
+
+    from renderers.frozen import SceneArrays, object_traversal
+
+    walked: list[list[int]] = []
+    captured = mi.Float(7)
+
+    def add(x):
+        return x + captured
+
+    function = dr.freeze(add)
+    function.frozen = Walked(function.frozen, walked)
+    x = mi.Float(1, 2)
+    np.testing.assert_array_equal(function(x).numpy(), [8, 9])
+    assert {x.index, captured.index} <= set(walked[0])
+
+    scene = mi.load_dict({"type": "scene", "shape": {"type": "sphere"},
+                          "light": {"type": "constant"}})
+    assert dr.detail.collect_indices(scene) == []
+    with object_traversal():
+        assert len(dr.detail.collect_indices(scene)) > 3
+        arrays = SceneArrays(scene, frozen_own(scene))
+        assert scene.shapes_dr().index in dr.detail.collect_indices(arrays)
+        assert not objects_variables(scene) & set(dr.detail.collect_indices(arrays))
+
+
+def frozen_own(scene):
+    from renderers.frozen import SceneLayout
+
+    return SceneLayout(scene).arrays().own
+
+
+def test_a_frozen_frame_follows_the_scene_when_it_changes(mi):
+    """A shape moved and an emitter made brighter through ``mi.traverse`` and
+    ``params.update()`` between frozen frames: each frozen frame equals bitwise a traced
+    render of the scene as it is then, and the second change replays (no recording).
+    The changes show in the traced images, so a frame stuck on the old scene fails."""
+    from renderers.methods.base import render_stage
+    from renderers.methods.pt import PTParams, path_integrator
+    from renderers.scenes import load_scene
+    from renderers.timing import StageTimer
+
+    gc.collect()
+    loaded = load_scene("many-lights", 8)
+    scene = loaded.scene
+    with frozen_frames(True):
+        integrator = path_integrator(PTParams(max_depth=3))
+        frame = render_stage(loaded, integrator, 1)
+
+    def frozen_and_traced(seed: int) -> tuple[np.ndarray, np.ndarray]:
+        frozen = np.asarray(frame(0, seed, StageTimer()))
+        traced = np.asarray(mi.render(scene, integrator=integrator, spp=1, seed=seed))
+        return frozen, traced
+
+    for seed in range(4):   # settle the recordings
+        frozen, traced = frozen_and_traced(seed)
+    np.testing.assert_array_equal(frozen, traced)
+    before = traced
+
+    params = mi.traverse(scene)
+    shape = next(k for k in params.keys() if k.endswith("vertex_positions"))
+    light = next(k for k in params.keys() if k.endswith("emitter.radiance.value"))
+    recordings = []
+    for _ in range(2):
+        params[shape] = params[shape] + 0.05
+        params[light] = params[light] * 4
+        params.update()
+        frozen, traced = frozen_and_traced(3)
+        assert not np.array_equal(traced, before)
+        np.testing.assert_array_equal(frozen, traced)
+        before = traced
+        recordings.append(frame.recordings())
+    assert recordings[1] == recordings[0]
