@@ -8,9 +8,11 @@ max(floor, 3.16 % of the pixels) in small frames; one unit for work of a fixed s
 such as a visibility cache's training points). a is the stage's fixed cost (Python
 tracing, launches, fixed-size work), b its cost per unit.
 
-a and b are fitted by least squares from probes of several resolutions (64², 128²,
-256² by default: where b * size is not negligible), timed in interleaved rounds
-(jobs.protocol.calibration.interleaved_rounds), with Student-t intervals. A stage
+a and b are fitted by weighted least squares from probes of several resolutions (64²,
+128², 256² by default: where b * size is not negligible), timed in interleaved rounds
+(jobs.protocol.calibration.interleaved_rounds), with Student-t intervals. The weights
+fit relative errors (:func:`fit_line`): the timing noise is a fraction of the frame's
+time, so the largest probe is the noisiest and must not decide the line. A stage
 held at a floor in every probe says nothing about b; the probes then also scale the
 method's floors (``Method.scale_floors``), so its size varies. Kernel time
 (renderers.timing) is modelled the same way, so a projection says how much of the
@@ -88,8 +90,17 @@ class Prediction:
 
 def fit_line(sizes: Sequence[float], seconds: Sequence[float],
              confidence: float = CONFIDENCE) -> LinearFit:
-    """Least-squares a + b * size with Student-t intervals (scipy.stats.linregress);
-    a constant (the mean) when every size is the same."""
+    """Weighted least squares a + b * size with Student-t intervals; a constant (the
+    mean) when every size is the same.
+
+    Weights: 1 / m², m the median of the samples of the same size (floored at 1e-3 of
+    the largest m, for stages absent at some size). A machine's timing noise is a
+    fraction of a frame's time (a slower machine slows every kernel alike; the
+    calibration and the probes' flags bound spreads as fractions of the median), so
+    the samples' spread grows with the size: unweighted, the largest probe's noise
+    would decide the intercept and the intervals would claim more than they hold.
+    Weighted, every sample counts by its relative error, and with weights known up
+    to a factor cov(a, b) = s² (XᵀWX)⁻¹, s² = Σ w r² / (n - 2)."""
     from scipy import stats  # ~1 s to import: only where a model is fitted
 
     x = np.asarray(sizes, dtype=float)
@@ -109,15 +120,22 @@ def fit_line(sizes: Sequence[float], seconds: Sequence[float],
                          distinct, se, None, None, t)
     if x.size < 3:
         raise ValueError("a straight line through two samples has no interval: probe more")
-    fit = stats.linregress(x, y)
+    medians = {v: float(np.median(y[x == v])) for v in distinct}
+    scale = np.abs(np.array([medians[v] for v in x.tolist()]))
+    scale = np.maximum(scale, 1e-3 * scale.max()) if scale.max() > 0 else np.ones_like(y)
+    root_w = 1 / scale
+    # Sizes in units of the largest keep XᵀWX well conditioned: b = b' / unit.
+    unit = float(np.abs(x).max())
+    design = np.column_stack([np.ones_like(x), x / unit]) * root_w[:, None]
+    (a, b_scaled), *_ = np.linalg.lstsq(design, y * root_w, rcond=None)
+    residual = (y - a - b_scaled * x / unit) * root_w
+    cov = float(residual @ residual) / (x.size - 2) * np.linalg.inv(design.T @ design)
     t = float(stats.t.ppf(level, x.size - 2))
-    se_a, se_b = float(fit.intercept_stderr), float(fit.stderr)
-    return LinearFit(
-        float(fit.intercept), (fit.intercept - t * se_a, fit.intercept + t * se_a),
-        float(fit.slope), (fit.slope - t * se_b, fit.slope + t * se_b), int(x.size),
-        distinct, se_a, se_b,
-        # cov(a, b) = -mean(x) var(b) for a least-squares line.
-        -float(x.mean()) * se_b ** 2, t)
+    b = b_scaled / unit
+    se_a, se_b = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1])) / unit
+    return LinearFit(float(a), (a - t * se_a, a + t * se_a), float(b),
+                     (b - t * se_b, b + t * se_b), int(x.size), distinct, se_a, se_b,
+                     float(cov[0, 1]) / unit, t)
 
 
 @dataclass(frozen=True)

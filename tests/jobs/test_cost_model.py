@@ -24,21 +24,56 @@ def test_a_fit_recovers_a_known_line_within_its_intervals():
     assert at.ci[0] <= 0.004 + 2e-7 * 1e5 <= at.ci[1]
 
 
+#: A probe set like the default one (64², 128², 256², 3 rounds) of a stage costing
+#: 0.4 ms + 0.3 us per pixel sample, timed with noise of 5 % of the frame's time.
+TRUE_A, TRUE_B, RELATIVE_NOISE = 4e-4, 3e-7, 0.05
+PROBE_SIZES = np.repeat([4096.0, 16384.0, 65536.0], 3)
+FAR = 1920 * 1080
+
+
+def noisy_probes(rng: np.random.Generator) -> np.ndarray:
+    truth = TRUE_A + TRUE_B * PROBE_SIZES
+    return truth * (1 + rng.normal(0, RELATIVE_NOISE, truth.size))
+
+
 def test_the_intervals_cover_the_truth_as_often_as_they_claim():
-    """400 fits of noisy lines: the 95 % intervals of a, b and of a prediction far beyond
-    the probes each cover the truth in 95 % of them (binomial 99.9 % bounds)."""
+    """400 fits of probes whose spread grows with their size: the 95 % intervals of a,
+    b and of a prediction far beyond the probes (1080p) each cover the truth in 95 %
+    of them (binomial 99.9 % bounds)."""
     rng = np.random.default_rng(11)
-    sizes = np.repeat([1.0, 4.0, 16.0], 3)
     trials = 400
     hits = np.zeros(3)
     for _ in range(trials):
-        fit = fit_line(sizes, 1.0 + 0.5 * sizes + rng.normal(0, 0.3, sizes.size))
-        far = fit.predict(130.0)
-        hits += [fit.intercept_ci[0] <= 1.0 <= fit.intercept_ci[1],
-                 fit.slope_ci[0] <= 0.5 <= fit.slope_ci[1],
-                 far.ci[0] <= 1.0 + 0.5 * 130 <= far.ci[1]]
+        fit = fit_line(PROBE_SIZES, noisy_probes(rng))
+        far = fit.predict(FAR)
+        hits += [fit.intercept_ci[0] <= TRUE_A <= fit.intercept_ci[1],
+                 fit.slope_ci[0] <= TRUE_B <= fit.slope_ci[1],
+                 far.ci[0] <= TRUE_A + TRUE_B * FAR <= far.ci[1]]
     low, high = stats.binom.ppf([0.0005, 0.9995], trials, 0.95)
     assert np.all((low <= hits) & (hits <= high)), hits
+
+
+def test_the_noisy_largest_probe_pulls_an_unweighted_fit_not_the_weighted_one():
+    """The planted mistake: ordinary least squares (linregress) on the same probes lets
+    the 256² probe's noise, 12x that of 64² here in seconds, decide the line: its intercept
+    errs about twice as much, and its slope interval covers the truth far less often
+    than the 95 % it claims (about 80 %)."""
+    rng = np.random.default_rng(12)
+    trials = 400
+    seconds = np.array([noisy_probes(rng) for _ in range(trials)])
+    weighted_a = [fit_line(PROBE_SIZES, row).intercept - TRUE_A for row in seconds]
+    # Ordinary least squares of every trial at once (what linregress computes).
+    centred = PROBE_SIZES - PROBE_SIZES.mean()
+    plain_b = seconds @ centred / (centred @ centred)
+    plain_a = seconds.mean(axis=1) - plain_b * PROBE_SIZES.mean() - TRUE_A
+    residuals = seconds - (plain_a + TRUE_A)[:, None] - plain_b[:, None] * PROBE_SIZES
+    plain_se_b = np.sqrt((residuals ** 2).sum(axis=1) / (PROBE_SIZES.size - 2)
+                         / (centred @ centred))
+    plain_hits = np.sum(np.abs(plain_b - TRUE_B)
+                        <= stats.t.ppf(0.975, PROBE_SIZES.size - 2) * plain_se_b)
+    rms = lambda errors: float(np.sqrt(np.mean(np.square(errors))))  # noqa: E731
+    assert rms(weighted_a) < 0.7 * rms(plain_a), (rms(weighted_a), rms(plain_a))
+    assert plain_hits < stats.binom.ppf(0.0005, trials, 0.95), plain_hits
 
 
 def test_a_stage_of_one_size_is_a_constant_that_projects_only_to_that_size():
