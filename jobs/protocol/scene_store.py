@@ -36,7 +36,7 @@ import threading
 from pathlib import Path
 
 from jobs.record.config import Settings
-from renderers.backend import init_backend
+from renderers.backend import BackendError, default_variant, init_backend
 from renderers.scenes import LoadedScene, SceneError, SceneFeatures, builtin_names, load_scene
 from renderers.scenes.errors import SceneNotFinite
 from renderers.scenes.vetting import (
@@ -56,7 +56,8 @@ SCENE_ID = re.compile(r"^(upload|staged):([0-9a-f]{32})$")
 #: ``resolution`` depends on it.
 FEATURES_RESOLUTION = 8
 #: The variant features are loaded with in a process that has chosen none (the
-#: service's API process): the CPU's, so that no GPU context is opened for them.
+#: service's API process): the CPU's, so that no GPU context is opened for them —
+#: unless the machine has no usable libLLVM but a GPU (:func:`features_backend`).
 FEATURES_VARIANT = "llvm_ad_rgb"
 
 _features: dict[str, SceneFeatures] = {}
@@ -146,6 +147,19 @@ def rest_scene(scene: str, settings: Settings) -> str:
     return f"staged:{staged.digest}"
 
 
+def features_backend() -> None:
+    """Choose the variant scenes are loaded with for their features: the CPU's
+    (:data:`FEATURES_VARIANT`), or, on a GPU machine without a usable libLLVM, the
+    default variant (the GPU's), which would render the jobs anyway. Raises
+    BackendError (naming what is missing) where neither can be used."""
+    try:
+        init_backend(FEATURES_VARIANT)
+    except BackendError:
+        if default_variant() == FEATURES_VARIANT:
+            raise
+        init_backend(default_variant())
+
+
 def builtin_features(name: str) -> SceneFeatures:
     """The features of the built-in scene ``name`` (what decides which methods apply to
     it), loaded once per process: known without rendering anything, so that a job whose
@@ -155,7 +169,7 @@ def builtin_features(name: str) -> SceneFeatures:
         if name not in _features:
             mitsuba = sys.modules.get("mitsuba")
             if mitsuba is None or mitsuba.variant() is None:
-                init_backend(FEATURES_VARIANT)
+                features_backend()
             _features[name] = load_scene(name, FEATURES_RESOLUTION).features
         return _features[name]
 
