@@ -5,10 +5,11 @@ Four tables, each measured in this one run with interleaved rounds and medians:
 1. **Frame time at 8², 64², 128²** per method: wall ms per frame (the stage total
    of the median frame), kernel ms (Dr.Jit's kernel history), the harness share
    (wall outside kernels) and kernel launches per frame; Mitsuba's own ``path``
-   through ``mi.render`` (plain and frozen with ``dr.freeze``) as the reference, and
-   Mitsuba's ``depth`` (one camera ray per pixel) frozen on each scene of the rows:
-   the least a frozen call that reads that scene costs (Dr.Jit walks every variable of
-   the scene's objects on each call: docs/timing.md, "The floor of a frozen call").
+   through ``mi.render`` (plain and frozen, handed the scene's arrays as every frozen
+   call of the project is: renderers.frozen.Frozen) as the reference, and Mitsuba's
+   ``depth`` (one camera ray per pixel) frozen on each scene of the rows: the least a
+   frozen call that reads that scene costs (Dr.Jit walks every variable of the scene's
+   objects on each call: docs/timing.md, "The floor of a frozen call").
 2. **The fixed cost at 8²**, split into harness (wall - kernel of every part),
    the method's own fixed work (kernel time of stages whose size does not grow
    with the image: training at its record floor, the visibility caches' training
@@ -16,7 +17,8 @@ Four tables, each measured in this one run with interleaved rounds and medians:
 3. **The per-stage cost model** a + b x size of each method, fitted at 64², 128²,
    256² (and the caches' floors scaled x4, x16) with 95 % intervals, and its
    projection to 1920x1080 on this device.
-4. **What recording the kernel history costs**: frames with and without it.
+4. **What recording the kernel history costs**: every row's median frame with and
+   without it, interleaved (a replay copies each kernel's source into the history).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from statistics import median
 from typing import Any
 
@@ -46,8 +49,13 @@ CASES: tuple[tuple[str, str, str, dict[str, Any]], ...] = (
 #: The goals of a steady-state frame (docs/timing.md, "Goals"): for these rows, the
 #: harness share of the median frame at most this at that resolution ...
 HARNESS_GOALS = {128: 0.10, 8: 0.25}
-GOAL_ROWS = ("pt (door)", "nirc biased N_c 4 (door)", "nrc (door)",
-             "restir-di d2 (many-lights)", "nvc-lights d2 (many-lights)")
+GOAL_ROWS = {128: tuple(label for label, *_ in CASES),
+             8: ("pt (door)", "nirc biased N_c 4 (door)", "nrc (door)",
+                 "restir-di d2 (many-lights)", "nvc-lights d2 (many-lights)")}
+#: ... and `restir-di`'s frame at 8x8 at most this fraction of its frame at 128x128 (its
+#: fixed cost against its pixel work; `pt`'s is ~0.02) ...
+RESTIR_ROW = "restir-di d2 (many-lights)"
+RESTIR_SMALL_OVER_LARGE = 0.15
 #: ... and `pt`'s 8x8 frame at most this many times Mitsuba's frozen `path`'s.
 PT_OVER_FROZEN_PATH = 1.5
 #: ... and `restir-di`'s per-pixel cost b at most this many times `pt-power`'s (table 3).
@@ -92,11 +100,11 @@ MITSUBA_ROWS: dict[str, tuple[str, str, bool]] = {
 }
 
 
-def mitsuba_render(mi: Any, scenes: Scenes, row: str, res: int, frames: int) -> dict[str, Any]:
+def mitsuba_render(mi: Any, scenes: Scenes, row: str, res: int, frames: int,
+                   kernel_time: bool = True) -> dict[str, Any]:
     """A :data:`MITSUBA_ROWS` row at 1 spp through ``mi.render`` (or a frozen function of
     it, warmed up until its recording count settles), timed like a method."""
-    import drjit as dr
-
+    from renderers.frozen import Frozen
     from renderers.timing import (
         FrameTime,
         StageTimer,
@@ -110,25 +118,25 @@ def mitsuba_render(mi: Any, scenes: Scenes, row: str, res: int, frames: int) -> 
     scene = scenes(scene_name, res).scene
     integrator = mi.load_dict({"type": integrator_type})
 
-    def render(seed: Any) -> Any:
+    def render(scene: Any, seed: Any) -> Any:
         return mi.render(scene, integrator=integrator, spp=1, seed=seed)
 
-    call: Callable[[Any], Any] = dr.freeze(render) if frozen else render
+    call: Callable[[Any, Any], Any] = Frozen(render) if frozen else render
     seed_type = mi.UInt32 if frozen else int
     timed: list[FrameTime] = []
-    with kernel_history():
+    with kernel_history() if kernel_time else nullcontext():
         recordings, seed = -1, 0
         while True:   # warm up until the recording count settles (unfrozen: once)
-            synchronize(call(seed_type(seed)))
+            synchronize(call(scene, seed_type(seed)))
             seed += 1
-            count = getattr(call, "n_recordings", 0)
+            count = call.recordings() if isinstance(call, Frozen) else 0
             if count == recordings or not frozen:
                 break
             recordings = count
         for index in range(frames):
             timer = StageTimer()
             with timer.frame(), timer.stage("render"):
-                synchronize(call(seed_type(1000 + index)))
+                synchronize(call(scene, seed_type(1000 + index)))
             timed.append(timer.record())
     return summarize(timed, Warmup())
 
@@ -193,13 +201,18 @@ def goals(cases: tuple, chosen: dict[tuple[str, int], dict[str, Any]],
     for res, limit in HARNESS_GOALS.items():
         if res not in resolutions:
             continue
-        for row in (r for r in GOAL_ROWS if r in scene_of):
+        for row in (r for r in GOAL_ROWS[res] if r in scene_of):
             ms, kernel, share, _ = frame_row(chosen[row, res])
             floor_ms, floor_kernel, _, _ = frame_row(chosen[FLOOR_ROWS[scene_of[row]], res])
             verdict = "met" if share <= limit else "NOT met"
             print(f"  harness <= {100 * limit:.0f} % at {res}x{res}: {row:<30} "
                   f"{100 * share:5.1f} % ({ms - kernel:.3g} ms; floor of its scene "
                   f"{floor_ms - floor_kernel:.3g} ms)  {verdict}")
+    if {8, 128} <= set(resolutions) and RESTIR_ROW in scene_of:
+        ratio = frame_row(chosen[RESTIR_ROW, 8])[0] / frame_row(chosen[RESTIR_ROW, 128])[0]
+        verdict = "met" if ratio <= RESTIR_SMALL_OVER_LARGE else "NOT met"
+        print(f"  {RESTIR_ROW} 8x8 / 128x128 <= {RESTIR_SMALL_OVER_LARGE}: {ratio:.3f}  "
+              f"{verdict}")
     if 8 in resolutions and "pt (door)" in scene_of:
         ratio = (frame_row(chosen["pt (door)", 8])[0]
                  / frame_row(chosen["path (Mitsuba, frozen)", 8])[0])
@@ -273,26 +286,32 @@ def cost_model_table(scenes: Scenes, cases: tuple, params: dict[str, Any], devic
               f"{RESTIR_OVER_PT_POWER}: {ratio:.2f}  {verdict}")
 
 
-def history_overhead(scenes: Scenes, cases: tuple, params: dict[str, Any], frames: int,
-                     rounds: int) -> None:
-    """Table 4: the median frame's whole wall time (its stages and 'other', less the
-    reading of the history) with the kernel history on over off."""
-    configs = [(label, res, on) for label, res in (("pt (door)", 8), ("pt (door)", 128),
-                                                   ("nrc (door)", 8)) for on in (True, False)]
+def history_overhead(mi: Any, scenes: Scenes, cases: tuple, params: dict[str, Any],
+                     res: int, frames: int, rounds: int) -> None:
+    """Table 4: every row's median frame at ``res`` (its whole wall time: its stages and
+    'other', less the reading of the history) with the kernel history on and off,
+    interleaved."""
+    rows = [label for label, *_ in cases] + list(MITSUBA_ROWS)
+    configs = [(row, on) for row in rows for on in (True, False)]
     scene_of = {label: (method, scene) for label, method, scene, _ in cases}
 
-    def measure(config: tuple[str, int, bool]) -> float:
-        label, res, on = config
-        method, scene = scene_of[label]
-        return method_timings(scenes, method, scene, params[label], res, frames,
-                              kernel_time=on)["breakdown"]["frame_s"]
+    def measure(config: tuple[str, bool]) -> float:
+        row, on = config
+        if row in MITSUBA_ROWS:
+            timings = mitsuba_render(mi, scenes, row, res, frames, kernel_time=on)
+        else:
+            method, scene = scene_of[row]
+            timings = method_timings(scenes, method, scene, params[row], res, frames,
+                                     kernel_time=on)
+        return timings["breakdown"]["frame_s"]
 
     times = rounds_of(configs, measure, rounds)
-    print(f"\n4. kernel history's own cost (median of {rounds} interleaved rounds)")
-    for label, res in (("pt (door)", 8), ("pt (door)", 128), ("nrc (door)", 8)):
-        on, off = median(times[label, res, True]), median(times[label, res, False])
-        print(f"{label:<14}{res:>4}x{res:<4} on {1e3 * on:8.3g} ms  off {1e3 * off:8.3g} ms  "
-              f"on/off {on / off:.3f}")
+    print(f"\n4. kernel history's own cost at {res}x{res} (median of {rounds} interleaved "
+          "rounds; ms of the median frame)")
+    for row in rows:
+        on, off = median(times[row, True]), median(times[row, False])
+        print(f"{row:<38} on {1e3 * on:8.3g}  off {1e3 * off:8.3g}  "
+              f"on - off {1e3 * (on - off):7.3f}  on/off {on / off:.3f}")
 
 
 def main() -> None:
@@ -324,8 +343,9 @@ def main() -> None:
     if "3" in tables:
         cost_model_table(scenes, cases, params, device_key, [int(r) for r in args.cost_res.split(",")],
                          args.frames, args.rounds, (width, height))
-    if "4" in tables and {"pt (door)", "nrc (door)"} <= set(params):
-        history_overhead(scenes, cases, params, max(args.frames, 8), args.rounds + 2)
+    if "4" in tables:
+        history_overhead(mi, scenes, cases, params, min(resolutions), max(args.frames, 8),
+                         args.rounds + 2)
     print(f"\n({time.perf_counter() - start:.0f} s)")
 
 

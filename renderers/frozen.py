@@ -38,6 +38,13 @@ A pass over compacted lanes (a caching frame's vertices and queries) therefore t
 them padded to a :class:`Capacity`, a width that only grows, with headroom over the
 counts seen so far: its recordings settle like any other function's.
 
+**A scene enters a frozen call as its arrays** (:class:`SceneArrays`): every call
+replaces a scene among its arguments with the scene's pointer arrays and the few
+arrays it holds outside its objects, and the function gets the scene back in their
+place. Handed the scene object, Dr.Jit walked each of its objects twice per call
+(docs/timing.md, "The floor of a frozen call"); a scene nested in another argument
+is refused, and the wrapped function's closure never holds one.
+
 Freezing is on by default; ``with frozen_frames(False):`` runs the same code
 unfrozen (to compare the two: the frozen and unfrozen frames of a method must give
 the same images).
@@ -186,9 +193,10 @@ class CallKey:
     Python object of the inputs by value only where it meets it first, compares this
     one (it is never a repeat).
 
-    Other objects (a scene, its shapes and emitters) enter by type and identity, as
-    Dr.Jit compares them: the arrays of a scene are Dr.Jit's to walk, and keep their
-    widths while it renders (a scene whose meshes change size is a new scene)."""
+    Other objects (a shape, an emitter) enter by type and identity, as Dr.Jit compares
+    them; a scene's arrays (:class:`SceneArrays`) by their widths and the count of its
+    own arrays. Its objects' arrays are Dr.Jit's to walk, and keep their widths while
+    it renders (a scene whose meshes change size is a new scene)."""
 
     __slots__ = ("parts", "_hash")
 
