@@ -5,27 +5,32 @@ Pure arithmetic on measured points (seconds per frame, error), no rendering;
 method:
 
 - the **front**: the points no other point beats in both time and error;
-- the baseline's **curve**: the baseline's own front, sorted by time, so error
-  falls strictly as time grows, interpolated piecewise-linearly in log-log
-  (log seconds against log error); a power law error = c · t^-a is exact on it;
-- the **speed-up** of a point at equal error: t_baseline(its error) / its time.
-  An error outside the baseline's measured errors is never extrapolated: the
-  speed-up is then a bound, '> x' (the point's error is below the baseline's
-  smallest: the baseline would need more than its longest time) or '< x' (above
-  its largest);
+- a baseline **curve**: a series' own front, sorted by time, so error falls
+  strictly as time grows, interpolated piecewise-linearly in log-log (log
+  seconds against log error); a power law error = c · t^-a is exact on it;
+- a baseline of several curves (the strongest PT) is their **lower envelope** at
+  equal time (:data:`ENVELOPE_DEFINITION`); one curve is its own envelope;
+- the **speed-up** of a point at equal error: t_baseline(its error) / its time,
+  where the envelope's time at an error is the least of its curves' times at it.
+  An error outside a curve's measured errors is never extrapolated: the
+  speed-up is then a bound, '> x' (the point's error is below every curve's
+  smallest: the baseline would need more than its longest time) or '< x' (the
+  baseline may reach it sooner than measured: a curve's cheapest point is
+  already better, or a curve whose range ends earlier is not known there);
 - its **confidence interval**: a percentile bootstrap resampling, independently,
   every point's seeds (the error is their mean) and timing samples (the time is
   their median), baseline points and the point alike, and recomputing the
-  curve and the speed-up. A replicate outside the baseline's range counts as
+  curves and the speed-up. A replicate outside the baseline's range counts as
   -inf or +inf, so an end of the interval the measured range cannot bound is
   None.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from itertools import combinations, pairwise
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -40,8 +45,22 @@ BOOTSTRAP_METHOD = (
     "percentile bootstrap: each replicate resamples, with replacement and independently, "
     "every point's per-seed errors (error = their mean) and its timing samples (time = their "
     "median), the baseline's points and the method's point alike, and recomputes the "
-    "baseline's monotone log-log curve and the speed-up; replicates outside the baseline's "
-    "range count as -inf / +inf (an interval end they decide is reported as unbounded)")
+    "baseline's monotone log-log curves (their envelope) and the speed-up; replicates outside "
+    "the baseline's range count as -inf / +inf (an interval end they decide is reported as "
+    "unbounded)")
+
+#: What the baseline of several curves is (docs/pareto.md, "The strongest PT").
+ENVELOPE_DEFINITION = (
+    "lower error envelope at equal time of the baseline's curves: each curve is its series' "
+    "own front, piecewise linear in log-log between its points, over its measured time range "
+    "only (never extrapolated); at a time t the envelope is the least error of the curves whose "
+    "range contains t, and a time no range contains is a gap (no envelope there). Its time at "
+    "an error e is the earliest time any curve reaches e: the least of the curves' times at e. "
+    "A curve whose errors end above e (its most expensive point is worse) is known to need "
+    "more than its longest time, and one whose cheapest point is already below e less than "
+    "its shortest time. The time is exact when the least exact time is no larger than every "
+    "such lower bound; otherwise the measured curves bound it from above ('<' speed-up), or, "
+    "when every curve ends above e, from below ('>' speed-up)")
 
 
 @dataclass(frozen=True)
@@ -98,6 +117,91 @@ def equal_error_seconds(curve: Curve, error: float) -> tuple[float, Placement]:
     return float(np.exp(log_t)), "in"
 
 
+def curve_error(curve: Curve, seconds: float) -> float:
+    """The curve's error at ``seconds`` within its time range (log-log interpolation)."""
+    return float(np.exp(np.interp(np.log(seconds), np.log(curve.seconds), np.log(curve.errors))))
+
+
+def envelope_error(curves: Mapping[str, Curve], seconds: float) -> tuple[float, str] | None:
+    """The lower envelope at ``seconds``: the least error of the curves whose measured time
+    range contains it, and that curve's name; None in a gap (no range contains it)."""
+    found = [(curve_error(curve, seconds), name) for name, curve in curves.items()
+             if curve.seconds[0] <= seconds <= curve.seconds[-1]]
+    return min(found) if found else None
+
+
+@dataclass(frozen=True)
+class Piece:
+    """A time interval [from_s, to_s] over which ``series``' curve is the envelope."""
+
+    series: str
+    from_s: float
+    to_s: float
+
+
+def envelope_pieces(curves: Mapping[str, Curve]) -> list[Piece]:
+    """The envelope as the time intervals each curve is lowest over (neighbours of one curve
+    merged; a gap lies in no interval). Between two consecutive times of any curve every
+    curve is one straight line in log-log, so two curves cross there at most once: the
+    crossings and those times cut the axis into intervals with one lowest curve each."""
+    logs = {name: (np.log(c.seconds), np.log(c.errors)) for name, c in curves.items()}
+    times = sorted({float(t) for log_t, _ in logs.values() for t in log_t})
+    cuts = set(times)
+    for a, b in pairwise(times):
+        lines = [(np.interp([a, b], log_t, log_e)) for log_t, log_e in logs.values()
+                 if log_t[0] <= a and b <= log_t[-1]]
+        for (ea, eb), (fa, fb) in combinations(lines, 2):
+            if (ea - fa) * (eb - fb) < 0:
+                cuts.add(a + (b - a) * (ea - fa) / ((ea - fa) - (eb - fb)))
+    pieces: list[Piece] = []
+    for a, b in pairwise(sorted(cuts)):
+        found = envelope_error(curves, float(np.exp((a + b) / 2)))
+        if found is None:
+            continue
+        start, end = float(np.exp(a)), float(np.exp(b))
+        if pieces and pieces[-1].series == found[1] and pieces[-1].to_s == start:
+            pieces[-1] = Piece(found[1], pieces[-1].from_s, end)
+        else:
+            pieces.append(Piece(found[1], start, end))
+    return pieces
+
+
+class EqualError(NamedTuple):
+    """The baseline's time at an error: ``seconds``, exact ('in') or a bound ('below': a
+    lower bound, 'above': an upper bound), the curve that gives it, and why a bound."""
+
+    seconds: float
+    placement: Placement
+    series: str
+    note: str
+
+
+def envelope_seconds(curves: Mapping[str, Curve], error: float) -> EqualError:
+    """The envelope's time at ``error`` (:data:`ENVELOPE_DEFINITION`): the least of the
+    curves' times at it, each known to lie in [low, high]."""
+    spans = []
+    for name, curve in curves.items():
+        seconds, placement = equal_error_seconds(curve, error)
+        low, high = {"in": (seconds, seconds), "below": (seconds, np.inf),
+                     "above": (0.0, seconds)}[placement]
+        spans.append((low, high, name))
+    high, high_name = min((high, name) for _, high, name in spans)
+    low, low_name = min((low, name) for low, _, name in spans)
+    if not np.isfinite(high):
+        return EqualError(low, "below", low_name,
+                          "error below the baseline's measured range (its most expensive "
+                          "point is worse): speed-up is at least this")
+    if low == high:
+        return EqualError(high, "in", high_name, "")
+    if low == 0.0:
+        return EqualError(high, "above", high_name,
+                          "error above a baseline curve's measured range (its cheapest point "
+                          "is better): speed-up is at most this")
+    return EqualError(high, "above", high_name,
+                      f"{low_name}'s measured range ends before this time and might reach "
+                      "this error sooner: speed-up is at most this")
+
+
 @dataclass(frozen=True)
 class Speedup:
     """Speed-up at equal error over the baseline.
@@ -105,13 +209,16 @@ class Speedup:
     ``relation`` '=': ``value`` is the speed-up; '>' / '<': the error is outside the
     baseline's range and ``value`` is a lower / upper bound; 'n/a': no value (``note``
     says why). ``ci95``: [lo, hi] of the bootstrap, an end None where replicates
-    outside the baseline's range decide it; None without a bootstrap.
+    outside the baseline's range decide it; None without a bootstrap. ``against``:
+    the baseline's label; ``via``: its curve whose time gives the value.
     """
 
     value: float | None
     relation: Literal["=", ">", "<", "n/a"]
     ci95: list[float | None] | None = None
     note: str = ""
+    against: str = ""
+    via: str = ""
 
     def text(self) -> str:
         """'2.31', '> 4.1', '< 0.5' or 'n/a'."""
@@ -123,42 +230,46 @@ class Speedup:
 _RELATION: dict[Placement, Literal["=", ">", "<"]] = {"in": "=", "below": ">", "above": "<"}
 
 
-def speedup(curve: Curve, error: float, seconds: float) -> Speedup:
-    """t_baseline(error) / seconds, or its bound outside the baseline's range."""
+def speedup(curves: Mapping[str, Curve], error: float, seconds: float) -> Speedup:
+    """t_baseline(error) / seconds on the envelope of ``curves``, or its bound."""
     if not (finite(error) and error > 0 and finite(seconds) and seconds > 0):
         return Speedup(None, "n/a", note="no positive finite error and time")
-    baseline_s, placement = equal_error_seconds(curve, error)
-    note = {"in": "",
-            "below": "error below the baseline's measured range (its most expensive point "
-                     "is worse): speed-up is at least this",
-            "above": "error above the baseline's measured range (its cheapest point is "
-                     "better): speed-up is at most this"}[placement]
-    return Speedup(baseline_s / seconds, _RELATION[placement], note=note)
+    found = envelope_seconds(curves, error)
+    return Speedup(found.seconds / seconds, _RELATION[found.placement], note=found.note,
+                   via=found.series)
 
 
-def bootstrap_speedup(baseline: Sequence[Sample], point: Sample, *,
-                      resamples: int = RESAMPLES, confidence: float = CONFIDENCE,
-                      seed: int = BOOTSTRAP_SEED) -> Speedup:
-    """:func:`speedup` of ``point`` on the curve of the ``baseline`` points, with the
-    percentile bootstrap interval of the module docstring."""
-    estimate = speedup(baseline_curve([s.time for s in baseline], [s.error for s in baseline]),
-                       point.error, point.time)
+def sample_curves(baseline: Mapping[str, Sequence[Sample]]) -> dict[str, Curve]:
+    """Each baseline series' curve through its samples' times and errors."""
+    return {name: baseline_curve([s.time for s in samples], [s.error for s in samples])
+            for name, samples in baseline.items()}
+
+
+def bootstrap_speedup(baseline: Mapping[str, Sequence[Sample]], point: Sample, *,
+                      against: str = "", resamples: int = RESAMPLES,
+                      confidence: float = CONFIDENCE, seed: int = BOOTSTRAP_SEED) -> Speedup:
+    """:func:`speedup` of ``point`` on the envelope of the ``baseline`` series' curves
+    (series name -> its points), with the percentile bootstrap interval of the module
+    docstring; ``against`` names the baseline."""
+    estimate = speedup(sample_curves(baseline), point.error, point.time)
     if estimate.relation == "n/a":
         return estimate
     rng = np.random.default_rng(seed)
-    replicate_base = [_replicates(rng, s, resamples) for s in baseline]
+    replicate_base = {name: [_replicates(rng, s, resamples) for s in samples]
+                      for name, samples in baseline.items()}
     errors, times = _replicates(rng, point, resamples)
     values = np.empty(resamples)
     for index in range(resamples):
-        curve = baseline_curve([t[index] for _, t in replicate_base],
-                               [e[index] for e, _ in replicate_base])
-        one = speedup(curve, errors[index], times[index])
+        curves = {name: baseline_curve([t[index] for _, t in replicates],
+                                       [e[index] for e, _ in replicates])
+                  for name, replicates in replicate_base.items()}
+        one = speedup(curves, errors[index], times[index])
         values[index] = {"=": one.value, ">": np.inf, "<": -np.inf}[one.relation]
     tail = (1.0 - confidence) / 2
     lo, hi = np.quantile(values, [tail, 1.0 - tail], method="inverted_cdf")
     return Speedup(estimate.value, estimate.relation,
                    [float(lo) if np.isfinite(lo) else None, float(hi) if np.isfinite(hi) else None],
-                   estimate.note)
+                   estimate.note, against, estimate.via)
 
 
 def _replicates(rng: np.random.Generator, sample: Sample,
