@@ -17,9 +17,10 @@ How it measures, because these machines are shared and their speed drifts:
   :data:`PREDICTION_CUT` x the budget (it cannot fit, and timing it would cost
   more than the rest of the search); for a knob whose frame time grows with its
   value (``monotone``: spp), also every candidate above one whose fastest round
-  is over the limit by more than the allowed spread. A knob that is not
-  monotone (with BTH, more neural samples can stop paths earlier) has every
-  other candidate timed, also past a slow one;
+  is over the limit by more than the allowed spread, and every candidate below
+  one whose slowest round is under it by as much (neither can be chosen). A
+  knob that is not monotone (with BTH, more neural samples can stop paths
+  earlier) has every other candidate timed, also past a slow one;
 - the decision uses medians over rounds: the chosen value is the largest
   candidate whose median fits median(budget) + tolerance;
 - the spread (min and max over rounds) of every timing is stored. The
@@ -184,10 +185,14 @@ def search(knob: str, values: Sequence[int], measure: Callable[[int], float],
     def passed_over(value: int) -> str | None:
         """Why ``value`` is out of play now (None: it is in play)."""
         limit = budget_s() + tolerance_s
-        over = limit + max(tolerance_s, max_spread * budget_s())
+        margin = max(tolerance_s, max_spread * budget_s())
         timed = {v: t for v, t in state.times.items() if t}
         if monotone:
-            clearly_over = [v for v, t in timed.items() if min(t) > over]
+            clearly_under = [v for v, t in timed.items() if max(t) < limit - margin]
+            if clearly_under and value < max(clearly_under):
+                return (f"below {knob} {max(clearly_under)}, which is under the budget by "
+                        "more than the allowed spread in every round")
+            clearly_over = [v for v, t in timed.items() if min(t) > limit + margin]
             if clearly_over and value > min(clearly_over):
                 return (f"{knob} {min(clearly_over)} is over the budget by more than the "
                         f"allowed spread in every round, and the cost grows with {knob}")

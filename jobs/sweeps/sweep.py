@@ -434,7 +434,8 @@ class _Sweep:
                 budget_source=f"{series_label(against)} frame time at eps {match_eps} "
                               f"(rBias2 {matching_rbias2(match):.3g}, run {match.id})",
                 tolerance_s=self.spec.time_tolerance_ms / 1e3, device_key=self.device_key,
-                rounds=self.spec.calibration_rounds, max_spread=self.spec.time_max_spread)
+                rounds=self.spec.calibration_rounds, max_spread=self.spec.time_max_spread,
+                probe_frames=self.spec.probe_frames)
             record.note_load(log.merged())
             self.work["calibrations"] += 1
             plan.setdefault(record.chosen, []).append(Point(

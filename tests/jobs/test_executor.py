@@ -196,8 +196,9 @@ def test_a_time_budget_calibrates_spp_and_is_recorded(env):
     tiny = TimeBudget(ms=1e-6, candidates=[1, 2], probe_frames=1)
     over = execute(RenderJob.parse(SPEC.model_copy(update={"time_budget": tiny, "seeds": 2})), store, settings)
     assert over.metrics["calibration"]["fits"] is False and over.spec.spp == 1
-    # Every candidate is timed (frame time need not grow with the knob).
-    assert list(over.metrics["calibration"]["measured_s"]) == ["1", "2"]
+    # spp's frame time grows with it: nothing above a candidate clearly over is timed.
+    assert list(over.metrics["calibration"]["measured_s"]) == ["1"]
+    assert list(over.metrics["calibration"]["not_timed"]) == ["2"]
 
 
 def test_a_time_budget_needs_a_knob(env):
