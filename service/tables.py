@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections import Counter
 from typing import TYPE_CHECKING, Any
 
 from rich.console import Group
@@ -281,11 +282,15 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
     if cal.get("capped"):   # records stored before the flags have none
         chosen = f"{chosen} (capped: the largest candidate fits)"
     spread = cal.get("spread_s") or {}
+    timings = Counter(cal.get("order") or [])
 
     def ms(value: int | str, seconds: float) -> str:
         lo_hi = spread.get(str(value))
-        return (f"{value}: {1e3 * seconds:.3g}" if not lo_hi else
-                f"{value}: {1e3 * seconds:.3g} [{1e3 * lo_hi[0]:.3g}, {1e3 * lo_hi[1]:.3g}]")
+        # The search times a candidate out of play in fewer rounds (jobs.protocol.calibration).
+        rounds = timings[f"{cal['knob']}={value}"]
+        fewer = f" ({rounds} of {cal['rounds']} rounds)" if 0 < rounds < cal.get("rounds", 0) else ""
+        return (f"{value}: {1e3 * seconds:.3g}{fewer}" if not lo_hi else
+                f"{value}: {1e3 * seconds:.3g} [{1e3 * lo_hi[0]:.3g}, {1e3 * lo_hi[1]:.3g}]{fewer}")
 
     budget = f"{cal['budget_source']} = {1e3 * cal['budget_s']:.3g} ms"
     if cal.get("budget_spread_s"):

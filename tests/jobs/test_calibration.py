@@ -253,5 +253,6 @@ def test_calibrate_job_stops_the_spp_search_and_reports_its_cost(monkeypatch):
     console.print(calibration_table("calibration", record.to_json()))
     text = console.export_text()
     assert "spp 8, 12, 16" in text and "14 timed frames" in text
+    assert "3: 3 [3, 3] (1 of 2 rounds)" in text and "4: 4 [4, 4]," in text
     assert Knob("spp", (1,)).monotone and not Knob("nc", (1,)).monotone
     assert not Knob("spp", (1,), monotone=False).monotone
