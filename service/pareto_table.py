@@ -1,5 +1,6 @@
-"""The table ``nirc-bench pareto`` prints: every point's time, errors, front and speed-ups,
-and whether its run was reused."""
+"""The table ``nirc-bench pareto`` prints: every point's time, errors, front and speed-ups
+(headed with the baseline they are against), whether its run was reused, and the
+strongest PT's envelope."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from rich.table import Table
 from rich.text import Text
 
 from jobs.pareto.pareto import PARETO_METRICS
+from jobs.pareto.plan import PAPER_PT, STRONGEST_PT
 from jobs.pareto.tradeoff import Speedup
 
 
@@ -34,6 +36,20 @@ def _projected(projection: dict[str, Any] | None) -> str:
     return f"{_ms(projection['frame_s'])} [{_ms(lo)}, {_ms(hi)}]"
 
 
+def _baseline_lines(baselines: dict[str, Any]) -> list[str]:
+    """What the paper's PT and the strongest PT are, and where each candidate is lowest."""
+    paper, strongest = baselines[PAPER_PT], baselines[STRONGEST_PT]
+    lines = [f"{paper['label']}: {paper['definition']}.",
+             f"{strongest['label']}: per time, the lowest error of "
+             f"{', '.join(strongest['candidates'])} (docs/pareto.md, 'The strongest PT')."]
+    for metric in PARETO_METRICS:
+        pieces = strongest["envelope"][metric.field]
+        lines.append(f"{strongest['label']} ({metric.label}): " + (", ".join(
+            f"{p['series']} {_ms(p['from_s'])}–{_ms(p['to_s'])} ms" for p in pieces)
+            or "no candidate with two points"))
+    return lines
+
+
 def pareto_table(result: Any) -> Group:
     """The points in time order within each series, front marked '*', a reused run
     marked '=' after its id, then the notes."""
@@ -47,9 +63,10 @@ def pareto_table(result: Any) -> Group:
         columns.append(f"ms/frame at {target} (projected) [95% CI]")
     for column in columns:
         table.add_column(column, justify="left" if column in ("series", "point") else "right")
+    against = result.baselines["speedups_against"]
     for metric in PARETO_METRICS:
         table.add_column(metric.label, justify="right")
-        table.add_column(f"x PT at equal {metric.label} [95% CI]", justify="right")
+        table.add_column(f"x {against} at equal {metric.label} [95% CI]", justify="right")
     notes: dict[tuple[str, str], list[str]] = {}    # (point, note) -> metrics
     for point in result.points:
         flags = [*point.probe_flags, *point.timing_flags]
@@ -79,10 +96,12 @@ def pareto_table(result: Any) -> Group:
              f"= run reused (stored by an earlier call under the same spec, scene, reference "
              f"and device; its timing is measured again): {work['points_reused']} reused, "
              f"{work['points_rendered']} rendered now.",
-             f"x PT: PT's time at equal error (log-log interpolation of its curve, never "
-             f"extrapolated: '>' / '<' are bounds) / the point's time; 95% CI: percentile "
-             f"bootstrap over seeds and timing samples ({result.bootstrap['resamples']} "
-             "resamples, docs/pareto.md); '–': an end PT's measured range cannot bound.",
+             f"x {against}: the {against}'s time at equal error (log-log interpolation of its "
+             f"curves, never extrapolated: '>' / '<' are bounds) / the point's time; 95% CI: "
+             f"percentile bootstrap over seeds and timing samples "
+             f"({result.bootstrap['resamples']} resamples, docs/pareto.md); '–': an end the "
+             f"{against}'s measured range cannot bound.",
+             *_baseline_lines(result.baselines),
              "harness %: the share of the run's median frame outside kernels (host work, "
              "tracing, launch gaps); ! after ms/frame: a timing flag below.",
              *([f"projected: the per-stage cost model (a + b x size per stage, fitted at "

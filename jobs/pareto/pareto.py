@@ -1,9 +1,11 @@
 """Time against error as the headline: every method's points on one error-vs-time plane.
 
-``nirc-bench pareto`` renders the baseline (PT) at several spp and every other
-method of the registry at several values of its equal-time knob (biased NIRC's
-N_c), plus its comparison runs that are not on that knob's curve (NRC, NIRC
-unbiased), as planned by jobs.pareto.plan; a method with neither is skipped, and so
+``nirc-bench pareto`` renders two PT series at several spp, the paper's PT (``pt``'s
+defaults: fixed Russian roulette) and the strongest PT (the lower envelope of the
+path-tracing core's methods with throughput roulette), and every other method of
+the registry at several values of its equal-time knob (biased NIRC's N_c), plus its
+comparison runs that are not on that knob's curve (NRC, NIRC unbiased), as planned
+by jobs.pareto.plan; a method with neither is skipped, and so
 is one whose ``applies_to`` rules the scene out (with the reason). Every point is a run
 through the executor, stored against the same reference under the point's key
 (:func:`point_key`: its RenderSpec's content address with today's estimator
@@ -19,14 +21,14 @@ a load spike of a shared machine hits every point alike, not the points that
 happened to run then; with no rounds, every timed frame of the run's seeds (their
 lower median is the run's stored ``seconds_per_frame``, kept with every point). [min,
 max] of the samples is its spread; a spread above :data:`MAX_SPREAD` of the median,
-a probe on a loaded machine (renderers.load) and a baseline whose frame time does
+a probe on a loaded machine (renderers.load) and a PT series whose frame time does
 not grow with spp are flagged. With ``project_res`` every point's per-stage cost
 model (jobs.protocol.cost_model) is measured too and its frame time projected to
 that resolution: a projection from this device, beside the errors measured at the
 point's own resolution. Then, for MRSE and FLIP: the Pareto front over all
-points, and for every non-baseline point its speed-up at equal error over the
-baseline with a bootstrap interval over seeds and timing samples
-(jobs.pareto.tradeoff; docs/pareto.md). A point is a :class:`ParetoPoint`:
+points, and for every point outside the baseline its speed-up at equal error over the
+baseline (the strongest PT unless the spec names another) with a bootstrap interval
+over seeds and timing samples (jobs.pareto.tradeoff; docs/pareto.md). A point is a :class:`ParetoPoint`:
 the public result of its stored run (jobs.protocol.results.RunResult) with
 these columns.
 """
@@ -34,6 +36,7 @@ these columns.
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -43,12 +46,27 @@ from typing import Any
 import numpy as np
 from pydantic import Field, create_model
 
-from jobs.pareto.plan import ParetoSpec, Planned, interleave, plan, run_spec
+from jobs.pareto.plan import (
+    BASELINE_LABELS,
+    PAPER_PT,
+    STRONGEST_PT,
+    STRONGEST_PT_PARAMS,
+    ParetoSpec,
+    Planned,
+    baseline_label,
+    baseline_series,
+    interleave,
+    plan,
+    run_spec,
+)
 from jobs.pareto.tradeoff import (
     BOOTSTRAP_METHOD,
+    ENVELOPE_DEFINITION,
     Sample,
     Speedup,
     bootstrap_speedup,
+    envelope_pieces,
+    sample_curves,
 )
 from jobs.protocol import cost_model
 from jobs.protocol.calibration import (
@@ -132,6 +150,9 @@ class ParetoPoint(_ParetoColumns):  # type: ignore[misc,valid-type]
     series: str = Field(description="the series' label (a method, or one of its comparison runs)")
     label: str = Field(description="the point's label (series and knob value)")
     baseline: bool = Field(description="a point of the baseline the speed-ups are measured over")
+    named_baseline: str = Field(
+        "", description="the named PT baseline its series is ('paper-pt') or is a candidate "
+                        "of ('strongest-pt'); '' for any other series")
     reused: bool = Field(description="the run was stored by an earlier call, not rendered now")
     seconds_per_frame: float = Field(
         description="lower median of the timing samples: seconds per frame, online training "
@@ -151,13 +172,14 @@ class ParetoPoint(_ParetoColumns):  # type: ignore[misc,valid-type]
 
     @classmethod
     def measured(cls, planned: Planned, run: Any, timing: Timing, reused: bool) -> ParetoPoint:
-        """The point of ``planned`` from its stored ``run`` and its ``timing``."""
+        """The point of ``planned`` from its stored ``run`` and its ``timing`` (whether it
+        is a baseline point is :func:`_evaluate`'s to say)."""
         fields = cls.fields_of(run)
         seeds = sorted(run.seed_results, key=lambda s: s.seed)
         seconds = timing.samples
         return cls(**{
             **fields, "series": planned.series, "label": planned.label,
-            "baseline": planned.method == BASELINE, "reused": reused,
+            "baseline": False, "named_baseline": planned.named, "reused": reused,
             "seconds_per_frame": float(median_low(seconds)),
             "seconds_spread": [min(seconds), max(seconds)], "timing_samples": seconds,
             "run_seconds_per_frame": fields["seconds_per_frame"],
@@ -176,6 +198,7 @@ class ParetoResult:
     skipped: list[dict[str, str]]
     timing: dict[str, Any]
     bootstrap: dict[str, Any]
+    baselines: dict[str, Any] = field(default_factory=dict)
     work: dict[str, int] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)
 
@@ -245,7 +268,7 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
     points = [ParetoPoint.measured(planned, run, timings[i], reused)
               for i, (planned, run, reused)
               in sorted(enumerate(runs), key=lambda item: rank[id(item[1][0])])]
-    _evaluate(points, spec.resamples)
+    _evaluate(points, spec.resamples, spec.baseline)
     reused = sum(p.reused for p in points)
     result = ParetoResult(
         spec=spec, device=prepared.device["device_key"], reference_id=prepared.reference.id,
@@ -258,6 +281,7 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
                 "cost_resolutions": spec.cost_resolutions if spec.project_res else None},
         bootstrap={"method": BOOTSTRAP_METHOD, "resamples": spec.resamples,
                    "confidence": 0.95},
+        baselines=baselines(points, spec.baseline),
         work={"reference_rendered": int(prepared.reference.rendered_now),
               "points_rendered": len(points) - reused, "points_reused": reused,
               "timing_probes": spec.timing_rounds * len(points)})
@@ -332,35 +356,79 @@ def _project(runs: list[tuple[Planned, Any, bool]], jobs: dict[int, RenderJob],
 
 
 def baseline_flags(points: list[ParetoPoint]) -> list[str]:
-    """A baseline curve whose frame time does not grow with spp: its timings are noisier
-    than the steps between them (the speed-ups interpolate along that curve)."""
-    curve = sorted((p.spp, p.seconds_per_frame) for p in points if p.baseline)
-    return [f"{BASELINE} is not monotone in spp: {a} spp {1e3 * ta:.3g} ms/frame >= "
-            f"{b} spp {1e3 * tb:.3g} ms/frame (timing noise above the step; re-run quiet "
-            "or with more --timing-rounds)"
-            for (a, ta), (b, tb) in zip(curve, curve[1:], strict=False) if ta >= tb]
+    """A PT or baseline series whose frame time does not grow with spp: its timings are
+    noisier than the steps between them (the speed-ups interpolate along its curve)."""
+    flags = []
+    for series in dict.fromkeys(p.series for p in points if p.baseline or p.named_baseline):
+        curve = sorted((p.spp, p.seconds_per_frame) for p in points if p.series == series)
+        flags += [f"{series} is not monotone in spp: {a} spp {1e3 * ta:.3g} ms/frame >= "
+                  f"{b} spp {1e3 * tb:.3g} ms/frame (timing noise above the step; re-run "
+                  "quiet or with more --timing-rounds)"
+                  for (a, ta), (b, tb) in zip(curve, curve[1:], strict=False) if ta >= tb]
+    return flags
 
 
-def _evaluate(points: list[ParetoPoint], resamples: int) -> None:
-    """Mark each metric's front and add the speed-ups at equal error over the baseline."""
+def _baseline_samples(points: list[ParetoPoint], key: str,
+                      baseline: Callable[[ParetoPoint], bool]) -> dict[str, list[Sample]]:
+    """Per series of the points ``baseline`` selects: its samples with the error ``key``,
+    for the series with at least two (a curve is interpolated between its points)."""
+    found: dict[str, list[Sample]] = {}
+    for point in points:
+        if baseline(point) and _usable(point, key):
+            found.setdefault(point.series, []).append(_sample(point, key))
+    return {series: samples for series, samples in found.items() if len(samples) >= 2}
+
+
+def _evaluate(points: list[ParetoPoint], resamples: int, baseline: str) -> None:
+    """Mark the points of the series ``baseline`` names (jobs.pareto.plan.baseline_series),
+    each metric's front, and the other points' speed-ups at equal error over that
+    baseline: the lower envelope of its series' curves (jobs.pareto.tradeoff)."""
+    counts = Counter((p.series, p.named_baseline) for p in points)
+    chosen = baseline_series(baseline, [(s, n, c) for (s, n), c in counts.items()])
+    against = baseline_label(baseline)
+    for point in points:
+        point.baseline = point.series in chosen
     for metric in PARETO_METRICS:
         key = metric.field
         front = pareto_front([p.seconds_per_frame for p in points],
                              [getattr(p, key) for p in points])
         for point, on in zip(points, front, strict=True):
             setattr(point, f"front_{key}", on)
-        baseline = [_sample(p, key) for p in points if p.baseline and _usable(p, key)]
+        baseline = _baseline_samples(points, key, lambda p: p.baseline)
         for point in points:
             if point.baseline:
                 continue
             if not _usable(point, key):
-                found = Speedup(None, "n/a", note=f"no {metric.label} (withheld or not finite)")
-            elif len(baseline) < 2:
-                found = Speedup(None, "n/a", note=f"fewer than two {BASELINE} points with "
-                                                  f"a {metric.label}")
+                found = Speedup(None, "n/a", note=f"no {metric.label} (withheld or not finite)",
+                                against=against)
+            elif not baseline:
+                found = Speedup(None, "n/a", note=f"no series of the {against} has two points "
+                                                  f"with a {metric.label}", against=against)
             else:
-                found = bootstrap_speedup(baseline, _sample(point, key), resamples=resamples)
+                found = bootstrap_speedup(baseline, _sample(point, key), against=against,
+                                          resamples=resamples)
             setattr(point, f"speedup_{key}", found)
+
+
+def baselines(points: list[ParetoPoint], chosen: str) -> dict[str, Any]:
+    """The baselines of the JSON: which one the speed-ups are against, what the paper's PT
+    and the strongest PT are, and per error the strongest PT's envelope (the time
+    intervals over which each candidate's curve is lowest)."""
+    def envelope(key: str) -> list[dict[str, Any]]:
+        samples = _baseline_samples(points, key, lambda p: p.named_baseline == STRONGEST_PT)
+        return [asdict(piece) for piece in envelope_pieces(sample_curves(samples))] \
+            if samples else []
+
+    return {"speedups_against": baseline_label(chosen), "baseline": chosen,
+            PAPER_PT: {"label": BASELINE_LABELS[PAPER_PT],
+                       "definition": f"{BASELINE} with its own defaults: Russian roulette of "
+                                     "fixed survival from a fixed depth (the NIRC paper's)"},
+            STRONGEST_PT: {"label": BASELINE_LABELS[STRONGEST_PT],
+                           "candidates": list(dict.fromkeys(
+                               p.series for p in points if p.named_baseline == STRONGEST_PT)),
+                           "candidate_params": STRONGEST_PT_PARAMS,
+                           "definition": ENVELOPE_DEFINITION,
+                           "envelope": {m.field: envelope(m.field) for m in PARETO_METRICS}}}
 
 
 def _usable(point: ParetoPoint, key: str) -> bool:

@@ -1,6 +1,8 @@
 """The points of ``nirc-bench pareto``, planned from the method registry without
-rendering: the baseline at every ``pt_spp``, each other method at its equal-time
-knob's values and its comparison runs (docs/pareto.md, "The points").
+rendering: the paper's PT and the strongest PT's candidates at every ``pt_spp``, each
+other method at its equal-time knob's values and its comparison runs, and the
+baseline the speed-ups are measured against (docs/pareto.md, "The points" and
+"The strongest PT").
 
 Kept apart from the rendering and timing (jobs.pareto.pareto) so that the command
 refuses a bad option before it imports what renders, times and plots.
@@ -17,17 +19,30 @@ from jobs.protocol.calibration import DEFAULT_ROUNDS
 from jobs.protocol.cost_model import DEFAULT_RESOLUTIONS
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from renderers.methods import BASELINE, METHODS, Method, MethodError, parse_params
+from renderers.methods.pt import PTParams
+
+#: The two named PT baselines (``--baseline``) and their labels. The paper's PT is the
+#: baseline method with its own defaults: Russian roulette of fixed survival 0.9 from the
+#: fifth vertex, the NIRC paper's "termination probability of 0.1".
+PAPER_PT, STRONGEST_PT = "paper-pt", "strongest-pt"
+BASELINE_LABELS = {PAPER_PT: "paper's PT", STRONGEST_PT: "strongest PT"}
+#: What every candidate of the strongest PT sets on top of its method's defaults:
+#: Russian roulette on the path throughput, as Mitsuba's ``path`` does.
+STRONGEST_PT_PARAMS: dict[str, Any] = {"rr_mode": "throughput"}
 
 
 @dataclass(frozen=True)
 class Planned:
-    """A point to render: a method with parameters and spp, in a series."""
+    """A point to render: a method with parameters and spp, in a series; ``named``: the
+    named PT baseline its series is (the paper's PT) or is a candidate of (the strongest
+    PT), else ''."""
 
     series: str
     label: str
     method: str
     params: dict[str, Any]
     spp: int
+    named: str = ""
 
 
 @dataclass
@@ -50,6 +65,47 @@ class ParetoSpec:
     project_res: tuple[int, int] | None = None
     cost_resolutions: list[int] = field(
         default_factory=lambda: list(DEFAULT_RESOLUTIONS))
+    baseline: str = STRONGEST_PT
+
+
+def pt_core_methods() -> list[str]:
+    """The candidates of the strongest PT: the registry's methods whose parameters are
+    exactly the path-tracing core's (PT and its light selectors)."""
+    return [name for name, method in METHODS.items()
+            if set(method.params.model_fields) == set(PTParams.model_fields)]
+
+
+#: A series as :func:`baseline_series` reads it: its label, the named PT baseline it is
+#: part of ('' for none) and its number of points.
+SeriesInfo = tuple[str, str, int]
+
+
+def baseline_series(baseline: str, series: list[SeriesInfo]) -> list[str]:
+    """The labels of the series ``baseline`` names ('paper-pt', 'strongest-pt' or a
+    series' label); MethodError for a name that is none of them or a series of fewer
+    than two points (a baseline's curve is interpolated between its points)."""
+    named = [label for label, named, _ in series if named == baseline]
+    if named:
+        return named
+    found = [count for label, _, count in series if label == baseline]
+    if not found:
+        labels = [label for label, _, count in series if count > 1]
+        raise MethodError(f"unknown baseline '{baseline}': give {PAPER_PT}, {STRONGEST_PT} or "
+                          f"the label of a series of this call ({', '.join(labels)})")
+    if found[0] < 2:
+        raise MethodError(f"baseline '{baseline}' is a single point: a baseline needs a curve "
+                          "of at least two points")
+    return [baseline]
+
+
+def series_info(series: list[list[Planned]]) -> list[SeriesInfo]:
+    """The planned series as :func:`baseline_series` reads them."""
+    return [(points[0].series, points[0].named, len(points)) for points in series]
+
+
+def baseline_label(baseline: str) -> str:
+    """How tables name the baseline: the named PT's label, or the series' own."""
+    return BASELINE_LABELS.get(baseline, baseline)
 
 
 def knob_methods() -> list[str]:
@@ -76,11 +132,13 @@ def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
     if len(set(spec.pt_spp)) < 2:
         raise MethodError(f"give at least two {BASELINE} spp values: its error-vs-time curve "
                           "is interpolated between them")
-    series, skipped = [], []
+    series, skipped = _pt_series(spec), []
     for name in names:
         if name in spec.knob_values and (METHODS[name].knob is None or name == BASELINE):
             raise MethodError(f"method '{name}' has no equal-time knob to give values for"
                               + (" (its spp values are --pt-spp)" if name == BASELINE else ""))
+        if name == BASELINE:     # its series is the paper's PT, above
+            continue
         found = _method_series(name, METHODS[name], spec)
         if not found:
             skipped.append({"method": name, "reason": "declares neither an equal-time knob "
@@ -98,7 +156,24 @@ def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
     for point in (p for points in series for p in points):
         parse_params(point.method, point.params)
         run_spec(spec, point)
+    baseline_series(spec.baseline, series_info(series))
     return series, skipped
+
+
+def _pt_series(spec: ParetoSpec) -> list[list[Planned]]:
+    """The paper's PT (the baseline method's defaults) and every candidate of the strongest
+    PT (:func:`pt_core_methods` with :data:`STRONGEST_PT_PARAMS`), each over ``pt_spp``."""
+    def over_spp(series: str, name: str, params: dict[str, Any], named: str) -> list[Planned]:
+        return [Planned(series, f"{series} spp={v}", name, params, v, named)
+                for v in sorted(set(spec.pt_spp))]
+
+    def shared(name: str) -> dict[str, Any]:
+        return METHODS[name].shared_params(spec.max_depth, spec.pretrain_frames)
+
+    return [over_spp(BASELINE_LABELS[PAPER_PT], BASELINE, shared(BASELINE), PAPER_PT),
+            *(over_spp(f"{METHODS[name].label or name} (throughput RR)", name,
+                       {**shared(name), **STRONGEST_PT_PARAMS}, STRONGEST_PT)
+              for name in pt_core_methods())]
 
 
 def _misfit_reason(found: list[list[Planned]]) -> str:
@@ -119,8 +194,8 @@ def run_spec(spec: ParetoSpec, point: Planned) -> RenderSpec:
 
 
 def _method_series(name: str, method: Method, spec: ParetoSpec) -> list[list[Planned]]:
-    """The baseline over ``pt_spp``; another method over its knob's values, plus each of
-    its comparison runs not on that knob's curve as a series of one point."""
+    """A method other than the baseline over its knob's values, plus each of its
+    comparison runs not on that knob's curve as a series of one point."""
     label = method.label or name
     shared = method.shared_params(spec.max_depth, spec.pretrain_frames)
     knob = method.knob
@@ -129,7 +204,7 @@ def _method_series(name: str, method: Method, spec: ParetoSpec) -> list[list[Pla
     if on_knob:
         # An spp knob runs on the baseline's spp grid, so the curves share their x values.
         grid = spec.pt_spp if knob.name == "spp" else knob.candidates
-        values = spec.pt_spp if name == BASELINE else spec.knob_values.get(name, grid)
+        values = spec.knob_values.get(name, grid)
         found.append([Planned(label, f"{label} {knob.name}={v}", name,
                               shared if knob.name == "spp" else knob.apply(shared, v),
                               v if knob.name == "spp" else 1)

@@ -17,10 +17,19 @@ from jobs.pareto.pareto import (
     Timing,
     _evaluate,
     baseline_flags,
+    baselines,
     point_key,
     run_pareto,
 )
-from jobs.pareto.plan import ParetoSpec, interleave, plan, run_spec
+from jobs.pareto.plan import (
+    PAPER_PT,
+    STRONGEST_PT,
+    ParetoSpec,
+    interleave,
+    plan,
+    pt_core_methods,
+    run_spec,
+)
 from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
 from jobs.record.config import Settings
@@ -35,13 +44,12 @@ def _series_by_name(spec: ParetoSpec) -> dict[str, list]:
 
 def test_the_plan_reads_knobs_and_comparison_runs_from_the_registry():
     series, skipped = plan(ParetoSpec(scene="cornell-box"))
-    baseline = [s for s in series if s[0].method == BASELINE]
-    assert len(baseline) == 1 and [p.spp for p in baseline[0]] == [1, 2, 4, 8, 16]
     planned = {p.method for points in series for p in points}
     for name, method in METHODS.items():
         if name == BASELINE:
             continue
-        knob_series = [s for s in series if s[0].method == name and len(s) > 1]
+        knob_series = [s for s in series if s[0].method == name and len(s) > 1
+                       and not s[0].named]
         misfit = [entry for entry in skipped if entry["method"] == name
                   and entry["reason"].startswith("not comparable")]
         if method.knob is not None and not misfit:
@@ -57,7 +65,30 @@ def test_the_plan_reads_knobs_and_comparison_runs_from_the_registry():
     assert [p.params["nc"] for p in by_name["NIRC"]] == [[1], [4]]
     assert by_name["NIRC unbiased"][0].params["estimator"] == "unbiased"
     assert len(by_name["NRC"]) == 1 and by_name["NRC"][0].params["pretrain_frames"] == 16
-    assert "pretrain_frames" not in by_name["PT"][0].params
+    assert "pretrain_frames" not in by_name["paper's PT"][0].params
+
+
+def test_the_plan_has_the_papers_pt_and_the_strongest_pts_candidates():
+    """The paper's PT is pt's defaults (fixed roulette), labelled; the strongest PT's
+    candidates are the PT core's methods with throughput roulette, over the same spp."""
+    series, _ = plan(ParetoSpec(scene="cornell-box", pt_spp=[1, 4], methods=["pt", "nirc"]))
+    paper = [s for s in series if s[0].named == PAPER_PT]
+    assert len(paper) == 1 and paper[0][0].series == "paper's PT"
+    assert [(p.method, p.spp, p.label) for p in paper[0]] == [
+        (BASELINE, 1, "paper's PT spp=1"), (BASELINE, 4, "paper's PT spp=4")]
+    assert METHODS[BASELINE].params(**paper[0][0].params).rr_mode == "fixed"
+    candidates = [s for s in series if s[0].named == STRONGEST_PT]
+    assert sorted(s[0].method for s in candidates) == sorted(pt_core_methods()) \
+        == ["pt", "pt-power", "pt-spatial"]
+    for points in candidates:
+        assert [p.spp for p in points] == [1, 4]
+        assert all(p.params["rr_mode"] == "throughput" for p in points)
+    assert {s[0].named for s in series if s[0].method not in pt_core_methods()} == {""}
+
+
+@pytest.mark.parametrize("baseline", [PAPER_PT, STRONGEST_PT, "paper's PT", "NIRC"])
+def test_a_baseline_is_a_named_pt_or_a_series_of_two_points_or_more(baseline):
+    plan(ParetoSpec(scene="cornell-box", methods=["pt", "nirc"], baseline=baseline))
 
 
 def test_a_method_that_cannot_render_at_the_shared_depth_is_skipped_saying_why():
@@ -79,8 +110,11 @@ def test_points_are_run_round_robin_over_the_series():
     series, _ = plan(ParetoSpec(scene="cornell-box", pt_spp=[4, 1, 2, 2],
                                 methods=["pt", "nirc", "pt"],
                                 knob_values={"nirc": [1, 2]}))
+    pts = ["paper's PT", "PT (throughput RR)", "pt-power (throughput RR)",
+           "pt-spatial (throughput RR)"]
     assert [p.label for p in interleave(series)] == [
-        "PT spp=1", "NIRC nc=1", "NIRC unbiased", "PT spp=2", "NIRC nc=2", "PT spp=4"]
+        *(f"{s} spp=1" for s in pts), "NIRC nc=1", "NIRC unbiased",
+        *(f"{s} spp=2" for s in pts), "NIRC nc=2", *(f"{s} spp=4" for s in pts)]
 
 
 @pytest.mark.parametrize("changes, fragment", [
@@ -91,6 +125,8 @@ def test_points_are_run_round_robin_over_the_series():
     ({"methods": ["pt", "no-such"]}, "unknown method"),
     ({"knob_values": {"nirc": [300]}}, "nc"),
     ({"pt_spp": [1, 1 << 17]}, "spp"),
+    ({"baseline": "no-such"}, "unknown baseline 'no-such': give paper-pt, strongest-pt"),
+    ({"baseline": "NRC"}, "single point"),
 ])
 def test_bad_plans_are_errors_before_anything_renders(changes, fragment):
     with pytest.raises(ValueError, match=fragment):
@@ -98,14 +134,15 @@ def test_bad_plans_are_errors_before_anything_renders(changes, fragment):
 
 
 def _point(series: str, seconds: float, mrse: float | None, flip: float,
-           baseline: bool = False) -> ParetoPoint:
+           named: str = "") -> ParetoPoint:
     """A measured point (its run's fields are placeholders: only the pareto columns count)."""
     run = {"id": 1, "created_at": datetime(2026, 1, 1, tzinfo=UTC), "scene": "cornell-box",
            "scene_fingerprint": "-", "method": "pt", "params": {}, "resolution": [8, 8],
            "spp": 1, "frames": 1, "seeds": 2, "device_key": "-", "quality": {},
            "estimator_version": 1, "metric_version": 1, "current": True}
     return ParetoPoint(
-        **run, series=series, label=f"{series} {seconds}", baseline=baseline, reused=False,
+        **run, series=series, label=f"{series} {seconds}", baseline=False,
+        named_baseline=named, reused=False,
         seconds_per_frame=seconds, seconds_spread=[0.9 * seconds, 1.1 * seconds],
         timing_samples=[seconds, 0.95 * seconds, 1.05 * seconds], run_seconds_per_frame=seconds,
         mrse=mrse, mrse_per_seed=[mrse, mrse] if mrse is not None else [None, None],
@@ -113,12 +150,12 @@ def _point(series: str, seconds: float, mrse: float | None, flip: float,
 
 
 def test_fronts_and_speed_ups_of_measured_points():
-    points = [_point("PT", 0.01 * n, 0.4 / n, 0.3 / n ** 0.5, baseline=True)
+    points = [_point("PT", 0.01 * n, 0.4 / n, 0.3 / n ** 0.5, named=PAPER_PT)
               for n in (1, 2, 4, 8)]
     points += [_point("NIRC", 0.02, 0.05, 0.2),       # PT reaches MRSE 0.05 at 0.08 s: 4x
                _point("NIRC", 0.5, 0.02, 0.01),       # below PT's range: '>'
                _point("NRC", 0.05, None, 0.5)]        # MRSE withheld: n/a
-    _evaluate(points, resamples=200)
+    _evaluate(points, 200, PAPER_PT)
     # NIRC at 0.02 s beats PT at 2, 4 and 8 spp (as fast or faster, less error).
     assert [p.front_mrse for p in points] == [True, False, False, False, True, True, False]
     assert points[4].speedup_mrse.relation == "="
@@ -129,18 +166,80 @@ def test_fronts_and_speed_ups_of_measured_points():
     assert points[5].speedup_mrse.value == pytest.approx(0.08 / 0.5)
     assert points[6].speedup_mrse.relation == "n/a" and "MRSE" in points[6].speedup_mrse.note
     assert points[6].speedup_flip.relation == "<"
-    assert all(p.speedup_mrse is None for p in points[:4])
+    assert all(p.speedup_mrse is None and p.baseline for p in points[:4])
+    assert points[4].speedup_mrse.against == "paper's PT"
     # The JSON shape is the model's: a dump validates back to the same point.
     assert [ParetoPoint.model_validate(p.model_dump(mode="json")) for p in points] == points
 
 
+def _pt_series() -> list[ParetoPoint]:
+    """Planted PT series at 0.01 * n s: candidate 'flat' (MRSE 0.4 / n^0.8), candidate
+    'steep' (better only from 0.04 s on: 0.4 * (n / 4)^-1.5 / 4^0.8), and the paper's PT,
+    flat's errors at twice its times."""
+    flat = [_point("flat", 0.01 * n, 0.4 * n ** -0.8, 0.3, named=STRONGEST_PT)
+            for n in (1, 2, 4, 8, 16)]
+    steep = [_point("steep", 0.01 * n, 0.4 * 4 ** -0.8 * (n / 4) ** -1.5, 0.3,
+                    named=STRONGEST_PT) for n in (1, 2, 4, 8, 16)]
+    paper = [_point("paper's PT", 0.02 * n, 0.4 * n ** -0.8, 0.3, named=PAPER_PT)
+             for n in (1, 2, 4, 8, 16)]
+    return flat + steep + paper
+
+
+def test_speed_ups_are_against_the_strongest_pt_unless_another_baseline_is_named():
+    early = _point("cache", 0.01, 0.4 * 2 ** -0.8, 0.3)          # flat reaches it at 0.02 s
+    late = _point("cache", 0.03, 0.4 * 4 ** -0.8 * 3 ** -1.5, 0.3)   # steep at 0.12 s
+    points = [*_pt_series(), early, late]
+    _evaluate(points, 100, ParetoSpec(scene="cornell-box").baseline)   # the default
+    assert {p.series for p in points if p.baseline} == {"flat", "steep"}
+    assert (early.speedup_mrse.via, early.speedup_mrse.relation) == ("flat", "=")
+    assert early.speedup_mrse.value == pytest.approx(2.0)
+    assert (late.speedup_mrse.via, late.speedup_mrse.relation) == ("steep", "=")
+    assert late.speedup_mrse.value == pytest.approx(4.0)
+    assert late.speedup_mrse.against == "strongest PT"
+    # The paper's PT is a series of its own, measured against the strongest PT: its
+    # 1-spp point (flat's error at twice flat's time) is half as fast.
+    paper_1 = next(p for p in points if p.series == "paper's PT")
+    assert not paper_1.baseline and paper_1.speedup_mrse.value == pytest.approx(0.5)
+
+    points = [*_pt_series(), early, late]
+    _evaluate(points, 100, PAPER_PT)
+    assert {p.series for p in points if p.baseline} == {"paper's PT"}
+    assert early.speedup_mrse.value == pytest.approx(4.0)
+    assert late.speedup_mrse.relation == ">" and late.speedup_mrse.against == "paper's PT"
+    # A series named by its label: flat alone does not reach late's error in its range.
+    points = [*_pt_series(), early, late]
+    _evaluate(points, 100, "flat")
+    assert late.speedup_mrse.relation == ">" and late.speedup_mrse.against == "flat"
+    assert next(p for p in points if p.series == "steep").speedup_mrse is not None
+    with pytest.raises(ValueError, match="unknown baseline 'bogus'"):
+        _evaluate([*_pt_series(), early], 100, "bogus")
+
+
+def test_the_result_carries_the_strongest_pts_envelope_and_definition():
+    points = _pt_series()
+    _evaluate(points, 100, STRONGEST_PT)
+    found = baselines(points, STRONGEST_PT)
+    assert found["speedups_against"] == "strongest PT"
+    strongest = found[STRONGEST_PT]
+    assert strongest["candidates"] == ["flat", "steep"]
+    assert "lower error envelope at equal time" in strongest["definition"]
+    # steep is lower than flat from 0.04 s on (they meet there) and nowhere before
+    assert [(p["series"], p["from_s"], p["to_s"]) for p in strongest["envelope"]["mrse"]] == [
+        ("flat", pytest.approx(0.01), pytest.approx(0.04)),
+        ("steep", pytest.approx(0.04), pytest.approx(0.16))]
+    assert found[PAPER_PT]["label"] == "paper's PT"
+
+
 def test_a_baseline_whose_time_does_not_grow_with_spp_is_flagged():
-    def pt(spp: int, seconds: float) -> ParetoPoint:
-        return _point("PT", seconds, 0.1, 0.1, baseline=True).model_copy(update={"spp": spp})
+    def pt(spp: int, seconds: float, series: str = "PT") -> ParetoPoint:
+        return _point(series, seconds, 0.1, 0.1, named=STRONGEST_PT).model_copy(
+            update={"spp": spp})
 
     assert baseline_flags([pt(1, 0.01), pt(2, 0.02), pt(4, 0.04)]) == []
-    flags = baseline_flags([pt(1, 0.01), pt(4, 0.018), pt(2, 0.02)])
-    assert len(flags) == 1 and "2 spp 20 ms/frame >= 4 spp 18 ms/frame" in flags[0]
+    flags = baseline_flags([pt(1, 0.01), pt(4, 0.018), pt(2, 0.02), pt(1, 0.01, "B"),
+                            pt(2, 0.02, "B")])
+    assert len(flags) == 1 and "PT is not monotone in spp: 2 spp 20 ms/frame >= 4 spp " \
+                               "18 ms/frame" in flags[0]
 
 
 def test_timing_samples_that_spread_or_ran_loaded_are_flagged():
@@ -153,9 +252,9 @@ def test_timing_samples_that_spread_or_ran_loaded_are_flagged():
 
 
 def test_the_plot_draws_every_metric(tmp_path):
-    points = [_point("PT", 0.01 * n, 0.4 / n, 0.3, baseline=True) for n in (1, 2)]
+    points = [_point("PT", 0.01 * n, 0.4 / n, 0.3, named=PAPER_PT) for n in (1, 2)]
     points.append(_point("NIRC", 0.02, 0.05, 0.2))
-    _evaluate(points, resamples=100)
+    _evaluate(points, 100, PAPER_PT)
     for metric in PARETO_METRICS:
         path = plot_pareto([p.model_dump() for p in points], metric.field, metric.label, tmp_path / f"{metric.field}.png",
                            "test")
@@ -163,8 +262,10 @@ def test_the_plot_draws_every_metric(tmp_path):
 
 
 TINY = ParetoSpec(scene="cornell-box", resolution=8, frames=1, seeds=2, pt_spp=[1, 2],
-                  methods=["pt", "pt-power"], ref_spp=64, timing_rounds=1, probe_frames=1,
+                  methods=["pt"], ref_spp=64, timing_rounds=1, probe_frames=1,
                   resamples=100)
+#: The PT series every call renders: the paper's PT and the strongest PT's candidates.
+PT_RUNS = ["pt", "pt", "pt-power", "pt-spatial"]
 
 
 def test_a_repeated_call_reuses_its_stored_runs_and_measures_time_again(mi, data_dir,
@@ -177,14 +278,14 @@ def test_a_repeated_call_reuses_its_stored_runs_and_measures_time_again(mi, data
     settings = Settings()
     store = open_store(settings)
     first = run_pareto(TINY, store, settings)
-    assert sorted(renders) == ["pt-power1", "pt-power2", "pt1", "pt2"]
+    assert sorted(renders) == sorted(f"{m}{spp}" for m in PT_RUNS for spp in (1, 2))
     assert not any(p.reused for p in first.points)
-    assert first.work["points_rendered"] == 4 and first.work["points_reused"] == 0
+    assert first.work["points_rendered"] == 8 and first.work["points_reused"] == 0
 
     renders.clear()
     second = run_pareto(TINY, store, settings)
     assert renders == []                                    # nothing rendered again
-    assert all(p.reused for p in second.points) and second.work["points_reused"] == 4
+    assert all(p.reused for p in second.points) and second.work["points_reused"] == 8
     assert [p.id for p in second.points] == [p.id for p in first.points]
     for before, after in zip(first.points, second.points, strict=True):
         for metric in PARETO_METRICS:
@@ -193,10 +294,16 @@ def test_a_repeated_call_reuses_its_stored_runs_and_measures_time_again(mi, data
             assert getattr(after, f"{key}_per_seed") == getattr(before, f"{key}_per_seed")
         assert len(after.timing_samples) == 1               # timed again, in one round
 
-    # A point whose spec differs (PT and pt-power at 4 spp) is rendered; the rest reused.
+    # A point whose spec differs (the PT series at 4 spp) is rendered; the rest reused.
     third = run_pareto(ParetoSpec(**{**TINY.__dict__, "pt_spp": [1, 2, 4]}), store, settings)
-    assert sorted(renders) == ["pt-power4", "pt4"]
-    assert [p.label for p in third.points if not p.reused] == ["PT spp=4", "pt-power spp=4"]
+    assert sorted(renders) == sorted(f"{m}4" for m in PT_RUNS)
+    assert [p.label for p in third.points if not p.reused] == [
+        "paper's PT spp=4", "PT (throughput RR) spp=4", "pt-power (throughput RR) spp=4",
+        "pt-spatial (throughput RR) spp=4"]
+    # Speed-ups are against the strongest PT by default: the paper's PT points have one.
+    assert third.baselines["speedups_against"] == "strongest PT"
+    assert all(p.speedup_mrse.against == "strongest PT" for p in third.points
+               if p.named_baseline == PAPER_PT)
     store.close()
 
 

@@ -18,7 +18,7 @@ SMALL = ("pareto", "--scene", "cornell-box", "--res", "16", "--frames", "2", "--
 
 def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
     out = tmp_path / "out"
-    args = (*SMALL, "--methods", "pt,nirc", "--pt-spp", "1,2,4", "--knob-values", "nirc=1,2")
+    args = (*SMALL, "--methods", "pt,nirc", "--pt-spp", "1,2", "--knob-values", "nirc=1,2")
     proc = run_cli(*args, "--out", str(out), "--json", data_dir=tmp_path / "data")
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout)
@@ -29,10 +29,18 @@ def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
     for name in ("pareto_mrse.png", "pareto_flip.png"):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
     points = {p["label"]: p for p in result["points"]}
-    assert set(points) == {"PT spp=1", "PT spp=2", "PT spp=4", "NIRC nc=1", "NIRC nc=2",
-                           "NIRC unbiased"}
-    assert len({p["id"] for p in points.values()}) == 6           # one stored run each
-    assert result["work"]["points_rendered"] == 6 and not any(p["reused"] for p in points.values())
+    pts = ("paper's PT", "PT (throughput RR)", "pt-power (throughput RR)",
+           "pt-spatial (throughput RR)")
+    assert set(points) == {*(f"{s} spp={n}" for s in pts for n in (1, 2)), "NIRC nc=1",
+                           "NIRC nc=2", "NIRC unbiased"}
+    assert len({p["id"] for p in points.values()}) == 11          # one stored run each
+    assert result["work"]["points_rendered"] == 11
+    assert not any(p["reused"] for p in points.values())
+    # Speed-ups are against the strongest PT by default, whose envelope the JSON carries.
+    assert result["spec"]["baseline"] == "strongest-pt"
+    assert result["baselines"]["speedups_against"] == "strongest PT"
+    assert {p["series"] for p in points.values() if p["baseline"]} == set(pts[1:])
+    assert result["baselines"]["strongest-pt"]["envelope"]["mrse"]
     for point in points.values():
         # Two interleaved timing rounds; the time is their median.
         assert len(point["timing_samples"]) == 2
@@ -46,14 +54,16 @@ def test_pareto_writes_the_points_fronts_speed_ups_and_plots(tmp_path):
             speedup = point["speedup_mrse"]
             assert speedup["relation"] in ("=", ">", "<")
             assert speedup["value"] > 0 and len(speedup["ci95"]) == 2
+            assert speedup["against"] == "strongest PT" and speedup["via"] in pts[1:]
     assert any(p["front_mrse"] for p in points.values())
     assert result["bootstrap"]["resamples"] == 200 and "percentile" in result["bootstrap"]["method"]
 
-    # The same call again reuses every stored run (the table marks them '=') and prints
-    # the same errors; only the timing rounds are measured again.
-    again = run_cli(*args, data_dir=tmp_path / "data")
+    # The same call again, against the paper's PT, reuses every stored run (the table
+    # marks them '=') and prints the same errors; only the timing rounds are measured again.
+    again = run_cli(*args, "--baseline", "paper-pt", data_dir=tmp_path / "data")
     assert again.returncode == 0, again.stderr
-    assert "6 reused, 0 rendered now" in again.stdout
+    assert "11 reused, 0 rendered now" in again.stdout
+    assert "x paper's PT at equal MRSE" in again.stdout and "strongest PT (MRSE):" in again.stdout
     for point in points.values():
         assert f"{point['id']}=" in again.stdout
         assert f"{point['mrse']:.4g}" in again.stdout
@@ -72,6 +82,8 @@ BAD_ARGUMENTS = [
     (("--project-res", "1920"), "WIDTHxHEIGHT"),
     (("--project-res", "0x1080"), "1..16384"),
     (("--project-res", "64x64", "--cost-res", "8"), "at least two --cost-res"),
+    (("--baseline", "fastest-pt"), "unknown baseline 'fastest-pt': give paper-pt, strongest-pt"),
+    (("--baseline", "NRC"), "single point"),
 ]
 
 
