@@ -1,7 +1,8 @@
 """The method comparison of the NIRC paper's Fig. 7, at equal spp and at equal time.
 
 The runs are the registry's (each method's ``comparison``, ordered by rank):
-PT 1 spp, PT 2 spp, NRC (biased), NIRC biased, NIRC unbiased, the grid cache — each run
+PT 1 spp, PT 2 spp (the paper's PT: ``pt``'s fixed roulette, labelled so), NRC
+(biased), NIRC biased, NIRC unbiased, the grid cache — each run
 through the executor (so every row is a stored run against the same reference)
 and reported with the listed metrics of metrics.registry (MRSE with its CI, rBias²,
 rVar, FLIP, PSNR, ...) and milliseconds per frame (total, and the render stage
@@ -12,8 +13,11 @@ Equal time on this device: the papers' GPU ordering (a neural sample costs a few
 calibrate N_c (jobs.protocol.calibration, a job time budget; a 'knob' run): the largest
 of its knob's candidates 1, 2, 4, ..., 32 whose frame time fits the PT 2 spp
 budget (the 'budget' run; none fitting is reported as such); and for every
-'matched' cached method PT gets the largest spp that fits that method's frame
-time ("PT at equal time"). Each calibration is stored with its run.
+'matched' cached method two PT rows at its frame time: the paper's PT with the
+largest spp that fits it, and the strongest PT there: each of its candidates
+(jobs.pareto.plan: the PT core's methods with throughput roulette) calibrated the
+same way, the one of lowest MRSE shown (the lower envelope at that time, on the spp
+grid; docs/pareto.md). Each calibration is stored with its run.
 """
 
 from __future__ import annotations
@@ -21,8 +25,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from pydantic import BaseModel, Field
 
+from jobs.pareto.plan import (
+    BASELINE_LABELS,
+    PAPER_PT,
+    STRONGEST_PT,
+    STRONGEST_PT_PARAMS,
+    pt_core_methods,
+)
 from jobs.protocol.calibration import caveats
 from jobs.protocol.executor import RunSummary, execute
 from jobs.protocol.job import RenderJob
@@ -84,12 +96,19 @@ def comparison_report(
             if summary is not None:
                 summaries[entry.label] = summary
     report.device = next(iter(summaries.values())).device["device_key"]
-    report.equal_spp = [_row(entry.row, summaries[entry.label]) for _, entry in entries
-                        if entry.label in summaries]
+    baseline = METHODS[BASELINE].label or BASELINE
+    paper = BASELINE_LABELS[PAPER_PT]
+
+    def row_label(name: str, row: str) -> str:
+        """A row's label, the baseline's named as the paper's PT."""
+        return f"{paper}{row[len(baseline):]}" if name == BASELINE and \
+            row.startswith(baseline) else row
+
+    report.equal_spp = [_row(row_label(name, entry.row), summaries[entry.label])
+                        for name, entry in entries if entry.label in summaries]
 
     # ---- Equal time: a method's knob calibrated to the budget run's frame time ----
-    budget = next(entry for _, entry in entries if entry.role == "budget")
-    baseline = METHODS[BASELINE].label or BASELINE
+    budget_name, budget = next(item for item in entries if item[1].role == "budget")
     for name, entry in entries:
         if entry.role != "knob":
             continue
@@ -102,20 +121,43 @@ def comparison_report(
         calibration = summary.metrics["calibration"]
         report.calibration = calibration
         if not report.equal_time:
-            report.equal_time.append(_row(f"{budget.row} (budget)", summaries[budget.label]))
+            report.equal_time.append(_row(f"{row_label(budget_name, budget.row)} (budget)",
+                                          summaries[budget.label]))
         notes = [*([] if calibration["fits"] else [entry.unfit]), *caveats(calibration)]
         report.equal_time.append(_row(entry.row.format(chosen=calibration["chosen"]), summary,
                                       "; ".join(notes)))
 
-    # ---- Equal time: the baseline with the spp that fits each matched method's time ----
+    # ---- Equal time: the paper's and the strongest PT at each matched method's time ----
+    strongest = BASELINE_LABELS[STRONGEST_PT]
     for _name, entry in entries:
         if entry.role != "matched" or entry.label not in summaries:
             continue
         summary = summaries[entry.label]
-        pt_eq = run(f"{baseline} (= {entry.label} time)", BASELINE, {"max_depth": max_depth},
-                    budget=TimeBudget(ms=1e3 * summary.timings["seconds_per_frame"]))
+        budget_ms = TimeBudget(ms=1e3 * summary.timings["seconds_per_frame"])
+        pt_eq = run(f"{paper} (= {entry.label} time)", BASELINE, {"max_depth": max_depth},
+                    budget=budget_ms)
         assert pt_eq is not None    # the baseline renders every scene
-        report.equal_time += [_row(entry.label, summary),
-                              _row(f"{baseline} {pt_eq.spec.spp} spp (= {entry.label} time)",
-                                   pt_eq, "; ".join(caveats(pt_eq.metrics["calibration"])))]
+        candidates: dict[str, RunSummary] = {}
+        for name in pt_core_methods():
+            found = run(f"{strongest}: {METHODS[name].label or name} (= {entry.label} time)",
+                        name, {"max_depth": max_depth, **STRONGEST_PT_PARAMS}, budget=budget_ms)
+            assert found is not None    # so do the other PT core methods
+            candidates[name] = found
+        best = min(candidates, key=lambda name: _mrse(candidates[name]))
+        best_run = candidates[best]
+        lowest = (f"lowest MRSE at this time of {', '.join(candidates)} with throughput "
+                  "roulette")
+        report.equal_time += [
+            _row(entry.label, summary),
+            _row(f"{paper} {pt_eq.spec.spp} spp (= {entry.label} time)", pt_eq,
+                 "; ".join(caveats(pt_eq.metrics["calibration"]))),
+            _row(f"{strongest}: {METHODS[best].label or best} {best_run.spec.spp} spp "
+                 f"(= {entry.label} time)", best_run,
+                 "; ".join([lowest, *caveats(best_run.metrics["calibration"])]))]
     return report
+
+
+def _mrse(summary: RunSummary) -> float:
+    """A run's MRSE for choosing the strongest PT; a withheld one never wins."""
+    value = summary.result.mrse
+    return value if value is not None and np.isfinite(value) else np.inf

@@ -214,7 +214,8 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
         spec = job.spec
         calls.append((spec.method, dict(spec.params), spec.spp,
                       spec.time_budget and spec.time_budget.model_dump(exclude_defaults=True)))
-        metrics = {"mrse_mean": 1.0, "flip_hdr_mean": 0.1}
+        mrse = 0.5 if spec.method == "pt-power" else 1.0    # the strongest PT at equal time
+        metrics = {"mrse_mean": mrse, "flip_hdr_mean": 0.1}
         if spec.time_budget is not None:
             metrics["calibration"] = {"chosen": 8, "fits": True}
         spp = 3 if spec.time_budget is not None and spec.method == "pt" else spec.spp
@@ -223,7 +224,7 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
             id=len(calls), created_at=datetime.now(UTC), scene="s", scene_fingerprint="f",
             method=spec.method, params=dict(spec.params), resolution=[64, 64], spp=spp,
             frames=1, seeds=1, seconds_per_frame=0.01, device_key="dev", quality={},
-            estimator_version=1, metric_version=1, current=True, mrse=1.0, flip=0.1,
+            estimator_version=1, metric_version=1, current=True, mrse=mrse, flip=0.1,
             metrics=metrics, timings=timings, path_stats={}, device={}, versions={},
             git_commit=None, reference_id=None, per_seed=[])
         return SimpleNamespace(metrics=metrics, timings=timings, run_id=len(calls),
@@ -233,6 +234,9 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
     monkeypatch.setattr(report_module, "execute", fake_execute)
     report = report_module.comparison_report("s", None, None, max_depth=8, pretrain_frames=7)
     cache = {"max_depth": 8, "pretrain_frames": 7}
+    at_time = [("pt", {"max_depth": 8}, 1, {"ms": 10.0}),
+               *((name, {"max_depth": 8, "rr_mode": "throughput"}, 1, {"ms": 10.0})
+                 for name in ("pt", "pt-power", "pt-spatial"))]
     assert calls == [
         ("pt", {"max_depth": 8}, 1, None), ("pt", {"max_depth": 8}, 2, None),
         ("nrc", cache, 1, None),
@@ -241,15 +245,15 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
         ("grid-cache", {"max_depth": 8}, 1, None),
         ("nirc", {**cache, "estimator": "biased"}, 1,
          {"pt_spp": 2, "candidates": [1, 2, 4, 8, 16, 32]}),
-        ("pt", {"max_depth": 8}, 1, {"ms": 10.0}), ("pt", {"max_depth": 8}, 1, {"ms": 10.0}),
-        ("pt", {"max_depth": 8}, 1, {"ms": 10.0})]
+        *at_time, *at_time, *at_time]
     assert [row.label for row in report.equal_spp] == [
-        "PT 1 spp", "PT 2 spp", "NRC biased", "NIRC biased (N_c 4)", "NIRC unbiased (N_c 3,1,1)",
+        "paper's PT 1 spp", "paper's PT 2 spp", "NRC biased", "NIRC biased (N_c 4)", "NIRC unbiased (N_c 3,1,1)",
         "Grid cache (var-bound)"]
     assert [row.label for row in report.equal_time] == [
-        "PT 2 spp (budget)", "NIRC biased (N_c 8)", "NRC", "PT 3 spp (= NRC time)",
-        "NIRC unbiased", "PT 3 spp (= NIRC unbiased time)",
-        "Grid cache", "PT 3 spp (= Grid cache time)"]
+        "paper's PT 2 spp (budget)", "NIRC biased (N_c 8)",
+        *(row for method in ("NRC", "NIRC unbiased", "Grid cache")
+          for row in (method, f"paper's PT 3 spp (= {method} time)",
+                      f"strongest PT: pt-power 1 spp (= {method} time)"))]
     assert report.device == "dev" and report.skipped == []
     assert [row.id for row in report.equal_spp] == [1, 2, 3, 4, 5, 6]   # the runs' own results
 
