@@ -46,7 +46,7 @@ def _baseline_lines(baselines: dict[str, Any]) -> list[str]:
         pieces = strongest["envelope"][metric.field]
         lines.append(f"{strongest['label']} ({metric.label}): " + (", ".join(
             f"{p['series']} {_ms(p['from_s'])}–{_ms(p['to_s'])} ms" for p in pieces)
-            or "no candidate with two points"))
+            or "no time interval (no candidate's front has two points)"))
     return lines
 
 

@@ -85,6 +85,7 @@ from jobs.record.config import Settings
 from jobs.record.store import DuplicateKeyError, Store
 from metrics.registry import BY_NAME, Metric
 from renderers.methods import BASELINE, METHODS, NotApplicable
+from renderers.methods.pt import PTParams
 from renderers.seeding import digest
 from renderers.timing import FrameTime, merge_loads
 
@@ -419,10 +420,12 @@ def baselines(points: list[ParetoPoint], chosen: str) -> dict[str, Any]:
         return [asdict(piece) for piece in envelope_pieces(sample_curves(samples))] \
             if samples else []
 
+    paper = PTParams()
     return {"speedups_against": baseline_label(chosen), "baseline": chosen,
             PAPER_PT: {"label": BASELINE_LABELS[PAPER_PT],
-                       "definition": f"{BASELINE} with its own defaults: Russian roulette of "
-                                     "fixed survival from a fixed depth (the NIRC paper's)"},
+                       "definition": f"{BASELINE} with its defaults: Russian roulette "
+                                     f"'{paper.rr_mode}', survival {paper.rr_survival} from "
+                                     f"depth {paper.rr_depth} (the NIRC paper's)"},
             STRONGEST_PT: {"label": BASELINE_LABELS[STRONGEST_PT],
                            "candidates": list(dict.fromkeys(
                                p.series for p in points if p.named_baseline == STRONGEST_PT)),
