@@ -1,7 +1,8 @@
-"""Benchmark: error against time per frame, with each method's speed-up at equal error over PT.
+"""Benchmark: error against time per frame, with each method's speed-up at equal error over the
+strongest PT (docs/pareto.md).
 
 Runs a small ``nirc-bench pareto`` (jobs/pareto/pareto.py) on a fresh data
-folder: PT at several spp, every caching method of the registry at a few values
+folder: the paper's PT and the strongest PT's candidates at several spp, every caching method of the registry at a few values
 of its equal-time knob and its comparison runs, each a stored run against the
 same reference, timed in interleaved rounds (online training included in
 seconds per frame). Prints the table (Pareto front marked, speed-up at equal
