@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import json
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from concurrent.futures import Future
 from pathlib import Path
 
 import pytest
 
 from tests.service.live import Service
-from tests.service.test_cli import assert_clean_error, run_cli
+from tests.service.test_cli import assert_clean_error, run_cli, started_together
 
 # Small and quick: 16x16 pixels, 4 frames, seeds in groups of 3 up to 6, level 0.01. No
 # time row: the tests share a loaded machine (time is tested with fake runs in
@@ -110,17 +112,30 @@ def test_the_latest_results_of_a_branch_are_a_baseline(tmp_path, suite):
     assert "PASS: 2 rows compared" in second.stdout and "paired t" in second.stdout
 
 
-@pytest.mark.parametrize("args, fragment", [
+KEPT_FROM_RUNNING = [
     (("--suite", "nowhere.toml"), "nowhere.toml"),
     (("--baseline", "nowhere.json"), "--update-baseline"),
     (("--server", "http://127.0.0.1:9"), "cannot reach"),
     (("--update-baseline", "--baseline-ref", "main"), "--baseline-ref"),
-])
-def test_what_keeps_it_from_running_exits_2(tmp_path, suite, args, fragment):
-    baseline = tmp_path / "b.json"
-    baseline.write_text('{"rows": []}')
-    proc = run_cli("ci", "--suite", str(suite), "--baseline", str(baseline), *args,
-                   data_dir=tmp_path / "data")
+]
+
+
+@pytest.fixture(scope="module")
+def kept_calls(tmp_path_factory) -> Iterator[dict[tuple[str, ...], Future]]:
+    """The calls of the cases below, started together (each a process that spends seconds
+    starting before it exits), keyed by their own arguments."""
+    folder = tmp_path_factory.mktemp("kept")
+    (folder / "suite.toml").write_text(SUITE)
+    (folder / "b.json").write_text('{"rows": []}')
+    calls = {args: ("ci", "--suite", str(folder / "suite.toml"), "--baseline",
+                    str(folder / "b.json"), *args) for args, _ in KEPT_FROM_RUNNING}
+    for started in started_together(list(calls.values()), folder):
+        yield {args: started[call] for args, call in calls.items()}
+
+
+@pytest.mark.parametrize("args, fragment", KEPT_FROM_RUNNING)
+def test_what_keeps_it_from_running_exits_2(kept_calls, args, fragment):
+    proc = kept_calls[args].result()
     assert proc.returncode == 2
     assert_clean_error(proc, fragment)
 
