@@ -14,9 +14,12 @@ import time
 import psutil
 import pytest
 
+from jobs.execution import runner
 from jobs.execution.queue import JobQueue
 from jobs.execution.runner import Follow, _Child, run_job
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.record.config import Settings
+from jobs.record.db import open_store
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
                   reference=ReferenceSpec(spp=64, spp_per_pass=8))
@@ -71,6 +74,30 @@ def test_its_caller_follows_the_progress_and_may_take_a_stored_run(store, settin
     done = queue.get(second.id)
     assert done.run_id == queue.get(first.id).run_id
     assert done.work == {"reference_rendered": 0, "run_reused": 1}
+
+
+def test_a_runner_thread_keeps_one_store_for_the_jobs_it_runs(settings, tmp_path,
+                                                               monkeypatch):
+    """One store (engine, pooled connections) per thread and database, not one per job;
+    another database gets its own, and so does a process forked from the runner."""
+    opened = []
+
+    def counted(of: Settings):
+        opened.append(open_store(of))
+        return opened[-1]
+
+    monkeypatch.setattr(runner, "open_store", counted)
+    missing = 10**6     # a job id with no row: run_job claims nothing and returns at once
+    other = Settings(data_dir=tmp_path / "other")
+    for of in (settings, settings, other, settings):
+        assert run_job(missing, of, worker="test") == "missing"
+    assert len(opened) == 3
+    pid = os.fork()
+    if pid == 0:    # the forked copy of this thread's store is not the child's
+        os._exit(0 if run_job(missing, settings, worker="fork") == "missing"
+                 and len(opened) == 4 else 1)
+    assert os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) == 0
+    assert run_job(missing, settings, worker="test") == "missing" and len(opened) == 3
 
 
 def test_bad_input_fails_once_with_the_message(store, settings):
