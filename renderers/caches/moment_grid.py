@@ -88,6 +88,8 @@ class MomentGrid:
     #: The arrays a lookup reads (:meth:`lookup_arrays`, :meth:`bind_lookup`): what a frozen
     #: render that looks the grid up takes as its arguments (renderers.frozen).
     LOOKUP_ARRAYS = ("keys", "count", "mean", "second", "marginal")
+    #: Every array of its state: the lookup's, and the representatives (:meth:`arrays`).
+    ARRAYS = (*LOOKUP_ARRAYS, "vertices", "vertex_used")
 
     def __init__(self, config: MomentGridConfig) -> None:
         self.config = config
@@ -194,10 +196,11 @@ class MomentGrid:
         weight = dr.minimum(n / dr.maximum(dr.minimum(total, self.config.max_history), 1.0),
                             1.0)
         per_observation = dr.rcp(dr.maximum(n, 1.0))
-        index = dr.arange(mi.UInt32, size)
-        old_mean = dr.gather(mi.Color3f, self.mean, index)
-        new_mean = dr.gather(mi.Color3f, batch_mean, index) * per_observation
-        dr.scatter(self.mean, dr.lerp(old_mean, new_mean, weight), index)
+        # New arrays, never a scatter into the grid's own: what a frozen pass returns.
+        of_slot = dr.arange(mi.UInt32, 3 * size) // 3   # the mean's 3 floats per slot
+        self.mean = dr.lerp(self.mean, batch_mean * dr.gather(mi.Float, per_observation,
+                                                              of_slot),
+                            dr.gather(mi.Float, weight, of_slot))
         self.second = dr.lerp(self.second, batch_second * per_observation, weight)
         self.marginal = dr.lerp(self.marginal, batch_marginal * per_observation, weight)
         self.count = dr.minimum(total, self.config.max_history)
@@ -217,9 +220,20 @@ class MomentGrid:
         """How many records hold an estimate."""
         return int(dr.sum(dr.select(self.count > 0, 1, 0), axis=None)[0])
 
-    def representatives(self) -> tuple[mi.UInt32, mi.Point3f, mi.Vector3f]:
-        """Every stored representative: its record's slot, position and normal."""
-        place = dr.compress(self.vertex_used != 0)
+    def places(self) -> mi.UInt32:
+        """The places of every stored representative (a compaction: its width is read on
+        the host)."""
+        return dr.compress(self.vertex_used != 0)
+
+    def most_places(self) -> int:
+        """How many representatives the grid can hold."""
+        return self.config.table_size * self.config.vertices_per_record
+
+    def representatives(self, place: mi.UInt32 | None = None
+                        ) -> tuple[mi.UInt32, mi.Point3f, mi.Vector3f]:
+        """The representatives at ``place`` (default: every stored one, :meth:`places`):
+        their records' slots, positions and normals."""
+        place = self.places() if place is None else place
         slot = place // self.config.vertices_per_record
         position = dr.gather(mi.Point3f, self.vertices, 2 * place)
         normal = dr.gather(mi.Vector3f, self.vertices, 2 * place + 1)
@@ -233,4 +247,22 @@ class MomentGrid:
         """Look up ``arrays`` (:meth:`lookup_arrays` of this grid, as a frozen render
         received them) from now on."""
         for name in self.LOOKUP_ARRAYS:
+            setattr(self, name, arrays[name])
+
+    def arrays(self) -> dict[str, Any]:
+        """Every array of the grid's state (:data:`ARRAYS`): what a frozen pass that
+        writes the grid takes and returns."""
+        return {name: getattr(self, name) for name in self.ARRAYS}
+
+    def copied_arrays(self) -> dict[str, Any]:
+        """:meth:`arrays` copied into new buffers (a frozen pass's replay writes into the
+        arrays it is handed, whoever else holds them)."""
+        copies = {name: dr.gather(type(array), array, dr.arange(mi.UInt32, dr.width(array)))
+                  for name, array in self.arrays().items()}
+        dr.eval(copies)
+        return copies
+
+    def bind(self, arrays: dict[str, Any]) -> None:
+        """Hold ``arrays`` (:meth:`arrays` of this grid, e.g. a frozen pass's result)."""
+        for name in self.ARRAYS:
             setattr(self, name, arrays[name])

@@ -87,21 +87,33 @@ class GridUpdateIntegrator(PathIntegrator):
 def update_grid(scene: mi.Scene, integrator: GridUpdateIntegrator, seed: int,
                 hit_store_probability: float) -> int:
     """One pass over the grid's representatives; returns how many vertices it updated."""
+    place = integrator.grid.places()
+    vertices = dr.width(place)
+    if vertices:   # an opaque count: one kernel for every count
+        update_places(scene, integrator, place, dr.opaque(mi.UInt32, vertices), seed,
+                      hit_store_probability)
+    return vertices
+
+
+def update_places(scene: mi.Scene, integrator: GridUpdateIntegrator, place: mi.UInt32,
+                  vertices: mi.UInt32, seed: int | mi.UInt32,
+                  hit_store_probability: float) -> None:
+    """The pass over the representatives at the first ``vertices`` entries of ``place``
+    (:meth:`MomentGrid.places`); entries past them (padding, renderers.frozen.padded) are
+    masked: their paths are not traced and they update and store nothing. Lane i of
+    the sampler is seeded by (seed, i) alone, so padding changes no vertex's samples."""
     grid = integrator.grid
-    slot, position, normal = grid.representatives()
-    vertices = dr.width(slot)
-    if vertices == 0:
-        return 0
     k = grid.config.samples_per_vertex
-    owner = dr.arange(mi.UInt32, vertices * k) // k
+    slot, position, normal = grid.representatives(place)
+    owner = dr.arange(mi.UInt32, dr.width(place) * k) // k
     p = dr.gather(mi.Point3f, position, owner)
     n = dr.gather(mi.Vector3f, normal, owner)
     offset = RECOVERY_OFFSET * dr.norm(scene.bbox().extents())
     ray = mi.Ray3f(p + offset * n, -n)
     ray.maxt = 2.0 * offset
     sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed, vertices * k)
-    L, _, _, state = integrator.trace(scene, sampler, ray, mi.Bool(True))
+    sampler.seed(seed, dr.width(owner))
+    L, _, _, state = integrator.trace(scene, sampler, ray, owner < vertices)
     # One launch of the loop for all its outputs: each reduction below would otherwise
     # re-run the whole loop kernel for its own input (docs/design.md, pitfalls).
     dr.eval(L, state, sampler)
@@ -111,11 +123,10 @@ def update_grid(scene: mi.Scene, integrator: GridUpdateIntegrator, seed: int,
     store = state.hit & (sampler.next_1d() < hit_store_probability)
     hit_slot, inserted = grid.find(state.hit_p, state.hit_n, store, insert=True)
     grid.store_vertices(hit_slot, state.hit_p, state.hit_n, sampler.next_1d(), inserted)
-    return vertices
 
 
-def store_primary_vertices(scene: mi.Scene, grid: MomentGrid, sensor: mi.Sensor, seed: int,
-                           probability: float) -> None:
+def store_primary_vertices(scene: mi.Scene, grid: MomentGrid, sensor: mi.Sensor,
+                           seed: int | mi.UInt32, probability: float) -> None:
     """The path tracer's share of exploration: each pixel's first hit kept as its cell's
     representative with ``probability`` (the paper: 1 %)."""
     film_size = sensor.film().crop_size()

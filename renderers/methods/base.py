@@ -298,7 +298,7 @@ class WithParts:
         if recorded:
             self.recordings = lambda: sum(part.recordings() for part in recorded)
             self.growth_recordings = lambda: sum(growth_recordings(part)
-                                                 for part in self.frozen)
+                                                 for part in recorded)
 
     def __call__(self, index: int, seed: int, timer: StageTimer) -> Any:
         return self.frame(index, seed, timer)

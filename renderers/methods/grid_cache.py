@@ -4,7 +4,8 @@ moments by a variance-trading policy ([VTT24]; docs/variance_trading.md).
 Every frame first runs the cache's propagation pass (timed as the stage
 ``propagation``: the path tracer's share of exploration, each pixel's first hit kept
 as a representative with the config's ``primary_store_probability``, then
-renderers/integrators/grid_update.py over every representative), then renders with
+renderers/integrators/grid_update.py over every representative; frozen where freezing
+is on, :class:`Propagation`), then renders with
 the core asking the policy at every vertex (``render``; renderers/integrators/
 grid_cache.py). Static scenes are pre-filled for ``prefill_frames`` passes first
 (the paper fills and propagates "until it reaches an equilibrium state", Sec. 6):
@@ -27,10 +28,12 @@ as in the paper (Sec. 6), so scenes with glossy or delta BSDFs are refused.
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from typing import Any, Literal
 
 from pydantic import Field
 
+from renderers.frozen import Frozen, freezing, padded, weak_method
 from renderers.integrators.termination import policy_names
 from renderers.methods.base import (
     ComparisonRun,
@@ -123,43 +126,149 @@ def build(scene: Any, params: GridCacheParams, seed: int) -> tuple[Any, Any, Any
     return integrator, updater, grid
 
 
-def propagate(scene: Any, updater: Any, grid: Any, params: GridCacheParams, seed: int) -> int:
-    """One pass: the render's share of exploration, then the update of every
-    representative; returns the vertices updated. Traced, not frozen: a frozen update
-    replays wrongly (docs/timing.md, "Frozen frames")."""
-    from renderers.integrators.grid_update import store_primary_vertices, update_grid
+class Propagation:
+    """The propagation pass, called with a frame's seed: the render's share of
+    exploration (each pixel's first hit kept as a representative with the config's
+    ``primary_store_probability``), then the update of every representative
+    (renderers/integrators/grid_update.py); returns the vertices updated.
 
-    mi_scene = scene.scene
-    store_primary_vertices(mi_scene, grid, mi_scene.sensors()[0], derive_seed(seed, "store"),
-                           grid.config.primary_store_probability)
-    return update_grid(mi_scene, updater, derive_seed(seed, "update"),
-                       params.hit_store_probability)
+    Frozen where freezing is on (renderers.frozen), as two calls that take the grid's
+    arrays (:meth:`MomentGrid.arrays`) and return them, rebound afterwards: the store
+    of first hits (one lane per pixel) and the update. The update's representatives
+    are compacted and counted on the host between the two, and padded to a power of
+    two (at least :data:`MIN_WIDTH`) with the extra lanes masked, so that its cost
+    follows their number while it records once per power of two it reaches (the
+    count only grows: a representative is never dropped); those recordings are
+    counted as :attr:`growth_recordings`. Frozen and traced passes draw the same
+    samples and give the same records (docs/timing.md, "Frozen frames")."""
+
+    #: The narrowest padded update: below it a recording costs more than the lanes.
+    MIN_WIDTH = 256
+
+    def __init__(self, scene: Any, updater: Any, grid: Any, params: GridCacheParams,
+                 frozen: bool | None = None) -> None:
+        self.scene, self.updater, self.grid = scene.scene, updater, grid
+        self.params = params
+        frozen = (freezing() if frozen is None else frozen) and updater.frame_freezable()
+        self._store = (Frozen(weak_method(self._store_pass), auto_opaque=False) if frozen
+                       else self._store_pass)
+        self._update = (Frozen(weak_method(self._update_pass), auto_opaque=False) if frozen
+                        else self._update_pass)
+        self.frozen = frozen
+        self.widths: list[int] = []   # the padded widths of the update, in order
+        self.growth_recordings = 0    # recordings of updates at a width not seen before
+        self._last_seed: int | None = None
+
+    def __call__(self, seed: int) -> int:
+        import drjit as dr
+        import mitsuba as mi
+
+        self._last_seed = seed
+        grid, scene = self.grid, self.scene
+        grid.bind(self._store(scene, grid.arrays(),
+                              dr.opaque(mi.UInt32, derive_seed(seed, "store"))))
+        place = grid.places()
+        vertices = dr.width(place)   # the host read, outside the frozen calls
+        if vertices == 0:
+            return 0
+        width = self.padded_width(vertices) if self.frozen else vertices
+        grown = width not in self.widths
+        if grown:
+            self.widths.append(width)
+        before = self.recordings()
+        state = self.updater.frame_state(scene)
+        grid.bind(self._update(scene, grid.arrays(), state, padded(place, width),
+                               dr.opaque(mi.UInt32, vertices),
+                               dr.opaque(mi.UInt32, derive_seed(seed, "update"))))
+        self.updater.bind_frame_state(scene, state)   # a recording bound its own inputs
+        if grown and before is not None:
+            self.growth_recordings += self.recordings() - before
+        return vertices
+
+    def padded_width(self, vertices: int) -> int:
+        """The width the update of ``vertices`` representatives is padded to."""
+        width = max(1 << (vertices - 1).bit_length(), self.MIN_WIDTH)
+        return max(min(width, self.grid.most_places()), vertices)
+
+    def recordings(self) -> int | None:
+        """Recordings of the frozen calls (None when the pass is traced)."""
+        if not self.frozen:
+            return None
+        return self._store.recordings() + self._update.recordings()  # type: ignore[union-attr]
+
+    def settle(self) -> None:
+        """The last pass again with the next seed, on a copy of the grid, dropped: a
+        frozen call's key also holds what a render changes in the scene (its film),
+        so the warm-up settles the pass's recordings after a render as the render's
+        own (renderers.methods.base.WithParts, ``counted``). A replay writes its
+        scatters into the arrays it is handed, hence the copy."""
+        if self._last_seed is None:
+            return
+        held, seed = self.grid.arrays(), self._last_seed
+        self.grid.bind(self.grid.copied_arrays())
+        try:
+            self(seed + 1)
+        finally:
+            self.grid.bind(held)
+            self._last_seed = seed
+
+    def _store_pass(self, scene: Any, arrays: dict[str, Any], seed: Any) -> dict[str, Any]:
+        from renderers.integrators.grid_update import store_primary_vertices
+
+        self.grid.bind(arrays)
+        store_primary_vertices(scene, self.grid, scene.sensors()[0], seed,
+                               self.grid.config.primary_store_probability)
+        return self.grid.arrays()
+
+    def _update_pass(self, scene: Any, arrays: dict[str, Any], state: dict[str, Any],
+                     place: Any, vertices: Any, seed: Any) -> dict[str, Any]:
+        from renderers.integrators.grid_update import update_places
+
+        self.grid.bind(arrays)
+        self.updater.bind_frame_state(scene, state)
+        update_places(scene, self.updater, place, vertices, seed,
+                      self.params.hit_store_probability)
+        return self.grid.arrays()
+
+
+def propagate(scene: Any, updater: Any, grid: Any, params: GridCacheParams, seed: int) -> int:
+    """One traced propagation pass (:class:`Propagation`); returns the vertices updated."""
+    return Propagation(scene, updater, grid, params, frozen=False)(seed)
 
 
 def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], spp: int,
            frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
     """Pre-fill, then per frame: a propagation pass, then the render pass (frozen where
     freezing is on)."""
-    from renderers.timing import synchronize
+    from drjit import kernel_history_clear
+
+    from renderers.timing import kernel_history, synchronize
 
     integrator, updater, grid = build(scene, params, derive_seed(*seed_parts, "cache"))
+    propagate = Propagation(scene, updater, grid, params)
     start = time.perf_counter()
-    for index in range(params.prefill_frames):
-        propagate(scene, updater, grid, params, derive_seed(*seed_parts, "prefill", index))
+    # Under the frames' flags (a frozen pass records again when a flag changes).
+    with kernel_history() if hooks.kernel_time else nullcontext():
+        for index in range(params.prefill_frames):
+            propagate(derive_seed(*seed_parts, "prefill", index))
+            kernel_history_clear()   # read by no timer
     prefill_s = time.perf_counter() - start
+    prefill_recordings = propagate.recordings()
     updated: list[int] = []
     render_only = render_stage(scene, integrator, spp)
 
     def frame(index: int, seed: int, timer: Any) -> Any:
         with timer.stage("propagation"):
-            vertices = propagate(scene, updater, grid, params, derive_seed(seed, "propagate"))
+            vertices = propagate(derive_seed(seed, "propagate"))
             synchronize(grid.keys)   # and the pass's pending stores, not in the render's time
         if index >= 0:
             updated.append(vertices)
         return render_only(index, seed, timer)
 
-    output = run_frames(WithParts(frame, render_only), seed_parts=seed_parts, frames=frames,
-                        spp=spp, aov_names=GRID_AOVS, hooks=hooks)
+    # The pass's recordings count with the frame's (its width growth as growth).
+    output = run_frames(WithParts(frame, render_only, counted=(propagate,)),
+                        seed_parts=seed_parts, frames=frames, spp=spp, aov_names=GRID_AOVS,
+                        hooks=hooks)
     output.path_stats.update(rr_survival=params.rr_survival, rr_depth=params.rr_depth,
                              rr_mode=params.rr_mode)
     output.method_stats = {
@@ -167,6 +276,10 @@ def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], 
         "rr_survival": params.rr_survival,
         "grid_records": grid.records(),
         "updated_vertices_per_frame": sum(updated) / max(len(updated), 1),
+        # The frozen pass's recordings in the pre-fill (None: traced) and the widths its
+        # update was padded to.
+        "propagation_frozen": None if prefill_recordings is None else {
+            "recordings_after_prefill": prefill_recordings, "widths": propagate.widths},
         "caches": {"cache": {"config": grid.config.model_dump(mode="json"),
                             "per_frame": {"propagation_passes": 1,
                                           "samples_per_vertex":
