@@ -595,6 +595,11 @@ def pareto(
         "--baseline", help="what speed-ups are measured against: strongest-pt (the lower "
                            "envelope of the PT methods with throughput roulette), paper-pt "
                            "(pt's fixed roulette) or a series' label")] = "strongest-pt",
+    without_stage: Annotated[list[str] | None, typer.Option(
+        "--without-stage", help="also show each point that runs this stage with the stage's "
+                                "time taken out, as a series of its own off the fronts (e.g. "
+                                "propagation: grid-cache without its propagation pass); "
+                                "repeatable")] = None,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
 ) -> None:
@@ -615,7 +620,8 @@ def pareto(
         pretrain_frames=pretrain, max_depth=max_depth, ref_spp=ref_spp,
         timing_rounds=timing_rounds, probe_frames=probe_frames, resamples=resamples,
         project_res=_resolution(project_res, "--project-res") if project_res else None,
-        cost_resolutions=_counts(cost_res, "--cost-res", "resolutions"), baseline=baseline)
+        cost_resolutions=_counts(cost_res, "--cost-res", "resolutions"), baseline=baseline,
+        without_stages=list(dict.fromkeys(without_stage or [])))
     plan(spec)      # bad options fail before anything that renders is imported
     from jobs.pareto.pareto import run_pareto
     from service.pareto_table import pareto_table

@@ -110,6 +110,11 @@ def pareto_table(result: Any) -> Group:
                 f"a measurement; the errors are those measured at "
                 f"{result.spec.resolution}x{result.spec.resolution} (a cache's error depends on "
                 "the resolution)."] if projected else []),
+             *(f"without {stage}: each point that ran it, its time less the {stage} stage "
+               f"of the frames its samples are; not the method's whole cost, so never on a "
+               f"front ({len(labels)} points)" if labels else
+               f"without {stage}: no point ran a stage '{stage}'"
+               for stage, labels in result.timing.get("without_stages", {}).items()),
              *result.timing.get("flags", []),
              *(f"{label} ({', '.join(metrics)}): {note}"
                for (label, note), metrics in notes.items()),

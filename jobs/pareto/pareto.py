@@ -106,6 +106,18 @@ class Timing:
     loads: list[dict[str, Any] | None] = field(default_factory=list)
     interleaved: bool = True        # samples of interleaved probes, not a run's frames
     projection: cost_model.Projection | None = None
+    #: Per sample, the wall seconds of each stage of the frame the sample is (the
+    #: probe's median frame, or the run's frame); empty where the run kept none.
+    parts: list[dict[str, float]] = field(default_factory=list)
+
+    def without(self, stage: str) -> list[float] | None:
+        """The samples less the frame's ``stage`` (None where a sample's frame has no
+        such stage or its stages are not known)."""
+        if len(self.parts) != len(self.samples) or not all(
+                parts.get(stage, 0.0) > 0.0 for parts in self.parts):
+            return None
+        return [sample - parts[stage]
+                for sample, parts in zip(self.samples, self.parts, strict=True)]
 
     def flags(self) -> list[str]:
         """Why these samples may not be trusted (the module docstring)."""
@@ -170,6 +182,10 @@ class ParetoPoint(_ParetoColumns):  # type: ignore[misc,valid-type]
     projection: dict[str, Any] | None = Field(
         None, description="its frame time projected to another resolution from this "
                           "device's per-stage cost model (jobs.protocol.cost_model)")
+    without_stages: list[str] = Field(
+        default_factory=list,
+        description="stages taken out of its time (--without-stage): not the method's whole "
+                    "cost, so never on a front; empty for a measured point")
 
     @classmethod
     def measured(cls, planned: Planned, run: Any, timing: Timing, reused: bool) -> ParetoPoint:
@@ -266,9 +282,15 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
     if spec.project_res is not None:
         _project(runs, jobs, timings, spec, prepared, settings, progress)
     rank = {id(p): i for i, p in enumerate(p for points in series for p in points)}
+    ranked = sorted(enumerate(runs), key=lambda item: rank[id(item[1][0])])
     points = [ParetoPoint.measured(planned, run, timings[i], reused)
-              for i, (planned, run, reused)
-              in sorted(enumerate(runs), key=lambda item: rank[id(item[1][0])])]
+              for i, (planned, run, reused) in ranked]
+    measured = list(points)
+    without = {}
+    for stage in spec.without_stages:
+        derived = without_stage_points(measured, [timings[i] for i, _ in ranked], stage)
+        without[stage] = [p.label for p in derived]
+        points += derived
     _evaluate(points, spec.resamples, spec.baseline)
     reused = sum(p.reused for p in points)
     result = ParetoResult(
@@ -279,7 +301,8 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
                             "the run's timed frames"),
                 "max_spread": MAX_SPREAD, "flags": baseline_flags(points),
                 "run_order": [planned.label for planned, _, _ in runs], "round_order": order,
-                "cost_resolutions": spec.cost_resolutions if spec.project_res else None},
+                "cost_resolutions": spec.cost_resolutions if spec.project_res else None,
+                "without_stages": without},
         bootstrap={"method": BOOTSTRAP_METHOD, "resamples": spec.resamples,
                    "confidence": 0.95},
         baselines=baselines(points, spec.baseline),
@@ -315,21 +338,56 @@ def _timing_samples(runs: list[tuple[Planned, Any, bool]], jobs: dict[int, Rende
         probes = timed.times[index]
         if probes:
             found.append(Timing([p["frame_median_s"] for p in probes],
-                                [p.get("load") for p in probes]))
+                                [p.get("load") for p in probes],
+                                parts=[p["breakdown"]["parts_s"] for p in probes]))
         else:
-            found.append(Timing(run_frame_seconds(run), [(run.timings or {}).get("load")],
-                                interleaved=False))
+            frames = run_frames(run)
+            found.append(Timing(
+                [f.total_s for f in frames] if frames else run_frame_seconds(run),
+                [(run.timings or {}).get("load")], interleaved=False,
+                parts=[f.stages for f in frames]))
     return found, timed.order
+
+
+def run_frames(run: Any) -> list[FrameTime]:
+    """Every timed frame of every seed of a stored run (empty for runs stored before
+    frames were kept)."""
+    seeds = sorted(run.seed_results, key=lambda s: s.seed)
+    if all("frames_detail" in (s.timings or {}) for s in seeds):
+        return [FrameTime.from_json(f) for s in seeds for f in s.timings["frames_detail"]]
+    return []
 
 
 def run_frame_seconds(run: Any) -> list[float]:
     """The frame times of a stored run: every timed frame of every seed (whose lower
     median is the run's ``seconds_per_frame``), or for runs stored before frames were
     kept, each seed's frame time."""
-    seeds = sorted(run.seed_results, key=lambda s: s.seed)
-    if all("frames_detail" in (s.timings or {}) for s in seeds):
-        return [FrameTime.from_json(f).total_s for s in seeds for f in s.timings["frames_detail"]]
-    return [s.metrics["seconds_per_frame"] for s in seeds]
+    frames = run_frames(run)
+    if frames:
+        return [f.total_s for f in frames]
+    return [s.metrics["seconds_per_frame"]
+            for s in sorted(run.seed_results, key=lambda s: s.seed)]
+
+
+def without_stage_points(points: list[ParetoPoint], timings: list[Timing],
+                         stage: str) -> list[ParetoPoint]:
+    """Per point whose every timing sample's frame ran ``stage``: the point again with
+    the stage's seconds taken out of its samples, in a series of its own ("<series>
+    without <stage>"). Not the method's cost (a stage it cannot do without): off the
+    fronts, beside the point (e.g. grid-cache's propagation pass, which [VTT24] Table 1
+    reports apart)."""
+    derived = []
+    for point, timing in zip(points, timings, strict=True):
+        samples = timing.without(stage)
+        if samples is None:
+            continue
+        derived.append(point.model_copy(update={
+            "series": f"{point.series} without {stage}",
+            "label": f"{point.label} without {stage}", "named_baseline": "",
+            "without_stages": [*point.without_stages, stage],
+            "seconds_per_frame": float(median_low(samples)),
+            "seconds_spread": [min(samples), max(samples)], "timing_samples": samples}))
+    return derived
 
 
 def _project(runs: list[tuple[Planned, Any, bool]], jobs: dict[int, RenderJob],
@@ -391,9 +449,12 @@ def _evaluate(points: list[ParetoPoint], resamples: int, baseline: str) -> None:
         point.baseline = point.series in chosen
     for metric in PARETO_METRICS:
         key = metric.field
-        front = pareto_front([p.seconds_per_frame for p in points],
-                             [getattr(p, key) for p in points])
-        for point, on in zip(points, front, strict=True):
+        whole = [p for p in points if not p.without_stages]   # a method's whole cost
+        front = pareto_front([p.seconds_per_frame for p in whole],
+                             [getattr(p, key) for p in whole])
+        for point in points:
+            setattr(point, f"front_{key}", False)
+        for point, on in zip(whole, front, strict=True):
             setattr(point, f"front_{key}", on)
         baseline = _baseline_samples(points, key, lambda p: p.baseline)
         for point in points:

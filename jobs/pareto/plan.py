@@ -66,6 +66,9 @@ class ParetoSpec:
     cost_resolutions: list[int] = field(
         default_factory=lambda: list(DEFAULT_RESOLUTIONS))
     baseline: str = STRONGEST_PT
+    #: Stages whose time is also shown taken out (a series "<method> without <stage>"
+    #: beside each point that ran it; jobs.pareto.pareto.without_stage_points).
+    without_stages: list[str] = field(default_factory=list)
 
 
 def pt_core_methods() -> list[str]:
@@ -132,6 +135,10 @@ def plan(spec: ParetoSpec) -> tuple[list[list[Planned]], list[dict[str, str]]]:
     if len(set(spec.pt_spp)) < 2:
         raise MethodError(f"give at least two {BASELINE} spp values: its error-vs-time curve "
                           "is interpolated between them")
+    for stage in spec.without_stages:
+        if not stage.isidentifier() or stage == "render":
+            raise MethodError(f"--without-stage '{stage}': name a stage other than render "
+                              "that a method times (e.g. propagation, training)")
     series, skipped = _pt_series(spec), []
     for name in names:
         if name in spec.knob_values and (METHODS[name].knob is None or name == BASELINE):

@@ -20,6 +20,7 @@ from jobs.pareto.pareto import (
     baselines,
     point_key,
     run_pareto,
+    without_stage_points,
 )
 from jobs.pareto.plan import (
     PAPER_PT,
@@ -127,6 +128,8 @@ def test_points_are_run_round_robin_over_the_series():
     ({"pt_spp": [1, 1 << 17]}, "spp"),
     ({"baseline": "no-such"}, "unknown baseline 'no-such': give paper-pt, strongest-pt"),
     ({"baseline": "NRC"}, "single point"),
+    ({"without_stages": ["render"]}, "other than render"),
+    ({"without_stages": ["prop agation"]}, "--without-stage"),
 ])
 def test_bad_plans_are_errors_before_anything_renders(changes, fragment):
     with pytest.raises(ValueError, match=fragment):
@@ -228,6 +231,48 @@ def test_the_result_carries_the_strongest_pts_envelope_and_definition():
         ("flat", pytest.approx(0.01), pytest.approx(0.04)),
         ("steep", pytest.approx(0.04), pytest.approx(0.16))]
     assert found[PAPER_PT]["label"] == "paper's PT"
+
+
+def test_a_stage_taken_out_of_a_points_time_is_a_series_beside_it_off_the_fronts():
+    """grid-cache with and without its propagation pass: the derived point's samples are
+    each sample less its frame's stage; it gets a speed-up but never a front place (were
+    it on the front, it would push its own measured point off: same error, less time)."""
+    timing = Timing([0.10, 0.12, 0.11], parts=[
+        {"propagation": 0.09, "render": 0.01}, {"propagation": 0.10, "render": 0.02},
+        {"propagation": 0.095, "render": 0.015}])
+    assert timing.without("propagation") == pytest.approx([0.01, 0.02, 0.015])
+    assert timing.without("training") is None          # a stage its frames did not run
+    assert Timing([0.1, 0.2], parts=[{"propagation": 0.05}]).without("propagation") is None
+
+    pt = [_point("PT", 0.01 * n, 0.4 / n, 0.3 / n ** 0.5, named=PAPER_PT) for n in (1, 2, 4, 8)]
+    grid = _point("grid", 0.11, 0.02, 0.05)
+    plain = Timing([0.01, 0.01, 0.01])
+    derived = without_stage_points([*pt, grid], [plain] * 4 + [timing], "propagation")
+    assert [p.series for p in derived] == ["grid without propagation"]
+    (lean,) = derived
+    assert lean.without_stages == ["propagation"] and lean.seconds_per_frame == 0.015
+    assert lean.timing_samples == pytest.approx([0.01, 0.02, 0.015])
+    assert lean.mrse_per_seed == grid.mrse_per_seed
+    points = [*pt, grid, lean]
+    _evaluate(points, 200, PAPER_PT)
+    assert grid.front_mrse and not lean.front_mrse and not lean.front_flip
+    assert lean.speedup_mrse.relation == ">"            # below PT's curve: PT needs > 0.08 s
+    assert lean.speedup_mrse.value == pytest.approx(0.08 / 0.015)
+    assert ParetoPoint.model_validate(lean.model_dump(mode="json")) == lean
+
+
+def test_a_grid_cache_probe_gives_its_time_without_the_propagation_pass(mi):
+    """What --without-stage reads of a real probe: the breakdown of its median frame."""
+    from jobs.protocol.calibration import probe_timings
+    from renderers.methods import parse_params
+    from renderers.scenes import load_scene
+
+    probe = probe_timings(load_scene("cornell-box", 8), "grid-cache",
+                          parse_params("grid-cache", {"prefill_frames": 1}), 1, 2)
+    parts = probe["breakdown"]["parts_s"]
+    (lean,) = Timing([probe["frame_median_s"]], parts=[parts]).without("propagation")
+    assert 0 < lean < probe["frame_median_s"]
+    assert lean == pytest.approx(probe["frame_median_s"] - parts["propagation"])
 
 
 def test_a_baseline_whose_time_does_not_grow_with_spp_is_flagged():
