@@ -382,3 +382,51 @@ def test_a_scene_an_earlier_job_left_is_freed_before_the_next_job_renders(env, m
     finally:
         gc.enable()
     assert seen_at_render == [False, True]
+
+
+class _Scene:
+    """A weak-referenceable stand-in for a job's Mitsuba scene."""
+
+
+def test_the_collection_before_a_job_is_full_only_where_an_earlier_scene_outlived_its_job():
+    """A full collection walks the whole heap (~0.1 s a job); it runs where the last job's
+    scene is still held (here by a cycle frozen out of the collector's generations with
+    it, which only a full collection frees) and every FULL_EVERY jobs; otherwise what the
+    job made since the freeze is collected and the scene goes by its reference count.
+    Planted: without the held-scene check the cycle outlives the collection."""
+    import gc
+    import weakref
+
+    from jobs.protocol.executor import FULL_EVERY, JobCollector
+
+    def job_leaving(collector: JobCollector, cycle: bool) -> weakref.ref:
+        scene = _Scene()
+        holder: dict = {"scene": scene}
+        if cycle:
+            holder["self"] = holder
+        collector.after_load(scene)     # freezes the holder and the scene with the rest
+        return weakref.ref(scene)
+
+    try:
+        collector = JobCollector()
+        assert collector.before_job() is True             # the first: nothing frozen yet
+        plain = job_leaving(collector, cycle=False)
+        assert plain() is not None                        # kept for the next question
+        assert collector.before_job() is False and plain() is None
+        held = job_leaving(collector, cycle=True)
+        assert collector.before_job() is True and held() is None
+        for _ in range(FULL_EVERY - 1):
+            job_leaving(collector, cycle=False)
+            assert collector.before_job() is False
+        job_leaving(collector, cycle=False)
+        assert collector.before_job() is True              # the bound on other leftovers
+        assert collector.full_collections == 2            # the first job's is not counted
+
+        planted = JobCollector()
+        planted.before_job()
+        kept = job_leaving(planted, cycle=True)
+        planted._scene = None                             # planted: nothing to ask about
+        assert planted.before_job() is False and kept() is not None
+    finally:
+        gc.unfreeze()
+        gc.collect()
