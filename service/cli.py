@@ -37,7 +37,7 @@ from service.cli_common import (
     open_store,
     print_json,
 )
-from service.errors import USER_ERRORS, UsageError, describe_user_error
+from service.errors import UsageError, describe_user_error, is_user_error
 from service.progress import progress_reporter
 from service.runs_command import parse_pairs, runs_app
 from service.tables import metrics_table, reference_table, render_tables, scenes_table
@@ -673,7 +673,8 @@ def ci(
     except Exception as err:  # noqa: BLE001 - exit 1 means a regression: all else is 2
         if os.environ.get("NIRC_BENCH_DEBUG"):
             raise
-        message = (describe_user_error(err) if isinstance(err, (*USER_ERRORS, CiError))
+        message = (describe_user_error(err) if is_user_error(err, CiError.__module__ + "."
+                                                                   + CiError.__qualname__)
                    else f"{type(err).__name__}: {err}")
         err_console.print(f"nirc-bench ci: could not run: {message}", markup=False,
                           highlight=False, soft_wrap=True)
@@ -1055,11 +1056,11 @@ def main() -> None:
     except typer.Abort:
         err_console.print("nirc-bench: aborted", markup=False, highlight=False)
         sys.exit(130)
-    except USER_ERRORS as err:
-        err_console.print(f"nirc-bench: error: {describe_user_error(err)}", markup=False,
-                          highlight=False, soft_wrap=True)     # one line, not wrapped at 80
-        sys.exit(2)
     except Exception as err:  # noqa: BLE001 - the last line of defence: one line, no traceback
+        if is_user_error(err):
+            err_console.print(f"nirc-bench: error: {describe_user_error(err)}", markup=False,
+                              highlight=False, soft_wrap=True)  # one line, not wrapped at 80
+            sys.exit(2)
         if os.environ.get("NIRC_BENCH_DEBUG"):
             raise
         err_console.print(
