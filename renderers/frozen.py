@@ -283,9 +283,17 @@ class SceneArrays:
 
     def __init__(self, scene: Any, own: OwnArrays) -> None:
         self.scene = scene
-        self.shapes, self.emitters = scene.shapes_dr(), scene.emitters_dr()
-        self.sensors = scene.sensors_dr()
+        self.shapes = _pointers(scene.shapes_dr())
+        self.emitters = _pointers(scene.emitters_dr())
+        self.sensors = _pointers(scene.sensors_dr())
         self.own = own
+
+
+def _pointers(array: Any) -> Any:
+    """A scene's pointer array, or None for an empty one: a scene without emitters has
+    an emitter array of width 0 that is no Dr.Jit variable (index 0), which a frozen
+    call's input walk takes for one and aborts on ("jit_var(r0): unknown variable!")."""
+    return array if dr.width(array) else None
 
 
 class OwnArrays:

@@ -194,3 +194,30 @@ def test_a_frozen_frame_follows_the_scene_when_it_changes(mi):
         before = traced
         recordings.append(frame.recordings())
     assert recordings[1] == recordings[0]
+
+
+def test_a_scene_without_emitters_renders_frozen_as_traced(mi):
+    """Its emitter pointer array has width 0 and is no Dr.Jit variable (index 0): handed
+    to a frozen call's input walk, Dr.Jit aborted the process ("jit_var(r0): unknown
+    variable!"), which the suite's first run of a scene without emitters showed. The
+    empty arrays are left out; the frozen frame equals the traced render."""
+    import drjit as dr
+
+    from renderers.frozen import Frozen
+
+    gc.collect()
+    scene = mi.load_dict({"type": "scene", "shape": {
+                              "type": "rectangle",
+                              "to_world": mi.ScalarTransform4f().translate([0, 0, 2])},
+                          "integrator": {"type": "depth"},   # not black without light
+                          "sensor": {"type": "perspective", "film": {
+                              "type": "hdrfilm", "width": 4, "height": 4}}})
+    assert dr.width(scene.emitters_dr()) == 0 and scene.emitters_dr().index == 0
+    call = Frozen(lambda scene, seed: mi.render(scene, spp=1, seed=seed))
+    for seed in range(4):
+        frozen = np.asarray(call(scene, mi.UInt32(seed)))
+    traced = np.asarray(mi.render(scene, spp=1, seed=3))
+    assert traced.max() > 0
+    np.testing.assert_array_equal(frozen, traced)
+    del scene, call
+    gc.collect()
