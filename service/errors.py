@@ -36,9 +36,8 @@ USER_ERROR_CLASSES = frozenset({
 
 def is_user_error(err: BaseException, *also: str) -> bool:
     """Whether ``err`` is an error a user can cause (or of a class named in ``also``)."""
-    return any(f"{cls.__module__}.{cls.__qualname__}" in USER_ERROR_CLASSES
-               or f"{cls.__module__}.{cls.__qualname__}" in also
-               for cls in type(err).__mro__)
+    names = {f"{cls.__module__}.{cls.__qualname__}" for cls in type(err).__mro__}
+    return not names.isdisjoint(USER_ERROR_CLASSES) or not names.isdisjoint(also)
 
 
 def describe_user_error(err: BaseException) -> str:

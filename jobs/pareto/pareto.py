@@ -341,32 +341,21 @@ def _timing_samples(runs: list[tuple[Planned, Any, bool]], jobs: dict[int, Rende
                                 [p.get("load") for p in probes],
                                 parts=[p["breakdown"]["parts_s"] for p in probes]))
         else:
-            frames = run_frames(run)
-            found.append(Timing(
-                [f.total_s for f in frames] if frames else run_frame_seconds(run),
-                [(run.timings or {}).get("load")], interleaved=False,
-                parts=[f.stages for f in frames]))
+            samples, parts = stored_frame_times(run)
+            found.append(Timing(samples, [(run.timings or {}).get("load")],
+                                interleaved=False, parts=parts))
     return found, timed.order
 
 
-def run_frames(run: Any) -> list[FrameTime]:
-    """Every timed frame of every seed of a stored run (empty for runs stored before
-    frames were kept)."""
+def stored_frame_times(run: Any) -> tuple[list[float], list[dict[str, float]]]:
+    """The frame times of a stored run and each frame's stage seconds: every timed frame
+    of every seed (whose lower median is the run's ``seconds_per_frame``), or for runs
+    stored before frames were kept, each seed's frame time (its stages unknown: none)."""
     seeds = sorted(run.seed_results, key=lambda s: s.seed)
     if all("frames_detail" in (s.timings or {}) for s in seeds):
-        return [FrameTime.from_json(f) for s in seeds for f in s.timings["frames_detail"]]
-    return []
-
-
-def run_frame_seconds(run: Any) -> list[float]:
-    """The frame times of a stored run: every timed frame of every seed (whose lower
-    median is the run's ``seconds_per_frame``), or for runs stored before frames were
-    kept, each seed's frame time."""
-    frames = run_frames(run)
-    if frames:
-        return [f.total_s for f in frames]
-    return [s.metrics["seconds_per_frame"]
-            for s in sorted(run.seed_results, key=lambda s: s.seed)]
+        frames = [FrameTime.from_json(f) for s in seeds for f in s.timings["frames_detail"]]
+        return [f.total_s for f in frames], [f.stages for f in frames]
+    return [s.metrics["seconds_per_frame"] for s in seeds], []
 
 
 def without_stage_points(points: list[ParetoPoint], timings: list[Timing],
