@@ -12,6 +12,7 @@ setting the including file makes itself is the one reported.
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -19,13 +20,16 @@ from typing import Any
 from renderers.scenes.fingerprint import resolve_referenced
 
 
-def _value(element: ET.Element | None, defaults: dict[str, str]) -> str | None:
-    if element is None:
+def _resolved(text: str | None, defaults: dict[str, str]) -> str | None:
+    """An attribute's text with every ``$name`` replaced by the file's ``<default>`` of
+    that name, as Mitsuba's loader does (an unresolved one is kept as written)."""
+    if text is None:
         return None
-    value = element.get("value")
-    if value is not None and value.startswith("$"):
-        return defaults.get(value[1:], value)
-    return value
+    return re.sub(r"\$(\w+)", lambda match: defaults.get(match[1], match[0]), text)
+
+
+def _value(element: ET.Element | None, defaults: dict[str, str]) -> str | None:
+    return None if element is None else _resolved(element.get("value"), defaults)
 
 
 def _number(text: str | None) -> int | str | None:
@@ -72,7 +76,7 @@ def _own_settings(root: ET.Element) -> dict[str, Any]:
             found["film"] = size
     integrator = root.find("integrator")
     if integrator is not None:
-        found["integrator"] = integrator.get("type")
+        found["integrator"] = _resolved(integrator.get("type"), defaults)
         depth = _number(_value(integrator.find("integer[@name='max_depth']"), defaults))
         if depth is not None:
             found["max_depth"] = depth

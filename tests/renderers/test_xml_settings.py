@@ -48,3 +48,15 @@ def test_without_a_folder_only_the_file_itself_is_read(tmp_path):
     (tmp_path / "camera.xml").write_text(SENSOR)
     root = ET.fromstring('<scene version="3.0.0"><include filename="camera.xml"/></scene>')
     assert xml_settings(root) == {}
+
+
+def test_defaults_are_substituted_in_the_integrator_type_as_mitsuba_does():
+    """'$integrator' is reported as the value its <default> gives (what the file renders
+    with), not as written; a name without a default stays as written."""
+    text = """<scene version="3.0.0"><default name="integrator" value="path"/>
+      <default name="depth" value="6"/>
+      <integrator type="$integrator"><integer name="max_depth" value="$depth"/></integrator>
+    </scene>"""
+    assert xml_settings(ET.fromstring(text)) == {"integrator": "path", "max_depth": 6}
+    unresolved = text.replace('<default name="integrator" value="path"/>', "")
+    assert xml_settings(ET.fromstring(unresolved))["integrator"] == "$integrator"
