@@ -17,19 +17,26 @@ Two clocks per stage (docs/timing.md):
   LLVM). Wall minus kernel time is the **harness** share of the stage: Python
   tracing, code generation, host work, launch gaps.
 
+Recording the history is not free (a frozen replay copies every kernel's source
+into it: ~10 % of a small frame), so the two clocks are read in different frames:
+the timed frames are **wall frames** (history off: their wall time is the frame
+time) and, interleaved with them, **kernel frames** (history on: their kernel time
+per stage) (:func:`kernel_frame`). Every frame renders and is accumulated alike.
+
 Every frame is timed as a whole too (``StageTimer.frame``): what runs between
 the stages (Python, building the records) is its part 'other'. Reading the
 kernel history costs ~9 us per launch; it happens outside every stage's clock
 and its time is subtracted from the whole frame and stored apart (``readout_s``). The frame time
-(``frame_median_s``) is the sum of the stages of the median frame; the time
+(``frame_median_s``) is the sum of the stages of the median wall frame; the time
 breakdown is that frame's parts (its stages and 'other'), so they add up to
-its whole wall time. Medians are lower medians (a frame that was measured).
+its whole wall time, beside the kernel parts of the median kernel frame. Medians
+are lower medians (a frame that was measured).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from statistics import median_low
@@ -41,10 +48,11 @@ PROTOCOL = (
     "steady-state seconds per frame: one warm-up frame (JIT compilation) excluded and "
     "reported separately as warmup_s; outputs evaluated and the device synchronised "
     "(dr.eval + dr.sync_thread) before every clock read; wall clock time.perf_counter; "
-    "kernel time from Dr.Jit's kernel history (on for the warm-up and the timed frames); "
-    "harness = wall - kernel time; reading the history is timed apart and excluded; "
-    "the frame time and its breakdown are those of the "
-    "median frame (lower median)"
+    "kernel time from Dr.Jit's kernel history, recorded only in kernel frames (every "
+    "other timed frame) and wall time from the wall frames between them (history off; "
+    "the warm-up settles both); harness = wall - kernel time; reading the history is "
+    "timed apart and excluded; the frame time and its breakdown are those of the median "
+    "wall frame (lower median), the kernel parts those of the median kernel frame"
 )
 
 #: The part of a frame outside its stages (StageTimer.frame minus the stages).
@@ -64,16 +72,38 @@ def kernel_history_enabled() -> bool:
 
 
 @contextmanager
-def kernel_history() -> Iterator[None]:
-    """Record Dr.Jit's kernel launches in this block (for :class:`StageTimer`), then
-    drop what no timer read, so the history (which holds each kernel's code) never grows
-    outside a timed block. The flag stays constant inside the block: toggling it forces a
-    frozen function to record again."""
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+def kernel_history(on: bool = True) -> Iterator[None]:
+    """Record Dr.Jit's kernel launches in this block (``on``; for :class:`StageTimer`) or
+    not, then drop what no timer read, so the history (which holds each kernel's code)
+    never grows outside a timed block. Dr.Jit keys a frozen function's recordings on
+    every JIT flag, this one included: a frozen function called in both states records
+    in both (the frame loop's warm-up settles both)."""
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, on):
         try:
             yield
         finally:
             dr.kernel_history_clear()
+
+
+#: Every how many timed frames one is a kernel frame (history on), by default: every
+#: other frame, so that wall and kernel time have as many frames each.
+KERNEL_EVERY = 2
+
+
+def kernel_frame(index: int, every: int = KERNEL_EVERY) -> bool:
+    """Whether timed frame ``index`` is a kernel frame when every ``every``-th frame is
+    (the 2nd, 4th, ... for 2; 1: every frame, the old protocol, which charges recording
+    the history to the frame time; 0: none). Frame 0 is a wall frame unless every frame
+    is a kernel frame, so one timed frame gives a frame time."""
+    return every > 0 and index % every == every - 1
+
+
+def history_states(every: int = KERNEL_EVERY) -> tuple[bool, ...]:
+    """The kernel-history flags the timed frames run under, on first: the warm-up runs
+    its calls under them in turn (the first, which compiles, with the history on where
+    any frame has it, for the compile time)."""
+    states = {kernel_frame(index, every) for index in range(max(every, 2))}
+    return tuple(sorted(states, reverse=True))
 
 
 @dataclass
@@ -191,6 +221,12 @@ class FrameTime:
     readout_s: float = 0.0       # reading the kernel history: measurement, not the frame
 
     @property
+    def kind(self) -> str:
+        """'kernel' (timed with the kernel history on: its kernel times count) or 'wall'
+        (history off: its wall time counts)."""
+        return "wall" if self.kernel_s is None else "kernel"
+
+    @property
     def total_s(self) -> float:
         """The frame time proper: the sum of its stages."""
         return sum(self.stages.values())
@@ -210,8 +246,9 @@ class FrameTime:
         return None if self.kernel_s is None else sum(self.kernel_s.values())
 
     def to_json(self) -> dict[str, Any]:
-        return {"stages": self.stages, "whole_s": self.whole_s, "kernel_s": self.kernel_s,
-                "launches": self.launches, "readout_s": self.readout_s}
+        return {"kind": self.kind, "stages": self.stages, "whole_s": self.whole_s,
+                "kernel_s": self.kernel_s, "launches": self.launches,
+                "readout_s": self.readout_s}
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> FrameTime:
@@ -232,68 +269,96 @@ def _ordered(names: set[str]) -> list[str]:
     return sorted(names, key=lambda name: (order.get(name, len(TABLE_1_STAGES)), name))
 
 
-def median_frame(frames: Sequence[FrameTime]) -> FrameTime:
-    """The frame whose stage total is the (lower) median of the frames'."""
-    return sorted(frames, key=lambda f: f.total_s)[(len(frames) - 1) // 2]
+def wall_frames(frames: Sequence[FrameTime]) -> list[FrameTime]:
+    """The frames whose wall time counts: the wall frames (kernel history off), or, where
+    there are none, every frame (runs stored before the frames were interleaved, or a
+    measurement of what recording the history costs: every frame a kernel frame)."""
+    return [f for f in frames if f.kind == "wall"] or list(frames)
+
+
+def kernel_frames(frames: Sequence[FrameTime]) -> list[FrameTime]:
+    """The frames whose kernel time counts: the kernel frames (kernel history on)."""
+    return [f for f in frames if f.kind == "kernel"]
+
+
+def median_frame(frames: Sequence[FrameTime],
+                 key: Callable[[FrameTime], float] = lambda f: f.total_s) -> FrameTime:
+    """The frame whose ``key`` (by default its stage total) is the (lower) median of the
+    frames'."""
+    return sorted(frames, key=key)[(len(frames) - 1) // 2]
+
+
+def _kernel_total(frame: FrameTime) -> float:
+    return frame.kernel_total_s or 0.0
 
 
 def breakdown(frames: Sequence[FrameTime]) -> dict[str, Any]:
-    """Table-1-style split of the median frame (:func:`median_frame`): wall seconds of
-    every stage and of 'other', and (with the kernel history) their kernel seconds and
-    harness (wall - kernel). The parts add up to ``frame_s``, that frame's whole wall
-    time; its stages add up to the reported frame time. Without an ``inference`` stage
-    the cache queries run inside ``render`` (one fused kernel) and
+    """Table-1-style split of the median wall frame (:func:`median_frame` of
+    :func:`wall_frames`): wall seconds of every stage and of 'other', adding up to
+    ``frame_s``, that frame's whole wall time (its stages to the reported frame time);
+    and, where there are kernel frames, the kernel seconds of the median kernel frame
+    (by its kernel total; without wall frames, of the median frame itself) and the
+    harness, wall - kernel part by part (two frames' times: a part with nearly no
+    harness may come out a little negative). Without an
+    ``inference`` stage the cache queries run inside ``render`` (one fused kernel) and
     ``inference_in_render`` says so."""
-    frame = median_frame(frames)
+    frame = median_frame(wall_frames(frames))
     parts = frame.parts()
-    names = _ordered(set(parts))
-    kernel = frame.kernel_parts()
+    kernels = kernel_frames(frames)
+    if frame.kind == "kernel":   # no wall frames: both clocks of the one frame
+        kernels = [frame]
+    kernel = median_frame(kernels, _kernel_total).kernel_parts() if kernels else None
+    names = _ordered(set(parts) | set(kernel or {}))
     result: dict[str, Any] = {
-        "statistic": "the median frame (lower median of the stage totals), seconds",
-        "parts_s": {name: parts[name] for name in names},
+        "statistic": "the median wall frame (lower median of the stage totals), seconds; "
+                     "kernel parts: the median kernel frame (lower median of the kernel "
+                     "totals)",
+        "parts_s": {name: parts.get(name, 0.0) for name in names},
         "frame_s": frame.whole_s,
         "inference_in_render": "inference" not in parts,
     }
     if kernel is not None:
-        result["kernel_parts_s"] = {name: kernel[name] for name in names}
-        result["harness_parts_s"] = {name: parts[name] - kernel[name] for name in names}
+        result["kernel_parts_s"] = {name: kernel.get(name, 0.0) for name in names}
+        result["harness_parts_s"] = {name: parts.get(name, 0.0) - kernel.get(name, 0.0)
+                                     for name in names}
         result["frame_kernel_s"] = sum(kernel.values())
     return result
 
 
-def _stage_summary(frames: Sequence[FrameTime], name: str) -> dict[str, float]:
-    """Statistics of one stage over frames; with the kernel history, of its kernel time,
-    its harness (wall - kernel) and its launches too."""
-    wall = [f.parts().get(name, 0.0) for f in frames]
+def _stage_summary(walls: Sequence[FrameTime], kernels: Sequence[FrameTime],
+                   name: str) -> dict[str, float]:
+    """Statistics of one stage: of its wall time over the wall frames and, where there
+    are kernel frames, of its kernel time and launches over them; its harness is the
+    difference of the two medians."""
+    wall = [f.parts().get(name, 0.0) for f in walls]
     summary: dict[str, float] = {"mean_s": sum(wall) / len(wall), "median_s": median_low(wall),
                                  "min_s": min(wall)}
-    if all(f.kernel_s is not None for f in frames):
-        kernel = [f.kernel_parts().get(name, 0.0) for f in frames]  # type: ignore[union-attr]
-        summary["kernel_median_s"] = median_low(kernel)
-        summary["harness_median_s"] = median_low([w - k for w, k in zip(wall, kernel,
-                                                                        strict=True)])
+    if kernels:
+        kernel = median_low([(f.kernel_parts() or {}).get(name, 0.0) for f in kernels])
+        summary["kernel_median_s"] = kernel
+        summary["harness_median_s"] = summary["median_s"] - kernel
         summary["launches_median"] = median_low([(f.launches or {}).get(name, 0)
-                                                 for f in frames])
+                                                 for f in kernels])
     return summary
 
 
 def device_time(frames: Sequence[FrameTime]) -> dict[str, Any] | None:
-    """Whole-frame wall and kernel time over frames (None without the kernel history):
-    medians of wall, kernel and harness seconds, of the harness share (harness / wall)
-    and of kernel launches per frame."""
-    if not frames or any(f.kernel_s is None for f in frames):
+    """Whole-frame wall time over the wall frames and kernel time over the kernel frames
+    (None without kernel frames): their medians, the harness (wall - kernel median) and
+    its share of the wall median, and the kernel launches per frame."""
+    kernels = kernel_frames(frames)
+    if not kernels:
         return None
-    wall = [f.whole_s for f in frames]
-    kernel = [f.kernel_total_s or 0.0 for f in frames]
+    wall = median_low([f.whole_s for f in wall_frames(frames)])
+    kernel = median_low([_kernel_total(f) for f in kernels])
     return {
-        "wall_median_s": median_low(wall),
-        "kernel_median_s": median_low(kernel),
-        "harness_median_s": median_low([w - k for w, k in zip(wall, kernel, strict=True)]),
-        "harness_share": median_low([(w - k) / w if w > 0 else 0.0
-                                     for w, k in zip(wall, kernel, strict=True)]),
-        "launches_median": median_low([sum((f.launches or {}).values()) for f in frames]),
+        "wall_median_s": wall,
+        "kernel_median_s": kernel,
+        "harness_median_s": wall - kernel,
+        "harness_share": (wall - kernel) / wall if wall > 0 else 0.0,
+        "launches_median": median_low([sum((f.launches or {}).values()) for f in kernels]),
         # Reading the kernel history, kept out of every figure above.
-        "readout_median_s": median_low([f.readout_s for f in frames]),
+        "readout_median_s": median_low([f.readout_s for f in kernels]),
     }
 
 
@@ -309,21 +374,27 @@ class Warmup:
 
 def summarize(frames: Sequence[FrameTime], warmup: Warmup,
               load: dict[str, Any] | None = None) -> dict[str, Any]:
-    """What a render stores of its time: per-stage statistics over ``frames``, the frame
-    time (stage total of the median frame), the breakdown of that frame, whole-frame
-    device time, the warm-up and compilation, the machine load during the frames, and
-    every frame (``frames_detail``; ``per_frame`` keeps each frame's stage seconds)."""
+    """What a render stores of its time: per-stage statistics, the frame time (stage total
+    of the median wall frame), the breakdown, whole-frame device time, the warm-up and
+    compilation, the machine load during the frames, how many frames of each kind
+    (``frame_kinds``), and every frame (``frames_detail``, each with its kind;
+    ``per_frame`` keeps each frame's stage seconds). Wall-time statistics are over the
+    wall frames, kernel-time statistics over the kernel frames."""
     if not frames:
         raise ValueError("no timed frame to summarize")
+    walls, kernels = wall_frames(frames), kernel_frames(frames)
     names = _ordered({name for f in frames for name in f.parts()})
-    frame_time = median_frame(frames).total_s
-    totals = [f.total_s for f in frames]
+    frame_time = median_frame(walls).total_s
+    totals = [f.total_s for f in walls]
     return {
         "protocol": PROTOCOL,
         "frames": len(frames),
+        "frame_kinds": {"wall": sum(f.kind == "wall" for f in frames),
+                        "kernel": len(kernels)},
         "frame_mean_s": sum(totals) / len(totals),
         "frame_median_s": frame_time,
-        "stages": {name: _stage_summary(frames, name) for name in names if name != OTHER},
+        "stages": {name: _stage_summary(walls, kernels, name)
+                   for name in names if name != OTHER},
         "device_time": device_time(frames),
         "warmup_s": warmup.seconds,
         "warmup_frames": warmup.frames,

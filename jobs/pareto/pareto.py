@@ -87,7 +87,7 @@ from metrics.registry import BY_NAME, Metric
 from renderers.methods import BASELINE, METHODS, NotApplicable
 from renderers.methods.pt import PTParams
 from renderers.seeding import digest
-from renderers.timing import FrameTime, merge_loads
+from renderers.timing import FrameTime, merge_loads, wall_frames
 
 #: The errors plotted against time, and the speed-up measured at (their ``field`` names).
 PARETO_METRICS: tuple[Metric, ...] = (BY_NAME["mrse"], BY_NAME["flip_hdr"])
@@ -348,12 +348,14 @@ def _timing_samples(runs: list[tuple[Planned, Any, bool]], jobs: dict[int, Rende
 
 
 def stored_frame_times(run: Any) -> tuple[list[float], list[dict[str, float]]]:
-    """The frame times of a stored run and each frame's stage seconds: every timed frame
-    of every seed (whose lower median is the run's ``seconds_per_frame``), or for runs
-    stored before frames were kept, each seed's frame time (its stages unknown: none)."""
+    """The frame times of a stored run and each frame's stage seconds: every wall frame
+    (renderers.timing.wall_frames) of every seed (whose lower median is the run's
+    ``seconds_per_frame``), or for runs stored before frames were kept, each seed's frame
+    time (its stages unknown: none)."""
     seeds = sorted(run.seed_results, key=lambda s: s.seed)
     if all("frames_detail" in (s.timings or {}) for s in seeds):
-        frames = [FrameTime.from_json(f) for s in seeds for f in s.timings["frames_detail"]]
+        frames = wall_frames([FrameTime.from_json(f)
+                              for s in seeds for f in s.timings["frames_detail"]])
         return [f.total_s for f in frames], [f.stages for f in frames]
     return [s.metrics["seconds_per_frame"] for s in seeds], []
 

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from jobs.protocol.calibration import DEFAULT_MAX_SPREAD, DEFAULT_ROUNDS, interleaved_rounds
-from renderers.timing import OTHER, FrameTime, merge_loads
+from renderers.timing import OTHER, FrameTime, kernel_frames, merge_loads, wall_frames
 
 CONFIDENCE = 0.95
 #: Resolutions (square) and floor factors the probes use by default.
@@ -165,15 +165,16 @@ class ProbeSample:
 
 def sample_of(probe: Probe, frames: Sequence[FrameTime], sizes: dict[str, float],
               load: dict[str, Any] | None = None) -> ProbeSample:
-    """A :class:`ProbeSample` from a probe's timed frames; ``sizes`` per stage."""
+    """A :class:`ProbeSample` from a probe's timed frames; ``sizes`` per stage. Wall
+    times over its wall frames, kernel times over its kernel frames (renderers.timing)."""
     names = sorted({name for f in frames for name in f.parts()})
-    with_kernel = all(f.kernel_s is not None for f in frames)
+    walls, kernels = wall_frames(frames), kernel_frames(frames)
     return ProbeSample(
         probe, {name: sizes[name] for name in names},
-        {name: median_low([f.parts().get(name, 0.0) for f in frames]) for name in names},
-        {name: median_low([(f.kernel_parts() or {}).get(name, 0.0) for f in frames])
-         for name in names} if with_kernel else None,
-        median_low([f.total_s for f in frames]), load)
+        {name: median_low([f.parts().get(name, 0.0) for f in walls]) for name in names},
+        {name: median_low([(f.kernel_parts() or {}).get(name, 0.0) for f in kernels])
+         for name in names} if kernels else None,
+        median_low([f.total_s for f in walls]), load)
 
 
 @dataclass

@@ -4,14 +4,14 @@ A method is a pure function of (scene, method parameters, seed, spp, frames)
 -> images + statistics (docs/design.md, "Layout"). The frame loop gives all methods
 the same real-time semantics and the same timing protocol: one warm-up frame
 (excluded, reported), then F timed frames, each rendered with its own derived
-seed and accumulated into the running mean.
+seed and accumulated into the running mean, wall and kernel frames interleaved
+(renderers.timing).
 """
 
 from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,9 +23,12 @@ from renderers.frozen import MAX_WARMUP_FRAMES, SETTLED_CALLS, Frozen, freezing
 from renderers.load import LoadMonitor
 from renderers.seeding import derive_seed
 from renderers.timing import (
+    KERNEL_EVERY,
     FrameTime,
     StageTimer,
     Warmup,
+    history_states,
+    kernel_frame,
     kernel_history,
     summarize,
     synchronize,
@@ -239,15 +242,21 @@ class FrameHooks:
     error against the reference: the convergence curve); ``warmup``: render
     the untimed warm-up frame first (a caller that renders several series
     with one already-compiled integrator warms up once and passes False);
-    ``kernel_time``: record Dr.Jit's kernel history for the kernel time of every
-    stage (off only to measure what recording it costs).
+    ``kernel_every``: every how many timed frames one is a kernel frame, timed with
+    Dr.Jit's kernel history on for the kernel time of every stage, the others wall
+    frames, timed with it off (renderers.timing.kernel_frame): 2 by default; 1 (every
+    frame) and 0 (none) only to measure what recording the history costs.
     """
 
     keep_frames: bool = False
     progress: Callable[[int, int], None] | None = None
     on_frame: OnFrame | None = None
     warmup: bool = True
-    kernel_time: bool = True
+    kernel_every: int = KERNEL_EVERY
+
+    def __post_init__(self) -> None:
+        if self.kernel_every < 0:
+            raise ValueError(f"kernel_every must be 0 or more, not {self.kernel_every}")
 
 
 class FrozenRender:
@@ -403,42 +412,44 @@ def run_frames(
     ``seed_parts`` identify the render (scene fingerprint, method, params, seed
     index); frame f renders with ``derive_seed(*seed_parts, f)`` and the warm-up
     frame with a seed of its own, so it never correlates with a timed frame.
-    Dr.Jit's kernel history is on for the warm-up and the timed frames alike
-    (renderers.timing), and the machine's load is measured over the timed frames
-    (renderers.load). A frame function with ``recordings()`` (frozen,
-    renderers.frozen) warms up until its recording count has settled, and the
-    counts after the warm-up and after the timed frames are reported (``frozen``).
+    Dr.Jit's kernel history is on in the kernel frames and off in the wall frames
+    between them (``hooks.kernel_every``; renderers.timing), and the machine's load is
+    measured over the timed frames (renderers.load). A frame function with
+    ``recordings()`` (frozen, renderers.frozen) warms up until its recording count has
+    settled in both history states (a frozen function records in each), and the counts
+    after the warm-up and after the timed frames are reported (``frozen``).
     """
     recordings = getattr(render_frame, "recordings", None)
-    with kernel_history() if hooks.kernel_time else nullcontext():
-        warmup = Warmup()
-        if hooks.warmup:
-            warmup = _warm_up(render_frame, seed_parts, recordings)
-        settled = recordings() if recordings else None
-        grown = growth_recordings(render_frame)
+    warmup = Warmup()
+    if hooks.warmup:
+        warmup = _warm_up(render_frame, seed_parts, recordings,
+                          history_states(hooks.kernel_every))
+    settled = recordings() if recordings else None
+    grown = growth_recordings(render_frame)
 
-        accumulated: np.ndarray | None = None
-        path_stats = PathStats(aov_names)
-        kept: list[np.ndarray] = []
-        timed: list[FrameTime] = []
-        with LoadMonitor(host_bound_cpu=host_runs_kernels()) as load:
-            for index in range(frames):
+    accumulated: np.ndarray | None = None
+    path_stats = PathStats(aov_names)
+    kept: list[np.ndarray] = []
+    timed: list[FrameTime] = []
+    with LoadMonitor(host_bound_cpu=host_runs_kernels()) as load:
+        for index in range(frames):
+            with kernel_history(kernel_frame(index, hooks.kernel_every)):
                 timer = StageTimer()
                 with timer.frame():
                     film = render_frame(index, derive_seed(*seed_parts, index), timer)
-                film = np.asarray(film)
-                timed.append(timer.record())
-                rgb = film[..., :3].astype(np.float32)
-                # Running mean keeps memory constant however many frames run.
-                accumulated = (rgb.copy() if accumulated is None
-                               else accumulated + (rgb - accumulated) / (index + 1))
-                path_stats.add(film[..., 3:], spp)
-                if hooks.keep_frames:
-                    kept.append(rgb)
-                if hooks.on_frame:
-                    hooks.on_frame(index, rgb, accumulated)
-                if hooks.progress:
-                    hooks.progress(index + 1, frames)
+            film = np.asarray(film)
+            timed.append(timer.record())
+            rgb = film[..., :3].astype(np.float32)
+            # Running mean keeps memory constant however many frames run.
+            accumulated = (rgb.copy() if accumulated is None
+                           else accumulated + (rgb - accumulated) / (index + 1))
+            path_stats.add(film[..., 3:], spp)
+            if hooks.keep_frames:
+                kept.append(rgb)
+            if hooks.on_frame:
+                hooks.on_frame(index, rgb, accumulated)
+            if hooks.progress:
+                hooks.progress(index + 1, frames)
 
     assert accumulated is not None
     timings = summarize(timed, warmup, load.result())
@@ -456,25 +467,30 @@ def run_frames(
 
 
 def _warm_up(render_frame: FrameFn, seed_parts: tuple[Any, ...],
-             recordings: Callable[[], int] | None) -> Warmup:
+             recordings: Callable[[], int] | None, states: tuple[bool, ...]) -> Warmup:
     """The untimed warm-up: one frame, then, for a frozen frame function, calls of its
     ``settle`` (the frozen parts alone, which change no state; else the frame again)
-    until its recording count has held over SETTLED_CALLS calls (at most
-    MAX_WARMUP_FRAMES in all). So a cache trains in one warm-up frame whether its
-    frames are frozen or not."""
-    seconds, compile_s, frames = 0.0, 0.0, 0
+    until its recording count has held over SETTLED_CALLS calls in each kernel-history
+    state of the timed frames (``states``, taken in turn as the timed frames take them:
+    Dr.Jit records a frozen function anew for each), at most MAX_WARMUP_FRAMES per
+    state. So a cache trains in one warm-up frame whether its frames are frozen or not.
+    The compile time is that of the calls with the history on (None without any)."""
+    seconds, frames = 0.0, 0
+    compile_s: float | None = 0.0 if any(states) else None
     before, held = -1, 0
     settle = getattr(render_frame, "settle", render_frame)
     while True:
-        timer = StageTimer()
         seed = derive_seed(*seed_parts, "warmup", *((frames,) if frames else ()))
-        with timer.frame():
-            (settle if frames else render_frame)(-1, seed, timer)
+        with kernel_history(states[frames % len(states)]):
+            timer = StageTimer()
+            with timer.frame():
+                (settle if frames else render_frame)(-1, seed, timer)
         frames += 1
         seconds += timer.frame_s
-        compile_s = None if timer.kernels is None or compile_s is None else \
-            compile_s + sum(k.compile_s for k in timer.kernels.values())
+        if timer.kernels is not None and compile_s is not None:
+            compile_s += sum(k.compile_s for k in timer.kernels.values())
         held = held + 1 if recordings is not None and recordings() == before else 0
-        if recordings is None or frames >= MAX_WARMUP_FRAMES or held >= SETTLED_CALLS:
+        if (recordings is None or frames >= MAX_WARMUP_FRAMES * len(states)
+                or held >= SETTLED_CALLS * len(states)):
             return Warmup(seconds, compile_s, frames)
         before = recordings()

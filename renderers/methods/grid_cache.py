@@ -28,7 +28,6 @@ as in the paper (Sec. 6), so scenes with glossy or delta BSDFs are refused.
 from __future__ import annotations
 
 import time
-from contextlib import nullcontext
 from typing import Any, Literal
 
 from pydantic import Field
@@ -157,11 +156,16 @@ class Propagation:
         self.frozen = frozen
         self.widths: list[int] = []   # the padded widths of the update, in order
         self.growth_recordings = 0    # recordings of updates at a width not seen before
+        # (width, kernel history on) of the updates so far: a frozen call records anew
+        # under each flag (renderers.timing.kernel_history), so a width is new per flag.
+        self._met: set[tuple[int, bool]] = set()
         self._last_seed: int | None = None
 
     def __call__(self, seed: int) -> int:
         import drjit as dr
         import mitsuba as mi
+
+        from renderers.timing import kernel_history_enabled
 
         self._last_seed = seed
         grid, scene = self.grid, self.scene
@@ -172,9 +176,11 @@ class Propagation:
         if vertices == 0:
             return 0
         width = self.padded_width(vertices) if self.frozen else vertices
-        grown = width not in self.widths
-        if grown:
+        if width not in self.widths:
             self.widths.append(width)
+        met = (width, kernel_history_enabled())
+        grown = met not in self._met
+        self._met.add(met)
         before = self.recordings()
         state = self.updater.frame_state(scene)
         grid.bind(self._update(scene, grid.arrays(), state, padded(place, width),
@@ -240,18 +246,16 @@ def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], 
            frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
     """Pre-fill, then per frame: a propagation pass, then the render pass (frozen where
     freezing is on)."""
-    from drjit import kernel_history_clear
-
     from renderers.timing import kernel_history, synchronize
 
     integrator, updater, grid = build(scene, params, derive_seed(*seed_parts, "cache"))
     propagate = Propagation(scene, updater, grid, params)
     start = time.perf_counter()
-    # Under the frames' flags (a frozen pass records again when a flag changes).
-    with kernel_history() if hooks.kernel_time else nullcontext():
+    # Read by no timer: the history off, as in the wall frames (a frozen pass records
+    # anew under the other flag; the frames' warm-up settles both).
+    with kernel_history(False):
         for index in range(params.prefill_frames):
             propagate(derive_seed(*seed_parts, "prefill", index))
-            kernel_history_clear()   # read by no timer
     prefill_s = time.perf_counter() - start
     prefill_recordings = propagate.recordings()
     updated: list[int] = []

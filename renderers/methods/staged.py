@@ -44,7 +44,7 @@ from renderers.integrators.deferred import (
     QueryLayout,
     compact_positions,
 )
-from renderers.timing import StageTimer, synchronize
+from renderers.timing import StageTimer, kernel_history_enabled, synchronize
 
 
 @dataclass
@@ -152,6 +152,9 @@ class StagedRender:
         #: Recordings made in frames whose buffers grew (a lane had more cache vertices
         #: than any before): new layouts record every pass anew, by design.
         self.growth_recordings = 0
+        #: (kernel history on, vertex slots per channel) of the frames so far: a frozen
+        #: pass records anew under each flag, so a layout is new per flag.
+        self._met: set[tuple[bool, tuple[int, ...]]] = set()
 
     def recordings(self) -> int | None:
         frozen = [self.trace, self.splat, *(f for c in self.channels for f in (c.vertex, c.query))]
@@ -170,7 +173,9 @@ class StagedRender:
                 synchronize(image)
             return image
         state = integrator.frame_state(scene)
-        recordings_before, grew = self.recordings(), False
+        history = kernel_history_enabled()
+        recordings_before = self.recordings()
+        grew = (history, tuple(layout.vertices for layout in layouts)) not in self._met
         with timer.stage("render"):
             while True:
                 image, recorded = self.trace(scene, mi.UInt32(seed), state,
@@ -182,6 +187,7 @@ class StagedRender:
                 # Some lane had more cache vertices than slots: trace again with room.
                 layouts, grew = integrator.grow_layouts(channels, needed), True
             synchronize(image)
+        self._met.add((history, tuple(layout.vertices for layout in layouts)))
         with timer.stage("inference"):
             total, queries = None, 0
             for passes, layout, (arrays, _), n in zip(self.channels, layouts, recorded, needed,

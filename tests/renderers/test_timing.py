@@ -29,31 +29,72 @@ def test_the_summary_excludes_the_warmup_and_takes_the_median_frame():
     assert "sync" in summary["protocol"] and "kernel history" in summary["protocol"]
 
 
-def test_the_breakdown_is_one_frame_whose_parts_add_up():
-    frames = [frame({"training": 0.2, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
-                    0.34, {"training": 0.15, "render": 0.09, "training_paths": 0.0,
+def wall(stages: dict[str, float], whole: float):
+    return frame(stages, whole)
+
+
+def test_wall_statistics_come_from_wall_frames_and_kernel_statistics_from_kernel_frames():
+    """Interleaved frames: the frame time, stages and breakdown from the frames timed
+    without the kernel history, the kernel parts from the median kernel frame. The kernel
+    frames' wall times are made larger (the history's cost) and their number odd, so
+    that a statistic over the wrong frames (or over all) gives another value."""
+    walls = [wall({"training": 0.2, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
+                  0.34),
+             wall({"training": 0.3, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
+                  0.45),
+             wall({"training": 0.2, "render": 0.2, "training_paths": 0.02, "denoise": 0.02},
+                  0.46)]
+    kernels = [frame({"training": 0.5, "render": 0.3, "training_paths": 0.05, "denoise": 0.1},
+                     1.0, {"training": 0.15, "render": 0.09, "training_paths": 0.0,
                            "denoise": 0.01, "other": 0.005}),
-              frame({"training": 0.3, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
-                    0.45, {"training": 0.2, "render": 0.08, "training_paths": 0.0,
+               frame({"training": 0.6, "render": 0.3, "training_paths": 0.05, "denoise": 0.1},
+                     1.1, {"training": 0.2, "render": 0.08, "training_paths": 0.0,
                            "denoise": 0.01, "other": 0.0}),
-              frame({"training": 0.2, "render": 0.2, "training_paths": 0.02, "denoise": 0.02},
-                    0.46, {"training": 0.1, "render": 0.15, "training_paths": 0.01,
+               frame({"training": 0.7, "render": 0.3, "training_paths": 0.05, "denoise": 0.1},
+                     1.2, {"training": 0.1, "render": 0.15, "training_paths": 0.01,
                            "denoise": 0.01, "other": 0.0})]
+    frames = [walls[0], kernels[0], walls[1], kernels[1], walls[2], kernels[2]]
     result = breakdown(frames)
     parts = result["parts_s"]
     assert list(parts) == ["render", "training_paths", "training", "denoise", "other"]
-    # The median frame by stage total (0.33, 0.43, 0.44) is the second.
+    # The median wall frame by stage total (0.33, 0.43, 0.44) is the second.
     assert parts == pytest.approx({"render": 0.1, "training_paths": 0.01, "training": 0.3,
                                    "denoise": 0.02, "other": 0.02})
     assert sum(parts.values()) == pytest.approx(result["frame_s"]) == pytest.approx(0.45)
-    assert result["frame_kernel_s"] == pytest.approx(0.29)
-    assert result["harness_parts_s"]["training"] == pytest.approx(0.1)
+    # The median kernel frame by kernel total (0.255, 0.29, 0.27) is the third.
+    assert result["frame_kernel_s"] == pytest.approx(0.27)
+    assert result["kernel_parts_s"]["render"] == pytest.approx(0.15)
+    assert result["harness_parts_s"]["training"] == pytest.approx(0.3 - 0.1)
     assert result["inference_in_render"] is True
     summary = summarize(frames, Warmup())
-    assert summary["frame_median_s"] == pytest.approx(sum(parts.values()) - parts["other"])
-    assert summary["device_time"]["harness_share"] == pytest.approx(1 - 0.29 / 0.45)
-    assert summary["stages"]["training"]["kernel_median_s"] == pytest.approx(0.15)
-    assert summary["stages"]["training"]["launches_median"] == 2
+    assert summary["frames"] == 6 and summary["frame_kinds"] == {"wall": 3, "kernel": 3}
+    assert summary["frame_median_s"] == pytest.approx(0.43)
+    assert summary["frame_mean_s"] == pytest.approx((0.33 + 0.43 + 0.44) / 3)
+    device = summary["device_time"]
+    assert device["wall_median_s"] == pytest.approx(0.45)
+    assert device["kernel_median_s"] == pytest.approx(0.27)
+    assert device["harness_share"] == pytest.approx(1 - 0.27 / 0.45)
+    training = summary["stages"]["training"]
+    assert training["median_s"] == pytest.approx(0.2) and training["min_s"] == 0.2
+    assert training["kernel_median_s"] == pytest.approx(0.15)
+    assert training["harness_median_s"] == pytest.approx(0.05)
+    assert training["launches_median"] == 2
+    assert [d["kind"] for d in summary["frames_detail"]] == ["wall", "kernel"] * 3
+
+
+def test_without_wall_frames_both_clocks_come_from_every_frame():
+    """Runs stored before the frames were interleaved (every frame with the history on,
+    no 'kind' stored) keep their statistics: the breakdown is one frame's, both clocks."""
+    frames = [frame({"render": 0.1}, 0.12, {"render": 0.05, "other": 0.0}),
+              frame({"render": 0.2}, 0.22, {"render": 0.08, "other": 0.0}),
+              frame({"render": 0.3}, 0.32, {"render": 0.02, "other": 0.0})]
+    stored = [{k: v for k, v in f.to_json().items() if k != "kind"} for f in frames]
+    run = pooled([{"frames_detail": stored, "warmup_s": 1.0}])
+    assert run["frame_median_s"] == pytest.approx(0.2)
+    assert run["frame_kinds"] == {"wall": 0, "kernel": 3}
+    assert run["breakdown"]["frame_kernel_s"] == pytest.approx(0.08)   # the same frame's
+    only_wall = summarize([wall({"render": 0.1}, 0.12)], Warmup())
+    assert only_wall["device_time"] is None and "kernel_parts_s" not in only_wall["breakdown"]
 
 
 def test_pooled_seeds_report_stages_and_frame_time_from_one_statistic():
@@ -101,20 +142,24 @@ def test_kernel_time_is_captured_and_bounded_by_wall_time(mi, pt_render):
     import drjit as dr
 
     before = dr.flag(dr.JitFlag.KernelHistory)
-    out = pt_render(3)
+    out = pt_render(4)
     assert dr.flag(dr.JitFlag.KernelHistory) == before   # the loop restores the flag
-    for detail in out.timings["frames_detail"]:
-        timed = FrameTime.from_json(detail)
-        kernel = timed.kernel_parts()
+    timed = [FrameTime.from_json(detail) for detail in out.timings["frames_detail"]]
+    assert [f.kind for f in timed] == ["wall", "kernel"] * 2
+    for frame_time in timed:
+        if frame_time.kind == "wall":
+            assert frame_time.kernel_s is None and frame_time.readout_s == 0
+            continue
+        kernel = frame_time.kernel_parts()
         assert kernel is not None and kernel["render"] > 0
-        assert timed.launches["render"] >= 1
-        assert timed.kernel_total_s <= timed.whole_s
-        assert timed.readout_s > 0   # reading the history: timed, kept out of the frame
-        for name, seconds in timed.parts().items():
+        assert frame_time.launches["render"] >= 1
+        assert frame_time.kernel_total_s <= frame_time.whole_s
+        assert frame_time.readout_s > 0   # reading the history: timed, kept out of the frame
+        for name, seconds in frame_time.parts().items():
             assert kernel[name] <= seconds + 1e-4, name   # 0.1 ms: clock granularity
     device = out.timings["device_time"]
-    assert 0 < device["kernel_median_s"] <= device["wall_median_s"]
-    assert 0 <= device["harness_share"] < 1 and device["launches_median"] >= 1
+    assert device["kernel_median_s"] > 0 and device["wall_median_s"] > 0
+    assert device["harness_share"] < 1 and device["launches_median"] >= 1
     assert out.timings["compile_s"] is not None and out.timings["compile_s"] >= 0
 
 

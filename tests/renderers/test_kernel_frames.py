@@ -1,0 +1,108 @@
+"""Wall frames and kernel frames (renderers.timing.kernel_frame): the frame loop times
+the frame with Dr.Jit's kernel history off and reads kernel times from interleaved
+frames with it on; the warm-up settles a frozen function's recordings in both states;
+the images do not depend on which frames record the history."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import renderers.methods.base as base
+from renderers import timing
+from renderers.methods.base import FrameHooks, run_frames
+from renderers.timing import kernel_frame, kernel_history_enabled
+
+FRAMES = 5
+
+
+class FlagSeen:
+    """A frame function around one frozen Dr.Jit function (keyed on the JIT flags, the
+    kernel history's included, as every frozen call is): notes the kernel-history flag
+    of each call by frame index (-1: the warm-up)."""
+
+    def __init__(self) -> None:
+        import drjit as dr
+        from drjit.llvm import Float, UInt32
+
+        self.float, self.uint = Float, UInt32
+        self.fn = dr.freeze(lambda x, seed: x * 2 + seed)
+        self.calls: list[tuple[int, bool]] = []
+
+    def __call__(self, index: int, seed: int, timer: timing.StageTimer) -> np.ndarray:
+        self.calls.append((index, kernel_history_enabled()))
+        with timer.stage("render"):
+            value = self.fn(self.float(1.0, 2.0, 3.0, 4.0), self.uint(seed % 1000))
+            timing.synchronize(value)
+        return np.broadcast_to(value.numpy().reshape(2, 2, 1), (2, 2, 3))
+
+    def recordings(self) -> int:
+        return int(self.fn.n_recordings)
+
+
+def run(frame: FlagSeen):
+    return run_frames(frame, seed_parts=("kernel-frames",), frames=FRAMES, spp=1, aov_names=())
+
+
+def flag_problems(frame: FlagSeen, output) -> list[str]:
+    """Where the flag a timed frame ran under is not its kind's, or not the schedule's."""
+    seen = [on for index, on in frame.calls if index >= 0]
+    kinds = [detail["kind"] for detail in output.timings["frames_detail"]]
+    problems = []
+    if seen != [kernel_frame(index) for index in range(FRAMES)]:
+        problems.append(f"flags {seen} are not the schedule's")
+    if kinds != ["kernel" if on else "wall" for on in seen]:
+        problems.append(f"kinds {kinds} do not match the flags {seen}")
+    return problems
+
+
+def test_wall_frames_run_without_the_history_and_kernel_frames_with_it(mi, monkeypatch):
+    frame = FlagSeen()
+    output = run(frame)
+    assert flag_problems(frame, output) == []
+    assert output.timings["frame_kinds"] == {"wall": 3, "kernel": 2}
+    assert output.timings["device_time"]["kernel_median_s"] > 0
+    # Planted: a loop that leaves the history on in every frame.
+    monkeypatch.setattr(base, "kernel_history", lambda on=True: timing.kernel_history(True))
+    planted = FlagSeen()
+    assert flag_problems(planted, run(planted))
+
+
+def test_recordings_settle_in_the_warm_up_in_both_states(mi, monkeypatch):
+    frame = FlagSeen()
+    record = run(frame).timings["frozen"]
+    assert {on for index, on in frame.calls if index < 0} == {True, False}
+    assert record["recordings_after_frames"] == record["recordings_after_warmup"] >= 2
+    # Planted: a warm-up that settles the history-on state alone.
+    monkeypatch.setattr(base, "history_states", lambda _every: (True,))
+    planted = run(FlagSeen()).timings["frozen"]
+    assert planted["recordings_after_frames"] > planted["recordings_after_warmup"]
+
+
+@pytest.fixture(scope="module")
+def pt_frames(mi):
+    from renderers.methods import get_method, parse_params
+    from renderers.scenes import load_scene
+
+    scene = load_scene("cornell-box", 8)
+    method, params = get_method("pt"), parse_params("pt", {"max_depth": 3})
+
+    def render(kernel_every: int):
+        return method.render(scene, params, seed_parts=("kernel-frames", "pt"), spp=1,
+                             frames=4, hooks=FrameHooks(keep_frames=True,
+                                                        kernel_every=kernel_every))
+    return render
+
+
+def test_the_images_are_those_of_the_history_in_every_frame(pt_frames, monkeypatch):
+    """The previous protocol recorded the history in every frame (kernel_every 1): the
+    same seeds give bit-identical frames with the frames interleaved."""
+    before, after = pt_frames(1), pt_frames(2)
+    for a, b in zip(before.frames, after.frames, strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(before.accumulated, after.accumulated)
+    # Planted: kernel frames rendered with another seed.
+    derive = base.derive_seed
+    monkeypatch.setattr(base, "derive_seed", lambda *parts: derive(*parts) + (
+        kernel_history_enabled() and isinstance(parts[-1], int) and parts[-1] >= 0))
+    assert not np.array_equal(pt_frames(2).accumulated, before.accumulated)
