@@ -28,7 +28,8 @@ from typing import Any
 
 from fastapi import Depends, FastAPI
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse
+from fastapi.openapi.docs import get_redoc_html
+from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
@@ -89,10 +90,19 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
 
     # Swagger UI (/docs) and ReDoc (/redoc) load their scripts and styles from the
     # installed fastapi-offline package, under /static-offline-docs: they work offline.
+    # ReDoc's script comes through service/api/vendor.py, without its remote logo.
     app = FastAPIOffline(title="nirc-bench", version="1",
                   description="Evaluate and benchmark radiance-caching renderers: submit "
                               "render jobs and sweeps, poll them, read results.",
-                  lifespan=lifespan)
+                  lifespan=lifespan, redoc_url=None)
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc_page() -> HTMLResponse:
+        return get_redoc_html(openapi_url=app.openapi_url or "/openapi.json",
+                              title="nirc-bench - ReDoc", redoc_js_url=vendor.REDOC_PATH,
+                              redoc_favicon_url="/static-offline-docs/favicon.png",
+                              with_google_fonts=False)
+
     app.state.settings, app.state.store, app.state.queue = settings, store, queue
     app.state.dispatcher = dispatcher
     app.add_exception_handler(RequestValidationError, validation_failed)

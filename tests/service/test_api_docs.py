@@ -4,6 +4,7 @@ sweep over REST takes the CLI's 'a:b:step' eps form as well as a list."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 from fastapi.testclient import TestClient
 
@@ -11,6 +12,7 @@ from jobs.execution.apikeys import create_api_key
 from jobs.record.config import Settings
 from jobs.record.db import open_store
 from service.api.main import create_app
+from service.api.vendor import REMOTE_IMAGE, redoc_script
 
 
 def _client(tmp_path, monkeypatch) -> tuple[TestClient, str]:
@@ -33,6 +35,19 @@ def test_docs_and_redoc_load_nothing_from_another_host(tmp_path, monkeypatch):
                 assert link.startswith("/"), f"{page} loads {link} from elsewhere"
                 assert client.get(link).status_code == 200, link
             assert "cdn" not in html.text.lower() and "//fonts." not in html.text
+            # The viewers' scripts fetch no image of another host (ReDoc's footer logo).
+            for script in (link for link in links if link.endswith(".js")):
+                assert not REMOTE_IMAGE.search(client.get(script).content), script
+
+
+def test_the_remote_image_pattern_finds_the_packaged_viewers_logo():
+    """Planted: the package's own ReDoc script loads its footer logo from a CDN, which
+    the pattern the test above checks with finds; the served copy has none."""
+    import fastapi_offline
+
+    packaged = (Path(fastapi_offline.__file__).parent / "static" / "redoc.standalone.js")
+    assert REMOTE_IMAGE.search(packaged.read_bytes())
+    assert not REMOTE_IMAGE.search(redoc_script())
 
 
 def test_a_sweep_takes_the_range_text_the_cli_takes(tmp_path, monkeypatch):
