@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from metrics.bias_intervals import pooled_intervals, seed_gram
 from metrics.checks import (
     MetricError,
     as_image,
@@ -277,6 +278,12 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
       (metrics.statistics.positive_mean_interval; None with K < 3), and
       ``mrse_ci_note`` how it was made or why there is none;
       ``mrse_corrected`` = mrse_mean - ref_floor (None without a floor)
+    - ``rbias2_pooled`` = ``rbias2``, which a method training a cache per seed replaces
+      by the mean over its caches (metrics.bias_intervals.per_cache_headline);
+      ``rbias2_seed_values`` and ``rvar_seed_values`` (the delete-one-seed jackknife
+      values, whose means are rbias2 and rvar), ``rbias2_ci95`` / ``rvar_ci95`` (95 %
+      intervals; None with K < 3) with ``rbias2_ci_note`` / ``rvar_ci_note``, and
+      ``rbias2_basis`` = "pooled" (metrics.bias_intervals.pooled_intervals)
     - ``ref_floor_ratio_rbias2`` / ``ref_floor_ratio_mrse`` = ref_floor / |rbias2|
       and / |mrse_corrected|, and ``warnings`` (floor above 10 % of either).
 
@@ -296,8 +303,8 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
     ``finite`` False. MRSE per seed here is therefore over that common pixel
     set. Also returned: ``k``. Averages are None when no pixel is finite everywhere.
 
-    ``images`` is a (K, H, W, C) array or a sequence of (H, W, C) arrays; the
-    renders are visited one at a time (memory stays O(H W) beyond the input).
+    ``images`` is a (K, H, W, C) array or a sequence of (H, W, C) arrays; beyond the
+    input it keeps the K weighted errors in float64 (for the Gram matrix).
     """
     renders = _as_render_list(images)
     ref = as_image(ref, "reference image")
@@ -318,7 +325,11 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
     }
     counts["finite"] = counts["nonfinite_pixels"] == 0 and counts["ref_nonfinite_pixels"] == 0
     if not valid.any():
-        return {**counts, "rbias2": None, "rbias2_raw": None, "noise_floor": None,
+        return {**counts, "rbias2": None, "rbias2_pooled": None, "rbias2_basis": None,
+                "rbias2_seed_values": None, "rbias2_ci95": None,
+                "rbias2_ci_note": "no interval: no finite pixel", "rvar_seed_values": None,
+                "rvar_ci95": None, "rvar_ci_note": "no interval: no finite pixel",
+                "rbias2_raw": None, "noise_floor": None,
                 "ref_floor": None, "rvar": None, "mrse_mean": None, "mrse_corrected": None,
                 "mrse_ci95": None, "mrse_ci_note": "no interval: no finite pixel",
                 "mrse_per_seed": None,
@@ -326,18 +337,21 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
 
     r = np.asarray(ref[valid], dtype=np.float64)
     w = _relative_weight(r, eps)
-    # Two passes over the renders (mean, then deviations) instead of one stacked
-    # float64 array: exact sample variance without K copies of the image.
+    # Two passes over the renders (mean, then deviations): an exact sample variance.
     m = np.zeros_like(r)
     for x in renders:
         m += x[valid]
     m /= k
     sum_sq_dev = np.zeros_like(r)
     mrse_per_seed = []
-    for x in renders:
+    # sqrt(w) (X_k - R) per seed, for the Gram matrix of the jackknife intervals.
+    weighted_errors = np.empty((k, r.size))
+    sqrt_w = np.sqrt(w)
+    for index, x in enumerate(renders):
         xk = np.asarray(x[valid], dtype=np.float64)
         sum_sq_dev += (xk - m) ** 2
-        mrse_per_seed.append(float(np.mean((xk - r) ** 2 * w)))
+        weighted_errors[index] = (xk - r).ravel() * sqrt_w.ravel()
+        mrse_per_seed.append(float(np.mean(weighted_errors[index] ** 2)))
     s2 = sum_sq_dev / (k - 1)
 
     rbias2_raw = float(np.mean((m - r) ** 2 * w))
@@ -351,6 +365,8 @@ def bias_variance(images: np.ndarray | Sequence[np.ndarray], ref: np.ndarray,
     return {
         **counts,
         "rbias2": rbias2,
+        "rbias2_pooled": rbias2,
+        **pooled_intervals(seed_gram(weighted_errors), rvar, ref_floor or 0.0),
         "rbias2_raw": rbias2_raw,
         "noise_floor": noise_floor,
         "ref_floor": ref_floor,

@@ -19,13 +19,14 @@ function gives it as ``per_seed`` and is computed by :func:`per_seed_values`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, Literal
 
 import numpy as np
 
+from metrics.bias_intervals import bias_verdict
 from metrics.errors import efficiency, psnr_tonemapped
 from metrics.statistics import interval_or_reason
 
@@ -71,6 +72,8 @@ class Metric:
     details: tuple[tuple[str, str], ...] = ()  # (label, stored key) shown beside it in details
     ci_min_change: float | None = None  # smallest relative change (worse way) nirc-bench ci
                                         # calls a regression; None: not gated (needs seed_key)
+    interval: bool = False         # a BIAS_VARIANCE value stored with its 95 % interval
+                                   # (``<key>_ci95``, metrics.bias_intervals)
 
     @property
     def verdict_name(self) -> str:
@@ -79,8 +82,10 @@ class Metric:
 
     @property
     def ci_key(self) -> str | None:
-        """Stored key of its 95 % interval (MEAN_CI only)."""
-        return f"{self.seed_key}_ci95" if self.aggregate is Aggregate.MEAN_CI else None
+        """Stored key of its 95 % interval (MEAN_CI entries and those with ``interval``)."""
+        if self.aggregate is Aggregate.MEAN_CI:
+            return f"{self.seed_key}_ci95"
+        return f"{self.key}_ci95" if self.interval else None
 
     @property
     def key_prefixes(self) -> tuple[str, ...]:
@@ -124,13 +129,17 @@ METRICS: tuple[Metric, ...] = (
     Metric("flip_ldr", "FLIP (LDR)", "LDR-FLIP mean over pixels of the tone-mapped images",
            "lower", Aggregate.MEAN, key="flip_ldr_mean", seed_key="flip_ldr", group="flip",
            ci_min_change=0.1),
-    Metric("rbias2", "rBias²", "relative squared bias over K renders, less the render and "
-           "reference noise floors", "lower", Aggregate.BIAS_VARIANCE, key="rbias2",
-           log_axis=True, needs_k2=True, field="rbias2", sweep_plot=True,
-           withheld_keys=("noise_floor",), details=(("rBias² (raw)", "rbias2_raw"),)),
+    Metric("rbias2", "rBias²", "relative squared bias, less the render and reference noise "
+           "floors: the mean of the caches' own values for a method that trains a cache "
+           "per seed, else pooled over the K renders", "lower", Aggregate.BIAS_VARIANCE,
+           key="rbias2", log_axis=True, needs_k2=True, field="rbias2", sweep_plot=True,
+           withheld_keys=("noise_floor",), interval=True,
+           details=(("rBias² basis", "rbias2_basis"), ("rBias² pooled over seeds",
+                                                        "rbias2_pooled"),
+                    ("rBias² (raw, pooled)", "rbias2_raw"))),
     Metric("rvar", "rVar", "relative variance of one render over K renders", "lower",
            Aggregate.BIAS_VARIANCE, key="rvar", log_axis=True, needs_k2=True, field="rvar",
-           sweep_plot=True),
+           sweep_plot=True, interval=True),
     Metric("rbias2_per_cache", "rBias² per cache", "rBias² of each seed's cache from its own "
            "frames, mean over caches", "lower", Aggregate.PER_CACHE,
            key="rbias2_per_cache_mean", group="rbias2", log_axis=True,
@@ -178,12 +187,19 @@ def seed_mean(metric: Metric, per_seed: list[Mapping[str, Any]]) -> float | None
     return float(np.mean(values)) if values else None
 
 
-def mean_interval(metric: Metric, metrics: Mapping[str, Any]) -> tuple[list[float] | None,
-                                                                         str | None]:
-    """The 95 % interval of a MEAN_CI ``metric`` of a run's ``metrics`` and how it was made
-    or why there is none (metrics.statistics.interval_or_reason), from the stored
-    per-seed values, so that runs stored before the log-scale interval read the same;
-    (None, None) when the metric has no value (withheld)."""
+def metric_interval(metric: Metric, metrics: Mapping[str, Any]) -> tuple[list[float] | None,
+                                                                           str | None]:
+    """The 95 % interval of ``metric`` (one with a ``ci_key``) of a run's ``metrics`` and
+    how it was made or why there is none; (None, None) when the metric has no value
+    (withheld). rBias^2 and rVar read what was stored (metrics.bias_intervals); a MEAN_CI
+    metric's is made from the stored per-seed values (metrics.statistics.interval_or_reason),
+    so that runs stored before the log-scale interval read the same."""
+    if metric.aggregate is not Aggregate.MEAN_CI:
+        if metrics.get(metric.key) is None:
+            return None, None
+        if f"{metric.key}_ci_note" not in metrics:
+            return None, f"no interval: stored before {metric.label} had one (metric version 3)"
+        return metrics.get(metric.ci_key), metrics[f"{metric.key}_ci_note"]
     per_seed = metrics.get(f"{metric.seed_key}_per_seed")
     if per_seed:
         ci, note = interval_or_reason(per_seed)
@@ -209,17 +225,30 @@ def below_noise_floor(key: str, value: Any) -> bool:
     return key in FLOOR_CORRECTED_KEYS and isinstance(value, int | float) and value < 0
 
 
+def within_noise(key: str, value: Any, ci: Sequence[float] | None) -> bool:
+    """Whether the stored noise-corrected ``key``'s ``value`` is not told apart from 0: its
+    95 % interval ``ci`` holds 0 or, without one, the value is below 0
+    (metrics.bias_intervals.bias_verdict)."""
+    return (key in FLOOR_CORRECTED_KEYS and isinstance(value, int | float)
+            and bias_verdict(value, ci) == "within noise")
+
+
 def row_values(metrics: Mapping[str, Any]) -> dict[str, Any]:
     """A run's listed metrics under their ``field`` names (and ``<field>_ci95`` with
-    ``<field>_ci_note``), and ``below_noise_floor``: the fields whose noise-corrected
-    value is negative."""
+    ``<field>_ci_note``); ``below_noise_floor``: the fields whose noise-corrected value
+    is negative; ``within_noise``: those whose interval holds 0 (:func:`within_noise`);
+    ``rbias2_basis`` and ``bias_verdict`` (biased / within noise / None)."""
     row: dict[str, Any] = {}
     for m in LISTED:
         row[m.field] = metrics.get(m.key)
         if m.ci_key:
-            row[f"{m.field}_ci95"], row[f"{m.field}_ci_note"] = mean_interval(m, metrics)
+            row[f"{m.field}_ci95"], row[f"{m.field}_ci_note"] = metric_interval(m, metrics)
     row["below_noise_floor"] = [m.field for m in LISTED
                                 if below_noise_floor(m.key, metrics.get(m.key))]
+    row["within_noise"] = [m.field for m in LISTED if within_noise(
+        m.key, metrics.get(m.key), row.get(f"{m.field}_ci95"))]
+    row["rbias2_basis"] = metrics.get("rbias2_basis")
+    row["bias_verdict"] = bias_verdict(metrics.get("rbias2"), row.get("rbias2_ci95"))
     return row
 
 
@@ -234,6 +263,7 @@ def metric_table() -> str:
     for m in METRICS:
         unit = f" [{m.unit}]" if m.unit else ""
         k2 = " (K >= 2)" if m.needs_k2 else ""
+        k2 += ", 95 % CI (K >= 3)" if m.interval else ""
         lines.append(f"| {m.label}{unit} | {m.description} | {m.direction} | "
                      f"{over_seeds[m.aggregate]}{k2} | `{m.key}` |")
     return "\n".join(lines)

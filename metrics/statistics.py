@@ -20,7 +20,9 @@
   :func:`welch_interval` its interval of the difference of the means.
 - :func:`positive_mean_interval`: the interval of the mean of a non-negative quantity
   (an error such as MRSE), on the log scale so that it never goes below zero;
-  :func:`interval_or_reason` says why there is none.
+  :func:`interval_or_reason` says why there is none; :func:`log_scale_interval` the
+  same from an estimate and its standard error, :func:`chi2_variance_interval` that of
+  a Gaussian sample variance.
 
 Distributions (Student t, chi-square, normal tails) come from ``scipy.stats``
 and ``scipy.special``; SciPy is a declared dependency of the project. They are
@@ -87,7 +89,6 @@ def positive_mean_interval(values: np.ndarray | list[float],
     few seeds its lower end goes negative). Needs at least
     :data:`MIN_INTERVAL_VALUES` finite, non-negative values; all zero gives (0, 0).
     """
-    from scipy import stats
     arr = np.asarray(values, dtype=np.float64).ravel()
     if arr.size < MIN_INTERVAL_VALUES:
         raise MetricError(f"an interval needs at least {MIN_INTERVAL_VALUES} values, got "
@@ -99,9 +100,33 @@ def positive_mean_interval(values: np.ndarray | list[float],
     mean = float(arr.mean())
     if mean == 0.0:
         return 0.0, 0.0
-    half_width = (float(stats.t.ppf(0.5 * (1.0 + level), arr.size - 1))
-                  * float(arr.std(ddof=1)) / (mean * math.sqrt(arr.size)))
-    return mean * math.exp(-half_width), mean * math.exp(half_width)
+    return log_scale_interval(mean, float(arr.std(ddof=1)) / math.sqrt(arr.size),
+                              arr.size - 1, level)
+
+
+def log_scale_interval(estimate: float, standard_error: float, dof: float,
+                       level: float = 0.95) -> tuple[float, float]:
+    """(lo, hi) = estimate x exp(-+ t se / estimate): the Student-t interval (``dof``
+    degrees of freedom) of log(estimate) by the delta method, mapped back, for a positive
+    quantity whose estimate has standard error ``standard_error``."""
+    from scipy import stats
+    if not estimate > 0:
+        raise MetricError(f"a log-scale interval needs an estimate > 0, got {estimate}")
+    half_width = float(stats.t.ppf(0.5 * (1.0 + level), dof)) * standard_error / estimate
+    return estimate * math.exp(-half_width), estimate * math.exp(half_width)
+
+
+def chi2_variance_interval(variance: float, dof: int,
+                           level: float = 0.95) -> tuple[float, float]:
+    """(lo, hi) of a variance whose estimate is variance x chi2_dof / dof (a Gaussian
+    sample variance on ``dof`` degrees of freedom): dof v / chi2_{(1+level)/2, dof} to
+    dof v / chi2_{(1-level)/2, dof}."""
+    from scipy import stats
+    if dof < 1 or not variance >= 0:
+        raise MetricError(f"a chi-square interval needs dof >= 1 and a variance >= 0, got "
+                          f"{dof} and {variance}")
+    upper_q, lower_q = stats.chi2.ppf([0.5 * (1.0 + level), 0.5 * (1.0 - level)], dof)
+    return dof * variance / float(upper_q), dof * variance / float(lower_q)
 
 
 def interval_or_reason(values: list[float | None]) -> tuple[tuple[float, float] | None, str]:

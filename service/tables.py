@@ -20,7 +20,8 @@ from metrics.registry import (
     Aggregate,
     Metric,
     below_noise_floor,
-    mean_interval,
+    metric_interval,
+    within_noise,
 )
 
 if TYPE_CHECKING:
@@ -101,6 +102,16 @@ def metric_text(key: str, value: Any) -> str:
         else _fmt(value)
 
 
+def value_text(key: str, value: Any, ci: Any) -> str:
+    """A stored metric with its 95 % interval: '0.012 [0.004, 0.02]', and 'within noise'
+    before a noise-corrected one whose interval holds 0 (metrics.registry.within_noise);
+    without an interval as :func:`metric_text` shows it."""
+    if not ci:
+        return metric_text(key, value)
+    text = f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]"
+    return f"within noise: {text}" if within_noise(key, value, ci) else text
+
+
 def _metric_rows(m: dict[str, Any], run: RunResultDetail) -> dict[str, Any]:
     """The run table's rows of every registered metric (values as :func:`_shown` gives
     them), each interval with how it was made or why there is none."""
@@ -111,8 +122,10 @@ def _metric_rows(m: dict[str, Any], run: RunResultDetail) -> dict[str, Any]:
             continue    # a method without a cache has no per-cache statistics
         rows[metric_label(metric)] = metric_text(metric.key, m.get(metric.key, absent))
         if metric.ci_key:
-            ci, note = mean_interval(metric, run.metrics)
-            rows[f"{metric.label} 95% CI"] = f"{_ci_text(ci)} (log scale)" if ci else note or "-"
+            ci, note = metric_interval(metric, run.metrics)
+            rows[f"{metric.label} 95% CI"] = f"{_ci_text(ci)} ({note})" if ci else note or "-"
+            if metric.name == "rbias2" and run.bias_verdict:
+                rows["rBias² verdict"] = run.bias_verdict
         for label, key in metric.details:
             rows[label] = metric_text(key, m.get(key, absent))
     return rows
@@ -248,9 +261,7 @@ def _metric_cells(row: RunResult) -> list[str]:
     for m in LISTED:
         value = getattr(row, m.field)
         ci = getattr(row, f"{m.field}_ci95") if m.ci_key else None
-        cells.append("-" if value is None else
-                     f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]" if ci else
-                     metric_text(m.key, value))
+        cells.append("-" if value is None else value_text(m.key, value, ci))
     return cells
 
 

@@ -40,6 +40,7 @@ from jobs.record.artifacts import (
 )
 from jobs.record.config import Settings
 from jobs.record.store import Store
+from metrics.bias_intervals import per_cache_headline
 from metrics.checks import MetricError
 from metrics.errors import (
     bias_variance,
@@ -160,7 +161,9 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
     """Reduce K per-seed results to each metric of metrics.registry.METRICS by its
     aggregate form: rBias^2/rVar over seeds and mean MRSE with its CI, less the
     reference floor (metrics.errors.bias_variance), the per-cache statistics of
-    :func:`per_cache_metrics`, means over seeds, then the derived values.
+    :func:`per_cache_metrics` (the headline rBias^2 of a method whose seeds each train
+    a cache, which names it under ``method_stats['caches']``:
+    metrics.bias_intervals.per_cache_headline), means over seeds, then the derived values.
 
     A per-seed value is None when that image had no finite pixel at all; such
     seeds are left out of the means (the quality flag already reports them).
@@ -176,6 +179,9 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
         metrics.update({key: per_seed[0][key] for key in
                         ("mrse_corrected", "ref_floor", "ref_floor_ratio_mrse", "warnings")})
     metrics.update(per_cache_metrics(frame_moments, reference, eps, correlated_frames))
+    # A cache trained per seed: rBias^2 is the mean over the caches, which cannot cancel.
+    if all("caches" in (s.get("method_stats") or {}) for s in per_seed):
+        metrics.update(per_cache_headline(metrics))
     # ---- Means over seeds (MEAN entries) ----
     for metric in METRICS:
         if metric.aggregate is Aggregate.MEAN:

@@ -88,9 +88,8 @@ def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
                               f"metrics.{m.key}; null when withheld or not computed)"))
         if m.ci_key:
             fields[f"{m.field}_ci95"] = (list[float] | None, Field(
-                None, description=f"95 % interval of the mean {m.label} over the seeds, on "
-                                  "the log scale (never below zero); null with fewer than "
-                                  "3 seeds"))
+                None, description=f"95 % interval of {m.label} (how: {m.field}_ci_note; "
+                                  "docs/metrics.md); null with fewer than 3 seeds"))
             fields[f"{m.field}_ci_note"] = (str | None, Field(
                 None, description=f"how the {m.label} interval was made, or why there is "
                                   "none"))
@@ -99,6 +98,17 @@ def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
         description="metrics (by field) whose noise-corrected estimate is negative: the "
                     "quantity is below what the render and reference noise resolve; read "
                     "the value as indistinguishable from 0, not as a number to rank by"))
+    fields["within_noise"] = (list[str], Field(
+        default_factory=list,
+        description="noise-corrected metrics (by field) whose 95 % interval holds 0 (or, "
+                    "without an interval, whose estimate is negative): not told apart from 0"))
+    fields["rbias2_basis"] = (str | None, Field(
+        None, description="'per cache': rBias² is the mean of the caches' own values (a "
+                          "method training a cache per seed); 'pooled': over the K renders; "
+                          "null for runs stored before metric version 3"))
+    fields["bias_verdict"] = (str | None, Field(
+        None, description="'biased' (rBias²'s 95 % interval above 0) or 'within noise'; "
+                          "null when it cannot be said"))
     return fields
 
 

@@ -91,11 +91,19 @@ def test_result_rows_and_api_fields_come_from_the_registry():
         ("mrse", True), ("flip", False), ("rbias2", True), ("rvar", True)]
     assert {key for key, _ in SWEEP_COLUMNS} >= {"mrse", "flip", "rbias2", "rvar", "psnr"}
     stored = {"mrse_mean": 0.5, "mrse_ci95": (0.4, 0.6), "flip_hdr_mean": 0.2, "rbias2": 0.1,
+              "rbias2_ci95": [-0.01, 0.2], "rbias2_ci_note": "how", "rbias2_basis": "per cache",
               "psnr_mean": 31.0}
     assert row_values(stored) == {"mrse": 0.5, "mrse_ci95": [0.4, 0.6], "flip": 0.2,
-                                  "rbias2": 0.1, "rvar": None, "psnr": 31.0,
+                                  "rbias2": 0.1, "rbias2_ci95": [-0.01, 0.2],
+                                  "rbias2_ci_note": "how", "rvar": None, "rvar_ci95": None,
+                                  "rvar_ci_note": None, "psnr": 31.0,
                                   "mrse_ci_note": "95 % interval of the mean, as stored",
-                                  "below_noise_floor": []}
+                                  "below_noise_floor": [], "within_noise": ["rbias2"],
+                                  "rbias2_basis": "per cache", "bias_verdict": "within noise"}
+    # A run stored before rBias² had an interval says so; one above 0 is biased.
+    old = row_values({"rbias2": 0.1})
+    assert old["rbias2_ci95"] is None and "before" in old["rbias2_ci_note"]
+    assert row_values({**stored, "rbias2_ci95": [0.01, 0.2]})["bias_verdict"] == "biased"
 
 
 def test_the_registry_is_served_as_json():
