@@ -29,8 +29,10 @@ from typer._click import exceptions as click_errors  # Typer's own copy of Click
 
 from renderers.methods import BASELINE, METHODS, sweep_methods
 from service.cli_common import (
+    REF_SPP,
     DataDir,
     JsonOut,
+    RefSpp,
     console,
     err_console,
     open_settings,
@@ -312,7 +314,7 @@ def render(
     pretrain: Annotated[int | None, typer.Option(
         "--pretrain", min=0, max=100_000,
         help=_shortcut_help("pretrain_frames", "cache training frames before timing"))] = None,
-    ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
+    ref_spp: RefSpp = REF_SPP,
     eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0, help="MRSE epsilon")] = 0.01,
     budget_ms: Annotated[float | None, typer.Option(
         "--budget-ms", min=1e-6, max=1e7,
@@ -413,7 +415,7 @@ def report(
     seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000)] = 2,
     pretrain: Annotated[int, typer.Option("--pretrain", min=0, max=100_000)] = 100,
     max_depth: MaxDepth = -1,
-    ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
+    ref_spp: RefSpp = REF_SPP,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
 ) -> None:
@@ -465,7 +467,7 @@ def sweep(
                                                 help="equal time within this many ms")] = 1.0,
     param: Annotated[list[str] | None, typer.Option(
         "--param", "-p", help="parameter for every method NAME=VALUE (repeatable)")] = None,
-    ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 4096,
+    ref_spp: RefSpp = REF_SPP,
     out: Annotated[Path | None, typer.Option(
         "--out", help="write plots and result.json here (default: data/sweeps/sweep-<id>)")] = None,
     as_json: JsonOut = False,
@@ -571,7 +573,7 @@ def pareto(
         "--pretrain-frames", min=0, max=100_000,
         help="cache training frames before the timed frames (not per-frame time)")] = 16,
     max_depth: MaxDepth = -1,
-    ref_spp: Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24)] = 1024,
+    ref_spp: RefSpp = REF_SPP,
     timing_rounds: Annotated[int, typer.Option(
         "--timing-rounds", min=0, max=100,
         help="interleaved timing rounds after the runs (each point's time is their median; "

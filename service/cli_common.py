@@ -22,6 +22,12 @@ DataDir = Annotated[
                  envvar="NIRC_BENCH_DATA_DIR"),
 ]
 JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a table")]
+#: The reference's spp unless --ref-spp says otherwise: ReferenceSpec's default
+#: (jobs/protocol/spec.py), one for every command; written out here so that the CLI
+#: starts without importing the specs.
+REF_SPP = 4096
+RefSpp = Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24,
+                                     help="spp of the converged reference")]
 
 
 def open_settings(data_dir: Path | None) -> Any:

@@ -58,7 +58,7 @@ class ParetoSpec:
     methods: list[str] | None = None
     pretrain_frames: int = 16
     max_depth: int = -1
-    ref_spp: int = 1024
+    ref_spp: int = ReferenceSpec.model_fields["spp"].default
     timing_rounds: int = DEFAULT_ROUNDS
     probe_frames: int = 3
     resamples: int = RESAMPLES
