@@ -51,7 +51,8 @@ class CacheTrainingParams(PTParams):
 
     sph_c: float = Field(0.01, gt=0.0, le=1e6, description="c of the spread heuristic")
     train_fraction: float = Field(0.03, gt=0.0, le=1.0, description="training paths / pixels")
-    min_train_paths: int = Field(4096, ge=1, le=1 << 22)
+    min_train_paths: int = Field(4096, ge=1, le=1 << 22,
+                                 description="floor of training paths per frame")
     record_depth: int = Field(3, ge=1, le=16, description="vertices recorded per training path")
     training_budget: BudgetMode = Field(
         "scaled", description="records per frame: 'scaled' with the pixel count, or the "
@@ -60,7 +61,8 @@ class CacheTrainingParams(PTParams):
                                          description="training records / pixels ('scaled')")
     min_train_records: int = Field(MIN_RECORDS, ge=1, le=1 << 24,
                                    description="floor of training records per frame ('scaled')")
-    pretrain_frames: int = Field(0, ge=0, le=100_000)
+    pretrain_frames: int = Field(0, ge=0, le=100_000,
+                                 description="training frames before the first (warm-up) frame")
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
 
     @model_validator(mode="before")

@@ -32,7 +32,9 @@ IncidentTermination = Literal[policy_names("incident")]  # type: ignore[valid-ty
 class NIRCParams(CacheTrainingParams, TerminationChoice):
     """Parameters of the `nirc` method (PT core and training parameters included)."""
 
-    estimator: Literal["biased", "unbiased"] = "biased"
+    estimator: Literal["biased", "unbiased"] = Field(
+        "biased", description="'biased': the cache's incident radiance at the termination "
+                              "vertex (Eq. 13); 'unbiased': two-level Monte Carlo (Eq. 10-12)")
     termination: IncidentTermination = Field(
         "bth", description="biased termination policy (renderers/integrators/termination)")
     nc: list[int] | None = Field(
@@ -64,6 +66,11 @@ class NIRCParams(CacheTrainingParams, TerminationChoice):
         if self.estimator == "unbiased":
             return [3, 1, 1]
         return list(get_policy(self.termination).default_nc)
+
+    def resolved(self) -> dict[str, Any]:
+        """The parameters with what ``nc = None`` stands for filled in (the estimator's or
+        the termination policy's default N_c): how labels and stored runs show them."""
+        return {**self.model_dump(mode="json"), "nc": self.sample_counts()}
 
     def termination_nc(self) -> tuple[int, int]:
         """N_c at v1 and at later vertices (the last entry), for the policy (BTH's Eq. 22)."""

@@ -56,7 +56,8 @@ from renderers.seeding import derive_seed
 class NIRCEnvParams(NIRCParams):
     """`nirc`'s parameters plus the environment term's (module docstring)."""
 
-    env_estimator: Literal["unbiased", "biased"] = "unbiased"
+    env_estimator: Literal["unbiased", "biased"] = Field(
+        "unbiased", description="the environment term's estimator (as nvc-env's estimator)")
     env_nc: int = Field(7, ge=1, le=64, description="N_c of the environment term")
     env_camera_points: int = Field(4096, ge=1, le=1 << 20,
                                    description="visibility training points per frame")

@@ -38,7 +38,9 @@ class NRCParams(CacheTrainingParams, TerminationChoice):
 
     termination: OutgoingTermination = Field(
         "sph", description="termination policy (renderers/integrators/termination)")
-    self_training: bool = True
+    self_training: bool = Field(
+        True, description="NRC's self-training (paths end in the cache, every "
+                          "unbiased_every-th one traced in full); false: full paths only")
     unbiased_every: int = Field(16, ge=1, le=1 << 16,
                                 description="every n-th training path is not terminated")
 

@@ -63,13 +63,16 @@ DIRECTION_ENCODING = {"kind": "sh", "sh_bands": 5}
 class NVCEnvParams(PTParams):
     """The PT core's parameters plus the estimator's and the cache's (module docstring)."""
 
-    estimator: Literal["unbiased", "biased"] = "unbiased"
+    estimator: Literal["unbiased", "biased"] = Field(
+        "unbiased", description="'unbiased': cache level + residual with one shadow ray "
+                                "(NIRC Eq. 10-12); 'biased': the cache level alone (Eq. 13)")
     nc: int = Field(7, ge=1, le=64, description="cache directions per vertex (N_c)")
     target: Literal["visibility", "radiance"] = Field(
         "visibility", description="the cache predicts V(x, w) or the radiance L_env V (RGB)")
     camera_points: int = Field(4096, ge=1, le=1 << 20,
                                description="training camera first hits per frame")
-    pretrain_frames: int = Field(0, ge=0, le=100_000)
+    pretrain_frames: int = Field(0, ge=0, le=100_000,
+                                 description="training frames before the first (warm-up) frame")
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
 
     def core(self) -> dict[str, Any]:

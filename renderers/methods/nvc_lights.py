@@ -105,7 +105,8 @@ class VisibilityCacheParams(MethodParams):
                               description="training points per frame in the scene's box")
     camera_points: int = Field(4096, ge=0, le=1 << 20,
                                description="training points per frame at camera first hits")
-    pretrain_frames: int = Field(0, ge=0, le=100_000)
+    pretrain_frames: int = Field(0, ge=0, le=100_000,
+                                 description="training frames before the first (warm-up) frame")
     clusters: int = Field(0, ge=0, le=MAX_LIGHTS,
                           description="0: per light up to 32 lights, else at most this many "
                                       "k-means clusters")

@@ -38,7 +38,8 @@ class PrimaryCacheParams(MethodParams):
                               description="training points per frame from the scene's box")
     camera_points: int = Field(4096, ge=0, le=1 << 20,
                                description="training points per frame at camera first hits")
-    pretrain_frames: int = Field(0, ge=0, le=100_000)
+    pretrain_frames: int = Field(0, ge=0, le=100_000,
+                                 description="training frames before the first (warm-up) frame")
     cache: dict[str, Any] = Field(default_factory=dict, description="cache config overrides")
 
 

@@ -29,7 +29,9 @@ class PTParams(MethodParams):
     max_depth: int = Field(DEFAULT_MAX_DEPTH, ge=-1, le=1024,
                            description="longest path in segments; -1 = unbounded")
     rr_depth: int = Field(5, ge=1, le=1024, description="first depth of Russian roulette")
-    rr_mode: Literal["fixed", "throughput"] = "fixed"
+    rr_mode: Literal["fixed", "throughput"] = Field(
+        "fixed", description="Russian roulette: 'fixed' survives with rr_survival, "
+                             "'throughput' with min(max(beta) eta^2, 0.95) (Mitsuba's rule)")
     rr_survival: float = Field(0.9, gt=0.0, le=1.0,
                                description="survival probability in rr_mode 'fixed'")
 

@@ -277,3 +277,27 @@ def test_checking_cache_overrides_does_not_import_mitsuba():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             check=True, cwd=Path(__file__).parents[2])
     assert result.stdout.strip() == "False"
+
+
+def test_every_parameter_of_a_built_in_method_says_what_it_is():
+    """`nirc-bench methods NAME` shows each parameter's description as its help: none is
+    left blank. Planted: a model with a field without a description is caught."""
+    from pydantic import Field
+
+    from renderers.methods import BUILTIN, MethodParams
+    from service.method_info import method_info
+
+    def unexplained(model: type) -> list[str]:
+        return [name for name, field in model.model_fields.items()
+                if not (field.description or "").strip()]
+
+    missing = {name: unexplained(method.params) for name, method in BUILTIN.items()}
+    assert not any(missing.values()), missing
+    helps = {p["name"]: p["help"] for p in method_info("nirc")["params"]}
+    assert "Eq. 13" in helps["estimator"] and "throughput" in helps["rr_mode"]
+
+    class Planted(MethodParams):
+        said: int = Field(1, description="a count")
+        unsaid: int = 2
+
+    assert unexplained(Planted) == ["unsaid"]
