@@ -14,6 +14,7 @@ from rich.text import Text
 from jobs.protocol.calibration import ADVICE
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
 from metrics.registry import (
+    BY_NAME,
     LISTED,
     METRICS,
     PER_SEED,
@@ -456,10 +457,19 @@ def run_details_tables(run: RunResultDetail) -> Group:
     return Group(*parts)
 
 
+def _row_value(row: RunResult, key: str, field: str | None) -> str:
+    """A result row's listed metric with its 95 % interval (:func:`value_text`)."""
+    value = getattr(row, field) if field else None
+    if value is None:
+        return "-"
+    return value_text(key, value, getattr(row, f"{field}_ci95", None))
+
+
 def comparison_table(comparison: RunComparison) -> Group:
     """Runs side by side: what differs between them, then each later run's metrics
     against the first's with the interval of the change."""
     rows = comparison.runs
+    by_id = {r.id: r for r in rows}
     head = Table(title="runs compared (the first is the baseline)")
     for column in ("setting", *(f"run {r.id}" for r in rows)):
         head.add_column(column)
@@ -470,18 +480,34 @@ def comparison_table(comparison: RunComparison) -> Group:
         head.add_row(escape(setting), *(escape(_fmt(v)) for v in values))
     if not comparison.differences:
         head.add_row("(settings)", *("the same" for _ in rows))
+    standings = comparison.standings
+    if standings:
+        head.add_row("ms / frame", *(_fmt(s.ms_per_frame) if s.ms_per_frame else "-"
+                                     for s in standings))
+        head.add_row("efficiency [1/s] (95% CI)", *(
+            "-" if s.efficiency is None else
+            f"{_fmt(s.efficiency)} {_ci_text(s.efficiency_ci95) if s.efficiency_ci95 else ''}"
+            for s in standings))
+        head.add_row("timing", *(escape("; ".join(s.timing_flags)) or "not loaded"
+                                 for s in standings))
+        head.add_row("quality verdict", *(escape(s.verdict or "-") for s in standings))
+        head.add_row("rBias²", *(f"{s.bias_verdict or '-'} ({s.rbias2_basis or '-'})"
+                                 for s in standings))
     parts: list[Any] = [head]
     for delta in comparison.deltas:
         table = Table(title=f"run {delta.run} against run {delta.baseline}")
         for column in ("metric", f"run {delta.baseline}", f"run {delta.run}", "change",
-                       "ratio", "95% interval of the change", "note"):
+                       "ratio", "95% interval of the change", "differs", "note"):
             table.add_column(column, justify="left" if column in ("metric", "note")
                              else "right")
         for m in delta.metrics:
-            table.add_row(f"{m.label} ({m.direction} better)", *(
-                "-" if v is None else metric_text(key, v) for key, v in (
-                    (m.key, m.baseline), (m.key, m.value), ("", m.delta), ("", m.ratio))),
+            field = BY_NAME[m.metric].field
+            cells = [_row_value(by_id[run_id], m.key, field)
+                     for run_id in (delta.baseline, delta.run)]
+            table.add_row(f"{m.label} ({m.direction} better)", *cells, *(
+                "-" if v is None else metric_text("", v) for v in (m.delta, m.ratio)),
                           escape(_ci_text(m.delta_ci95)) if m.delta_ci95 else "-",
+                          "-" if m.differs is None else "yes" if m.differs else "no",
                           m.interval_note)
         parts.append(table)
     parts.append(f"note: {comparison.note}")

@@ -2,15 +2,20 @@
 
 One comparison for ``GET /api/v1/compare`` and ``nirc-bench runs compare``. The first
 run is the baseline; every other run gets, per listed metric, its value, the change
-from the baseline and, for metrics with a value per seed when both runs have at least
-:data:`MIN_SEEDS_FOR_INTERVAL` seeds, the Welch 95 % interval of the difference of the
-seed means (:func:`metrics.statistics.welch_interval`). Runs scored under
-different metric versions are refused: their numbers measure different things.
+from the baseline and, when both runs have at least :data:`MIN_SEEDS_FOR_INTERVAL`
+seeds, the Welch 95 % interval of the difference of the seed means
+(:func:`metrics.statistics.welch_interval`) over the metric's values per seed: MRSE's,
+FLIP's and PSNR's own, rBias²'s and rVar's stored seed values (the caches' own rBias²,
+or the delete-one-seed jackknife values of a pooled estimate, whose means are the run's
+values: metrics.bias_intervals). A change "differs" when that interval excludes 0. Each
+run also shows its time per frame, its efficiency 1 / (MRSE x time) with an interval,
+its load flags and its verdicts. Runs scored under different metric versions are
+refused: their numbers measure different things.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from pydantic import BaseModel, Field
@@ -18,6 +23,9 @@ from pydantic import BaseModel, Field
 from jobs.protocol.results import RunResult
 from metrics.registry import LISTED, Metric, below_noise_floor
 from metrics.statistics import welch_interval
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 #: Fewer seeds than this per run give no interval (a t interval on 1 or 2 degrees of
 #: freedom spans most of the axis).
@@ -48,6 +56,24 @@ class MetricDelta(BaseModel):
         description="Welch 95 % interval of the difference of the seed means (null: see "
                     "interval_note)")
     interval_note: str = Field(description="how the interval was made, or why there is none")
+    differs: bool | None = Field(
+        None, description="whether the interval of the change excludes 0 (null: no interval)")
+
+
+class RunStanding(BaseModel):
+    """What a compared run is besides its listed metrics: speed, efficiency, flags, verdicts."""
+
+    run: int
+    ms_per_frame: float | None = Field(description="median milliseconds per frame")
+    efficiency: float | None = Field(description="1 / (MRSE x seconds per frame) [1/s]")
+    efficiency_ci95: list[float] | None = Field(
+        description="1 / (MRSE's 95 % interval x seconds per frame): the frame time taken "
+                    "as exact (null without an MRSE interval)")
+    timing_flags: list[str] = Field(description="why its timing may not be trusted (loaded)")
+    verdict: str | None = Field(description="its quality verdict (e.g. undertrained-cache)")
+    bias_verdict: str | None = Field(description="'biased' or 'within noise' (rBias²'s "
+                                                 "95 % interval)")
+    rbias2_basis: str | None = Field(description="'per cache' or 'pooled'")
 
 
 class RunDelta(BaseModel):
@@ -75,13 +101,33 @@ class RunComparison(BaseModel):
                     "parameter; null where a run has none)")
     deltas: list[RunDelta] = Field(
         default_factory=list, description="each later run's metrics against the first's")
+    standings: list[RunStanding] = Field(
+        default_factory=list, description="each run's speed, efficiency, load flags and "
+                                          "verdicts, in order")
     note: str
 
 
 def _seed_values(run: Any, metric: Metric) -> list[float]:
-    values = [s.metrics.get(metric.seed_key) for s in run.seed_results] \
-        if metric.seed_key else []
+    """``metric``'s values per seed whose mean is the run's value: each seed's own, or
+    the stored ``<key>_seed_values`` (rBias², rVar)."""
+    if metric.seed_key:
+        values: Sequence[Any] = [s.metrics.get(metric.seed_key) for s in run.seed_results]
+    else:
+        values = run.metrics.get(f"{metric.key}_seed_values") or [] if metric.interval else []
     return [float(v) for v in values if v is not None and np.isfinite(v)]
+
+
+def standing(row: RunResult) -> RunStanding:
+    """``row``'s speed, efficiency with its interval, load flags and verdicts."""
+    seconds, mrse, ci = row.seconds_per_frame, row.mrse, row.mrse_ci95
+    usable = seconds is not None and seconds > 0 and mrse is not None and mrse > 0
+    return RunStanding(
+        run=row.id, ms_per_frame=None if seconds is None else 1e3 * seconds,
+        efficiency=1.0 / (mrse * seconds) if usable else None,
+        efficiency_ci95=([1.0 / (ci[1] * seconds), 1.0 / (ci[0] * seconds)]
+                         if usable and ci and ci[0] > 0 else None),
+        timing_flags=row.timing_flags, verdict=row.verdict, bias_verdict=row.bias_verdict,
+        rbias2_basis=row.rbias2_basis)
 
 
 def metric_delta(metric: Metric, baseline: Any, run: Any) -> MetricDelta:
@@ -91,7 +137,7 @@ def metric_delta(metric: Metric, baseline: Any, run: Any) -> MetricDelta:
     ratio = (None if delta is None or base == 0 or below_noise_floor(metric.key, base)
              or below_noise_floor(metric.key, value) else value / base)
     ci, note = None, "no interval: the metric has no value per seed"
-    if metric.seed_key:
+    if metric.seed_key or metric.interval:
         a, b = _seed_values(run, metric), _seed_values(baseline, metric)
         if min(len(a), len(b)) < MIN_SEEDS_FOR_INTERVAL:
             note = (f"no interval: fewer than {MIN_SEEDS_FOR_INTERVAL} seeds with a value "
@@ -103,7 +149,8 @@ def metric_delta(metric: Metric, baseline: Any, run: Any) -> MetricDelta:
                     "no interval: the seeds' values do not vary")
     return MetricDelta(metric=metric.name, key=metric.key, label=metric.label, direction=metric.direction,
                        baseline=base, value=value, delta=delta, ratio=ratio,
-                       delta_ci95=ci, interval_note=note)
+                       delta_ci95=ci, interval_note=note,
+                       differs=None if ci is None else not ci[0] <= 0.0 <= ci[1])
 
 
 def differences(rows: list[RunResult]) -> dict[str, list[Any]]:
@@ -130,8 +177,10 @@ def compare_runs(runs: list[Any]) -> RunComparison:
         estimators.setdefault(r.method, set()).add(r.estimator_version)
     same_device = len({r.device_key for r in rows}) == 1
     same_scene = len({(r.scene_fingerprint, tuple(r.resolution)) for r in rows}) == 1
-    notes = ["timings comparable (same device)" if same_device else
-             "different devices: compare errors only, not timings"]
+    loaded = [r.id for r in rows if r.timing_flags]
+    notes = ["different devices: compare errors only, not timings" if not same_device else
+             f"timings not comparable: run(s) {', '.join(map(str, loaded))} timed on a loaded "
+             "machine" if loaded else "timings comparable (same device, none loaded)"]
     notes += [f"{method} runs of estimator versions {', '.join(map(str, sorted(v)))} are "
               "different estimators, not repeats of one" for method, v in estimators.items()
               if len(v) > 1]
@@ -148,4 +197,5 @@ def compare_runs(runs: list[Any]) -> RunComparison:
     return RunComparison(runs=rows, same_device=same_device, same_reference_scene=same_scene,
                          metric_version=metric_versions[0],
                          estimator_versions={m: sorted(v) for m, v in estimators.items()},
-                         differences=found, deltas=deltas, note="; ".join(notes))
+                         differences=found, deltas=deltas,
+                         standings=[standing(r) for r in rows], note="; ".join(notes))

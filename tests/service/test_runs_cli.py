@@ -106,6 +106,7 @@ def test_runs_show_prints_parameters_provenance_and_reference(store_dir, capsys)
     for fragment in ("parameters", "max_depth", "rr_survival", "provenance",
                      "0123456789abcdef", "reference", "integrator", "per seed"):
         assert fragment in text
+    assert "rBias² 95% CI" in text and "rVar 95% CI" in text and "jackknife" in text
     detail = json.loads(cli("runs", "show", "3", "--json", data=data))
     assert detail["reference"]["max_depth"] == 4 and len(detail["per_seed"]) == 3
     assert "no run 99" in cli_error(capsys, "runs", "show", "99", data=data)
@@ -121,7 +122,24 @@ def test_runs_compare_names_what_differs_and_refuses_other_metric_versions(store
     assert mrse["delta"] == pytest.approx(mrse["value"] - mrse["baseline"])
     low, high = mrse["delta_ci95"]      # 3 seeds each: a Welch interval around the change
     assert low < mrse["delta"] < high
-    assert "params.max_depth" in cli("runs", "compare", "1", "3", data=data)
+    assert mrse["differs"] == (not low <= 0 <= high)
+    # rBias² and rVar: Welch over the stored jackknife values, whose means are the values.
+    for name in ("rbias2", "rvar"):
+        delta = next(m for m in comparison["deltas"][0]["metrics"] if m["metric"] == name)
+        assert delta["delta_ci95"] and "Welch" in delta["interval_note"]
+        assert delta["differs"] is not None
+    run1 = comparison["runs"][0]
+    assert run1["rbias2_basis"] == "pooled" and run1["bias_verdict"] in ("biased",
+                                                                         "within noise")
+    assert run1["rbias2_ci95"][0] <= run1["rbias2"] <= run1["rbias2_ci95"][1]
+    standing = comparison["standings"][0]
+    assert standing["ms_per_frame"] == pytest.approx(1e3 * run1["seconds_per_frame"])
+    low, high = standing["efficiency_ci95"]
+    assert low < standing["efficiency"] < high and standing["verdict"] == run1["verdict"]
+    table = cli("runs", "compare", "1", "3", data=data)
+    for fragment in ("params.max_depth", "ms / frame", "efficiency", "differs",
+                     "quality verdict"):
+        assert fragment in table
 
     from jobs.record.config import Settings
     from jobs.record.db import open_store
@@ -129,13 +147,51 @@ def test_runs_compare_names_what_differs_and_refuses_other_metric_versions(store
 
     store = open_store(Settings(data_dir=data))
     with store.session(write=True) as session:
+        stored_version = session.get(Run, 2).metric_version
         session.get(Run, 2).metric_version = 1
     try:
         refused = cli_error(capsys, "runs", "compare", "1", "2", data=data)
     finally:
         with store.session(write=True) as session:
-            session.get(Run, 2).metric_version = 2
+            session.get(Run, 2).metric_version = stored_version
     assert "different metric definitions" in refused and "run 2: v1" in refused
+
+
+def test_runs_compare_does_not_call_loaded_timings_comparable(store_dir):
+    """Run 2 marked as timed on a loaded machine: the comparison names it and its flag;
+    unloaded, the same runs are comparable (planted: the flag ignored)."""
+    data, _ = store_dir
+    from sqlalchemy.orm.attributes import flag_modified
+
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from jobs.record.models import Run
+
+    def note() -> tuple[str, list[str]]:
+        found = json.loads(cli("runs", "compare", "1", "2", "--json", data=data))
+        return found["note"], found["standings"][1]["timing_flags"]
+
+    store = open_store(Settings(data_dir=data))
+
+    def set_load(loads: dict[int, dict]) -> None:
+        with store.session(write=True) as session:
+            for run_id, load in loads.items():
+                run = session.get(Run, run_id)
+                run.timings = {**run.timings, "load": load}
+                flag_modified(run, "timings")
+
+    with store.session() as session:
+        saved = {run_id: session.get(Run, run_id).timings.get("load") for run_id in (1, 2)}
+    try:
+        set_load({1: {"loaded": False}, 2: {"loaded": False}})
+        unloaded = note()
+        set_load({2: {"loaded": True, "reasons": ["load 9 on 2 cores"]}})
+        loaded = note()
+    finally:
+        set_load(saved)
+    assert unloaded[0].startswith("timings comparable") and unloaded[1] == []
+    assert loaded[0].startswith("timings not comparable: run(s) 2 ")
+    assert loaded[1] == ["loaded: load 9 on 2 cores"]
 
 
 def test_runs_export_writes_every_stored_file(store_dir, capsys, tmp_path):
@@ -208,11 +264,11 @@ def test_intervals_and_signs_are_honest_in_tables_and_json(store_dir, tmp_path):
 
 def test_tables_say_what_ran_and_methods_lists_parameters(store_dir, capsys):
     data, _ = store_dir
-    from jobs.protocol.results import method_label
+    from jobs.protocol.labels import run_label
 
-    assert method_label("nirc", {"estimator": "biased", "termination": "bth", "nc": [4],
-                                 "max_depth": -1}) == "nirc (biased, bth, N_c 4)"
-    assert method_label("pt", {"max_depth": -1, "rr_survival": 0.9}) == "pt"
+    assert run_label("nirc", {"estimator": "biased", "termination": "sph", "nc": [8],
+                              "max_depth": -1}) == "nirc (sph, N_c 8)"
+    assert run_label("pt", {"max_depth": -1, "rr_survival": 0.9}) == "pt"
     text = cli("runs", "show", "3", data=data)
     assert "cornell-box / pt (max_depth 4)" in text
     assert "path, 16 spp, max_depth 4 (reference" in text     # the reference's settings
