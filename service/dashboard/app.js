@@ -34,12 +34,14 @@ const better = (m) => `${m.description}${m.unit ? ` [${m.unit}]` : ""}; ${m.dire
 const unitLabel = (m) => (m.unit ? `${m.label} (${m.unit})` : m.label);
 
 // A metric cell, linked to its run: "withheld" when the run's verdict makes it meaningless,
-// "below the noise floor (value)" for a negative noise-corrected estimate; the interval is
-// the API's (log scale, never below zero, none with fewer than 3 seeds), never recomputed.
+// "within noise (value)" for a noise-corrected estimate whose interval holds 0, "below the
+// noise floor (value)" for a negative one without an interval; the interval is the API's
+// (how it was made in the cell's title; none with fewer than 3 seeds), never recomputed.
 function metricCells(run, m) {
   const value = run[m.field];
   let text = value === null || value === undefined
     ? ((run.withheld || []).includes(m.verdict_name) ? "withheld" : "–")
+    : (run.within_noise || []).includes(m.field) ? `within noise (${num(value)})`
     : (run.below_noise_floor || []).includes(m.field) ? `below the noise floor (${num(value)})` : num(value);
   text = value === null || value === undefined ? text : runLink(run.id, text);
   const ci = m.ci_field ? run[m.ci_field] : undefined;
