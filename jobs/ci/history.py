@@ -4,9 +4,10 @@ Stored runs carry the commit that produced them (``Run.git_commit``, written by
 the executor from jobs/protocol/provenance.py). :func:`build_history` turns the
 runs of one method on one scene into series of points, one point per commit:
 
-* a **series** holds runs of one setting (resolution, spp, frames, method
-  parameters); runs of another setting are another series, never a point of
-  this one;
+* a **series** holds runs of one setting (resolution, spp, frames, and the run's
+  label: its resolved method parameters not at their default and a sweep point's
+  eps, jobs/protocol/labels.py); runs of another setting are another series, never
+  a point of this one, so runs of two labels are never pooled;
 * a **point** pools the metric's values of a commit's runs: one value per seed
   where the metric has one (``Metric.seed_key``), else the run's aggregate
   (rBias², rVar: one value per run). It reports the median, a distribution-free
@@ -54,6 +55,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 from scipy import stats
 
+from jobs.protocol.labels import resolved_params, run_label
 from jobs.protocol.results import method_params
 from metrics.registry import Metric
 from metrics.statistics import welch_test
@@ -99,7 +101,8 @@ class HistorySeries(BaseModel):
     resolution: list[int]
     spp: int
     frames: int
-    params: dict[str, Any]
+    label: str = Field(description="what defines the series' runs (jobs/protocol/labels.py)")
+    params: dict[str, Any] = Field(description="the newest run's resolved method parameters")
     points: list[HistoryPoint]
 
 
@@ -241,8 +244,8 @@ def _point(commit: str, runs: list[Any], metric: Metric) -> tuple[HistoryPoint, 
 
 
 def _setting(run: Any) -> str:
-    return json.dumps([run.width, run.height, run.spp, run.frames, method_params(run.params)],
-                      sort_keys=True)
+    return json.dumps([run.width, run.height, run.spp, run.frames,
+                       run_label(run.method, run.params)])
 
 
 def build_history(runs: Iterable[Any], metric: Metric, *, scene: str, method: str,
@@ -275,9 +278,13 @@ def build_history(runs: Iterable[Any], metric: Metric, *, scene: str, method: st
         points = sorted((_point(key[0], sorted(rs, key=lambda r: r.id), metric)
                          for key, rs in by_commit.items()),
                         key=lambda pair: (pair[0].time, pair[0].runs[0]))[-limit:]
-        width, height, spp, frames, params = json.loads(setting)
-        series.append(HistorySeries(resolution=[width, height], spp=spp, frames=frames,
-                                    params=params, points=[p for p, _ in points]))
+        width, height, spp, frames, label = json.loads(setting)
+        newest = max((run for runs in by_commit.values() for run in runs),
+                     key=lambda run: run.id)
+        series.append(HistorySeries(
+            resolution=[width, height], spp=spp, frames=frames, label=label,
+            params=resolved_params(newest.method, method_params(newest.params)),
+            points=[p for p, _ in points]))
         samples += [values for _, values in points]
 
     flat = [p for s in series for p in s.points]

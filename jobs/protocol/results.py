@@ -28,9 +28,9 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
+from jobs.protocol.labels import resolved_params, run_label
 from jobs.protocol.versions import is_current
 from metrics.registry import LISTED, Metric, row_values
-from renderers.methods import METHODS
 
 #: Keys a stored run's ``params`` holds besides the method's parameters: the spec it ran,
 #: and the XML scene settings it replaced (only for an XML scene that had any).
@@ -41,41 +41,6 @@ def method_params(params: dict[str, Any] | None) -> dict[str, Any]:
     """A stored run's ``params`` without :data:`RUN_RECORD_KEYS`: what configured its
     method (resolved parameters, and a calibration or sweep point's own keys)."""
     return {k: v for k, v in (params or {}).items() if k not in RUN_RECORD_KEYS}
-
-
-#: Parameters named first in a method label, by how they are shown ('{}' is the value).
-HEADLINE_PARAMS = {"estimator": "{}", "termination": "{}", "nc": "N_c {}"}
-
-
-def _compact(value: Any) -> str:
-    if isinstance(value, list):
-        return ",".join(map(str, value))
-    if isinstance(value, dict):
-        return "{" + ",".join(f"{k}:{_compact(v)}" for k, v in value.items()) + "}"
-    return str(value)
-
-
-def changed_params(method: str, params: dict[str, Any]) -> dict[str, Any]:
-    """The parameters of a run of ``method`` whose value is not the method's default (none
-    for a method that is not registered here)."""
-    model = METHODS[method].params if method in METHODS else None
-    if model is None:
-        return {}
-    defaults = model().model_dump(mode="json")
-    return {name: params[name] for name in model.model_fields
-            if name in params and params[name] != defaults.get(name)}
-
-
-def method_label(method: str, params: dict[str, Any]) -> str:
-    """What ran, in a few words: the method, its headline parameters (estimator,
-    termination, N_c) whatever their value, then every other parameter not at its
-    default, e.g. 'nirc (biased, bth, N_c 4)' or 'pt (max_depth 4)'."""
-    fields = METHODS[method].params.model_fields if method in METHODS else {}
-    parts = [shown.format(_compact(params[name])) for name, shown in HEADLINE_PARAMS.items()
-             if name in fields and params.get(name) is not None]
-    parts += [f"{name} {_compact(value)}" for name, value in
-              changed_params(method, params).items() if name not in HEADLINE_PARAMS]
-    return f"{method} ({', '.join(parts)})" if parts else method
 
 
 def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
@@ -158,10 +123,13 @@ class RunResult(ResultMetrics):
     scene: str
     scene_fingerprint: str
     method: str
-    method_label: str = Field("", description="the method with its headline parameters and "
-                                              "those not at their default, e.g. 'nirc "
-                                              "(biased, bth, N_c 4)'")
-    params: dict[str, Any]
+    method_label: str = Field("", description="what defines the run: the method and its resolved "
+                                              "parameters not at their default, with a sweep "
+                                              "point's eps, e.g. 'nirc (adaptive, N_c 1,1, eps "
+                                              "0.3)' (jobs/protocol/labels.py)")
+    params: dict[str, Any] = Field(description="the method's parameters as resolved (every "
+                                               "default filled in), with a sweep point's or a "
+                                               "calibration's own keys")
     scene_overrides: list[str] = Field(
         default_factory=list, description="what the scene's XML file sets that the run "
                                           "replaced (film size, integrator, max_depth, "
@@ -219,8 +187,8 @@ class RunResult(ResultMetrics):
             **row_values(m), "id": run.id, "created_at": run.created_at,
             "name": run.name, "tags": run.tags or {},
             "scene": run.scene_name, "scene_fingerprint": run.scene_fingerprint,
-            "method": run.method, "method_label": method_label(run.method, run.params),
-            "params": method_params(run.params),
+            "method": run.method, "method_label": run_label(run.method, run.params),
+            "params": resolved_params(run.method, method_params(run.params)),
             "scene_overrides": run.params.get("scene_overrides") or [],
             "resolution": [run.width, run.height], "spp": run.spp, "frames": run.frames,
             "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),

@@ -12,7 +12,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from jobs.protocol.results import RunResult, changed_params
+from jobs.protocol.labels import changed_params
+from jobs.protocol.results import RunResult
 from jobs.record.store import Store
 
 

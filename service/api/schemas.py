@@ -64,14 +64,18 @@ class JobOut(BaseModel):
 class ArtifactOut(BaseModel):
     id: int
     kind: str
+    seed: int | None = Field(None, description="the seed whose file it is (an image, preview "
+                                               "or error map of one seed); null: the run's")
     media_type: str
     sha256: str
     bytes: int
     url: str
 
     @classmethod
-    def of(cls, artifact: Any) -> ArtifactOut:
+    def of(cls, artifact: Any, seed_of: dict[int, int] | None = None) -> ArtifactOut:
+        """``seed_of``: the seed of each of the run's seed results, by id."""
         return cls(id=artifact.id, kind=artifact.kind, media_type=artifact.media_type,
+                   seed=(seed_of or {}).get(artifact.seed_result_id),
                    sha256=artifact.sha256, bytes=artifact.bytes,
                    url=f"/api/v1/artifacts/{artifact.id}")
 
@@ -91,7 +95,9 @@ class RunDetail(RunResultDetail):
 
     @classmethod
     def of(cls, run: Any, **extra: Any) -> RunDetail:
-        return super().of(run, artifacts=[ArtifactOut.of(a) for a in run.artifacts], **extra)
+        seed_of = {result.id: result.seed for result in run.seed_results}
+        return super().of(run, artifacts=[ArtifactOut.of(a, seed_of) for a in run.artifacts],
+                          **extra)
 
 
 class SweepOut(BaseModel):

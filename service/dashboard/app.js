@@ -133,7 +133,8 @@ async function runPage(runId, otherId) {
   view().innerHTML = `<h2>Run ${run.id}: ${esc(label(run))}</h2>
     <p><a href="#/scene/${enc(run.scene)}">${esc(run.scene)}</a> — ${esc(setting(run))}, ${run.seeds} seeds — ${esc(run.device_key)}
     — commit <code>${esc(run.git_commit ?? "unknown")}</code> — ${esc(run.created_at)}</p>
-    <p class="muted">parameters: ${esc(params || "defaults")}</p>
+    <p class="muted">parameters (resolved): ${esc(params || "defaults")}</p>
+    ${(run.scene_overrides || []).length ? `<p class="muted">scene file settings not used: ${run.scene_overrides.map(esc).join("; ")}</p>` : ""}
     <p>quality verdict: <b class="verdict-${esc(run.verdict ?? "none")}">${esc(run.verdict ?? "not judged")}</b>
     ${(run.quality.reasons || []).map((r) => `<br><span class="muted">${esc(r.code)}: ${esc(r.message)}</span>`).join("")}</p>
     ${resultsTable([run], listed)}

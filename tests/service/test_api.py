@@ -132,7 +132,9 @@ def test_a_grid_cache_job_runs_with_its_policy_and_states_its_roulette(api):
     assert run["params"]["termination_params"] == {"threshold": 0.5, "relative": True}
     assert run["path_stats"]["rr_survival"] == 0.8
     assert run["caches"]["cache"]["config"]["samples_per_vertex"] > 1
-    assert "var-bound" in run["method_label"] and "termination_params" in run["method_label"]
+    # Labelled by what differs from grid-cache's defaults (var-bound is its default policy).
+    assert run["method_label"].startswith("grid-cache (termination_params {")
+    assert "threshold:0.5" in run["method_label"] and "rr_survival 0.8" in run["method_label"]
 
 
 def test_unknown_ids_are_404(api):
@@ -167,6 +169,8 @@ def test_a_job_runs_and_its_results_are_served(api):
     preview = client.get(f"/api/v1/references/{run['reference_id']}/preview.png")
     assert preview.status_code == 200 and preview.content[:4] == b"\x89PNG"
     image = next(a for a in run["artifacts"] if a["kind"] == "image")
+    # One image per seed, each saying whose it is; the run's own files name none.
+    assert sorted(a["seed"] for a in run["artifacts"] if a["kind"] == "image") == [0, 1]
     data = client.get(image["url"])
     assert data.status_code == 200 and data.content[:4] == b"\x76\x2f\x31\x01"  # EXR magic
     listed = client.get("/api/v1/results", params={"scene": "cornell-box"}).json()

@@ -10,7 +10,7 @@ from fastapi import APIRouter, HTTPException, Query, status
 from jobs.ci.history import MAX_HISTORY_RUNS, build_history
 from jobs.protocol.chart_groups import split_groups
 from jobs.protocol.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
-from jobs.protocol.results import RunResult, RunResultDetail, method_label
+from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import current_estimator_versions
 from metrics import METRIC_VERSION
 from metrics.registry import METRICS
@@ -63,7 +63,7 @@ def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]
                 setting = (f"{width}×{height}, {series['spp']} spp, {series['frames']} "
                            f"frames, {device}")
                 settings.setdefault(setting, []).append(
-                    (method_label(method, series["params"]), series["points"]))
+                    (series["label"], series["points"]))
         charts = [{"setting": setting, "spec": spec} for setting, series in settings.items()
                   if (spec := history_chart(metric.to_json(), setting, series))]
         answer.append({"metric": metric.name, "label": metric.label, "charts": charts,
