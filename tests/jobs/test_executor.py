@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from jobs.protocol.executor import execute, per_cache_metrics
+from jobs.protocol.executor import aggregate, execute, per_cache_metrics
 from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.record.config import Settings
@@ -430,3 +430,33 @@ def test_the_collection_before_a_job_is_full_only_where_an_earlier_scene_outlive
     finally:
         gc.unfreeze()
         gc.collect()
+
+
+def test_seeds_that_train_caches_report_the_mean_of_their_caches_rbias2():
+    """Four caches biased +-15 % in turn (opposite biases): pooled, rBias^2 cancels to
+    about -b^2/(K-1); for seeds whose method_stats name a cache the headline is the
+    caches' mean with its t interval, above 0 (planted: the same seeds without a cache
+    keep the pooled value, which the interval calls within noise)."""
+    rng = np.random.default_rng(5)
+    truth = rng.uniform(0.2, 2.0, (12, 12, 3))
+    reference = SimpleNamespace(mean=truth, variance=np.zeros_like(truth))
+    moments = []
+    for sign in (1, -1, 1, -1):
+        seed_moments = RunningMoments()
+        for _ in range(8):
+            seed_moments.add(truth * (1 + 0.15 * sign + 0.1 * rng.standard_normal(truth.shape)))
+        moments.append(seed_moments)
+    images = [m.estimate().mean for m in moments]
+    per_seed = [{"mrse": 0.1, "method_stats": {"caches": {"cache": {}}}} for _ in images]
+
+    cached = aggregate(per_seed, images, reference, 0.01, 0.1, moments)
+    plain = aggregate([{"mrse": 0.1, "method_stats": {}} for _ in images], images, reference,
+                      0.01, 0.1, moments)
+    true_rbias2 = float(np.mean((0.15 * truth) ** 2 / (truth ** 2 + 0.01)))
+    assert cached["rbias2_basis"] == "per cache" and plain["rbias2_basis"] == "pooled"
+    assert cached["rbias2"] == pytest.approx(true_rbias2, rel=0.1)
+    assert cached["rbias2_ci95"][0] > 0 and cached["rbias2_seed_values"] == \
+        cached["rbias2_per_cache"]
+    assert plain["rbias2"] == plain["rbias2_pooled"] == cached["rbias2_pooled"]
+    assert plain["rbias2"] < 0.1 * true_rbias2 and plain["rbias2_ci95"][0] <= 0
+    assert "chi-square" in cached["rvar_ci_note"] and "jackknife" in plain["rvar_ci_note"]
