@@ -364,8 +364,9 @@ def device_time(frames: Sequence[FrameTime]) -> dict[str, Any] | None:
 
 @dataclass
 class Warmup:
-    """The untimed warm-up: its wall seconds, its frames and, from the kernel history,
-    the seconds Dr.Jit spent compiling kernels (``compile_s``, None without it)."""
+    """The untimed warm-up: its wall seconds, its frames and, from the kernel history of
+    its calls with it on, the seconds Dr.Jit spent compiling kernels (``compile_s``,
+    None without such calls)."""
 
     seconds: float = 0.0
     compile_s: float | None = None
