@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+from metrics import METRIC_VERSION
 from tests.jobs.factories import run_fields
 from tests.jobs.test_quality import SCENE
 from tests.service.test_cli import run_cli
@@ -18,12 +19,12 @@ NO_EMITTER = {"verdict": "no-emitter", "withheld": ["mrse"], "finite": True,
 def test_verdict_and_versions_are_served(api_and_store):
     http, store = api_and_store
     current = store.add_run(run_fields(quality=NO_EMITTER, estimator_version=2,
-                                       metric_version=2))
+                                       metric_version=METRIC_VERSION))
     old = store.add_run(run_fields(method="pt"))            # stored before versions: 1 / 1
     run = http.get(f"/api/v1/runs/{current.id}").json()
     assert run["verdict"] == "no-emitter" and run["withheld"] == ["mrse"]
     assert run["quality"]["reasons"][0]["code"] == "no-emitter"
-    assert (run["estimator_version"], run["metric_version"], run["current"]) == (2, 2, True)
+    assert (run["estimator_version"], run["metric_version"], run["current"]) == (2, METRIC_VERSION, True)
 
     listed = http.get("/api/v1/results").json()
     assert [r["id"] for r in listed] == [current.id] and listed[0]["verdict"] == "no-emitter"
@@ -34,14 +35,14 @@ def test_verdict_and_versions_are_served(api_and_store):
 
 def test_compare_refuses_mixed_metric_versions_and_flags_estimators(api_and_store):
     http, store = api_and_store
-    new = store.add_run(run_fields(estimator_version=2, metric_version=2))
+    new = store.add_run(run_fields(estimator_version=2, metric_version=METRIC_VERSION))
     old_metric = store.add_run(run_fields(estimator_version=2, metric_version=1))
-    old_pt = store.add_run(run_fields(estimator_version=1, metric_version=2))
+    old_pt = store.add_run(run_fields(estimator_version=1, metric_version=METRIC_VERSION))
     refused = http.get("/api/v1/compare", params={"runs": f"{new.id},{old_metric.id}"})
     assert refused.status_code == 422
     assert "different metric definitions" in refused.json()["detail"][0]["msg"]
     flagged = http.get("/api/v1/compare", params={"runs": f"{new.id},{old_pt.id}"}).json()
-    assert flagged["estimator_versions"] == {"pt": [1, 2]} and flagged["metric_version"] == 2
+    assert flagged["estimator_versions"] == {"pt": [1, 2]} and flagged["metric_version"] == METRIC_VERSION
     assert "pt runs of estimator versions 1, 2 are different estimators" in flagged["note"]
 
 
@@ -53,7 +54,7 @@ def test_cli_prints_the_verdict(tmp_path, mi):
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["quality"]["verdict"] == "no-emitter"
-    assert summary["metrics"]["mrse_mean"] is None and summary["metric_version"] == 2
+    assert summary["metrics"]["mrse_mean"] is None and summary["metric_version"] == METRIC_VERSION
     table = run_cli(*args, data_dir=tmp_path / "data")
     assert table.returncode == 0, table.stderr
     assert "no-emitter" in table.stdout and "withheld" in table.stdout
