@@ -19,9 +19,16 @@ from service.errors import UsageError
 runs_app = typer.Typer(help="Stored runs: list, show, compare, export, name and tag them.",
                        no_args_is_help=True, rich_markup_mode=None)
 
-#: The columns ``runs list`` shows unless --columns says otherwise.
-DEFAULT_COLUMNS = ("id", "created_at", "name", "scene", "method", "changed", "resolution",
-                   "spp", "frames", "seeds", "mrse", "flip", "ms", "device_key", "git_commit")
+#: The columns ``runs list`` shows unless --columns says otherwise: they fit 120 columns
+#: of terminal with the labels of sweep points (``--columns`` shows any other).
+DEFAULT_COLUMNS = ("id", "created_at", "scene", "method_label", "resolution", "spp", "frames",
+                   "mrse", "ms", "git_commit")
+#: Columns that are numbers (or, like a commit, read as one word): never wrapped or cut.
+NUMBER_COLUMNS = ("id", "spp", "frames", "seeds", "mrse", "flip", "psnr", "rbias2", "rvar",
+                  "ms", "seconds_per_frame", "resolution", "git_commit")
+#: Shorter headers of the table (--columns, --sort, CSV and JSON use the names).
+HEADERS = {"created_at": "created", "method_label": "label", "resolution": "res",
+           "git_commit": "commit"}
 
 RunId = Annotated[int, typer.Argument(help="a run id (see `nirc-bench runs list`)", min=1)]
 
@@ -63,16 +70,27 @@ def _get_run(store: Any, run_id: int) -> Any:
 
 
 def _text(value: Any) -> str:
-    """A cell as plain text: floats to 4 digits, times to the minute, lists compact."""
+    """A cell as plain text: floats to 3 digits, times to the minute, lists compact."""
     if value is None:
         return "-"
     if isinstance(value, float):
-        return f"{value:.4g}"
+        return f"{value:.3g}"
     if isinstance(value, datetime):
         return value.strftime("%Y-%m-%d %H:%M")
     if isinstance(value, list | dict):
         return json.dumps(value, separators=(",", ":"))
     return str(value)
+
+
+def _cell(column: str, value: Any) -> str:
+    """A table cell (:func:`_text`), short where the column allows: a square resolution
+    as '32²', a commit as its first 7 characters (and '-dirty')."""
+    if column == "resolution" and isinstance(value, list) and len(value) == 2:
+        width, height = value
+        return f"{width}²" if width == height else f"{width}×{height}"
+    if column == "git_commit" and isinstance(value, str) and len(value) > 7:
+        return value[:7] + ("-dirty" if value.endswith("-dirty") else "")
+    return _text(value)
 
 
 @runs_app.command("list")
@@ -95,7 +113,8 @@ def list_runs(
                        "params.nc)")] = "-created_at",
     columns: Annotated[str | None, typer.Option(
         "--columns", help="comma list of columns: any field of `runs list --json`, "
-                          "'changed' (parameters not at their default), 'ms', params.NAME, "
+                          "'changed' (resolved parameters not at their default), 'ms', "
+                          "params.NAME, "
                           f"tags.NAME (default: {','.join(DEFAULT_COLUMNS)})")] = None,
     limit: Annotated[int, typer.Option("--limit", min=1, max=100_000)] = 50,
     as_json: JsonOut = False,
@@ -127,11 +146,17 @@ def list_runs(
         return
     table = Table(title=f"{len(rows)} stored runs" + (f" (the first {limit})"
                                                        if len(rows) == limit else ""))
-    for column in chosen:
-        table.add_column(column, justify="right" if column in ("id", "spp", "frames", "seeds")
-                         else "left")
-    for row in cells:
-        table.add_row(*(escape(_text(v)) for v in row))
+    texts = [[_cell(column, v) for column, v in zip(chosen, row, strict=True)] for row in cells]
+    for index, column in enumerate(chosen):
+        header = HEADERS.get(column, column)
+        if column in NUMBER_COLUMNS or column.endswith("_ci95"):
+            # A number is never cut ('1.…'): its column is as wide as its widest cell.
+            width = max([len(header), *(len(row[index]) for row in texts)])
+            table.add_column(header, justify="right", no_wrap=True, min_width=width)
+        else:
+            table.add_column(header, overflow="fold")
+    for row in texts:
+        table.add_row(*(escape(text) for text in row))
     console.print(table)
 
 

@@ -354,16 +354,17 @@ def _work_line(work: dict[str, int]) -> str:
             f"(reused {work['points_reused']}), calibrations {work['calibrations']}")
 
 
-def saturated_runs(rows: list[Any]) -> list[tuple[Any, list[Any]]]:
+def same_render_runs(rows: list[Any]) -> list[tuple[Any, list[Any]]]:
     """The rows with, for each, the following rows of its series it stands for: those
-    whose v1 mask is saturated (allows all pixels, or none) like it, so that they render
-    one configuration whatever their eps. Other rows stand for themselves."""
+    with its render key (jobs.sweeps.sweep.SweepRow.render_key: the same method,
+    parameters, v1 masks and caches), which render the same images whatever their eps.
+    Other rows, and rows stored without a render key, stand for themselves."""
     shown: list[tuple[Any, list[Any]]] = []
     for row in rows:
         if shown:
             first, alike = shown[-1]
-            if (row.series == first.series and row.mask_pct is not None
-                    and row.mask_pct == first.mask_pct and row.mask_pct in (0.0, 100.0)):
+            if (row.series == first.series and row.render_key is not None
+                    and row.render_key == first.render_key):
                 alike.append(row)
                 continue
         shown.append((row, []))
@@ -371,21 +372,24 @@ def saturated_runs(rows: list[Any]) -> list[tuple[Any, list[Any]]]:
 
 
 def sweep_table(result: SweepResult) -> Group:
-    """The sweep's points (one row per series and eps / N_c), skipped methods, work done.
-    Rows whose v1 mask is saturated like the row before them are shown once, and said so
-    (:func:`saturated_runs`; the JSON keeps every point)."""
+    """The sweep's points (one row per series and eps / N_c / value), skipped methods,
+    work done. Rows that render what the row before them renders are shown once, and said
+    so (:func:`same_render_runs`; the JSON keeps every point). The value column is a
+    parameter sweep's only."""
     table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
-    for key, header in SWEEP_COLUMNS:
+    columns = [(key, header) for key, header in SWEEP_COLUMNS
+               if key != "value" or result.kind == "parameter"]
+    for key, header in columns:
         # The series label is what a reader looks rows up by: never wrapped.
         header = result.parameter or header if key == "value" else header
         table.add_column(header, justify="left" if header == "series" else "right",
                          no_wrap=header == "series")
     metric_cells = {m.field: index for index, m in enumerate(LISTED)}
     collapsed: list[str] = []
-    for row, alike in saturated_runs(result.rows):
+    for row, alike in same_render_runs(result.rows):
         metrics = _metric_cells(row)
         cells = []
-        for key, _ in SWEEP_COLUMNS:
+        for key, _ in columns:
             value = getattr(row, key)
             if key in metric_cells:
                 cells.append(metrics[metric_cells[key]])
@@ -401,8 +405,8 @@ def sweep_table(result: SweepResult) -> Group:
             cells[1] = f"{_fmt(row.eps)}–{_fmt(alike[-1].eps)}"
             collapsed.append(
                 f"{row.series}: eps {_fmt(row.eps)} to {_fmt(alike[-1].eps)} shown as one row: "
-                f"the v1 mask allows {_fmt(row.mask_pct)} % of pixels at each of these "
-                f"{len(alike) + 1} points (saturated), so they render one configuration "
+                f"these {len(alike) + 1} points render the same images (the same parameters, "
+                f"caches and v1 masks, which allow {_fmt(row.mask_pct)} % of pixels) "
                 f"(runs {', '.join(str(r.id) for r in [row, *alike])}; --json lists each)")
         table.add_row(*(escape(cell) for cell in cells))
     lines: list[Any] = [table, *(Text(line) for line in collapsed)]

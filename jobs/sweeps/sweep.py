@@ -55,6 +55,7 @@ rendered twice, so re-running a sweep renders nothing new.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import warnings
 from datetime import UTC, datetime
@@ -115,6 +116,10 @@ class SweepRow(RunResult):
     background_pct: float | None = None
     cache_at_v1_pct: float | None = Field(None, description="% of paths cached at v1")
     mask_pct: float | None = Field(None, description="% of pixels the v1 mask allows")
+    render_key: str | None = Field(
+        None, description="what the point renders whatever its eps (method, parameters, every "
+                          "seed's mask and cache): rows with equal keys render the same images "
+                          "(null: stored before it was recorded)")
     calibration: dict[str, Any] | None = Field(None, description="the equal-time calibration")
     calibration_capped: bool | None = None
     calibration_unstable: bool | None = None
@@ -273,12 +278,26 @@ class _Sweep:
             self._params[(method, nc_v1)] = parse_params(method, values)
         return self._params[(method, nc_v1)]
 
+    def by_content(self, spec: Any) -> dict[str, Any]:
+        """A render spec as point keys address it: the scene by its content (fingerprint),
+        not by the name it was given, so that a file scene named by its path (CLI) and by
+        its stored copy's id (REST) keys the same points."""
+        return {**spec.model_dump(mode="json"), "scene": self.prepared.scene.fingerprint}
+
     def point_key(self, series: str, eps: float, params: Any, extra: Any = None) -> str:
-        return digest("sweep-point", series, self.prepared.scene.fingerprint,
-                      self.base.model_dump(mode="json"), params.model_dump(mode="json"),
-                      self.spec.train_frames, self.spec.v1_spp, float(eps),
-                      self.prepared.reference.key, self.device_key, extra,
-                      self.spec.versions(), length=32)
+        return digest("sweep-point", series, self.by_content(self.base),
+                      params.model_dump(mode="json"), self.spec.train_frames,
+                      self.spec.v1_spp, float(eps), self.prepared.reference.key,
+                      self.device_key, extra, self.spec.versions(), length=32)
+
+    def render_key(self, method: str, params: Any, masks: list[np.ndarray]) -> str:
+        """What a point renders, whatever its eps: the method, its parameters and every
+        seed's v1 mask and cache (points with equal render keys render the same images,
+        frame seeds being common to every eps)."""
+        return digest("sweep-render", method, self.point_key(method, 0.0, params),
+                      [hashlib.sha256(np.packbits(mask).tobytes()).hexdigest() for mask in masks],
+                      [self.snapshot(method, seed).key for seed in range(self.spec.seeds)],
+                      length=32)
 
     def point_job(self, method: str, params: Any) -> RenderJob:
         """The render job of a point: the sweep's base spec with ``method`` and its
@@ -340,7 +359,7 @@ class _Sweep:
         """
         params = points[0].params
         rendered: dict[float, list[SeedRender]] = {point.eps: [] for point in points}
-        masks: dict[float, list[float]] = {point.eps: [] for point in points}
+        masks: dict[float, list[np.ndarray]] = {point.eps: [] for point in points}
         stage = f"{SERIES_LABELS[series]} points"
         total, done = self.spec.seeds * len(points), 0
         for seed in range(self.spec.seeds):
@@ -360,13 +379,15 @@ class _Sweep:
                 seed_render.output.method_stats = {"snapshot": snap.key,
                                                    "mask_fraction": float(mask.mean())}
                 rendered[point.eps].append(seed_render)
-                masks[point.eps].append(float(mask.mean()))
+                masks[point.eps].append(mask)
                 done += 1
                 self.report(stage, done, total)
         run_ids = {}
         for point in points:
             extra = {"sweep": {"series": series, "eps": point.eps,
-                               "mask_fraction": float(np.mean(masks[point.eps])),
+                               "mask_fraction": float(np.mean([m.mean()
+                                                               for m in masks[point.eps]])),
+                               "render_key": self.render_key(method, params, masks[point.eps]),
                                "snapshots": [self.snapshot(method, s).key
                                              for s in range(self.spec.seeds)],
                                **(point.extra or {})}}
@@ -494,7 +515,7 @@ class _Sweep:
     def _stored_or_rendered(self, kind: str, job: RenderJob) -> Any:
         """The stored run of a point ``job`` (keyed by ``kind``, its spec, the device, the
         reference and the versions), rendering and storing it if missing."""
-        key = digest(kind, job.spec.model_dump(mode="json"), self.device_key,
+        key = digest(kind, self.by_content(job.spec), self.device_key,
                      self.prepared.reference.key, job.spec.versions(), length=32)
         run = self.store.find_run_by_idempotency_key(key)
         if run is not None:
@@ -535,6 +556,7 @@ def point_row(series: str, eps: float | None, run: Any) -> SweepRow:
         background_pct=100.0 * background if background is not None else None,
         cache_at_v1_pct=100.0 * v1_fraction(fractions) if fractions else None,
         mask_pct=100.0 * sweep["mask_fraction"] if "mask_fraction" in sweep else None,
+        render_key=sweep.get("render_key"),
         calibration=calibration,
         calibration_capped=calibration.get("capped") if calibration else None,
         calibration_unstable=calibration.get("unstable") if calibration else None,
@@ -634,6 +656,8 @@ def _eps_rows(sweep: _Sweep) -> list[SweepRow]:
             sweep.snapshot(method, seed)
     rows = [point_row(method, eps, run) for method, runs in series.items() if runs
             for eps, run in sorted(runs.items())]
+    if sweep.spec.equal_time:
+        sweep.skipped += unpaired_equal_time(sweep.spec.methods)
     for method, against in equal_time_pairs(sweep.spec.methods) if sweep.spec.equal_time else []:
         if series.get(method) and series.get(against):
             equal_time = sweep.equal_time_series(method, against, series[method], series[against])
@@ -644,6 +668,17 @@ def _eps_rows(sweep: _Sweep) -> list[SweepRow]:
                                          reason=f"needs both the {series_label(method)} and "
                                                 f"the {series_label(against)} series"))
     return rows
+
+
+def unpaired_equal_time(methods: list[str]) -> list[Skipped]:
+    """The equal-time series a sweep over ``methods`` asks for (``equal_time``) but cannot
+    have: a method whose budget method is not swept with it."""
+    paired = dict(equal_time_pairs(methods))
+    return [Skipped(method=method + EQUAL_TIME_SUFFIX,
+                    reason=f"calibrated to the {series_label(against)} series' frame times: "
+                           f"add {against} to the sweep's methods")
+            for method in methods if method not in paired
+            and (against := get_method(method).sweep.equal_time_against)]
 
 
 def _nc_rows(sweep: _Sweep) -> list[SweepRow]:

@@ -422,3 +422,69 @@ def test_a_policy_parameter_sweep_renders_its_rows(tmp_path, mi):
                                                                   ("grid-cache", 10.0)]
     assert all(row.finite for row in result.rows)
     assert result.rows[0].avg_path_length < result.rows[1].avg_path_length
+
+
+# ---- What a point renders, and where a sweep comes from ----------------------------
+
+def test_render_keys_tell_points_apart_by_parameters_masks_and_caches(sweep_env):
+    """Rows of the sweep table merge only on equal render keys (service/tables.py).
+    Planted: saturated masks alike (every pixel) with N_c 1 and 2 at v1 (the equal-time
+    series' calibrated points), which the table's old rule merged, key apart."""
+    from jobs.sweeps.sweep import _Sweep
+
+    settings_, store, result = sweep_env
+    sweep = _Sweep(small_spec(), store, settings_, None, whole=False)
+    full = [np.ones((16, 16), dtype=bool)] * 2
+    one, two = sweep.params("nirc"), sweep.params("nirc", 2)
+    key = sweep.render_key("nirc", one, full)
+    assert key == sweep.render_key("nirc", one, [m.copy() for m in full])
+    assert key != sweep.render_key("nirc", two, full)
+    assert key != sweep.render_key("nrc", sweep.params("nrc"), full)
+    half = [full[0], np.tri(16, dtype=bool)]
+    assert key != sweep.render_key("nirc", one, half)
+    # Every rendered point stores its key, and the stored rows carry it.
+    assert all(row.render_key for row in result.rows)
+
+
+def test_an_equal_time_series_without_its_budget_method_is_listed_as_skipped():
+    from jobs.sweeps.sweep import unpaired_equal_time
+
+    skipped = unpaired_equal_time(["nirc"])
+    assert [s.method for s in skipped] == ["nirc-equal-time"]
+    assert "add nrc to the sweep's methods" in skipped[0].reason
+    assert unpaired_equal_time(["nirc", "nrc"]) == [] and unpaired_equal_time(["nrc"]) == []
+
+
+ROOM_XML = """<scene version="3.0.0">
+  <sensor type="perspective">
+    <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+  </sensor>
+  <shape type="rectangle"><bsdf type="diffuse"/></shape>
+  <emitter type="constant"/>
+</scene>
+"""
+
+
+def test_a_sweep_of_a_scene_file_reuses_its_points_under_the_service_s_name(tmp_path, mi):
+    """The CLI names a scene file by its path, the service by its stored copy's id: the
+    points are keyed by the scene's content, so the second sweep renders nothing (it
+    rendered both points again when keyed by the name)."""
+    from jobs.protocol.scene_store import rest_scene
+
+    (tmp_path / "scenes").mkdir()
+    path = tmp_path / "scenes" / "room.xml"
+    path.write_text(ROOM_XML)
+    settings_ = Settings(data_dir=tmp_path / "data", scene_roots=[tmp_path / "scenes"])
+    store = open_store(settings_)
+    try:
+        spec = _parameter_spec(scene=str(path), resolution=8, reference=ReferenceSpec(spp=16))
+        first = run_sweep(spec, store, settings_)
+        stored_name = rest_scene(str(path), settings_)
+        assert stored_name != str(path)
+        again = run_sweep(spec.model_copy(update={"scene": stored_name}), store, settings_)
+    finally:
+        store.close()
+    assert first.work["points_rendered"] == 2
+    assert again.work["points_rendered"] == 0 and again.work["points_reused"] == 2
+    assert [row.id for row in again.rows] == [row.id for row in first.rows]

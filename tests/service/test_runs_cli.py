@@ -95,9 +95,62 @@ def test_runs_list_filters_sorts_and_chooses_columns(store_dir, capsys):
     assert mrse == sorted(mrse) and len(rows) == 4
     assert {row["params.max_depth"] for row in rows if row["id"] == "3"} == {"4"}
     table = cli("runs", "list", data=data)
-    assert "max_depth=4" in table and "pt-power" in table and "baseline" in table
+    assert "pt (max_depth 4)" in table and "pt-power" in table and "8²" in table
+    more = cli("runs", "list", "--columns", "id,name,changed,seeds", data=data)
+    assert "max_depth=4" in more and "baseline" in more
     wrong = cli_error(capsys, "runs", "list", "--columns", "id,mrsee", data=data)
     assert "unknown column 'mrsee'" in wrong and "params.NAME" in wrong
+
+
+def test_runs_list_fits_120_columns_and_never_cuts_a_number(store_dir, monkeypatch):
+    """A sweep point's long label and an MRSE above 1 ('1.…' at 100 columns before):
+    the default columns fit 120 columns; at 100 the label wraps, no number is cut.
+    Planted: numbers laid out like text are cut at 100 columns."""
+    from rich.console import Console
+    from sqlalchemy.orm.attributes import flag_modified
+
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from jobs.record.models import Run
+    from service import runs_command
+
+    data, _ = store_dir
+    store = open_store(Settings(data_dir=data))
+
+    def set_run(params: dict, metrics: dict) -> None:
+        with store.session(write=True) as session:
+            run = session.get(Run, 3)
+            run.params, run.metrics = params, metrics
+            flag_modified(run, "params")
+            flag_modified(run, "metrics")
+
+    def listed(width: int, *args: str) -> str:
+        console = Console(width=width, record=True, emoji=False)
+        monkeypatch.setattr(runs_command, "console", console)
+        cli("runs", "list", *args, data=data)
+        return console.export_text()
+
+    with store.session() as session:
+        saved = session.get(Run, 3).params, session.get(Run, 3).metrics
+    long = {**saved[0], "rr_mode": "throughput", "rr_depth": 2, "rr_survival": 0.75,
+            "sweep": {"eps": 0.35}}
+    try:
+        set_run(long, {**saved[1], "mrse_mean": 1.2345678})
+        wide = listed(120)
+        assert max(map(len, wide.splitlines())) <= 120
+        assert "1.23" in wide and "…" not in wide
+        rows = json.loads(cli("runs", "list", "--json", data=data))
+        numbers = [f"{row['mrse']:.3g}" for row in rows]
+        numbers += [f"{1e3 * row['seconds_per_frame']:.3g}" for row in rows]
+
+        def whole(text: str) -> bool:   # every number on one line, uncut
+            return "…" not in text and all(number in text for number in numbers)
+
+        assert whole(listed(100)) and whole(listed(60))
+        monkeypatch.setattr(runs_command, "NUMBER_COLUMNS", ())    # numbers laid out as text
+        assert not whole(listed(60))
+    finally:
+        set_run(*saved)
 
 
 def test_runs_show_prints_parameters_provenance_and_reference(store_dir, capsys):
@@ -286,9 +339,11 @@ def test_tables_say_what_ran_and_methods_lists_parameters(store_dir, capsys):
     assert "ncc" in wrong and "nirc's parameters are" in wrong and "termination" in wrong
 
 
-def test_progress_lines_in_any_output_and_saturated_sweep_rows_collapse(store_dir):
+def test_progress_lines_in_any_output_and_sweep_rows_collapse_only_when_they_render_alike(
+        store_dir):
     """Not a terminal (the test runner): renders print plain progress lines. The sweep
-    table shows points whose v1 mask is saturated (100 % of pixels) once, and says so."""
+    table shows points that render the same images (equal render keys) once, and says
+    so; points whose v1 masks are saturated alike but whose N_c differ stay rows."""
     from rich.console import Console
 
     from jobs.record.config import Settings
@@ -300,20 +355,31 @@ def test_progress_lines_in_any_output_and_saturated_sweep_rows_collapse(store_di
     assert "progress: reference" in outputs[0] and "progress: seed 3/3 2/2" in outputs[0]
     assert outputs[0].count("progress: seed 1/3 2/2") == 1      # a finished stage: once
     run = open_store(Settings(data_dir=data)).get_run(1)
-    masks = {0.05: 40.0, 0.1: 80.0, 0.15: 80.0, 0.2: 100.0, 0.5: 100.0, 1.0: 100.0}
-    rows = [point_row("nirc", eps, run).model_copy(update={"mask_pct": pct})
-            for eps, pct in masks.items()]
+    points = {0.05: (40.0, "a", 1), 0.1: (80.0, "b", 1), 0.15: (80.0, "c", 1),
+              0.2: (100.0, "d", 1), 0.5: (100.0, "d", 1), 1.0: (100.0, "d", 1)}
+    equal_time = {0.6: (100.0, "e", 1), 0.8: (100.0, "f", 2), 1.0: (100.0, "g", 4)}
+
+    def rows(series, table):
+        return [point_row(series, eps, run).model_copy(update={
+            "mask_pct": pct, "render_key": key, "nc": nc}) for eps, (pct, key, nc) in table.items()]
+
     work = dict.fromkeys(("reference_rendered", "snapshots_trained", "snapshots_reused",
                           "points_rendered", "points_reused", "calibrations"), 0)
     result = SweepResult(sweep_id=1, key="k", kind="eps", scene="cornell-box",
-                         device_key=run.device_key, rows=rows, skipped=[], work=work)
+                         device_key=run.device_key, rows=rows("nirc", points)
+                         + rows("nirc-equal-time", equal_time), skipped=[], work=work)
     console = Console(width=400, record=True)
     console.print(sweep_table(result))
     text = console.export_text()
     assert "0.2–1" in text and "0.15" in text     # an unsaturated repeat stays a row
-    assert "eps 0.2 to 1 shown as one row: the v1 mask allows 100 % of pixels at each of " \
-           "these 3 points (saturated)" in text
-    assert sum(line.startswith("│ NIRC") for line in text.splitlines()) == 4
+    assert "eps 0.2 to 1 shown as one row: these 3 points render the same images" in text
+    series = [line.split("│")[1].strip() for line in text.splitlines() if line.startswith("│")]
+    assert series.count("NIRC") == 4
+    # Planted (the table's old rule merged saturated masks): N_c 1, 2 and 4 stay apart.
+    assert series.count("NIRC equal time") == 3
+    assert "0.6–1" not in text
+    header = next(line for line in text.splitlines() if "series" in line)
+    assert "value" not in header     # a parameter sweep's column only
 
 
 def test_user_errors_are_one_line_and_text_is_never_markup(tmp_path, capsys):
