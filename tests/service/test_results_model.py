@@ -78,4 +78,5 @@ def test_a_runs_resolved_cache_configuration_is_served(api_and_store):
         run = store.add_run(run_fields(method="nirc", params={"cache": {}}),
                             [{"seed": 0, "metrics": method_stats, "timings": {}}])
         served = http.get(f"/api/v1/runs/{run.id}").json()
-        assert served["caches"] == expected and served["params"] == {"cache": {}}
+        assert served["caches"] == expected and served["params"]["cache"] == {}
+        assert served["params"]["nc"] == [4]    # served resolved: BTH's default N_c
