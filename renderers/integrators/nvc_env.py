@@ -80,10 +80,21 @@ class NVCEnvSettings(Protocol):
     target: str
 
 
+def environment(scene: mi.Scene) -> mi.EmitterPtr:
+    """The scene's environment emitter as a pointer of width 1, gathered from the
+    scene's emitter array (an input of a frozen frame, renderers.frozen). Calling the
+    emitter object itself inside a frozen recording aborted Dr.Jit 1.5's CUDA backend
+    ("jit_var(r0): unknown variable!"; docs/timing.md, "Frozen frames"); through the
+    pointer it is a virtual call of one instance, bit-equal on the CPU."""
+    target = scene.environment()
+    index = next(i for i, e in enumerate(scene.emitters()) if e is target)
+    return dr.gather(mi.EmitterPtr, scene.emitters_dr(), mi.UInt32(index))
+
+
 def is_environment(scene: mi.Scene, emitter: mi.EmitterPtr) -> mi.Bool:
     """Lanes whose ``emitter`` is the scene's environment emitter."""
-    env = mi.EmitterPtr(scene.environment())
-    return dr.reinterpret_array(mi.UInt32, emitter) == dr.reinterpret_array(mi.UInt32, env)
+    return (dr.reinterpret_array(mi.UInt32, emitter)
+            == dr.reinterpret_array(mi.UInt32, environment(scene)))
 
 
 class WithoutEnvironmentNEE(UniformLightSampler):
@@ -164,7 +175,7 @@ class EnvVisibility:
         value in the estimate (g, or h = g / L_env for a radiance cache); 0 where p_env
         or f is 0. ``lights``: the integrator's selector, whose pdf w_L uses."""
         si, scene = vertex.si, vertex.scene
-        ds, env_weight = scene.environment().sample_direction(
+        ds, env_weight = environment(scene).sample_direction(
             si, vertex.sampler.next_2d(active), active)
         active &= ds.pdf > 0
         f, pdf_f = vertex.bsdf.eval_pdf(mi.BSDFContext(), si, si.to_local(ds.d), active)
@@ -273,7 +284,7 @@ class EnvVisibilityRecords(FrozenRecords):
         valid = both(first.is_valid(), second.is_valid())
 
         sampler.seed(shadow_seed, 2 * points)
-        ds, env_weight = scene.environment().sample_direction(si, sampler.next_2d(), valid)
+        ds, env_weight = environment(scene).sample_direction(si, sampler.next_2d(), valid)
         escapes = valid & (ds.pdf > 0) & ~scene.ray_test(si.spawn_ray_to(ds.p), valid)
         if self.target == "visibility":
             records = TrainingRecords(position=si.p, target=[dr.select(escapes, 1.0, 0.0)],
