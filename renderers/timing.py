@@ -18,10 +18,11 @@ Two clocks per stage (docs/timing.md):
   tracing, code generation, host work, launch gaps.
 
 Recording the history is not free (a frozen replay copies every kernel's source
-into it: ~10 % of a small frame), so the two clocks are read in different frames:
-the timed frames are **wall frames** (history off: their wall time is the frame
-time) and, interleaved with them, **kernel frames** (history on: their kernel time
-per stage) (:func:`kernel_frame`). Every frame renders and is accumulated alike.
+into it: ~10 % of a small frame, and the frame after pays for the caches it evicted),
+so the two clocks are read in different frames (:func:`frame_kind`): **wall
+frames** (history off: their wall time is the frame time) and, interleaved with them,
+**kernel frames** (history on: their kernel time per stage); the frame after a kernel
+frame is used by neither. Every frame renders and is accumulated alike.
 
 Every frame is timed as a whole too (``StageTimer.frame``): what runs between
 the stages (Python, building the records) is its part 'other'. Reading the
@@ -49,8 +50,9 @@ PROTOCOL = (
     "reported separately as warmup_s; outputs evaluated and the device synchronised "
     "(dr.eval + dr.sync_thread) before every clock read; wall clock time.perf_counter; "
     "kernel time from Dr.Jit's kernel history, recorded only in kernel frames (every "
-    "other timed frame) and wall time from the wall frames between them (history off; "
-    "the warm-up settles both); harness = wall - kernel time; reading the history is "
+    "4th timed frame from the 2nd) and wall time from the wall frames (history off, "
+    "not right after a kernel frame: half of the frames); the warm-up settles both "
+    "states; harness = wall - kernel time; reading the history is "
     "timed apart and excluded; the frame time and its breakdown are those of the median "
     "wall frame (lower median), the kernel parts those of the median kernel frame"
 )
@@ -85,25 +87,36 @@ def kernel_history(on: bool = True) -> Iterator[None]:
             dr.kernel_history_clear()
 
 
-#: Every how many timed frames one is a kernel frame (history on), by default: every
-#: other frame, so that wall and kernel time have as many frames each.
-KERNEL_EVERY = 2
+#: The kinds of timed frame: timed with the kernel history off (its wall time counts),
+#: with it on (its kernel time counts), and the frame after a kernel frame (history off;
+#: no statistic uses it: the history's copies evicted the caches it would have found
+#: warm, measured +0.06 ms, +17 %, on an 8x8 `pt` frame, docs/timing.md).
+WALL, KERNEL, AFTER_KERNEL = "wall", "kernel", "after-kernel"
+#: Every how many timed frames one is a kernel frame, by default: W K A W W K A W ...
+#: (A: after-kernel), half of the frames wall frames, a quarter kernel frames.
+KERNEL_EVERY = 4
 
 
-def kernel_frame(index: int, every: int = KERNEL_EVERY) -> bool:
-    """Whether timed frame ``index`` is a kernel frame when every ``every``-th frame is
-    (the 2nd, 4th, ... for 2; 1: every frame, the old protocol, which charges recording
-    the history to the frame time; 0: none). Frame 0 is a wall frame unless every frame
-    is a kernel frame, so one timed frame gives a frame time."""
-    return every > 0 and index % every == every - 1
+def frame_kind(index: int, every: int = KERNEL_EVERY) -> str:
+    """The kind of timed frame ``index`` when every ``every``-th frame from the second
+    (1, 1 + every, ...) is a kernel frame: the frame after one is an after-kernel frame
+    unless it is a kernel frame too, the others are wall frames. 1: every frame a kernel
+    frame (the old protocol, whose frame time includes recording the history); 0: none;
+    both only to measure what recording it costs. Frame 0 is a wall frame unless every
+    frame is a kernel frame, and two frames have one of each."""
+    def kernel(at: int) -> bool:
+        return every > 0 and at % every == 1 % every
+
+    if kernel(index):
+        return KERNEL
+    return AFTER_KERNEL if index > 0 and kernel(index - 1) else WALL
 
 
 def history_states(every: int = KERNEL_EVERY) -> tuple[bool, ...]:
     """The kernel-history flags the timed frames run under, on first: the warm-up runs
     its calls under them in turn (the first, which compiles, with the history on where
     any frame has it, for the compile time)."""
-    states = {kernel_frame(index, every) for index in range(max(every, 2))}
-    return tuple(sorted(states, reverse=True))
+    return (True,) if every == 1 else (False,) if every == 0 else (True, False)
 
 
 @dataclass
@@ -199,14 +212,15 @@ class StageTimer:
             self._drain_into(name)
         self.seconds[name] = self.seconds.get(name, 0.0) + elapsed - inner
 
-    def record(self) -> FrameTime:
-        """This frame's times (after :meth:`frame`)."""
+    def record(self, kind: str = "") -> FrameTime:
+        """This frame's times (after :meth:`frame`), of ``kind`` (by default 'kernel' or
+        'wall', as the history was on or off)."""
         kernels = self.kernels
         return FrameTime(
             stages=dict(self.seconds), whole_s=self.frame_s,
             kernel_s=None if kernels is None else {n: k.seconds for n, k in kernels.items()},
             launches=None if kernels is None else {n: k.launches for n, k in kernels.items()},
-            readout_s=self.readout_s)
+            readout_s=self.readout_s, kind=kind)
 
 
 @dataclass
@@ -219,12 +233,13 @@ class FrameTime:
     kernel_s: dict[str, float] | None = None
     launches: dict[str, int] | None = None
     readout_s: float = 0.0       # reading the kernel history: measurement, not the frame
+    #: WALL, KERNEL or AFTER_KERNEL; by default as the kernel history was off or on
+    #: (runs stored before the kinds had the history on in every frame).
+    kind: str = ""
 
-    @property
-    def kind(self) -> str:
-        """'kernel' (timed with the kernel history on: its kernel times count) or 'wall'
-        (history off: its wall time counts)."""
-        return "wall" if self.kernel_s is None else "kernel"
+    def __post_init__(self) -> None:
+        if not self.kind:
+            self.kind = WALL if self.kernel_s is None else KERNEL
 
     @property
     def total_s(self) -> float:
@@ -254,7 +269,7 @@ class FrameTime:
     def from_json(cls, data: dict[str, Any]) -> FrameTime:
         return cls(stages=data["stages"], whole_s=data["whole_s"],
                    kernel_s=data.get("kernel_s"), launches=data.get("launches"),
-                   readout_s=data.get("readout_s", 0.0))
+                   readout_s=data.get("readout_s", 0.0), kind=data.get("kind", ""))
 
 
 #: The columns of the NIRC paper's Table 1 (Sec. 6.2) as stage names, in its order:
@@ -271,14 +286,14 @@ def _ordered(names: set[str]) -> list[str]:
 
 def wall_frames(frames: Sequence[FrameTime]) -> list[FrameTime]:
     """The frames whose wall time counts: the wall frames (kernel history off), or, where
-    there are none, every frame (runs stored before the frames were interleaved, or a
-    measurement of what recording the history costs: every frame a kernel frame)."""
-    return [f for f in frames if f.kind == "wall"] or list(frames)
+    there are none, the kernel frames (runs stored before the frames were interleaved,
+    or a measurement of what recording the history costs: the history in every frame)."""
+    return [f for f in frames if f.kind == WALL] or kernel_frames(frames)
 
 
 def kernel_frames(frames: Sequence[FrameTime]) -> list[FrameTime]:
     """The frames whose kernel time counts: the kernel frames (kernel history on)."""
-    return [f for f in frames if f.kind == "kernel"]
+    return [f for f in frames if f.kind == KERNEL]
 
 
 def median_frame(frames: Sequence[FrameTime],
@@ -305,7 +320,7 @@ def breakdown(frames: Sequence[FrameTime]) -> dict[str, Any]:
     frame = median_frame(wall_frames(frames))
     parts = frame.parts()
     kernels = kernel_frames(frames)
-    if frame.kind == "kernel":   # no wall frames: both clocks of the one frame
+    if frame.kind == KERNEL:   # no wall frames: both clocks of the one frame
         kernels = [frame]
     kernel = median_frame(kernels, _kernel_total).kernel_parts() if kernels else None
     names = _ordered(set(parts) | set(kernel or {}))
@@ -390,8 +405,8 @@ def summarize(frames: Sequence[FrameTime], warmup: Warmup,
     return {
         "protocol": PROTOCOL,
         "frames": len(frames),
-        "frame_kinds": {"wall": sum(f.kind == "wall" for f in frames),
-                        "kernel": len(kernels)},
+        "frame_kinds": {kind: sum(f.kind == kind for f in frames)
+                        for kind in (WALL, KERNEL, AFTER_KERNEL)},
         "frame_mean_s": sum(totals) / len(totals),
         "frame_median_s": frame_time,
         "stages": {name: _stage_summary(walls, kernels, name)

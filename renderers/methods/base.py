@@ -23,12 +23,13 @@ from renderers.frozen import MAX_WARMUP_FRAMES, SETTLED_CALLS, Frozen, freezing
 from renderers.load import LoadMonitor
 from renderers.seeding import derive_seed
 from renderers.timing import (
+    KERNEL,
     KERNEL_EVERY,
     FrameTime,
     StageTimer,
     Warmup,
+    frame_kind,
     history_states,
-    kernel_frame,
     kernel_history,
     summarize,
     synchronize,
@@ -242,10 +243,11 @@ class FrameHooks:
     error against the reference: the convergence curve); ``warmup``: render
     the untimed warm-up frame first (a caller that renders several series
     with one already-compiled integrator warms up once and passes False);
-    ``kernel_every``: every how many timed frames one is a kernel frame, timed with
-    Dr.Jit's kernel history on for the kernel time of every stage, the others wall
-    frames, timed with it off (renderers.timing.kernel_frame): 2 by default; 1 (every
-    frame) and 0 (none) only to measure what recording the history costs.
+    ``kernel_every``: every how many timed frames one is a kernel frame, recording
+    Dr.Jit's kernel history for the kernel time of every stage, between wall frames
+    timed without it (renderers.timing.frame_kind): 4 by default; 1 (every frame) and
+    0 (none) only to measure what recording the history costs; 2 is refused (it leaves
+    no wall frame after the first).
     """
 
     keep_frames: bool = False
@@ -255,8 +257,9 @@ class FrameHooks:
     kernel_every: int = KERNEL_EVERY
 
     def __post_init__(self) -> None:
-        if self.kernel_every < 0:
-            raise ValueError(f"kernel_every must be 0 or more, not {self.kernel_every}")
+        if self.kernel_every < 0 or self.kernel_every == 2:
+            raise ValueError("kernel_every must be 0, 1 or at least 3 (2 leaves no wall "
+                             f"frame after the first), not {self.kernel_every}")
 
 
 class FrozenRender:
@@ -412,8 +415,8 @@ def run_frames(
     ``seed_parts`` identify the render (scene fingerprint, method, params, seed
     index); frame f renders with ``derive_seed(*seed_parts, f)`` and the warm-up
     frame with a seed of its own, so it never correlates with a timed frame.
-    Dr.Jit's kernel history is on in the kernel frames and off in the wall frames
-    between them (``hooks.kernel_every``; renderers.timing), and the machine's load is
+    Dr.Jit's kernel history is on in the kernel frames and off in the others
+    (``hooks.kernel_every``; renderers.timing), and the machine's load is
     measured over the timed frames (renderers.load). A frame function with
     ``recordings()`` (frozen, renderers.frozen) warms up until its recording count has
     settled in both history states (a frozen function records in each), and the counts
@@ -433,12 +436,13 @@ def run_frames(
     timed: list[FrameTime] = []
     with LoadMonitor(host_bound_cpu=host_runs_kernels()) as load:
         for index in range(frames):
-            with kernel_history(kernel_frame(index, hooks.kernel_every)):
+            kind = frame_kind(index, hooks.kernel_every)
+            with kernel_history(kind == KERNEL):
                 timer = StageTimer()
                 with timer.frame():
                     film = render_frame(index, derive_seed(*seed_parts, index), timer)
             film = np.asarray(film)
-            timed.append(timer.record())
+            timed.append(timer.record(kind))
             rgb = film[..., :3].astype(np.float32)
             # Running mean keeps memory constant however many frames run.
             accumulated = (rgb.copy() if accumulated is None
@@ -471,10 +475,11 @@ def _warm_up(render_frame: FrameFn, seed_parts: tuple[Any, ...],
     """The untimed warm-up: one frame, then, for a frozen frame function, calls of its
     ``settle`` (the frozen parts alone, which change no state; else the frame again)
     until its recording count has held over SETTLED_CALLS calls in each kernel-history
-    state of the timed frames (``states``, taken in turn as the timed frames take them:
-    Dr.Jit records a frozen function anew for each), at most MAX_WARMUP_FRAMES per
-    state. So a cache trains in one warm-up frame whether its frames are frozen or not.
-    The compile time is that of the calls with the history on (None without any)."""
+    state of the timed frames (``states``, taken in turn: Dr.Jit records a frozen
+    function anew for each), ending with a call in the last (the history off, as
+    before a wall frame), at most MAX_WARMUP_FRAMES per state. So a cache trains in one
+    warm-up frame whether its frames are frozen or not. The compile time is that of the
+    calls with the history on (None without any)."""
     seconds, frames = 0.0, 0
     compile_s: float | None = 0.0 if any(states) else None
     before, held = -1, 0
@@ -491,6 +496,6 @@ def _warm_up(render_frame: FrameFn, seed_parts: tuple[Any, ...],
             compile_s += sum(k.compile_s for k in timer.kernels.values())
         held = held + 1 if recordings is not None and recordings() == before else 0
         if (recordings is None or frames >= MAX_WARMUP_FRAMES * len(states)
-                or held >= SETTLED_CALLS * len(states)):
+                or (held >= SETTLED_CALLS * len(states) and frames % len(states) == 0)):
             return Warmup(seconds, compile_s, frames)
         before = recordings()

@@ -1,4 +1,4 @@
-"""Wall frames and kernel frames (renderers.timing.kernel_frame): the frame loop times
+"""Wall frames and kernel frames (renderers.timing.frame_kind): the frame loop times
 the frame with Dr.Jit's kernel history off and reads kernel times from interleaved
 frames with it on; the warm-up settles a frozen function's recordings in both states;
 the images do not depend on which frames record the history."""
@@ -11,7 +11,7 @@ import pytest
 import renderers.methods.base as base
 from renderers import timing
 from renderers.methods.base import FrameHooks, run_frames
-from renderers.timing import kernel_frame, kernel_history_enabled
+from renderers.timing import KERNEL, KERNEL_EVERY, frame_kind, kernel_history_enabled
 
 FRAMES = 5
 
@@ -49,9 +49,9 @@ def flag_problems(frame: FlagSeen, output) -> list[str]:
     seen = [on for index, on in frame.calls if index >= 0]
     kinds = [detail["kind"] for detail in output.timings["frames_detail"]]
     problems = []
-    if seen != [kernel_frame(index) for index in range(FRAMES)]:
+    if seen != [frame_kind(index) == KERNEL for index in range(FRAMES)]:
         problems.append(f"flags {seen} are not the schedule's")
-    if kinds != ["kernel" if on else "wall" for on in seen]:
+    if [kind == KERNEL for kind in kinds] != seen:
         problems.append(f"kinds {kinds} do not match the flags {seen}")
     return problems
 
@@ -60,7 +60,7 @@ def test_wall_frames_run_without_the_history_and_kernel_frames_with_it(mi, monke
     frame = FlagSeen()
     output = run(frame)
     assert flag_problems(frame, output) == []
-    assert output.timings["frame_kinds"] == {"wall": 3, "kernel": 2}
+    assert output.timings["frame_kinds"] == {"wall": 3, "kernel": 1, "after-kernel": 1}
     assert output.timings["device_time"]["kernel_median_s"] > 0
     # Planted: a loop that leaves the history on in every frame.
     monkeypatch.setattr(base, "kernel_history", lambda on=True: timing.kernel_history(True))
@@ -97,7 +97,7 @@ def pt_frames(mi):
 def test_the_images_are_those_of_the_history_in_every_frame(pt_frames, monkeypatch):
     """The previous protocol recorded the history in every frame (kernel_every 1): the
     same seeds give bit-identical frames with the frames interleaved."""
-    before, after = pt_frames(1), pt_frames(2)
+    before, after = pt_frames(1), pt_frames(KERNEL_EVERY)
     for a, b in zip(before.frames, after.frames, strict=True):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(before.accumulated, after.accumulated)
@@ -105,4 +105,4 @@ def test_the_images_are_those_of_the_history_in_every_frame(pt_frames, monkeypat
     derive = base.derive_seed
     monkeypatch.setattr(base, "derive_seed", lambda *parts: derive(*parts) + (
         kernel_history_enabled() and isinstance(parts[-1], int) and parts[-1] >= 0))
-    assert not np.array_equal(pt_frames(2).accumulated, before.accumulated)
+    assert not np.array_equal(pt_frames(KERNEL_EVERY).accumulated, before.accumulated)

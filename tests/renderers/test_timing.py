@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from renderers.timing import FrameTime, Warmup, breakdown, pooled, summarize
+from renderers.timing import AFTER_KERNEL, FrameTime, Warmup, breakdown, pooled, summarize
 
 
 def frame(stages: dict[str, float], whole: float, kernel: dict[str, float] | None = None):
@@ -35,9 +35,10 @@ def wall(stages: dict[str, float], whole: float):
 
 def test_wall_statistics_come_from_wall_frames_and_kernel_statistics_from_kernel_frames():
     """Interleaved frames: the frame time, stages and breakdown from the frames timed
-    without the kernel history, the kernel parts from the median kernel frame. The kernel
-    frames' wall times are made larger (the history's cost) and their number odd, so
-    that a statistic over the wrong frames (or over all) gives another value."""
+    without the kernel history, the kernel parts from the median kernel frame, and the
+    frames after a kernel frame in neither. The kernel and after-kernel frames' wall
+    times are made larger (the history's cost), so that a statistic over the wrong frames
+    (or over all) gives another value."""
     walls = [wall({"training": 0.2, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
                   0.34),
              wall({"training": 0.3, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
@@ -53,7 +54,10 @@ def test_wall_statistics_come_from_wall_frames_and_kernel_statistics_from_kernel
                frame({"training": 0.7, "render": 0.3, "training_paths": 0.05, "denoise": 0.1},
                      1.2, {"training": 0.1, "render": 0.15, "training_paths": 0.01,
                            "denoise": 0.01, "other": 0.0})]
-    frames = [walls[0], kernels[0], walls[1], kernels[1], walls[2], kernels[2]]
+    after = [FrameTime(stages={"training": 0.9, "render": 0.5}, whole_s=1.5,
+                       kind=AFTER_KERNEL)] * 3
+    frames = [walls[0], kernels[0], after[0], walls[1], kernels[1], after[1], walls[2],
+              kernels[2], after[2]]
     result = breakdown(frames)
     parts = result["parts_s"]
     assert list(parts) == ["render", "training_paths", "training", "denoise", "other"]
@@ -67,7 +71,8 @@ def test_wall_statistics_come_from_wall_frames_and_kernel_statistics_from_kernel
     assert result["harness_parts_s"]["training"] == pytest.approx(0.3 - 0.1)
     assert result["inference_in_render"] is True
     summary = summarize(frames, Warmup())
-    assert summary["frames"] == 6 and summary["frame_kinds"] == {"wall": 3, "kernel": 3}
+    assert summary["frames"] == 9
+    assert summary["frame_kinds"] == {"wall": 3, "kernel": 3, "after-kernel": 3}
     assert summary["frame_median_s"] == pytest.approx(0.43)
     assert summary["frame_mean_s"] == pytest.approx((0.33 + 0.43 + 0.44) / 3)
     device = summary["device_time"]
@@ -79,7 +84,8 @@ def test_wall_statistics_come_from_wall_frames_and_kernel_statistics_from_kernel
     assert training["kernel_median_s"] == pytest.approx(0.15)
     assert training["harness_median_s"] == pytest.approx(0.05)
     assert training["launches_median"] == 2
-    assert [d["kind"] for d in summary["frames_detail"]] == ["wall", "kernel"] * 3
+    assert [d["kind"] for d in summary["frames_detail"]] == ["wall", "kernel",
+                                                             "after-kernel"] * 3
 
 
 def test_without_wall_frames_both_clocks_come_from_every_frame():
@@ -91,7 +97,7 @@ def test_without_wall_frames_both_clocks_come_from_every_frame():
     stored = [{k: v for k, v in f.to_json().items() if k != "kind"} for f in frames]
     run = pooled([{"frames_detail": stored, "warmup_s": 1.0}])
     assert run["frame_median_s"] == pytest.approx(0.2)
-    assert run["frame_kinds"] == {"wall": 0, "kernel": 3}
+    assert run["frame_kinds"] == {"wall": 0, "kernel": 3, "after-kernel": 0}
     assert run["breakdown"]["frame_kernel_s"] == pytest.approx(0.08)   # the same frame's
     only_wall = summarize([wall({"render": 0.1}, 0.12)], Warmup())
     assert only_wall["device_time"] is None and "kernel_parts_s" not in only_wall["breakdown"]
@@ -145,9 +151,9 @@ def test_kernel_time_is_captured_and_bounded_by_wall_time(mi, pt_render):
     out = pt_render(4)
     assert dr.flag(dr.JitFlag.KernelHistory) == before   # the loop restores the flag
     timed = [FrameTime.from_json(detail) for detail in out.timings["frames_detail"]]
-    assert [f.kind for f in timed] == ["wall", "kernel"] * 2
+    assert [f.kind for f in timed] == ["wall", "kernel", "after-kernel", "wall"]
     for frame_time in timed:
-        if frame_time.kind == "wall":
+        if frame_time.kind != "kernel":
             assert frame_time.kernel_s is None and frame_time.readout_s == 0
             continue
         kernel = frame_time.kernel_parts()
