@@ -41,7 +41,7 @@ from service.api.deps import ReadAccess
 from service.api.failures import add_failure_handlers
 from service.api.headers import SecurityHeaders
 from service.api.limits import BodySizeLimit, bounded_json_body
-from service.api.routes import auth, charts, ci, jobs, pixels, results, scenes
+from service.api.routes import auth, charts, ci, images, jobs, pixels, results, scenes
 from service.api.unprocessable import validation_failed
 from service.config import ServiceSettings
 
@@ -119,6 +119,7 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.include_router(ci.router, dependencies=guards)
     app.include_router(charts.router, dependencies=guards)
     app.include_router(pixels.router, dependencies=guards)
+    app.include_router(images.router, dependencies=guards)
     app.include_router(auth.router, dependencies=[Depends(bounded_json_body)])
     app.include_router(scenes.router)
     _write_operations_need_the_header(app)
