@@ -1,37 +1,37 @@
-"""Which runs may share a chart, and the colour of each method configuration.
+"""Which runs may share a chart, and which curve of it each run lies on.
 
-Two runs are drawn on one error-vs-time plot, one Pareto front or one history chart
-only when they measured the same thing: the same resolution, spp and frames, the
+Two runs are drawn on one error-vs-time chart, one Pareto front or one history chart
+only when they measured the same thing: the same scene, resolution and frames, the
 same protocol (online training in the frame loop, or a frozen cache of a sweep point),
 the same device (times compare on one device only), the same metric version and
 both current (or both computed by older estimator versions). :func:`group_of` gives
 that key; :func:`split_groups` cuts a list of runs by it.
 
-Colours: a method configuration (its label, e.g. ``nirc (biased, bth, N_c 4)``) gets
-one colour of a fixed palette picked by a stable hash of the label, so it has the same
-colour on every page and every chart (:func:`colour_of`).
+What a method trades time for error with is no reason to split: spp, NIRC's N_c, the
+termination policy's parameters and a sweep point's eps are each a position on the
+method's curve, and the front is taken over all of them. So within a group every run
+lies on the curve of :func:`curve_label` (its run label, jobs/protocol/labels.py, with
+those knobs left out), ordered along it by :func:`knob_order`. The paper's PT (``pt``
+at its defaults) and the strongest PT's candidates (``pt``, ``pt-power`` and
+``pt-spatial`` with ``rr_mode throughput``, docs/pareto.md) are curves of the chart
+like any other. Colours: jobs/protocol/chart_styles.py.
 """
 
 from __future__ import annotations
 
-import hashlib
+import json
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-#: Tableau 20: ten hues, each dark and light.
-PALETTE = ("#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1",
-           "#ff9da7", "#9c755f", "#bab0ac", "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728",
-           "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
+from jobs.protocol.labels import run_label
+from renderers.methods import EQUAL_TIME_SUFFIX
 
 ONLINE = "online training"
 FROZEN = "frozen cache"
-
-
-def colour_of(label: str) -> str:
-    """The palette colour of a configuration label, the same in every process."""
-    index = int.from_bytes(hashlib.sha256(label.encode()).digest()[:4], "big") % len(PALETTE)
-    return PALETTE[index]
+#: The values of a run label that are equal-time knobs: a position on a method's curve,
+#: not a series (spp is a run's field and in no label).
+KNOB_PARAMS = ("nc", "termination_params", "eps")
 
 
 def protocol_of(params: Mapping[str, Any] | None) -> str:
@@ -44,9 +44,9 @@ def protocol_of(params: Mapping[str, Any] | None) -> str:
 class Group:
     """What runs on one chart have in common."""
 
+    scene: str
     width: int
     height: int
-    spp: int
     frames: int
     protocol: str
     device: str
@@ -56,7 +56,7 @@ class Group:
     @property
     def title(self) -> str:
         versions = f"metrics v{self.metric_version}" + ("" if self.current else ", old versions")
-        return (f"{self.width}×{self.height}, {self.spp} spp, {self.frames} "
+        return (f"{self.scene}, {self.width}×{self.height}, {self.frames} "
                 f"frame{'s' if self.frames != 1 else ''}, {self.protocol}, {self.device}, "
                 f"{versions}")
 
@@ -64,7 +64,7 @@ class Group:
 def group_of(run: Mapping[str, Any]) -> Group:
     """The group of a run as the REST API lists it (jobs.protocol.results.RunResult)."""
     width, height = run["resolution"]
-    return Group(width, height, run["spp"], run["frames"], protocol_of(run["params"]),
+    return Group(run["scene"], width, height, run["frames"], protocol_of(run["params"]),
                  run["device_key"], run["metric_version"], bool(run["current"]))
 
 
@@ -77,8 +77,32 @@ def split_groups(runs: Iterable[Mapping[str, Any]]) -> dict[Group, list[Mapping[
                                                           item[0])))
 
 
+def _old(run: Mapping[str, Any], label: str) -> str:
+    return label if run.get("current", True) else f"{label} [estimator v{run['estimator_version']}]"
+
+
 def config_label(run: Mapping[str, Any]) -> str:
     """A run's method configuration: its method label, with its estimator version when
     that is not today's."""
-    label = run.get("method_label") or run["method"]
-    return label if run.get("current", True) else f"{label} [estimator v{run['estimator_version']}]"
+    return _old(run, run.get("method_label") or run["method"])
+
+
+def curve_label(run: Mapping[str, Any]) -> str:
+    """The curve a run lies on: its run label without the equal-time knobs (module
+    docstring); a sweep's equal-time series, whose N_c is calibrated per point, is a
+    curve of its own."""
+    params = run.get("params") or {}
+    label = run_label(run["method"], params, leave_out=KNOB_PARAMS)
+    if str((params.get("sweep") or {}).get("series", "")).endswith(EQUAL_TIME_SUFFIX):
+        label += " equal time"
+    return _old(run, label)
+
+
+def knob_order(run: Mapping[str, Any]) -> tuple[Any, ...]:
+    """Where a run lies along its curve: by spp, N_c, eps, then the termination
+    parameters (as text) and the run's id."""
+    params = run.get("params") or {}
+    nc = params.get("nc")
+    return (run["spp"], list(nc) if isinstance(nc, list | tuple) else [nc or 0],
+            (params.get("sweep") or {}).get("eps") or 0.0,
+            json.dumps(params.get("termination_params"), sort_keys=True), run["id"])

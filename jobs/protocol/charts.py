@@ -4,8 +4,9 @@ The dashboard renders them with vega-embed (served by the app, no CDN); the same
 dicts render to PNG files with vl-convert (:func:`chart_png`, e.g. ``render --out``'s
 convergence.png), so a page and a file agree.
 
-Every chart follows the same rules: one colour per method configuration, the same on
-every page (jobs.protocol.chart_groups.colour_of, given as an explicit scale); legends
+Every chart follows the same rules: one hue per method family, the same on every page,
+shades and dashes for a family's configurations, every series its own colour
+(jobs/protocol/chart_styles.py, given as explicit scales); the Pareto front black; legends
 beside or below the plot, never over it; axis titles with units; a log axis where the
 values are positive and span more than a decade; wheel zoom and drag pan; a tooltip
 with the run's parameters, and a click on a point opens its run (``href``). Values of
@@ -25,7 +26,8 @@ from typing import Any
 import altair as alt
 import vl_convert
 
-from jobs.protocol.chart_groups import Group, colour_of, config_label
+from jobs.protocol.chart_groups import Group, config_label, curve_label, knob_order
+from jobs.protocol.chart_styles import FRONT_COLOUR, series_styles
 from jobs.protocol.front import pareto_front
 
 WIDTH, HEIGHT = 520, 300
@@ -43,9 +45,19 @@ def params_text(params: Mapping[str, Any] | None) -> str:
                      if key not in ("spec", "scene_overrides", "calibration"))
 
 
-def colour_scale(labels: Sequence[str]) -> alt.Scale:
-    domain = sorted(set(labels))
-    return alt.Scale(domain=domain, range=[colour_of(label) for label in domain])
+def style_scales(series: Sequence[tuple[str, str]]) -> tuple[alt.Scale, alt.Scale]:
+    """Explicit colour and dash scales of series labels from their (family, label) pairs
+    (jobs/protocol/chart_styles.py); a chart gives both to one field, so one legend
+    shows both."""
+    styles = series_styles(series)
+    domain = sorted(styles)
+    return (alt.Scale(domain=domain, range=[styles[d].colour for d in domain]),
+            alt.Scale(domain=domain, range=[styles[d].vega_dash for d in domain]))
+
+
+def family_of(row: Mapping[str, Any], label: str) -> str:
+    """A row's method family: its method, or the label itself where it names none."""
+    return str(row.get("method") or label)
 
 
 def _spans_decades(values: Sequence[float]) -> bool:
@@ -90,32 +102,34 @@ def _title(text: str, notes: Sequence[str]) -> alt.Title:
 
 def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                      metric: Mapping[str, Any]) -> dict[str, Any] | None:
-    """Error against milliseconds per frame of one group's runs, each run a point with its
-    stored interval, the group's Pareto front dashed. None when no run has the metric."""
+    """Error against milliseconds per frame of one group's runs: each run a point with
+    its stored interval, each method's curve through its runs in knob order (spp, N_c,
+    eps; jobs.protocol.chart_groups), the group's Pareto front in black. None when no
+    run has the metric."""
     field, ci_field = metric["field"], metric.get("ci_field")
     usable = [r for r in runs if r.get(field) is not None and r.get("seconds_per_frame")]
     if not usable:
         return None
     log = metric["log_axis"]
-    drawn = [r for r in usable if r[field] > 0 or not log]
+    drawn = sorted((r for r in usable if r[field] > 0 or not log), key=knob_order)
     points = [{"run": r["id"], "ms": 1e3 * r["seconds_per_frame"], "value": r[field],
+               "curve": curve_label(r), "family": r["method"], "order": i,
                "config": config_label(r), "params": params_text(r["params"]),
                "spp": r["spp"], "frames": r["frames"], "seeds": r["seeds"],
                "device": r["device_key"], "href": run_link(r["id"]),
                "lo": (r.get(ci_field) or [None, None])[0] if ci_field else None,
                "hi": (r.get(ci_field) or [None, None])[1] if ci_field else None}
-              for r in drawn]
+              for i, r in enumerate(drawn)]
     on_front = pareto_front([p["ms"] for p in points], [p["value"] for p in points])
     front = sorted((p for p, on in zip(points, on_front, strict=True) if on),
                    key=lambda p: p["ms"])
-    y_title = axis_title(metric)
     x = alt.X("ms:Q", title="milliseconds per frame (online training included)",
               scale=value_scale([p["ms"] for p in points], True))
     y_scale = value_scale([p["value"] for p in points], log)
-    y = alt.Y("value:Q", title=y_title, scale=y_scale)
-    colour = alt.Color("config:N", scale=colour_scale([p["config"] for p in points]),
-                       legend=LEGEND)
-    tooltip = [alt.Tooltip("config:N", title="method"), alt.Tooltip("run:Q", title="run"),
+    y = alt.Y("value:Q", title=axis_title(metric), scale=y_scale)
+    colours, dashes = style_scales([(p["family"], p["curve"]) for p in points])
+    tooltip = [alt.Tooltip("curve:N", title="series"),
+               alt.Tooltip("config:N", title="configuration"), alt.Tooltip("run:Q", title="run"),
                alt.Tooltip("value:Q", title=metric["label"], format=".4g"),
                alt.Tooltip("lo:Q", title="95 % interval from", format=".4g"),
                alt.Tooltip("hi:Q", title="95 % interval to", format=".4g"),
@@ -124,24 +138,33 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                alt.Tooltip("params:N", title="parameters")]
     data = alt.Data(values=points)
     zoom = alt.selection_interval(bind="scales")
+    curves = alt.Chart(data).mark_line().encode(
+        x=x, y=y, color=alt.Color("curve:N", scale=colours, legend=LEGEND),
+        strokeDash=alt.StrokeDash("curve:N", scale=dashes, legend=LEGEND), order="order:Q")
     dots = alt.Chart(data).mark_point(filled=True, size=70).encode(
-        x=x, y=y, color=colour, tooltip=tooltip, href="href:N").add_params(zoom)
+        x=x, y=y, color=alt.Color("curve:N", scale=colours, legend=None),
+        tooltip=tooltip, href="href:N").add_params(zoom)
     bars = alt.Chart(data).transform_filter("datum.lo != null && datum.lo > 0").mark_rule().encode(
-        x="ms:Q", y=alt.Y("lo:Q", scale=y_scale), y2="hi:Q", color=colour)
+        x="ms:Q", y=alt.Y("lo:Q", scale=y_scale), y2="hi:Q",
+        color=alt.Color("curve:N", scale=colours, legend=None))
     line = alt.Chart(alt.Data(values=front)).mark_line(
-        strokeDash=[5, 3], color="#222", point=False).encode(x="ms:Q", y=alt.Y("value:Q", scale=y_scale))
+        interpolate="step-after", color=FRONT_COLOUR, strokeWidth=2.5, opacity=0.85,
+        point=alt.OverlayMarkDef(shape="circle", size=160, filled=False, color=FRONT_COLOUR),
+    ).encode(x="ms:Q", y=alt.Y("value:Q", scale=y_scale))
     title = _title(f"{metric['label']} vs time — {group.title}",
-                   ["dashed: Pareto front of this group", *_not_drawn(len(usable) - len(drawn))])
-    layers = [line] if len(front) > 1 else []
+                   ["black: Pareto front of this chart (spp, N_c, eps are points on a curve)",
+                    *_not_drawn(len(usable) - len(drawn))])
+    layers = [curves, line] if front else [curves]
     layers += [bars] if any(p["lo"] for p in points) else []
     return _finish(alt.layer(*layers, dots).properties(width=WIDTH, height=HEIGHT, title=title))
 
 
-def history_chart(metric: Mapping[str, Any], setting: str,
+def history_chart(metric: Mapping[str, Any], setting: str, method: str,
                   series: Sequence[tuple[str, Sequence[Mapping[str, Any]]]]
                   ) -> dict[str, Any] | None:
-    """A metric over commits of one setting: one line per method configuration
-    (label, points of GET /api/v1/ci/history), its stored intervals as bars; red rules
+    """A metric over commits of one setting: one line per configuration of ``method``
+    (label, points of GET /api/v1/ci/history; shades and dashes of the method's hue),
+    its stored intervals as bars; red rules
     at detected steps, grey dashed ones at version changes (never compared across).
     None when no commit has a value."""
     log = metric["log_axis"]
@@ -161,6 +184,7 @@ def history_chart(metric: Mapping[str, Any], setting: str,
             ci = p.get("ci") or [None, None]
             rows.append({"commit": commit, "time": p["time"], "value": p["median"],
                          "lo": ci[0], "hi": ci[1], "n": p["n"], "config": label,
+                         "family": method,
                          "runs": ", ".join(map(str, p["runs"])),
                          "href": run_link(p["runs"][-1])})
     if not rows:
@@ -170,12 +194,13 @@ def history_chart(metric: Mapping[str, Any], setting: str,
     x = alt.X("commit:N", sort=commits, title="commit, oldest to newest",
               axis=alt.Axis(labelAngle=-45))
     y_scale = value_scale([r["value"] for r in rows], log)
-    colour = alt.Color("config:N", scale=colour_scale([r["config"] for r in rows]),
-                       legend=LEGEND)
+    colours, dashes = style_scales([(r["family"], r["config"]) for r in rows])
     data = alt.Data(values=rows)
     zoom = alt.selection_interval(bind="scales", encodings=["y"])
     line = alt.Chart(data).mark_line(point=alt.OverlayMarkDef(filled=True, size=50)).encode(
-        x=x, y=alt.Y("value:Q", title=axis_title(metric), scale=y_scale), color=colour,
+        x=x, y=alt.Y("value:Q", title=axis_title(metric), scale=y_scale),
+        color=alt.Color("config:N", scale=colours, legend=LEGEND),
+        strokeDash=alt.StrokeDash("config:N", scale=dashes, legend=LEGEND),
         tooltip=[alt.Tooltip("config:N", title="method"), "commit:N",
                  alt.Tooltip("value:Q", title=f"median {metric['label']}", format=".4g"),
                  alt.Tooltip("lo:Q", title="interval from", format=".4g"),
@@ -183,7 +208,8 @@ def history_chart(metric: Mapping[str, Any], setting: str,
                  alt.Tooltip("n:Q", title="values"), alt.Tooltip("runs:N", title="runs")],
         href="href:N").add_params(zoom)
     bars = alt.Chart(data).transform_filter("datum.lo != null && datum.lo > 0").mark_rule().encode(
-        x=x, y=alt.Y("lo:Q", scale=y_scale), y2="hi:Q", color=colour)
+        x=x, y=alt.Y("lo:Q", scale=y_scale), y2="hi:Q",
+        color=alt.Color("config:N", scale=colours, legend=None))
     rules = alt.Chart(alt.Data(values=marks)).mark_rule(strokeWidth=1.5, strokeDash=[4, 3]).encode(
         x=x, color=alt.Color("colour:N", scale=None), tooltip=["what:N", "commit:N"])
     title = _title(f"{metric['label']} over commits — {setting} ({metric['direction']} is better)",
@@ -225,23 +251,23 @@ def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
 def sweep_chart(sweep_id: int, rows: Sequence[Mapping[str, Any]],
                 metric: Mapping[str, Any]) -> dict[str, Any] | None:
     """A sweep's metric against the share of indirect-radiance bounces, one line per
-    series (the 'equal time' series dashed), each point linked to its run."""
+    series (a method's 'equal time' series a darker, dashed shade of its hue), each point
+    linked to its run."""
     field, log = metric["field"], metric["log_axis"]
     usable = [r for r in rows if r.get(field) is not None]
     drawn = [r for r in usable if r[field] > 0 or not log]
     if not drawn:
         return None
     values = [{"pct": r["ir_bounces_pct"], "value": r[field], "config": r["series"],
-               "eps": r.get("eps"), "equal_time": "equal time" in r["series"],
-               "run": r.get("id"), "href": run_link(r["id"]) if r.get("id") else None}
+               "family": family_of(r, r["series"]), "eps": r.get("eps"), "run": r.get("id"), "href": run_link(r["id"]) if r.get("id") else None}
               for r in drawn]
+    colours, dashes = style_scales([(v["family"], v["config"]) for v in values])
     chart = alt.Chart(alt.Data(values=values)).mark_line(point=True).encode(
         x=alt.X("pct:Q", title="indirect-radiance bounces (%)"),
         y=alt.Y("value:Q", title=axis_title(metric),
                 scale=value_scale([v["value"] for v in values], log)),
-        color=alt.Color("config:N", scale=colour_scale([v["config"] for v in values]),
-                        legend=LEGEND),
-        strokeDash=alt.StrokeDash("equal_time:N", legend=None),
+        color=alt.Color("config:N", scale=colours, legend=LEGEND),
+        strokeDash=alt.StrokeDash("config:N", scale=dashes, legend=LEGEND),
         tooltip=[alt.Tooltip("config:N", title="series"), alt.Tooltip("eps:Q", title="eps"),
                  alt.Tooltip("pct:Q", title="% IR bounces", format=".3g"),
                  alt.Tooltip("value:Q", title=metric["label"], format=".4g"),

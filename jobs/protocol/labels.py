@@ -18,6 +18,7 @@ and ``nc [4]`` of a BTH run are one configuration and one label.
 from __future__ import annotations
 
 import json
+from collections.abc import Collection
 from functools import lru_cache
 from typing import Any
 
@@ -93,9 +94,11 @@ def defining_values(method: str, params: dict[str, Any]) -> dict[str, Any]:
     return {**values, "eps": eps} if eps is not None else values
 
 
-def run_label(method: str, params: dict[str, Any]) -> str:
-    """The run's label (module docstring): 'method (values that define it)'."""
-    values = defining_values(method, params)
+def run_label(method: str, params: dict[str, Any], leave_out: Collection[str] = ()) -> str:
+    """The run's label (module docstring): 'method (values that define it)', less the
+    values named in ``leave_out`` (a chart's curve leaves out its knobs)."""
+    values = {name: value for name, value in defining_values(method, params).items()
+              if name not in leave_out}
     ordered = [name for name in SHOWN if name in values]
     ordered += [name for name in values if name not in SHOWN]
     parts = [SHOWN.get(name, f"{name} {{}}").format(_compact(values[name])) for name in ordered]

@@ -12,6 +12,11 @@ paper):
 * ``plot_pareto`` is error against seconds per frame (``nirc-bench pareto``),
   log-log, one series per method, the Pareto front highlighted.
 
+Colours and dashes are the charts' (jobs/protocol/chart_styles.py): one hue per
+method family (a row's or point's ``method``), shades and dashes for its
+configurations, the Pareto front black. Every panel has both axis labels, and the
+left margin is widened until the y label and tick labels fit (:func:`fit_margins`).
+
 Plotting is headless: figures are ``matplotlib.figure.Figure`` objects drawn by
 the Agg canvas, never registered with pyplot, so no display is needed, no global
 figure state accumulates and a figure is freed once it goes out of scope. PNGs
@@ -23,22 +28,17 @@ import math
 import os
 import tempfile
 from collections.abc import Iterable
-from itertools import cycle
 from pathlib import Path
 from typing import Any
 
-import matplotlib
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 
+from jobs.protocol.chart_styles import FRONT_COLOUR, SeriesStyle, series_styles
 from metrics.registry import LISTED
 
 DPI = 110
-
-# Method colours of the paper's figures; other series take the default colour cycle.
-_PAPER_COLOURS = {"NIRC": "tab:red", "NIRC equal time": "tab:brown", "NRC": "tab:blue"}
 
 # Sweep panels (Figure 13) from the registry: row key, axis label, log y axis, CI row key.
 _SWEEP_PANELS = tuple(
@@ -65,7 +65,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str,
     log_x = (not figure_13 and bool(xs_all) and all(x is not None and x > 0 for x in xs_all)
              and max(xs_all) > 10 * min(xs_all))  # type: ignore[type-var, operator]
     series = list(dict.fromkeys(str(row["series"]) for row in rows))
-    colours = _series_colours(series)
+    styles = _styles((row.get("method"), str(row["series"])) for row in rows)
     nrows = math.ceil(len(_SWEEP_PANELS) / 2)
     figure, axes = _new_figure(nrows, 2, title, figsize=(9.0, 3.5 * nrows))
     for ax in axes[len(_SWEEP_PANELS):]:  # an odd panel count leaves one cell empty
@@ -79,14 +79,16 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str,
             xs, ys, below, missing = _plottable(pairs, log=log)
             hidden, dropped = hidden + below, dropped + missing
             if xs:
-                # Dashed with open markers: an equal-time series often coincides
-                # with its base series (same N_c), which must stay visible.
-                dashed = "equal time" in name
-                ax.plot(xs, ys, "s--" if dashed else "o-", color=colours[name], label=name,
-                        markersize=6 if dashed else 4, fillstyle="none" if dashed else "full")
+                # Open markers: an equal-time series often coincides with its base
+                # series (same N_c), which must stay visible.
+                open_marker = "equal time" in name
+                ax.plot(xs, ys, "s" if open_marker else "o", color=styles[name].colour,
+                        linestyle=_linestyle(styles[name]), label=name,
+                        markersize=6 if open_marker else 4,
+                        fillstyle="none" if open_marker else "full")
                 plotted = True
             if ci_key:
-                _draw_ci(ax, members, key, ci_key, colours[name], x_key)
+                _draw_ci(ax, members, key, ci_key, styles[name].colour, x_key)
         ax.set_title(label)
         ax.set_xlabel("% indirect-radiance bounces" if figure_13 else str(x_label or x_key))
         ax.set_ylabel(label)
@@ -115,13 +117,14 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
     """Plot MRSE over frames (NIRC paper, Figure 10) to a PNG at ``path``.
 
     ``curves[label]`` holds ``frame`` (frame indices), ``frame_mrse`` (MRSE of
-    each single frame) and optionally ``accumulated_mrse`` (MRSE of the running
-    mean up to that frame), lists of equal length. Per-frame error is drawn
-    solid, accumulated error dashed, in one colour per label; missing, non-finite
+    each single frame), optionally ``accumulated_mrse`` (MRSE of the running
+    mean up to that frame), lists of equal length, and optionally ``method`` (its
+    family's hue). Per-frame error is drawn solid, accumulated error dashed, in one
+    colour per label; missing, non-finite
     and non-positive values are left out (the y axis is logarithmic) and counted in a
     note.
     """
-    colours = _series_colours(list(curves))
+    styles = _styles((curve.get("method"), label) for label, curve in curves.items())
     figure, (ax,) = _new_figure(1, 1, title, figsize=(7.0, 4.5))
     plotted, hidden, dropped = False, 0, 0
     for label, curve in curves.items():
@@ -135,10 +138,10 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
                                                 log=True)
             hidden, dropped = hidden + below, dropped + missing
             if xs:
-                ax.plot(xs, ys, style, color=colours[label], label=f"{label} ({kind})")
+                ax.plot(xs, ys, style, color=styles[label].colour, label=f"{label} ({kind})")
                 plotted = True
     ax.set_xlabel("frame")
-    ax.set_ylabel("MRSE")
+    ax.set_ylabel("MRSE (relative, unitless)")
     ax.set_yscale("log")
     ax.grid(True, which="major", alpha=0.3)
     if plotted:
@@ -153,13 +156,13 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
 
     Each point (a jobs.pareto.pareto.ParetoPoint's ``model_dump``) has ``series``,
     ``seconds_per_frame``, ``seconds_spread`` = [min, max] (drawn as a horizontal
-    bar), ``key`` and ``front_<key>``. One line per series, through its points in
-    the given (knob) order; the front is a black step line with ringed points. Points
-    without a finite value and those <= 0 (off the log axes) are left out and counted in
-    a note.
+    bar), ``key``, ``front_<key>`` and ``loaded``. One line per series, through its
+    points in the given (knob) order; the front is a black step line with ringed points;
+    a point timed on a loaded machine is crossed in red. Points without a finite value and
+    those <= 0 (off the log axes) are left out and counted in a note.
     """
     series = list(dict.fromkeys(str(p["series"]) for p in points))
-    colours = _series_colours(series)
+    styles = _styles((p.get("method"), str(p["series"])) for p in points)
     figure, (ax,) = _new_figure(1, 1, title, figsize=(7.5, 5.0))
     plotted, hidden, dropped = False, 0, 0
     for name in series:
@@ -171,7 +174,8 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
         if not drawn:
             continue
         xs = [p["seconds_per_frame"] for p in drawn]
-        ax.errorbar(xs, [p[key] for p in drawn], fmt="o-", color=colours[name], label=name,
+        ax.errorbar(xs, [p[key] for p in drawn], fmt="o", color=styles[name].colour,
+                    linestyle=_linestyle(styles[name]), label=name,
                     markersize=5, capsize=2,
                     xerr=[[x - p["seconds_spread"][0] for x, p in zip(xs, drawn, strict=True)],
                           [p["seconds_spread"][1] - x for x, p in zip(xs, drawn, strict=True)]])
@@ -179,10 +183,15 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
     front = sorted((p["seconds_per_frame"], p[key]) for p in points
                    if p.get(f"front_{key}") and _positive(p.get(key)))
     if front:
-        ax.step([x for x, _ in front], [y for _, y in front], where="post", color="black",
-                linewidth=1.0, alpha=0.6, zorder=1)
+        ax.step([x for x, _ in front], [y for _, y in front], where="post",
+                color=FRONT_COLOUR, linewidth=1.5, zorder=1)
         ax.plot([x for x, _ in front], [y for _, y in front], "o", markersize=11,
-                fillstyle="none", color="black", label="Pareto front")
+                fillstyle="none", color=FRONT_COLOUR, label="Pareto front")
+    loaded = [(p["seconds_per_frame"], p[key]) for p in points
+              if p.get("loaded") and _positive(p.get(key)) and _positive(p["seconds_per_frame"])]
+    if loaded:
+        ax.plot([x for x, _ in loaded], [y for _, y in loaded], "x", markersize=10,
+                color="red", zorder=3, label="timed on a loaded machine")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("seconds per frame (online training included)")
@@ -257,12 +266,14 @@ def _draw_ci(ax: Axes, rows: list[dict[str, Any]], key: str, ci_key: str, colour
         ax.errorbar(xs, ys, yerr=[below, above], fmt="none", ecolor=colour, capsize=3, alpha=0.7)
 
 
-def _series_colours(names: list[str]) -> dict[str, str]:
-    """Paper colours for known methods, the default cycle (minus those) for the rest."""
-    palette = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
-    reserved = {to_hex(colour) for colour in _PAPER_COLOURS.values()}
-    others = cycle([colour for colour in palette if to_hex(colour) not in reserved] or palette)
-    return {name: _PAPER_COLOURS.get(name) or next(others) for name in names}
+def _styles(series: Iterable[tuple[str | None, str]]) -> dict[str, SeriesStyle]:
+    """The chart styles (jobs/protocol/chart_styles.py) of (method or None, label) pairs;
+    a label without a method is a family of its own."""
+    return series_styles((method or label, label) for method, label in series)
+
+
+def _linestyle(style: SeriesStyle) -> str | tuple[int, tuple[int, ...]]:
+    return (0, style.dash) if style.dash else "-"
 
 
 def _new_figure(
@@ -299,8 +310,20 @@ def _annotate(ax: Axes, plotted: bool, hidden: int, dropped: int) -> None:
         )
 
 
+def fit_margins(figure: Figure, pad_px: float = 4.0) -> None:
+    """Widen the left margin until every panel's y label and tick labels lie inside the
+    figure (wide log tick labels such as 4x10^-1 push a fixed margin's label out)."""
+    renderer = figure.canvas.get_renderer()
+    left = min((ax.get_tightbbox(renderer).x0 for ax in figure.axes), default=pad_px)
+    if left < pad_px:
+        shift = (pad_px - left) / figure.bbox.width
+        figure.subplots_adjust(left=figure.subplotpars.left + shift)
+
+
 def _save_png(figure: Figure, path: Path) -> Path:
-    """Write ``figure`` as a PNG to ``path`` atomically (temp file, then ``os.replace``)."""
+    """Write ``figure`` as a PNG to ``path`` atomically (temp file, then ``os.replace``),
+    its margins fitted first (:func:`fit_margins`)."""
+    fit_margins(figure)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

@@ -570,7 +570,7 @@ def _convergence_curves(sweep: _Sweep) -> dict[str, dict[str, Any]]:
         snaps = [snap for (m, _), snap in sorted(sweep.snapshots.items()) if m == method]
         if not snaps:
             continue
-        entry: dict[str, Any] = {}
+        entry: dict[str, Any] = {"method": method}
         for name in ("frame_mrse", "accumulated_mrse"):
             values = np.array([[np.nan if v is None else v for v in s.stats["convergence"][name]]
                                for s in snaps], dtype=float)

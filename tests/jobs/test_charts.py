@@ -1,66 +1,150 @@
-"""Chart specs (jobs/protocol/charts.py) and which runs share a chart
-(jobs/protocol/chart_groups.py): groups never mix settings, protocols or devices, a
-configuration has one colour everywhere, axes and legends follow the rules."""
+"""Chart specs (jobs/protocol/charts.py), which runs share a chart
+(jobs/protocol/chart_groups.py) and their colours (jobs/protocol/chart_styles.py):
+groups never mix settings, protocols or devices but hold every knob value of a method
+as one curve, families have distinct hues, axes and legends follow the rules."""
 
 from __future__ import annotations
 
 import json
 
-from jobs.protocol.chart_groups import (
-    FROZEN,
-    ONLINE,
-    PALETTE,
-    colour_of,
-    group_of,
-    split_groups,
-)
-from jobs.protocol.charts import convergence_chart, error_time_chart, history_chart
+import pytest
+
+from jobs.protocol import chart_styles
+from jobs.protocol.chart_groups import FROZEN, ONLINE, curve_label, group_of, split_groups
+from jobs.protocol.chart_styles import FAMILY_COLOURS, FRONT_COLOUR, series_styles
+from jobs.protocol.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
 from metrics.registry import BY_NAME
+from renderers.methods import METHODS
 
 
 def run(run_id: int, **changes) -> dict:
     """A run as GET /api/v1/results lists it (the fields the charts read)."""
-    return {"id": run_id, "method": "pt", "method_label": "pt", "params": {"rr_survival": 0.9},
-            "resolution": [32, 32], "spp": 1, "frames": 4, "seeds": 3, "device_key": "cpu",
-            "metric_version": 2, "estimator_version": 1, "current": True, "mrse": 0.1,
-            "mrse_ci95": [0.08, 0.12], "flip": 0.3, "seconds_per_frame": 0.01, **changes}
+    return {"id": run_id, "scene": "cornell-box", "method": "pt", "method_label": "pt",
+            "params": {"rr_survival": 0.9}, "resolution": [32, 32], "spp": 1, "frames": 4,
+            "seeds": 3, "device_key": "cpu", "metric_version": 2, "estimator_version": 1,
+            "current": True, "mrse": 0.1, "mrse_ci95": [0.08, 0.12], "flip": 0.3,
+            "seconds_per_frame": 0.01, **changes}
 
 
-def test_groups_split_every_setting_protocol_device_and_version():
+def layer(spec: dict, mark: str, field: str | None = None) -> dict:
+    """The layer of ``spec`` drawn with ``mark`` (whose x field is ``field`` if given)."""
+    return next(lay for lay in spec["layer"] if lay["mark"]["type"] == mark
+                and (field is None or lay["encoding"]["y"].get("field") == field))
+
+
+def chart_colours(spec: dict) -> dict[str, str]:
+    """Each series of a chart and its colour, from the spec's explicit scale."""
+    encoding = (spec.get("encoding") or layer(spec, "line")["encoding"])["color"]
+    return dict(zip(encoding["scale"]["domain"], encoding["scale"]["range"], strict=True))
+
+
+def assert_distinct_colours(colours: dict[str, str], families: dict[str, str]) -> None:
+    """Every series its own colour, and two families never one hue (the family's first
+    series carries its hue)."""
+    assert len(set(colours.values())) == len(colours), colours
+    hues = {families[label]: colour for label, colour in colours.items()
+            if label == families[label] or colour in FAMILY_COLOURS.values()}
+    assert len(set(hues.values())) == len(hues), hues
+
+
+def test_groups_split_what_makes_runs_incomparable_but_not_spp_or_knobs():
     runs = [run(1), run(2, method_label="nirc (biased)"), run(3, resolution=[16, 16]),
             run(4, spp=2), run(5, frames=1), run(6, params={"sweep": {"eps": 0.5}}),
-            run(7, device_key="gpu"), run(8, metric_version=1), run(9, current=False)]
+            run(7, device_key="gpu"), run(8, metric_version=1), run(9, current=False),
+            run(10, scene="door"), run(11, method="nirc", params={"nc": [16]}, spp=1)]
     groups = split_groups(runs)
     assert len(groups) == 8
-    assert [r["id"] for r in groups[group_of(runs[0])]] == [1, 2]   # two methods, one group
+    # Two methods, two spp and two N_c: one group (spp and N_c are points on a curve).
+    assert [r["id"] for r in groups[group_of(runs[0])]] == [1, 2, 4, 11]
     assert group_of(runs[5]).protocol == FROZEN and group_of(runs[0]).protocol == ONLINE
     assert "16×16" in group_of(runs[2]).title and "frozen cache" in group_of(runs[5]).title
+    assert "spp" not in group_of(runs[0]).title
 
 
-def test_a_configuration_has_one_colour_on_every_chart():
-    assert colour_of("nirc (biased, bth, N_c 4)") == colour_of("nirc (biased, bth, N_c 4)")
-    assert colour_of("pt") in PALETTE
-    runs = [run(1), run(2, method_label="nirc (biased)", seconds_per_frame=0.02, mrse=0.05)]
-    spec = error_time_chart(group_of(runs[0]), runs, BY_NAME["mrse"].to_json())
-    scale = next(layer for layer in spec["layer"] if layer["mark"]["type"] == "point") \
-        ["encoding"]["color"]["scale"]
-    assert dict(zip(scale["domain"], scale["range"], strict=True)) == \
-        {"pt": colour_of("pt"), "nirc (biased)": colour_of("nirc (biased)")}
+def test_a_method_is_one_curve_over_its_knobs_and_configurations_are_curves_of_their_own():
+    nirc = [run(i, method="nirc", params={"nc": [nc]}) for i, nc in enumerate((1, 4, 16))]
+    assert {curve_label(r) for r in nirc} == {"nirc"}
+    assert curve_label(run(5, method="nirc", params={"nc": [3, 1, 1],
+                                                     "estimator": "unbiased"})) == \
+        "nirc (unbiased)"
+    eps = [run(i, method="nirc", params={"sweep": {"series": "nirc", "eps": e}})
+           for i, e in enumerate((0.1, 0.5))]
+    assert {curve_label(r) for r in eps} == {"nirc"}
+    equal_time = run(7, method="nirc", params={"nc": [8], "sweep": {
+        "series": "nirc-equal-time", "eps": 0.5}})
+    assert curve_label(equal_time) == "nirc equal time"
+    # The paper's PT and PT with throughput roulette are two curves.
+    assert curve_label(run(8, params={})) == "pt"
+    assert curve_label(run(9, params={"rr_mode": "throughput"})) == "pt (rr_mode throughput)"
+
+
+def test_pareto_chart_draws_each_curve_over_spp_with_a_black_front():
+    runs = [run(i, spp=spp, seconds_per_frame=0.01 * spp, mrse=0.4 / spp, params={})
+            for i, spp in enumerate((1, 2, 4, 8, 16), start=1)]
+    runs += [run(10 + i, spp=spp, seconds_per_frame=0.006 * spp, mrse=0.5 / spp,
+                 params={"rr_mode": "throughput"}) for i, spp in enumerate((1, 4, 16))]
+    runs += [run(20 + i, method="nirc", params={"nc": [nc]}, seconds_per_frame=0.02 + 0.001 * nc,
+                 mrse=0.05 + 0.1 / nc) for i, nc in enumerate((1, 4, 16))]
+    (group, members), = split_groups(runs).items()
+    spec = error_time_chart(group, members, BY_NAME["mrse"].to_json())
+    curves = layer(spec, "line", "value")
+    points = curves["data"]["values"]
+    assert curves["encoding"]["order"]["field"] == "order"
+    pt = sorted((p for p in points if p["curve"] == "pt"), key=lambda p: p["order"])
+    assert [p["spp"] for p in pt] == [1, 2, 4, 8, 16]
+    assert set(chart_colours(spec)) == {"pt", "pt (rr_mode throughput)", "nirc"}
+    assert_distinct_colours(chart_colours(spec), {"pt": "pt", "pt (rr_mode throughput)": "pt",
+                                                  "nirc": "nirc"})
+    front = next(lay for lay in spec["layer"] if lay["mark"].get("color") == FRONT_COLOUR)
+    assert front["mark"]["interpolate"] == "step-after"
+    assert FRONT_COLOUR not in chart_colours(spec).values()
+    assert {p["run"] for p in front["data"]["values"]} >= {10, 20}   # cheapest, nirc N_c 1
+
+
+def test_every_registered_method_has_its_own_hue_none_black_or_grey():
+    assert set(FAMILY_COLOURS) == set(METHODS)
+    assert len(set(FAMILY_COLOURS.values())) == len(FAMILY_COLOURS)
+    for hue in FAMILY_COLOURS.values():
+        red, green, blue = (int(hue[i:i + 2], 16) for i in (1, 3, 5))
+        assert max(red, green, blue) - min(red, green, blue) > 24, hue   # not grey
+
+
+def test_colours_are_distinct_within_a_chart_and_a_shared_hue_is_caught(monkeypatch):
+    families = {"NIRC": "nirc", "NIRC equal time": "nirc", "NRC": "nrc", "other": "other"}
+    rows = [{"series": s, "method": m if m != "other" else None, "ir_bounces_pct": pct,
+             "mrse": 0.1, "flip": 0.2, "eps": 0.5, "id": 1}
+            for s, m in families.items() for pct in (10.0, 50.0)]
+    families["other"] = "other"
+    spec = sweep_chart(1, rows, BY_NAME["mrse"].to_json())
+    colours = chart_colours(spec)
+    assert_distinct_colours(colours, families)
+    assert colours["NIRC"] == FAMILY_COLOURS["nirc"] and colours["NRC"] == FAMILY_COLOURS["nrc"]
+    # N_c 8 and N_c 16 of one method: two shades, two dashes.
+    styles = series_styles([("nirc", "nirc (N_c 8)"), ("nirc", "nirc (N_c 16)")])
+    assert styles["nirc (N_c 8)"] != styles["nirc (N_c 16)"]
+    assert styles["nirc (N_c 8)"].colour != styles["nirc (N_c 16)"].colour
+    # Planted: NIRC and NRC mapped to one colour (as a hashed palette did) is rejected.
+    monkeypatch.setitem(chart_styles.FAMILY_COLOURS, "nrc", FAMILY_COLOURS["nirc"])
+    with pytest.raises(AssertionError):
+        assert_distinct_colours(chart_colours(sweep_chart(1, rows, BY_NAME["mrse"].to_json())),
+                                families)
 
 
 def test_error_time_chart_has_units_links_tooltips_a_front_and_no_schema_url():
-    runs = [run(1), run(2, method_label="nirc", seconds_per_frame=0.02, mrse=0.05),
-            run(3, method_label="nrc", seconds_per_frame=0.03, mrse=0.2)]
+    runs = [run(1), run(2, method="nirc", method_label="nirc", seconds_per_frame=0.02,
+                        mrse=0.05),
+            run(3, method="nrc", method_label="nrc", seconds_per_frame=0.03, mrse=0.2)]
     spec = error_time_chart(group_of(runs[0]), runs, BY_NAME["mrse"].to_json())
     text = json.dumps(spec)
     assert "http" not in text                                  # no $schema URL
-    points = next(layer for layer in spec["layer"] if layer["mark"]["type"] == "point")
+    points = layer(spec, "point")
     assert points["encoding"]["href"]["field"] == "href"
-    assert points["encoding"]["color"]["legend"]["orient"] == "bottom"
-    assert {t["field"] for t in points["encoding"]["tooltip"]} >= {"config", "run", "params"}
+    assert layer(spec, "line", "value")["encoding"]["color"]["legend"]["orient"] == "bottom"
+    assert {t["field"] for t in points["encoding"]["tooltip"]} >= {"curve", "config", "run",
+                                                                   "params"}
     assert points["encoding"]["x"]["title"].startswith("milliseconds per frame")
     assert "MRSE" in points["encoding"]["y"]["title"]
-    front = next(layer for layer in spec["layer"] if layer["mark"]["type"] == "line")
+    front = next(lay for lay in spec["layer"] if lay["mark"].get("color") == FRONT_COLOUR)
     assert [p["run"] for p in front["data"]["values"]] == [1, 2]   # nrc is dominated
     assert spec["params"][0]["bind"] == "scales"                 # wheel zoom, drag pan
 
@@ -70,11 +154,11 @@ def test_log_axis_only_where_values_span_decades_and_nonpositive_values_are_coun
     history = [("pt", [{"commit": f"c{i}", "time": f"2025-01-0{i + 1}", "median": m,
                         "ci": None, "n": 4, "runs": [i + 1]}
                        for i, m in enumerate([1e-4, 1e-2, -1e-5])])]
-    spec = history_chart(rbias, "32×32, 1 spp, 4 frames", history)
+    spec = history_chart(rbias, "32×32, 1 spp, 4 frames", "pt", history)
     line = spec["layer"][-1]
     assert line["encoding"]["y"]["scale"]["type"] == "log"
     assert "1 value ≤ 0 (below the noise floor)" in " ".join(spec["title"]["subtitle"])
-    flat = history_chart(rbias, "s", [("pt", history[0][1][:1])])
+    flat = history_chart(rbias, "s", "pt", [("pt", history[0][1][:1])])
     assert flat["layer"][-1]["encoding"]["y"]["scale"] == {"zero": True}
 
 

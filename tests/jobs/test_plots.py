@@ -10,7 +10,8 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from jobs.protocol import plots
-from jobs.protocol.plots import plot_convergence, plot_sweep
+from jobs.protocol.chart_styles import FAMILY_COLOURS, FRONT_COLOUR
+from jobs.protocol.plots import plot_convergence, plot_pareto, plot_sweep
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -57,14 +58,24 @@ def figures(monkeypatch: pytest.MonkeyPatch) -> list[Figure]:
     return saved
 
 
+def assert_y_label_inside(figure: Figure, text: str) -> None:
+    """Every panel's y label says ``text`` and lies inside the saved figure."""
+    renderer = figure.canvas.get_renderer()
+    for ax in figure.axes:
+        assert text in ax.get_ylabel()
+        extent = ax.yaxis.label.get_window_extent(renderer)
+        assert extent.x0 >= 0 and extent.x1 <= figure.bbox.width, (extent, figure.bbox)
+
+
 def panel_texts(figure: Figure) -> list[str]:
     return [text.get_text() for ax in figure.axes for text in ax.texts]
 
 
 def test_sweep_writes_png(tmp_path: Path, figures: list[Figure]) -> None:
+    methods = {"NIRC": "nirc", "NRC": "nrc", "NIRC equal time": "nirc", "ours": None}
     rows = [
-        sweep_row(series, pct)
-        for series in ("NIRC", "NRC", "NIRC equal time", "ours")
+        sweep_row(series, pct, method=method)
+        for series, method in methods.items()
         for pct in (80.0, 0.0, 40.0)
     ]
     path = tmp_path / "nested" / "dir" / "sweep.png"
@@ -77,14 +88,16 @@ def test_sweep_writes_png(tmp_path: Path, figures: list[Figure]) -> None:
     mrse, flip, rbias2, rvar = figure.axes
     assert [ax.get_yscale() for ax in (mrse, flip, rbias2, rvar)] == ["log", "linear", "log", "log"]
     assert mrse.get_xlabel() == "% indirect-radiance bounces"
-    lines = {line.get_label(): line for line in mrse.get_lines()}
+    assert all(ax.get_ylabel() for ax in figure.axes)
+    lines = {line.get_label(): line for line in mrse.get_lines()
+             if not line.get_label().startswith("_")}
     assert list(lines["NIRC"].get_xdata()) == [0.0, 40.0, 80.0]  # sorted by x
-    assert to_hex(lines["NIRC"].get_color()) == to_hex("tab:red")
-    assert to_hex(lines["NRC"].get_color()) == to_hex("tab:blue")
-    assert to_hex(lines["NIRC equal time"].get_color()) == to_hex("tab:brown")
-    assert to_hex(lines["ours"].get_color()) not in {
-        to_hex(c) for c in ("tab:red", "tab:blue", "tab:brown")
-    }
+    # The families' hues; NIRC's equal-time series a dashed shade of NIRC's.
+    assert to_hex(lines["NIRC"].get_color()) == FAMILY_COLOURS["nirc"]
+    assert to_hex(lines["NRC"].get_color()) == FAMILY_COLOURS["nrc"]
+    assert lines["NIRC equal time"].get_linestyle() == "--"
+    colours = [to_hex(line.get_color()) for line in lines.values()]
+    assert len(set(colours)) == 4 and FRONT_COLOUR not in colours
     assert len(mrse.collections) == 4  # one set of CI error bars per series
     assert panel_texts(figure) == []
     assert len(figure.legends) == 1
@@ -137,11 +150,12 @@ def test_convergence_writes_png(tmp_path: Path, figures: list[Figure]) -> None:
     frames = list(range(1, 65))
     curves = {
         "NIRC": {
+            "method": "nirc",
             "frame": frames,
             "frame_mrse": [0.05 for _ in frames],
             "accumulated_mrse": [0.05 / f for f in frames],
         },
-        "NRC": {"frame": frames, "frame_mrse": [0.08 for _ in frames]},
+        "NRC": {"method": "nrc", "frame": frames, "frame_mrse": [0.08 for _ in frames]},
     }
     path = tmp_path / "out" / "convergence.png"
     assert plot_convergence(curves, path, "Error over frames") == path
@@ -155,10 +169,11 @@ def test_convergence_writes_png(tmp_path: Path, figures: list[Figure]) -> None:
         for line in ax.get_lines()
     }
     assert styles == {
-        "NIRC (per frame)": ("-", to_hex("tab:red")),
-        "NIRC (accumulated)": ("--", to_hex("tab:red")),
-        "NRC (per frame)": ("-", to_hex("tab:blue")),
+        "NIRC (per frame)": ("-", FAMILY_COLOURS["nirc"]),
+        "NIRC (accumulated)": ("--", FAMILY_COLOURS["nirc"]),
+        "NRC (per frame)": ("-", FAMILY_COLOURS["nrc"]),
     }
+    assert_y_label_inside(figures[0], "MRSE")
 
 
 def test_convergence_skips_bad_values(tmp_path: Path, figures: list[Figure]) -> None:
@@ -211,3 +226,36 @@ def test_overwrites_existing_plot(tmp_path: Path) -> None:
     plot_convergence({"x": {"frame": [1, 2], "frame_mrse": [0.1, 0.05]}}, path, "again")
     assert_png(path)
     assert [p.name for p in tmp_path.iterdir()] == ["c.png"]
+
+
+def pareto_point(series: str, method: str, seconds: float, mrse: float, front: bool) -> dict:
+    return {"series": series, "method": method, "seconds_per_frame": seconds,
+            "seconds_spread": [0.9 * seconds, 1.1 * seconds], "mrse": mrse,
+            "front_mrse": front}
+
+
+def test_pareto_has_a_y_label_a_black_front_and_one_hue_per_family(
+        tmp_path: Path, figures: list[Figure], monkeypatch: pytest.MonkeyPatch) -> None:
+    # Values inside one decade: matplotlib labels minor ticks (4x10^-1), wide enough to
+    # push a fixed margin's y label out of the figure.
+    points = [pareto_point("paper's PT", "pt", 0.01, 0.5, False),
+              pareto_point("paper's PT", "pt", 0.02, 0.25, False),
+              pareto_point("PT (throughput RR)", "pt", 0.008, 0.45, True),
+              pareto_point("PT (throughput RR)", "pt", 0.016, 0.22, True),
+              pareto_point("NIRC", "nirc", 0.015, 0.2, True),
+              pareto_point("grid-cache", "grid-cache", 0.03, 0.3, False)]
+    assert_png(plot_pareto(points, "mrse", "MRSE", tmp_path / "p.png", "pareto"))
+    (ax,) = figures[0].axes
+    assert_y_label_inside(figures[0], "MRSE")
+    legend = {label: to_hex((handle[0] if isinstance(handle, tuple) else handle).get_color())
+              for handle, label in zip(*ax.get_legend_handles_labels(), strict=True)}
+    assert legend.pop("Pareto front") == FRONT_COLOUR
+    series = legend
+    assert len(set(series.values())) == 4 and FRONT_COLOUR not in series.values()
+    assert series["NIRC"] == FAMILY_COLOURS["nirc"]
+    assert FAMILY_COLOURS["pt"] in {series["paper's PT"], series["PT (throughput RR)"]}
+    # Planted: the fixed margins without fitting leave the y label outside the figure.
+    monkeypatch.setattr(plots, "fit_margins", lambda figure: None)
+    assert_png(plot_pareto(points, "mrse", "MRSE", tmp_path / "q.png", "pareto"))
+    with pytest.raises(AssertionError):
+        assert_y_label_inside(figures[1], "MRSE")

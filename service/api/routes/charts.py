@@ -29,8 +29,9 @@ def _listed() -> list[dict[str, Any]]:
 
 @router.get("/scene")
 def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dict[str, Any]:
-    """Error-vs-time charts of a scene's runs: per group of comparable runs (resolution,
-    spp, frames, protocol, device, versions) one chart per error, with its Pareto front."""
+    """Error-vs-time charts of a scene's runs: per group of comparable runs (scene,
+    resolution, frames, protocol, device, versions) one chart per error, each method's
+    curve over its knobs (spp, N_c, eps) in it, with the group's Pareto front."""
     versions = {} if include_old else {"current": current_estimator_versions(),
                                        "metric_version": METRIC_VERSION}
     runs = [RunResult.of(run).model_dump(mode="json")
@@ -65,7 +66,7 @@ def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]
                 settings.setdefault(setting, []).append(
                     (series["label"], series["points"]))
         charts = [{"setting": setting, "spec": spec} for setting, series in settings.items()
-                  if (spec := history_chart(metric.to_json(), setting, series))]
+                  if (spec := history_chart(metric.to_json(), setting, method, series))]
         answer.append({"metric": metric.name, "label": metric.label, "charts": charts,
                        "steps": [{**point, "setting": setting, "config": label}
                                  for setting, series in settings.items()
