@@ -9,7 +9,12 @@ import { comparisonView } from "./compare.js";
 class NeedsKey extends Error {}
 const api = (path) => fetch(`/api/v1${path}`).then((r) => {
   if (r.status === 401 || r.status === 403) throw new NeedsKey(r.status === 403 ? "that key is invalid or revoked" : "");
-  if (!r.ok) throw new Error(`${path}: ${r.status}`);
+  if (!r.ok) {
+    return r.json().catch(() => ({})).then((body) => {   // the service's message, when it gave one
+      const detail = Array.isArray(body.detail) ? body.detail.map((d) => d.msg).join("; ") : body.detail;
+      throw new Error(`${path}: ${r.status}${detail ? ` — ${detail}` : ""}`);
+    });
+  }
   return r.json();
 });
 const view = () => document.getElementById("view");
@@ -37,16 +42,18 @@ const unitLabel = (m) => (m.unit ? `${m.label} (${m.unit})` : m.label);
 // "within noise (value)" for a noise-corrected estimate whose interval holds 0, "below the
 // noise floor (value)" for a negative one without an interval; the interval is the API's
 // (how it was made in the cell's title; none with fewer than 3 seeds), never recomputed.
-function metricCells(run, m) {
+function metricText(run, m) {
   const value = run[m.field];
-  let text = value === null || value === undefined
-    ? ((run.withheld || []).includes(m.verdict_name) ? "withheld" : "–")
-    : (run.within_noise || []).includes(m.field) ? `within noise (${num(value)})`
-    : (run.below_noise_floor || []).includes(m.field) ? `below the noise floor (${num(value)})` : num(value);
-  text = value === null || value === undefined ? text : runLink(run.id, text);
+  if (value === null || value === undefined) return (run.withheld || []).includes(m.verdict_name) ? "withheld" : "–";
+  return runLink(run.id, (run.within_noise || []).includes(m.field) ? `within noise (${num(value)})`
+    : (run.below_noise_floor || []).includes(m.field) ? `below the noise floor (${num(value)})` : num(value));
+}
+const interval = (ci) => (ci ? `[${num(ci[0])}, ${num(ci[1])}]` : "–");
+function metricCells(run, m) {
+  const text = metricText(run, m);
   const ci = m.ci_field ? run[m.ci_field] : undefined;
-  const interval = m.ci_field ? `<td title="${esc(run[`${m.field}_ci_note`])}">${ci ? runLink(run.id, `[${num(ci[0])}, ${num(ci[1])}]`) : "–"}</td>` : "";
-  return `<td>${text}</td>${interval}`;
+  const ciCell = m.ci_field ? `<td title="${esc(run[`${m.field}_ci_note`])}">${ci ? runLink(run.id, interval(ci)) : "–"}</td>` : "";
+  return `<td>${text}</td>${ciCell}`;
 }
 const metricHeads = (listed) => listed.map((m) => `<th title="${esc(better(m))}">${esc(unitLabel(m))}</th>${m.ci_field ? "<th>95% CI</th>" : ""}`).join("");
 const reasons = (run) => (run.quality.reasons || []).map((r) => `${r.code}: ${r.message}`).join("\n");
@@ -126,9 +133,45 @@ function timingTable(run) {
     ${(run.timing_flags || []).map((f) => `<p class="muted">${esc(f)}</p>`).join("")}`;
 }
 
+// Two runs side by side (GET /api/v1/compare, as `nirc-bench runs compare` shows it): what
+// differs, each run's speed, efficiency 1/(MRSE x time) with its interval, load flags and
+// verdicts; then every listed metric of both runs with its own interval, and the change
+// with its Welch interval and whether it excludes 0.
+function comparisonTables(cmp) {
+  const cols = (cells) => cells.map((c) => `<td>${c}</td>`).join("");
+  const row = (name, cells) => `<tr><td class="text">${esc(name)}</td>${cols(cells)}</tr>`;
+  const byId = new Map(cmp.runs.map((r) => [r.id, r]));
+  const fields = new Map((registry || []).map((m) => [m.name, m]));
+  const st = cmp.standings;
+  const head = `<table class="comparison" id="comparison-runs"><tr><th class="text">setting</th>${cmp.runs.map((r) => `<th>${runLink(r.id, `run ${r.id}`)}</th>`).join("")}</tr>
+    ${row("what ran", cmp.runs.map((r) => esc(label(r))))}
+    ${Object.entries(cmp.differences).map(([name, values]) => row(name, values.map((v) => esc(typeof v === "object" && v !== null ? JSON.stringify(v) : v ?? "–")))).join("")
+      || row("(settings)", cmp.runs.map(() => "the same"))}
+    ${row("ms / frame", st.map((s) => num(s.ms_per_frame)))}
+    ${row("efficiency [1/s] (95% CI)", st.map((s) => (s.efficiency === null ? "–" : `${num(s.efficiency)} ${s.efficiency_ci95 ? interval(s.efficiency_ci95) : ""}`)))}
+    ${row("timing", st.map((s) => (s.timing_flags.length ? `<b>${esc(s.timing_flags.join("; "))}</b>` : "not loaded")))}
+    ${row("quality verdict", st.map((s) => esc(s.verdict ?? "–")))}
+    ${row("rBias²", st.map((s) => esc(`${s.bias_verdict ?? "–"} (${s.rbias2_basis ?? "–"})`)))}</table>`;
+  const deltas = cmp.deltas.map((d) => `<table class="comparison delta"><caption>run ${d.run} against run ${d.baseline}</caption>
+    <tr><th class="text">metric</th><th>run ${d.baseline}</th><th>run ${d.run}</th><th>change</th><th>ratio</th>
+    <th>95% interval of the change</th><th>differs</th><th class="text">note</th></tr>
+    ${d.metrics.map((m) => {
+      const reg = fields.get(m.metric);
+      const value = (id) => { const r = byId.get(id); return reg?.field ? `${metricText(r, reg)} ${reg.ci_field && r[reg.ci_field] ? interval(r[reg.ci_field]) : ""}` : "–"; };
+      return `<tr data-metric="${esc(m.metric)}"><td class="text">${esc(m.label)} (${esc(m.direction)} better)</td><td>${value(d.baseline)}</td><td>${value(d.run)}</td>
+        <td>${num(m.delta)}</td><td>${num(m.ratio)}</td><td>${interval(m.delta_ci95)}</td>
+        <td>${m.differs === null ? "–" : m.differs ? "yes" : "no"}</td><td class="text muted">${esc(m.interval_note)}</td></tr>`;
+    }).join("")}</table>`).join("");
+  return `${head}${deltas}<p class="muted" id="comparison-note">note: ${esc(cmp.note)}</p>`;
+}
+
 async function runPage(runId, otherId) {
   const [run, other, charts] = await Promise.all([api(`/runs/${runId}`), otherId ? api(`/runs/${otherId}`) : null, api(`/charts/runs/${runId}`)]);
   const listed = (await metricRegistry()).filter((m) => m.field);
+  const compared = other ? await api(`/compare?runs=${run.id},${other.id}`).then(comparisonTables, (err) => {
+    if (err instanceof NeedsKey) throw err;
+    return `<p class="status-failed">${esc(err.message)}</p>`;
+  }) : "";
   const params = Object.entries(run.params || {}).map(([k, v]) => `${k}=${typeof v === "object" ? JSON.stringify(v) : v}`).join(", ");
   view().innerHTML = `<h2>Run ${run.id}: ${esc(label(run))}</h2>
     <p><a href="#/scene/${enc(run.scene)}">${esc(run.scene)}</a> — ${esc(setting(run))}, ${run.seeds} seeds — ${esc(run.device_key)}
@@ -138,6 +181,7 @@ async function runPage(runId, otherId) {
     <p>quality verdict: <b class="verdict-${esc(run.verdict ?? "none")}">${esc(run.verdict ?? "not judged")}</b>
     ${(run.quality.reasons || []).map((r) => `<br><span class="muted">${esc(r.code)}: ${esc(r.message)}</span>`).join("")}</p>
     ${resultsTable([run], listed)}
+    ${other ? `<h3>Compared with run ${other.id}</h3>${compared}` : ""}
     <h3>Image comparison</h3>
     <form id="other-run" class="compare-controls">side by side with run <input id="other-id" type="number" min="1" value="${esc(otherId ?? "")}" size="6"> <button type="submit">show</button></form>
     <div id="compare"></div>

@@ -1,9 +1,11 @@
 // The image comparison view of a run (as tev or the FLIP viewer): any two layers (reference,
-// a seed's image or error map, the bias and variance maps; of this run or of a second one)
-// under an A/B split slider (img-comparison-slider, vendored) with a flip button, an exposure
-// for the HDR images, false-colour maps with colour bars, a readout of the true values under
-// the cursor, and one zoom and pan shared by every image (wheel: zoom; drag: pan).
-import { colourBar, fetchLayer, toImageData, valuesAt } from "./pixels.js";
+// a seed's image or error map, the bias and variance maps; of this run or of a second one;
+// an EXR the user uploads, with the error maps against it) under an A/B split slider
+// (img-comparison-slider, vendored) with a flip button, an exposure for the HDR images,
+// false-colour maps with colour bars (maps of one quantity share one range unless
+// "separate colour ranges" is ticked), a readout of the true values under the cursor, and
+// one zoom and pan shared by every image (wheel: zoom; drag: pan).
+import { colourBar, fetchLayer, range, sharedRange, toImageData, valuesAt } from "./pixels.js";
 
 const SIZE = 320;   // CSS pixels of every image view
 
@@ -12,19 +14,36 @@ const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<
 // The per-pixel maps a run stored (runs of 2+ seeds): [layer, artifact kind, label].
 const MAPS = [["bias", "rel_bias_map", "relative bias map"], ["variance", "rel_variance_map", "relative variance map"]];
 
-// The layers one can look at: [key, label, run id, layer, seed].
-function choices(run, other) {
+// The layers one can look at: [key, label, run id, layer, seed, uploaded image id].
+function choices(run, other, uploaded) {
   const of = (r, prefix) => [
     ...r.per_seed.map((s) => [`${r.id}:image:${s.seed}`, `${prefix}image, seed ${s.seed}`, r.id, "image", s.seed]),
     ...r.per_seed.map((s) => [`${r.id}:error:${s.seed}`, `${prefix}error map, seed ${s.seed}`, r.id, "error", s.seed]),
     ...MAPS.filter(([, kind]) => r.artifacts.some((a) => a.kind === kind))
       .map(([layer, , label]) => [`${r.id}:${layer}`, `${prefix}${label}`, r.id, layer, null])];
+  const againstUpload = uploaded ? [["upload", "uploaded image", run.id, "uploaded", null, uploaded],
+    ...run.per_seed.map((s) => [`upload:error:${s.seed}`, `error map against the uploaded image, seed ${s.seed}`,
+      run.id, "error", s.seed, uploaded])] : [];
   return [[`${run.id}:reference`, "reference", run.id, "reference", null], ...of(run, ""),
-    ...(other ? of(other, `run ${other.id}: `) : [])];
+    ...(other ? of(other, `run ${other.id}: `) : []), ...againstUpload];
 }
 
-export async function comparisonView(container, run, other) {
-  const options = choices(run, other);
+// Sends a chosen EXR file to POST /api/v1/images with the typed API key (an upload is a
+// write: the login cookie does not authorize it); answers the stored image's id, or
+// throws the service's message.
+async function uploadImage(run, file, key) {
+  const r = await fetch(`/api/v1/images?run=${run.id}`, { method: "POST", body: file,
+    headers: { "Content-Type": "image/x-exr", "X-API-Key": key } });
+  const body = await r.json().catch(() => ({}));
+  if (!r.ok) {
+    const detail = Array.isArray(body.detail) ? body.detail.map((d) => d.msg).join("; ") : body.detail;
+    throw new Error(`${r.status}: ${detail ?? "upload failed"}`);
+  }
+  return body.id;
+}
+
+export async function comparisonView(container, run, other, uploaded = null) {
+  const options = choices(run, other, uploaded);
   const byKey = new Map(options.map((o) => [o[0], o]));
   const select = (id, chosen) => `<select id="${id}">${options.map(([key, label]) =>
     `<option value="${esc(key)}"${key === chosen ? " selected" : ""}>${esc(label)}</option>`).join("")}</select>`;
@@ -33,7 +52,12 @@ export async function comparisonView(container, run, other) {
       A ${select("layer-a", `${run.id}:reference`)} B ${select("layer-b", `${run.id}:image:${firstSeed}`)}
       <button type="button" id="flip" title="swap A and B">flip A/B</button>
       <label>exposure <input type="range" id="exposure" min="-8" max="8" step="0.5" value="0"> <output id="exposure-value">0 EV</output></label>
-      <button type="button" id="reset-view">reset zoom</button></div>
+      <button type="button" id="reset-view">reset zoom</button>
+      <label title="each error, bias or variance map on its own range instead of one range per quantity"><input type="checkbox" id="separate-ranges"> separate colour ranges</label></div>
+    <form id="upload-form" class="compare-controls">compare with an EXR of this run's size (as a reference):
+      <input type="file" id="upload-file" accept=".exr,image/x-exr" required>
+      API key <input type="password" id="upload-key" autocomplete="current-password" required maxlength="200" size="24">
+      <button type="submit">upload</button> <span id="upload-status" class="muted">${uploaded ? `uploaded image ${esc(uploaded.slice(0, 12))}…` : ""}</span></form>
     <div class="compare-main"><figure><img-comparison-slider id="ab" handle="true" tabindex="0">
       <canvas slot="first" id="canvas-a" width="${SIZE}" height="${SIZE}"></canvas>
       <canvas slot="second" id="canvas-b" width="${SIZE}" height="${SIZE}"></canvas></img-comparison-slider>
@@ -48,17 +72,26 @@ export async function comparisonView(container, run, other) {
 
   async function layer(key) {
     if (!layers.has(key)) {
-      const [, , runId, name, seed] = byKey.get(key);
-      layers.set(key, fetchLayer(runId, name, seed).catch((err) => ({ error: err.message })));
+      const [, , runId, name, seed, against] = byKey.get(key);
+      const pending = fetchLayer(runId, name, seed, against).catch((err) => ({ error: err.message }));
+      layers.set(key, pending);
+      pending.then((data) => { pending.loaded = data; });
     }
     return layers.get(key);
   }
+  // A false-colour layer's range: its own, or (by default) the one it shares with every
+  // loaded layer of its quantity on the page (this run's, the second run's, against the
+  // upload), so that equal colours are equal values.
+  const separate = () => container.querySelector("#separate-ranges").checked;
+  const peers = (data) => [...new Set(shown.map((e) => e.key))].map((key) => layers.get(key)?.loaded)
+    .filter((d) => d && !d.error && d.layer === data.layer);
+  const span = (data) => (data.display === "radiance" ? [0, 1] : separate() ? range(data) : sharedRange(peers(data)));
   function bitmap(key, data) {
-    const id = `${key}@${data.display === "radiance" ? exposure() : 0}`;
+    const id = `${key}@${data.display === "radiance" ? exposure() : span(data).join(",")}`;
     if (!bitmaps.has(id)) {
       const c = document.createElement("canvas");
       c.width = data.width; c.height = data.height;
-      c.getContext("2d").putImageData(toImageData(data, exposure()), 0, 0);
+      c.getContext("2d").putImageData(toImageData(data, exposure(), span(data)), 0, 0);
       bitmaps.set(id, c);
     }
     return bitmaps.get(id);
@@ -78,15 +111,21 @@ export async function comparisonView(container, run, other) {
     const k = view.s / data.width;
     ctx.setTransform(k, 0, 0, k, view.ox, view.oy);
     ctx.drawImage(bitmap(entry.key, data), 0, 0);
-    if (entry.bar && !entry.bar.firstChild && data.display !== "radiance") entry.bar.appendChild(colourBar(data));
+    entry.canvas.dataset.range = data.display === "radiance" ? "" : span(data).join(",");
+    if (entry.bar && data.display !== "radiance") entry.bar.replaceChildren(colourBar(data, span(data), !separate() && peers(data).length > 1));
   }
-  const redraw = () => Promise.all(shown.map(draw));
+  // Every shown layer is loaded before any is drawn: a shared range needs all of them.
+  const redraw = async () => {
+    await Promise.all(shown.map((e) => layer(e.key)));
+    return Promise.all(shown.map(draw));
+  };
 
   // ---- the grid: every layer of the run (and of the second run) side by side ----
   const grid = container.querySelector("#compare-grid");
   const gridKeys = [`${run.id}:reference`, `${run.id}:image:${firstSeed}`, `${run.id}:error:${firstSeed}`,
     `${run.id}:bias`, `${run.id}:variance`,
-    ...(other ? [`${other.id}:image:${other.per_seed[0]?.seed ?? 0}`, `${other.id}:error:${other.per_seed[0]?.seed ?? 0}`] : [])]
+    ...(other ? [`${other.id}:image:${other.per_seed[0]?.seed ?? 0}`, `${other.id}:error:${other.per_seed[0]?.seed ?? 0}`] : []),
+    "upload", `upload:error:${firstSeed}`]
     .filter((key) => byKey.has(key));
   for (const key of gridKeys) {
     const figure = document.createElement("figure");
@@ -101,7 +140,7 @@ export async function comparisonView(container, run, other) {
     a.key = container.querySelector("#layer-a").value;
     b.key = container.querySelector("#layer-b").value;
     container.querySelector("#ab-caption").textContent = `left: A = ${byKey.get(a.key)[1]}; right: B = ${byKey.get(b.key)[1]}`;
-    return Promise.all([draw(a), draw(b)]);
+    return redraw();   // A or B may change a shared range
   };
   container.querySelector("#layer-a").onchange = chooseAB;
   container.querySelector("#layer-b").onchange = chooseAB;
@@ -115,6 +154,21 @@ export async function comparisonView(container, run, other) {
     redraw();
   };
   container.querySelector("#reset-view").onclick = () => { Object.assign(view, { s: SIZE, ox: 0, oy: 0 }); redraw(); };
+  container.querySelector("#separate-ranges").onchange = redraw;
+  container.querySelector("#upload-form").onsubmit = async (ev) => {
+    ev.preventDefault();
+    const status = container.querySelector("#upload-status");
+    status.textContent = "uploading…";
+    try {
+      const id = await uploadImage(run, container.querySelector("#upload-file").files[0],
+        container.querySelector("#upload-key").value.trim());
+      container.dataset.ready = "false";
+      await comparisonView(container, run, other, id);
+    } catch (err) {
+      status.textContent = err.message;
+      status.className = "status-failed";
+    }
+  };
 
   // ---- synchronized zoom and pan: one transform for every canvas ----
   const local = (canvas, ev) => {
@@ -156,7 +210,10 @@ export async function comparisonView(container, run, other) {
     container.querySelector("#readout").innerHTML = `<tr><th class="text">pixel</th><th>(${x}, ${y})</th></tr>${rows.join("")}`;
   }
 
+  if (uploaded) {   // A/B: the uploaded image against the first seed's
+    container.querySelector("#layer-a").value = "upload";
+    container.querySelector("#layer-b").value = `${run.id}:image:${firstSeed}`;
+  }
   await chooseAB();
-  await redraw();
   container.dataset.ready = "true";
 }

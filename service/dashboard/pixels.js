@@ -1,10 +1,11 @@
-// A run's layers as float pixels (GET /api/v1/runs/{id}/pixels/{layer}) and their display:
-// radiance tone-mapped with an exposure (HDR values kept, so the readout is true), error
-// and variance maps in false colour on a log scale, the signed bias map diverging around 0.
+// A run's layers as float pixels (GET /api/v1/runs/{id}/pixels/{layer}; an uploaded image
+// from GET /api/v1/images/{id}) and their display: radiance tone-mapped with an exposure
+// (HDR values kept, so the readout is true), error and variance maps in false colour on a
+// log scale, the signed bias map diverging around 0.
 
 // How each layer is shown: radiance, a positive magnitude, or a signed value.
-export const DISPLAY = { reference: "radiance", image: "radiance", error: "magnitude",
-  variance: "magnitude", bias: "signed" };
+export const DISPLAY = { reference: "radiance", image: "radiance", uploaded: "radiance",
+  error: "magnitude", variance: "magnitude", bias: "signed" };
 
 const VIRIDIS = ["#440154", "#472d7b", "#3b528b", "#2c728e", "#21918c", "#28ae80", "#5ec962",
   "#addc30", "#fde725"];
@@ -21,14 +22,22 @@ function ramp(stops, t) {
   return stops[i].map((c, k) => Math.round(c + w * (stops[i + 1][k] - c)));
 }
 
-export async function fetchLayer(runId, layer, seed) {
-  const query = seed === undefined || seed === null ? "" : `?seed=${encodeURIComponent(seed)}`;
-  const r = await fetch(`/api/v1/runs/${runId}/pixels/${layer}${query}`);
+// A layer's pixels: of run `runId` (its `seed`'s for an image or error map; an error map
+// measured against uploaded image `against` instead of the reference), or the uploaded
+// image `against` itself (layer "uploaded").
+export async function fetchLayer(runId, layer, seed, against) {
+  const query = new URLSearchParams();
+  if (seed !== undefined && seed !== null) query.set("seed", seed);
+  if (against && layer !== "uploaded") query.set("against", against);
+  const q = query.toString();
+  const path = layer === "uploaded" ? `/api/v1/images/${encodeURIComponent(against)}`
+    : `/api/v1/runs/${runId}/pixels/${layer}${q ? `?${q}` : ""}`;
+  const r = await fetch(path);
   if (!r.ok) {
     const body = await r.json().catch(() => ({}));
     throw new Error(typeof body.detail === "string" ? body.detail : `${layer}: HTTP ${r.status}`);
   }
-  return { runId, layer, seed, width: Number(r.headers.get("X-Width")),
+  return { runId, layer, seed, against, width: Number(r.headers.get("X-Width")),
     height: Number(r.headers.get("X-Height")), channels: Number(r.headers.get("X-Channels")),
     quantity: r.headers.get("X-Quantity"), display: DISPLAY[layer],
     data: new Float32Array(await r.arrayBuffer()) };
@@ -45,8 +54,8 @@ function quantile(sorted, q) {
   return sorted.length ? sorted[Math.min(sorted.length - 1, Math.floor(q * sorted.length))] : NaN;
 }
 
-// The colour-bar range of a false-colour layer: its 1st to 99th percentile (log10 for a
-// magnitude), symmetric around 0 for a signed one. Computed once per layer.
+// The colour-bar range of a false-colour layer of its own: its 1st to 99th percentile,
+// symmetric around 0 for a signed one. Computed once per layer.
 export function range(layer) {
   if (layer.range) return layer.range;
   const n = layer.width * layer.height, values = [];
@@ -67,11 +76,19 @@ export function range(layer) {
 
 const srgb = (v) => (v <= 0.0031308 ? 12.92 * v : 1.055 * v ** (1 / 2.4) - 0.055);
 
-// The layer as 8-bit RGBA: radiance x 2^exposure through the sRGB curve, or false colour.
-export function toImageData(layer, exposure) {
+// One range for several false-colour layers of one quantity, so that a colour means one
+// value in all of them: the lowest low and the highest high of their own ranges.
+export function sharedRange(layers) {
+  const spans = layers.map(range);
+  return [Math.min(...spans.map((s) => s[0])), Math.max(...spans.map((s) => s[1]))];
+}
+
+// The layer as 8-bit RGBA: radiance x 2^exposure through the sRGB curve, or false colour
+// over `span` ([low, high]; the layer's own range by default).
+export function toImageData(layer, exposure, span = null) {
   const n = layer.width * layer.height, out = new ImageData(layer.width, layer.height);
   const gain = 2 ** exposure;
-  const [lo, hi] = layer.display === "radiance" ? [0, 1] : range(layer);
+  const [lo, hi] = layer.display === "radiance" ? [0, 1] : span ?? range(layer);
   for (let p = 0; p < n; p++) {
     let rgb;
     if (layer.display === "radiance") {
@@ -95,8 +112,9 @@ export function valuesAt(layer, x, y) {
   return Array.from(layer.data.subarray(p * layer.channels, (p + 1) * layer.channels));
 }
 
-// A colour bar naming the quantity, with its range (log scale for a magnitude).
-export function colourBar(layer) {
+// A colour bar naming the quantity, with its range `span` (log scale for a magnitude) and
+// whether other maps share it.
+export function colourBar(layer, span, shared) {
   const bar = document.createElement("div");
   bar.className = "colour-bar";
   const canvas = document.createElement("canvas");
@@ -108,12 +126,12 @@ export function colourBar(layer) {
     for (let y = 0; y < 12; y++) img.data.set([...rgb, 255], 4 * (y * 256 + x));
   }
   ctx.putImageData(img, 0, 0);
-  const [lo, hi] = range(layer);
+  const [lo, hi] = span;
   const fmt = (v) => Number(v).toPrecision(3);
   const scale = layer.display === "magnitude" ? "log scale" : "linear, 0 in the middle";
   const label = document.createElement("div");
   label.className = "colour-bar-label";
-  label.textContent = `${fmt(lo)} … ${fmt(hi)} — ${layer.quantity} (${scale}; magenta: not finite)`;
+  label.textContent = `${fmt(lo)} … ${fmt(hi)}${shared ? " (shared range)" : ""} — ${layer.quantity} (${scale}; magenta: not finite)`;
   bar.append(canvas, label);
   return bar;
 }
