@@ -322,6 +322,9 @@ def render(
     budget_pt_spp: Annotated[int | None, typer.Option(
         "--budget-pt-spp", min=1, max=1 << 16,
         help="equal time: calibrate to the frame time of PT at this spp")] = None,
+    allow_loaded: Annotated[bool, typer.Option(
+        "--allow-loaded", help="equal time: use calibration probes timed on a loaded machine "
+                               "(default: left out and taken again)")] = False,
     out: Annotated[Path | None, typer.Option("--out", help="write images and summary.json here")] = None,
     rerun: Annotated[bool, typer.Option(
         "--rerun", help="render even if a run of this spec by this commit, estimator "
@@ -348,8 +351,11 @@ def render(
     shortcuts = {"estimator": estimator, "termination": termination,
                  "nc": _parse_nc(nc) if nc is not None else None, "pretrain_frames": pretrain}
     params.update({name: value for name, value in shortcuts.items() if value is not None})
-    budget = (TimeBudget(ms=budget_ms, pt_spp=budget_pt_spp)
+    budget = (TimeBudget(ms=budget_ms, pt_spp=budget_pt_spp, allow_loaded=allow_loaded)
               if budget_ms is not None or budget_pt_spp is not None else None)
+    if allow_loaded and budget is None:
+        raise UsageError("--allow-loaded applies to an equal-time calibration: give "
+                         "--budget-ms or --budget-pt-spp")
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
                       time_budget=budget)
@@ -416,6 +422,9 @@ def report(
     pretrain: Annotated[int, typer.Option("--pretrain", min=0, max=100_000)] = 100,
     max_depth: MaxDepth = -1,
     ref_spp: RefSpp = REF_SPP,
+    allow_loaded: Annotated[bool, typer.Option(
+        "--allow-loaded", help="use timings taken on a loaded machine for the equal-time "
+                               "rows (default: left out and listed)")] = False,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
 ) -> None:
@@ -426,7 +435,8 @@ def report(
     _run_embedded(
         lambda store, settings, report: comparison_report(
             scene, store, settings, resolution=res, frames=frames, seeds=seeds,
-            pretrain_frames=pretrain, max_depth=max_depth, ref_spp=ref_spp, progress=report),
+            pretrain_frames=pretrain, max_depth=max_depth, ref_spp=ref_spp, progress=report,
+            allow_loaded=allow_loaded),
         data_dir, as_json, lambda r: r.model_dump(mode="json"), comparison_tables)
 
 
@@ -602,6 +612,9 @@ def pareto(
                                 "time taken out, as a series of its own off the fronts (e.g. "
                                 "propagation: grid-cache without its propagation pass); "
                                 "repeatable")] = None,
+    allow_loaded: Annotated[bool, typer.Option(
+        "--allow-loaded", help="put points timed on a loaded machine on the fronts, baselines "
+                               "and speed-ups (default: marked and left out)")] = False,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
 ) -> None:
@@ -623,7 +636,7 @@ def pareto(
         timing_rounds=timing_rounds, probe_frames=probe_frames, resamples=resamples,
         project_res=_resolution(project_res, "--project-res") if project_res else None,
         cost_resolutions=_counts(cost_res, "--cost-res", "resolutions"), baseline=baseline,
-        without_stages=list(dict.fromkeys(without_stage or [])))
+        without_stages=list(dict.fromkeys(without_stage or [])), allow_loaded=allow_loaded)
     plan(spec)      # bad options fail before anything that renders is imported
     from jobs.pareto.pareto import run_pareto
     from service.pareto_table import pareto_table

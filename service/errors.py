@@ -31,6 +31,7 @@ USER_ERROR_CLASSES = frozenset({
     "jobs.execution.gpus.GpuError",
     "jobs.protocol.run_query.RunQueryError",
     "jobs.protocol.comparison.ComparisonError",
+    "jobs.protocol.calibration.LoadedMachineError",
 })
 
 

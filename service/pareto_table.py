@@ -10,7 +10,7 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-from jobs.pareto.pareto import PARETO_METRICS
+from jobs.pareto.pareto import LOADED_REASON, PARETO_METRICS
 from jobs.pareto.plan import PAPER_PT, STRONGEST_PT
 from jobs.pareto.tradeoff import Speedup
 
@@ -52,13 +52,14 @@ def _baseline_lines(baselines: dict[str, Any]) -> list[str]:
 
 def pareto_table(result: Any) -> Group:
     """The points in time order within each series, front marked '*', a reused run
-    marked '=' after its id, then the notes."""
+    marked '=' after its id, a time taken on a loaded machine 'L', then the notes."""
     table = Table(title=f"error against time on {result.spec.scene} "
                         f"({result.spec.resolution}x{result.spec.resolution}, "
                         f"{result.spec.frames} frames, K = {result.spec.seeds}; {result.device})")
     projected = result.spec.project_res
     target = "x".join(map(str, projected)) if projected else ""
-    columns = ["series", "point", "run", "ms/frame", "spread (ms)", "harness %"]
+    columns = ["series", "point", "run", "ms/frame", "spread (ms)", "run ms",
+               "harness %"]
     if projected:
         columns.append(f"ms/frame at {target} (projected) [95% CI]")
     for column in columns:
@@ -70,10 +71,13 @@ def pareto_table(result: Any) -> Group:
     notes: dict[tuple[str, str], list[str]] = {}    # (point, note) -> metrics
     for point in result.points:
         flags = [*point.probe_flags, *point.timing_flags]
-        flagged = "!" if flags else ""
+        run_time = point.run_seconds_per_frame
         cells = [point.series, point.label, f"{point.id}{'=' if point.reused else ''}",
-                 _ms(point.seconds_per_frame) + flagged,
+                 _ms(point.seconds_per_frame) + ("L" if point.loaded else "")
+                 + ("!" if point.probe_flags else ""),
                  f"{_ms(point.seconds_spread[0])}–{_ms(point.seconds_spread[1])}",
+                 "–" if run_time is None else
+                 _ms(run_time) + ("L" if point.timing_flags else ""),
                  "-" if point.harness_share is None else f"{100 * point.harness_share:.0f}"]
         if projected:
             cells.append(_projected(point.projection))
@@ -87,12 +91,17 @@ def pareto_table(result: Any) -> Group:
             found = getattr(point, f"speedup_{key}")
             front = "*" if getattr(point, f"front_{key}") else ""
             cells += ["–" if value is None else f"{value:.4g}{front}", _speedup(found)]
-            if found is not None and found.note:
+            if found is not None and found.note and found.note != LOADED_REASON:
                 notes.setdefault((point.label, found.note), []).append(metric.label)
         table.add_row(*cells)
     work = result.work
-    lines = ["* on the Pareto front of that error against time. ms/frame includes online "
-             "training (median of the interleaved timing rounds; spread: their min–max).",
+    lines = ["* on the Pareto front of that error against time. ms/frame: the point's time, "
+             "online training included (median of the interleaved timing rounds; spread: "
+             "their min–max); run ms: the stored run's own ms/frame (its median frame, as "
+             "render, runs and the dashboard show it; docs/pareto.md).",
+             "L: timed on a loaded machine; such a point is on no front, gets no speed-up "
+             "and is on no baseline's curve unless --allow-loaded "
+             f"({'allowed' if result.spec.allow_loaded else 'left out'} in this call).",
              f"= run reused (stored by an earlier call under the same spec, scene, reference "
              f"and device; its timing is measured again): {work['points_reused']} reused, "
              f"{work['points_rendered']} rendered now.",
@@ -104,6 +113,7 @@ def pareto_table(result: Any) -> Group:
              *_baseline_lines(result.baselines),
              "harness %: the share of the run's median frame outside kernels (host work, "
              "tracing, launch gaps); ! after ms/frame: a timing flag below.",
+             *(f"left out: {item['label']}: {item['reason']}" for item in result.left_out),
              *([f"projected: the per-stage cost model (a + b x size per stage, fitted at "
                 f"{', '.join(f'{r}x{r}' for r in result.spec.cost_resolutions)} on "
                 f"{result.device}) evaluated at {target}: a projection from this device, not "

@@ -274,9 +274,11 @@ def comparison_tables(report: Report) -> Group:
                        "ms render stage", "note"):
             t.add_column(column, justify="left" if column in ("method", "note") else "right")
         for r in rows:
+            loaded = " L" if r.timing_flags else ""
             t.add_row(r.label, str(r.id), str(r.spp), *_metric_cells(r),
-                      _fmt(_ms(r.seconds_per_frame)), _fmt(_ms(r.render_seconds_per_frame)),
-                      r.note)
+                      _fmt(_ms(r.seconds_per_frame)) + loaded,
+                      _fmt(_ms(r.render_seconds_per_frame)) + loaded,
+                      "; ".join(filter(None, [r.note, *r.timing_flags])))
         return t
 
     return Group(table(f"{report.scene}: equal spp ({report.device})", report.equal_spp),
@@ -285,7 +287,11 @@ def comparison_tables(report: Report) -> Group:
                                  "render includes cache inference unless listed)",
                                  report.equal_spp),
                  calibration_table("N_c calibration (NIRC biased)", report.calibration),
-                 *(f"skipped {s.label or s.method}: {s.reason}" for s in report.skipped))
+                 *(f"skipped {s.label or s.method}: {s.reason}" for s in report.skipped),
+                 *(["L: timed on a loaded machine (the note says how loaded)"]
+                   if any(r.timing_flags for r in [*report.equal_spp, *report.equal_time])
+                   else []),
+                 *(f"left out {s.label or s.method}: {s.reason}" for s in report.left_out))
 
 
 def calibration_table(title: str, cal: dict[str, Any]) -> Table:
@@ -332,6 +338,8 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
         rows["UNSTABLE"] = "; ".join(r for r in cal.get("reasons", []) if r.startswith("unstable"))
     if cal.get("loaded"):
         rows["LOADED"] = "; ".join(r for r in cal.get("reasons", []) if r.startswith("loaded"))
+    if cal.get("left_out"):
+        rows["left out (loaded)"] = "; ".join(cal["left_out"])
     if cal.get("unstable") or cal.get("loaded"):
         rows["what to do"] = ADVICE.removeprefix("what to do: ")
     return key_value_table(title, rows)

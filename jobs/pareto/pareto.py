@@ -22,7 +22,10 @@ happened to run then; with no rounds, every timed frame of the run's seeds (thei
 lower median is the run's stored ``seconds_per_frame``, kept with every point). [min,
 max] of the samples is its spread; a spread above :data:`MAX_SPREAD` of the median,
 a probe on a loaded machine (renderers.load) and a PT series whose frame time does
-not grow with spp are flagged. With ``project_res`` every point's per-stage cost
+not grow with spp are flagged. A point timed on a loaded machine (any of its samples)
+is marked ``loaded`` and left out of the fronts, the baselines' curves and the speed-ups
+(listed in ``left_out`` with the reason) unless the spec allows loaded timings
+(``--allow-loaded``). With ``project_res`` every point's per-stage cost
 model (jobs.protocol.cost_model) is measured too and its frame time projected to
 that resolution: a projection from this device, beside the errors measured at the
 point's own resolution. Then, for MRSE and FLIP: the Pareto front over all
@@ -119,6 +122,11 @@ class Timing:
         return [sample - parts[stage]
                 for sample, parts in zip(self.samples, self.parts, strict=True)]
 
+    def loaded(self) -> bool:
+        """Whether other work held the CPU while any of the samples was taken."""
+        load = merge_loads(self.loads)
+        return bool(load and load["loaded"])
+
     def flags(self) -> list[str]:
         """Why these samples may not be trusted (the module docstring)."""
         found = []
@@ -186,6 +194,10 @@ class ParetoPoint(_ParetoColumns):  # type: ignore[misc,valid-type]
         default_factory=list,
         description="stages taken out of its time (--without-stage): not the method's whole "
                     "cost, so never on a front; empty for a measured point")
+    loaded: bool = Field(
+        False, description="a timing sample was taken on a loaded machine (renderers.load): "
+                           "off the fronts, the baselines and the speed-ups unless "
+                           "--allow-loaded")
 
     @classmethod
     def measured(cls, planned: Planned, run: Any, timing: Timing, reused: bool) -> ParetoPoint:
@@ -200,7 +212,7 @@ class ParetoPoint(_ParetoColumns):  # type: ignore[misc,valid-type]
             "seconds_per_frame": float(median_low(seconds)),
             "seconds_spread": [min(seconds), max(seconds)], "timing_samples": seconds,
             "run_seconds_per_frame": fields["seconds_per_frame"],
-            "probe_flags": timing.flags(),
+            "probe_flags": timing.flags(), "loaded": timing.loaded(),
             "projection": None if timing.projection is None else timing.projection.to_json(),
             **{f"{m.field}_per_seed": [s.metrics.get(m.seed_key) for s in seeds]
                for m in PARETO_METRICS}})
@@ -214,6 +226,8 @@ class ParetoResult:
     points: list[ParetoPoint]
     skipped: list[dict[str, str]]
     timing: dict[str, Any]
+    #: Points left out of the fronts, baselines and speed-ups, each with the reason.
+    left_out: list[dict[str, str]]
     bootstrap: dict[str, Any]
     baselines: dict[str, Any] = field(default_factory=dict)
     work: dict[str, int] = field(default_factory=dict)
@@ -291,11 +305,11 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
         derived = without_stage_points(measured, [timings[i] for i, _ in ranked], stage)
         without[stage] = [p.label for p in derived]
         points += derived
-    _evaluate(points, spec.resamples, spec.baseline)
+    left_out = _evaluate(points, spec.resamples, spec.baseline, spec.allow_loaded)
     reused = sum(p.reused for p in points)
     result = ParetoResult(
         spec=spec, device=prepared.device["device_key"], reference_id=prepared.reference.id,
-        points=points, skipped=skipped,
+        points=points, skipped=skipped, left_out=left_out,
         timing={"rounds": spec.timing_rounds, "probe_frames": spec.probe_frames,
                 "samples": ("one per interleaved round" if spec.timing_rounds else
                             "the run's timed frames"),
@@ -305,7 +319,7 @@ def run_pareto(spec: ParetoSpec, store: Store, settings: Settings,
                 "without_stages": without},
         bootstrap={"method": BOOTSTRAP_METHOD, "resamples": spec.resamples,
                    "confidence": 0.95},
-        baselines=baselines(points, spec.baseline),
+        baselines=baselines(points, spec.baseline, spec.allow_loaded),
         work={"reference_rendered": int(prepared.reference.rendered_now),
               "points_rendered": len(points) - reused, "points_reused": reused,
               "timing_probes": spec.timing_rounds * len(points)})
@@ -418,6 +432,15 @@ def baseline_flags(points: list[ParetoPoint]) -> list[str]:
     return flags
 
 
+LOADED_REASON = ("timed on a loaded machine (renderers.load): left out of the fronts, the "
+                 "baselines and the speed-ups (--allow-loaded uses it)")
+
+
+def timed_quietly(point: ParetoPoint, allow_loaded: bool) -> bool:
+    """Whether ``point``'s time may be compared: not loaded, or loaded timings allowed."""
+    return allow_loaded or not point.loaded
+
+
 def _baseline_samples(points: list[ParetoPoint], key: str,
                       baseline: Callable[[ParetoPoint], bool]) -> dict[str, list[Sample]]:
     """Per series of the points ``baseline`` selects: its samples with the error ``key``,
@@ -429,10 +452,13 @@ def _baseline_samples(points: list[ParetoPoint], key: str,
     return {series: samples for series, samples in found.items() if len(samples) >= 2}
 
 
-def _evaluate(points: list[ParetoPoint], resamples: int, baseline: str) -> None:
+def _evaluate(points: list[ParetoPoint], resamples: int, baseline: str,
+              allow_loaded: bool = False) -> list[dict[str, str]]:
     """Mark the points of the series ``baseline`` names (jobs.pareto.plan.baseline_series),
     each metric's front, and the other points' speed-ups at equal error over that
-    baseline: the lower envelope of its series' curves (jobs.pareto.tradeoff)."""
+    baseline: the lower envelope of its series' curves (jobs.pareto.tradeoff). Points
+    timed on a loaded machine take part in none of them unless ``allow_loaded``; they
+    are returned with the reason (label, reason)."""
     counts = Counter((p.series, p.named_baseline) for p in points)
     chosen = baseline_series(baseline, [(s, n, c) for (s, n), c in counts.items()])
     against = baseline_label(baseline)
@@ -440,18 +466,22 @@ def _evaluate(points: list[ParetoPoint], resamples: int, baseline: str) -> None:
         point.baseline = point.series in chosen
     for metric in PARETO_METRICS:
         key = metric.field
-        whole = [p for p in points if not p.without_stages]   # a method's whole cost
+        # A method's whole cost, timed on a quiet machine (or loaded timings allowed).
+        whole = [p for p in points if not p.without_stages and timed_quietly(p, allow_loaded)]
         front = pareto_front([p.seconds_per_frame for p in whole],
                              [getattr(p, key) for p in whole])
         for point in points:
             setattr(point, f"front_{key}", False)
         for point, on in zip(whole, front, strict=True):
             setattr(point, f"front_{key}", on)
-        baseline = _baseline_samples(points, key, lambda p: p.baseline)
+        baseline = _baseline_samples(
+            points, key, lambda p: p.baseline and timed_quietly(p, allow_loaded))
         for point in points:
             if point.baseline:
                 continue
-            if not _usable(point, key):
+            if not timed_quietly(point, allow_loaded):
+                found = Speedup(None, "n/a", note=LOADED_REASON, against=against)
+            elif not _usable(point, key):
                 found = Speedup(None, "n/a", note=f"no {metric.label} (withheld or not finite)",
                                 against=against)
             elif not baseline:
@@ -461,14 +491,19 @@ def _evaluate(points: list[ParetoPoint], resamples: int, baseline: str) -> None:
                 found = bootstrap_speedup(baseline, _sample(point, key), against=against,
                                           resamples=resamples)
             setattr(point, f"speedup_{key}", found)
+    return [{"label": p.label, "reason": LOADED_REASON}
+            for p in points if not timed_quietly(p, allow_loaded)]
 
 
-def baselines(points: list[ParetoPoint], chosen: str) -> dict[str, Any]:
+def baselines(points: list[ParetoPoint], chosen: str,
+              allow_loaded: bool = False) -> dict[str, Any]:
     """The baselines of the JSON: which one the speed-ups are against, what the paper's PT
     and the strongest PT are, and per error the strongest PT's envelope (the time
-    intervals over which each candidate's curve is lowest)."""
+    intervals over which each candidate's curve is lowest; of points timed quietly
+    unless ``allow_loaded``)."""
     def envelope(key: str) -> list[dict[str, Any]]:
-        samples = _baseline_samples(points, key, lambda p: p.named_baseline == STRONGEST_PT)
+        samples = _baseline_samples(points, key, lambda p: p.named_baseline == STRONGEST_PT
+                                    and timed_quietly(p, allow_loaded))
         return [asdict(piece) for piece in envelope_pieces(sample_curves(samples))] \
             if samples else []
 

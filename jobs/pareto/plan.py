@@ -69,6 +69,9 @@ class ParetoSpec:
     #: Stages whose time is also shown taken out (a series "<method> without <stage>"
     #: beside each point that ran it; jobs.pareto.pareto.without_stage_points).
     without_stages: list[str] = field(default_factory=list)
+    #: Whether points timed on a loaded machine take part in the fronts, baselines and
+    #: speed-ups (by default they are left out and listed).
+    allow_loaded: bool = False
 
 
 def pt_core_methods() -> list[str]:

@@ -18,6 +18,12 @@ largest spp that fits it, and the strongest PT there: each of its candidates
 (jobs.pareto.plan: the PT core's methods with throughput roulette) calibrated the
 same way, the one of lowest MRSE shown (the lower envelope at that time, on the spp
 grid; docs/pareto.md). Each calibration is stored with its run.
+
+Loaded timings (renderers.load): a calibration leaves out probes taken on a loaded
+machine (jobs.protocol.calibration), and a matched method whose own run was timed on a
+loaded machine gives no budget: its equal-time rows are left out, listed with the reason
+in ``left_out``, unless ``allow_loaded``. Every row's ``timing_flags`` say whether its
+run was timed loaded.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ from jobs.pareto.plan import (
     STRONGEST_PT_PARAMS,
     pt_core_methods,
 )
-from jobs.protocol.calibration import caveats
+from jobs.protocol.calibration import LoadedMachineError, caveats
 from jobs.protocol.executor import RunSummary, execute
 from jobs.protocol.job import RenderJob
 from jobs.protocol.results import ReportRow, Skipped
@@ -55,6 +61,9 @@ class Report(BaseModel):
     equal_time: list[ReportRow] = Field(default_factory=list)
     calibration: dict[str, Any] = Field(default_factory=dict)
     skipped: list[Skipped] = Field(default_factory=list)
+    left_out: list[Skipped] = Field(
+        default_factory=list, description="equal-time rows left out for a loaded machine, "
+                                          "with the reason")
 
 
 def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
@@ -65,9 +74,10 @@ def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
 def comparison_report(
     scene: str, store: Store, settings: Settings, *, resolution: int = 64, frames: int = 16,
     seeds: int = 2, pretrain_frames: int = 100, max_depth: int = -1, ref_spp: int = 4096,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Callable[[str, int, int], None] | None = None, allow_loaded: bool = False,
 ) -> Report:
-    """Run the Fig. 7 comparison on ``scene`` (see the module docstring)."""
+    """Run the Fig. 7 comparison on ``scene`` (see the module docstring); ``allow_loaded``:
+    use timings taken on a loaded machine for the equal-time budgets."""
     base = RenderSpec(scene=scene, resolution=resolution, frames=frames, seeds=seeds,
                       reference=ReferenceSpec(spp=ref_spp))
 
@@ -81,6 +91,9 @@ def comparison_report(
             return execute(RenderJob.parse(spec), store, settings, progress=step)
         except NotApplicable as err:   # the method's applies_to rules the scene out
             report.skipped.append(Skipped(method=method, label=label, reason=str(err)))
+            return None
+        except LoadedMachineError as err:
+            report.left_out.append(Skipped(method=method, label=label, reason=str(err)))
             return None
 
     def shared(method: str) -> dict[str, Any]:
@@ -114,7 +127,7 @@ def comparison_report(
             continue
         knob = METHODS[name].knob
         summary = run(entry.label, name, {**shared(name), **entry.params},
-                      budget=TimeBudget(pt_spp=budget.spp,
+                      budget=TimeBudget(pt_spp=budget.spp, allow_loaded=allow_loaded,
                                         candidates=list(knob.candidates if knob else ())))
         if summary is None:
             continue
@@ -133,16 +146,25 @@ def comparison_report(
         if entry.role != "matched" or entry.label not in summaries:
             continue
         summary = summaries[entry.label]
-        budget_ms = TimeBudget(ms=1e3 * summary.timings["seconds_per_frame"])
+        if summary.result.timing_flags and not allow_loaded:
+            report.left_out.append(Skipped(
+                method=entry.label, label=f"PT rows at {entry.label}'s time",
+                reason=f"{entry.label}'s run was timed on a loaded machine, so its frame time "
+                       "is no budget (--allow-loaded uses it): "
+                       + "; ".join(summary.result.timing_flags)))
+            continue
+        budget_ms = TimeBudget(ms=1e3 * summary.timings["seconds_per_frame"],
+                               allow_loaded=allow_loaded)
         pt_eq = run(f"{paper} (= {entry.label} time)", BASELINE, {"max_depth": max_depth},
                     budget=budget_ms)
-        assert pt_eq is not None    # the baseline renders every scene
         candidates: dict[str, RunSummary] = {}
         for name in pt_core_methods():
             found = run(f"{strongest}: {METHODS[name].label or name} (= {entry.label} time)",
                         name, {"max_depth": max_depth, **STRONGEST_PT_PARAMS}, budget=budget_ms)
-            assert found is not None    # so do the other PT core methods
-            candidates[name] = found
+            if found is not None:       # the PT core renders every scene: left out, loaded
+                candidates[name] = found
+        if pt_eq is None or not candidates:
+            continue
         best = min(candidates, key=lambda name: _mrse(candidates[name]))
         best_run = candidates[best]
         lowest = (f"lowest MRSE at this time of {', '.join(candidates)} with throughput "

@@ -31,8 +31,12 @@ How it measures, because these machines are shared and their speed drifts:
 - ``capped`` says that the largest candidate fits: the true equal-time value
   may be larger than any candidate tried; ``fits`` False says that not even
   the smallest fits (it is then chosen);
-- ``loaded`` says that other work held the CPU during a probe (renderers.load);
-  an unstable or loaded calibration says what to do about it (:data:`ADVICE`);
+- a probe taken on a loaded machine (renderers.load) is left out and taken again,
+  up to :data:`LOADED_RETRIES` times (each left-out probe is listed in ``left_out``);
+  when every try was loaded the calibration stops (:class:`LoadedMachineError`),
+  unless the budget allows loaded timings (``allow_loaded``: then they are used, and
+  ``loaded`` says that other work held the CPU during a probe); an unstable or loaded
+  calibration says what to do about it (:data:`ADVICE`);
 - what the calibration cost is stored with it: wall seconds, probes per round
   and timed frames.
 """
@@ -59,6 +63,13 @@ ADVICE = ("what to do: calibrate again with nothing else running on the machine 
           "flag says whether something was), or with more rounds (a time budget's 'rounds') "
           "or a tolerance at least as wide as the spread ('tolerance_ms', sweep "
           "--tolerance-ms); until then the chosen value may be one candidate off")
+#: How many times a probe taken on a loaded machine is taken again before giving up.
+LOADED_RETRIES = 2
+
+
+class LoadedMachineError(ValueError):
+    """Every try of a calibration probe ran on a loaded machine, and the budget does
+    not allow loaded timings."""
 
 
 @dataclass
@@ -86,6 +97,7 @@ class Calibration:
     wall_s: float = 0.0             # seconds the calibration took
     probes_per_round: list[int] = field(default_factory=list)  # renders timed (budget included)
     timed_frames: int | None = None  # frames timed in all (None: frames per probe unknown)
+    left_out: list[str] = field(default_factory=list)  # probes left out: loaded machine
 
     def note_load(self, load: dict[str, Any] | None) -> None:
         """Record the machine's load over the probes (renderers.timing.merge_loads)."""
@@ -327,19 +339,42 @@ def caveats(calibration: dict[str, Any]) -> list[str]:
                      "choice")
     if calibration.get("loaded"):
         found.append("machine loaded during the calibration")
+    if calibration.get("left_out"):
+        found.append(f"{len(calibration['left_out'])} probe(s) left out: machine loaded")
     return found
 
 
 class LoadLog:
-    """Collects the load of every probe (:func:`probe_timings`) of a calibration."""
+    """Collects the load of every probe (:func:`probe_timings`) of a calibration, and the
+    probes left out for a loaded machine."""
 
-    def __init__(self) -> None:
+    def __init__(self, allow_loaded: bool = False) -> None:
         self.loads: list[dict[str, Any] | None] = []
+        self.allow_loaded = allow_loaded
+        self.left_out: list[str] = []
 
     def seconds(self, timings: dict[str, Any]) -> float:
         """The probe's frame time, keeping its load."""
         self.loads.append(timings.get("load"))
         return timings["frame_median_s"]
+
+    def quiet_seconds(self, probe: Callable[[], dict[str, Any]], what: str) -> float:
+        """The frame time of ``probe()`` (its timings) on a quiet machine: a loaded try is
+        left out (and listed) and taken again, up to :data:`LOADED_RETRIES` times;
+        LoadedMachineError when every try was loaded. With ``allow_loaded`` the first try
+        counts whatever the load."""
+        for _ in range(LOADED_RETRIES + 1):
+            timings = probe()
+            load = timings.get("load") or {}
+            if self.allow_loaded or not load.get("loaded"):
+                return self.seconds(timings)
+            self.left_out.append(f"{what}: {1e3 * timings['frame_median_s']:.3g} ms left out, "
+                                 f"machine loaded ({'; '.join(load.get('reasons', []))})")
+        raise LoadedMachineError(
+            f"equal-time calibration stopped: {LOADED_RETRIES + 1} probes of {what} in a row "
+            "ran on a loaded machine (other work held the CPU), and a loaded timing would "
+            "choose the knob for the load, not the method; run it again with nothing else "
+            "running, or allow loaded timings (time budget 'allow_loaded', --allow-loaded)")
 
     def merged(self) -> dict[str, Any] | None:
         from renderers.timing import merge_loads
@@ -378,18 +413,19 @@ def calibrate_job(job: Any, scene: Any, device_key: str) -> tuple[Any, Calibrati
     budget = spec.time_budget
     spec_knob = knob_of(spec)
     knob, default_candidates = spec_knob.name, list(spec_knob.candidates)
-    log = LoadLog()
+    log = LoadLog(budget.allow_loaded)
 
-    def frame_seconds(probe: Any, spp: int) -> float:
-        return log.seconds(probe_timings(scene, probe.method, probe.params, spp,
-                                         budget.probe_frames))
+    def frame_seconds(probe: Any, spp: int, what: str) -> float:
+        return log.quiet_seconds(lambda: probe_timings(scene, probe.method, probe.params, spp,
+                                                       budget.probe_frames), what)
 
     budget_value: float | Callable[[], float]
     if budget.ms is not None:
         budget_value, source = budget.ms / 1e3, f"{budget.ms} ms per frame"
     else:
         baseline = job.baseline()
-        budget_value = lambda: frame_seconds(baseline, budget.pt_spp)  # noqa: E731
+        budget_value = lambda: frame_seconds(  # noqa: E731
+            baseline, budget.pt_spp, f"the budget (PT {budget.pt_spp} spp)")
         source = f"PT {budget.pt_spp} spp frame time (measured)"
 
     @cache
@@ -399,8 +435,8 @@ def calibrate_job(job: Any, scene: Any, device_key: str) -> tuple[Any, Calibrati
 
     def measure(value: int) -> float:
         if knob == "spp":
-            return frame_seconds(job, value)
-        return frame_seconds(candidate(value), spec.spp)
+            return frame_seconds(job, value, f"spp {value}")
+        return frame_seconds(candidate(value), spec.spp, f"{knob} {value}")
 
     record = calibrate(knob, budget.candidates or default_candidates, measure, budget_value,
                        budget_source=source, tolerance_s=budget.tolerance_ms / 1e3,
@@ -408,6 +444,7 @@ def calibrate_job(job: Any, scene: Any, device_key: str) -> tuple[Any, Calibrati
                        max_spread=budget.max_spread, monotone=bool(spec_knob.monotone),
                        probe_frames=budget.probe_frames)
     record.note_load(log.merged())
+    record.left_out = log.left_out
     if knob == "spp":
         return job.with_spec(time_budget=None, spp=record.chosen), record
     return candidate(record.chosen).with_spec(time_budget=None), record

@@ -105,6 +105,10 @@ class TimeBudget(BaseModel):
     max_spread: float = Field(
         0.1, gt=0.0, le=10.0, description="spread (max - min over rounds) allowed before the "
                                           "calibration is flagged unstable, x the budget")
+    allow_loaded: bool = Field(
+        False, description="use probes timed on a loaded machine; by default such a probe "
+                           "is left out and taken again, and the calibration stops when "
+                           "every try is loaded")
 
     @model_validator(mode="after")
     def _one_budget(self) -> TimeBudget:
@@ -148,6 +152,8 @@ class RenderSpec(BaseModel):
         data = self.model_dump(mode="json")
         if not data["seed_start"]:  # specs from before seed_start keep their keys
             del data["seed_start"]
+        if data["time_budget"] and not data["time_budget"]["allow_loaded"]:
+            del data["time_budget"]["allow_loaded"]     # nor do budgets from before it
         return digest("render-spec", data, self.versions())
 
 

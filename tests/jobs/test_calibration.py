@@ -256,3 +256,61 @@ def test_calibrate_job_stops_the_spp_search_and_reports_its_cost(monkeypatch):
     assert "3: 3 [3, 3] (1 of 2 rounds)" in text and "4: 4 [4, 4]," in text
     assert Knob("spp", (1,)).monotone and not Knob("nc", (1,)).monotone
     assert not Knob("spp", (1,), monotone=False).monotone
+
+
+def _loaded_probes(monkeypatch, loaded_tries: int) -> list[int]:
+    """pt at 1 ms per spp whose first ``loaded_tries`` probes ran on a loaded machine
+    (and took 10x as long); returns the spp of every probe taken."""
+    import renderers.methods as methods
+
+    seen: list[int] = []
+    real = methods.get_method("pt")
+
+    class FakeMethod:
+        params = real.params
+
+        def render(self, scene, values, seed_parts, spp, frames):
+            seen.append(spp)
+            loaded = len(seen) <= loaded_tries
+
+            class Output:
+                timings = {"frame_median_s": 0.001 * spp * (10 if loaded else 1),
+                           "load": {"loaded": loaded,
+                                    "reasons": ["tasks waited for a core 60 %"] if loaded
+                                    else []}}
+            return Output()
+
+    monkeypatch.setattr(methods, "get_method", lambda name: FakeMethod())
+    return seen
+
+
+@pytest.mark.parametrize("allow_loaded", [False, True])
+def test_a_probe_on_a_loaded_machine_is_left_out_unless_allowed(monkeypatch, allow_loaded):
+    """The first probe (spp 1) runs loaded at 10 ms: kept, it would rule every spp out
+    (10 ms > 4.5 ms at spp 1, the smallest); left out and taken again, the quiet medians
+    choose spp 4. Allowed, the loaded probe counts and the record says loaded."""
+    seen = _loaded_probes(monkeypatch, 1)
+    spec = RenderSpec(scene="cornell-box", method="pt", time_budget=TimeBudget(
+        ms=4.5, rounds=1, candidates=[1, 2, 4, 8], allow_loaded=allow_loaded))
+    calibrated, record = calibrate_job(RenderJob.parse(spec), scene=None, device_key="test")
+    if allow_loaded:
+        assert record.loaded and record.left_out == [] and seen[:2] != [1, 1]
+        assert record.measured_s[1] == pytest.approx(0.010)
+    else:
+        assert seen[:2] == [1, 1] and record.loaded is False
+        assert record.left_out == ["spp 1: 10 ms left out, machine loaded (tasks waited "
+                                   "for a core 60 %)"]
+        assert calibrated.spec.spp == record.chosen == 4
+        assert "1 probe(s) left out: machine loaded" in caveats(record.to_json())
+
+
+def test_a_calibration_whose_every_try_is_loaded_stops_with_the_reason(monkeypatch):
+    from jobs.protocol.calibration import LOADED_RETRIES, LoadedMachineError
+    from service.errors import is_user_error
+
+    _loaded_probes(monkeypatch, LOADED_RETRIES + 1)
+    spec = RenderSpec(scene="cornell-box", method="pt",
+                      time_budget=TimeBudget(ms=4.5, rounds=1, candidates=[1, 2]))
+    with pytest.raises(LoadedMachineError, match="ran on a loaded machine") as caught:
+        calibrate_job(RenderJob.parse(spec), scene=None, device_key="test")
+    assert is_user_error(caught.value)      # a message, not a traceback

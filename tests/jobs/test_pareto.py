@@ -296,10 +296,73 @@ def test_timing_samples_that_spread_or_ran_loaded_are_flagged():
     assert "loaded" in Timing([1.0, 1.0], [None, loaded]).flags()[0]
 
 
+def test_points_timed_on_a_loaded_machine_are_left_out_unless_allowed():
+    """A loaded point's time says how busy the machine was: a spuriously fast cache point
+    would top the front, a slow PT point would bend the baseline's curve. Left out (and
+    listed) by default; with allow_loaded both count again, which the asserts on the
+    planted points tell apart."""
+    def evaluated(allow_loaded: bool) -> tuple[list[ParetoPoint], list[dict[str, str]]]:
+        points = [_point("PT", 0.01 * n, 0.4 / n, 0.3 / n ** 0.5, named=PAPER_PT)
+                  for n in (1, 2, 4, 8)]
+        slow_pt = _point("PT", 0.4, 0.025, 0.075, named=PAPER_PT)   # 16 spp, loaded
+        quiet = _point("NIRC", 0.02, 0.03, 0.2)        # below the quiet PT's errors
+        fast = _point("NRC", 0.005, 0.05, 0.2)         # loaded: faster than PT at 1 spp
+        for point in (slow_pt, fast):
+            point.loaded = True
+        points += [slow_pt, quiet, fast]
+        return points, _evaluate(points, 100, PAPER_PT, allow_loaded)
+
+    points, left_out = evaluated(False)
+    slow_pt, quiet, fast = points[4:]
+    assert [item["label"] for item in left_out] == [slow_pt.label, fast.label]
+    assert all("loaded machine" in item["reason"] for item in left_out)
+    assert not fast.front_mrse and not slow_pt.front_mrse and quiet.front_mrse
+    assert points[0].front_mrse                               # PT at 1 spp: fastest quiet
+    assert fast.speedup_mrse.relation == "n/a" and "loaded" in fast.speedup_mrse.note
+    # The quiet PT's curve ends at MRSE 0.05 (0.08 s): a bound, not interpolated.
+    assert quiet.speedup_mrse.relation == ">"
+    assert quiet.speedup_mrse.value == pytest.approx(0.08 / 0.02)
+    # Allowed: the loaded points count, moving the front and the baseline's curve.
+    points, left_out = evaluated(True)
+    slow_pt, quiet, fast = points[4:]
+    assert left_out == [] and fast.front_mrse and slow_pt.front_mrse
+    assert not points[0].front_mrse and fast.speedup_mrse.relation != "n/a"
+    assert quiet.speedup_mrse.relation == "="
+
+
+def test_the_table_marks_loaded_times_and_shows_the_runs_own_time():
+    """The point's time (interleaved rounds) and the run's own stored time are two
+    columns; the run's is the one every other view shows (RunResult.seconds_per_frame)."""
+    from rich.console import Console
+
+    from jobs.pareto.pareto import ParetoResult
+    from service.pareto_table import pareto_table
+
+    points = [_point("PT", 0.01 * n, 0.4 / n, 0.3, named=PAPER_PT) for n in (1, 2, 4)]
+    points[1].loaded = True
+    points[2] = points[2].model_copy(update={"run_seconds_per_frame": 0.0475,
+                                             "timing_flags": ["loaded: busy"]})
+    spec = ParetoSpec(scene="cornell-box")
+    left_out = _evaluate(points, 100, PAPER_PT)
+    result = ParetoResult(spec=spec, device="cpu", reference_id=1, points=points, skipped=[],
+                          timing={}, bootstrap={"resamples": 100}, left_out=left_out,
+                          baselines=baselines(points, PAPER_PT),
+                          work={"points_reused": 0, "points_rendered": 3})
+    console = Console(width=400, record=True)
+    console.print(pareto_table(result))
+    text = console.export_text()
+    rows = {line.split("│")[2].strip(): [c.strip() for c in line.split("│")]
+            for line in text.splitlines() if line.count("│") > 5}
+    assert rows["PT 0.02"][4] == "20L" and rows["PT 0.01"][4] == "10"
+    assert rows["PT 0.04"][4] == "40" and rows["PT 0.04"][6] == "47.5L"
+    assert f"left out: PT 0.02: {left_out[0]['reason']}" in text
+
+
 def test_the_plot_draws_every_metric(tmp_path):
     points = [_point("PT", 0.01 * n, 0.4 / n, 0.3, named=PAPER_PT) for n in (1, 2)]
     points.append(_point("NIRC", 0.02, 0.05, 0.2))
-    _evaluate(points, 100, PAPER_PT)
+    points[1].loaded = True               # drawn crossed
+    _evaluate(points, 100, PAPER_PT, allow_loaded=True)
     for metric in PARETO_METRICS:
         path = plot_pareto([p.model_dump() for p in points], metric.field, metric.label, tmp_path / f"{metric.field}.png",
                            "test")
