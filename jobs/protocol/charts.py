@@ -147,9 +147,10 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
     bars = alt.Chart(data).transform_filter("datum.lo != null && datum.lo > 0").mark_rule().encode(
         x="ms:Q", y=alt.Y("lo:Q", scale=y_scale), y2="hi:Q",
         color=alt.Color("curve:N", scale=colours, legend=None))
+    # A step line only: rings around the front's points would cover the runs' points
+    # and take their hover and click.
     line = alt.Chart(alt.Data(values=front)).mark_line(
         interpolate="step-after", color=FRONT_COLOUR, strokeWidth=2.5, opacity=0.85,
-        point=alt.OverlayMarkDef(shape="circle", size=160, filled=False, color=FRONT_COLOUR),
     ).encode(x="ms:Q", y=alt.Y("value:Q", scale=y_scale))
     title = _title(f"{metric['label']} vs time — {group.title}",
                    ["black: Pareto front of this chart (spp, N_c, eps are points on a curve)",
@@ -209,13 +210,15 @@ def history_chart(metric: Mapping[str, Any], setting: str, method: str,
         href="href:N").add_params(zoom)
     bars = alt.Chart(data).transform_filter("datum.lo != null && datum.lo > 0").mark_rule().encode(
         x=x, y=alt.Y("lo:Q", scale=y_scale), y2="hi:Q",
-        color=alt.Color("config:N", scale=colours, legend=None))
-    rules = alt.Chart(alt.Data(values=marks)).mark_rule(strokeWidth=1.5, strokeDash=[4, 3]).encode(
-        x=x, color=alt.Color("colour:N", scale=None), tooltip=["what:N", "commit:N"])
+        color=alt.Color("config:N", scale=colours, legend=LEGEND))   # legend=None here drops it
+    # One layer per kind with a fixed colour: a colour channel without a scale here would
+    # merge with the series' colour scale and drop the legend.
+    rules = [alt.Chart(alt.Data(values=[m for m in marks if m["colour"] == colour])).mark_rule(
+        strokeWidth=1.5, strokeDash=[4, 3], color=colour).encode(
+        x=x, tooltip=["what:N", "commit:N"]) for colour in dict.fromkeys(m["colour"] for m in marks)]
     title = _title(f"{metric['label']} over commits — {setting} ({metric['direction']} is better)",
                    ["red: detected step; grey: version change", *_not_drawn(below)])
-    layers = [rules] if marks else []
-    layers += [bars] if any(r["lo"] for r in rows) else []
+    layers = [*rules, bars] if any(r["lo"] for r in rows) else rules
     return _finish(alt.layer(*layers, line).properties(width=WIDTH, height=HEIGHT, title=title))
 
 

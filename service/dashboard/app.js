@@ -90,7 +90,7 @@ async function scenePage(scene) {
     api(`/sweeps?scene=${enc(scene)}&limit=1${old()}`), api(`/results?scene=${enc(scene)}&limit=1000${old()}`)]);
   const v = view();
   v.innerHTML = `<h2>${esc(scene)}</h2><p><a href="#/history/${enc(scene)}">history over commits</a></p>
-    <h3>Error vs time</h3><p class="muted">One group per resolution, spp, frames, protocol, device and versions: only comparable runs share a chart, and each Pareto front is of its group. Hover a point for the run's parameters; click it to open the run; wheel to zoom, drag to pan.</p>
+    <h3>Error vs time</h3><p class="muted">One group per resolution, frames, protocol, device and versions: only comparable runs share a chart. In it each method configuration is one curve over its equal-time knob (spp, N_c, eps: points on a curve, not groups), one hue per method with shades and dashes for its configurations, and the group's Pareto front in black. Hover a point for the run's parameters; click it to open the run; wheel to zoom, drag to pan.</p>
     <div id="pareto"></div><h3>Adaptive equal-bias sweep</h3><div class="plots" id="sweep"></div>
     <h3>Runs</h3><div id="runs"></div>`;
   const pareto = document.getElementById("pareto");

@@ -102,10 +102,10 @@ def test_scene_page_draws_one_group_per_setting_with_library_charts(chromium, si
     url, runs, _ = site
     page, errors = visit(chromium, f"{url}/#/scene/cornell-box")
     groups = page.locator("#pareto section.group h4").all_inner_texts()
-    assert len(groups) == 3, groups          # 16² at 1 spp, 16² at 2 spp, 24²: never mixed
-    assert sum("24×24" in g for g in groups) == 1 and sum("16×16" in g for g in groups) == 2
+    assert len(groups) == 2, groups          # 16² (1 and 2 spp: one curve), 24²: never mixed
+    assert sum("24×24" in g for g in groups) == 1 and sum("16×16" in g for g in groups) == 1
     # MRSE and FLIP per group, drawn by Vega (SVG with its marks), the sweep's 4 panels.
-    assert page.locator("#pareto .vega-embed svg.marks").count() == 6
+    assert page.locator("#pareto .vega-embed svg.marks").count() == 4
     assert page.locator("#sweep .vega-embed svg.marks").count() == 4
     # Hover: the tooltip shows the run's parameters; the point links to the run.
     point = page.locator("#pareto .vega-embed g.mark-symbol.role-mark path").first
