@@ -6,7 +6,8 @@ import xml.etree.ElementTree as ET
 
 from jobs.ci.ci import CiResult, CiRow
 
-_VERDICT = {"pass": "pass", "regression": "**REGRESSION**", "not comparable": "not comparable"}
+_VERDICT = {"pass": "pass", "regression": "**REGRESSION**", "not comparable": "not comparable",
+            "shown": "shown (not gated)"}
 
 
 def _number(value: float | None) -> str:
@@ -19,6 +20,12 @@ def _change(row: CiRow) -> str:
         else f"{row.change:+.1%}"
 
 
+def _candidate(row: CiRow) -> str:
+    """The candidate's value with its 95 % interval where it has one."""
+    ci = row.candidate_ci95
+    return _number(row.candidate) + (f" [{ci[0]:.3g}, {ci[1]:.3g}]" if ci else "")
+
+
 def _p(value: float | None) -> str:
     return "–" if value is None else f"{value:.2g}"
 
@@ -28,7 +35,8 @@ def headline(result: CiResult) -> str:
     if bad:
         return f"REGRESSION: {len(bad)} of {len(result.rows)} rows"
     skipped = sum(row.verdict == "not comparable" for row in result.rows)
-    return (f"PASS: {len(result.rows) - skipped} rows compared"
+    shown = sum(row.verdict == "shown" for row in result.rows)
+    return (f"PASS: {len(result.rows) - skipped - shown} rows compared"
             + (f", {skipped} not comparable" if skipped else ""))
 
 
@@ -42,18 +50,18 @@ def markdown(result: CiResult) -> str:
         f"its minimum change (the lower confidence bound of the change above it, not the "
         f"estimate): false-failure level {result.level:g} for the whole suite (Bonferroni over "
         f"the rows, {result.spending} alpha spending over the looks); p is that test's.", "",
-        "| configuration | metric | baseline | candidate | change | min. change | p-value "
+        "| configuration | metric | baseline | candidate [95% CI] | change | min. change | p-value "
         "| seeds (baseline) | test | verdict |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in result.rows:
         lines.append(
             f"| {row.entry} | {row.metric_label} ({row.direction} is better) "
-            f"| {_number(row.baseline)} | {_number(row.candidate)} | {_change(row)} "
+            f"| {_number(row.baseline)} | {_candidate(row)} | {_change(row)} "
             f"| {row.min_change:.0%} | {_p(row.p_value)} | {row.seeds} ({row.baseline_seeds}) "
             f"| {row.test or '–'} | {_VERDICT[row.verdict]} |")
     notes = [f"- {row.entry}, {row.metric_label}: {row.note}" for row in result.rows
-             if row.verdict != "pass"]
+             if row.verdict != "pass" or row.metric in ("rbias2", "rvar")]
     if notes:
         lines += ["", *notes]
     lines += ["", f"{len(result.runs)} runs stored ({result.seconds:.0f} s)."]
@@ -68,7 +76,7 @@ def junit(result: CiResult) -> str:
                        time=f"{result.seconds:.3f}")
     for row in result.rows:
         case = ET.SubElement(suite, "testcase", classname=row.entry, name=row.metric)
-        detail = (f"baseline {_number(row.baseline)}, candidate {_number(row.candidate)}, "
+        detail = (f"baseline {_number(row.baseline)}, candidate {_candidate(row)}, "
                   f"change {_change(row)}, p {_p(row.p_value)}, {row.seeds} seeds; {row.note}")
         if row.verdict == "regression":
             ET.SubElement(case, "failure", message=row.note).text = detail

@@ -13,6 +13,10 @@ The level of the whole suite (``suite.level``) is split evenly over its rows
 (jobs.ci.ci_stats): the chance that the suite fails while no row got worse by
 its minimum change or more is at most ``suite.level``. docs/ci.md has the argument
 and the chosen numbers.
+
+Beside the compared rows, every entry has an rBias² and an rVar row with their 95 %
+intervals over its runs (jobs.ci.bias_check); the rBias² row of a method that claims to
+be unbiased is gated on its interval.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
+from jobs.ci.bias_check import bias_verdict, claims_unbiased, rbias2_estimate, rvar_estimate
 from jobs.ci.ci_stats import (
     TEST_NAMES,
     accept_levels,
@@ -39,12 +44,14 @@ from jobs.protocol.provenance import git_branch, git_commit
 from jobs.protocol.results import RunResultDetail, method_params
 from jobs.record.store import Store
 from metrics.registry import Metric
+from metrics.statistics import mean_confidence_interval
 
 #: Runs a typed job to completion and returns the stored run (embedded or over REST).
 Runner = Callable[[RenderJob], RunResultDetail]
 #: The baseline row of (entry, the entry's first candidate run, metric), or None.
 BaselineSource = Callable[[Entry, RunResultDetail, Metric], BaselineRow | None]
-Verdict = Literal["pass", "regression", "not comparable"]
+#: 'shown': a row beside the gate (rBias² of a method not claiming unbiasedness, rVar).
+Verdict = Literal["pass", "regression", "not comparable", "shown"]
 
 
 class CiRow(BaseModel):
@@ -59,6 +66,9 @@ class CiRow(BaseModel):
     min_change: float
     baseline: float | None = Field(None, description="mean of the baseline's seeds compared")
     candidate: float | None = Field(None, description="mean of the candidate's seeds")
+    candidate_ci95: list[float] | None = Field(
+        None, description="95 % interval of the candidate's value (Student t over its seeds; "
+                          "rBias² and rVar: jobs.ci.bias_check)")
     change: float | None = Field(None, description="relative change (the estimate), "
                                                    "positive = worse")
     p_value: float | None = Field(None, description="one-sided p of 'worse by at most "
@@ -169,6 +179,8 @@ class _RowState:
                          paired=paired, test=suite.test)
         level, accept_level = levels
         self.row.baseline, self.row.candidate = result.baseline_mean, result.candidate_mean
+        if len(cand.values) >= 2:
+            self.row.candidate_ci95 = list(mean_confidence_interval(cand.values)[1:])
         self.row.change, self.row.p_value, self.row.level = result.change, result.p_worse, level
         self.row.test, self.row.baseline_seeds = TEST_NAMES[result.test], len(b)
         if result.test == "mann-whitney" and smallest_rank_p(len(cand.values), len(b)) >= level:
@@ -223,9 +235,27 @@ def run_suite(suite: Suite, runner: Runner, baseline_of: BaselineSource, *, suit
             if all(state.decided for state in states):
                 break
         rows += [state.row for state in states]
+        rows += bias_rows(entry, results)
     return CiResult(suite=suite_name, baseline=baseline_name, commit=git_commit(),
                     branch=git_branch(), level=suite.level, spending=suite.spending, rows=rows,
                     runs=runs, seconds=time.monotonic() - started)
+
+
+def bias_rows(entry: Entry, results: Sequence[RunResultDetail]) -> list[CiRow]:
+    """The entry's rBias² and rVar rows over its runs, with their intervals; rBias² gated
+    for a method that claims to be unbiased (jobs.ci.bias_check)."""
+    seeds = sum(len(r.per_seed) for r in results)
+    rows = []
+    for name, label, (value, ci, how) in (("rbias2", "rBias²", rbias2_estimate(results)),
+                                          ("rvar", "rVar", rvar_estimate(results))):
+        verdict, note = (bias_verdict(claims_unbiased(entry.method, entry.params), ci)
+                         if name == "rbias2" else ("shown", "not gated"))
+        rows.append(CiRow(entry=entry.label, scene=entry.scene, method=entry.method,
+                          metric=name, metric_label=label, direction="lower", min_change=0.0,
+                          candidate=value, candidate_ci95=ci, seeds=seeds,
+                          looks=len(results), verdict=verdict,  # type: ignore[arg-type]
+                          note=f"{note} ({how})"))
+    return rows
 
 
 def baseline_rows(suite: Suite, runner: Runner, *, seed_start: int = 0,

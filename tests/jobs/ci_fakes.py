@@ -31,7 +31,7 @@ def fake_run(run_id: int, method: str, seeds: dict[int, dict[str, Any]], *,
 _RUN = RunResultDetail.model_construct(
     id=0, scene="cornell-box", scene_fingerprint="fp", method="pt",
     metric_version=METRIC_VERSION, estimator_version=1, device_key="llvm:test",
-    git_commit="c0ffee", git_branch="main", per_seed=[])
+    git_commit="c0ffee", git_branch="main", per_seed=[], metrics={})
 
 
 class FakeRunner:

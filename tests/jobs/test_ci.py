@@ -38,6 +38,11 @@ PROJECT_SUITE = ROOT / "ci" / "suite.toml"
 PROJECT_BASELINE = ROOT / "ci" / "baseline.json"
 
 
+
+def compared(result):
+    """The rows compared with the baseline (not the bias check's rBias² and rVar rows)."""
+    return [row for row in result.rows if row.metric not in ("rbias2", "rvar")]
+
 def small_suite(**overrides) -> Suite:
     data = {"scenes": ["cornell-box"], "resolution": 16, "frames": 4,
             "metrics": ["mrse", "psnr", "time"],
@@ -207,9 +212,9 @@ def test_the_same_configuration_passes_at_the_first_look_on_its_own_seeds():
     runner = FakeRunner(suite, draw)
     result = run(suite, runner, baseline_of(suite, draw, range(16)))
     assert result.exit_code == 0
-    assert {row.verdict for row in result.rows} == {"pass"}
+    assert {row.verdict for row in compared(result)} == {"pass"}
     assert {row.seeds for row in result.rows} == {suite.group}
-    assert {row.test for row in result.rows} == {"paired t"}
+    assert {row.test for row in compared(result)} == {"paired t"}
     assert runner.seeds == {"pt": 4, "nirc biased": 4}
 
 
@@ -257,7 +262,7 @@ def test_other_versions_and_devices_are_not_compared():
     assert "same device" in verdicts["pt", "time"].note
     assert verdicts["pt", "mrse"].verdict == "pass"
     result = run(suite, FakeRunner(suite, draw, version=99), source)
-    assert {row.verdict for row in result.rows} == {"not comparable"}
+    assert {row.verdict for row in compared(result)} == {"not comparable"}
     assert "estimator version" in result.rows[0].note and result.exit_code == 0
     assert {row.seeds for row in result.rows} == {suite.group}   # nothing to add seeds for
 
@@ -389,3 +394,31 @@ def test_the_runner_gets_the_parameters_validated_when_the_suite_was_expanded():
     run(suite, runner, file_baseline([]))
     assert received and all(job.params is entry.method_params for job in received)
     assert received[0].spec.params == entry.params
+
+
+def test_the_bias_check_gates_an_unbiased_claim_on_rbias2s_interval():
+    """rBias² seed values over two runs of an unbiased method (PT): centred on 0 they pass
+    in ~95 % of draws; planted, shifted by 1.5 of their standard deviation (4 + 4 seeds:
+    the t interval's half-width is ~0.8 sd), the gate finds the bias in most draws. A
+    gate on the point estimate alone (estimate > 0) would fail the unbiased half of the
+    draws, which the first bound rejects. A biased method's row is shown, not gated."""
+    from jobs.ci.bias_check import bias_verdict, claims_unbiased, rbias2_estimate
+
+    rng = np.random.default_rng(11)
+
+    def runs(shift: float) -> list:
+        values = rng.normal(shift, 1.0, 8)
+        return [fake_run(i, "pt", {s: {} for s in range(4)}).model_copy(
+            update={"metrics": {"rbias2_seed_values": list(values[4 * i:4 * i + 4]),
+                                "rbias2_basis": "pooled"}}) for i in range(2)]
+
+    def failed(shift: float) -> float:
+        verdicts = [bias_verdict(True, rbias2_estimate(runs(shift))[1])[0] for _ in range(400)]
+        return verdicts.count("regression") / len(verdicts)
+
+    assert failed(0.0) < 0.05 + 3 * (0.05 * 0.95 / 400) ** 0.5     # ~0.025: one-sided
+    assert failed(1.5) > 0.8
+    assert claims_unbiased("pt", {}) and not claims_unbiased("nrc", {})
+    assert claims_unbiased("nirc", {"estimator": "unbiased"})
+    assert not claims_unbiased("nirc", {"estimator": "biased"})
+    assert bias_verdict(False, [0.1, 0.2])[0] == "shown"
