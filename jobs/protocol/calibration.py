@@ -55,8 +55,8 @@ import numpy as np
 #: Default number of interleaved rounds and the allowed spread (fraction of the budget).
 DEFAULT_ROUNDS = 3
 DEFAULT_MAX_SPREAD = 0.1
-#: A candidate whose frame time (measured, else predicted) exceeds this many budgets is
-#: not timed (again).
+#: A candidate whose frame time (measured, else predicted) exceeds this many times the
+#: budget plus its tolerance (what still fits) is not timed (again).
 PREDICTION_CUT = 4.0
 #: What to do about a calibration whose timings cannot be trusted.
 ADVICE = ("what to do: calibrate again with nothing else running on the machine (the load "
@@ -210,10 +210,10 @@ def search(knob: str, values: Sequence[int], measure: Callable[[int], float],
                         f"allowed spread in every round, and the cost grows with {knob}")
         medians = {v: float(np.median(t)) for v, t in timed.items()}
         expected = medians[value] if value in medians else predicted_seconds(medians, value)
-        if expected is not None and expected > PREDICTION_CUT * budget_s():
+        if expected is not None and expected > PREDICTION_CUT * limit:
             how = "timed" if value in medians else "predicted"
             return (f"{how} {1e3 * expected:.3g} ms per frame, over {PREDICTION_CUT:g} x the "
-                    f"budget")
+                    f"budget and its tolerance")
         return None
 
     def due(value: int) -> bool:

@@ -87,7 +87,7 @@ class TimeBudget(BaseModel):
     Either ``ms`` per frame, or ``pt_spp``: the frame time of PT at that spp on
     this device, measured now (in every round, interleaved with the candidates).
     The candidates are timed in ``rounds`` interleaved rounds (not those predicted
-    over 4x the budget, nor, for spp, those above one clearly over it); the largest
+    over 4x the budget plus its tolerance, nor, for spp, those above one clearly over it); the largest
     whose median fits (within ``tolerance_ms``) is used; the calibration, with its
     spread and its ``capped`` / ``unstable`` flags, is stored with the run
     (jobs.protocol.calibration).
