@@ -59,11 +59,18 @@ const metricHeads = (listed) => listed.map((m) => `<th title="${esc(better(m))}"
 const reasons = (run) => (run.quality.reasons || []).map((r) => `${r.code}: ${r.message}`).join("\n");
 const verdictCell = (run) => `<td class="text verdict verdict-${esc(run.verdict ?? "none")}" title="${esc(reasons(run))}">${esc(run.verdict ?? "not judged")}</td>`;
 
+// A run's ms/frame, marked L (the flags as its tooltip) where it was timed on a loaded machine.
+function loadedTime(r) {
+  const time = runLink(r.id, num(r.seconds_per_frame * 1e3));
+  const flags = r.timing_flags || [];
+  return flags.length ? `${time} <b class="loaded" title="${esc(flags.join("; "))}">L</b>` : time;
+}
+
 function resultsTable(runs, listed) {
   return `<table class="results"><tr><th class="text">method</th><th class="text">setting</th><th class="text">device</th>
     <th class="text">verdict</th>${metricHeads(listed)}<th>ms/frame</th><th>run</th></tr>${runs.map((r) => `<tr>
     <td class="text">${esc(label(r))}</td><td class="text">${esc(setting(r))}</td><td class="text">${esc(r.device_key)}</td>${verdictCell(r)}
-    ${listed.map((m) => metricCells(r, m)).join("")}<td>${runLink(r.id, num(r.seconds_per_frame * 1e3))}</td><td>${runLink(r.id, r.id)}</td></tr>`).join("")}</table>`;
+    ${listed.map((m) => metricCells(r, m)).join("")}<td>${loadedTime(r)}</td><td>${runLink(r.id, r.id)}</td></tr>`).join("")}</table>`;
 }
 
 async function overview() {

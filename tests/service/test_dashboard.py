@@ -93,6 +93,16 @@ def test_overview_lists_the_latest_results_with_every_number_linked(chromium, si
     links = {a.get_attribute("href") for a in row.locator("td a").all()}
     assert len(links) == 1 and links.pop() in {f"#/run/{run}" for run in runs}
     assert row.locator("td a").count() >= 8
+    # A time taken on a loaded machine is marked L, with its flags as the tooltip; no
+    # other time is (the site's runs: whatever this machine's load was while they ran).
+    for index in range(1, table.locator("tr").count()):
+        cells = table.locator("tr").nth(index).locator("td")
+        run = cells.nth(cells.count() - 1).inner_text()
+        flags = get_json(f"{url}/api/v1/runs/{run}")["timing_flags"]
+        mark = cells.nth(cells.count() - 2).locator("b.loaded")
+        assert mark.count() == (1 if flags else 0)
+        if flags:
+            assert mark.get_attribute("title") == "; ".join(flags)
     ARTIFACTS.mkdir(exist_ok=True)
     page.screenshot(path=str(ARTIFACTS / "dashboard-overview.png"), full_page=True)
     assert errors == []
