@@ -287,8 +287,10 @@ def _ordered(names: set[str]) -> list[str]:
 def wall_frames(frames: Sequence[FrameTime]) -> list[FrameTime]:
     """The frames whose wall time counts: the wall frames (kernel history off), or, where
     there are none, the kernel frames (runs stored before the frames were interleaved,
-    or a measurement of what recording the history costs: the history in every frame)."""
-    return [f for f in frames if f.kind == WALL] or kernel_frames(frames)
+    or a measurement of what recording the history costs: the history in every frame),
+    else all of them (a seed of a run whose one frame came after a kernel frame: the
+    run's pooled timings take their wall times from its other seeds)."""
+    return [f for f in frames if f.kind == WALL] or kernel_frames(frames) or list(frames)
 
 
 def kernel_frames(frames: Sequence[FrameTime]) -> list[FrameTime]:

@@ -254,15 +254,18 @@ class SeedRender:
 
 def render_seed(render: Callable[[FrameHooks], RenderOutput], reference: np.ndarray, eps: float,
                 *, keep_frames: bool = False, warmup: bool = True,
-                progress: Callable[[int, int], None] | None = None) -> SeedRender:
+                progress: Callable[[int, int], None] | None = None,
+                first_frame: int = 0) -> SeedRender:
     """Run ``render(hooks)`` (one seed's frame loop) with the error-over-frames tracker and
     the frame moments attached: the one frame loop of every stored run (render jobs, sweep
-    points)."""
+    points). ``first_frame``: where the seed's frames start in the run's schedule of wall
+    and kernel frames (FrameHooks.first_frame)."""
     tracker = ConvergenceTracker(reference, eps)
     moments = RunningMoments()
     gc.collect()   # the previous seed's objects, before this seed's frozen calls (prepare)
     output = render(FrameHooks(keep_frames=keep_frames, warmup=warmup, progress=progress,
-                               on_frame=chain(tracker, frame_moments_hook(moments))))
+                               on_frame=chain(tracker, frame_moments_hook(moments)),
+                               first_frame=first_frame))
     return SeedRender(output, tracker.result(), moments)
 
 
@@ -578,6 +581,6 @@ def execute(
                 spp=spec.spp, frames=spec.frames, hooks=hooks),
             prepared.reference.mean, spec.eps, keep_frames=spec.keep_frames,
             progress=(lambda done, total, label=label: progress(label, done, total))
-            if progress else None))
+            if progress else None, first_frame=(seed - spec.seed_start) * spec.frames))
     return store_run(job, prepared, rendered, store, settings, out_dir=out_dir,
                      idempotency_key=idempotency_key, extra=extra)

@@ -375,7 +375,8 @@ class _Sweep:
                         seed_parts=(self.prepared.scene.fingerprint, method,
                                     params.model_dump(mode="json"), "sweep", seed),
                         frames=self.spec.frames, spp=1, aov_names=CACHE_AOVS, hooks=hooks),
-                    self.prepared.reference.mean, self.spec.metric_eps, warmup=index == 0)
+                    self.prepared.reference.mean, self.spec.metric_eps, warmup=index == 0,
+                    first_frame=seed * self.spec.frames)
                 seed_render.output.method_stats = {"snapshot": snap.key,
                                                    "mask_fraction": float(mask.mean())}
                 rendered[point.eps].append(seed_render)

@@ -247,7 +247,11 @@ class FrameHooks:
     Dr.Jit's kernel history for the kernel time of every stage, between wall frames
     timed without it (renderers.timing.frame_kind): 4 by default; 1 (every frame) and
     0 (none) only to measure what recording the history costs; 2 is refused (it leaves
-    no wall frame after the first).
+    no wall frame after the first). ``first_frame``: the place of this loop's first
+    timed frame in that schedule, so that a run of several seeds continues it from
+    seed to seed (the executor passes seed index x frames): a run of one frame per
+    seed then still has kernel frames, and its pooled timings (renderers.timing.pooled)
+    take wall times from some seeds and kernel times from others.
     """
 
     keep_frames: bool = False
@@ -255,6 +259,7 @@ class FrameHooks:
     on_frame: OnFrame | None = None
     warmup: bool = True
     kernel_every: int = KERNEL_EVERY
+    first_frame: int = 0
 
     def __post_init__(self) -> None:
         if self.kernel_every < 0 or self.kernel_every == 2:
@@ -436,7 +441,7 @@ def run_frames(
     timed: list[FrameTime] = []
     with LoadMonitor(host_bound_cpu=host_runs_kernels()) as load:
         for index in range(frames):
-            kind = frame_kind(index, hooks.kernel_every)
+            kind = frame_kind(hooks.first_frame + index, hooks.kernel_every)
             with kernel_history(kind == KERNEL):
                 timer = StageTimer()
                 with timer.frame():

@@ -106,3 +106,19 @@ def test_the_images_are_those_of_the_history_in_every_frame(pt_frames, monkeypat
     monkeypatch.setattr(base, "derive_seed", lambda *parts: derive(*parts) + (
         kernel_history_enabled() and isinstance(parts[-1], int) and parts[-1] >= 0))
     assert not np.array_equal(pt_frames(KERNEL_EVERY).accumulated, before.accumulated)
+
+
+def test_one_frame_seeds_continue_the_schedule_so_the_run_has_kernel_times(mi):
+    """A run of one frame per seed (the default render) gets its kernel frames from the
+    seeds after the first: each seed starts where the last left off (first_frame)."""
+    def seeds(first_frames: list[int]) -> dict:
+        outputs = [run_frames(FlagSeen(), seed_parts=("kernel-frames", k), frames=1, spp=1,
+                              aov_names=(), hooks=FrameHooks(first_frame=first))
+                   for k, first in enumerate(first_frames)]
+        return timing.pooled([output.timings for output in outputs])
+
+    run_timings = seeds([0, 1, 2, 3])
+    assert run_timings["frame_kinds"] == {"wall": 2, "kernel": 1, "after-kernel": 1}
+    assert run_timings["device_time"]["kernel_median_s"] > 0
+    # Planted: every seed starting the schedule afresh leaves the run no kernel frame.
+    assert seeds([0, 0, 0, 0])["frame_kinds"]["kernel"] == 0
