@@ -2,7 +2,9 @@
 
 ``settings`` / ``store`` run every test that uses them twice: on a SQLite file in a
 temporary folder, and on a fresh database of the PostgreSQL test server
-(``scripts/test_postgres.sh``, see ``tests/setup_services.py``).
+(``scripts/test_postgres.sh``, see ``tests/setup_services.py``). Each starts as a copy
+of a database migrated once per session; the tests marked ``empty_database`` (those
+of migrating) get an empty one.
 """
 
 from collections.abc import Iterator
@@ -21,9 +23,11 @@ def settings(request, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterat
     # A database URL in the developer's environment must not redirect the tests.
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
     if request.param == "sqlite":
-        yield Settings(data_dir=tmp_path / "data")
+        yield Settings(data_dir=request.getfixturevalue("data_folder"))
         return
-    with postgres_database() as url:
+    # A copy of a migrated database (tests/pg.py), empty for the tests of migrating.
+    empty = request.node.get_closest_marker("empty_database") is not None
+    with postgres_database(migrated=not empty) as url:
         yield Settings(data_dir=tmp_path / "data", database_url=url)
 
 
@@ -35,8 +39,8 @@ def store(settings: Settings) -> Iterator[Store]:
 
 
 @pytest.fixture
-def sqlite_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Store]:
+def sqlite_store(data_folder: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Store]:
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
-    store = open_store(Settings(data_dir=tmp_path / "data"))
+    store = open_store(Settings(data_dir=data_folder))
     yield store
     store.close()

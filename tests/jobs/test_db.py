@@ -5,6 +5,7 @@ import logging.config
 import sqlite3
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,7 @@ from alembic.autogenerate import compare_metadata
 from alembic.config import Config
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect, text
+from sqlalchemy.engine import make_url
 
 from jobs.record.config import Settings
 from jobs.record.db import (
@@ -24,6 +26,11 @@ from jobs.record.db import (
 )
 from jobs.record.models import Base
 from jobs.record.store import Store
+from tests.pg import postgres_database
+
+#: These tests migrate the database: an empty one, not the copy of a migrated one that
+#: the other store tests start from (tests/jobs/conftest.py, tests/pg.py).
+pytestmark = pytest.mark.empty_database
 
 TABLES = {"reference_renders", "runs", "seed_results", "artifacts", "cache_snapshots", "sweeps",
           "jobs", "api_keys", "login_sessions"}
@@ -43,6 +50,20 @@ def test_make_engine_creates_parent_folder(tmp_path: Path) -> None:
         conn.execute(text("SELECT 1"))
     engine.dispose()
     assert (tmp_path / "a" / "b" / "x.db").is_file()
+
+
+def test_the_database_starts_empty(settings: Settings, migrated_sqlite: Path) -> None:
+    """The migrations below run on an empty database; the copy of a migrated one that
+    the other store tests start from (planted here) has the tables already."""
+    engine = make_engine(settings.database_url)
+    assert inspect(engine).get_table_names() == []
+    engine.dispose()
+    postgresql = make_url(settings.database_url).get_backend_name() == "postgresql"
+    with postgres_database() if postgresql else nullcontext(f"sqlite:///{migrated_sqlite}") \
+            as copy_url:
+        engine = make_engine(copy_url)
+        assert TABLES <= set(inspect(engine).get_table_names())
+        engine.dispose()
 
 
 def test_fresh_database_gets_all_tables(store: Store) -> None:

@@ -90,9 +90,10 @@ def database_url(request):
 
 
 @pytest.fixture
-def api_and_store(tmp_path, monkeypatch, database_url):
-    """(in-process API client without a dispatcher, its store) on each test database:
-    for tests that store runs directly and read them back over REST."""
+def api_and_store(request, tmp_path, monkeypatch, database_url):
+    """(in-process API client without a dispatcher, its store) on each test database
+    (SQLite: a copy of the migrated one, tests/conftest.py): for tests that store runs
+    directly and read them back over REST."""
     from fastapi.testclient import TestClient
 
     from jobs.record.config import Settings
@@ -100,7 +101,8 @@ def api_and_store(tmp_path, monkeypatch, database_url):
     from service.api.main import create_app
 
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
-    settings = Settings(data_dir=tmp_path / "data", database_url=database_url)
+    data = tmp_path / "data" if database_url else request.getfixturevalue("data_folder")
+    settings = Settings(data_dir=data, database_url=database_url)
     store = open_store(settings)
     with TestClient(create_app(settings)) as http:
         yield http, store

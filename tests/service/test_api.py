@@ -50,7 +50,8 @@ def api(request, tmp_path, monkeypatch):
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
     with ExitStack() as stack:
         url = stack.enter_context(postgres_database()) if request.param == "postgresql" else None
-        yield from _api(Settings(data_dir=tmp_path / "data", database_url=url))
+        data = tmp_path / "data" if url else request.getfixturevalue("data_folder")
+        yield from _api(Settings(data_dir=data, database_url=url))
 
 
 def _api(settings: Settings):
