@@ -49,7 +49,7 @@ def data_folder(request: pytest.FixtureRequest, tmp_path: Path) -> Path:
     if request.node.get_closest_marker("empty_database") is None:
         migrated = request.getfixturevalue("migrated_sqlite")
         folder.mkdir()
-        shutil.copyfile(migrated, folder / migrated.name)
+        shutil.copy(migrated, folder / migrated.name)    # its mode too (0600)
     return folder
 
 
