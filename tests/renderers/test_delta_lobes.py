@@ -34,6 +34,7 @@ from renderers.methods import METHODS
 from tests.renderers.lighting import luminance_moments
 from tests.renderers.scene_xml import perspective_sensor
 from tests.support.moments import render_moments
+from tests.support.untimed import UNTIMED
 
 RES = 16
 #: K seeds of SPP samples: 1024 samples per pixel in all. A seed's cost is mostly the
@@ -117,7 +118,8 @@ def _seed_luminance(scene: Any, method: str, params: dict[str, Any]) -> np.ndarr
 
     parsed = parse_params(method, {**params, "max_depth": 2})
     images = [METHODS[method].render(scene, parsed, seed_parts=("delta", method, k),
-                                     spp=SPP, frames=1).accumulated[..., :3] @ LUMINANCE
+                                     spp=SPP, frames=1, hooks=UNTIMED).accumulated[..., :3]
+              @ LUMINANCE
               for k in range(SEEDS)]
     return np.stack(images)
 

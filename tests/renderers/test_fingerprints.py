@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 
 from renderers.methods import METHODS, get_method, parse_params
-from renderers.methods.base import FrameHooks
+from tests.support.untimed import UNTIMED
 
 GOLDEN = Path(__file__).parent / "golden" / "fingerprints.json"
 WRITE = os.environ.get("NIRC_BENCH_WRITE_FINGERPRINTS") == "1"
@@ -67,19 +67,13 @@ def _params(name: str, **changes: Any) -> Any:
     return parse_params(name, {key: value for key, value in wanted.items() if key in fields})
 
 
-#: No kernel frames: Dr.Jit's kernel history changes no value, and the warm-up then
-#: settles the frozen calls in one history state instead of two (renderers.timing).
-#: Measured: every method's image bit-equal to the default hooks', 25 % less CPU.
-HOOKS = FrameHooks(kernel_every=0)
-
-
 def fingerprint(name: str, params: Any = None, scene: Any = None) -> np.ndarray:
     """The method's fingerprint render (module doc), as a (RES, RES, 3) float array."""
     method = get_method(name)
     scene = _scene(method)[1] if scene is None else scene
     output = method.render(scene, _params(name) if params is None else params,
                            seed_parts=("fingerprint", name), spp=1, frames=FRAMES,
-                           hooks=HOOKS)
+                           hooks=UNTIMED)
     return np.asarray(output.accumulated, dtype=np.float64)
 
 

@@ -38,6 +38,7 @@ from renderers.integrators.termination import (
     policy_names,
 )
 from renderers.methods import METHODS, MethodError, parse_params
+from tests.support.untimed import UNTIMED
 
 GOLDEN = Path(__file__).parent / "golden" / "termination_before.npz"
 RES = 16
@@ -78,7 +79,7 @@ def _render(name: str, params: Any) -> np.ndarray:
 
     method, _params_json, scene_name = CONFIGS[name]
     out = METHODS[method].render(load_scene(scene_name, RES), params,
-                                 seed_parts=("ref", 7), spp=2, frames=2)
+                                 seed_parts=("ref", 7), spp=2, frames=2, hooks=UNTIMED)
     return np.asarray(out.accumulated)
 
 
