@@ -40,7 +40,7 @@ from sqlalchemy import and_, func, or_, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, aliased
 
-from jobs.protocol.spec import RenderSpec, SweepSpec
+from jobs.protocol.spec import RenderSpec, SweepSpec, keyed_budget
 from jobs.record.models import DEDUPE_JOB_STATES, FINAL_JOB_STATES, ApiKey, Job, JobStatus
 from jobs.record.store import Store
 from renderers.seeding import digest
@@ -52,7 +52,8 @@ _DEDUPE_STATES = [state.value for state in DEDUPE_JOB_STATES]
 def spec_key(kind: str, spec: RenderSpec | SweepSpec, device_class: str) -> str:
     """The dedupe key of a submitted render or sweep: its spec, the worker class and
     today's estimator and metric versions (after a version bump nothing old matches)."""
-    return digest(kind, spec.model_dump(mode="json"), device_class, spec.versions())
+    return digest(kind, keyed_budget(spec.model_dump(mode="json")), device_class,
+                  spec.versions())
 
 
 def _now() -> datetime:

@@ -120,6 +120,15 @@ class TimeBudget(BaseModel):
         return self
 
 
+def keyed_budget(data: dict[str, Any]) -> dict[str, Any]:
+    """A dumped spec as its keys see it: a time budget that leaves loaded probes out (the
+    default) keeps the keys of budgets from before ``allow_loaded`` existed."""
+    budget = data.get("time_budget")
+    if budget and not budget.get("allow_loaded"):
+        budget.pop("allow_loaded", None)
+    return data
+
+
 class RenderSpec(BaseModel):
     """One render job: a method on a scene, K seeds, compared with a reference."""
 
@@ -152,9 +161,7 @@ class RenderSpec(BaseModel):
         data = self.model_dump(mode="json")
         if not data["seed_start"]:  # specs from before seed_start keep their keys
             del data["seed_start"]
-        if data["time_budget"] and not data["time_budget"]["allow_loaded"]:
-            del data["time_budget"]["allow_loaded"]     # nor do budgets from before it
-        return digest("render-spec", data, self.versions())
+        return digest("render-spec", keyed_budget(data), self.versions())
 
 
 #: The methods a sweep can run (the registry's methods with a sweep role).

@@ -5,7 +5,10 @@ idempotency keys, references, the method parameters that go into sweep-point and
 snapshot keys) are those computed by the code before jobs were parsed once: the
 values below were computed with it, so stored results stay comparable. A
 method's estimator version is part of its render keys, so a bump gives new ones:
-the restir values are those of `restir-di` version 3 (pairwise MIS).
+the restir values are those of `restir-di` version 3 (pairwise MIS). The metric
+version is part of every key but the parameters' (references included): GOLDEN holds
+those of metric version 3 (a cache method's rBias² the mean over its caches), and at
+version 2 the code still gives the values from before.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ SWEEPS = {
 }
 PARAMS = [("nirc", t) for t in ("bth", "sph", "adaptive")] + [("nrc", t) for t in ("sph", "adaptive")]
 
-GOLDEN = {
+GOLDEN_METRIC_VERSION_2 = {
     "render-spec pt":
         "b4f2cab8e2bcd3add62ff1df8a878fd9a821b06a669cda02283b1a58241ea506",
     "idempotency render pt":
@@ -84,6 +87,42 @@ GOLDEN = {
         "17b639b1740769bd442eb745eb4019c3a9a26e6d5027fd3b1f0b01dac511663d",
     "params nrc adaptive":
         "7dc19c287c5f488eacbee4fe60e80844589bb8e8383e0b81621c1d8d703049ae",
+}
+
+# Metric version 3: every key but the method parameters' moved with it.
+GOLDEN = GOLDEN_METRIC_VERSION_2 | {
+    "render-spec pt":
+        "7be3b3012668ca3d5538b187f86cdf3416c4e90f3fa540bbed57434fb0995151",
+    "idempotency render pt":
+        "df34c4d9566473d79c78561c8bf226e18c639bc311d42f150dcb2c98cc6a5ca0",
+    "reference pt":
+        "8a051e1238ea066ca5ae9b46f38c38fd",
+    "render-spec nirc_adaptive":
+        "c075162b18bf210be68d8d64137381435229f61506f8e8c7e52a9234087e2b35",
+    "idempotency render nirc_adaptive":
+        "ce5e70b01c38bb0a145db345012f0bcdc5fbf544504248624f9472824f0d08a1",
+    "reference nirc_adaptive":
+        "8a051e1238ea066ca5ae9b46f38c38fd",
+    "render-spec nrc_budget":
+        "ae74e88fe3d1f86b378dc16bde5f7d70b4157bc40e2b2c844f0d9d3293c11bc0",
+    "idempotency render nrc_budget":
+        "2bd80b149b22739be8d862bc52efc8b4ec5620876951ea14c6121eb66be2d4d9",
+    "reference nrc_budget":
+        "8a051e1238ea066ca5ae9b46f38c38fd",
+    "render-spec restir":
+        "f4b1de15769da83d4bbc5e7dc9324fba9360059d952e9427973263ad2310ee4d",
+    "idempotency render restir":
+        "02a1362294ba34bd31c552d4683b0ebc5dfe41d402817b9a5843b2d71a2e1856",
+    "reference restir":
+        "e43fd70126694313b3d2c3e797dc254d",
+    "sweep-spec eps":
+        "5346ccc38e511a30af495cde43dca3bb01cb68428430eeb3fc22838e5c6b92a1",
+    "idempotency sweep eps":
+        "4751e7efbade1f4c2806a4d48a0cc60e34e7b45c5a4c1c57367267ab85a0c37c",
+    "sweep-spec nc":
+        "f8c06a10deecc436db4b7559cdf6815ffe9e91a308f438c9703baf3bf8fe5d16",
+    "idempotency sweep nc":
+        "7eb100b9d6dee1d0cd56e3267b09a1107f3b495ea0c18d9ff18b2a9c98295712",
 }
 
 
@@ -173,3 +212,15 @@ def test_parameter_models_are_validated_only_at_the_entry_points(path):
     names = {getattr(call.func, "id", getattr(call.func, "attr", None)) for call in calls}
     assert not names & {"parse_params", "model_validate", "model_validate_json"}, path
     assert not any(getattr(call.func, "id", None) == "RenderSpec" for call in calls), path
+
+
+def test_the_keys_before_the_metric_version_bump_are_unchanged(monkeypatch):
+    """Only the metric version moved the keys: at version 2 they are those from before
+    (so a change of what is hashed cannot hide behind the bump)."""
+    import jobs.protocol.references as references
+    import jobs.protocol.spec as spec
+    import jobs.protocol.versions as versions
+
+    for module in (references, spec, versions):
+        monkeypatch.setattr(module, "METRIC_VERSION", 2)
+    assert _keys() == GOLDEN_METRIC_VERSION_2
