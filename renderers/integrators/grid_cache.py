@@ -67,16 +67,16 @@ class GridState(CacheState):
 
     DRJIT_STRUCT = {
         **CacheState.DRJIT_STRUCT,
-        "termination_scale": mi.Float,   # var-bound relative: the squared pixel brightness
+        "policy_state": dict,            # the policy's own (TerminationPolicy.path_state)
         "pending": mi.Bool,              # blended at the previous vertex: ends at this one
         "next_cache_weight": mi.Float,   # weight of the cache where a blended path ends
         "length": mi.Float,              # the paper's path length, once the cache was used
     }
 
-    def __init__(self, termination_scale=None, pending=None, next_cache_weight=None,
+    def __init__(self, policy_state=None, pending=None, next_cache_weight=None,
                  length=None, **fields):
         super().__init__(**fields)
-        self.termination_scale = termination_scale
+        self.policy_state = policy_state
         self.pending = pending
         self.next_cache_weight = next_cache_weight
         self.length = length
@@ -120,7 +120,7 @@ class GridCacheIntegrator(PathIntegrator):
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> GridState:
         base = new_cache_state()
         fields = {name: getattr(base, name) for name in CacheState.DRJIT_STRUCT}
-        return GridState(mi.Float(1.0), mi.Bool(False), mi.Float(1.0), mi.Float(0.0),
+        return GridState(self.policy.path_state(), mi.Bool(False), mi.Float(1.0), mi.Float(0.0),
                          **fields)
 
     def after_emission(self, vertex: Vertex, state: GridState) -> GridState:

@@ -41,7 +41,6 @@ from renderers.integrators.cached import (
 )
 from renderers.integrators.deferred import InlineQueries, QueryBuffer, QueryLayout
 from renderers.integrators.path import Vertex, VertexTerms
-from renderers.integrators.spread import SPREAD_C
 from renderers.integrators.termination import (
     TerminationPolicy,
     TerminationQuery,
@@ -56,10 +55,11 @@ class NRCSettings(Protocol):
     validated parameters (renderers.methods.nrc.NRCParams; that module declares
     these integrators)."""
 
-    sph_c: float
     unbiased_every: int
 
     def termination_policy(self) -> TerminationPolicy: ...
+
+    def termination_settings(self) -> TerminationSettings: ...
 
 
 NRC_PLUGIN = "nirc_nrc"
@@ -67,14 +67,17 @@ NRC_PLUGIN = "nirc_nrc"
 MIN_V1_ROUGHNESS = 0.0625
 
 
-def nrc_terms(queries: QueryBuffer | InlineQueries, policy: TerminationPolicy, vertex: Vertex,
-              state: CacheState, may_terminate: mi.Bool | bool = True,
+def nrc_terms(queries: QueryBuffer | InlineQueries, policy: TerminationPolicy | None,
+              vertex: Vertex, state: CacheState, may_terminate: mi.Bool | bool = True,
               cache: Any = None) -> tuple[VertexTerms, CacheState]:
     """Terminate into the outgoing-radiance cache (see module doc) where ``policy``
     says so (termination/: the spread heuristic, never at the first vertex; or
     adaptive, NIRC paper Sec. 6.3, at v1 where the pixel's v1 mask allows). At v1
     the cache is not used on surfaces glossier than ``MIN_V1_ROUGHNESS``. The query
     goes to ``queries`` (deferred, or evaluated in the loop for training paths)."""
+    if policy is None:
+        raise RuntimeError("the nrc integrators need configure(params) before they trace "
+                           "(renderers.methods.nrc.build does it)")
     smooth = mi.has_flag(vertex.bsdf.flags(), mi.BSDFFlags.Smooth)
     inputs = cache_inputs(vertex.si, vertex.bsdf, specular=True)
     usable = vertex.active_next & smooth & may_terminate
@@ -91,6 +94,12 @@ def nrc_terms(queries: QueryBuffer | InlineQueries, policy: TerminationPolicy, v
     return terms, state
 
 
+def self_training_policy(params: NRCSettings) -> TerminationPolicy:
+    """The spread heuristic (``sph``) that ends NRC's self-training paths, whatever
+    policy the render paths use."""
+    return make_policy("sph", {}, params.termination_settings())
+
+
 def refuse_blending(policy: TerminationPolicy) -> TerminationPolicy:
     """``policy``, if its decisions only stop or continue (NRC's cache ends the path)."""
     if policy.blends:
@@ -103,13 +112,12 @@ class NRCIntegrator(CachedPathIntegrator):
     """PT core + termination into an outgoing-radiance cache.
 
     The termination policy (termination/) comes from the method's model
-    (:class:`NRCSettings`) through :meth:`configure`; before it is configured,
-    the spread heuristic with the ``sph_c`` property.
+    (:class:`NRCSettings`) through :meth:`configure`, which must come first.
     """
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
-        self.policy = make_policy("sph", {}, TerminationSettings(self.sph_c))
+        self.policy: TerminationPolicy | None = None   # set by configure
 
     def configure(self, params: NRCSettings) -> None:
         """Take the `nrc` method's parameters (validated once, by the model)."""
@@ -142,8 +150,7 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
         self.unbiased_every = int(props.get("unbiased_every", 16))
-        self.spread = make_policy("sph", {}, TerminationSettings(
-            float(props.get("sph_c", SPREAD_C))))
+        self.spread: TerminationPolicy | None = None   # set by configure
         self.cache: Any = None
         if self.key_vertex != "arrival":
             raise ValueError("NRC self-training records at the arrival vertex")
@@ -153,7 +160,7 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     def configure(self, params: NRCSettings) -> None:
         """Take the `nrc` method's parameters (validated once, by the model)."""
         self.unbiased_every = params.unbiased_every
-        self.spread = make_policy("sph", {}, TerminationSettings(params.sph_c))
+        self.spread = self_training_policy(params)
 
     def frame_freezable(self) -> bool:
         """The core's condition, and the cache hands over what its queries read."""

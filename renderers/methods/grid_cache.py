@@ -94,10 +94,12 @@ class GridCacheParams(PTParams, TerminationChoice):
         return {"cache": grid_config}
 
     def termination_settings(self) -> Any:
+        """No grid policy reads ``sph_c`` (area-spread has its own c), which is not a
+        parameter here: the caching methods' default stands in."""
         from renderers.integrators.termination import TerminationSettings
+        from renderers.methods.cached import CacheTrainingParams
 
-        # area-spread has its own c; the neural methods' sph_c is not a parameter here.
-        return TerminationSettings(0.01)
+        return TerminationSettings(CacheTrainingParams.model_fields["sph_c"].default)
 
     def resolved_grid(self, scene: Any) -> Any:
         """The grid configuration of ``scene`` (a renderers.scenes scene)."""

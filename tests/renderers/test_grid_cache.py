@@ -107,6 +107,9 @@ class _FixedBlend:
     def __init__(self, alpha: float) -> None:
         self.alpha = alpha
 
+    def path_state(self) -> dict:
+        return {}
+
     def continuation(self, query):
         import drjit as dr
         import mitsuba as mi
@@ -150,6 +153,50 @@ def test_the_blend_is_eq5_and_planted_blends_are_caught(mi, filled):
     assert _blend_error(mi, filled, lambda a: (1.0 + a, a, 1.0)) > 0.05
     assert _blend_error(mi, filled, lambda a: (1.0 - a, 1.0, a)) > 0.05
 
+
+
+class _SecondVisit:
+    """A test policy that counts the vertices it is asked at in its own path state
+    (``path_state``) and ends the path at the second."""
+
+    def path_state(self) -> dict:
+        import mitsuba as mi
+
+        return {"visits": mi.Float(0.0)}
+
+    def continuation(self, query):
+        import drjit as dr
+
+        own = query.state.policy_state
+        own["visits"] = dr.select(query.vertex.active, own["visits"] + 1.0, own["visits"])
+        return dr.select(own["visits"] >= 2.0, 0.0, 1.0), query.state
+
+
+def _cache_depths(mi, filled):
+    scene, _params, integrator, _updater, _grid = filled
+    integrator.policy = _SecondVisit()
+    return _render(mi, scene, integrator, seed=7)[1][..., 1]
+
+
+def test_the_policys_own_state_is_carried_along_the_path(mi, filled, monkeypatch):
+    """A policy's declared path state reaches the next vertex: counting its own visits,
+    it ends paths at the second vertex (cache_depth 2, or later where the second had
+    no record), never at the first. Planted: an integrator that hands the policy a fresh
+    state at every vertex never ends a path (cache_depth 0 everywhere)."""
+    depths = _cache_depths(mi, filled)
+    assert not (depths == 1).any()
+    assert (depths == 2).mean() > 0.5, np.unique(depths, return_counts=True)
+
+    from renderers.integrators.grid_cache import GridCacheIntegrator
+
+    real = GridCacheIntegrator.vertex_terms
+
+    def forgetting(self, vertex, state):
+        state.policy_state = self.policy.path_state()
+        return real(self, vertex, state)
+
+    monkeypatch.setattr(GridCacheIntegrator, "vertex_terms", forgetting)
+    assert not _cache_depths(mi, filled).any()
 
 def _frames(mi, filled, policy, frames, seed=100):
     """Per-frame luminance images (grid frozen: no propagation between them) and the mean

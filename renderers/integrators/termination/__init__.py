@@ -15,7 +15,8 @@ the next vertex). What a policy may read is a :class:`TerminationQuery`:
 * the per-path state carried along the path (``state``: the spread of the path
   for the spread heuristic, the pixel's v1 mask of adaptive termination, and
   ``termination_value``, one number a policy keeps for itself, e.g. an
-  accumulated variance);
+  accumulated variance; the grid's integrator also carries the state a policy
+  declares, :meth:`TerminationPolicy.path_state`);
 * the N_c coupling of NIRC (``nc``: the number of cache samples at the first
   vertex and at later ones; the Balanced Termination Heuristic depends on it);
 * read access to the cache's statistics at the current vertex and, by tracing
@@ -95,8 +96,9 @@ class TerminationPolicy:
     A subclass sets ``name``, ``description``, ``serves`` and, where it differs
     from the defaults, ``Params``, ``nc_entries`` (how many N_c values it takes:
     1, or 2 for N_c at the first vertex and later) and ``default_nc``; it
-    implements :meth:`continuation`. ``blends``: whether its weights can lie
-    strictly between 0 and 1 (NIRC blends its cache term with the continuation;
+    implements :meth:`continuation` and, where it keeps more along a path than
+    ``termination_value``, :meth:`path_state`. ``blends``: whether its weights can
+    lie strictly between 0 and 1 (NIRC blends its cache term with the continuation;
     NRC, whose cache ends the path, refuses such a policy).
     """
 
@@ -115,6 +117,14 @@ class TerminationPolicy:
     def continuation(self, query: TerminationQuery) -> tuple[Any, CacheState]:
         """(alpha per lane, the path state): the continuation weight in [0, 1]."""
         raise NotImplementedError
+
+    def path_state(self) -> dict[str, Any]:
+        """The per-path values this policy keeps besides ``termination_value``, by
+        name, as they start at the camera (Dr.Jit arrays). The integrator carries
+        them through its loop as ``state.policy_state`` without reading them; the
+        policy reads and updates them in :meth:`continuation`. Only the grid's
+        integrator carries them (renderers/integrators/grid_cache.py)."""
+        return {}
 
 
 POLICIES: dict[str, type[TerminationPolicy]] = {}

@@ -16,9 +16,10 @@ S is carried in ``CacheState.termination_value``. The weight and the comparison 
 
 ``relative``: t is relative to the pixel's brightness; the absolute threshold is t
 times the squared luminance of the pixel estimated from the cache at the first hit
-(its emission plus the cache's reflected radiance, Sec. 5), kept in the state's
-``termination_scale``. Not counted: the variance of the first hit within the pixel
-(P_0 of Eq. 1, the pixel footprint), which no record estimates.
+(its emission plus the cache's reflected radiance, Sec. 5), kept along the path as
+this policy's own ``scale`` (:meth:`VarianceBounding.path_state`). Not counted: the
+variance of the first hit within the pixel (P_0 of Eq. 1, the pixel footprint), which
+no record estimates.
 """
 
 from __future__ import annotations
@@ -56,6 +57,12 @@ class VarianceBounding(TerminationPolicy):
     Params = VarBoundParams
     blends = True
 
+    def path_state(self) -> dict[str, Any]:
+        """``relative``: the squared pixel brightness, set at the first hit (Sec. 5)."""
+        import mitsuba as mi
+
+        return {"scale": mi.Float(1.0)} if self.params.relative else {}
+
     def continuation(self, query: TerminationQuery) -> tuple[Any, Any]:
         import drjit as dr
         import mitsuba as mi
@@ -68,9 +75,9 @@ class VarianceBounding(TerminationPolicy):
             # Sec. 5: the pixel's brightness from the cache at the first hit.
             first = vertex.active & (vertex.depth == 0)
             brightness = mi.luminance(vertex.L + vertex.beta * stats.radiance)
-            state.termination_scale = dr.select(first, dr.square(brightness),
-                                                state.termination_scale)
-            threshold = self.params.threshold * state.termination_scale
+            own = state.policy_state
+            own["scale"] = dr.select(first, dr.square(brightness), own["scale"])
+            threshold = self.params.threshold * own["scale"]
         else:
             threshold = mi.Float(self.params.threshold)
         local = prefixed_local_variance(query, stats.local_variance)
