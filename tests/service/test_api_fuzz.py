@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
 from schemathesis.checks import not_a_server_error
 
 from jobs.execution.apikeys import create_api_key
@@ -25,6 +26,10 @@ _DATA = Path(tempfile.mkdtemp(prefix="nirc-fuzz-")) / "data"
 # Queued jobs never finish here: no long poll may hold a generated request open.
 APP = create_app(ServiceSettings(data_dir=_DATA, database_url=None, long_poll_max_s=0))
 _, KEY = create_api_key(APP.state.store, "fuzz")
+# Binary bodies (an uploaded EXR to compare against, a scene archive) are random bytes:
+# none may make the service fail.
+for _media_type in ("image/x-exr", "application/x-tar"):
+    schemathesis.openapi.media_type(_media_type, st.binary(max_size=512))
 schema = schemathesis.openapi.from_asgi("/openapi.json", APP)
 FUZZ = settings(max_examples=30, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
