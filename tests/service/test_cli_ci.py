@@ -82,9 +82,11 @@ def test_own_baseline_passes_and_a_baseline_edited_to_be_better_fails(tmp_path,
     own = ci(suite, baseline, data, "--summary", str(tmp_path / "s.md"),
              "--junit", str(tmp_path / "j.xml"))
     assert own.returncode == 0, own.stderr + own.stdout
-    assert "PASS: 4 rows compared" in own.stdout and "| 3 (3) | paired t | pass |" in own.stdout
+    # 4 compared rows, and pt's rBias² row: pt claims to be unbiased, so its interval is gated.
+    assert "PASS: 5 rows compared" in own.stdout and "| 3 (3) | paired t | pass |" in own.stdout
     cases = ET.parse(tmp_path / "j.xml").getroot().find("testsuite")
-    assert cases.get("tests") == "4" and cases.get("failures") == "0"
+    # Each of the 2 entries adds its rBias² and rVar rows to the 4 compared.
+    assert cases.get("tests") == "8" and cases.get("failures") == "0"
     summary = (tmp_path / "s.md").read_text()
     assert summary.startswith("## nirc-bench ci: PASS") and "| nirc biased | MRSE" in summary
 
@@ -99,7 +101,7 @@ def test_own_baseline_passes_and_a_baseline_edited_to_be_better_fails(tmp_path,
     cases = ET.parse(tmp_path / "j2.xml").getroot().find("testsuite")
     flagged = {(c.get("classname"), c.get("name")) for c in cases if c.find("failure") is not None}
     assert flagged == {("nirc biased", "mrse")}
-    assert "REGRESSION: 1 of 4 rows" in failed.stdout and "Welch t" in failed.stdout
+    assert "REGRESSION: 1 of 8 rows" in failed.stdout and "Welch t" in failed.stdout
 
 
 def test_the_latest_results_of_a_branch_are_a_baseline(tmp_path, suite):
@@ -109,7 +111,7 @@ def test_the_latest_results_of_a_branch_are_a_baseline(tmp_path, suite):
     second = ci(suite, unused, data, "--baseline-ref", "main",
                 env={"NIRC_BENCH_BRANCH": "feature"})
     assert second.returncode == 0, second.stdout + second.stderr
-    assert "PASS: 2 rows compared" in second.stdout and "paired t" in second.stdout
+    assert "PASS: 3 rows compared" in second.stdout and "paired t" in second.stdout
 
 
 KEPT_FROM_RUNNING = [
@@ -150,7 +152,7 @@ def test_over_rest(tmp_path, suite):
         assert written.returncode == 0, written.stderr
         proc = ci(suite, baseline, tmp_path / "data", *remote)
         assert proc.returncode == 0, proc.stdout + proc.stderr
-        assert "PASS: 2 rows compared" in proc.stdout
+        assert "PASS: 3 rows compared" in proc.stdout   # and pt's gated rBias² row
         runs = service.get("/api/v1/results")
         assert len(runs) == 2       # one run at the cap, then one group
         detail = service.get(f"/api/v1/runs/{runs[0]['id']}")
