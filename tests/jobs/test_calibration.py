@@ -8,6 +8,7 @@ which value was chosen from the medians.
 from __future__ import annotations
 
 import itertools
+from types import SimpleNamespace
 
 import pytest
 from rich.console import Console
@@ -227,22 +228,7 @@ def test_calibrate_job_stops_the_spp_search_and_reports_its_cost(monkeypatch):
     """pt's spp knob is monotone by default (nirc's N_c is not): at 1 ms per spp and a
     4.5 ms budget the probes stop at spp 6, and the second round skips what is below
     spp 4 (under the budget by more than the allowed spread)."""
-    import renderers.methods as methods
-
-    seen: list[int] = []
-    real = methods.get_method("pt")
-
-    class FakeMethod:
-        params = real.params
-
-        def render(self, scene, values, seed_parts, spp, frames):
-            seen.append(spp)
-
-            class Output:
-                timings = {"frame_median_s": 0.001 * spp}
-            return Output()
-
-    monkeypatch.setattr(methods, "get_method", lambda name: FakeMethod())
+    seen = _fake_pt(monkeypatch, lambda spp, seen: {"frame_median_s": 0.001 * spp})
     spec = RenderSpec(scene="cornell-box", method="pt",
                       time_budget=TimeBudget(ms=4.5, rounds=2, probe_frames=2))
     calibrated, record = calibrate_job(RenderJob.parse(spec), scene=None, device_key="test")
@@ -258,9 +244,9 @@ def test_calibrate_job_stops_the_spp_search_and_reports_its_cost(monkeypatch):
     assert not Knob("spp", (1,), monotone=False).monotone
 
 
-def _loaded_probes(monkeypatch, loaded_tries: int) -> list[int]:
-    """pt at 1 ms per spp whose first ``loaded_tries`` probes ran on a loaded machine
-    (and took 10x as long); returns the spp of every probe taken."""
+def _fake_pt(monkeypatch, timings_of) -> list[int]:
+    """pt's parameters with a render whose timings are ``timings_of(spp, seen)``
+    (``seen``: the spp of every probe so far, this one included); returns ``seen``."""
     import renderers.methods as methods
 
     seen: list[int] = []
@@ -271,17 +257,22 @@ def _loaded_probes(monkeypatch, loaded_tries: int) -> list[int]:
 
         def render(self, scene, values, seed_parts, spp, frames):
             seen.append(spp)
-            loaded = len(seen) <= loaded_tries
-
-            class Output:
-                timings = {"frame_median_s": 0.001 * spp * (10 if loaded else 1),
-                           "load": {"loaded": loaded,
-                                    "reasons": ["tasks waited for a core 60 %"] if loaded
-                                    else []}}
-            return Output()
+            return SimpleNamespace(timings=timings_of(spp, seen))
 
     monkeypatch.setattr(methods, "get_method", lambda name: FakeMethod())
     return seen
+
+
+def _loaded_probes(monkeypatch, loaded_tries: int) -> list[int]:
+    """pt at 1 ms per spp whose first ``loaded_tries`` probes ran on a loaded machine
+    (and took 10x as long); returns the spp of every probe taken."""
+    def timings(spp: int, seen: list[int]) -> dict:
+        loaded = len(seen) <= loaded_tries
+        return {"frame_median_s": 0.001 * spp * (10 if loaded else 1),
+                "load": {"loaded": loaded,
+                         "reasons": ["tasks waited for a core 60 %"] if loaded else []}}
+
+    return _fake_pt(monkeypatch, timings)
 
 
 @pytest.mark.parametrize("allow_loaded", [False, True])
