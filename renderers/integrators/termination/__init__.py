@@ -28,8 +28,9 @@ parameters (a pydantic model, ``Params``), the caches it serves (``serves``:
 'incident' for NIRC's cache of incident radiance, 'outgoing' for NRC's cache
 of outgoing radiance, 'grid' for the hashed grid with three moments of the
 `grid-cache` method, whose records hold the full reflected radiance and the
-statistics the variance-trading policies read) and what it needs of N_c. Importing this package imports
-every module in it (:func:`_discover`), so adding a policy adds one file; the
+statistics the variance-trading policies read) and what it needs of N_c. Each registers itself with
+``@register``, and importing this package imports every module in it
+(renderers/registry.py), so adding a policy adds one file; the
 methods' parameter models list the policies of the kind they serve. Reading the
 registry does not import Mitsuba: policies import it where they evaluate.
 docs/termination.md says how to add one.
@@ -37,12 +38,12 @@ docs/termination.md says how to add one.
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict
+
+from renderers.registry import Registry, discover
 
 if TYPE_CHECKING:
     from renderers.integrators.cached import CacheState
@@ -127,15 +128,10 @@ class TerminationPolicy:
         return {}
 
 
-POLICIES: dict[str, type[TerminationPolicy]] = {}
-
-
-def register(cls: type[TerminationPolicy]) -> type[TerminationPolicy]:
-    """Class decorator: add a policy to the registry under its ``name``."""
-    if cls.name in POLICIES and POLICIES[cls.name] is not cls:
-        raise ValueError(f"two termination policies are named {cls.name!r}")
-    POLICIES[cls.name] = cls
-    return cls
+#: The policies by name; a policy's module registers it with ``@register``.
+POLICIES: Registry[type[TerminationPolicy]] = Registry("termination policies",
+                                                       lambda cls: cls.name)
+register = POLICIES.register
 
 
 def policy_names(kind: CacheKind) -> tuple[str, ...]:
@@ -158,10 +154,4 @@ def make_policy(name: str, params: dict[str, Any], settings: TerminationSettings
     return cls(cls.Params.model_validate(params), settings)
 
 
-def _discover() -> None:
-    """Import every module of this package: each registers its policies."""
-    for module in sorted(pkgutil.iter_modules(__path__), key=lambda info: info.name):
-        importlib.import_module(f"{__name__}.{module.name}")
-
-
-_discover()
+discover(__name__, __path__)
