@@ -5,16 +5,19 @@ Four tables, each measured in this one run with interleaved rounds and medians:
 1. **Frame time at 8², 64², 128²** per method: wall ms per frame (the stage total
    of the median wall frame, timed with Dr.Jit's kernel history off), kernel ms (of
    the median kernel frame, interleaved with them, history on), the harness share
-   (wall outside kernels) and kernel launches per frame; Mitsuba's own ``path``
-   through ``mi.render`` (plain and frozen, handed the scene's arrays as every frozen
-   call of the project is: renderers.frozen.Frozen) as the reference, and Mitsuba's
+   (that kernel frame's wall time outside its own kernels: never another frame's, whose
+   work may differ; it includes recording the history) and kernel launches per frame;
+   Mitsuba's own ``path`` through ``mi.render`` (plain and frozen, handed the scene's
+   arrays as every frozen call of the project is: renderers.frozen.Frozen) as the
+   reference, and Mitsuba's
    ``depth`` (one camera ray per pixel) frozen on each scene of the rows: the least a
    frozen call that reads that scene costs (Dr.Jit walks every variable of the scene's
    objects on each call: docs/timing.md, "The floor of a frozen call").
-2. **The fixed cost at 8²**, split into harness (wall - kernel of every part),
-   the method's own fixed work (kernel time of stages whose size does not grow
-   with the image: training at its record floor, the visibility caches' training
-   points) and pixel work (kernel time of the stages that grow with pixels x spp).
+2. **The fixed cost at 8²**: the median kernel frame split into harness (its wall -
+   kernel time of every part), the method's own fixed work (kernel time of stages whose
+   size does not grow with the image: training at its record floor, the visibility
+   caches' training points) and pixel work (kernel time of the stages that grow with
+   pixels x spp).
 3. **The per-stage cost model** a + b x size of each method, fitted at 64², 128²,
    256² (and the caches' floors scaled x4, x16) with 95 % intervals, and its
    projection to 1920x1080 on this device.
@@ -136,13 +139,14 @@ def mitsuba_render(mi: Any, scenes: Scenes, row: str, res: int, frames: int,
                       aov_names=(), hooks=FrameHooks(kernel_every=kernel_every)).timings
 
 
-def frame_row(timings: dict[str, Any]) -> tuple[float, float, float, float]:
-    """(ms per frame, kernel ms, harness share, launches) of the median frame."""
+def frame_row(timings: dict[str, Any]) -> tuple[float, float, float, float, float]:
+    """(ms per frame: the median wall frame; kernel ms, harness ms and harness share: the
+    median kernel frame's, both clocks of that one frame; launches per frame)."""
     frame = timings["breakdown"]
-    kernel = frame.get("frame_kernel_s", 0.0)
+    kernel = frame["frame_kernel_s"]
     launches = sum(stage.get("launches_median", 0) for stage in timings["stages"].values())
     return (1e3 * timings["frame_median_s"], 1e3 * kernel,
-            max(frame["frame_s"] - kernel, 0.0) / frame["frame_s"], launches)
+            1e3 * sum(frame["harness_parts_s"].values()), frame["harness_share"], launches)
 
 
 def rounds_of(configs: list[Any], measure: Callable[[Any], Any], rounds: int) -> dict[Any, list]:
@@ -170,14 +174,15 @@ def frame_table(mi: Any, scenes: Scenes, cases: tuple[tuple, ...], params: dict[
     chosen = {c: sorted(t, key=lambda x: x["frame_median_s"])[(len(t) - 1) // 2]
               for c, t in times.items()}
     print(f"\n1. frame time (median of {rounds} interleaved rounds of {frames} frames; "
-          "ms of the median frame; harness = wall outside kernels)")
+          "ms of the median wall frame; kernel and harness: the median kernel frame's, "
+          "harness = its wall outside its kernels)")
     header = f"{'method':<38}" + "".join(f"{f'{r}x{r}: ms kernel harness launches':>42}"
                                          for r in resolutions)
     print(header)
     for row in rows:
         cells = []
         for res in resolutions:
-            ms, kernel, share, launches = frame_row(chosen[row, res])
+            ms, kernel, _harness, share, launches = frame_row(chosen[row, res])
             cells.append(f"{ms:>12.3g}{kernel:>9.3g}{100 * share:>9.0f}%{launches:>11.0f}")
         print(f"{row:<38}" + "".join(f"{c:>42}" for c in cells))
     loaded = [f"{row} {res}" for (row, res), t in chosen.items() if (t.get("load") or {}).get("loaded")]
@@ -197,15 +202,14 @@ def goals(cases: tuple, chosen: dict[tuple[str, int], dict[str, Any]],
         if res not in resolutions:
             continue
         for row in (r for r in GOAL_ROWS[res] if r in scene_of):
-            ms, kernel, share, _ = frame_row(chosen[row, res])
+            _ms, _kernel, harness, share, _ = frame_row(chosen[row, res])
             floor_row = FLOOR_ROWS.get(scene_of[row])
             floor = ""
             if floor_row is not None:
-                floor_ms, floor_kernel, _, _ = frame_row(chosen[floor_row, res])
-                floor = f"; floor of its scene {floor_ms - floor_kernel:.3g} ms"
+                floor = f"; floor of its scene {frame_row(chosen[floor_row, res])[2]:.3g} ms"
             verdict = "met" if share <= limit else "NOT met"
             print(f"  harness <= {100 * limit:.0f} % at {res}x{res}: {row:<30} "
-                  f"{100 * share:5.1f} % ({ms - kernel:.3g} ms{floor})  {verdict}")
+                  f"{100 * share:5.1f} % ({harness:.3g} ms{floor})  {verdict}")
     if {8, 128} <= set(resolutions) and RESTIR_ROW in scene_of:
         ratio = frame_row(chosen[RESTIR_ROW, 8])[0] / frame_row(chosen[RESTIR_ROW, 128])[0]
         verdict = "met" if ratio <= RESTIR_SMALL_OVER_LARGE else "NOT met"
@@ -221,17 +225,18 @@ def goals(cases: tuple, chosen: dict[tuple[str, int], dict[str, Any]],
 
 def fixed_cost_table(cases: tuple, chosen: dict[tuple[str, int], dict[str, Any]],
                      res: int) -> None:
-    """Table 2: the median frame at ``res`` split into harness, fixed work, pixel work."""
+    """Table 2: the median kernel frame at ``res`` split into harness, fixed work, pixel
+    work (its own wall and kernel times: they add up to its wall time)."""
     from renderers.methods import get_method, parse_params
 
-    print(f"\n2. where the frame goes at {res}x{res} (ms of the median frame)")
+    print(f"\n2. where the frame goes at {res}x{res} (ms of the median kernel frame)")
     print(f"{'method':<30}{'frame':>9}{'harness':>16}{'fixed work':>16}{'pixel work':>16}")
     for label, method, _scene, params in cases:
         frame = chosen[label, res]["breakdown"]
         fixed_stages = set(get_method(method).stage_sizes(parse_params(method, params), 1, 1))
-        wall, kernel = frame["parts_s"], frame["kernel_parts_s"]
-        whole = frame["frame_s"]
-        harness = sum(wall[n] - kernel[n] for n in wall)
+        kernel = frame["kernel_parts_s"]
+        whole = frame["kernel_frame_s"]
+        harness = sum(frame["harness_parts_s"].values())
         fixed = sum(kernel[n] for n in kernel if n in fixed_stages)
         pixel = sum(kernel[n] for n in kernel if n not in fixed_stages)
 

@@ -15,7 +15,11 @@ Two clocks per stage (docs/timing.md):
   inside the stage (its kernel history, ``JitFlag.KernelHistory``; measured on
   the device on CUDA, with the host's monotonic clock around each kernel on
   LLVM). Wall minus kernel time is the **harness** share of the stage: Python
-  tracing, code generation, host work, launch gaps.
+  tracing, code generation, host work, launch gaps. It is taken of one frame, a
+  kernel frame (below), whose kernels ran inside its own clock's windows, so it is
+  never negative; wall and kernel medians of different frames would not be
+  comparable where frames differ (a frame that records a frozen pass anew, a cache
+  whose work changes from frame to frame).
 
 Recording the history is not free (a frozen replay copies every kernel's source
 into it: ~10 % of a small frame, and the frame after pays for the caches it evicted),
@@ -30,7 +34,8 @@ kernel history costs ~9 us per launch; it happens outside every stage's clock
 and its time is subtracted from the whole frame and stored apart (``readout_s``). The frame time
 (``frame_median_s``) is the sum of the stages of the median wall frame; the time
 breakdown is that frame's parts (its stages and 'other'), so they add up to
-its whole wall time, beside the kernel parts of the median kernel frame. Medians
+its whole wall time, beside the kernel and harness parts of the median kernel frame
+(its harness includes recording the history: an upper bound of a wall frame's). Medians
 are lower medians (a frame that was measured).
 """
 
@@ -52,7 +57,8 @@ PROTOCOL = (
     "kernel time from Dr.Jit's kernel history, recorded only in kernel frames (every "
     "4th timed frame from the 2nd) and wall time from the wall frames (history off, "
     "not right after a kernel frame: half of the frames); the warm-up settles both "
-    "states; harness = wall - kernel time; reading the history is "
+    "states; harness = a kernel frame's wall time - its own kernel time (never another "
+    "frame's: it includes recording the history); reading the history is "
     "timed apart and excluded; the frame time and its breakdown are those of the median "
     "wall frame (lower median), the kernel parts those of the median kernel frame"
 )
@@ -260,6 +266,30 @@ class FrameTime:
     def kernel_total_s(self) -> float | None:
         return None if self.kernel_s is None else sum(self.kernel_s.values())
 
+    def harness_parts(self) -> dict[str, float] | None:
+        """Harness seconds per stage and 'other': this frame's wall time less its own
+        kernel time, part by part (None without the kernel history). Both clocks are of
+        this one frame and its kernels ran inside its stages' windows, so no part is
+        negative (whatever other frames cost)."""
+        kernel = self.kernel_parts()
+        if kernel is None:
+            return None
+        return {name: seconds - kernel[name] for name, seconds in self.parts().items()}
+
+    @property
+    def harness_s(self) -> float | None:
+        """This frame's whole wall time less its kernel time (None without the history)."""
+        kernel = self.kernel_total_s
+        return None if kernel is None else self.whole_s - kernel
+
+    @property
+    def harness_share(self) -> float | None:
+        """:attr:`harness_s` over this frame's whole wall time."""
+        harness = self.harness_s
+        if harness is None:
+            return None
+        return harness / self.whole_s if self.whole_s > 0 else 0.0
+
     def to_json(self) -> dict[str, Any]:
         return {"kind": self.kind, "stages": self.stages, "whole_s": self.whole_s,
                 "kernel_s": self.kernel_s, "launches": self.launches,
@@ -314,9 +344,9 @@ def breakdown(frames: Sequence[FrameTime]) -> dict[str, Any]:
     :func:`wall_frames`): wall seconds of every stage and of 'other', adding up to
     ``frame_s``, that frame's whole wall time (its stages to the reported frame time);
     and, where there are kernel frames, the kernel seconds of the median kernel frame
-    (by its kernel total; without wall frames, of the median frame itself) and the
-    harness, wall - kernel part by part (two frames' times: a part with nearly no
-    harness may come out a little negative). Without an
+    (by its kernel total; without wall frames, of the median frame itself) with that
+    frame's harness, its own wall - kernel part by part (:meth:`FrameTime.harness_parts`),
+    its whole wall time (``kernel_frame_s``) and harness share. Without an
     ``inference`` stage the cache queries run inside ``render`` (one fused kernel) and
     ``inference_in_render`` says so."""
     frame = median_frame(wall_frames(frames))
@@ -324,7 +354,8 @@ def breakdown(frames: Sequence[FrameTime]) -> dict[str, Any]:
     kernels = kernel_frames(frames)
     if frame.kind == KERNEL:   # no wall frames: both clocks of the one frame
         kernels = [frame]
-    kernel = median_frame(kernels, _kernel_total).kernel_parts() if kernels else None
+    measured = median_frame(kernels, _kernel_total) if kernels else None
+    kernel = None if measured is None else measured.kernel_parts()
     names = _ordered(set(parts) | set(kernel or {}))
     result: dict[str, Any] = {
         "statistic": "the median wall frame (lower median of the stage totals), seconds; "
@@ -334,26 +365,29 @@ def breakdown(frames: Sequence[FrameTime]) -> dict[str, Any]:
         "frame_s": frame.whole_s,
         "inference_in_render": "inference" not in parts,
     }
-    if kernel is not None:
+    if measured is not None and kernel is not None:
+        harness = measured.harness_parts() or {}
         result["kernel_parts_s"] = {name: kernel.get(name, 0.0) for name in names}
-        result["harness_parts_s"] = {name: parts.get(name, 0.0) - kernel.get(name, 0.0)
-                                     for name in names}
+        result["harness_parts_s"] = {name: harness.get(name, 0.0) for name in names}
         result["frame_kernel_s"] = sum(kernel.values())
+        result["kernel_frame_s"] = measured.whole_s
+        result["harness_share"] = measured.harness_share
     return result
 
 
 def _stage_summary(walls: Sequence[FrameTime], kernels: Sequence[FrameTime],
                    name: str) -> dict[str, float]:
     """Statistics of one stage: of its wall time over the wall frames and, where there
-    are kernel frames, of its kernel time and launches over them; its harness is the
-    difference of the two medians."""
+    are kernel frames, of its kernel time, harness (each kernel frame's own wall - kernel
+    time of the stage) and launches over them."""
     wall = [f.parts().get(name, 0.0) for f in walls]
     summary: dict[str, float] = {"mean_s": sum(wall) / len(wall), "median_s": median_low(wall),
                                  "min_s": min(wall)}
     if kernels:
         kernel = median_low([(f.kernel_parts() or {}).get(name, 0.0) for f in kernels])
         summary["kernel_median_s"] = kernel
-        summary["harness_median_s"] = summary["median_s"] - kernel
+        summary["harness_median_s"] = median_low([(f.harness_parts() or {}).get(name, 0.0)
+                                                  for f in kernels])
         summary["launches_median"] = median_low([(f.launches or {}).get(name, 0)
                                                  for f in kernels])
     return summary
@@ -361,8 +395,9 @@ def _stage_summary(walls: Sequence[FrameTime], kernels: Sequence[FrameTime],
 
 def device_time(frames: Sequence[FrameTime]) -> dict[str, Any] | None:
     """Whole-frame wall time over the wall frames and kernel time over the kernel frames
-    (None without kernel frames): their medians, the harness (wall - kernel median) and
-    its share of the wall median, and the kernel launches per frame."""
+    (None without kernel frames): their medians, the harness of the kernel frames (each
+    one's wall - kernel time: :attr:`FrameTime.harness_s`) and its share of that frame,
+    medians over them, and the kernel launches per frame."""
     kernels = kernel_frames(frames)
     if not kernels:
         return None
@@ -371,8 +406,8 @@ def device_time(frames: Sequence[FrameTime]) -> dict[str, Any] | None:
     return {
         "wall_median_s": wall,
         "kernel_median_s": kernel,
-        "harness_median_s": wall - kernel,
-        "harness_share": (wall - kernel) / wall if wall > 0 else 0.0,
+        "harness_median_s": median_low([f.harness_s or 0.0 for f in kernels]),
+        "harness_share": median_low([f.harness_share or 0.0 for f in kernels]),
         "launches_median": median_low([sum((f.launches or {}).values()) for f in kernels]),
         # Reading the kernel history, kept out of every figure above.
         "readout_median_s": median_low([f.readout_s for f in kernels]),

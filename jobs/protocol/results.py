@@ -90,12 +90,16 @@ def breakdown_ms(timings: dict[str, Any], key: str = "parts_s") -> dict[str, flo
 
 
 def device_split(timings: dict[str, Any]) -> tuple[float | None, float | None]:
-    """Kernel seconds of the median frame and its harness share (wall time outside
-    kernels over its wall time); None for runs stored without kernel time."""
+    """Kernel seconds of the median kernel frame and its harness share (its wall time
+    outside its own kernels over its wall time, renderers.timing.breakdown); runs stored
+    before that share: the median wall frame's wall time against the kernel time; None
+    for runs stored without kernel time."""
     frame = timings.get("breakdown") or {}
     kernel, wall = frame.get("frame_kernel_s"), frame.get("frame_s")
     if kernel is None or not wall:
         return kernel, None
+    if "harness_share" in frame:
+        return kernel, frame["harness_share"]
     return kernel, max(wall - kernel, 0.0) / wall
 
 

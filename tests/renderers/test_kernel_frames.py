@@ -122,3 +122,37 @@ def test_one_frame_seeds_continue_the_schedule_so_the_run_has_kernel_times(mi):
     assert run_timings["device_time"]["kernel_median_s"] > 0
     # Planted: every seed starting the schedule afresh leaves the run no kernel frame.
     assert seeds([0, 0, 0, 0])["frame_kinds"]["kernel"] == 0
+
+
+class Unequal:
+    """A frame function whose frames are unequal, as `grid-cache`'s are (a frame that
+    records its propagation pass anew, a cache whose work changes from frame to frame):
+    its kernel frames launch ~30000x the work of its other frames."""
+
+    def __call__(self, index: int, _seed: int, timer: timing.StageTimer) -> np.ndarray:
+        import drjit as dr
+        from drjit.llvm import Float
+
+        heavy = index >= 0 and frame_kind(index) == KERNEL
+        with timer.stage("render"):
+            x = dr.arange(Float, 1 << 21 if heavy else 64)
+            total = dr.sum(dr.sin(x) * dr.cos(x))
+            timing.synchronize(total)
+        return np.zeros((2, 2, 3))
+
+
+def test_the_harness_is_of_the_frames_that_read_both_clocks(mi):
+    """The harness of a run whose frames differ is each kernel frame's wall time less its
+    own kernel time, never negative; taken as the wall frames' median less the kernel
+    frames' (the computation before), it reads negative here, as `grid-cache`'s did
+    (-2.96 ms at 128x128)."""
+    timings = run_frames(Unequal(), seed_parts=("kernel-frames", "unequal"), frames=8,
+                         spp=1, aov_names=()).timings
+    device, stage = timings["device_time"], timings["stages"]["render"]
+    assert device["harness_median_s"] >= 0 and 0 <= device["harness_share"] < 1
+    assert stage["harness_median_s"] >= 0
+    assert min(timings["breakdown"]["harness_parts_s"].values()) >= 0
+    assert 0 <= timings["breakdown"]["harness_share"] < 1
+    # Planted: the wall frames' median less the kernel frames' median.
+    assert device["wall_median_s"] - device["kernel_median_s"] < 0
+    assert stage["median_s"] - stage["kernel_median_s"] < 0

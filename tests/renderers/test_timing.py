@@ -35,8 +35,9 @@ def wall(stages: dict[str, float], whole: float):
 
 def test_wall_statistics_come_from_wall_frames_and_kernel_statistics_from_kernel_frames():
     """Interleaved frames: the frame time, stages and breakdown from the frames timed
-    without the kernel history, the kernel parts from the median kernel frame, and the
-    frames after a kernel frame in neither. The kernel and after-kernel frames' wall
+    without the kernel history, the kernel and harness parts from the median kernel frame
+    (its harness its own wall - kernel time), and the frames after a kernel frame in
+    neither. The kernel and after-kernel frames' wall
     times are made larger (the history's cost), so that a statistic over the wrong frames
     (or over all) gives another value."""
     walls = [wall({"training": 0.2, "render": 0.1, "training_paths": 0.01, "denoise": 0.02},
@@ -68,7 +69,9 @@ def test_wall_statistics_come_from_wall_frames_and_kernel_statistics_from_kernel
     # The median kernel frame by kernel total (0.255, 0.29, 0.27) is the third.
     assert result["frame_kernel_s"] == pytest.approx(0.27)
     assert result["kernel_parts_s"]["render"] == pytest.approx(0.15)
-    assert result["harness_parts_s"]["training"] == pytest.approx(0.3 - 0.1)
+    assert result["harness_parts_s"]["training"] == pytest.approx(0.7 - 0.1)
+    assert result["kernel_frame_s"] == pytest.approx(1.2)
+    assert result["harness_share"] == pytest.approx(1 - 0.27 / 1.2)
     assert result["inference_in_render"] is True
     summary = summarize(frames, Warmup())
     assert summary["frames"] == 9
@@ -78,11 +81,13 @@ def test_wall_statistics_come_from_wall_frames_and_kernel_statistics_from_kernel
     device = summary["device_time"]
     assert device["wall_median_s"] == pytest.approx(0.45)
     assert device["kernel_median_s"] == pytest.approx(0.27)
-    assert device["harness_share"] == pytest.approx(1 - 0.27 / 0.45)
+    # Kernel frames' harness 0.745, 0.81, 0.93 s, shares 0.745, 0.736, 0.775.
+    assert device["harness_median_s"] == pytest.approx(1.1 - 0.29)
+    assert device["harness_share"] == pytest.approx(1 - 0.255 / 1.0)
     training = summary["stages"]["training"]
     assert training["median_s"] == pytest.approx(0.2) and training["min_s"] == 0.2
     assert training["kernel_median_s"] == pytest.approx(0.15)
-    assert training["harness_median_s"] == pytest.approx(0.05)
+    assert training["harness_median_s"] == pytest.approx(0.6 - 0.2)   # of 0.35, 0.4, 0.6
     assert training["launches_median"] == 2
     assert [d["kind"] for d in summary["frames_detail"]] == ["wall", "kernel",
                                                              "after-kernel"] * 3
