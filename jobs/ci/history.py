@@ -4,10 +4,10 @@ Stored runs carry the commit that produced them (``Run.git_commit``, written by
 the executor from jobs/protocol/provenance.py). :func:`build_history` turns the
 runs of one method on one scene into series of points, one point per commit:
 
-* a **series** holds runs of one setting (resolution, spp, frames, and the run's
-  label: its resolved method parameters not at their default and a sweep point's
-  eps, jobs/protocol/labels.py); runs of another setting are another series, never
-  a point of this one, so runs of two labels are never pooled;
+* a **series** holds runs of one setting (resolution, spp, frames, protocol, and
+  the run's label: its resolved method parameters not at their default and a sweep
+  point's eps, jobs/protocol/labels.py); runs of another setting are another series,
+  never a point of this one, so runs of two labels are never pooled;
 * a **point** pools the metric's values of a commit's runs: one value per seed
   where the metric has one (``Metric.seed_key``), else the run's aggregate
   (rBias², rVar: one value per run). It reports the median, a distribution-free
@@ -55,6 +55,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 from scipy import stats
 
+from jobs.protocol.chart_groups import protocol_of
 from jobs.protocol.labels import resolved_params, run_label
 from jobs.protocol.results import method_params
 from metrics.registry import Metric
@@ -101,6 +102,8 @@ class HistorySeries(BaseModel):
     resolution: list[int]
     spp: int
     frames: int
+    protocol: str = Field(description="online training, or a sweep point's frozen cache "
+                                      "(jobs/protocol/chart_groups.py)")
     label: str = Field(description="what defines the series' runs (jobs/protocol/labels.py)")
     params: dict[str, Any] = Field(description="the newest run's resolved method parameters")
     points: list[HistoryPoint]
@@ -244,7 +247,7 @@ def _point(commit: str, runs: list[Any], metric: Metric) -> tuple[HistoryPoint, 
 
 
 def _setting(run: Any) -> str:
-    return json.dumps([run.width, run.height, run.spp, run.frames,
+    return json.dumps([run.width, run.height, run.spp, run.frames, protocol_of(run.params),
                        run_label(run.method, run.params)])
 
 
@@ -278,11 +281,11 @@ def build_history(runs: Iterable[Any], metric: Metric, *, scene: str, method: st
         points = sorted((_point(key[0], sorted(rs, key=lambda r: r.id), metric)
                          for key, rs in by_commit.items()),
                         key=lambda pair: (pair[0].time, pair[0].runs[0]))[-limit:]
-        width, height, spp, frames, label = json.loads(setting)
+        width, height, spp, frames, protocol, label = json.loads(setting)
         newest = max((run for runs in by_commit.values() for run in runs),
                      key=lambda run: run.id)
         series.append(HistorySeries(
-            resolution=[width, height], spp=spp, frames=frames, label=label,
+            resolution=[width, height], spp=spp, frames=frames, protocol=protocol, label=label,
             params=resolved_params(newest.method, method_params(newest.params)),
             points=[p for p, _ in points]))
         samples += [values for _, values in points]

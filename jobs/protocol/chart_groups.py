@@ -1,11 +1,17 @@
 """Which runs may share a chart, and which curve of it each run lies on.
 
-Two runs are drawn on one error-vs-time chart, one Pareto front or one history chart
-only when they measured the same thing: the same scene, resolution and frames, the
-same protocol (online training in the frame loop, or a frozen cache of a sweep point),
-the same device (times compare on one device only), the same metric version and
-both current (or both computed by older estimator versions). :func:`group_of` gives
-that key; :func:`split_groups` cuts a list of runs by it.
+Two runs are drawn on one error-vs-time chart or one Pareto front only when they
+measured the same thing: the same scene, resolution and frames, the same protocol
+(online training in the frame loop, or a frozen cache of a sweep point), the same
+device (times compare on one device only), the same metric version and both current
+(or both computed by older estimator versions). :func:`group_of` gives that key;
+:func:`split_groups` cuts a list of runs by it.
+
+A history over commits is drawn per :class:`Setting`: the same key less the versions,
+which change along a history; a version change is a break of its series there, never
+compared across (jobs/ci/history.py). Each series of a history chart is one run label
+at one spp (:func:`history_series_label`): its point at a commit is a median, and a
+median pools only runs of one label and spp.
 
 What a method trades time for error with is no reason to split: spp, NIRC's N_c, the
 termination policy's parameters and a sweep point's eps are each a position on the
@@ -41,8 +47,9 @@ def protocol_of(params: Mapping[str, Any] | None) -> str:
 
 
 @dataclass(frozen=True, order=True)
-class Group:
-    """What runs on one chart have in common."""
+class Setting:
+    """What runs compared over commits have in common: one history chart (the versions
+    change along a history; a change is a break there, never compared across)."""
 
     scene: str
     width: int
@@ -50,15 +57,24 @@ class Group:
     frames: int
     protocol: str
     device: str
+
+    @property
+    def title(self) -> str:
+        return (f"{self.scene}, {self.width}×{self.height}, {self.frames} "
+                f"frame{'s' if self.frames != 1 else ''}, {self.protocol}, {self.device}")
+
+
+@dataclass(frozen=True, order=True)
+class Group(Setting):
+    """What runs on one chart have in common: a setting, and the versions."""
+
     metric_version: int
     current: bool
 
     @property
     def title(self) -> str:
         versions = f"metrics v{self.metric_version}" + ("" if self.current else ", old versions")
-        return (f"{self.scene}, {self.width}×{self.height}, {self.frames} "
-                f"frame{'s' if self.frames != 1 else ''}, {self.protocol}, {self.device}, "
-                f"{versions}")
+        return f"{super().title}, {versions}"
 
 
 def group_of(run: Mapping[str, Any]) -> Group:
@@ -75,6 +91,11 @@ def split_groups(runs: Iterable[Mapping[str, Any]]) -> dict[Group, list[Mapping[
         groups.setdefault(group_of(run), []).append(run)
     return dict(sorted(groups.items(), key=lambda item: (-item[0].width * item[0].height,
                                                           item[0])))
+
+
+def history_series_label(label: str, spp: int) -> str:
+    """The series of a history chart holding the runs of ``label`` at ``spp``."""
+    return f"{label}, {spp} spp"
 
 
 def _old(run: Mapping[str, Any], label: str) -> str:

@@ -206,7 +206,8 @@ async function runPage(runId, otherId) {
 }
 
 // History over commits (GET /api/v1/charts/history): per listed metric, one chart per
-// setting, one line per method configuration; the detected steps listed below.
+// setting (scene, resolution, frames, protocol, device), one line per run label and spp;
+// the detected steps listed below.
 async function historyPage(scene, method) {
   const runs = await api(`/results?limit=1000${old()}`);
   const scenes = [...new Set([...(await api("/scenes")).map((s) => s.name), ...runs.map((r) => r.scene)])];
@@ -216,7 +217,7 @@ async function historyPage(scene, method) {
   const options = (names, chosen) => names.map((n) => `<option${n === chosen ? " selected" : ""}>${esc(n)}</option>`).join("");
   view().innerHTML = `<h2>History over commits</h2>
     <p><select id="history-scene">${options(scenes, scene)}</select> <select id="history-method">${options(methods, method)}</select></p>
-    <p class="muted">Median over the seeds of each commit's runs, with its interval; one chart per setting, one line per method configuration.
+    <p class="muted">Median over the seeds of each commit's runs, with its interval; one chart per setting (scene, resolution, frames, protocol, device), one line per run label and spp, never pooled.
     Red: a detected step (Welch t-test between consecutive commits, Holm-adjusted); grey dashed: a version change, never compared across.</p>
     <div id="history"></div><h3>Detected steps</h3><div id="steps"></div>`;
   const go = () => { location.hash = `#/history/${enc(document.getElementById("history-scene").value)}/${enc(document.getElementById("history-method").value)}`; };

@@ -140,3 +140,33 @@ def test_metrics_without_seed_values_pool_the_runs(api_and_store):
     points = http.get(URL.replace("mrse", "rbias2")).json()["series"][0]["points"]
     assert [(p["n"], p["median"]) for p in points] == [(2, 0.02), (2, 0.02)]
     assert points[1]["p_value"] == pytest.approx(1.0) and not points[1]["step"]
+
+
+def history_chart_lines(body, metric="mrse"):
+    """{setting: {series: [medians over commits]}} of GET /api/v1/charts/history."""
+    section = next(m for m in body["metrics"] if m["metric"] == metric)
+    lines = {}
+    for chart in section["charts"]:
+        spec = chart["spec"]        # one data set of all layers is hoisted to the top
+        rows = (spec["layer"][-1].get("data") or spec["data"])["values"]
+        for row in sorted(rows, key=lambda row: row["time"]):
+            lines.setdefault(chart["setting"], {}).setdefault(row["config"], []).append(
+                round(row["value"], 2))
+    return lines
+
+
+def test_history_charts_group_by_setting_with_a_line_per_label_and_spp(api_and_store):
+    """Runs at two spp of one setting are two lines of one chart (not a chart per spp),
+    each its own medians; a sweep point's frozen cache is a chart of its own."""
+    http, store = api_and_store
+    store_history(store, [0.1] * 3)
+    store_history(store, [0.05] * 3, seed=1, spp=4)
+    store_history(store, [0.2] * 3, seed=2, params={"max_depth": 8,
+                                                    "sweep": {"eps": 0.5, "series": "pt"}})
+    lines = history_chart_lines(http.get("/api/v1/charts/history?scene=cornell-box"
+                                         "&method=pt").json())
+    online = "cornell-box, 64×64, 4 frames, online training, llvm:test-cpu"
+    frozen = "cornell-box, 64×64, 4 frames, frozen cache, llvm:test-cpu"
+    assert lines == {online: {"pt (max_depth 8), 1 spp": [0.1] * 3,
+                              "pt (max_depth 8), 4 spp": [0.05] * 3},
+                     frozen: {"pt (eps 0.5, max_depth 8), 1 spp": [0.2] * 3}}

@@ -1,6 +1,6 @@
 """The dashboard's history page in a real headless Chromium: per listed metric one chart
-per device and setting, one line per method configuration (its parameters in its label), the
-detected step marked, and the table of detected steps."""
+per setting (scene, resolution, frames, protocol, device), one line per run label and spp,
+the detected step marked, and the table of detected steps."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ def test_history_page_draws_a_chart_per_setting_and_marks_the_step(chromium, sit
     assert sum("64×64" in t and "llvm:other-cpu" in t for t in titles) == 1
     wide = charts.nth(next(i for i, t in enumerate(titles) if "64×64" in t and "test-cpu" in t))
     legend = wide.locator(".role-legend-label text").all_text_contents()
-    assert sorted(legend) == ["pt (max_depth 4)", "pt (max_depth 8)"]
+    assert sorted(legend) == ["pt (max_depth 4), 1 spp", "pt (max_depth 8), 1 spp"]
     assert wide.locator("g.mark-symbol.role-mark path").count() == 16
     assert wide.locator("g.mark-rule path, g.mark-rule line").count() >= 1   # the step
     # Hover a point: its commit, median and runs.

@@ -8,7 +8,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Query, status
 
 from jobs.ci.history import MAX_HISTORY_RUNS, build_history
-from jobs.protocol.chart_groups import split_groups
+from jobs.protocol.chart_groups import Setting, history_series_label, split_groups
 from jobs.protocol.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import current_estimator_versions
@@ -48,28 +48,30 @@ def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dic
 @router.get("/history")
 def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]:
     """Per listed metric its history over commits (GET /api/v1/ci/history), one chart per
-    device and setting (resolution, spp, frames), one line per method configuration."""
+    setting (scene, resolution, frames, protocol, device: jobs/protocol/chart_groups.py),
+    one line per run label and spp, never pooled."""
     runs = store.list_history_runs(scene, method, limit=MAX_HISTORY_RUNS)
     devices = sorted({run.device_key for run in runs})
     answer = []
     for metric in METRICS:
         if not metric.field:
             continue
-        histories = [build_history(runs, metric, scene=scene, method=method, device=device)
-                     .model_dump(mode="json") for device in devices]
-        settings: dict[str, list[tuple[str, list[dict[str, Any]]]]] = {}
-        for device, history in zip(devices, histories, strict=True):
-            for series in history["series"]:
+        settings: dict[Setting, list[tuple[str, list[dict[str, Any]]]]] = {}
+        for device in devices:
+            history = build_history(runs, metric, scene=scene, method=method, device=device)
+            for series in history.model_dump(mode="json")["series"]:
                 width, height = series["resolution"]
-                setting = (f"{width}×{height}, {series['spp']} spp, {series['frames']} "
-                           f"frames, {device}")
+                setting = Setting(scene, width, height, series["frames"], series["protocol"],
+                                  device)
                 settings.setdefault(setting, []).append(
-                    (series["label"], series["points"]))
-        charts = [{"setting": setting, "spec": spec} for setting, series in settings.items()
-                  if (spec := history_chart(metric.to_json(), setting, method, series))]
+                    (history_series_label(series["label"], series["spp"]), series["points"]))
+        ordered = sorted(settings.items(), key=lambda item: item[0])
+        charts = [{"setting": setting.title, "spec": spec} for setting, series in ordered
+                  if (spec := history_chart(metric.to_json(), setting.title, method,
+                                            sorted(series, key=lambda s: s[0])))]
         answer.append({"metric": metric.name, "label": metric.label, "charts": charts,
-                       "steps": [{**point, "setting": setting, "config": label}
-                                 for setting, series in settings.items()
+                       "steps": [{**point, "setting": setting.title, "config": label}
+                                 for setting, series in ordered
                                  for label, points in series for point in points
                                  if point["step"]]})
     return {"scene": scene, "method": method, "metrics": answer}
