@@ -64,9 +64,9 @@ def run(scene: Any, reference: np.ndarray, name: str, params: dict[str, Any], sp
 def oracle_error(mi: Any, scene: Any, reference: np.ndarray, rays: int, spp: int) -> float:
     """MRSE of `neural-di` with traced (exact, area-averaged) visibility."""
     from metrics.errors import mrse
-    from renderers.integrators import neural_di
+    from renderers.integrators import neural_di, register_plugins
 
-    neural_di.register()
+    register_plugins()
     integrator = mi.load_dict({"type": neural_di.PLUGIN_NAME})
     integrator.with_visibility(neural_di.TracedVisibility(rays))
     image = np.asarray(mi.render(scene.scene, integrator=integrator, spp=spp, seed=5))

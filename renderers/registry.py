@@ -39,9 +39,12 @@ class Registry(dict[str, T]):
         return entry
 
 
-def discover(package: str, path: Iterable[str]) -> None:
-    """Import every module of ``package`` (its ``__path__``) whose name does not start
-    with an underscore, sorted by name: each registers its plugins as it is imported."""
+def discover(package: str, path: Iterable[str], skip: Iterable[str] = ()) -> None:
+    """Import every module of ``package`` (its ``__path__``), sorted by name, but those
+    whose name starts with an underscore and those named in ``skip`` (helpers that
+    register nothing and must not be imported with the registry): each registers its
+    plugins as it is imported."""
+    skipped = set(skip)
     for module in sorted(pkgutil.iter_modules(path), key=lambda info: info.name):
-        if not module.name.startswith("_"):
+        if not module.name.startswith("_") and module.name not in skipped:
             importlib.import_module(f"{package}.{module.name}")

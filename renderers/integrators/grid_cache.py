@@ -43,13 +43,12 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.caches.moment_grid import GridValue, MomentGrid
+from renderers.integrators import register
 from renderers.integrators.cached import CacheState, new_cache_state, update_spread
 from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
-from renderers.integrators.path import register as register_plugin
 from renderers.integrators.termination import TerminationPolicy, TerminationQuery
 
 PLUGIN_NAME = "nirc_grid_cache"
-UPDATE_PLUGIN_NAME = "nirc_grid_update"
 
 #: (alpha) -> the weights of (the cache at this vertex, the segment from this vertex's
 #: NEE on, the cache at the vertex that ends a blended path).
@@ -96,10 +95,12 @@ class GridStatistics:
         return self.grid.lookup(si.p, si.sh_frame.n, self.sampler.next_2d(active), active)
 
 
+@register
 class GridCacheIntegrator(PathIntegrator):
     """The PT core asking ``policy`` at every vertex and terminating into ``grid``
     (module doc); both are attached after loading (``integrator.grid = ...``,
     ``integrator.policy = ...``). Properties: the core's (max_depth, rr_*)."""
+    plugin_name = PLUGIN_NAME
 
     grid: MomentGrid
     policy: TerminationPolicy
@@ -170,9 +171,3 @@ class GridCacheIntegrator(PathIntegrator):
                               mi.Float(state.cache_vertices), length]
 
 
-def register() -> None:
-    """Register the render and the update integrators for the current variant."""
-    from renderers.integrators.grid_update import GridUpdateIntegrator
-
-    register_plugin(PLUGIN_NAME, GridCacheIntegrator)
-    register_plugin(UPDATE_PLUGIN_NAME, GridUpdateIntegrator)

@@ -30,7 +30,10 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.caches.moment_grid import MomentGrid
+from renderers.integrators import register
 from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
+
+UPDATE_PLUGIN_NAME = "nirc_grid_update"
 
 #: Offset of the ray that re-finds a stored vertex, as a share of the scene's extent.
 RECOVERY_OFFSET = 1e-4
@@ -55,9 +58,11 @@ class UpdateState:
         self.hit = hit
 
 
+@register
 class GridUpdateIntegrator(PathIntegrator):
     """The core loop stopped at its second vertex by the grid's value there; the grid
     is attached as ``integrator.grid``."""
+    plugin_name = UPDATE_PLUGIN_NAME
 
     grid: MomentGrid
 

@@ -34,7 +34,7 @@ from typing import Any, Protocol
 import drjit as dr
 import mitsuba as mi
 
-from renderers.integrators import path
+from renderers.integrators import register
 from renderers.integrators.polygon_lights import PolygonLights
 from renderers.integrators.primary import PrimaryHitIntegrator
 
@@ -100,6 +100,7 @@ class TracedVisibility:
         return values
 
 
+@register
 class NeuralDIIntegrator(PrimaryHitIntegrator):
     """D(x) = Σ_k U_k(x) V_k(x) at the first hit (module docstring).
 
@@ -107,6 +108,7 @@ class NeuralDIIntegrator(PrimaryHitIntegrator):
     (:meth:`with_visibility`) before rendering; the polygon lights are built once
     per scene.
     """
+    plugin_name = PLUGIN_NAME
 
     visibility: Visibility | None = None
 
@@ -139,5 +141,3 @@ class NeuralDIIntegrator(PrimaryHitIntegrator):
                                         active)
 
 
-def register() -> None:
-    path.register(PLUGIN_NAME, NeuralDIIntegrator)

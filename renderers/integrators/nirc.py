@@ -66,7 +66,7 @@ from typing import Protocol
 import drjit as dr
 import mitsuba as mi
 
-from renderers.integrators import path
+from renderers.integrators import register
 from renderers.integrators.cached import CachedPathIntegrator, CacheState, smooth_context
 from renderers.integrators.deferred import QueryLayout
 from renderers.integrators.path import Vertex, VertexTerms
@@ -87,6 +87,7 @@ class NIRCSettings(Protocol):
 NIRC_PLUGIN = "nirc_nirc"
 
 
+@register
 class NIRCIntegrator(CachedPathIntegrator):
     """PT core + NIRC cache terms, configured by the `nirc` method's validated
     parameters (:class:`NIRCSettings`, the `nirc` method's model: ``estimator``,
@@ -96,6 +97,7 @@ class NIRCIntegrator(CachedPathIntegrator):
     parameters come only through :meth:`configure`, so they are parsed and
     validated once, by the method's model.
     """
+    plugin_name = NIRC_PLUGIN
 
     #: A policy's fractional continuation weight blends L_c with the continuation.
     continuation_weights = True
@@ -200,5 +202,3 @@ class NIRCIntegrator(CachedPathIntegrator):
 
 
 # ---- Registration (per Mitsuba variant: the `nirc` method calls it when a render starts) ----
-def register() -> None:
-    path.register(NIRC_PLUGIN, NIRCIntegrator)

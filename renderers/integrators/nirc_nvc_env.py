@@ -32,7 +32,7 @@ from typing import Any
 
 import mitsuba as mi
 
-from renderers.integrators import path
+from renderers.integrators import register
 from renderers.integrators.cached import CacheState
 from renderers.integrators.nirc import NIRCIntegrator
 from renderers.integrators.nvc_env import (
@@ -46,8 +46,10 @@ from renderers.integrators.path import Vertex, VertexTerms
 NIRC_NVC_ENV_PLUGIN = "nirc_nirc_nvc_env"
 
 
+@register
 class NIRCEnvIntegrator(NIRCIntegrator):
     """NIRC's integrator whose environment NEE is nvc-env's (module docstring)."""
+    plugin_name = NIRC_NVC_ENV_PLUGIN
 
     light_sampler_type = WithoutEnvironmentNEE
 
@@ -73,5 +75,3 @@ class NIRCEnvIntegrator(NIRCIntegrator):
 
 
 # ---- Registration (per Mitsuba variant: the method calls it when a render starts) ----
-def register() -> None:
-    path.register(NIRC_NVC_ENV_PLUGIN, NIRCEnvIntegrator)

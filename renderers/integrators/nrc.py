@@ -30,7 +30,7 @@ from typing import Any, Protocol
 import drjit as dr
 import mitsuba as mi
 
-from renderers.integrators import path
+from renderers.integrators import register
 from renderers.integrators.cached import (
     CachedPathIntegrator,
     CacheState,
@@ -47,7 +47,7 @@ from renderers.integrators.termination import (
     TerminationSettings,
     make_policy,
 )
-from renderers.integrators.training import TrainingPathIntegrator, training_plugin
+from renderers.integrators.training import TRAINING_PLUGIN, TrainingPathIntegrator
 
 
 class NRCSettings(Protocol):
@@ -108,12 +108,14 @@ def refuse_blending(policy: TerminationPolicy) -> TerminationPolicy:
     return policy
 
 
+@register
 class NRCIntegrator(CachedPathIntegrator):
     """PT core + termination into an outgoing-radiance cache.
 
     The termination policy (termination/) comes from the method's model
     (:class:`NRCSettings`) through :meth:`configure`, which must come first.
     """
+    plugin_name = NRC_PLUGIN
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -135,6 +137,7 @@ class NRCIntegrator(CachedPathIntegrator):
         return nrc_terms(self.queries, self.policy, vertex, state, cache=self.cache)
 
 
+@register
 class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     """NRC's self-training paths [MRNK21]: training paths that terminate into the cache.
 
@@ -146,6 +149,7 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
     own output as its target, so it is invalidated. Records are keyed at the
     arrival vertex (``key_vertex='arrival'``), as NRC caches outgoing radiance.
     """
+    plugin_name = f"{TRAINING_PLUGIN}_nrcselftrainingintegrator"
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -193,6 +197,3 @@ class NRCSelfTrainingIntegrator(TrainingPathIntegrator):
 
 
 # ---- Registration (per Mitsuba variant: the `nrc` method calls it when a render starts) ----
-def register() -> None:
-    path.register(NRC_PLUGIN, NRCIntegrator)
-    path.register(training_plugin(NRCSelfTrainingIntegrator), NRCSelfTrainingIntegrator)

@@ -35,15 +35,17 @@ import mitsuba as mi
 
 from renderers.caches import TrainingRecords
 from renderers.frozen import FrozenRecords
-from renderers.integrators import path
+from renderers.integrators import register
 from renderers.integrators.primary import PrimaryHitIntegrator
 
 PLUGIN_NAME = "nirc_nrc_di"
 
 
+@register
 class NRCDIIntegrator(PrimaryHitIntegrator):
     """D(x) = the cache's RGB prediction at the first hit (module docstring);
     ``cache`` must be set on the loaded instance (:meth:`with_cache`)."""
+    plugin_name = PLUGIN_NAME
 
     cache: Any = None
 
@@ -113,5 +115,3 @@ class DirectLightRecords(FrozenRecords):
         return records
 
 
-def register() -> None:
-    path.register(PLUGIN_NAME, NRCDIIntegrator)

@@ -62,7 +62,7 @@ import mitsuba as mi
 
 from renderers.caches import TrainingRecords
 from renderers.frozen import FrozenRecords
-from renderers.integrators import path
+from renderers.integrators import register
 from renderers.integrators.cached import CachedPathIntegrator, CacheState, cache_inputs
 from renderers.integrators.deferred import QueryLayout
 from renderers.integrators.lights import UniformLightSampler
@@ -212,8 +212,10 @@ def only_environment(scene: mi.Scene) -> mi.Bool:
     return mi.Bool(len(scene.emitters()) == 1)
 
 
+@register
 class NVCEnvIntegrator(CachedPathIntegrator):
     """PT core whose environment NEE is the two-level estimator of the module docstring."""
+    plugin_name = NVC_ENV_PLUGIN
 
     light_sampler_type = WithoutEnvironmentNEE
 
@@ -307,5 +309,3 @@ def both_inputs(first: mi.SurfaceInteraction3f, second: mi.SurfaceInteraction3f,
 
 
 # ---- Registration (per Mitsuba variant: the `nvc-env` method calls it when a render starts) ----
-def register() -> None:
-    path.register(NVC_ENV_PLUGIN, NVCEnvIntegrator)

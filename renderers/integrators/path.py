@@ -55,6 +55,7 @@ from typing import Any
 import drjit as dr
 import mitsuba as mi
 
+from renderers.integrators import PLUGINS
 from renderers.integrators.lights import LightSampler, UniformLightSampler
 
 PLUGIN_NAME = "nirc_path"
@@ -127,6 +128,7 @@ class VertexTerms:
     segment_weight: mi.Float | None = None
 
 
+@PLUGINS.register
 class PathIntegrator(mi.SamplingIntegrator):
     """Unidirectional path tracer with NEE + MIS and Russian roulette.
 
@@ -153,6 +155,7 @@ class PathIntegrator(mi.SamplingIntegrator):
             skipped, also at a vertex that stops.
     """
 
+    plugin_name = PLUGIN_NAME
     #: Whether ``VertexTerms.continue_weight`` is applied (a loop variable more).
     continuation_weights = False
 
@@ -335,5 +338,6 @@ class PathIntegrator(mi.SamplingIntegrator):
 
 
 def register(name: str = PLUGIN_NAME, cls: type = PathIntegrator) -> None:
-    """Register an integrator class as a Mitsuba plugin (idempotent)."""
+    """Register an integrator class with Mitsuba for the current variant (idempotent;
+    renderers.integrators.register_plugins registers every plugin this way)."""
     mi.register_integrator(name, lambda props: cls(props))

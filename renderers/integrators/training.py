@@ -39,7 +39,7 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.frozen import Frozen, freezing, weak_method
-from renderers.integrators import path
+from renderers.integrators import register
 from renderers.integrators.cached import cache_inputs, demodulation
 from renderers.integrators.path import PathIntegrator, Vertex, VertexTerms
 
@@ -49,14 +49,18 @@ RECORD_FIELDS = {
     "L_before": mi.Color3f, "beta_arrival": mi.Color3f, "demodulation": mi.Color3f,
     "valid": mi.Bool,
 }
+#: The prefix of the training-path integrators' plugin names.
+TRAINING_PLUGIN = "nirc_training"
 
 
+@register
 class TrainingPathIntegrator(PathIntegrator):
     """Records (inputs, direction, radiance prefix) at the first ``record_depth`` vertices.
 
     Properties: ``record_depth`` (default 3), ``key_vertex`` ('departure' for
     NIRC, 'arrival' for NRC; see the module docstring).
     """
+    plugin_name = f"{TRAINING_PLUGIN}_trainingpathintegrator"
 
     def __init__(self, props: mi.Properties) -> None:
         super().__init__(props)
@@ -179,14 +183,3 @@ class TrainingPathIntegrator(PathIntegrator):
         return records
 
 
-# ---- Registration (per Mitsuba variant: a caching method calls it when a render starts) ----
-TRAINING_PLUGIN = "nirc_training"
-
-
-def training_plugin(cls: type) -> str:
-    """The plugin name of a training-path integrator class."""
-    return f"{TRAINING_PLUGIN}_{cls.__name__.lower()}"
-
-
-def register() -> None:
-    path.register(training_plugin(TrainingPathIntegrator), TrainingPathIntegrator)

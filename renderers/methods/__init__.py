@@ -1,13 +1,15 @@
 """The registry of render methods (the ``method`` of a render job).
 
 A method is one module of this package that declares everything about itself
-at its bottom, as ``METHOD = Method(...)`` (renderers/methods/base.py): its
-pydantic parameter model (validated once, so a bad value is a clear error
-naming the field), its render function, the version of its estimator, its
-integrators (registered per Mitsuba variant when a render starts), its
+at its bottom and registers, as ``METHOD = register(Method(...))``
+(renderers/methods/base.py): its pydantic parameter model (validated once, so a
+bad value is a clear error naming the field), its render function (which
+registers the integrator plugins for the Mitsuba variant when a render starts,
+renderers/integrators/__init__.py), the version of its estimator, its
 equal-time knob, its part in sweeps, its cache builder and what it needs of a
 scene. ``jobs/`` and ``service/`` read this registry and never name a method;
-adding one is a module plus one line in ``METHODS`` (docs/architecture.md).
+adding one is adding its module: the package imports every module in it
+(renderers/registry.py; docs/architecture.md).
 Reading the registry does not import Mitsuba: the service validates specs
 without it. Bump ``version`` whenever a change alters what the
 method's images converge to or how noisy they are: stored results record it,
@@ -31,22 +33,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from renderers.methods import (
-    grid_cache,
-    neural_di,
-    nirc,
-    nirc_nvc_env,
-    nrc,
-    nrc_di,
-    nvc_env,
-    nvc_lights,
-    pt,
-    pt_power,
-    pt_spatial,
-    restir_di,
-    restir_nvc,
-)
 from renderers.methods.base import Knob, Method, MethodParams, SweepRole
+from renderers.registry import Registry, discover
 
 __all__ = ["BASELINE", "BUILTIN", "ENTRY_POINT_GROUP", "METHODS", "METHOD_SOURCES", "SKIPPED_PLUGINS", "Knob", "Method", "MethodError", "MethodParams", "NotApplicable", "SweepRole",
            "check_applies", "equal_time_pairs", "get_method", "method_table", "parse_params", "sweep_methods", "sweep_series", "series_label"]
@@ -60,11 +48,14 @@ class NotApplicable(MethodError):
     """A method that cannot render a scene (its ``applies_to`` says why)."""
 
 
-#: The methods of this repository.
-BUILTIN: dict[str, Method] = {module.METHOD.name: module.METHOD
-                              for module in (pt, pt_power, pt_spatial, nvc_lights, nvc_env,
-                                             restir_di, restir_nvc, neural_di, nrc_di, nirc, nirc_nvc_env,
-                                             nrc, grid_cache)}
+#: The methods of this repository, each registered by its own module
+#: (``METHOD = register(Method(...))``), in the order the modules registered them.
+BUILTIN: Registry[Method] = Registry("methods", lambda method: method.name)
+register = BUILTIN.register
+#: Modules of this package that are not imported with it: the caching frame in stages
+#: imports Mitsuba (the frame loop imports it when such a frame renders).
+NOT_DISCOVERED = ("staged",)
+discover(__name__, __path__, skip=NOT_DISCOVERED)
 
 #: The entry-point group other packages register methods under.
 ENTRY_POINT_GROUP = "nirc_bench.methods"
@@ -117,7 +108,7 @@ METHOD_SOURCES: dict[str, str] = {**dict.fromkeys(BUILTIN, "built-in"), **_PLUGI
 
 #: The baseline: the method a time budget's ``pt_spp`` and a sweep's reference-sharing
 #: base render name, and the one calibrated when nothing else is (unbiased path tracing).
-BASELINE = pt.METHOD.name
+BASELINE = "pt"
 
 #: Suffix of the series of a method calibrated to another's frame time in a sweep.
 EQUAL_TIME_SUFFIX = "-equal-time"

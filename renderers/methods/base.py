@@ -10,7 +10,6 @@ seed and accumulated into the running mean, wall and kernel frames interleaved
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -153,10 +152,9 @@ class ComparisonRun:
 class Method:
     """Everything about a render method, declared at the bottom of its own module.
 
-    ``integrators``: modules (dotted names) whose ``register()`` makes the
-    method's Mitsuba plugins known to the current variant; they are imported
-    only when a render starts, so reading the registry never imports Mitsuba.
-    ``build(scene, params, seed)``: (render integrator, training integrator,
+    Its render (or ``build``) registers the integrator plugins it loads when a render
+    starts (renderers.integrators.register_plugins), so reading the registry never
+    imports Mitsuba. ``build(scene, params, seed)``: (render integrator, training integrator,
     cache) of a caching method. ``requires(features)``: (applies, reason why
     not) for a scene's :class:`renderers.scenes.features.SceneFeatures`.
     ``label``: its short name in tables; ``comparison``: its runs in the method
@@ -168,7 +166,6 @@ class Method:
     params: type[MethodParams]
     render: Callable[..., RenderOutput]
     version: int
-    integrators: tuple[str, ...] = ()
     knob: Knob | None = None
     sweep: SweepRole | None = None
     build: Callable[[Any, Any, int], tuple[Any, Any, Any]] | None = None
@@ -208,11 +205,6 @@ class Method:
         if "pretrain_frames" in self.params.model_fields:
             shared["pretrain_frames"] = pretrain_frames
         return shared
-
-    def register_integrators(self) -> None:
-        """Register the method's integrators for the current Mitsuba variant."""
-        for module in self.integrators:
-            importlib.import_module(module).register()
 
 
 @dataclass

@@ -150,13 +150,13 @@ def load_integrators(plugin: str, params: CacheTrainingParams, key_vertex: str,
                      trainer_plugin: str | None = None) -> tuple[Any, Any]:
     """The render integrator (plugin ``plugin``) and its training-path integrator
     (``trainer_plugin``, by default plain PT training paths), both configured with
-    the method's validated ``params``. The plugins must be registered (the method's
-    ``register_integrators``)."""
+    the method's validated ``params``. The plugins must be registered
+    (renderers.integrators.register_plugins)."""
     import mitsuba as mi
 
     from renderers.integrators import training
 
-    trainer_plugin = trainer_plugin or training.training_plugin(training.TrainingPathIntegrator)
+    trainer_plugin = trainer_plugin or training.TrainingPathIntegrator.plugin_name
     integrator = mi.load_dict({"type": plugin, **params.core()})
     integrator.configure(params)
     # Training paths are bounded exactly like render paths (same core, same
@@ -334,9 +334,6 @@ def scale_training_floors(params: Any, factor: float) -> Any:
 def _upper_bound(field: Any) -> int:
     return next(m.le for m in field.metadata if getattr(m, "le", None) is not None)
 
-
-#: Integrator modules every caching method registers besides its own.
-TRAINING_INTEGRATORS = ("renderers.integrators.training",)
 
 
 def has_surface(features: Any) -> tuple[bool, str]:

@@ -34,6 +34,7 @@ from pydantic import Field
 
 from renderers.frozen import Frozen, freezing, padded, weak_method
 from renderers.integrators.termination import policy_names
+from renderers.methods import register
 from renderers.methods.base import (
     ComparisonRun,
     FrameHooks,
@@ -113,15 +114,15 @@ def build(scene: Any, params: GridCacheParams, seed: int) -> tuple[Any, Any, Any
     import mitsuba as mi
 
     from renderers.caches.moment_grid import MomentGrid
-    from renderers.integrators import grid_cache
+    from renderers.integrators import grid_cache, grid_update, register_plugins
 
-    METHOD.register_integrators()
+    register_plugins()
     core = {"max_depth": params.max_depth, "rr_depth": params.rr_depth,
             "rr_mode": params.rr_mode, "rr_survival": params.rr_survival}
     grid = MomentGrid(params.resolved_grid(scene))
     integrator = mi.load_dict({"type": grid_cache.PLUGIN_NAME, **core})
     # The update pass samples as the path tracer does (its NEE, BSDF and light selection).
-    updater = mi.load_dict({"type": grid_cache.UPDATE_PLUGIN_NAME, **core})
+    updater = mi.load_dict({"type": grid_update.UPDATE_PLUGIN_NAME, **core})
     integrator.grid = updater.grid = grid
     integrator.policy = params.termination_policy()
     return integrator, updater, grid
@@ -307,12 +308,11 @@ def diffuse_only(features: Any) -> tuple[bool, str]:
     return True, ""
 
 
-METHOD = Method(
+METHOD = register(Method(
     "grid-cache", "hashed-grid radiance cache with three moments, variance-trading "
-    "termination", GridCacheParams, render, version=1,
-    integrators=("renderers.integrators.grid_cache",), requires=diffuse_only, build=build,
+    "termination", GridCacheParams, render, version=1, requires=diffuse_only, build=build,
     label="Grid cache", unbiased=False,
     # In the method comparison and the Pareto plot: its default policy (var-bound,
     # absolute t = 0.1), with PT matched to its frame time.
     comparison=(ComparisonRun(5, "Grid cache", "Grid cache (var-bound)", role="matched"),),
-    stage_sizes=lambda _params, _pixels, _spp: {"propagation": 1.0})
+    stage_sizes=lambda _params, _pixels, _spp: {"propagation": 1.0}))

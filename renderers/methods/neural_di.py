@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from renderers.methods import register
 from renderers.methods.base import Knob, Method, fixed_stages
 from renderers.methods.nvc_lights import (
     MAX_LIGHTS,
@@ -45,9 +46,10 @@ def build(scene: Any, params: NeuralDIParams, seed: int) -> tuple[Any, Any]:
     """(integrator, visibility cache): the primary-hit estimator over an untrained cache."""
     import mitsuba as mi
 
-    from renderers.integrators.neural_di import PLUGIN_NAME, CacheVisibility, register
+    from renderers.integrators import register_plugins
+    from renderers.integrators.neural_di import PLUGIN_NAME, CacheVisibility
 
-    register()
+    register_plugins()
     integrator = mi.load_dict({"type": PLUGIN_NAME})
     integrator.lights(scene.scene)  # a scene it cannot shade fails here, before training
     cache = visibility_cache(scene, params, seed, len(scene.scene.emitters()))
@@ -70,11 +72,10 @@ def applies(features: Any) -> tuple[bool, str]:
     return True, ""
 
 
-METHOD = Method("neural-di",
+METHOD = register(Method("neural-di",
                 "neural DI: closed-form unshadowed polygon light x visibility-cache "
                 "prediction, no shadow rays (biased): direct light at primary hits only "
                 "(max_depth 2)",
-                NeuralDIParams, render, version=2,
-                integrators=("renderers.integrators.neural_di",), requires=applies,
+                NeuralDIParams, render, version=2, requires=applies,
                 label="Neural DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False,
-                stage_sizes=fixed_stages("training_paths", "training"))
+                stage_sizes=fixed_stages("training_paths", "training")))

@@ -11,10 +11,10 @@ from typing import Any, Literal
 from pydantic import Field, model_validator
 
 from renderers.integrators.termination import get_policy, policy_names
+from renderers.methods import register
 from renderers.methods.base import ComparisonRun, Knob, Method, SweepRole
 from renderers.methods.cached import (
     ADAPTIVE_EQUAL_BIAS,
-    TRAINING_INTEGRATORS,
     CacheTrainingParams,
     TerminationChoice,
     cached_render,
@@ -81,9 +81,9 @@ class NIRCParams(CacheTrainingParams, TerminationChoice):
 def build(scene: Any, params: NIRCParams, seed: int) -> tuple[Any, Any, Any]:
     """(render integrator, training integrator, cache) of a NIRC render."""
     from renderers.caches import nirc_config
-    from renderers.integrators import nirc
+    from renderers.integrators import nirc, register_plugins
 
-    METHOD.register_integrators()
+    register_plugins()
     integrator, trainer = load_integrators(nirc.NIRC_PLUGIN, params, key_vertex="departure")
     return integrator, trainer, make_cache(scene, nirc_config, params, seed)
 
@@ -102,11 +102,10 @@ def _biased(params: dict[str, Any]) -> bool:
 #: N_c candidates of equal-time calibration and of the 'NIRC equal time' sweep series.
 NC_CANDIDATES = (1, 2, 4, 8, 16, 32)
 
-METHOD = Method(
+METHOD = register(Method(
     "nirc", "Neural Incident Radiance Cache: biased (BTH/SPH termination) or unbiased "
             "two-level Monte Carlo",
     NIRCParams, cached_render(build), version=4,
-    integrators=("renderers.integrators.nirc", *TRAINING_INTEGRATORS),
     knob=Knob("nc", NC_CANDIDATES, apply=with_nc_at_v1, usable=_biased,
               requirement="biased nirc"),
     sweep=SweepRole("NIRC", ADAPTIVE_EQUAL_BIAS, point=lambda nc_v1: {"estimator": "biased", "nc": [nc_v1 or 1, 1]},
@@ -123,4 +122,4 @@ METHOD = Method(
                       {"estimator": "unbiased", "nc": [3, 1, 1]}, role="matched"),
         ComparisonRun(5, "NIRC biased (equal time)", "NIRC biased (N_c {chosen})",
                       {"estimator": "biased"}, role="knob", unfit="over budget even at N_c = 1"),
-    ))
+    )))

@@ -30,10 +30,9 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from renderers.methods import nirc
+from renderers.methods import nirc, register
 from renderers.methods.base import FrameHooks, Method, RenderOutput
 from renderers.methods.cached import (
-    TRAINING_INTEGRATORS,
     cache_record,
     load_integrators,
     make_cache,
@@ -77,9 +76,9 @@ class NIRCEnvParams(NIRCParams):
 def build(scene: Any, params: NIRCEnvParams, seed: int) -> tuple[Any, Any, Any, Any]:
     """(render integrator, NIRC training integrator, NIRC cache, visibility cache)."""
     from renderers.caches import nirc_config
-    from renderers.integrators import nirc_nvc_env
+    from renderers.integrators import nirc_nvc_env, register_plugins
 
-    METHOD.register_integrators()
+    register_plugins()
     integrator, trainer = load_integrators(nirc_nvc_env.NIRC_NVC_ENV_PLUGIN, params,
                                            key_vertex="departure")
     env = params.env()
@@ -105,12 +104,11 @@ def render(scene: Any, params: NIRCEnvParams, *, seed_parts: tuple[Any, ...], sp
     return output
 
 
-METHOD = Method(
+METHOD = register(Method(
     "nirc-nvc-env", "NIRC for indirect light + a neural visibility cache for the "
                     "environment's direct light (two-level estimator)",
     NIRCEnvParams, render, version=2,
-    integrators=("renderers.integrators.nirc_nvc_env", *TRAINING_INTEGRATORS),
     knob=dataclasses.replace(nirc.METHOD.knob, requirement="biased nirc-nvc-env"),
     requires=applies, label="NIRC + NVC env",
     # The environment cache's training points are fixed: NIRC's records carry the growth.
-    stage_sizes=training_stage_sizes, scale_floors=scale_training_floors)
+    stage_sizes=training_stage_sizes, scale_floors=scale_training_floors))

@@ -15,10 +15,10 @@ from typing import Any, Literal
 from pydantic import Field
 
 from renderers.integrators.termination import policy_names
+from renderers.methods import register
 from renderers.methods.base import ComparisonRun, Method, SweepRole
 from renderers.methods.cached import (
     ADAPTIVE_EQUAL_BIAS,
-    TRAINING_INTEGRATORS,
     CacheTrainingParams,
     TerminationChoice,
     cached_render,
@@ -53,19 +53,19 @@ class NRCParams(CacheTrainingParams, TerminationChoice):
 def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
     """(render integrator, training integrator, cache) of an NRC render."""
     from renderers.caches import nrc_config
-    from renderers.integrators import nrc, training
+    from renderers.integrators import nrc, register_plugins
 
-    METHOD.register_integrators()
-    trainer = (training.training_plugin(nrc.NRCSelfTrainingIntegrator)
+    register_plugins()
+    trainer = (nrc.NRCSelfTrainingIntegrator.plugin_name
                if params.self_training else None)
     integrator, trainer = load_integrators(nrc.NRC_PLUGIN, params, key_vertex="arrival",
                                            trainer_plugin=trainer)
     return integrator, trainer, make_cache(scene, nrc_config, params, seed)
 
 
-METHOD = Method(
+METHOD = register(Method(
     "nrc", "Neural Radiance Cache, spread-angle termination", NRCParams, cached_render(build),
-    version=3, integrators=("renderers.integrators.nrc", *TRAINING_INTEGRATORS),
+    version=3,
     sweep=SweepRole("NRC", ADAPTIVE_EQUAL_BIAS), build=build, requires=has_surface, label="NRC", unbiased=False,
     stage_sizes=training_stage_sizes, scale_floors=scale_training_floors,
-    comparison=(ComparisonRun(2, "NRC", "NRC biased", role="matched"),))
+    comparison=(ComparisonRun(2, "NRC", "NRC biased", role="matched"),)))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from renderers.methods import register
 from renderers.methods.base import Knob, Method, fixed_stages
 from renderers.methods.cached import make_cache
 from renderers.methods.nvc_lights import train_frame, visibility_cache_render
@@ -38,9 +39,10 @@ def build(scene: Any, params: NRCDIParams, seed: int) -> tuple[Any, Any]:
     import mitsuba as mi
 
     from renderers.caches import direct_light_config
-    from renderers.integrators.nrc_di import PLUGIN_NAME, DirectLightRecords, register
+    from renderers.integrators import register_plugins
+    from renderers.integrators.nrc_di import PLUGIN_NAME, DirectLightRecords
 
-    register()
+    register_plugins()
     cache = make_cache(scene, direct_light_config, params, seed)
     # Its frame's training records, frozen where freezing is on (what train_frame reads).
     cache.training_records = DirectLightRecords(params.world_points, params.camera_points)
@@ -50,10 +52,10 @@ def build(scene: Any, params: NRCDIParams, seed: int) -> tuple[Any, Any]:
 render = visibility_cache_render(build, train_frame)
 
 
-METHOD = Method("nrc-di",
+METHOD = register(Method("nrc-di",
                 "NRC DI: a hash-grid + 2x32 MLP cache of the direct light, trained online "
                 "on one-sample NEE, rendered as its prediction (biased): primary hits only "
                 "(max_depth 2)",
-                NRCDIParams, render, version=2, integrators=("renderers.integrators.nrc_di",),
+                NRCDIParams, render, version=2,
                 requires=lit_surface, label="NRC DI", knob=Knob("spp", SPP_CANDIDATES), unbiased=False,
-                stage_sizes=fixed_stages("training_paths", "training"))
+                stage_sizes=fixed_stages("training_paths", "training")))

@@ -51,6 +51,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
+from renderers.methods import register
 from renderers.methods.base import Knob, Method, fixed_stages
 from renderers.methods.cached import has_surface, make_cache
 from renderers.methods.nvc_lights import train_frame, visibility_cache_render
@@ -108,9 +109,9 @@ def build(scene: Any, params: NVCEnvParams, seed: int) -> tuple[Any, Any]:
     """(integrator, cache): the PT core with the env-NEE estimator, untrained."""
     import mitsuba as mi
 
-    from renderers.integrators import nvc_env
+    from renderers.integrators import nvc_env, register_plugins
 
-    nvc_env.register()
+    register_plugins()
     cache = visibility_cache(scene, params, seed)
     integrator = mi.load_dict({"type": nvc_env.NVC_ENV_PLUGIN, **params.core()})
     integrator.configure(params, cache)
@@ -138,9 +139,9 @@ def applies(features: Any) -> tuple[bool, str]:
     return has_surface(features)
 
 
-METHOD = Method("nvc-env",
+METHOD = register(Method("nvc-env",
                 "direct environment light as a two-level estimator: N_c env-map samples "
                 "weighted by a neural visibility cache + a one-shadow-ray residual",
-                NVCEnvParams, render, version=2, integrators=("renderers.integrators.nvc_env",),
+                NVCEnvParams, render, version=2,
                 requires=applies, label="NVC env", knob=Knob("spp", SPP_CANDIDATES),
-                stage_sizes=fixed_stages("training_paths", "training"))
+                stage_sizes=fixed_stages("training_paths", "training")))

@@ -57,6 +57,7 @@ from typing import Any
 
 from pydantic import Field
 
+from renderers.methods import register
 from renderers.methods.base import (
     FrameHooks,
     Knob,
@@ -74,7 +75,7 @@ from renderers.methods.cached import (
     make_cache,
     point_training,
 )
-from renderers.methods.pt import PATH_INTEGRATORS, SPP_CANDIDATES, PTParams, path_integrator
+from renderers.methods.pt import SPP_CANDIDATES, PTParams, path_integrator
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
 
@@ -259,9 +260,9 @@ def applies(features: Any) -> tuple[bool, str]:
     return has_surface(features)
 
 
-METHOD = Method("nvc-lights",
+METHOD = register(Method("nvc-lights",
                 "path tracing with lights selected by a neural visibility cache "
                 "(power / distance^2 x cosine bound x max(V, clamp)) at every vertex",
-                NVCLightsParams, render, version=2, integrators=PATH_INTEGRATORS,
+                NVCLightsParams, render, version=2,
                 requires=applies, label="NVC lights", knob=Knob("spp", SPP_CANDIDATES),
-                unbiased=True, stage_sizes=fixed_stages("training_paths", "training"))
+                unbiased=True, stage_sizes=fixed_stages("training_paths", "training")))

@@ -7,6 +7,7 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
+from renderers.methods import register
 from renderers.methods.base import (
     ComparisonRun,
     FrameHooks,
@@ -46,9 +47,9 @@ def path_integrator(params: PTParams) -> Any:
     """A loaded instance of the shared path-tracing core with ``params``."""
     import mitsuba as mi
 
-    from renderers.integrators import path
+    from renderers.integrators import path, register_plugins
 
-    path.register()
+    register_plugins()
     return mi.load_dict({"type": path.PLUGIN_NAME, **params.model_dump()})
 
 
@@ -77,11 +78,8 @@ render = render_with_lights(None)
 #: spp candidates of equal-time calibration.
 SPP_CANDIDATES = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384, 512)
 
-#: The core's integrator module (its ``register()`` registers the core for the variant).
-PATH_INTEGRATORS = ("renderers.integrators.path",)
-
-METHOD = Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", PTParams, render,
-                version=2, integrators=PATH_INTEGRATORS, knob=Knob("spp", SPP_CANDIDATES),
+METHOD = register(Method("pt", "unbiased path tracing: NEE + MIS + Russian roulette", PTParams, render,
+                version=2, knob=Knob("spp", SPP_CANDIDATES),
                 label="PT", unbiased=True,
                 comparison=(ComparisonRun(0, "PT 1 spp", "PT 1 spp"),
-                            ComparisonRun(1, "PT 2 spp", "PT 2 spp", spp=2, role="budget")))
+                            ComparisonRun(1, "PT 2 spp", "PT 2 spp", spp=2, role="budget"))))

@@ -10,8 +10,9 @@ emitter hits alike, so the estimator stays unbiased (docs/estimators.md,
 
 from __future__ import annotations
 
+from renderers.methods import register
 from renderers.methods.base import Knob, Method
-from renderers.methods.pt import PATH_INTEGRATORS, SPP_CANDIDATES, PTParams, render_with_lights
+from renderers.methods.pt import SPP_CANDIDATES, PTParams, render_with_lights
 
 
 class PTPowerParams(PTParams):
@@ -21,6 +22,6 @@ class PTPowerParams(PTParams):
 render = render_with_lights("PowerLightSampler")
 
 
-METHOD = Method("pt-power", "path tracing with emitters selected in proportion to power",
-                PTPowerParams, render, version=1, integrators=PATH_INTEGRATORS,
-                knob=Knob("spp", SPP_CANDIDATES), unbiased=True)
+METHOD = register(Method("pt-power", "path tracing with emitters selected in proportion to power",
+                PTPowerParams, render, version=1,
+                knob=Knob("spp", SPP_CANDIDATES), unbiased=True))

@@ -10,8 +10,9 @@ one NEE there would have used (docs/estimators.md, "Light selection").
 
 from __future__ import annotations
 
+from renderers.methods import register
 from renderers.methods.base import Knob, Method
-from renderers.methods.pt import PATH_INTEGRATORS, SPP_CANDIDATES, PTParams, render_with_lights
+from renderers.methods.pt import SPP_CANDIDATES, PTParams, render_with_lights
 
 
 class PTSpatialParams(PTParams):
@@ -21,6 +22,6 @@ class PTSpatialParams(PTParams):
 render = render_with_lights("SpatialLightSampler")
 
 
-METHOD = Method("pt-spatial", "path tracing with emitters selected by power / distance^2 per shading point",
-                PTSpatialParams, render, version=1, integrators=PATH_INTEGRATORS,
-                knob=Knob("spp", SPP_CANDIDATES), unbiased=True)
+METHOD = register(Method("pt-spatial", "path tracing with emitters selected by power / distance^2 per shading point",
+                PTSpatialParams, render, version=1,
+                knob=Knob("spp", SPP_CANDIDATES), unbiased=True))

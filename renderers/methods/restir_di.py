@@ -49,6 +49,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
+from renderers.methods import register
 from renderers.methods.base import FrameHooks, Knob, Method, MethodParams, RenderOutput, run_frames
 from renderers.methods.pt import SPP_CANDIDATES
 from renderers.seeding import derive_seed
@@ -140,9 +141,9 @@ def applies(features: Any) -> tuple[bool, str]:
     return True, ""
 
 
-METHOD = Method("restir-di",
+METHOD = register(Method("restir-di",
                 "screen-space ReSTIR DI (8 candidates, temporal + spatial reuse, unbiased "
                 "pairwise MIS): direct light at primary hits only (max_depth 2)",
                 ReSTIRDIParams, render, version=3, requires=applies, label="ReSTIR DI",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
-                correlated_pixels=True, correlated_frames=True)
+                correlated_pixels=True, correlated_frames=True))

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from renderers.methods import register
 from renderers.methods.base import (
     FrameHooks,
     Knob,
@@ -87,10 +88,10 @@ def applies(features: Any) -> tuple[bool, str]:
     return restir_applies(features)
 
 
-METHOD = Method("restir-nvc",
+METHOD = register(Method("restir-nvc",
                 "restir-di with initial candidates from a (clustered) neural visibility cache "
                 "(paper Sec. 4.1.1): direct light at primary hits only (max_depth 2)",
                 ReSTIRNVCParams, render, version=4, requires=applies, label="ReSTIR NVC",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
                 correlated_pixels=True, correlated_frames=True,
-                stage_sizes=fixed_stages("training_paths", "training"))
+                stage_sizes=fixed_stages("training_paths", "training")))

@@ -127,9 +127,9 @@ def _reference(scene, spp=REFERENCE_SPP, seed=1000):
 
 def _traced(mi, rays=1):
     """neural-di with the oracle visibility (shadow rays to the lights' area samples)."""
-    from renderers.integrators import neural_di
+    from renderers.integrators import neural_di, register_plugins
 
-    neural_di.register()
+    register_plugins()
     integrator = mi.load_dict({"type": neural_di.PLUGIN_NAME})
     return integrator.with_visibility(neural_di.TracedVisibility(rays))
 

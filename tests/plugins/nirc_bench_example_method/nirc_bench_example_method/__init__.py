@@ -24,7 +24,7 @@ class DirectParams(pt.PTParams):
 
 
 DIRECT = Method("example-direct", "direct lighting only (an example method from a package)",
-                DirectParams, pt.render, version=1, integrators=pt.PATH_INTEGRATORS,
+                DirectParams, pt.render, version=1,
                 knob=pt.METHOD.knob, label="direct")
 
 SWEPT = replace(nirc.METHOD, name="example-nirc", label="ex-NIRC", comparison=(),
