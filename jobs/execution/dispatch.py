@@ -52,9 +52,9 @@ from jobs.execution.gpus import (
     gpu_devices,
     start_gpu_workers,
 )
-from jobs.execution.graph import final_stages, sweep_stages
+from jobs.execution.graph import final_stages
 from jobs.execution.queue import JobQueue
-from jobs.protocol.spec import SweepSpec
+from jobs.execution.queued import job_of
 from jobs.record.config import Settings
 from jobs.record.db import open_store
 from jobs.record.models import Job
@@ -193,8 +193,11 @@ class Dispatcher:
 
         with self._lock:
             upstream = []
-            if job.kind == "sweep":
-                stages = sweep_stages(SweepSpec(**job.spec))
+            try:
+                stages = job_of(job).stages()
+            except ValueError:  # its runner fails it, saying why
+                stages = []
+            if stages:
                 rows = self.queue.stage_jobs(job, stages)
                 futures: dict[str, Any] = {}
                 for stage in stages:

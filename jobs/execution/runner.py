@@ -227,19 +227,16 @@ def _timeout_of(job: Any, settings: Settings, timeout_s: float | None, store: An
     unbounded, and none is killed for being as long as its estimate."""
     if timeout_s is not None:
         return timeout_s
-    from jobs.execution.timecost import (
-        TIMEOUT_OVER_ESTIMATE,
-        estimate_seconds,
-        job_methods_and_scene,
-    )
-    from jobs.execution.work import default_timeout_s, job_work
+    from jobs.execution.queued import job_of
+    from jobs.execution.timecost import TIMEOUT_OVER_ESTIMATE, estimate_seconds
+    from jobs.execution.work import default_timeout_s
 
     try:
-        work = job_work(job.kind, job.spec)
-        methods, scene = job_methods_and_scene(job.kind, job.spec)
-    except (ValueError, KeyError, TypeError):  # a spec the child will refuse at once
+        queued = job_of(job)
+    except ValueError:  # a spec the child will refuse at once
         return settings.job_timeout_min_s
-    estimate = estimate_seconds(work, methods, scene, store, job.device_class)
+    work = queued.attempt_work()
+    estimate = estimate_seconds(work, queued.methods, queued.scene, store, job.device_class)
     return max(default_timeout_s(work, settings),
                settings.job_timeout_min_s + TIMEOUT_OVER_ESTIMATE * estimate.seconds)
 
@@ -404,35 +401,6 @@ def die_with_parent() -> None:
 # The child process
 # ---------------------------------------------------------------------------
 
-def execute_job(job: Any, store: Any, settings: Settings, progress: Any,
-                reuse: bool = False) -> dict[str, Any]:
-    """Run a job's spec through the one executor; returns what ``JobQueue.succeed``
-    records: the result ids, and a stage's work counters or a render's (whether its
-    reference was rendered now, and whether its run is one stored earlier: ``reuse``)."""
-    from jobs.protocol.executor import execute
-    from jobs.protocol.job import RenderJob
-    from jobs.protocol.spec import SweepSpec
-    from jobs.sweeps.sweep import run_stage, run_sweep
-
-    if job.kind == "stage":
-        work = run_stage(SweepSpec(**job.spec["sweep"]), job.spec["task"], store, settings,
-                         progress=progress)
-        return {"work": work}
-    if job.kind == "sweep":
-        result = run_sweep(SweepSpec(**job.spec), store, settings, progress=progress,
-                           stage_work=JobQueue(store).stage_work(job.id))
-        return {"sweep_id": result.sweep_id}
-    key = f"job-{job.id}"
-    stored = store.find_run_by_idempotency_key(key)
-    if stored is not None:  # an earlier attempt stored it, then died
-        return {"run_id": stored.id}
-    summary = execute(RenderJob.parse(job.spec), store, settings, progress=progress,
-                      idempotency_key=key, reuse=reuse)
-    return {"run_id": summary.run_id,
-            "work": {"reference_rendered": int(summary.reference.get("rendered_now", False)),
-                     "run_reused": int(summary.reused)}}
-
-
 def _reporter(queue: JobQueue, job_id: int, pipe: TextIO | None):
     """report(stage, done, total): to the job's row at most every PROGRESS_INTERVAL_S
     (and when a stage finishes), and as a progress line on ``pipe`` at most every
@@ -464,12 +432,15 @@ def run_one(job_id: int, store: Any, settings: Settings, pipe: TextIO | None = N
     """Run a claimed job, store the result, mark it; returns its status line: the code,
     and for bad input the message (one line). Progress goes to the job's row and, as
     progress lines, to ``pipe`` (the status pipe)."""
+    from jobs.execution.queued import job_of
+
     queue = JobQueue(store)
     job = queue.get(job_id)
     if job is None or job.status != JobStatus.RUNNING.value:
         return str(EXIT_JOB_FAILED)
     try:
-        result = execute_job(job, store, settings, _reporter(queue, job_id, pipe), reuse)
+        result = job_of(job).run(store, settings, _reporter(queue, job_id, pipe),
+                                 job_id=job_id, reuse=reuse)
     # Bad input, or a device class this worker cannot render: the same on every attempt.
     except (ValueError, FileNotFoundError, BackendError) as err:
         queue.fail(job_id, f"{type(err).__name__}: {err}", retry=False)

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import statistics
 from dataclasses import dataclass, field
-from typing import Any
 
 from sqlalchemy import select
 
@@ -171,11 +170,3 @@ def estimate_seconds(work: WorkEstimate, methods: list[str], scene: str, store: 
         estimate.sources[part] = costs.source
         estimate.seconds += seconds
     return estimate
-
-
-def job_methods_and_scene(kind: str, spec: dict[str, Any]) -> tuple[list[str], str]:
-    """The methods and scene whose costs estimate a stored job row's spec."""
-    sweep = spec.get("sweep", spec) if kind == "stage" else spec
-    if kind == "render":
-        return [spec["method"]], spec["scene"]
-    return list(sweep.get("methods") or []), sweep["scene"]

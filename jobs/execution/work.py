@@ -154,15 +154,6 @@ def sweep_work(spec: SweepSpec, stages: list[Stage] | None = None) -> WorkEstima
     return estimate
 
 
-def job_work(kind: str, spec: dict[str, Any]) -> WorkEstimate:
-    """The work of a stored job row (its kind and spec JSON); the reference counted."""
-    if kind == "render":
-        return render_work(RenderSpec(**spec))
-    if kind == "stage":
-        return stage_work(SweepSpec(**spec["sweep"]), spec["task"])
-    return stage_work(SweepSpec(**spec), {"stage": "sweep"})
-
-
 def default_timeout_s(estimate: WorkEstimate, settings: Settings) -> float:
     """A job's timeout from its size: start-up and JIT time plus its samples at the
     slowest rate the service is expected to sample (both settings)."""
