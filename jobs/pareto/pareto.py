@@ -68,7 +68,6 @@ from jobs.pareto.tradeoff import (
     Sample,
     Speedup,
     bootstrap_speedup,
-    envelope_pieces,
     sample_curves,
 )
 from jobs.protocol import cost_model
@@ -77,6 +76,7 @@ from jobs.protocol.calibration import (
     interleaved_rounds,
     probe_timings,
 )
+from jobs.protocol.envelope import Curve, envelope_line, envelope_pieces
 from jobs.protocol.executor import Prepared, execute, prepare
 from jobs.protocol.front import pareto_front
 from jobs.protocol.job import RenderJob
@@ -495,6 +495,14 @@ def _evaluate(points: list[ParetoPoint], resamples: int, baseline: str,
             for p in points if not timed_quietly(p, allow_loaded)]
 
 
+def strongest_pt_curves(points: list[ParetoPoint], key: str,
+                        allow_loaded: bool = False) -> dict[str, Curve]:
+    """The curves of the strongest PT's candidates for the error ``key``, of points timed
+    quietly unless ``allow_loaded`` (the envelope of the JSON and of the plots)."""
+    return sample_curves(_baseline_samples(
+        points, key, lambda p: p.named_baseline == STRONGEST_PT and timed_quietly(p, allow_loaded)))
+
+
 def baselines(points: list[ParetoPoint], chosen: str,
               allow_loaded: bool = False) -> dict[str, Any]:
     """The baselines of the JSON: which one the speed-ups are against, what the paper's PT
@@ -502,10 +510,8 @@ def baselines(points: list[ParetoPoint], chosen: str,
     intervals over which each candidate's curve is lowest; of points timed quietly
     unless ``allow_loaded``)."""
     def envelope(key: str) -> list[dict[str, Any]]:
-        samples = _baseline_samples(points, key, lambda p: p.named_baseline == STRONGEST_PT
-                                    and timed_quietly(p, allow_loaded))
-        return [asdict(piece) for piece in envelope_pieces(sample_curves(samples))] \
-            if samples else []
+        return [asdict(piece)
+                for piece in envelope_pieces(strongest_pt_curves(points, key, allow_loaded))]
 
     paper = PTParams()
     return {"speedups_against": baseline_label(chosen), "baseline": chosen,
@@ -537,9 +543,12 @@ def write_outputs(result: ParetoResult, out_dir: Path) -> dict[str, str]:
     files = {}
     for metric in PARETO_METRICS:
         path = out_dir / f"pareto_{metric.field}.png"
+        envelope = envelope_line(strongest_pt_curves(result.points, metric.field,
+                                                     result.spec.allow_loaded))
         plot_pareto([p.model_dump() for p in result.points], metric.field, metric.label, path,
                     f"{metric.label} against time per frame on {result.spec.scene} "
-                    f"({result.spec.resolution}x{result.spec.resolution}, {result.device})")
+                    f"({result.spec.resolution}x{result.spec.resolution}, {result.device})",
+                    envelope=envelope)
         files[f"pareto_{metric.field}"] = str(path)
     files["json"] = str(out_dir / "pareto.json")
     Path(files["json"]).write_text(json.dumps({**result.to_json(), "files": files}, indent=2,

@@ -15,20 +15,17 @@ from itertools import zip_longest
 from typing import Any
 
 from jobs.pareto.tradeoff import RESAMPLES
+from jobs.protocol.baselines import STRONGEST_PT_LABEL, STRONGEST_PT_PARAMS, pt_core_methods
 from jobs.protocol.calibration import DEFAULT_ROUNDS
 from jobs.protocol.cost_model import DEFAULT_RESOLUTIONS
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from renderers.methods import BASELINE, METHODS, Method, MethodError, parse_params
-from renderers.methods.pt import PTParams
 
 #: The two named PT baselines (``--baseline``) and their labels. The paper's PT is the
 #: baseline method with its own defaults: Russian roulette of fixed survival 0.9 from the
 #: fifth vertex, the NIRC paper's "termination probability of 0.1".
 PAPER_PT, STRONGEST_PT = "paper-pt", "strongest-pt"
-BASELINE_LABELS = {PAPER_PT: "paper's PT", STRONGEST_PT: "strongest PT"}
-#: What every candidate of the strongest PT sets on top of its method's defaults:
-#: Russian roulette on the path throughput, as Mitsuba's ``path`` does.
-STRONGEST_PT_PARAMS: dict[str, Any] = {"rr_mode": "throughput"}
+BASELINE_LABELS = {PAPER_PT: "paper's PT", STRONGEST_PT: STRONGEST_PT_LABEL}
 
 
 @dataclass(frozen=True)
@@ -72,13 +69,6 @@ class ParetoSpec:
     #: Whether points timed on a loaded machine take part in the fronts, baselines and
     #: speed-ups (by default they are left out and listed).
     allow_loaded: bool = False
-
-
-def pt_core_methods() -> list[str]:
-    """The candidates of the strongest PT: the registry's methods whose parameters are
-    exactly the path-tracing core's (PT and its light selectors)."""
-    return [name for name, method in METHODS.items()
-            if set(method.params.model_fields) == set(PTParams.model_fields)]
 
 
 #: A series as :func:`baseline_series` reads it: its label, the named PT baseline it is

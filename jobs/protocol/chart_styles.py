@@ -14,6 +14,11 @@ Vega-Lite charts (jobs/protocol/charts.py) and the PNG figures (jobs/protocol/pl
   a method) takes the first colour of :data:`SPARE_COLOURS` no other family of the
   chart has.
 
+* The strongest PT's envelope (the best of its candidates at each time,
+  jobs/protocol/envelope.py) is one series of its own, :data:`ENVELOPE_STYLE`: grey (no
+  family's hue), drawn wide and translucent under its candidates' curves, so it is never
+  mistaken for a candidate or for the black front.
+
 So every series of a chart has its own colour, and two families never share a hue.
 """
 
@@ -59,6 +64,13 @@ class SeriesStyle:
     def vega_dash(self) -> list[int]:
         """Vega's strokeDash: [1, 0] draws solid."""
         return list(self.dash) or [1, 0]
+
+
+#: The strongest PT's envelope (module docstring): its colour and dash, its line width
+#: (points in the PNG figures, pixels in the Vega-Lite charts) and opacity.
+ENVELOPE_STYLE = SeriesStyle("#7f7f7f", ())
+ENVELOPE_WIDTH = 7.0
+ENVELOPE_OPACITY = 0.4
 
 
 def darken(colour: str, fraction: float) -> str:

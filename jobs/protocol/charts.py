@@ -6,7 +6,8 @@ convergence.png), so a page and a file agree.
 
 Every chart follows the same rules: one hue per method family, the same on every page,
 shades and dashes for a family's configurations, every series its own colour
-(jobs/protocol/chart_styles.py, given as explicit scales); the Pareto front black; legends
+(jobs/protocol/chart_styles.py, given as explicit scales); the Pareto front black; the
+strongest PT's envelope one series of its own, wide and grey, under its candidates; legends
 beside or below the plot, never over it; axis titles with units; a log axis where the
 values are positive and span more than a decade; wheel zoom and drag pan; a tooltip
 with the run's parameters, and a click on a point opens its run (``href``). Values of
@@ -26,8 +27,17 @@ from typing import Any
 import altair as alt
 import vl_convert
 
-from jobs.protocol.chart_groups import Group, config_label, curve_label, knob_order
-from jobs.protocol.chart_styles import FRONT_COLOUR, series_styles
+from jobs.protocol.baselines import strongest_pt_of
+from jobs.protocol.chart_groups import KNOB_PARAMS, Group, config_label, curve_label, knob_order
+from jobs.protocol.chart_styles import (
+    ENVELOPE_OPACITY,
+    ENVELOPE_STYLE,
+    ENVELOPE_WIDTH,
+    FRONT_COLOUR,
+    SeriesStyle,
+    series_styles,
+)
+from jobs.protocol.envelope import baseline_curve, envelope_line
 from jobs.protocol.front import pareto_front
 
 WIDTH, HEIGHT = 520, 300
@@ -45,11 +55,12 @@ def params_text(params: Mapping[str, Any] | None) -> str:
                      if key not in ("spec", "scene_overrides", "calibration"))
 
 
-def style_scales(series: Sequence[tuple[str, str]]) -> tuple[alt.Scale, alt.Scale]:
+def style_scales(series: Sequence[tuple[str, str]],
+                 fixed: Mapping[str, SeriesStyle] | None = None) -> tuple[alt.Scale, alt.Scale]:
     """Explicit colour and dash scales of series labels from their (family, label) pairs
-    (jobs/protocol/chart_styles.py); a chart gives both to one field, so one legend
-    shows both."""
-    styles = series_styles(series)
+    (jobs/protocol/chart_styles.py) and the ``fixed`` styles of other series (the strongest
+    PT's envelope); a chart gives both to one field, so one legend shows both."""
+    styles = {**series_styles(series), **(fixed or {})}
     domain = sorted(styles)
     return (alt.Scale(domain=domain, range=[styles[d].colour for d in domain]),
             alt.Scale(domain=domain, range=[styles[d].vega_dash for d in domain]))
@@ -100,6 +111,24 @@ def _title(text: str, notes: Sequence[str]) -> alt.Title:
         else alt.Title(text, anchor="start")
 
 
+def envelope_rows(points: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The strongest PT's envelope over a chart's points (jobs/protocol/envelope.py): per
+    strongest PT (``strongest``: its name, None for a point of no candidate) the lower
+    envelope of its candidates' curves of two points or more, as rows (``curve`` its
+    name, ``stretch`` the polyline between gaps, ``ms``, ``value``)."""
+    by_name: dict[str, dict[str, list[Mapping[str, Any]]]] = {}
+    for p in points:
+        if p["strongest"] and p["value"] > 0:
+            by_name.setdefault(p["strongest"], {}).setdefault(p["curve"], []).append(p)
+    rows = []
+    for name, curves in by_name.items():
+        fitted = {curve: baseline_curve([p["ms"] for p in members], [p["value"] for p in members])
+                  for curve, members in curves.items() if len(members) >= 2}
+        rows += [{"curve": name, "stretch": f"{name} {k}", "ms": ms, "value": value}
+                 for k, line in enumerate(envelope_line(fitted)) for ms, value in line]
+    return rows
+
+
 def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                      metric: Mapping[str, Any]) -> dict[str, Any] | None:
     """Error against milliseconds per frame of one group's runs: each run a point with
@@ -114,6 +143,7 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
     drawn = sorted((r for r in usable if r[field] > 0 or not log), key=knob_order)
     points = [{"run": r["id"], "ms": 1e3 * r["seconds_per_frame"], "value": r[field],
                "curve": curve_label(r), "family": r["method"], "order": i,
+               "strongest": strongest_pt_of(r["method"], r.get("params") or {}, KNOB_PARAMS),
                "config": config_label(r), "params": params_text(r["params"]),
                "spp": r["spp"], "frames": r["frames"], "seeds": r["seeds"],
                "device": r["device_key"], "href": run_link(r["id"]),
@@ -127,7 +157,9 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
               scale=value_scale([p["ms"] for p in points], True))
     y_scale = value_scale([p["value"] for p in points], log)
     y = alt.Y("value:Q", title=axis_title(metric), scale=y_scale)
-    colours, dashes = style_scales([(p["family"], p["curve"]) for p in points])
+    envelope = envelope_rows(points)
+    colours, dashes = style_scales([(p["family"], p["curve"]) for p in points],
+                                   dict.fromkeys((r["curve"] for r in envelope), ENVELOPE_STYLE))
     tooltip = [alt.Tooltip("curve:N", title="series"),
                alt.Tooltip("config:N", title="configuration"), alt.Tooltip("run:Q", title="run"),
                alt.Tooltip("value:Q", title=metric["label"], format=".4g"),
@@ -152,10 +184,17 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
     line = alt.Chart(alt.Data(values=front)).mark_line(
         interpolate="step-after", color=FRONT_COLOUR, strokeWidth=2.5, opacity=0.85,
     ).encode(x="ms:Q", y=alt.Y("value:Q", scale=y_scale))
+    strongest = alt.Chart(alt.Data(values=envelope)).mark_line(
+        strokeWidth=ENVELOPE_WIDTH, opacity=ENVELOPE_OPACITY,
+    ).encode(x="ms:Q", y=alt.Y("value:Q", scale=y_scale), detail="stretch:N",
+             color=alt.Color("curve:N", scale=colours, legend=LEGEND),
+             strokeDash=alt.StrokeDash("curve:N", scale=dashes, legend=LEGEND))
     title = _title(f"{metric['label']} vs time — {group.title}",
                    ["black: Pareto front of this chart (spp, N_c, eps are points on a curve)",
+                    *(["wide grey: the strongest PT, the best of its candidates at each time"]
+                      if envelope else []),
                     *_not_drawn(len(usable) - len(drawn))])
-    layers = [curves, line] if front else [curves]
+    layers = ([strongest] if envelope else []) + ([curves, line] if front else [curves])
     layers += [bars] if any(p["lo"] for p in points) else []
     return _finish(alt.layer(*layers, dots).properties(width=WIDTH, height=HEIGHT, title=title))
 

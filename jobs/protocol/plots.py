@@ -10,7 +10,8 @@ paper):
 * ``plot_convergence`` is the error-over-frames plot of Figure 10: MRSE of each
   single frame and, optionally, of the running mean of the frames so far.
 * ``plot_pareto`` is error against seconds per frame (``nirc-bench pareto``),
-  log-log, one series per method, the Pareto front highlighted.
+  log-log, one series per method, the Pareto front highlighted, the strongest PT's
+  envelope one series of its own.
 
 Colours and dashes are the charts' (jobs/protocol/chart_styles.py): one hue per
 method family (a row's or point's ``method``), shades and dashes for its
@@ -27,7 +28,7 @@ import contextlib
 import math
 import os
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +36,15 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from jobs.protocol.chart_styles import FRONT_COLOUR, SeriesStyle, series_styles
+from jobs.protocol.baselines import STRONGEST_PT_LABEL
+from jobs.protocol.chart_styles import (
+    ENVELOPE_OPACITY,
+    ENVELOPE_STYLE,
+    ENVELOPE_WIDTH,
+    FRONT_COLOUR,
+    SeriesStyle,
+    series_styles,
+)
 from metrics.registry import LISTED
 
 DPI = 110
@@ -151,15 +160,17 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
 
 
 def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
-                title: str) -> Path:
+                title: str, envelope: Sequence[Sequence[tuple[float, float]]] = ()) -> Path:
     """Plot error ``key`` against seconds per frame, log-log, to a PNG at ``path``.
 
     Each point (a jobs.pareto.pareto.ParetoPoint's ``model_dump``) has ``series``,
     ``seconds_per_frame``, ``seconds_spread`` = [min, max] (drawn as a horizontal
     bar), ``key``, ``front_<key>`` and ``loaded``. One line per series, through its
     points in the given (knob) order; the front is a black step line with ringed points;
-    a point timed on a loaded machine is crossed in red. Points without a finite value and
-    those <= 0 (off the log axes) are left out and counted in a note.
+    a point timed on a loaded machine is crossed in red. ``envelope``: the strongest PT's
+    envelope as polylines of (seconds, error) (jobs/protocol/envelope.py), drawn as one
+    series, wide and grey under the others (chart_styles.ENVELOPE_STYLE). Points without
+    a finite value and those <= 0 (off the log axes) are left out and counted in a note.
     """
     series = list(dict.fromkeys(str(p["series"]) for p in points))
     styles = _styles((p.get("method"), str(p["series"])) for p in points)
@@ -180,6 +191,11 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
                     xerr=[[x - p["seconds_spread"][0] for x, p in zip(xs, drawn, strict=True)],
                           [p["seconds_spread"][1] - x for x, p in zip(xs, drawn, strict=True)]])
         plotted = True
+    for k, line in enumerate(envelope):
+        ax.plot([t for t, _ in line], [e for _, e in line], color=ENVELOPE_STYLE.colour,
+                linestyle=_linestyle(ENVELOPE_STYLE), linewidth=ENVELOPE_WIDTH,
+                alpha=ENVELOPE_OPACITY, solid_capstyle="round", zorder=0,
+                label=STRONGEST_PT_LABEL if k == 0 else None)
     front = sorted((p["seconds_per_frame"], p[key]) for p in points
                    if p.get(f"front_{key}") and _positive(p.get(key)))
     if front:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from jobs.protocol import chart_styles
@@ -30,6 +31,12 @@ def layer(spec: dict, mark: str, field: str | None = None) -> dict:
     """The layer of ``spec`` drawn with ``mark`` (whose x field is ``field`` if given)."""
     return next(lay for lay in spec["layer"] if lay["mark"]["type"] == mark
                 and (field is None or lay["encoding"]["y"].get("field") == field))
+
+
+def curve_layer(spec: dict) -> dict:
+    """The layer of an error-vs-time chart drawing its curves (in knob order)."""
+    return next(lay for lay in spec["layer"] if lay["mark"]["type"] == "line"
+                and lay["encoding"].get("order", {}).get("field") == "order")
 
 
 def chart_colours(spec: dict) -> dict[str, str]:
@@ -87,18 +94,63 @@ def test_pareto_chart_draws_each_curve_over_spp_with_a_black_front():
                  mrse=0.05 + 0.1 / nc) for i, nc in enumerate((1, 4, 16))]
     (group, members), = split_groups(runs).items()
     spec = error_time_chart(group, members, BY_NAME["mrse"].to_json())
-    curves = layer(spec, "line", "value")
+    curves = curve_layer(spec)
     points = curves["data"]["values"]
-    assert curves["encoding"]["order"]["field"] == "order"
     pt = sorted((p for p in points if p["curve"] == "pt"), key=lambda p: p["order"])
     assert [p["spp"] for p in pt] == [1, 2, 4, 8, 16]
-    assert set(chart_colours(spec)) == {"pt", "pt (rr_mode throughput)", "nirc"}
+    assert set(chart_colours(spec)) == {"pt", "pt (rr_mode throughput)", "nirc",
+                                        "strongest PT"}
     assert_distinct_colours(chart_colours(spec), {"pt": "pt", "pt (rr_mode throughput)": "pt",
-                                                  "nirc": "nirc"})
+                                                  "nirc": "nirc", "strongest PT": "strongest PT"})
     front = next(lay for lay in spec["layer"] if lay["mark"].get("color") == FRONT_COLOUR)
     assert front["mark"]["interpolate"] == "step-after"
     assert FRONT_COLOUR not in chart_colours(spec).values()
     assert {p["run"] for p in front["data"]["values"]} >= {10, 20}   # cheapest, nirc N_c 1
+
+
+def envelope_of(spec: dict) -> tuple[dict, list[dict]]:
+    """An error-vs-time chart's strongest-PT layer and its rows."""
+    found = next(lay for lay in spec["layer"] if lay["mark"].get("strokeWidth")
+                 == chart_styles.ENVELOPE_WIDTH)
+    return found, found["data"]["values"]
+
+
+def test_the_strongest_pt_is_one_grey_series_the_least_error_of_its_candidates():
+    """Two candidates (throughput roulette) whose curves cross, and the paper's PT below
+    both (no candidate): the envelope is the lower candidate at every time, log-log
+    between the runs, and nothing of the paper's PT."""
+    def curve(first_id, method, points, **params):
+        return [run(first_id + i, method=method, spp=2 ** i, seconds_per_frame=ms / 1e3,
+                    mrse=error, params=params) for i, (ms, error) in enumerate(points)]
+    pt = [(1.0, 0.1), (4.0, 0.02)]
+    power = [(1.0, 0.05), (1.5, 0.047), (4.0, 0.04)]
+    runs = (curve(1, "pt", pt, rr_mode="throughput")
+            + curve(10, "pt-power", power, rr_mode="throughput")
+            + curve(20, "pt", [(1.0, 0.01), (4.0, 0.001)]))
+    (group, members), = split_groups(runs).items()
+    spec = error_time_chart(group, members, BY_NAME["mrse"].to_json())
+    envelope, rows = envelope_of(spec)
+    assert {r["curve"] for r in rows} == {"strongest PT"}
+    assert chart_colours(spec)["strongest PT"] == chart_styles.ENVELOPE_STYLE.colour
+    assert envelope["encoding"]["strokeDash"]["scale"] == curve_layer(spec)["encoding"][
+        "strokeDash"]["scale"]                              # one legend entry for it
+    assert "strongest PT" in " ".join(spec["title"]["subtitle"])
+
+    def loglog(points, ms):
+        return np.exp(np.interp(np.log(ms), *np.log(np.array(points)).T))
+
+    ms = [r["ms"] for r in rows]
+    assert ms == sorted(ms) and ms[0] == 1.0 and ms[-1] == 4.0
+    for r in rows:
+        assert r["value"] == pytest.approx(min(loglog(pt, r["ms"]), loglog(power, r["ms"])))
+    assert {1.5} < set(ms)                     # the lower candidate's own point is a vertex
+    # Planted: the paper's PT taken as a candidate would be the envelope (it is lower).
+    assert all(r["value"] > loglog([(1.0, 0.01), (4.0, 0.001)], r["ms"]) for r in rows)
+    # No candidate curve of two points: no envelope, no legend entry.
+    alone = error_time_chart(group, runs[:1] + runs[4:], BY_NAME["mrse"].to_json())
+    assert "strongest PT" not in chart_colours(alone)
+    assert not any(lay["mark"].get("strokeWidth") == chart_styles.ENVELOPE_WIDTH
+                   for lay in alone["layer"])
 
 
 def test_every_registered_method_has_its_own_hue_none_black_or_grey():

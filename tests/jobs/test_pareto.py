@@ -233,6 +233,36 @@ def test_the_result_carries_the_strongest_pts_envelope_and_definition():
     assert found[PAPER_PT]["label"] == "paper's PT"
 
 
+def test_the_plots_draw_the_envelope_of_the_json_and_leave_loaded_points_out(
+        tmp_path, monkeypatch):
+    """pareto_<error>.png draws the strongest PT over the span of the JSON's envelope
+    pieces; steep's last point, timed on a loaded machine, is no vertex of it unless
+    loaded timings are allowed (flat is the envelope there instead)."""
+    from jobs.pareto.pareto import ParetoResult, write_outputs
+
+    drawn = {}
+    monkeypatch.setattr(pareto_module, "plot_pareto", lambda points, key, *args, envelope:
+                        drawn.__setitem__(key, envelope))
+    last = {}
+    for allow_loaded in (False, True):
+        points = _pt_series()
+        points[9].loaded = True                 # steep at 0.16 s
+        spec = ParetoSpec(scene="cornell-box", allow_loaded=allow_loaded)
+        result = ParetoResult(spec=spec, device="cpu", reference_id=1, points=points,
+                              skipped=[], timing={}, bootstrap={}, left_out=[],
+                              baselines=baselines(points, STRONGEST_PT, allow_loaded),
+                              work={})
+        write_outputs(result, tmp_path)
+        pieces = result.baselines[STRONGEST_PT]["envelope"]["mrse"]
+        (line,) = drawn["mrse"]
+        assert len(drawn) == len(PARETO_METRICS)
+        assert line[0][0] == pytest.approx(pieces[0]["from_s"]) == 0.01
+        assert line[-1][0] == pytest.approx(pieces[-1]["to_s"]) == 0.16
+        last[allow_loaded] = (pieces[-1]["series"], line[-1][1])
+    assert last[False] == ("flat", pytest.approx(points[4].mrse))
+    assert last[True] == ("steep", pytest.approx(points[9].mrse))
+
+
 def test_a_stage_taken_out_of_a_points_time_is_a_series_beside_it_off_the_fronts():
     """grid-cache with and without its propagation pass: the derived point's samples are
     each sample less its frame's stage; it gets a speed-up but never a front place (were

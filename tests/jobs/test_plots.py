@@ -10,7 +10,7 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from jobs.protocol import plots
-from jobs.protocol.chart_styles import FAMILY_COLOURS, FRONT_COLOUR
+from jobs.protocol.chart_styles import ENVELOPE_STYLE, ENVELOPE_WIDTH, FAMILY_COLOURS, FRONT_COLOUR
 from jobs.protocol.plots import plot_convergence, plot_pareto, plot_sweep
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -259,3 +259,26 @@ def test_pareto_has_a_y_label_a_black_front_and_one_hue_per_family(
     assert_png(plot_pareto(points, "mrse", "MRSE", tmp_path / "q.png", "pareto"))
     with pytest.raises(AssertionError):
         assert_y_label_inside(figures[1], "MRSE")
+
+
+def test_pareto_draws_the_strongest_pt_as_one_wide_grey_series(
+        tmp_path: Path, figures: list[Figure]) -> None:
+    """Two stretches of the envelope (a gap between them) are one legend entry, drawn
+    under the points in the envelope's style; without an envelope there is none."""
+    points = [pareto_point("pt (rr_mode throughput)", "pt", 0.01, 0.5, True),
+              pareto_point("pt (rr_mode throughput)", "pt", 0.02, 0.25, True),
+              pareto_point("pt-power (rr_mode throughput)", "pt-power", 0.04, 0.2, True),
+              pareto_point("pt-power (rr_mode throughput)", "pt-power", 0.08, 0.1, True)]
+    stretches = [[(0.01, 0.5), (0.02, 0.25)], [(0.04, 0.2), (0.08, 0.1)]]
+    assert_png(plot_pareto(points, "mrse", "MRSE", tmp_path / "p.png", "pareto",
+                           envelope=stretches))
+    (ax,) = figures[0].axes
+    labels = ax.get_legend_handles_labels()[1]
+    assert labels.count("strongest PT") == 1
+    drawn = [line for line in ax.get_lines() if line.get_linewidth() == ENVELOPE_WIDTH]
+    assert [list(zip(line.get_xdata(), line.get_ydata(), strict=True)) for line in drawn] \
+        == stretches
+    assert all(to_hex(line.get_color()) == ENVELOPE_STYLE.colour
+               and line.get_zorder() < 1 for line in drawn)
+    assert_png(plot_pareto(points, "mrse", "MRSE", tmp_path / "q.png", "pareto"))
+    assert "strongest PT" not in figures[1].axes[0].get_legend_handles_labels()[1]

@@ -6,19 +6,21 @@ import numpy as np
 import pytest
 
 from jobs.pareto.tradeoff import (
-    Curve,
     Sample,
     Speedup,
-    baseline_curve,
     bootstrap_speedup,
+    envelope_seconds,
+    equal_error_seconds,
+    speedup,
+)
+from jobs.protocol.envelope import (
+    Curve,
+    baseline_curve,
     curve_error,
     envelope_error,
     envelope_pieces,
-    envelope_seconds,
-    equal_error_seconds,
-    pareto_front,
-    speedup,
 )
+from jobs.protocol.front import pareto_front
 
 #: A synthetic baseline obeying the power law error = C * t^-A (PT: error ~ 1/spp, time ~ spp).
 C, A = 2e-3, 0.8

@@ -1,13 +1,13 @@
 """The scene page's error-vs-time charts in a real headless Chromium: runs of one setting
 at several spp are one chart, each method configuration one curve through its spp, every
-curve its own colour, the Pareto front black; the screenshot is kept in test-artifacts/
+curve its own colour, the Pareto front black, the strongest PT grey; the screenshot is kept in test-artifacts/
 (docs/images/dashboard_pareto.png is taken from it)."""
 
 from __future__ import annotations
 
 import pytest
 
-from jobs.protocol.chart_styles import FAMILY_COLOURS, FRONT_COLOUR
+from jobs.protocol.chart_styles import ENVELOPE_STYLE, FAMILY_COLOURS, FRONT_COLOUR
 from jobs.protocol.executor import execute
 from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
@@ -56,10 +56,14 @@ def test_one_chart_per_setting_one_curve_per_configuration_and_a_black_front(chr
     assert "spp" not in mrse.locator(".role-title-text").first.text_content()
     fills = page.evaluate(FILLS)
     assert len(fills) == len(POINTS), fills                   # one dot per run
-    assert sorted(set(mrse.locator(".role-legend-label text").all_text_contents())) == CURVES
+    legend = set(mrse.locator(".role-legend-label text").all_text_contents())
     strokes = page.evaluate(STROKES.format(0))
     assert FRONT_COLOUR in strokes                            # the front, black
-    curves = [s for s in strokes if s != FRONT_COLOUR]
+    # The strongest PT, grey, wherever a candidate's curve has two points on its own
+    # front (times of such tiny frames are noisy: 2 spp may not be slower than 1).
+    envelope = ENVELOPE_STYLE.colour in strokes
+    assert sorted(legend) == sorted(CURVES + ["strongest PT"] * envelope)
+    curves = [s for s in strokes if s not in (FRONT_COLOUR, ENVELOPE_STYLE.colour)]
     assert len(curves) == len(CURVES) == len(set(curves)), strokes
     assert FAMILY_COLOURS["pt"] in curves and FAMILY_COLOURS["pt-power"] in curves
     ARTIFACTS.mkdir(exist_ok=True)
