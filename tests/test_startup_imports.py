@@ -13,10 +13,11 @@ import sys
 from tests.test_layers import ROOT
 
 HEAVY = ("matplotlib", "altair", "vl_convert", "scipy.stats")
-#: A render process's imports (jobs.execution.runner: execute_job), then the CLI's.
+#: A render process's imports (jobs.execution.runner: a queued job's run), then the CLI's.
 STARTUP = """
 import json, sys
 import jobs.execution.runner
+import jobs.execution.queued
 from jobs.protocol.executor import execute
 from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import SweepSpec

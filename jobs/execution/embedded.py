@@ -30,7 +30,8 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-from jobs.execution.queue import JobQueue, spec_key
+from jobs.execution.queue import JobQueue
+from jobs.execution.queued import QueuedRender
 from jobs.execution.runner import (
     DEFERRED,
     EXIT_JOB_FAILED,
@@ -74,10 +75,10 @@ def render_here(job: RenderJob, store: Store, settings: Settings,
     """Run ``job`` in a render process of its own and return what ``execute`` returns
     for it (exported to ``out_dir`` if given); raises :class:`RenderFailed`."""
     queue = JobQueue(store)
-    spec = job.spec
     devices = device_class()
-    row, _ = queue.submit("render", spec.model_dump(mode="json"),
-                          f"{spec_key('render', spec, devices)}:embedded:{uuid.uuid4().hex}",
+    queued = QueuedRender(job=job)
+    row, _ = queue.submit(queued.kind, queued.stored(),
+                          f"{queued.key(devices)}:embedded:{uuid.uuid4().hex}",
                           device_class=devices, max_attempts=1)
     attempts: list[tuple[int, str]] = []
     status = run_job(row.id, settings, worker=f"cli-{os.getpid()}@{socket.gethostname()}",

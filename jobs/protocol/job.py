@@ -17,15 +17,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import ValidationError
-
 from jobs.protocol.spec import RenderSpec
 from renderers.methods import (
     BASELINE,
-    MethodError,
     MethodParams,
-    format_validation_error,
-    get_method,
     parse_params,
 )
 from renderers.methods.pt import DEFAULT_MAX_DEPTH
@@ -39,20 +34,13 @@ class RenderJob:
     params: MethodParams
 
     @classmethod
-    def parse(cls, spec: RenderSpec | Mapping[str, Any], *, strict: bool = False) -> RenderJob:
+    def parse(cls, spec: RenderSpec | Mapping[str, Any]) -> RenderJob:
         """The job of ``spec`` (a spec, or its JSON as stored): the one place a render
-        spec's parameters are validated by the method's model. ``strict``: a string or
-        a boolean is not a number (request bodies)."""
+        spec's parameters are validated by the method's model (strictly, as
+        everywhere: a string or a boolean is not a number)."""
         if not isinstance(spec, RenderSpec):
             spec = RenderSpec.model_validate(dict(spec))
-        if not strict:
-            return cls(spec, parse_params(spec.method, spec.params))
-        try:
-            return cls(spec, get_method(spec.method).params.model_validate(spec.params,
-                                                                           strict=True))
-        except ValidationError as err:
-            raise MethodError(f"invalid {spec.method} parameters: "
-                              f"{format_validation_error(err)}") from None
+        return cls(spec, parse_params(spec.method, spec.params))
 
     @property
     def method(self) -> str:

@@ -185,10 +185,11 @@ def format_validation_error(err: ValidationError) -> str:
 
 
 def parse_params(method: str, values: dict[str, Any]) -> MethodParams:
-    """Validate ``values`` against the method's parameter model."""
+    """Validate ``values`` (JSON) against the method's parameter model, strictly, the one
+    way parameters are validated: a string or a boolean is not a number."""
     model = get_method(method).params
     try:
-        return model(**values)
+        return model.model_validate(values, strict=True)
     except ValidationError as err:
         unknown = [str(item["loc"][0]) for item in err.errors()
                    if item["type"] == "extra_forbidden" and len(item["loc"]) == 1]

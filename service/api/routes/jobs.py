@@ -15,13 +15,12 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
-from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
-from jobs.execution.graph import sweep_stages
-from jobs.execution.queue import IdempotencyKeyReused, TooManyJobs, spec_key
+from jobs.execution.queue import IdempotencyKeyReused, TooManyJobs
+from jobs.execution.queued import QueuedRender, QueuedSweep
 from jobs.execution.timecost import estimate_seconds
-from jobs.execution.work import data_bytes, reference_stored, render_work, sweep_work
+from jobs.execution.work import data_bytes
 from jobs.protocol.job import RenderJob
 from jobs.protocol.scene_store import builtin_features, rest_scene
 from jobs.protocol.spec import RenderSpec, SweepSpec
@@ -32,8 +31,7 @@ from renderers.methods import (
     MethodError,
     NotApplicable,
     check_applies,
-    format_validation_error,
-    get_method,
+    parse_params,
 )
 from renderers.scenes import builtin_names
 from renderers.scenes.vetting import SceneRefused
@@ -68,28 +66,28 @@ def _check_scene(scene: str, settings: Settings) -> str:
         raise _unprocessable("scene", str(err)) from None
 
 
-def _check_params(method: str, params: dict) -> None:
-    """``params`` as ``method``'s parameter model takes them, strictly: in a request
-    body a string or a boolean is not a number (the CLI's --param values are JSON too)."""
-    try:
-        get_method(method).params.model_validate(params, strict=True)
-    except MethodError as err:
-        raise _unprocessable("params", str(err)) from None
-    except ValidationError as err:
-        raise _unprocessable("params", f"invalid {method} parameters: "
-                                       f"{format_validation_error(err)}") from None
-
-
-def _check_render(spec: RenderSpec, settings: Settings) -> RenderJob:
-    """The request's job, parsed here once (strictly: in a request body a string or a
+def _check_render(spec: RenderSpec, settings: Settings) -> QueuedRender:
+    """The request's job, parsed here once (strictly, as everywhere: a string or a
     boolean is not a number), with the scene checked."""
     try:
-        job = RenderJob.parse(spec, strict=True)
+        job = RenderJob.parse(spec)
     except MethodError as err:
         raise _unprocessable("params", str(err)) from None
     job = job.with_spec(scene=_check_scene(spec.scene, settings))
     _check_applies(job)
-    return job
+    return QueuedRender(job=job)
+
+
+def _check_sweep(spec: SweepSpec, settings: Settings) -> QueuedSweep:
+    """The request's sweep, with its parameters as each of its methods takes them and
+    the scene checked."""
+    for method in spec.methods:
+        try:
+            parse_params(method, spec.params)
+        except MethodError as err:
+            raise _unprocessable("params", str(err)) from None
+    scene = _check_scene(spec.scene, settings)
+    return QueuedSweep(spec=spec.model_copy(update={"scene": scene}))
 
 
 def _check_applies(job: RenderJob) -> None:
@@ -107,23 +105,18 @@ def _check_applies(job: RenderJob) -> None:
         return
 
 
-def _check_work(kind: str, spec: RenderJob | SweepSpec, store, settings,
-                device_class: str) -> None:
+def _check_work(job: QueuedRender | QueuedSweep, store, settings, device_class: str) -> None:
     """Refuse what is too big before it is queued: too many stage jobs, samples or
     estimated seconds for this service's limits (422), or more files than its disk
     limit allows (507)."""
-    if isinstance(spec, SweepSpec):
-        stages = sweep_stages(spec)
-        if len(stages) > settings.max_sweep_stages:
-            raise _unprocessable("seeds", (
-                f"this sweep would make {len(stages)} stage jobs ({spec.seeds} seeds x "
-                f"{len(spec.methods)} methods, or one per N_c value, plus the reference); "
-                f"this service allows {settings.max_sweep_stages} (max_sweep_stages)"))
-        estimate = sweep_work(spec, stages)
-    else:
-        job, spec = spec, spec.spec
-        estimate = render_work(spec, reference_stored(store, spec.scene, spec.resolution,
-                                                      spec.reference, job.max_depth))
+    kind = job.kind
+    stages = len(job.stages())
+    if stages > settings.max_sweep_stages:
+        raise _unprocessable("seeds", (
+            f"this {kind} would make {stages} stage jobs (one per seed and method, or "
+            f"per N_c value, plus the reference); this service allows "
+            f"{settings.max_sweep_stages} (max_sweep_stages)"))
+    estimate = job.work(store)
     if estimate.samples > settings.max_job_work:
         parts = ", ".join(f"{name} {samples:.3g}" for name, samples in estimate.parts.items())
         raise unprocessable(
@@ -131,8 +124,7 @@ def _check_work(kind: str, spec: RenderJob | SweepSpec, store, settings,
             f"({parts}); this service allows {settings.max_job_work:.3g} per job "
             "(max_job_work): lower the resolution, spp, frames or seeds")
     if settings.max_job_seconds is not None:
-        methods = list(spec.methods) if kind == "sweep" else [spec.method]
-        time = estimate_seconds(estimate, methods, spec.scene, store, device_class)
+        time = estimate_seconds(estimate, job.methods, job.scene, store, device_class)
         if time.seconds > settings.max_job_seconds:
             raise unprocessable(
                 f"this {kind} job is estimated to take {time.seconds:.0f} s on this "
@@ -157,17 +149,15 @@ def _sources(sources: dict[str, str]) -> str:
     return "; ".join(dict.fromkeys(sources.values()))
 
 
-def _enqueue(kind: str, parsed: RenderJob | SweepSpec, queue, dispatcher, response: Response,
+def _enqueue(parsed: QueuedRender | QueuedSweep, queue, dispatcher, response: Response,
              idempotency_key: str | None, device_class: str, settings,
              caller: ApiKey) -> JobOut:
     reason = dispatcher.unavailable(device_class) if dispatcher is not None else None
     if reason:
         raise HTTPException(status.HTTP_409_CONFLICT, reason)
-    _check_work(kind, parsed, queue.store, settings, device_class)
-    spec = parsed.spec if isinstance(parsed, RenderJob) else parsed
+    _check_work(parsed, queue.store, settings, device_class)
     try:
-        job, created = queue.submit(kind, spec.model_dump(mode="json"),
-                                    spec_key(kind, spec, device_class),
+        job, created = queue.submit(parsed.kind, parsed.stored(), parsed.key(device_class),
                                     idempotency_key=idempotency_key, device_class=device_class,
                                     owner_key_id=caller.id,
                                     max_unfinished=settings.max_jobs_per_key)
@@ -191,7 +181,7 @@ def submit_job(spec: RenderSpec, response: Response, queue: QueueDep,
                idempotency_key: IdempotencyKey = None,
                device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a render job (K seeds of a method on a scene, against its reference)."""
-    return _enqueue("render", _check_render(spec, settings), queue, dispatcher, response,
+    return _enqueue(_check_render(spec, settings), queue, dispatcher, response,
                     idempotency_key, device_class, settings, caller)
 
 
@@ -201,10 +191,7 @@ def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
                  idempotency_key: IdempotencyKey = None,
                  device_class: DeviceClass = "cpu") -> JobOut:
     """Queue a sweep (adaptive equal-bias over eps, or over N_c); poll it as a job."""
-    for method in spec.methods:
-        _check_params(method, spec.params)
-    spec = spec.model_copy(update={"scene": _check_scene(spec.scene, settings)})
-    return _enqueue("sweep", spec, queue, dispatcher, response,
+    return _enqueue(_check_sweep(spec, settings), queue, dispatcher, response,
                     idempotency_key, device_class, settings, caller)
 
 
@@ -235,8 +222,7 @@ async def get_job(job_id: RowId, request: Request, queue: QueueDep, settings: Se
     if job.status not in FINAL_JOB_STATES and time.monotonic() < deadline:
         job = await _wait_until_final(request, queue, job, deadline,
                                       settings.long_poll_max_waiters)
-    stages = await run_in_threadpool(queue.children, job_id) if job.kind == "sweep" else None
-    return JobOut.of(job, stages)
+    return JobOut.of(job, await run_in_threadpool(queue.children, job_id))
 
 
 async def _wait_until_final(request: Request, queue, job, deadline: float, max_waiters: int):
