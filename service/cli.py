@@ -20,6 +20,7 @@ import os
 import shutil
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -73,24 +74,37 @@ ApiKeyOpt = Annotated[str | None, typer.Option(
     "--api-key", envvar="NIRC_BENCH_API_KEY", help="API key for --server")]
 
 
-def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json: bool) -> None:
-    """Submit ``spec`` to the service at ``server``, follow its progress, print the result."""
+@dataclass(frozen=True)
+class Remote:
+    """How a command shows what a service ran for it: the API path of the finished
+    job's result (from the job's JSON) and how to print it (client, the job's JSON, the
+    result's JSON, the local scene file's path or None)."""
+
+    result_path: Callable[[dict[str, Any]], str]
+    show: Callable[[Any, dict[str, Any], dict[str, Any], str | None], None]
+
+
+def _run_remote(server: str, api_key: str | None, queued: Any, as_json: bool,
+                remote: Remote) -> None:
+    """Submit the typed job ``queued`` (jobs.execution.queued) to the service at ``server``,
+    follow its progress, print the result."""
     from renderers.scenes import is_scene_file
     from service.client import ServiceClient
 
     client = ServiceClient(server, api_key)
     local_scene: str | None = None
-    if is_scene_file(spec.scene):   # a local scene file: the service gets a copy
-        uploaded = client.upload_scene(spec.scene)
+    spec = queued.stored()
+    if is_scene_file(spec["scene"]):   # a local scene file: the service gets a copy
+        uploaded = client.upload_scene(spec["scene"])
         # The table names the file as a local run does (its path here); the service's
         # run names the copy, and the content fingerprint is the file's in both.
-        local_scene = str(Path(spec.scene).expanduser().resolve())
+        local_scene = str(Path(spec["scene"]).expanduser().resolve())
         if not as_json:
-            console.print(f"scene {Path(spec.scene).name} uploaded as {uploaded} (the same "
-                          "content fingerprint as a local run of the file)",
+            console.print(f"scene {Path(spec['scene']).name} uploaded as {uploaded} (the "
+                          "same content fingerprint as a local run of the file)",
                           markup=False, highlight=False)
-        spec = spec.model_copy(update={"scene": uploaded})
-    job = client.submit(kind, spec.model_dump(mode="json"))
+        spec = {**spec, "scene": uploaded}
+    job = client.submit(queued.kind, spec)
     if not as_json:
         console.print(f"job {job['id']} submitted to {server} ({job['status']})")
     with progress_reporter(console, quiet=as_json) as report:
@@ -99,19 +113,19 @@ def _run_remote(server: str, api_key: str | None, kind: str, spec: Any, as_json:
         from service.client import RemoteError
 
         raise RemoteError(f"job {job['id']} {job['status']}: {job['error']}")
-    if kind == "sweep":
-        result = client.get(f"/api/v1/sweeps/{job['sweep_id']}")
-    else:
-        result = client.get(f"/api/v1/runs/{job['run_id']}")
+    result = client.get(remote.result_path(job))
     if as_json:
         print_json(result)
         return
-    if kind == "sweep":
-        _print_remote_sweep(client, job, result, local_scene)
-        return
+    remote.show(client, job, result, local_scene)
+
+
+def _print_remote_run(_client: Any, _job: dict[str, Any], result: dict[str, Any],
+                      local_scene: str | None) -> None:
+    """The run's table as an embedded render prints it, from the same public model the
+    API serves."""
     from jobs.protocol.results import RunResultDetail
 
-    # The table an embedded render prints, from the same public model the API serves.
     shown = result if local_scene is None else {**result, "scene": local_scene}
     console.print(metrics_table(RunResultDetail.model_validate(shown)))
 
@@ -137,16 +151,21 @@ def _print_remote_sweep(client: Any, job: dict[str, Any], sweep: dict[str, Any],
                       markup=False, highlight=False)
 
 
-def _run(server: str | None, api_key: str | None, kind: str, spec: Any, as_json: bool,
+_REMOTE_RUN = Remote(lambda job: f"/api/v1/runs/{job['run_id']}", _print_remote_run)
+_REMOTE_SWEEP = Remote(lambda job: f"/api/v1/sweeps/{job['sweep_id']}", _print_remote_sweep)
+
+
+def _run(server: str | None, api_key: str | None, queued: Any, remote: Remote, as_json: bool,
          data_dir: Path | None, job: Callable[[Any, Any, Any], Any],
          to_json: Callable[[Any], Any], table: Callable[[Any], Any],
          out: Path | None = None) -> None:
-    """Submit ``spec`` to ``server`` if given, else run ``job`` here (see below)."""
+    """Submit the typed job ``queued`` to ``server`` if given, else run ``job`` here
+    (see below)."""
     if server and out is not None:
         raise UsageError("--out writes local files: it cannot be used with --server "
                          "(fetch results from the service's /api/v1 instead)")
     if server:
-        _run_remote(server, api_key, kind, spec, as_json)
+        _run_remote(server, api_key, queued, as_json, remote)
     else:
         _run_embedded(job, data_dir, as_json, to_json, table)
 
@@ -342,6 +361,7 @@ def render(
     (and said so) unless --rerun. The render runs in a process of its own: if it
     crashes, the job is stored as failed with the signal and the stage it was in."""
     from jobs.execution.embedded import RenderFailed, render_here
+    from jobs.execution.queued import QueuedRender
     from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import ReferenceSpec, RenderSpec, TimeBudget
 
@@ -359,6 +379,7 @@ def render(
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
                       time_budget=budget)
+    queued = QueuedRender(job=RenderJob.parse(spec))    # parsed once, here
     tags = parse_pairs(tag, "--tag")
     if server and rerun:
         raise UsageError("--rerun: the service keeps one job per spec and answers an "
@@ -369,7 +390,7 @@ def render(
                          "--server, label it there (`nirc-bench runs tag` on its machine)")
 
     def job(store: Any, settings: Any, report: Any) -> Any:
-        summary = render_here(RenderJob.parse(spec), store, settings, report, reuse=not rerun,
+        summary = render_here(queued.job, store, settings, report, reuse=not rerun,
                               out_dir=out)
         if name is not None or tags:
             stored = store.label_run(summary.run_id, name=name, set_tags=tags)
@@ -378,7 +399,7 @@ def render(
         return summary
 
     try:
-        _run(server, api_key, "render", spec, as_json, data_dir, job,
+        _run(server, api_key, queued, _REMOTE_RUN, as_json, data_dir, job,
              lambda s: s.to_json(), render_tables, out)
     except RenderFailed as err:
         if err.user_error:
@@ -468,13 +489,16 @@ def sweep(
         "--bias-definition", help="per-pixel bias of the v1 mask: 'relative-mse' or "
                                   "'authors' (docs/protocol.md)")] = "relative-mse",
     max_depth: MaxDepth = -1,
-    termination: Annotated[str, typer.Option(
+    termination: Annotated[str | None, typer.Option(
         "--termination", help="N_c sweep: the termination policy (its method's "
-                               "'termination' parameter)")] = "bth",
+                               "'termination' parameter; default: that method's)")] = None,
     equal_time: Annotated[bool, typer.Option(
         "--equal-time/--no-equal-time", help="add the 'NIRC equal time' series")] = True,
     tolerance_ms: Annotated[float, typer.Option("--tolerance-ms", min=0.0, max=1e6,
                                                 help="equal time within this many ms")] = 1.0,
+    allow_loaded: Annotated[bool, typer.Option(
+        "--allow-loaded", help="equal time: use calibration probes timed on a loaded machine "
+                               "(default: left out and taken again)")] = False,
     param: Annotated[list[str] | None, typer.Option(
         "--param", "-p", help="parameter for every method NAME=VALUE (repeatable)")] = None,
     ref_spp: RefSpp = REF_SPP,
@@ -491,6 +515,7 @@ def sweep(
     References, trained caches and converged cache-at-v1 images are computed once
     and reused; points already stored are not rendered again.
     """
+    from jobs.execution.queued import QueuedSweep
     from jobs.protocol.ranges import RangeError, parse_range
     from jobs.protocol.spec import ReferenceSpec, SweepSpec
     from jobs.sweeps.sweep import run_sweep
@@ -511,10 +536,12 @@ def sweep(
         parameter=_parse_sweep(sweep_parameter) if sweep_parameter is not None else None,
         methods=[m.strip() for m in methods.split(",") if m.strip()], resolution=res,
         seeds=seeds, frames=frames, train_frames=train_frames, v1_spp=v1_spp,
-        max_depth=max_depth, termination=termination, equal_time=equal_time,
-        time_tolerance_ms=tolerance_ms, params=dict(_parse_param(p) for p in param or []),
+        max_depth=max_depth, equal_time=equal_time,
+        **({"termination": termination} if termination is not None else {}),
+        time_tolerance_ms=tolerance_ms, allow_loaded=allow_loaded,
+        params=dict(_parse_param(p) for p in param or []),
         reference=ReferenceSpec(spp=ref_spp), bias_definition=bias_definition)
-    _run(server, api_key, "sweep", spec, as_json, data_dir,
+    _run(server, api_key, QueuedSweep(spec=spec), _REMOTE_SWEEP, as_json, data_dir,
          lambda store, settings, report: run_sweep(spec, store, settings, progress=report,
                                                    out_dir=out),
          lambda r: r.to_json(), sweep_table, out)

@@ -374,7 +374,8 @@ class LoadLog:
             f"equal-time calibration stopped: {LOADED_RETRIES + 1} probes of {what} in a row "
             "ran on a loaded machine (other work held the CPU), and a loaded timing would "
             "choose the knob for the load, not the method; run it again with nothing else "
-            "running, or allow loaded timings (time budget 'allow_loaded', --allow-loaded)")
+            "running, or allow loaded timings (--allow-loaded; a time budget's or a "
+            "sweep's 'allow_loaded')")
 
     def merged(self) -> dict[str, Any] | None:
         from renderers.timing import merge_loads

@@ -121,11 +121,11 @@ class TimeBudget(BaseModel):
 
 
 def keyed_budget(data: dict[str, Any]) -> dict[str, Any]:
-    """A dumped spec as its keys see it: a time budget that leaves loaded probes out (the
-    default) keeps the keys of budgets from before ``allow_loaded`` existed."""
-    budget = data.get("time_budget")
-    if budget and not budget.get("allow_loaded"):
-        budget.pop("allow_loaded", None)
+    """A dumped spec as its keys see it: a time budget or a sweep that leaves loaded
+    probes out (the default) keeps the keys from before ``allow_loaded`` existed."""
+    for holder in (data.get("time_budget"), data):
+        if holder and not holder.get("allow_loaded", True):
+            holder.pop("allow_loaded")
     return data
 
 
@@ -219,6 +219,11 @@ def _knob_method() -> str:
     return next(name for name in SWEEP_METHODS if METHODS[name].sweep.knob_point is not None)
 
 
+def _knob_default(parameter: str) -> Any:
+    """The default of one parameter of the knob method (from its parameter model)."""
+    return METHODS[_knob_method()].params.model_fields[parameter].default
+
+
 class SweepSpec(BaseModel):
     """A sweep: the adaptive equal-bias protocol over eps (NIRC paper Sec. 6.3), a
     sweep over N_c of biased NIRC, or a sweep over any declared parameter of any method
@@ -267,9 +272,14 @@ class SweepSpec(BaseModel):
     time_max_spread: float = Field(0.1, gt=0.0, le=10.0,
                                    description="timing spread allowed before a calibration is "
                                                "flagged unstable, x the budget")
-    termination: str = Field("bth", min_length=1,
+    allow_loaded: bool = Field(False, description="equal time: use calibration probes timed "
+                                                  "on a loaded machine (default: left out "
+                                                  "and taken again)")
+    termination: str = Field(default_factory=lambda: _knob_default("termination"),
+                             min_length=1,
                              description="N_c sweep: the termination policy of the method "
-                                         "whose N_c it varies (one its parameters accept)")
+                                         "whose N_c it varies (one its parameters accept; "
+                                         "default: that method's own)")
     metric_eps: float = Field(0.01, gt=0.0, le=1.0, description="epsilon of MRSE / rBias2")
     params: dict[str, Any] = Field(default_factory=dict,
                                    description="extra parameters for every method")
@@ -404,4 +414,5 @@ class SweepSpec(BaseModel):
     def key(self, device_key: str) -> str:
         """Content address of the sweep on one device (timings are per device) under
         today's versions."""
-        return digest("sweep-spec", self.model_dump(mode="json"), device_key, self.versions())
+        return digest("sweep-spec", keyed_budget(self.model_dump(mode="json")), device_key,
+                      self.versions())

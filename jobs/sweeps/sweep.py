@@ -45,8 +45,11 @@ pooled rBias^2) gives a frame-time budget, and N_c at v1 of NIRC is calibrated
 to the largest candidate whose median frame time fits it (within
 ``time_tolerance_ms``), measured on this device with seed 0's caches: the NRC
 point's frame time is re-measured in every round, interleaved with the NIRC
-candidates (jobs/protocol/calibration.py). The calibration, with its spread and its
-``capped`` / ``unstable`` flags, is stored with the point.
+candidates (jobs/protocol/calibration.py). A probe timed on a loaded machine is
+left out and taken again, and the sweep stops with the reason when every try was
+loaded, unless the spec allows loaded timings (``allow_loaded``, ``--allow-loaded``).
+The calibration, with its spread, its ``capped`` / ``unstable`` flags and the probes
+left out, is stored with the point.
 
 Every point is a stored run whose idempotency key addresses what determines
 it (scene, settings, snapshots, eps, device): an identical point is never
@@ -436,11 +439,14 @@ class _Sweep:
                 continue
             _, match = min(budget_points, key=lambda item: abs(item[0] - rbias2))
             match_eps = match.params["sweep"]["eps"]
+            # Loaded probes allowed: another point than the quiet machine's (the key of
+            # a calibration that leaves them out is the one from before the choice).
             key = self.point_key(series, eps, self.params(method),
                                  extra=[candidates, match.idempotency_key,
                                         self.spec.probe_frames, self.spec.time_tolerance_ms,
                                         self.spec.calibration_rounds, self.spec.time_max_spread,
-                                        self.spec.bias_definition])
+                                        self.spec.bias_definition,
+                                        *(["allow_loaded"] if self.spec.allow_loaded else [])])
             stored = self.store.find_run_by_idempotency_key(key)
             if stored is not None:
                 runs[eps] = stored
@@ -449,7 +455,7 @@ class _Sweep:
                 continue
             # The budget is the matched point's frame time re-measured in every
             # round (same probe as the candidates), not its stored render time.
-            log = LoadLog()
+            log = LoadLog(self.spec.allow_loaded)
             record = calibrate(
                 knob, candidates, lambda nc, eps=eps, log=log: self.probe(method, eps, log, nc),
                 lambda match_eps=match_eps, log=log: self.probe(against, match_eps, log),
@@ -459,6 +465,7 @@ class _Sweep:
                 rounds=self.spec.calibration_rounds, max_spread=self.spec.time_max_spread,
                 probe_frames=self.spec.probe_frames)
             record.note_load(log.merged())
+            record.left_out = log.left_out
             self.work["calibrations"] += 1
             plan.setdefault(record.chosen, []).append(Point(
                 eps, self.params(method, record.chosen), key,
@@ -480,8 +487,10 @@ class _Sweep:
 
     def probe(self, method: str, eps: float, log: LoadLog, nc: int | None = None) -> float:
         """Seconds per 1-spp frame of ``method`` (NIRC: with ``nc`` samples at v1) with the
-        mask of ``eps`` (seed 0's cache), its load kept in ``log``. Only an integrator's
-        first probe warms up (compiles): a new mask is data, not a new kernel."""
+        mask of ``eps`` (seed 0's cache), on a quiet machine: a probe timed loaded is left
+        out and taken again unless the sweep allows loaded timings (``log``:
+        jobs.protocol.calibration.LoadLog). Only an integrator's first probe warms up
+        (compiles): a new mask is data, not a new kernel."""
         snap = self.snapshot(method, 0)
         first = (method, nc) not in self._probes
         if first:
@@ -489,12 +498,18 @@ class _Sweep:
                 method, self.params(method, nc), snap)
         integrator = self._probes[(method, nc)]
         integrator.set_v1_mask(v1_mask(self.bias(snap), eps))
-        output = run_frames(render_stage(self.prepared.scene, integrator, 1),
-                            seed_parts=("probe", method, nc, eps),
-                            frames=self.spec.probe_frames, spp=1, aov_names=CACHE_AOVS,
-                            hooks=FrameHooks(warmup=first))
+        warmups = iter([first])         # a probe taken again is compiled already
+
+        def timings() -> dict[str, Any]:
+            return run_frames(render_stage(self.prepared.scene, integrator, 1),
+                              seed_parts=("probe", method, nc, eps),
+                              frames=self.spec.probe_frames, spp=1, aov_names=CACHE_AOVS,
+                              hooks=FrameHooks(warmup=next(warmups, False))).timings
+
+        seconds = log.quiet_seconds(timings, f"{series_label(method)}"
+                                             f"{f' N_c {nc}' if nc else ''} at eps {eps}")
         self.report("calibration", self.work["calibrations"] + 1, len(self.spec.eps))
-        return log.seconds(output.timings)
+        return seconds
 
     def nc_point(self, nc: int) -> Any:
         """The stored run of the knob method (biased NIRC) with ``nc`` (N_c sweep),

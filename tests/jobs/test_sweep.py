@@ -31,9 +31,11 @@ SMALL = {"cache": {"batch_size": 1024}, "min_train_paths": 1024}
 
 
 def small_spec(**overrides) -> SweepSpec:
+    """A small sweep whose equal-time probes count on a loaded machine (the tests check
+    what is recorded, not the machine's quiet: the test machine is shared)."""
     values = dict(scene="cornell-box", resolution=16, seeds=2, train_frames=4, v1_spp=32,
                   eps=[0.1, 0.3, 1.0], nc=[1, 2], params=SMALL, probe_frames=1,
-                  reference=ReferenceSpec(spp=256))
+                  reference=ReferenceSpec(spp=256), allow_loaded=True)
     return SweepSpec(**{**values, **overrides})
 
 
@@ -488,3 +490,80 @@ def test_a_sweep_of_a_scene_file_reuses_its_points_under_the_service_s_name(tmp_
     assert first.work["points_rendered"] == 2
     assert again.work["points_rendered"] == 0 and again.work["points_reused"] == 2
     assert [row.id for row in again.rows] == [row.id for row in first.rows]
+
+
+# ---- Equal-time probes on a loaded machine -----------------------------------------
+
+def _probing_sweep(monkeypatch, loaded_tries: int, allow_loaded: bool):
+    """A sweep object with only what its equal-time probe reads, whose first
+    ``loaded_tries`` probes are timed on a loaded machine at 10x the quiet 2 ms; returns
+    it and the warm-up flag of every probe taken."""
+    from types import SimpleNamespace
+
+    from jobs.sweeps import sweep as sweep_module
+
+    warmups: list[bool] = []
+
+    def frames(stage, *, hooks, **_):
+        warmups.append(hooks.warmup)
+        loaded = len(warmups) <= loaded_tries
+        return SimpleNamespace(timings={
+            "frame_median_s": 0.02 if loaded else 0.002,
+            "load": {"loaded": loaded, "reasons": ["tasks waited for a core 60 %"] * loaded}})
+
+    monkeypatch.setattr(sweep_module, "run_frames", frames)
+    monkeypatch.setattr(sweep_module, "render_stage", lambda *args: None)
+    monkeypatch.setattr(sweep_module, "v1_mask", lambda bias, eps: None)
+    integrator = SimpleNamespace(set_v1_mask=lambda mask: None)
+    runner = SimpleNamespace(
+        spec=small_spec(allow_loaded=allow_loaded), _probes={}, work={"calibrations": 0},
+        prepared=SimpleNamespace(scene=None), snapshot=lambda method, seed: None,
+        bias=lambda snap: None, frozen_integrator=lambda *args: integrator,
+        params=lambda method, nc=None: {},
+        report=lambda *args: None)
+    return runner, warmups
+
+
+@pytest.mark.parametrize("allow_loaded", [False, True])
+def test_an_equal_time_probe_on_a_loaded_machine_is_left_out_unless_allowed(
+        monkeypatch, allow_loaded):
+    """The first probe runs loaded at 20 ms: left out and taken again (compiled once),
+    the quiet 2 ms counts; allowed (--allow-loaded), the loaded 20 ms counts, as every
+    probe did before."""
+    from jobs.protocol.calibration import LoadLog
+    from jobs.sweeps.sweep import _Sweep
+
+    runner, warmups = _probing_sweep(monkeypatch, 1, allow_loaded)
+    log = LoadLog(runner.spec.allow_loaded)
+    seconds = _Sweep.probe(runner, "nirc", 0.3, log, nc=2)
+    if allow_loaded:
+        assert (seconds, log.left_out, warmups) == (0.02, [], [True])
+        assert log.merged()["loaded"]
+    else:
+        assert (seconds, warmups) == (0.002, [True, False])
+        assert log.left_out == ["NIRC N_c 2 at eps 0.3: 20 ms left out, machine loaded "
+                                "(tasks waited for a core 60 %)"]
+        assert not log.merged()["loaded"]
+
+
+def test_a_sweep_whose_every_probe_is_loaded_stops_with_a_message(monkeypatch):
+    from jobs.protocol.calibration import LOADED_RETRIES, LoadedMachineError, LoadLog
+    from jobs.sweeps.sweep import _Sweep
+    from service.errors import is_user_error
+
+    runner, warmups = _probing_sweep(monkeypatch, LOADED_RETRIES + 1, False)
+    with pytest.raises(LoadedMachineError, match="--allow-loaded") as caught:
+        _Sweep.probe(runner, "nrc", 0.3, LoadLog(runner.spec.allow_loaded))
+    assert len(warmups) == LOADED_RETRIES + 1 and is_user_error(caught.value)
+
+
+def test_allowing_loaded_probes_keys_another_sweep_and_the_default_keeps_its_key():
+    from jobs.protocol.spec import keyed_budget
+    from renderers.seeding import digest
+
+    quiet, loaded = small_spec(allow_loaded=False), small_spec(allow_loaded=True)
+    before = quiet.model_dump(mode="json")
+    del before["allow_loaded"]                                # the spec before the flag
+    assert quiet.key("d") == digest("sweep-spec", before, "d", quiet.versions())
+    assert loaded.key("d") != quiet.key("d")
+    assert "allow_loaded" in keyed_budget(loaded.model_dump(mode="json"))

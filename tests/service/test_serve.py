@@ -14,7 +14,8 @@ LONG = {"scene": "cornell-box", "method": "pt", "resolution": 16, "spp": 1, "fra
 SMALL = {**LONG, "resolution": 8, "frames": 2}
 SWEEP = {"scene": "cornell-box", "eps": [0.3, 1.0], "nc": [1, 2], "resolution": 12, "seeds": 2,
          "train_frames": 3, "v1_spp": 16, "reference": {"spp": 64},
-         "params": {"cache": {"batch_size": 1024}, "min_train_paths": 1024}}
+         "params": {"cache": {"batch_size": 1024}, "min_train_paths": 1024},
+         "allow_loaded": True}  # equal-time probes count on the shared, loaded test machine
 
 
 @pytest.fixture

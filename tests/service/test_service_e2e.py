@@ -17,7 +17,8 @@ from tests.service.live import Service
 
 SWEEP = ["--scene", "cornell-box", "--eps", "0.3,1.0", "--nc", "1,2", "--res", "12",
          "--seeds", "2", "--train-frames", "3", "--v1-spp", "16", "--ref-spp", "64",
-         "-p", 'cache={"batch_size": 1024}', "-p", "min_train_paths=1024"]
+         "-p", 'cache={"batch_size": 1024}', "-p", "min_train_paths=1024",
+         "--allow-loaded"]     # equal-time probes count on the shared, loaded test machine
 
 
 def test_a_sweep_submitted_over_rest_runs_as_a_task_graph_and_reaches_the_dashboard(
