@@ -1,0 +1,119 @@
+"""A job's parameters are validated once, where it enters: a bad nested parameter (a
+termination policy's own parameter, a cache-config override) is refused there — REST
+422, CLI exit 2 with one line — and a job that got in reaches the executor as typed
+objects, validated once more only where a process reads it from the queue."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+from unittest import mock
+
+import pytest
+from fastapi.testclient import TestClient
+
+from jobs.execution.apikeys import create_api_key
+from jobs.execution.queue import JobQueue
+from jobs.execution.queued import QueuedRender, job_of
+from jobs.record.config import Settings
+from jobs.record.db import open_store
+from renderers.methods import get_method
+from service.api.main import create_app
+from service.cli import main
+
+BAD_NESTED = {
+    "termination policy": ("grid-cache", {"termination": "var-bound",
+                                          "termination_params": {"threshold": -1.0}},
+                           "threshold"),
+    "cache override": ("nirc", {"cache": {"no_such_field": 1}}, "no_such_field"),
+}
+GOOD = {"scene": "cornell-box", "method": "grid-cache", "resolution": 8, "seeds": 2,
+        "params": {"termination": "var-bound", "termination_params": {"threshold": 0.5}}}
+
+
+class _Counting:
+    """A model's validator that counts its validations (model_validate and __init__
+    both go through ``validate_python``)."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner, self.calls = inner, 0
+
+    def validate_python(self, *args: Any, **kwargs: Any) -> Any:
+        self.calls += 1
+        return self.inner.validate_python(*args, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+@pytest.fixture
+def validations(monkeypatch):
+    """method -> the counter of its parameter model's validations."""
+    def spy(method: str) -> _Counting:
+        model = get_method(method).params
+        counter = _Counting(model.__pydantic_validator__)
+        monkeypatch.setattr(model, "__pydantic_validator__", counter)
+        return counter
+    return spy
+
+
+@pytest.fixture
+def api(tmp_path, monkeypatch):
+    """The app without a dispatcher (jobs stay queued) and its queue."""
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    settings = Settings(data_dir=tmp_path / "data")
+    store = open_store(settings)
+    _, key = create_api_key(store, "tests")
+    client = TestClient(create_app(settings, None))
+    client.headers["X-API-Key"] = key
+    yield client, JobQueue(store), store, settings
+    store.close()
+
+
+@pytest.mark.parametrize("case", BAD_NESTED)
+def test_a_bad_nested_parameter_is_a_422_at_submission(api, validations, case):
+    client, queue, _, _ = api
+    method, params, field = BAD_NESTED[case]
+    counter = validations(method)
+    response = client.post("/api/v1/jobs", json={**GOOD, "method": method, "params": params})
+    assert response.status_code == 422, response.text
+    assert field in response.text and f"invalid {method} parameters" in response.text
+    assert counter.calls == 1 and queue.list() == []
+
+
+@pytest.mark.parametrize("case", BAD_NESTED)
+def test_a_bad_nested_parameter_is_one_line_and_exit_2_from_the_cli(
+        tmp_path, capsys, validations, case):
+    method, params, field = BAD_NESTED[case]
+    counter = validations(method)
+    options = [f"{name}={value}".replace("'", '"') for name, value in params.items()]
+    argv = ["nirc-bench", "render", "--scene", "cornell-box", "-m", method, "--res", "8",
+            *[arg for option in options for arg in ("-p", option)], "--data-dir", str(tmp_path)]
+    with mock.patch.object(sys, "argv", argv), pytest.raises(SystemExit) as exit_info:
+        main()
+    text = capsys.readouterr().err
+    assert exit_info.value.code == 2 and text.count("\n") == 1, text
+    assert field in text and "Traceback" not in text
+    assert counter.calls == 1     # refused before any render process started
+
+
+def test_a_submitted_job_is_validated_once_here_and_once_where_it_is_run(
+        api, validations, monkeypatch):
+    """The route validates the parameters once; a runner reading the row parses it
+    once (job_of) and hands the executor the typed job, validating nothing more. The
+    spy sees every validation: reading the row is one more."""
+    client, queue, store, settings = api
+    counter = validations("grid-cache")
+    response = client.post("/api/v1/jobs", json=GOOD)
+    assert response.status_code == 202, response.text
+    assert counter.calls == 1
+    queued = job_of(queue.get(response.json()["id"]))
+    assert isinstance(queued, QueuedRender) and counter.calls == 2
+    executed: list[Any] = []
+    monkeypatch.setattr("jobs.protocol.executor.execute",
+                        lambda job, *_args, **_kwargs: executed.append(job) or
+                        mock.Mock(run_id=1, reference={}, reused=False))
+    queued.run(store, settings, None, job_id=response.json()["id"])
+    assert executed == [queued.job] and counter.calls == 2
+    assert executed[0].params is queued.job.params
+    assert executed[0].params.termination_params == {"threshold": 0.5}
