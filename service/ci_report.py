@@ -31,13 +31,14 @@ def _p(value: float | None) -> str:
 
 
 def headline(result: CiResult) -> str:
-    bad = result.regressions
-    if bad:
-        return f"REGRESSION: {len(bad)} of {len(result.rows)} rows"
-    skipped = sum(row.verdict == "not comparable" for row in result.rows)
-    shown = sum(row.verdict == "shown" for row in result.rows)
-    return (f"PASS: {len(result.rows) - skipped - shown} rows compared"
-            + (f", {skipped} not comparable" if skipped else ""))
+    """'PASS: 5 rows compared' or 'REGRESSION: 1 of 5 rows compared', then the rows not
+    gated; the count of compared rows is JUnit's tests less its skipped."""
+    counts = result.counts
+    rest = "".join(f", {n} {what}" for n, what in ((counts.not_comparable, "not comparable"),
+                                                   (counts.shown, "shown (not gated)")) if n)
+    if counts.regressions:
+        return f"REGRESSION: {counts.regressions} of {counts.compared} rows compared{rest}"
+    return f"PASS: {counts.compared} rows compared{rest}"
 
 
 def markdown(result: CiResult) -> str:
@@ -69,10 +70,12 @@ def markdown(result: CiResult) -> str:
 
 
 def junit(result: CiResult) -> str:
-    """JUnit XML: a test case per row; a regression fails, a row not compared is skipped."""
+    """JUnit XML: a test case per row; a regression fails, a row not compared or shown
+    without a gate is skipped (so the cases run are the headline's compared rows)."""
+    counts = result.counts
     suite = ET.Element("testsuite", name="nirc-bench ci", tests=str(len(result.rows)),
-                       failures=str(len(result.regressions)), errors="0",
-                       skipped=str(sum(r.verdict == "not comparable" for r in result.rows)),
+                       failures=str(counts.regressions), errors="0",
+                       skipped=str(counts.not_comparable + counts.shown),
                        time=f"{result.seconds:.3f}")
     for row in result.rows:
         case = ET.SubElement(suite, "testcase", classname=row.entry, name=row.metric)
@@ -80,8 +83,9 @@ def junit(result: CiResult) -> str:
                   f"change {_change(row)}, p {_p(row.p_value)}, {row.seeds} seeds; {row.note}")
         if row.verdict == "regression":
             ET.SubElement(case, "failure", message=row.note).text = detail
-        elif row.verdict == "not comparable":
-            ET.SubElement(case, "skipped", message=row.note)
+        elif row.verdict in ("not comparable", "shown"):
+            ET.SubElement(case, "skipped", message=f"{_VERDICT[row.verdict]}: {row.note}"
+                          ).text = detail
         else:
             ET.SubElement(case, "system-out").text = detail
     root = ET.Element("testsuites")

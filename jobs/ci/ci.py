@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 from pydantic import BaseModel, Field
 
@@ -82,6 +82,17 @@ class CiRow(BaseModel):
     note: str = ""
 
 
+class GateCounts(NamedTuple):
+    """A gate's rows by what became of them: ``compared`` were gated (pass or
+    regression), of them ``regressions`` failed; ``not_comparable`` and ``shown`` (a
+    bias check's row that is not gated) were not. Every report of the gate counts these."""
+
+    compared: int
+    regressions: int
+    not_comparable: int
+    shown: int
+
+
 class CiResult(BaseModel):
     """What ``nirc-bench ci`` reports."""
 
@@ -98,6 +109,13 @@ class CiResult(BaseModel):
     @property
     def regressions(self) -> list[CiRow]:
         return [row for row in self.rows if row.verdict == "regression"]
+
+    @property
+    def counts(self) -> GateCounts:
+        verdicts = [row.verdict for row in self.rows]
+        return GateCounts(verdicts.count("pass") + verdicts.count("regression"),
+                          verdicts.count("regression"), verdicts.count("not comparable"),
+                          verdicts.count("shown"))
 
     @property
     def exit_code(self) -> int:

@@ -87,6 +87,7 @@ def test_own_baseline_passes_and_a_baseline_edited_to_be_better_fails(tmp_path,
     cases = ET.parse(tmp_path / "j.xml").getroot().find("testsuite")
     # Each of the 2 entries adds its rBias² and rVar rows to the 4 compared.
     assert cases.get("tests") == "8" and cases.get("failures") == "0"
+    assert cases.get("skipped") == "3"                   # the 5 compared rows run
     summary = (tmp_path / "s.md").read_text()
     assert summary.startswith("## nirc-bench ci: PASS") and "| nirc biased | MRSE" in summary
 
@@ -101,7 +102,8 @@ def test_own_baseline_passes_and_a_baseline_edited_to_be_better_fails(tmp_path,
     cases = ET.parse(tmp_path / "j2.xml").getroot().find("testsuite")
     flagged = {(c.get("classname"), c.get("name")) for c in cases if c.find("failure") is not None}
     assert flagged == {("nirc biased", "mrse")}
-    assert "REGRESSION: 1 of 8 rows" in failed.stdout and "Welch t" in failed.stdout
+    assert "REGRESSION: 1 of 5 rows compared, 3 shown" in failed.stdout
+    assert "Welch t" in failed.stdout
 
 
 def test_the_latest_results_of_a_branch_are_a_baseline(tmp_path, suite):
