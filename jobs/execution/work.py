@@ -183,8 +183,8 @@ def reference_stored(store: Store, scene: str, resolution: int, reference: Refer
 
 def data_bytes(store: Store, settings: Settings) -> int:
     """Bytes the data folder holds: the stored artifacts (each file once), the
-    reference files, the stored scenes and the SQLite database file (if the database
-    is one)."""
+    reference files, the stored scenes, the uploaded images and the SQLite database
+    file (if the database is one)."""
     with store.session() as session:
         distinct = select(Artifact.path, func.max(Artifact.bytes).label("bytes")) \
             .group_by(Artifact.path).subquery()
@@ -192,9 +192,9 @@ def data_bytes(store: Store, settings: Settings) -> int:
     if settings.references_dir.is_dir():
         total += sum(entry.stat().st_size for entry in settings.references_dir.iterdir()
                      if entry.is_file())
-    scenes = settings.scenes_dir
-    if scenes.is_dir():
-        total += sum(entry.stat().st_size for entry in scenes.rglob("*") if entry.is_file())
+    for folder in (settings.scenes_dir, settings.uploaded_images_dir):
+        if folder.is_dir():
+            total += sum(entry.stat().st_size for entry in folder.rglob("*") if entry.is_file())
     database = settings.data_dir / DATABASE_FILENAME
     for path in (database, database.with_name(database.name + "-wal")):
         if str(settings.database_url).startswith("sqlite") and path.is_file():

@@ -119,6 +119,12 @@ class Settings(BaseSettings):
         return self.data_dir / "scenes"
 
     @property
+    def uploaded_images_dir(self) -> Path:
+        """Folder of the EXR images users upload to compare runs against
+        (``<key id>/<run id>/<sha256>.exr``)."""
+        return self.data_dir / "uploaded_images"
+
+    @property
     def references_dir(self) -> Path:
         """Folder for converged reference images and their variance images."""
         return self.data_dir / "references"

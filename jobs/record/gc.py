@@ -11,6 +11,7 @@ What can go:
   died before storing its run, or by rows removed since);
 * files in the references folder that no reference row names;
 * scratch files (``data/tmp``) and interrupted writes (``.tmp-*``);
+* images uploaded for comparison (``data/uploaded_images``) since their last upload;
 
 all of these once older than ``Settings.gc_keep_days`` (the age limit protects a job
 in flight: it writes its files before the rows that name them). And, by the
@@ -18,7 +19,9 @@ retention policy, the **artifacts of runs and sweeps** (images, error maps,
 previews, plots: their rows and files; the results stay): those of runs and sweeps
 created more than ``artifact_keep_days`` ago, and, while the artifact store holds
 more than ``artifact_max_bytes``, those of the oldest runs and sweeps first.
-Artifacts of references and cache snapshots are kept: later jobs reuse them.
+Artifacts of references and cache snapshots are kept: later jobs reuse them. An
+uploaded image goes with its run's artifacts (those this plan removes, or none left)
+whatever its age: nothing is left to compare it with.
 
 :func:`plan` only looks; :func:`apply` removes what a plan lists.
 """
@@ -105,6 +108,21 @@ def _scenes(store: Store, settings: Settings, old_mtime: float) -> list[Removal]
             and scene.name not in named and scene.stat().st_mtime < old_mtime]
 
 
+def _uploaded_images(store: Store, settings: Settings, old_mtime: float,
+                     expiring_runs: set[int]) -> list[Removal]:
+    """Uploaded images (``<key>/<run>/<sha256>.exr``) past their lifetime, and those of
+    runs whose artifacts are gone or go in this plan (``expiring_runs``)."""
+    images = list(_files(settings.uploaded_images_dir))
+    runs = {int(path.parent.name) for path in images if path.parent.name.isdigit()}
+    with store.session() as session:
+        with_artifacts = set(session.scalars(select(Artifact.run_id).distinct().where(
+            Artifact.run_id.in_(runs)))) if runs else set()
+    gone = (runs - with_artifacts) | expiring_runs
+    return [Removal("uploaded image", path, _size(path)) for path in images
+            if path.stat().st_mtime < old_mtime
+            or path.parent.name.isdigit() and int(path.parent.name) in gone]
+
+
 def _expired_artifacts(store: Store, settings: Settings) -> list[Removal]:
     """The artifacts of runs and sweeps past the retention policy (by age, then by the
     store's size, oldest first)."""
@@ -178,7 +196,11 @@ def plan(store: Store, settings: Settings, keep_days: float | None = None) -> Pl
         if path.stat().st_mtime < old_mtime:
             removals.append(Removal("scratch file", path, _size(path)))
     removals += _scenes(store, settings, old_mtime)
-    removals += _expired_artifacts(store, settings)
+    expired = _expired_artifacts(store, settings)
+    removals += expired
+    removals += _uploaded_images(store, settings, old_mtime, {
+        removal.owner_id for removal in expired
+        if removal.what == "run artifacts" and removal.owner_id is not None})
     return Plan(removals)
 
 

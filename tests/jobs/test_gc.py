@@ -129,3 +129,38 @@ def test_gc_applies_the_retention_policy_to_results_artifacts(store, settings):
     gc.apply(store, by_size, plan)
     assert [a.kind for a in store.get_run(runs["new"].id).artifacts] == ["image", "preview"]
     assert gc.plan(store, by_size).removals == []
+
+
+def test_gc_removes_uploaded_images_with_their_run_s_artifacts_or_past_their_lifetime(
+        store, settings):
+    """An image uploaded for a run (``<key>/<run>/<sha>.exr``) stays while its run has
+    artifacts and it is younger than gc_keep_days; it goes once old, once its run's
+    artifacts are gone, or with the artifacts this plan removes."""
+    artifacts = ArtifactStore(settings.artifacts_dir)
+
+    def run_with_image(days: float) -> int:
+        blob = artifacts.put_bytes(f"image {days}".encode() * 10, ".exr")
+        return store.add_run(run_fields(created_at=datetime.now(UTC) - timedelta(days=days)),
+                             [], [{**artifact_fields("image", blob.sha256),
+                                   "path": blob.relpath}]).id
+
+    def uploaded(run_id: int, name: str, age_days: float = 0.0):
+        path = settings.uploaded_images_dir / "1" / str(run_id) / f"{name}.exr"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"u" * 10)
+        _age(path, age_days)
+        return path
+
+    kept_run, expiring_run = run_with_image(1), run_with_image(400)
+    bare_run = store.add_run(run_fields(), [], []).id                 # no artifacts
+    kept = uploaded(kept_run, "kept")
+    old = uploaded(kept_run, "old", age_days=60)
+    with_expiring = uploaded(expiring_run, "expiring")
+    with_bare = uploaded(bare_run, "bare")
+    unkeyed = uploaded(999_999, "no-run")                             # no such run
+    policy = settings.model_copy(update={"artifact_keep_days": 365.0})
+    plan = gc.plan(store, policy)
+    images = {r.path for r in plan.removals if r.what == "uploaded image"}
+    assert images == {old, with_expiring, with_bare, unkeyed}
+    gc.apply(store, policy, plan)
+    assert kept.exists() and not any(path.exists() for path in images)

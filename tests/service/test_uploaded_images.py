@@ -139,3 +139,26 @@ def test_an_upload_past_the_data_limit_is_refused(served):
     with TestClient(create_app(full)) as tight:
         answer = upload(tight, run_id, exr_bytes(folder, reference + 100), key)
     assert answer.status_code == 507 and "max_data_bytes" in answer.text
+
+
+def test_uploaded_images_count_in_the_data_folder_s_size(served):
+    """The size jobs, scenes and uploads are admitted against grows by each new upload's
+    file, and an upload that just fits is stored, one byte less is refused."""
+    from jobs.execution.work import data_bytes
+
+    client, settings, run_id, reference, _, folder = served
+    store = open_store(settings)
+    try:
+        key = create_api_key(store, "sizes")[1]      # none of its uploads is removed here
+        before = data_bytes(store, settings)
+        body = exr_bytes(folder, reference + 200)
+        assert upload(client, run_id, body, key).status_code == 201
+        assert data_bytes(store, settings) == before + len(body)
+        for room, status in ((-1, 507), (0, 201)):
+            body = exr_bytes(folder, reference + 300 + room)
+            limit = data_bytes(store, settings) + len(body) + room
+            with TestClient(create_app(settings.model_copy(
+                    update={"max_data_bytes": limit}))) as tight:
+                assert upload(tight, run_id, body, key).status_code == status
+    finally:
+        store.close()

@@ -10,7 +10,12 @@ does not authorize it). Bounds, all existing limits of the service:
   any pixel is decoded, so a small compressed file cannot make the service decode a
   large image (422 otherwise, naming both sizes);
 * a key keeps its latest :data:`IMAGES_PER_KEY` uploads: a new one removes its oldest;
-* a new image that would take the data folder past ``max_data_bytes`` is refused (507).
+* a new image that would take the data folder past ``max_data_bytes`` is refused (507);
+  uploaded images count in the data folder's size (jobs.execution.work.data_bytes), so
+  jobs and scene uploads are refused for them as for any stored file;
+* they are kept under their run (``<key id>/<run id>/<sha256>.exr``): ``nirc-bench gc``
+  removes them with their run's artifacts and once older than ``gc_keep_days`` since
+  their last upload (jobs/record/gc.py).
 
 A file that is not OpenEXR, is damaged, has no R, G, B channels or holds a value that is
 not finite is a 422 saying which. The answer's ``id`` is the SHA-256 of the file's bytes
@@ -58,10 +63,6 @@ class ImageUploadOut(BaseModel):
     kept: int = Field(description=f"uploads this key keeps (at most {IMAGES_PER_KEY})")
 
 
-def images_dir(settings: Settings) -> Path:
-    return settings.data_dir / "uploaded_images"
-
-
 def _refused(message: str) -> HTTPException:
     return unprocessable(message, ("body",))
 
@@ -93,17 +94,18 @@ def _checked(path: Path, resolution: tuple[int, int]) -> np.ndarray:
     return image
 
 
-def _store(body: bytes, key_id: int, resolution: tuple[int, int], store: Store,
+def _store(body: bytes, key_id: int, run_id: int, resolution: tuple[int, int], store: Store,
            settings: Settings) -> tuple[ImageUploadOut, bool]:
-    """Check and keep ``body`` for key ``key_id``; (the stored image, whether it is new)."""
-    folder = make_private_dir(images_dir(settings) / str(key_id))
+    """Check and keep ``body`` for key ``key_id`` under run ``run_id``; (the stored
+    image, whether it is new)."""
+    key_folder = make_private_dir(settings.uploaded_images_dir / str(key_id))
+    folder = make_private_dir(key_folder / str(run_id))
     image_id = hashlib.sha256(body).hexdigest()
     target = folder / f"{image_id}.exr"
     created = not target.is_file()
     if created:
         if settings.max_data_bytes is not None:
-            uploaded = sum(p.stat().st_size for p in images_dir(settings).rglob("*.exr"))
-            if data_bytes(store, settings) + uploaded + len(body) > settings.max_data_bytes:
+            if data_bytes(store, settings) + len(body) > settings.max_data_bytes:
                 raise HTTPException(status.HTTP_507_INSUFFICIENT_STORAGE,
                                     f"storing {len(body)} bytes would take the data folder "
                                     f"past its limit of {settings.max_data_bytes} bytes "
@@ -117,7 +119,7 @@ def _store(body: bytes, key_id: int, resolution: tuple[int, int], store: Store,
         finally:
             scratch.unlink(missing_ok=True)
     os.utime(target)   # the newest upload of this key, whether new or repeated
-    kept = sorted(folder.glob("*.exr"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
+    kept = sorted(key_folder.rglob("*.exr"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
     for old in kept[IMAGES_PER_KEY:]:
         old.unlink(missing_ok=True)
     return ImageUploadOut(id=image_id, width=resolution[0], height=resolution[1],
@@ -126,7 +128,7 @@ def _store(body: bytes, key_id: int, resolution: tuple[int, int], store: Store,
 
 def uploaded_image(settings: Settings, image_id: str) -> np.ndarray:
     """The pixels of uploaded image ``image_id`` (any key's); 404 when none is kept."""
-    found = next(iter(sorted(images_dir(settings).glob(f"*/{image_id}.exr"))), None)
+    found = next(iter(sorted(settings.uploaded_images_dir.rglob(f"{image_id}.exr"))), None)
     if found is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND,
                             f"no uploaded image {image_id} (each key keeps its latest "
@@ -166,7 +168,7 @@ async def upload_image(request: Request, response: Response, caller: CallerDep,
     body = await request.body()
     if not body:
         raise _refused("the body is empty: send the EXR file's bytes")
-    answer, created = await run_in_threadpool(_store, body, caller.id,
+    answer, created = await run_in_threadpool(_store, body, caller.id, run,
                                               (stored.width, stored.height),
                                               store, settings)
     if not created:
