@@ -110,6 +110,7 @@ def test_overview_lists_the_latest_results_with_every_number_linked(chromium, si
 
 def test_scene_page_draws_one_group_per_setting_with_library_charts(chromium, site):
     url, runs, _ = site
+    ARTIFACTS.mkdir(exist_ok=True)
     page, errors = visit(chromium, f"{url}/#/scene/cornell-box")
     groups = page.locator("#pareto section.group h4").all_inner_texts()
     assert len(groups) == 2, groups          # 16² (1 and 2 spp: one curve), 24²: never mixed
@@ -123,6 +124,8 @@ def test_scene_page_draws_one_group_per_setting_with_library_charts(chromium, si
     wait_until(page, "document.querySelector('#vg-tooltip-element.visible') !== null")
     tip = page.inner_text("#vg-tooltip-element")
     assert "rr_survival=0.9" in tip and "run" in tip and "spp" in tip
+    # docs/images/dashboard_scene.png is this screenshot (the tooltip shown, not zoomed).
+    page.screenshot(path=str(ARTIFACTS / "dashboard-scene.png"), full_page=True)
     # Wheel zoom changes the axis.
     labels = ("[...document.querySelector('#pareto .vega-embed')"
               ".querySelectorAll('.role-axis-label text')].map(t => t.textContent).join()")
@@ -132,7 +135,6 @@ def test_scene_page_draws_one_group_per_setting_with_library_charts(chromium, si
     page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 3)
     page.mouse.wheel(0, -400)
     wait_until(page, f"{labels} !== {json.dumps(before)}")
-    page.screenshot(path=str(ARTIFACTS / "dashboard-scene.png"), full_page=True)
     assert errors == []
 
 
