@@ -43,7 +43,11 @@ replaces a scene among its arguments with the scene's pointer arrays and the few
 arrays it holds outside its objects, and the function gets the scene back in their
 place. Handed the scene object, Dr.Jit walked each of its objects twice per call
 (docs/timing.md, "The floor of a frozen call"); a scene nested in another argument
-is refused, and the wrapped function's closure never holds one.
+is refused, and the wrapped function's closure never holds one. Where every emitter
+Dr.Jit has registered is one of the scene's and its shapes hold them (area lights), the
+emitters' pointer array is handed over as a plain array: Dr.Jit's walk of the shapes
+already meets every variable of the emitters, and walking the emitters' domain again
+cost a quarter of a call (:meth:`SceneLayout.emitters_walked`).
 
 Freezing is on by default; ``with frozen_frames(False):`` runs the same code
 unfrozen (to compare the two: the frozen and unfrozen frames of a method must give
@@ -52,10 +56,13 @@ the same images).
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import enum
+import functools
 import gc
 import math
+import os
 import weakref
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -281,11 +288,16 @@ class SceneArrays:
 
     DRJIT_STRUCT = {"shapes": object, "emitters": object, "sensors": object, "own": object}
 
-    def __init__(self, scene: Any, own: OwnArrays) -> None:
+    def __init__(self, scene: Any, own: OwnArrays, walk_emitters: bool = True) -> None:
         self.scene = scene
         self.shapes = _pointers(scene.shapes_dr())
         self.emitters = _pointers(scene.emitters_dr())
         self.sensors = _pointers(scene.sensors_dr())
+        if self.emitters is not None and not walk_emitters:
+            # An input still, but as a plain array: Dr.Jit does not walk the emitters'
+            # domain for it (SceneLayout.emitters_walked says when that is right).
+            own = OwnArrays([*own.indices, self.emitters.index])
+            self.emitters = None
         self.own = own
 
 
@@ -332,9 +344,15 @@ class SceneLayout:
     def _find(self, walk: list[int]) -> None:
         scene = self.scene
         with object_traversal():
-            held = set(dr.detail.collect_indices(
-                [*scene.shapes(), *scene.emitters(), *scene.sensors(), scene.shapes_dr(),
-                 scene.emitters_dr(), scene.sensors_dr()]))
+            shapes = set(dr.detail.collect_indices(list(scene.shapes())))
+            emitters = set(dr.detail.collect_indices(list(scene.emitters())))
+            held = shapes | emitters | set(dr.detail.collect_indices(
+                [*scene.sensors(), scene.shapes_dr(), scene.emitters_dr(),
+                 scene.sensors_dr()]))
+        #: Whether Dr.Jit's walk of the shapes meets every variable of the emitters
+        #: (each an area light, which its shape holds).
+        self.emitters_in_shapes = emitters <= shapes
+        self.emitter_addresses = frozenset(emitter.ptr for emitter in scene.emitters())
         own = [at for at, index in enumerate(walk) if index and index not in held]
         first_held = next((at for at, index in enumerate(walk) if index in held), len(walk))
         self.length = len(walk)
@@ -348,12 +366,55 @@ class SceneLayout:
     def arrays(self) -> SceneArrays:
         """The scene's arrays now."""
         if not self.rebuilt:
-            return SceneArrays(self.scene, OwnArrays(self.kept))
+            return SceneArrays(self.scene, OwnArrays(self.kept), self.emitters_walked())
         walk = self._walk()
         if len(walk) != self.length:   # a distribution appeared or went: find them anew
             self._find(walk)
         return SceneArrays(self.scene, OwnArrays(
-            self.kept + [walk[at] for at in self.rebuilt if walk[at]]))
+            self.kept + [walk[at] for at in self.rebuilt if walk[at]]),
+            self.emitters_walked())
+
+    def emitters_walked(self) -> bool:
+        """Whether a call must have Dr.Jit walk the emitters' domain: unless every
+        emitter registered with Dr.Jit is one of this scene's and its shapes' walk meets
+        all their variables. A call over the emitters traces every registered one, and a
+        variable of any that is no input makes the recording fail (another scene's
+        environment map, alive in the process); a call with the other layout of inputs
+        records anew. Measured on many-lights (32 area lights), a frozen call that does
+        nothing but take the scene: 1.02 ms walking the emitters, 0.78 ms not."""
+        return not (self.emitters_in_shapes
+                    and registered_emitters() == self.emitter_addresses)
+
+
+@functools.cache
+def _registry_functions() -> tuple[Any, Any] | None:
+    """Dr.Jit's ``jit_registry_id_bound`` and ``jit_registry_get_pointers`` (its C++
+    symbols; None where this Dr.Jit has none by those names)."""
+    try:
+        core = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
+        bound = core._Z21jit_registry_id_boundPKcS0_
+        pointers = core._Z25jit_registry_get_pointersPKcS0_PPv
+    except (OSError, AttributeError):
+        return None
+    bound.restype, bound.argtypes = ctypes.c_uint32, [ctypes.c_char_p, ctypes.c_char_p]
+    pointers.restype = None
+    pointers.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.POINTER(ctypes.c_void_p)]
+    return bound, pointers
+
+
+def registered_emitters() -> frozenset[int] | None:
+    """The addresses of the emitters registered with Dr.Jit for the current Mitsuba
+    variant, which a call over the emitters traces (None: this Dr.Jit does not say)."""
+    import mitsuba as mi
+
+    functions = _registry_functions()
+    if functions is None:
+        return None
+    bound, pointers = functions
+    variant, domain = mi.variant().encode(), b"Emitter"
+    slots = (ctypes.c_void_p * bound(variant, domain))()
+    pointers(variant, domain, slots)
+    return frozenset(address for address in slots if address)
 
 
 class Capacity:

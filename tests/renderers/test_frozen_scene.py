@@ -6,6 +6,10 @@ scene's own traversal; and a frozen frame still follows the scene when it change
 from __future__ import annotations
 
 import gc
+import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -221,3 +225,57 @@ def test_a_scene_without_emitters_renders_frozen_as_traced(mi):
     np.testing.assert_array_equal(frozen, traced)
     del scene, call
     gc.collect()
+
+
+#: A process of its own (the registry holds every emitter alive in a process, and this
+#: suite's fixtures hold other scenes): many-lights (area lights only) rendered by a
+#: frozen call, beside an environment emitter too, and with the registry's answer
+#: planted. Each frozen render is compared bitwise with a traced one.
+EMITTERS_SCRIPT = """
+import json
+import numpy as np
+from renderers.backend import init_backend
+mi = init_backend()
+import renderers.frozen as frozen
+from renderers.scenes import load_scene
+
+scene = load_scene("many-lights", 4).scene
+layout = frozen.SceneLayout(scene)
+integrator = mi.load_dict({"type": "path", "max_depth": 3})
+
+def frozen_is_traced():
+    call = frozen.Frozen(lambda scene, seed: mi.render(scene, integrator=integrator, spp=1,
+                                                        seed=seed))
+    for seed in range(4):
+        image = np.asarray(call(scene, mi.UInt32(seed)))
+    traced = np.asarray(mi.render(scene, integrator=integrator, spp=1, seed=3))
+    return bool(np.array_equal(image, traced))
+
+seen = {"in_shapes": layout.emitters_in_shapes, "walked_alone": layout.emitters_walked(),
+        "alone": frozen_is_traced()}
+environment = mi.load_dict({"type": "constant"})   # an emitter no shape holds
+seen.update(walked_beside=layout.emitters_walked(), beside=frozen_is_traced())
+frozen.registered_emitters = lambda: layout.emitter_addresses   # planted
+try:
+    seen["planted"] = frozen_is_traced()
+except RuntimeError as error:
+    seen["planted"] = "refused: " + str(error)[:80]
+print(json.dumps(seen))
+"""
+
+
+def test_the_emitters_domain_is_walked_unless_the_shapes_cover_every_emitter():
+    """A scene whose emitters are all area lights, alone in its process, hands its
+    emitters over as a plain array (its shapes' walk meets their variables): the frozen
+    frame equals the traced render. Beside an emitter no shape holds, which a call over
+    the emitters traces too, the emitters are walked again, and the frame still equals
+    the traced one; planted, the registry's answer ignoring that emitter: Dr.Jit refuses
+    the recording. About 4 s: a process of its own (see EMITTERS_SCRIPT)."""
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.run([sys.executable, "-c", EMITTERS_SCRIPT], cwd=root,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    seen = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert seen["in_shapes"] and not seen["walked_alone"] and seen["alone"] is True
+    assert seen["walked_beside"] and seen["beside"] is True
+    assert str(seen["planted"]).startswith("refused"), seen["planted"]
