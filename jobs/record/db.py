@@ -25,6 +25,7 @@ from alembic.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
+from sqlalchemy.exc import DBAPIError
 
 from jobs.record.artifacts import PRIVATE_FILE_MODE, make_private_dir
 from jobs.record.config import Settings, get_settings
@@ -151,6 +152,19 @@ def migrate(engine: Engine) -> None:
     so the later process waits and then finds nothing to do.
     """
     heads, known = _revisions()
+    # The common case, a current schema, is settled by reading Alembic's version table
+    # without a lock: every job's runner checks (jobs/execution/runner.py), and taking
+    # SQLite's write lock and building Alembic's migration context for it cost ~9 ms a
+    # job and queued each check behind the jobs being written. Anything else (a new
+    # database, an older or a newer schema) is decided again under the lock.
+    try:
+        with engine.connect() as connection:
+            stored = {row[0] for row in connection.exec_driver_sql(
+                "SELECT version_num FROM alembic_version")}
+    except DBAPIError:      # no version table yet: a new database
+        stored = set()
+    if stored == heads:
+        return
     with engine.execution_options(**{BEGIN_IMMEDIATE_OPTION: True}).begin() as connection:
         if connection.dialect.name == "postgresql":
             # A migration on another machine may take long: wait for it, whatever the
@@ -159,21 +173,26 @@ def migrate(engine: Engine) -> None:
             connection.execute(
                 text("SELECT pg_advisory_xact_lock(:key)"), {"key": _PG_MIGRATION_LOCK}
             )
-        current = set(MigrationContext.configure(connection).get_current_heads())
-        if current - known:
-            raise SchemaVersionError(
-                f"the database at {engine.url.render_as_string(hide_password=True)} has "
-                f"schema revision {', '.join(sorted(current - known))}, which this "
-                "version of nirc-bench does not know: it was created by a newer "
-                "nirc-bench. Upgrade nirc-bench or point NIRC_BENCH_DATABASE_URL / "
-                "NIRC_BENCH_DATA_DIR at another database."
-            )
-        if current == heads:
+        if _current_heads(connection, engine, known) == heads:
             return
         # env.py runs the migrations on this connection, inside this transaction.
         config = alembic_config()
         config.attributes["connection"] = connection
         command.upgrade(config, "head")
+
+
+def _current_heads(connection: Connection, engine: Engine, known: frozenset[str]) -> set[str]:
+    """The database's schema revisions; refused when one is unknown to this version."""
+    current = set(MigrationContext.configure(connection).get_current_heads())
+    if current - known:
+        raise SchemaVersionError(
+            f"the database at {engine.url.render_as_string(hide_password=True)} has "
+            f"schema revision {', '.join(sorted(current - known))}, which this "
+            "version of nirc-bench does not know: it was created by a newer "
+            "nirc-bench. Upgrade nirc-bench or point NIRC_BENCH_DATABASE_URL / "
+            "NIRC_BENCH_DATA_DIR at another database."
+        )
+    return current
 
 
 def open_store(settings: Settings | None = None) -> Store:
