@@ -323,26 +323,50 @@ def _check_file_size(name: str, size: int, limits: Limits) -> None:
 
 # ---- The XML walk --------------------------------------------------------------
 
-class _DocumentType(Exception):
-    pass
+#: Elements nested deeper than this are refused before any tree is built: Mitsuba
+#: scenes nest a handful of levels (scene, shape, bsdf, texture, ...), and the tree's
+#: serializer recurses once per level.
+MAX_XML_DEPTH = 64
+
+
+class _Unacceptable(Exception):
+    """Raised by the streaming check's handlers: what the XML may not hold."""
 
 
 def _refuse_document_type(*_: object) -> None:
-    raise _DocumentType
+    raise _Unacceptable("a document type declaration (<!DOCTYPE>) is not allowed in a scene")
 
 
-def _parse(data: bytes, shown: str) -> ET.Element:
-    # No DTDs: entities could expand without bound or name files of their own. A
-    # parser of its own finds one in any encoding the XML may declare.
+def _check_structure(data: bytes) -> None:
+    """Stream through ``data`` without keeping anything, refusing DTDs (entities could
+    expand without bound or name files of their own) and elements nested deeper than
+    :data:`MAX_XML_DEPTH`. A parser of its own finds a DTD in any encoding the XML may
+    declare."""
     checker = expat.ParserCreate()
     checker.StartDoctypeDeclHandler = _refuse_document_type
     checker.EntityDeclHandler = _refuse_document_type
+    depth = 0
+
+    def start(*_: object) -> None:
+        nonlocal depth
+        depth += 1
+        if depth > MAX_XML_DEPTH:
+            raise _Unacceptable(f"elements nested more than {MAX_XML_DEPTH} deep (the limit)")
+
+    def end(_: str) -> None:
+        nonlocal depth
+        depth -= 1
+
+    checker.StartElementHandler, checker.EndElementHandler = start, end
+    checker.Parse(data, True)
+
+
+def _parse(data: bytes, shown: str) -> ET.Element:
     try:
-        checker.Parse(data, True)
+        _check_structure(data)
         root = ET.fromstring(data)
-    except _DocumentType:
-        raise SceneRefused(f"{shown}: a document type declaration (<!DOCTYPE>) is not "
-                           "allowed in a scene") from None
+    except _Unacceptable as err:
+        raise SceneRefused(f"{shown}: {err}") from None
     except (ET.ParseError, expat.ExpatError) as err:
         line, column = (err.position if isinstance(err, ET.ParseError)
                         else (err.lineno, err.offset))

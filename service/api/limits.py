@@ -4,10 +4,11 @@
   A declared Content-Length over the limit is refused before anything is read; a body sent
   without one (chunked) is counted as it streams in and refused when it passes the
   limit, so a client cannot make the service buffer more than the limit.
+* Nesting: no body may nest arrays and objects deeper than ``MAX_DEPTH``, checked on
+  the bytes before any parser recurses into them (service/api/nesting.py; 422).
 * Free-form JSON inside an accepted body (``params`` is a dict of anything): string
-  and list lengths, nesting depth, and the total size of ``params`` are capped
-  (422 naming the field), so a spec that is stored and served to every reader stays
-  small.
+  and list lengths and the total size of ``params`` are capped (422 naming the
+  field), so a spec that is stored and served to every reader stays small.
 * Text: JSON may spell a lone UTF-16 surrogate (``"\\ud800"``), which is no Unicode
   character: it cannot be stored, hashed or sent back as UTF-8, so a string or key
   holding one is refused (422) before anything uses it.
@@ -130,8 +131,9 @@ def is_unicode(text: str) -> bool:
 _NOT_UNICODE = "holds a lone UTF-16 surrogate (such as \\ud800), which is not Unicode text"
 
 
-def _shape_errors(value: Any, path: list[Any], depth: int = 1) -> list[dict[str, Any]]:
-    """Where ``value`` (parsed JSON) passes the string, list, key and depth limits."""
+def _shape_errors(value: Any, path: list[Any]) -> list[dict[str, Any]]:
+    """Where ``value`` (parsed JSON, nested at most ``MAX_DEPTH`` deep: service/api/nesting.py)
+    passes the string, list and key limits."""
     if isinstance(value, str):
         if not is_unicode(value):
             return [_violation(path, value, "string_unicode", f"a string that {_NOT_UNICODE}")]
@@ -142,9 +144,6 @@ def _shape_errors(value: Any, path: list[Any], depth: int = 1) -> list[dict[str,
         return []
     if not isinstance(value, dict | list):
         return []
-    if depth > MAX_DEPTH:
-        return [_violation(path, value, "too_deep",
-                           f"nested deeper than {MAX_DEPTH} levels")]
     if isinstance(value, list):
         if len(value) > MAX_LIST_ITEMS:
             return [_violation(path, value, "too_long",
@@ -163,7 +162,7 @@ def _shape_errors(value: Any, path: list[Any], depth: int = 1) -> list[dict[str,
             return [_violation(path, key, "string_too_long", "a key too long")]
         if isinstance(key, str) and not is_unicode(key):
             return [_violation(path, key, "string_unicode", f"a key that {_NOT_UNICODE}")]
-        errors += _shape_errors(item, [*path, key], depth + 1)
+        errors += _shape_errors(item, [*path, key])
         if errors:          # the first few are enough to fix the request
             return errors
     return errors

@@ -12,7 +12,7 @@ while the database is unavailable (service/api/failures.py). A request that fail
 answered 422 with the errors as JSON, even when the bad value is NaN or Infinity
 (which a JSON body may carry, but a JSON answer cannot), and with any echoed input
 cut short; every 422 has that one shape (service/api/unprocessable.py; the body
-limits: service/api/limits.py).
+limits: service/api/limits.py, its nesting depth: service/api/nesting.py).
 
 Reads need an API key unless ``settings.public_read`` (service/config.py) (None counts as on: the app
 alone does not know where it listens, and ``serve`` decides None before it gets
@@ -41,6 +41,7 @@ from service.api.deps import ReadAccess
 from service.api.failures import add_failure_handlers
 from service.api.headers import SecurityHeaders
 from service.api.limits import BodySizeLimit, bounded_json_body
+from service.api.nesting import JsonDepthLimit
 from service.api.routes import auth, charts, ci, images, jobs, pixels, results, scenes
 from service.api.unprocessable import validation_failed
 from service.config import ServiceSettings
@@ -107,9 +108,12 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.state.dispatcher = dispatcher
     app.add_exception_handler(RequestValidationError, validation_failed)
     add_failure_handlers(app)
-    # A scene upload reads its body under its own cap (the scenes' size limit).
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes,
-                       exempt=(("POST", scenes.UPLOAD_PATH),))
+    # A scene upload reads its body under its own cap (the scenes' size limit) and
+    # checks its own nesting. The depth check runs inside the size limit, which bounds
+    # the body it reads.
+    upload = (("POST", scenes.UPLOAD_PATH),)
+    app.add_middleware(JsonDepthLimit, exempt=upload)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes, exempt=upload)
     app.add_middleware(SecurityHeaders)
     guards = [Depends(bounded_json_body)]
     if settings.public_read is False:

@@ -46,7 +46,8 @@ from renderers.scenes.vetting import (
     upload_name,
 )
 from service.api.deps import SettingsDep, StoreDep, WriteAccess
-from service.api.limits import is_unicode
+from service.api.limits import MAX_DEPTH, is_unicode
+from service.api.nesting import nested_deeper_than, too_deep_message
 from service.api.schemas import SceneUploadOut
 from service.api.unprocessable import unprocessable
 
@@ -160,6 +161,8 @@ async def _json_upload(request: Request, limit: int) -> tuple[bytes, dict[str, B
     body = await _receive(request, limit, (
         f"a JSON upload may be at most {limit} bytes (max_body_bytes); send a larger scene "
         "as a tar archive (Content-Type: application/x-tar)"))
+    if nested_deeper_than(body, MAX_DEPTH):
+        raise _unprocessable([], too_deep_message())
     try:
         parsed = json.loads(body)
     except (json.JSONDecodeError, UnicodeDecodeError):
