@@ -764,6 +764,22 @@ def decide_public_read(choice: bool | None, host: str) -> bool:
         "key: --public-read or --no-public-read (or NIRC_BENCH_PUBLIC_READ=true/false)")
 
 
+def decide_allowed_hosts(choice: list[str] | None, host: str) -> list[str]:
+    """The Host header values the service answers to: as chosen, else loopback names
+    and the address it binds to; a wildcard address names no host, so a choice is
+    required there."""
+    from service.config import LOOPBACK_HOSTS
+
+    if choice is not None:
+        return choice
+    if host.strip("[]") in ("0.0.0.0", "::", ""):
+        raise UsageError(
+            f"--host {host} listens on every interface: name the hosts clients reach the "
+            "service by, with --allowed-hosts NAME,... (or NIRC_BENCH_ALLOWED_HOSTS; '*' "
+            "for any, which lets a web page reach it through a domain of its own)")
+    return list(dict.fromkeys([*LOOPBACK_HOSTS, host]))
+
+
 def _with_tls(settings: ServiceSettings, scheduler: str, ca_file: Path | None,
               cert: Path | None, key: Path | None,
               allow_plaintext: bool = False) -> ServiceSettings:
@@ -817,6 +833,11 @@ def serve(
         help="whether reads (results, jobs, the dashboard) need no API key (default: only "
              "on a loopback --host; elsewhere a choice is required; or "
              "NIRC_BENCH_PUBLIC_READ)")] = None,
+    allowed_hosts: Annotated[str | None, typer.Option(
+        "--allowed-hosts",
+        help="comma-separated host names the service answers to (the Host header; '*' any); "
+             "default: localhost, 127.0.0.1, ::1 and --host (or NIRC_BENCH_ALLOWED_HOSTS)")]
+        = None,
     tls_ca_file: TlsCaFile = None,
     tls_cert: TlsCert = None,
     tls_key: TlsKey = None,
@@ -839,7 +860,11 @@ def serve(
     elif tls_ca_file or tls_cert or tls_key:
         raise UsageError("--tls-* options are for a tls:// --scheduler; the embedded cluster "
                          "stays on loopback")
-    settings = settings.model_copy(update={"public_read": public})
+    if allowed_hosts is not None:
+        settings = ServiceSettings.model_validate({**settings.model_dump(),
+                                                   "allowed_hosts": allowed_hosts})
+    hosts = decide_allowed_hosts(settings.allowed_hosts, host)
+    settings = settings.model_copy(update={"public_read": public, "allowed_hosts": hosts})
 
     import uvicorn
 

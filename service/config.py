@@ -12,10 +12,12 @@ docs/service.md say what each one does.
 
 from __future__ import annotations
 
+import ipaddress
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated
 
-from pydantic import Field
+from pydantic import Field, field_validator
+from pydantic_settings import NoDecode
 
 from jobs.record.config import Settings
 
@@ -31,6 +33,13 @@ class ServiceSettings(Settings):
     # open to anyone who can reach the service. None: on if `serve` binds to
     # loopback; on any other address `serve` refuses to start until it is chosen.
     public_read: bool | None = None
+    # The host names the service answers to (the request's Host header; any other is
+    # answered 400), so that a web page cannot reach it through a domain of its own
+    # that resolves to this machine (DNS rebinding). Comma-separated in the
+    # environment; "*" accepts any. None: `serve` answers to loopback names and the
+    # address it binds to (LOOPBACK_HOSTS + --host), and refuses a wildcard bind
+    # (0.0.0.0, ::) until they are chosen.
+    allowed_hosts: Annotated[list[str] | None, NoDecode] = None
     # How long a dashboard login lasts (its server-side session; the cookie holds only
     # the session's token).
     session_max_age_s: float = Field(12 * 3600.0, gt=0.0)
@@ -53,6 +62,13 @@ class ServiceSettings(Settings):
     # it runs code on the workers) is refused unless this is on.
     allow_plaintext_scheduler: bool = False
 
+    @field_validator("allowed_hosts", mode="before")
+    @classmethod
+    def _comma_separated(cls, value: object) -> object:
+        if isinstance(value, str):
+            return [name.strip() for name in value.split(",") if name.strip()]
+        return value
+
     @classmethod
     def of(cls, settings: Settings) -> ServiceSettings:
         """``settings`` as the service's: a store's settings keep their values and get
@@ -70,3 +86,20 @@ class ServiceSettings(Settings):
             return None
         return SchedulerTLS(ca_file=self.tls_ca_file, cert=self.tls_cert, key=self.tls_key)
 
+
+#: The names of this machine on loopback, which the service answers to by default.
+LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
+
+
+def host_patterns(names: list[str]) -> list[str]:
+    """``names`` as the Host header spells them: an IPv6 address in brackets
+    (``::1`` -> ``[::1]``), everything lower-case."""
+    patterns = []
+    for name in names:
+        bare = name.strip("[]").lower()
+        try:
+            bracketed = ipaddress.ip_address(bare).version == 6
+        except ValueError:
+            bracketed = False
+        patterns.append(f"[{bare}]" if bracketed else bare)
+    return patterns

@@ -16,7 +16,10 @@ limits: service/api/limits.py, its nesting depth: service/api/nesting.py).
 
 Reads need an API key unless ``settings.public_read`` (service/config.py) (None counts as on: the app
 alone does not know where it listens, and ``serve`` decides None before it gets
-here, refusing a non-loopback address without an explicit choice).
+here, refusing a non-loopback address without an explicit choice). Likewise the
+service answers only requests whose Host header names one of
+``settings.allowed_hosts`` (400 otherwise: DNS rebinding); None accepts any host here,
+and ``serve`` decides it before (loopback names and its own address).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from fastapi.openapi.docs import get_redoc_html
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from jobs.execution.queue import JobQueue
 from jobs.record.config import Settings
@@ -44,7 +48,7 @@ from service.api.limits import BodySizeLimit, bounded_json_body
 from service.api.nesting import JsonDepthLimit
 from service.api.routes import auth, charts, ci, images, jobs, pixels, results, scenes
 from service.api.unprocessable import validation_failed
-from service.config import ServiceSettings
+from service.config import ServiceSettings, host_patterns
 
 #: The dashboard's files (HTML, CSS, JavaScript, the vendored image slider): served
 #: from here, never from a CDN; the chart library from service/api/vendor.py.
@@ -114,6 +118,9 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     upload = (("POST", scenes.UPLOAD_PATH),)
     app.add_middleware(JsonDepthLimit, exempt=upload)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes, exempt=upload)
+    if settings.allowed_hosts is not None:
+        app.add_middleware(TrustedHostMiddleware, www_redirect=False,
+                           allowed_hosts=host_patterns(settings.allowed_hosts))
     app.add_middleware(SecurityHeaders)
     guards = [Depends(bounded_json_body)]
     if settings.public_read is False:
