@@ -20,6 +20,7 @@ from sqlalchemy.exc import DBAPIError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 
 from jobs.record.storage import describe, storage_failure
+from service.api.headers import security_headers
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +45,10 @@ def internal_error(request: Request, exc: Exception) -> JSONResponse:
               exc_info=exc)
     return JSONResponse({"detail": f"internal error ({type(exc).__name__}); the service's "
                                    "log has the details"},
-                        status_code=status.HTTP_500_INTERNAL_SERVER_ERROR)
+                        status_code=status.HTTP_500_INTERNAL_SERVER_ERROR,
+                        # Written outside the middleware that adds them elsewhere.
+                        headers={name.decode(): value.decode() for name, value
+                                 in security_headers(request.url.path)})
 
 
 def add_failure_handlers(app: FastAPI) -> None:

@@ -31,7 +31,7 @@ from typing import Any
 
 from fastapi import Depends, FastAPI
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.docs import get_redoc_html
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
@@ -43,7 +43,7 @@ from jobs.record.db import open_store
 from service.api import vendor
 from service.api.deps import ReadAccess
 from service.api.failures import add_failure_handlers
-from service.api.headers import SecurityHeaders
+from service.api.headers import SecurityHeaders, viewer_policy
 from service.api.limits import BodySizeLimit, bounded_json_body
 from service.api.nesting import JsonDepthLimit
 from service.api.routes import auth, charts, ci, images, jobs, pixels, results, scenes
@@ -95,18 +95,27 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
 
     # Swagger UI (/docs) and ReDoc (/redoc) load their scripts and styles from the
     # installed fastapi-offline package, under /static-offline-docs: they work offline.
-    # ReDoc's script comes through service/api/vendor.py, without its remote logo.
+    # ReDoc's script comes through service/api/vendor.py, without its remote logo. The
+    # pages are built once here, so that their Content-Security-Policy can allow
+    # Swagger UI's inline start script by its hash (service/api/headers.py).
     app = FastAPIOffline(title="nirc-bench", version="1",
                   description="Evaluate and benchmark radiance-caching renderers: submit "
                               "render jobs and sweeps, poll them, read results.",
-                  lifespan=lifespan, redoc_url=None)
-
-    @app.get("/redoc", include_in_schema=False)
-    def redoc_page() -> HTMLResponse:
-        return get_redoc_html(openapi_url=app.openapi_url or "/openapi.json",
-                              title="nirc-bench - ReDoc", redoc_js_url=vendor.REDOC_PATH,
-                              redoc_favicon_url="/static-offline-docs/favicon.png",
-                              with_google_fonts=False)
+                  lifespan=lifespan, docs_url=None, redoc_url=None)
+    openapi_url = app.openapi_url or "/openapi.json"
+    viewers = {
+        "/docs": get_swagger_ui_html(
+            openapi_url=openapi_url, title="nirc-bench - Swagger UI",
+            swagger_js_url="/static-offline-docs/swagger-ui-bundle.js",
+            swagger_css_url="/static-offline-docs/swagger-ui.css",
+            swagger_favicon_url="/static-offline-docs/favicon.png").body,
+        "/redoc": get_redoc_html(openapi_url=openapi_url, title="nirc-bench - ReDoc",
+                                 redoc_js_url=vendor.REDOC_PATH,
+                                 redoc_favicon_url="/static-offline-docs/favicon.png",
+                                 with_google_fonts=False).body}
+    for path, page in viewers.items():
+        app.add_api_route(path, lambda page=page: HTMLResponse(page), methods=["GET"],
+                          include_in_schema=False)
 
     app.state.settings, app.state.store, app.state.queue = settings, store, queue
     app.state.dispatcher = dispatcher
@@ -121,7 +130,8 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     if settings.allowed_hosts is not None:
         app.add_middleware(TrustedHostMiddleware, www_redirect=False,
                            allowed_hosts=host_patterns(settings.allowed_hosts))
-    app.add_middleware(SecurityHeaders)
+    app.add_middleware(SecurityHeaders, viewer_csp=viewer_policy(
+        page.decode() for page in viewers.values()))
     guards = [Depends(bounded_json_body)]
     if settings.public_read is False:
         guards.append(ReadAccess)
