@@ -51,6 +51,9 @@ class ServiceSettings(Settings):
     # Long polls waiting at once; more are answered 429 (each costs a database read
     # per poll interval, not a thread).
     long_poll_max_waiters: int = Field(256, ge=1)
+    # Scene uploads vetted at once: each holds its XML (up to the scenes' file size
+    # limit) and its parsed tree in memory; more are answered 503 with Retry-After.
+    max_scene_parses: int = Field(2, ge=1)
     # ---- Scale-out: the Dask scheduler connection (docs/security.md) ----
     # TLS of the scale-out Dask connections (tls:// scheduler addresses): the CA that
     # signed the scheduler's and workers' certificates, and this process's own

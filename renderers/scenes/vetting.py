@@ -98,6 +98,9 @@ class Limits:
     max_file_bytes: int
     max_total_bytes: int
     max_files: int = 1000
+    #: XML elements of a scene, its included files together: checked by a streaming
+    #: parse before any tree is built (a tree costs ~1 KB per element).
+    max_xml_elements: int = 100_000
 
 
 #: The scene-size limits' environment variables and defaults (bytes): each file of a
@@ -105,6 +108,10 @@ class Limits:
 MAX_FILE_BYTES_VARIABLE, MAX_TOTAL_BYTES_VARIABLE = (
     "NIRC_BENCH_SCENE_MAX_FILE_BYTES", "NIRC_BENCH_SCENE_MAX_BYTES")
 DEFAULT_MAX_FILE_BYTES, DEFAULT_MAX_TOTAL_BYTES = 64 << 20, 256 << 20
+
+
+#: The XML elements' limit's environment variable (the default: Limits).
+MAX_XML_ELEMENTS_VARIABLE = "NIRC_BENCH_SCENE_MAX_XML_ELEMENTS"
 
 
 def scene_limits() -> Limits:
@@ -115,16 +122,18 @@ def scene_limits() -> Limits:
     a process sees its own environment."""
     values = []
     for variable, default in ((MAX_FILE_BYTES_VARIABLE, DEFAULT_MAX_FILE_BYTES),
-                              (MAX_TOTAL_BYTES_VARIABLE, DEFAULT_MAX_TOTAL_BYTES)):
+                              (MAX_TOTAL_BYTES_VARIABLE, DEFAULT_MAX_TOTAL_BYTES),
+                              (MAX_XML_ELEMENTS_VARIABLE, Limits.max_xml_elements)):
         text = os.environ.get(variable, "").strip()
         try:
             value = int(text) if text else default
         except ValueError:
-            raise ValueError(f"{variable}={text!r}: a number of bytes is needed") from None
+            raise ValueError(f"{variable}={text!r}: a whole number is needed") from None
         if value < 1:
-            raise ValueError(f"{variable}={value}: the limit must be at least 1 byte")
+            raise ValueError(f"{variable}={value}: the limit must be at least 1")
         values.append(value)
-    return Limits(max_file_bytes=values[0], max_total_bytes=values[1])
+    return Limits(max_file_bytes=values[0], max_total_bytes=values[1],
+                  max_xml_elements=values[2])
 
 
 @dataclass(frozen=True)
@@ -333,23 +342,30 @@ class _Unacceptable(Exception):
     """Raised by the streaming check's handlers: what the XML may not hold."""
 
 
+class _TooManyElements(_Unacceptable):
+    pass
+
+
 def _refuse_document_type(*_: object) -> None:
     raise _Unacceptable("a document type declaration (<!DOCTYPE>) is not allowed in a scene")
 
 
-def _check_structure(data: bytes) -> None:
+def _check_structure(data: bytes, max_elements: int) -> None:
     """Stream through ``data`` without keeping anything, refusing DTDs (entities could
-    expand without bound or name files of their own) and elements nested deeper than
-    :data:`MAX_XML_DEPTH`. A parser of its own finds a DTD in any encoding the XML may
+    expand without bound or name files of their own), elements nested deeper than
+    :data:`MAX_XML_DEPTH` and more than ``max_elements`` elements: it stops at the first
+    element too many. A parser of its own finds a DTD in any encoding the XML may
     declare."""
     checker = expat.ParserCreate()
     checker.StartDoctypeDeclHandler = _refuse_document_type
     checker.EntityDeclHandler = _refuse_document_type
-    depth = 0
+    depth = elements = 0
 
     def start(*_: object) -> None:
-        nonlocal depth
-        depth += 1
+        nonlocal depth, elements
+        depth, elements = depth + 1, elements + 1
+        if elements > max_elements:
+            raise _TooManyElements
         if depth > MAX_XML_DEPTH:
             raise _Unacceptable(f"elements nested more than {MAX_XML_DEPTH} deep (the limit)")
 
@@ -361,10 +377,15 @@ def _check_structure(data: bytes) -> None:
     checker.Parse(data, True)
 
 
-def _parse(data: bytes, shown: str) -> ET.Element:
+def _parse(data: bytes, shown: str, budget: int, limits: Limits) -> ET.Element:
+    """The tree of ``data``, which may hold ``budget`` more elements of the scene."""
     try:
-        _check_structure(data)
+        _check_structure(data, budget)
         root = ET.fromstring(data)
+    except _TooManyElements:
+        raise SceneRefused(f"{shown}: the scene's XML holds more than "
+                           f"{limits.max_xml_elements} elements (the limit, "
+                           f"{MAX_XML_ELEMENTS_VARIABLE})") from None
     except _Unacceptable as err:
         raise SceneRefused(f"{shown}: {err}") from None
     except (ET.ParseError, expat.ExpatError) as err:
@@ -408,6 +429,7 @@ class _Walk:
     hashes: dict[str, str] = field(default_factory=dict)  # staged name -> sha256
     staged: dict[str, str] = field(default_factory=dict)  # source key -> staged name
     including: list[str] = field(default_factory=list)  # the chain of XML being walked
+    elements: int = 0  # XML elements of the files parsed so far
 
     def unavailable(self, name: str) -> SceneRefused:
         return SceneRefused(f"scene {_shown(self.scene)}: the file {_shown(name)} it "
@@ -446,7 +468,8 @@ class _Walk:
         if len(self.including) >= MAX_INCLUDE_DEPTH:
             raise SceneRefused(f"scene {_shown(self.scene)}: includes are nested more than "
                                f"{MAX_INCLUDE_DEPTH} deep")
-        root = _parse(data, shown)
+        root = _parse(data, shown, self.limits.max_xml_elements - self.elements, self.limits)
+        self.elements += sum(1 for _ in root.iter())
         # Mitsuba keeps a parameter's first definition; includes see the scene's.
         for default in root.iter("default"):
             if default.get("name"):

@@ -24,6 +24,7 @@ and ``serve`` decides it before (loopback names and its own address).
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -119,6 +120,7 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
 
     app.state.settings, app.state.store, app.state.queue = settings, store, queue
     app.state.dispatcher = dispatcher
+    app.state.scene_parses = asyncio.Semaphore(settings.max_scene_parses)
     app.add_exception_handler(RequestValidationError, validation_failed)
     add_failure_handlers(app)
     # A scene upload reads its body under its own cap (the scenes' size limit) and

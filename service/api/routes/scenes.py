@@ -20,12 +20,16 @@ take the data folder past ``max_data_bytes`` is refused with 507.
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import binascii
 import json
 import shutil
 import tarfile
 import tempfile
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from functools import partial
 from pathlib import Path
 
 from fastapi import APIRouter, HTTPException, Request, Response, status
@@ -59,6 +63,8 @@ TAR_TYPES = ("application/x-tar", "application/tar")
 #: Tar headers and padding around the content: up to 4 KiB per file (long names).
 _TAR_OVERHEAD_PER_FILE = 4096
 _CHUNK = 1 << 20
+#: Seconds a client is asked to wait while every upload slot is vetting a scene.
+PARSE_RETRY_AFTER_S = 5
 
 
 class SceneUpload(BaseModel):
@@ -147,6 +153,19 @@ def _unpack(archive: Path, folder: Path, limits: Limits) -> tuple[bytes, dict[st
     return xml, files
 
 
+@asynccontextmanager
+async def _parse_slot(request: Request, slots: int) -> AsyncIterator[None]:
+    """One of the ``slots`` scene uploads vetted at once, or 503 with Retry-After."""
+    parses: asyncio.Semaphore = request.app.state.scene_parses
+    if parses.locked():
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                            f"{slots} scene uploads are being vetted, this service's limit "
+                            "(NIRC_BENCH_MAX_SCENE_PARSES); send it again shortly",
+                            headers={"Retry-After": str(PARSE_RETRY_AFTER_S)})
+    async with parses:
+        yield
+
+
 def _decode(upload: SceneUpload) -> tuple[bytes, dict[str, Blob]]:
     files: dict[str, Blob] = {}
     for name, text in upload.files.items():
@@ -157,7 +176,7 @@ def _decode(upload: SceneUpload) -> tuple[bytes, dict[str, Blob]]:
     return upload.xml.encode("utf-8"), files
 
 
-async def _json_upload(request: Request, limit: int) -> tuple[bytes, dict[str, Blob]]:
+async def _json_upload(request: Request, limit: int) -> SceneUpload:
     body = await _receive(request, limit, (
         f"a JSON upload may be at most {limit} bytes (max_body_bytes); send a larger scene "
         "as a tar archive (Content-Type: application/x-tar)"))
@@ -177,7 +196,7 @@ async def _json_upload(request: Request, limit: int) -> tuple[bytes, dict[str, B
     if not is_unicode(upload.xml) or not all(map(is_unicode, upload.files)):
         raise _unprocessable([], "the XML or a file name holds a lone UTF-16 surrogate "
                                  "(such as \\ud800), which is not Unicode text")
-    return _decode(upload)
+    return upload
 
 
 @router.post(UPLOAD_PATH.removeprefix(router.prefix), status_code=status.HTTP_201_CREATED,
@@ -185,6 +204,8 @@ async def _json_upload(request: Request, limit: int) -> tuple[bytes, dict[str, B
              responses={200: {"model": SceneUploadOut, "description": "already stored"},
                         413: {"description": "a file or the whole scene is over the limit"},
                         415: {"description": "neither a tar archive nor JSON"},
+                        503: {"description": "every upload slot is vetting a scene: send it "
+                                             "again after Retry-After"},
                         507: {"description": "the data folder has no room for it"}},
              openapi_extra={"requestBody": {"required": True, "content": {
                  "application/x-tar": {"schema": {"type": "string", "format": "binary"}},
@@ -204,19 +225,22 @@ async def upload_scene(request: Request, response: Response, settings: SettingsD
                 await _receive(request, cap, (
                     f"the request body is more than {cap} bytes; a scene and its files may "
                     f"be at most {limits.max_total_bytes} bytes in all"), out)
-            xml, files = await run_in_threadpool(_unpack, scratch / "upload.tar", scratch,
-                                                 limits)
+            read = partial(_unpack, scratch / "upload.tar", scratch, limits)
         elif kind.lower() == "application/json":
-            xml, files = await _json_upload(request, settings.max_body_bytes)
+            read = partial(_decode, await _json_upload(request, settings.max_body_bytes))
         else:
             raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
                                 "send the scene as application/x-tar (scene.xml and its "
                                 "files) or application/json")
-        room = None
-        if settings.max_data_bytes is not None:
-            room = settings.max_data_bytes - await run_in_threadpool(data_bytes, store, settings)
-        scene_id, staged, created = await run_in_threadpool(save_upload, xml, files,
-                                                            settings, room)
+        # The XML is held and parsed from here on: a bounded number at once.
+        async with _parse_slot(request, settings.max_scene_parses):
+            xml, files = await run_in_threadpool(read)
+            room = None
+            if settings.max_data_bytes is not None:
+                room = settings.max_data_bytes - await run_in_threadpool(data_bytes, store,
+                                                                         settings)
+            scene_id, staged, created = await run_in_threadpool(save_upload, xml, files,
+                                                                settings, room)
         # Counted before the received files are removed.
         answer = SceneUploadOut(id=scene_id, files=len(staged.files) - 1,
                                 bytes=staged.total_bytes)
