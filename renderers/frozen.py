@@ -404,11 +404,13 @@ def _registry_functions() -> tuple[Any, Any] | None:
 
 def registered_emitters() -> frozenset[int] | None:
     """The addresses of the emitters registered with Dr.Jit for the current Mitsuba
-    variant, which a call over the emitters traces (None: this Dr.Jit does not say)."""
+    variant, which a call over the emitters traces (None: this Dr.Jit does not say, or
+    the variant is not an LLVM one: handing the emitters over without their walk was
+    measured and compared with traced renders on the LLVM backend only)."""
     import mitsuba as mi
 
     functions = _registry_functions()
-    if functions is None:
+    if functions is None or not (mi.variant() or "").startswith("llvm"):
         return None
     bound, pointers = functions
     variant, domain = mi.variant().encode(), b"Emitter"
