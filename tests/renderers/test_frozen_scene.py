@@ -243,21 +243,35 @@ scene = load_scene("many-lights", 4).scene
 layout = frozen.SceneLayout(scene)
 integrator = mi.load_dict({"type": "path", "max_depth": 3})
 
-def frozen_is_traced():
-    call = frozen.Frozen(lambda scene, seed: mi.render(scene, integrator=integrator, spp=1,
+def frozen_call():
+    return frozen.Frozen(lambda scene, seed: mi.render(scene, integrator=integrator, spp=1,
                                                         seed=seed))
+
+def frozen_and_traced(call):
     for seed in range(4):
         image = np.asarray(call(scene, mi.UInt32(seed)))
-    traced = np.asarray(mi.render(scene, integrator=integrator, spp=1, seed=3))
+    return image, np.asarray(mi.render(scene, integrator=integrator, spp=1, seed=3))
+
+def frozen_is_traced(call):
+    image, traced = frozen_and_traced(call)
     return bool(np.array_equal(image, traced))
 
+call = frozen_call()
+image, before = frozen_and_traced(call)
 seen = {"in_shapes": layout.emitters_in_shapes, "walked_alone": layout.emitters_walked(),
-        "alone": frozen_is_traced()}
+        "alone": bool(np.array_equal(image, before))}
+params = mi.traverse(scene)   # the emitters changed: their shapes' walk meets the values
+for light in [k for k in params.keys() if k.endswith("emitter.radiance.value")]:
+    params[light] = params[light] * 4
+params.update()
+image, after = frozen_and_traced(call)   # replayed
+seen.update(changed=bool(np.array_equal(image, after)),
+            moved=not np.array_equal(before, after))
 environment = mi.load_dict({"type": "constant"})   # an emitter no shape holds
-seen.update(walked_beside=layout.emitters_walked(), beside=frozen_is_traced())
+seen.update(walked_beside=layout.emitters_walked(), beside=frozen_is_traced(frozen_call()))
 frozen.registered_emitters = lambda: layout.emitter_addresses   # planted
 try:
-    seen["planted"] = frozen_is_traced()
+    seen["planted"] = frozen_is_traced(frozen_call())
 except RuntimeError as error:
     seen["planted"] = "refused: " + str(error)[:80]
 print(json.dumps(seen))
@@ -267,7 +281,7 @@ print(json.dumps(seen))
 def test_the_emitters_domain_is_walked_unless_the_shapes_cover_every_emitter():
     """A scene whose emitters are all area lights, alone in its process, hands its
     emitters over as a plain array (its shapes' walk meets their variables): the frozen
-    frame equals the traced render. Beside an emitter no shape holds, which a call over
+    frame equals the traced render, and still does after the emitters changed. Beside an emitter no shape holds, which a call over
     the emitters traces too, the emitters are walked again, and the frame still equals
     the traced one; planted, the registry's answer ignoring that emitter: Dr.Jit refuses
     the recording. About 4 s: a process of its own (see EMITTERS_SCRIPT)."""
@@ -277,5 +291,6 @@ def test_the_emitters_domain_is_walked_unless_the_shapes_cover_every_emitter():
     assert proc.returncode == 0, proc.stderr[-3000:]
     seen = json.loads(proc.stdout.strip().splitlines()[-1])
     assert seen["in_shapes"] and not seen["walked_alone"] and seen["alone"] is True
+    assert seen["changed"] is True and seen["moved"]
     assert seen["walked_beside"] and seen["beside"] is True
     assert str(seen["planted"]).startswith("refused"), seen["planted"]
