@@ -28,11 +28,18 @@ they are made once per sweep job (:meth:`JobQueue.stage_jobs`, idempotent),
 canceled with it, and re-dispatched through it, never on their own. A job
 whose upstream stage failed is *abandoned*: failed without running, with the
 stage's error.
+
+A transition that the database refuses for a storage reason (full, locked) is
+remembered by the process (:data:`STORAGE_FAULT`) until one succeeds: a running job
+whose lease expired meanwhile is *stalled* (:meth:`JobQueue.stalled`), which the API
+serves with the reason instead of a ``running`` with stale progress; its row cannot
+say so, the database being what failed.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
@@ -42,6 +49,7 @@ from sqlalchemy.orm import Session, aliased
 
 from jobs.protocol.spec import RenderSpec, SweepSpec, keyed_budget
 from jobs.record.models import DEDUPE_JOB_STATES, FINAL_JOB_STATES, ApiKey, Job, JobStatus
+from jobs.record.storage import describe, storage_failure
 from jobs.record.store import Store
 from renderers.seeding import digest
 
@@ -63,6 +71,27 @@ def _now() -> datetime:
 #: Inserts tried before giving up on a key that keeps conflicting (each conflict means
 #: another submission won; a retry reads its job, or inserts if that one has failed).
 _INSERT_ATTEMPTS = 5
+
+
+class StorageFault:
+    """The last storage failure of a job transition in this process (None once a
+    transition succeeds again): what a stalled job is waiting for."""
+
+    reason: str | None = None
+
+    @contextmanager
+    def watch(self) -> Iterator[None]:
+        try:
+            yield
+        except Exception as err:
+            if storage_failure(err) is not None:
+                self.reason = describe(err)
+            raise
+        self.reason = None
+
+
+#: The process's one record (the embedded cluster's runners share the service's).
+STORAGE_FAULT = StorageFault()
 
 
 class IdempotencyKeyReused(ValueError):
@@ -238,7 +267,7 @@ class JobQueue:
     # ---- transitions ----
 
     def _transition(self, job_id: int, where: Sequence[Any], **values: Any) -> bool:
-        with self.store.session(write=True) as session:
+        with STORAGE_FAULT.watch(), self.store.session(write=True) as session:
             result = session.execute(
                 update(Job).where(Job.id == job_id, *where)
                 .values(updated_at=_now(), **values))
@@ -257,7 +286,7 @@ class JobQueue:
                                             Job.updated_at < stale))
         conditions = [claimable, Job.attempts < Job.max_attempts,
                       Job.cancel_requested.is_(False)]
-        with self.store.session(write=True) as session:
+        with STORAGE_FAULT.watch(), self.store.session(write=True) as session:
             owner = session.scalar(select(Job.owner_key_id).where(Job.id == job_id))
             if owner is not None and max_running_per_owner is not None:
                 _lock_owner(session, owner)
@@ -356,6 +385,16 @@ class JobQueue:
     def cancel_requested(self, job_id: int) -> bool:
         job = self.get(job_id)
         return bool(job and job.cancel_requested)
+
+    @staticmethod
+    def stalled(job: Job, lease_s: float) -> str | None:
+        """Why a running job whose lease expired is not running: ``'storage: <cause>'``
+        while this process cannot write the database; None otherwise (a job that runs,
+        or one whose runner died, which the next dispatch takes over)."""
+        reason = STORAGE_FAULT.reason
+        if reason is None or job.status != JobStatus.RUNNING.value:
+            return None
+        return f"storage: {reason}" if JobQueue.is_stranded(job, lease_s) else None
 
     @staticmethod
     def is_stranded(job: Job, lease_s: float) -> bool:

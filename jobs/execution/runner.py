@@ -37,8 +37,10 @@ watches:
 
 The runner itself survives its database failing under it. A heartbeat that
 cannot be written is retried while the lease lasts; once a whole lease has passed
-without one, the runner kills the child and gives the job up (another runner may
-take it over by then). A claim or a transition that fails for storage reasons
+without one, the runner kills the child and gives the job up as a status 4: back to
+the queue, using up no attempt (the requeue is retried while the database stays
+unwritable, up to ``STORAGE_RETRY_LEASES`` leases: a job left running would be taken
+over with one more attempt). A claim or a transition that fails for storage reasons
 leaves the job queued, or running with a lease that will expire: ``run_job``
 then returns ``"deferred"`` and the service dispatches the job again later. A job
 whose upstream stage was deferred is deferred too, never abandoned.
@@ -84,6 +86,8 @@ EXIT_STORAGE = 4
 #: or a transition met a storage failure, its owner's running limit was reached, or an
 #: upstream stage was deferred); not a job status.
 DEFERRED = "deferred"
+#: Leases a runner keeps trying to put back a job it gave up for a storage failure.
+STORAGE_RETRY_LEASES = 10
 #: Seconds a child that closed its status pipe is given to finish exiting.
 EXIT_GRACE_S = 5.0
 #: Seconds between progress writes to the database.
@@ -211,13 +215,28 @@ def _run(queue: JobQueue, job_id: int, settings: Settings, worker: str,
             follow.attempt(status, reason)
         if status in (0, EXIT_JOB_FAILED):
             return queue.get(job_id).status
-        storage = status == EXIT_STORAGE
-        requeued = queue.fail(job_id, reason, retry=True, count=not storage) \
-            == JobStatus.QUEUED.value
-        if storage and requeued:
-            return DEFERRED
-        if not requeued:
+        if status == EXIT_STORAGE:
+            return _requeue_uncounted(queue, job_id, reason, poll_s, lease_s)
+        if queue.fail(job_id, reason, retry=True) != JobStatus.QUEUED.value:
             return queue.get(job_id).status
+
+
+def _requeue_uncounted(queue: JobQueue, job_id: int, reason: str, poll_s: float,
+                       lease_s: float) -> str:
+    """An attempt stopped by a storage failure back to the queue, using up no attempt
+    (:data:`DEFERRED`), or the job's status if it is no longer this runner's; tried
+    again every ``poll_s`` while the database cannot be written, for
+    :data:`STORAGE_RETRY_LEASES` leases (then the storage error is raised)."""
+    deadline = time.monotonic() + STORAGE_RETRY_LEASES * lease_s
+    while True:
+        try:
+            status = queue.fail(job_id, reason, retry=True, count=False)
+        except Exception as err:
+            if storage_failure(err) is None or time.monotonic() > deadline:
+                raise
+            time.sleep(poll_s)
+            continue
+        return DEFERRED if status == JobStatus.QUEUED.value else status
 
 
 def _timeout_of(job: Any, settings: Settings, timeout_s: float | None, store: Any) -> float:
@@ -279,7 +298,8 @@ class _Child:
     def run(self, job_id: int, queue: JobQueue, timeout_s: float | None, poll_s: float,
             lease_s: float, follow: Follow = Follow()) -> tuple[int, str]:
         """Run one attempt; returns (status, reason if the attempt failed): the child's
-        status, or -1 when it died or was stopped. The lease is renewed, and the
+        status, :data:`EXIT_STORAGE` when the heartbeat could not be written for a
+        whole lease (the child killed), or -1 when it died or was stopped. The lease is renewed, and the
         timeout and a cancel looked for, every ``poll_s`` however often the child
         reports progress."""
         self.jobs += 1
@@ -316,7 +336,7 @@ class _Child:
                 # The lease is lost once a whole one passes without a heartbeat:
                 # another runner may take the job over, so this one must stop.
                 if time.monotonic() - last_beat > lease_s:
-                    return -1, self.close(f"the runner gave the job up: no heartbeat for "
+                    return EXIT_STORAGE, self.close(f"the runner gave the job up: no heartbeat for "
                                           f"{lease_s:g} s, the job's lease ({describe(err)})")
                 continue
             if timeout_s is not None and time.monotonic() - started > timeout_s:

@@ -47,11 +47,16 @@ class JobOut(BaseModel):
     finished_at: datetime | None
     spec: dict[str, Any]
     stages: list[StageOut] | None = None
+    stalled: str | None = Field(
+        None, description="why a running job whose lease expired does not run: "
+                          "'storage: <cause>' while the service cannot write its database")
 
     @classmethod
-    def of(cls, job: Any, stages: list[Any] | None = None) -> JobOut:
-        """``job`` as served; a sweep with its ``stages``."""
+    def of(cls, job: Any, stages: list[Any] | None = None,
+           stalled: str | None = None) -> JobOut:
+        """``job`` as served; a sweep with its ``stages``; ``stalled``: why it does not run."""
         out = cls.model_validate(job, from_attributes=True)
+        out.stalled = stalled
         if stages:
             out.stages = [StageOut(id=stage.id, name=stage.spec.get("name", ""),
                                    status=stage.status, progress=stage.progress,

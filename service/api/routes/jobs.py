@@ -172,7 +172,7 @@ def _enqueue(parsed: QueuedRender | QueuedSweep, queue, dispatcher, response: Re
         else:   # a duplicate: never answer with a job that nothing will run
             dispatcher.recover([job])
     response.headers["Location"] = f"/api/v1/jobs/{job.id}"
-    return JobOut.of(job)
+    return JobOut.of(job, stalled=queue.stalled(job, settings.job_lease_s))
 
 
 @router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
@@ -196,11 +196,12 @@ def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
 
 
 @router.get("/jobs", response_model=list[JobOut])
-def list_jobs(queue: QueueDep,
+def list_jobs(queue: QueueDep, settings: SettingsDep,
               status_: Annotated[Literal["queued", "running", "succeeded", "failed",
                                          "canceled"] | None, Query(alias="status")] = None,
               limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[JobOut]:
-    return [JobOut.of(job) for job in queue.list(status_, limit=limit)]
+    return [JobOut.of(job, stalled=queue.stalled(job, settings.job_lease_s))
+            for job in queue.list(status_, limit=limit)]
 
 
 @router.get("/jobs/{job_id}", response_model=JobOut,
@@ -222,7 +223,8 @@ async def get_job(job_id: RowId, request: Request, queue: QueueDep, settings: Se
     if job.status not in FINAL_JOB_STATES and time.monotonic() < deadline:
         job = await _wait_until_final(request, queue, job, deadline,
                                       settings.long_poll_max_waiters)
-    return JobOut.of(job, await run_in_threadpool(queue.children, job_id))
+    return JobOut.of(job, await run_in_threadpool(queue.children, job_id),
+                     stalled=queue.stalled(job, settings.job_lease_s))
 
 
 async def _wait_until_final(request: Request, queue, job, deadline: float, max_waiters: int):
