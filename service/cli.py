@@ -842,6 +842,10 @@ def serve(
     tls_cert: TlsCert = None,
     tls_key: TlsKey = None,
     allow_plaintext_scheduler: AllowPlaintext = False,
+    dask_dashboard: Annotated[bool, typer.Option(
+        "--dask-dashboard",
+        help="keep the embedded cluster's Dask dashboards, on loopback ports, open to every "
+             "account of this machine (or NIRC_BENCH_DASK_DASHBOARD=true)")] = False,
     data_dir: DataDir = None,
 ) -> None:
     """Run the service: REST API (OpenAPI at /docs) + job queue on Dask."""
@@ -860,6 +864,11 @@ def serve(
     elif tls_ca_file or tls_cert or tls_key:
         raise UsageError("--tls-* options are for a tls:// --scheduler; the embedded cluster "
                          "stays on loopback")
+    if dask_dashboard:
+        if scheduler:
+            raise UsageError("--dask-dashboard is for the embedded cluster; a --scheduler's "
+                             "dashboard is its own (`dask scheduler --dashboard-address`)")
+        settings = settings.model_copy(update={"dask_dashboard": True})
     if allowed_hosts is not None:
         settings = ServiceSettings.model_validate({**settings.model_dump(),
                                                    "allowed_hosts": allowed_hosts})
@@ -870,12 +879,19 @@ def serve(
 
     from jobs.execution.dispatch import Dispatcher
     from service.api.main import create_app
+    from service.slow_clients import ClientDeadlines
 
     os.umask(0o077)     # references, logs, snapshots: owner-only, like the database
     dispatcher = Dispatcher(settings, scheduler, timeout_s=job_timeout, gpus=gpus,
-                            tls=settings.scheduler_tls)
+                            tls=settings.scheduler_tls, dashboard=settings.dask_dashboard)
+    if dispatcher.dashboard_url:
+        err_console.print(f"nirc-bench: Dask dashboard at {dispatcher.dashboard_url} (open to "
+                          "every account of this machine)", markup=False, highlight=False)
+    deadlines = ClientDeadlines(settings.header_timeout_s, settings.body_window_s,
+                                settings.body_min_bytes_per_s)
     try:
-        uvicorn.run(create_app(settings, dispatcher), host=host, port=port)
+        uvicorn.run(create_app(settings, dispatcher), host=host, port=port,
+                    http=deadlines.protocol())
     finally:
         dispatcher.close()
 

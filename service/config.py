@@ -54,6 +54,14 @@ class ServiceSettings(Settings):
     # Scene uploads vetted at once: each holds its XML (up to the scenes' file size
     # limit) and its parsed tree in memory; more are answered 503 with Retry-After.
     max_scene_parses: int = Field(2, ge=1)
+    # ---- HTTP: clients that send slowly (docs/security.md, service/slow_clients.py) ----
+    # Seconds a connection may take to send a request's headers, counted from its
+    # opening or from the end of its previous response; it is cut after (408).
+    header_timeout_s: float = Field(10.0, gt=0.0)
+    # A request body must bring at least body_min_bytes_per_s on average over each
+    # window of body_window_s while the service waits for it; it is cut otherwise.
+    body_window_s: float = Field(10.0, gt=0.0)
+    body_min_bytes_per_s: float = Field(1000.0, ge=0.0)
     # ---- Scale-out: the Dask scheduler connection (docs/security.md) ----
     # TLS of the scale-out Dask connections (tls:// scheduler addresses): the CA that
     # signed the scheduler's and workers' certificates, and this process's own
@@ -64,6 +72,9 @@ class ServiceSettings(Settings):
     # A tcp:// scheduler off loopback (no encryption, no authentication: whoever reaches
     # it runs code on the workers) is refused unless this is on.
     allow_plaintext_scheduler: bool = False
+    # The embedded cluster's Dask dashboards (scheduler and workers, on loopback ports,
+    # unauthenticated): off unless asked for (`serve --dask-dashboard`).
+    dask_dashboard: bool = False
 
     @field_validator("allowed_hosts", mode="before")
     @classmethod

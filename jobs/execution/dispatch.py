@@ -15,7 +15,10 @@ as a batch job (scripts/slurm/nirc-bench-worker.sbatch, README).
 Scale-out connections are TLS with certificates (``tls://`` addresses and the
 service's ``tls_*`` settings as a :class:`SchedulerTLS`, see
 :func:`scheduler_security`): a Dask scheduler runs any code its clients send on its
-workers, so only holders of a certificate signed by the deployment's CA may connect. The embedded cluster never leaves loopback.
+workers, so only holders of a certificate signed by the deployment's CA may connect.
+The embedded cluster never leaves loopback, and its scheduler and workers serve no
+HTTP (Dask's dashboards, info pages, health, metrics) unless ``serve --dask-dashboard``
+asks for them (:func:`close_dashboards`).
 
 A Dask task only calls :func:`jobs.execution.runner.run_job`, which claims the job in
 the database, so a task that Dask runs twice (a worker lost mid-task) cannot
@@ -130,14 +133,33 @@ def run_job_task(job_id: int, settings_json: dict[str, Any], timeout_s: float | 
                    upstream=upstream)
 
 
+def close_dashboards(client: Any) -> None:
+    """Stop the HTTP servers of ``client``'s scheduler and workers. Dask starts one in
+    each, with or without its dashboard, serving unauthenticated pages about the
+    cluster (workers, tasks, their logs and call stacks), health and metrics to any
+    local account; the embedded cluster needs none of them (its workers and scheduler
+    talk over their own connections)."""
+    client.run_on_scheduler(_stop_scheduler_http)
+    client.run(_stop_worker_http)
+
+
+def _stop_scheduler_http(dask_scheduler: Any) -> None:
+    dask_scheduler.http_server.stop()
+
+
+def _stop_worker_http(dask_worker: Any) -> None:
+    dask_worker.http_server.stop()
+
+
 class Dispatcher:
     """Submits job ids to a Dask cluster (embedded ``LocalCluster`` or a scheduler)."""
 
     def __init__(self, settings: Settings, scheduler: str | None = None,
                  timeout_s: float | None = None, gpus: int | None = None,
-                 tls: SchedulerTLS | None = None) -> None:
+                 tls: SchedulerTLS | None = None, dashboard: bool = False) -> None:
         """``gpus``: GPU workers of the embedded cluster (None: one per GPU found);
-        ``tls``: the files of a ``tls://`` ``scheduler``'s connection."""
+        ``tls``: the files of a ``tls://`` ``scheduler``'s connection; ``dashboard``:
+        keep the embedded cluster's Dask dashboards (:func:`close_dashboards`)."""
         import dask
         from distributed import Client, LocalCluster
 
@@ -151,6 +173,7 @@ class Dispatcher:
         self._dispatches = 0
         self.cluster = None
         self.gpu_workers: list[Any] = []
+        self.dashboard = dashboard
         dask.config.set(QUIET_WORKER_CONFIG)
         if scheduler:
             self.client = Client(scheduler, security=scheduler_security(tls, scheduler))
@@ -164,8 +187,8 @@ class Dispatcher:
         # nothing to balance, so no work stealing (it rebalances every 100 ms).
         network = {"host": "127.0.0.1", "protocol": "tcp://", "scheduler_port": 0} if gpus else {}
         with dask.config.set({"distributed.scheduler.work-stealing": bool(gpus)}):
-            # Dask's HTTP endpoints (health, metrics) on loopback only, not on every
-            # interface as by default.
+            # Dask's HTTP servers (dashboard, info pages, health, metrics) on loopback
+            # only, not on every interface as by default; closed below unless asked for.
             self.cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                         dashboard_address="127.0.0.1:0",
                                         worker_dashboard_address="127.0.0.1:0",
@@ -173,9 +196,18 @@ class Dispatcher:
         self.client = Client(self.cluster)
         self.gpu_workers = start_gpu_workers(
             self.cluster.scheduler_address, gpus,
-            {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})
+            {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)}, dashboard=dashboard)
         if gpus:
             self.client.wait_for_workers(1 + gpus, timeout=120)
+        if not dashboard:
+            close_dashboards(self.client)
+
+    @property
+    def dashboard_url(self) -> str | None:
+        """The embedded scheduler's dashboard, None when closed or not embedded."""
+        if self.cluster is None or not self.dashboard:
+            return None
+        return f"http://127.0.0.1:{self.cluster.scheduler.http_server.port}/status"
 
     def unavailable(self, device_class: str) -> str | None:
         """Why this cluster cannot run jobs of ``device_class`` (None: it can, or with

@@ -84,15 +84,19 @@ def _resources(resources: dict[str, int]) -> str:
     return " ".join(f"{name}={count}" for name, count in resources.items())
 
 
-def start_gpu_workers(scheduler: str, gpus: int, env: dict[str, str]) -> list[Any]:
+def start_gpu_workers(scheduler: str, gpus: int, env: dict[str, str],
+                      dashboard: bool = False) -> list[Any]:
     """Start ``gpus`` pinned GPU worker processes for the embedded cluster. Each is a
     single process (no nanny: the render process is the isolation) on loopback,
-    killed with the service, so a killed service leaves no worker behind."""
+    killed with the service, so a killed service leaves no worker behind; with its
+    Dask dashboard if ``dashboard`` (its HTTP server, on loopback either way, is
+    closed by the dispatcher otherwise)."""
     from jobs.execution.runner import die_with_parent
 
     if gpus == 0:
         return []
-    loopback = ["--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0"]
+    loopback = ["--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0",
+                *(["--dashboard"] if dashboard else [])]
     return [subprocess.Popen([*argv, "--no-nanny", *loopback], env=worker_env,
                              preexec_fn=die_with_parent)
             for argv, worker_env in worker_commands(scheduler, gpus, env)]
