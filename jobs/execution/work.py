@@ -4,8 +4,8 @@ A job's work is counted in *path samples* (pixels x samples per pixel): a
 render is ``pixels x spp x frames x seeds``, plus its reference's ``pixels x
 spp`` if that reference is not stored yet; a sweep is the sum over its stages
 (jobs/execution/graph.py) and its own last step. The estimate is an upper bound of the
-sampling only (a reference with a ``rel_stderr`` target may stop early; a
-cache's per-sample training cost is not counted), good enough to refuse what
+sampling and training (a reference with a ``rel_stderr`` target may stop early),
+good enough to refuse what
 no service should accept (``Settings.max_job_work``) and to give a job without
 an explicit ``--job-timeout`` a timeout of its size (:func:`default_timeout_s`).
 
@@ -27,6 +27,7 @@ from typing import Any
 from sqlalchemy import func, select
 
 from jobs.execution.graph import Stage, sweep_stages
+from jobs.execution.method_work import FrameWork, frame_work
 from jobs.protocol.spec import ReferenceSpec, RenderSpec, SweepSpec
 from jobs.protocol.versions import reference_estimator_version
 from jobs.record.config import DATABASE_FILENAME, Settings
@@ -78,30 +79,40 @@ def _reference(estimate: WorkEstimate, pixels: int, reference: ReferenceSpec) ->
 
 
 def render_work(spec: RenderSpec, reference_stored: bool = False) -> WorkEstimate:
-    """A render job: K seeds of ``frames`` frames at ``spp`` (calibration probes and the
-    largest candidate when the spp is calibrated to a time budget)."""
+    """A render job: K seeds of ``frames`` frames at ``spp``, each frame and the
+    pre-training frames as the method's parameters make them
+    (jobs/execution/method_work.py); calibration probes and the largest candidate
+    when the spp is calibrated to a time budget."""
     estimate = WorkEstimate()
     pixels = spec.resolution ** 2
     if not reference_stored:
         _reference(estimate, pixels, spec.reference)
     spp = spec.spp
     method = METHODS.get(spec.method)
+    params = method.params.model_validate(spec.params) if method is not None else None
+
+    def frame(spp: int) -> FrameWork:
+        return frame_work(spec.method, params, pixels, spp)
+
     if spec.time_budget is not None and method is not None and method.knob is not None:
         knob, default = method.knob.name, list(method.knob.candidates)
         candidates = spec.time_budget.candidates or default
-        per_candidate = [c if knob == "spp" else spp for c in candidates]
+        per_candidate = [frame(c if knob == "spp" else spp) for c in candidates]
         budget = spec.time_budget
-        estimate.add("calibration", pixels * budget.probe_frames * sum(per_candidate),
+        estimate.add("calibration", math.ceil(budget.probe_frames * sum(
+                         work.samples_per_frame for work in per_candidate)),
                      frames=budget.probe_frames * budget.rounds * len(candidates),
                      renders=len(candidates))
         if knob == "spp":
             spp = max(candidates)
+    seed = frame(spp)
+    frames = (spec.frames + seed.warm_frames) * spec.seeds
     frames_kept = spec.frames * spec.seeds if spec.keep_frames else 0
-    estimate.add("seeds", pixels * spp * spec.frames * spec.seeds,
+    estimate.add("seeds", math.ceil(seed.samples_per_frame * frames),
                  pixels * (IMAGE_BYTES_PER_PIXEL * (spec.seeds + frames_kept
                                                     + pixel_maps(spec.seeds))
                            + 2 * PREVIEW_BYTES_PER_PIXEL),
-                 frames=spec.frames * spec.seeds, renders=spec.seeds)
+                 frames=frames, renders=spec.seeds)
     return estimate
 
 

@@ -88,6 +88,18 @@ def test_a_job_over_the_work_limit_is_refused_with_its_estimate(api):
     assert len(queue.list()) == 1
 
 
+def test_pretraining_counts_in_the_time_estimate_and_is_refused_over_the_bound(api):
+    """Before, 100 000 pre-training frames were estimated at 2 s and accepted."""
+    client, queue = api(max_job_seconds=3600)
+    nirc = {**SPEC, "method": "nirc", "seeds": 1}
+    assert client.post("/api/v1/jobs", json=nirc).status_code == 202
+    long = client.post("/api/v1/jobs", json={**nirc, "params": {"pretrain_frames": 100_000}})
+    assert long.status_code == 422, long.text
+    limits = long.json()["detail"][0]["ctx"]
+    assert limits["estimated_s"] > limits["limit_s"] == 3600, limits
+    assert len(queue.list()) == 1
+
+
 def test_a_full_disk_refuses_new_jobs(api):
     client, queue = api(max_data_bytes=1000)
     response = client.post("/api/v1/jobs", json=SPEC)
