@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, Field
@@ -11,6 +12,7 @@ from jobs.ci.history import History
 from jobs.protocol.comparison import RunComparison
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import is_current
+from service.api.data_paths import served
 
 
 class StageOut(BaseModel):
@@ -53,14 +55,16 @@ class JobOut(BaseModel):
 
     @classmethod
     def of(cls, job: Any, stages: list[Any] | None = None,
-           stalled: str | None = None) -> JobOut:
-        """``job`` as served; a sweep with its ``stages``; ``stalled``: why it does not run."""
+           stalled: str | None = None, *, data_dir: Path) -> JobOut:
+        """``job`` as served; a sweep with its ``stages``; ``stalled``: why it does not run.
+        Its texts name files of the data folder ``data_dir`` relative to it
+        (service/api/data_paths.py)."""
         out = cls.model_validate(job, from_attributes=True)
-        out.stalled = stalled
+        out.error, out.stalled = served(job.error, data_dir), served(stalled, data_dir)
         if stages:
             out.stages = [StageOut(id=stage.id, name=stage.spec.get("name", ""),
                                    status=stage.status, progress=stage.progress,
-                                   attempts=stage.attempts, error=stage.error,
+                                   attempts=stage.attempts, error=served(stage.error, data_dir),
                                    work=stage.work)
                           for stage in stages]
         return out
@@ -122,12 +126,15 @@ class SweepOut(BaseModel):
     artifacts: list[ArtifactOut]
 
     @classmethod
-    def of(cls, sweep: Any) -> SweepOut:
+    def of(cls, sweep: Any, *, data_dir: Path) -> SweepOut:
+        """``sweep`` as served, its result's texts naming files of the data folder
+        ``data_dir`` relative to it (service/api/data_paths.py)."""
         versions = sweep.estimator_versions
         current = bool(versions) and all(is_current(method, version, sweep.metric_version)
                                          for method, version in versions.items())
         return cls(id=sweep.id, kind=sweep.kind, scene=sweep.scene_name, status=sweep.status,
-                   spec=sweep.spec, result=sweep.result, device_key=sweep.device_key,
+                   spec=sweep.spec, result=served(sweep.result, data_dir),
+                   device_key=sweep.device_key,
                    estimator_versions=versions, metric_version=sweep.metric_version,
                    current=current, created_at=sweep.created_at, finished_at=sweep.finished_at,
                    artifacts=[ArtifactOut.of(a) for a in sweep.artifacts])

@@ -172,7 +172,8 @@ def _enqueue(parsed: QueuedRender | QueuedSweep, queue, dispatcher, response: Re
         else:   # a duplicate: never answer with a job that nothing will run
             dispatcher.recover([job])
     response.headers["Location"] = f"/api/v1/jobs/{job.id}"
-    return JobOut.of(job, stalled=queue.stalled(job, settings.job_lease_s))
+    return JobOut.of(job, stalled=queue.stalled(job, settings.job_lease_s),
+                     data_dir=settings.data_dir)
 
 
 @router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
@@ -200,7 +201,8 @@ def list_jobs(queue: QueueDep, settings: SettingsDep,
               status_: Annotated[Literal["queued", "running", "succeeded", "failed",
                                          "canceled"] | None, Query(alias="status")] = None,
               limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[JobOut]:
-    return [JobOut.of(job, stalled=queue.stalled(job, settings.job_lease_s))
+    return [JobOut.of(job, stalled=queue.stalled(job, settings.job_lease_s),
+                      data_dir=settings.data_dir)
             for job in queue.list(status_, limit=limit)]
 
 
@@ -224,7 +226,8 @@ async def get_job(job_id: RowId, request: Request, queue: QueueDep, settings: Se
         job = await _wait_until_final(request, queue, job, deadline,
                                       settings.long_poll_max_waiters)
     return JobOut.of(job, await run_in_threadpool(queue.children, job_id),
-                     stalled=queue.stalled(job, settings.job_lease_s))
+                     stalled=queue.stalled(job, settings.job_lease_s),
+                     data_dir=settings.data_dir)
 
 
 async def _wait_until_final(request: Request, queue, job, deadline: float, max_waiters: int):
@@ -253,7 +256,8 @@ async def _wait_until_final(request: Request, queue, job, deadline: float, max_w
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut)
-def cancel_job(job_id: RowId, queue: QueueDep, caller: CallerDep) -> JobOut:
+def cancel_job(job_id: RowId, queue: QueueDep, caller: CallerDep,
+               settings: SettingsDep) -> JobOut:
     """Cancel a queued job now; a running job is stopped by its runner. Only the key
     that submitted the job, or an admin key, may cancel it (403 otherwise)."""
     job = queue.get(job_id)
@@ -263,4 +267,4 @@ def cancel_job(job_id: RowId, queue: QueueDep, caller: CallerDep) -> JobOut:
         raise HTTPException(status.HTTP_403_FORBIDDEN, (
             f"job {job_id} was submitted by another API key; only that key or an admin key "
             "(`nirc-bench apikey create --admin`) may cancel it"))
-    return JobOut.of(queue.cancel(job_id))
+    return JobOut.of(queue.cancel(job_id), data_dir=settings.data_dir)

@@ -107,11 +107,12 @@ def compare(store: StoreDep,
 
 
 @router.get("/sweeps", response_model=list[SweepOut])
-def list_sweeps(store: StoreDep, scene: Filter = None, include_old: IncludeOld = False,
+def list_sweeps(store: StoreDep, settings: SettingsDep, scene: Filter = None,
+                include_old: IncludeOld = False,
                 limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[SweepOut]:
     """Sweeps, newest first, optionally of one scene; only those scored under today's
     metric version unless ``include_old`` (``current`` also checks the estimators)."""
-    return [SweepOut.of(sweep) for sweep in store.list_sweeps(
+    return [SweepOut.of(sweep, data_dir=settings.data_dir) for sweep in store.list_sweeps(
         scene, limit=limit, metric_version=None if include_old else METRIC_VERSION)]
 
 
@@ -128,8 +129,9 @@ def reference_preview(reference_id: RowId, store: StoreDep, settings: SettingsDe
 
 
 @router.get("/sweeps/{sweep_id}", response_model=SweepOut)
-def get_sweep(sweep_id: RowId, store: StoreDep) -> SweepOut:
-    return SweepOut.of(_found(store.get_sweep(sweep_id), f"sweep {sweep_id}"))
+def get_sweep(sweep_id: RowId, store: StoreDep, settings: SettingsDep) -> SweepOut:
+    return SweepOut.of(_found(store.get_sweep(sweep_id), f"sweep {sweep_id}"),
+                       data_dir=settings.data_dir)
 
 
 @router.get("/artifacts/{artifact_id}", response_class=FileResponse)
