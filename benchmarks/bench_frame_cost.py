@@ -76,7 +76,7 @@ class Scenes:
     """The scene a probe renders, and no other alive (cost_model.SceneSlot)."""
 
     def __init__(self) -> None:
-        from jobs.protocol.cost_model import SceneSlot
+        from jobs.costs.cost_model import SceneSlot
         from renderers.scenes import load_scene
 
         self.slot = SceneSlot(lambda key: load_scene(*key))
@@ -252,7 +252,7 @@ def cost_model_table(scenes: Scenes, cases: tuple, params: dict[str, Any], devic
                      resolutions: list[int], frames: int, rounds: int,
                      project: tuple[int, int]) -> None:
     """Table 3: a and b per stage with intervals, and the projection."""
-    from jobs.protocol import cost_model
+    from jobs.costs import cost_model
     from renderers.methods import get_method
 
     print(f"\n3. per-stage cost model (fitted at {', '.join(f'{r}x{r}' for r in resolutions)}"

@@ -29,8 +29,8 @@ USER_ERROR_CLASSES = frozenset({
     "service.client.RemoteError",
     f"{__name__}.UsageError",
     "jobs.execution.gpus.GpuError",
-    "jobs.protocol.run_query.RunQueryError",
-    "jobs.protocol.comparison.ComparisonError",
+    "jobs.views.run_query.RunQueryError",
+    "jobs.views.comparison.ComparisonError",
     "jobs.protocol.calibration.LoadedMachineError",
 })
 

@@ -122,7 +122,7 @@ def list_runs(
     data_dir: DataDir = None,
 ) -> None:
     """Stored runs, newest first: filter, sort, choose columns."""
-    from jobs.protocol.run_query import RunFilter, check_column, find_runs, run_value
+    from jobs.views.run_query import RunFilter, check_column, find_runs, run_value
 
     if as_json and as_csv:
         raise UsageError("choose one of --json and --csv")
@@ -181,7 +181,7 @@ def compare(
     """Runs side by side: what differs (settings, parameters) and each run's metrics
     against the first's, with the 95 % interval of the change where both have 3 or more
     seeds. Runs scored under different metric versions are refused."""
-    from jobs.protocol.comparison import compare_runs
+    from jobs.views.comparison import compare_runs
     from service.tables import comparison_table
 
     ids = list(dict.fromkeys(run_ids))
@@ -209,8 +209,8 @@ def export(
     """Write a run's files into a folder: reference EXR and preview, per-seed EXRs,
     previews and error maps, convergence plot, summary.json."""
     from jobs.protocol.executor import RunSummary
-    from jobs.protocol.export import export_run
     from jobs.protocol.spec import RenderSpec
+    from jobs.views.export import export_run
 
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} is a file, not a folder")

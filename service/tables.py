@@ -27,8 +27,8 @@ from metrics.registry import (
 
 if TYPE_CHECKING:
     from jobs.pareto.report import Report
-    from jobs.protocol.comparison import RunComparison
     from jobs.sweeps.sweep import SweepResult
+    from jobs.views.comparison import RunComparison
 
 
 def _fmt(value: Any) -> str:

@@ -1,9 +1,11 @@
 """The layer rules of the code base, checked on every import statement, the ones
 inside functions included: ``service -> jobs -> renderers, metrics``; inside
-``jobs`` the record, the core of a job (``jobs.protocol``), the studies built on it
-and execution each import only the layers below them; a study imports the core and
-the record, never another study (but for the edges :data:`STUDY_EDGES` names); and no
-two sub-packages import each other, directly or through others.
+``jobs`` the record, the core of a job (``jobs.protocol``), the views of stored runs
+and the cost model (``jobs.views``, ``jobs.costs``: :data:`SHARED`), the studies built
+on them and execution each import only the layers below them; a shared package imports
+only the core and the record; a study never imports another study (but for the edges
+:data:`STUDY_EDGES` names); and no two sub-packages import each other, directly or
+through others.
 """
 
 from __future__ import annotations
@@ -19,9 +21,13 @@ PACKAGES = ("service", "jobs", "renderers", "metrics")
 #: What each top-level package may import of the others.
 ALLOWED = {"service": {"jobs", "renderers", "metrics"}, "jobs": {"renderers", "metrics"},
            "renderers": {"metrics"}, "metrics": set()}
+#: Built on the core alone and shared by the studies, execution and the service: the views
+#: of stored runs (charts, figures, fronts, comparisons, queries, exports) and the cost model.
+SHARED = ("views", "costs")
 #: The studies: each builds on the core of a job and is run by execution or the service.
 STUDIES = ("sweeps", "pareto", "ci", "stress")
-JOBS_LAYERS = {"record": 0, "protocol": 1, **dict.fromkeys(STUDIES, 2), "execution": 3}
+JOBS_LAYERS = {"record": 0, "protocol": 1, **dict.fromkeys(SHARED, 2),
+               **dict.fromkeys(STUDIES, 3), "execution": 4}
 #: (study, study) imports allowed: none (every study needs only the core).
 STUDY_EDGES: set[tuple[str, str]] = set()
 #: Sub-package circles allowed: none (the oracle caches, which import the path-tracing
@@ -67,15 +73,49 @@ def test_no_import_runs_up_a_layer(package):
     assert wrong == []
 
 
-def test_the_jobs_layers_import_only_those_below():
-    def layer(module: str) -> int:
-        parts = module.split(".")
-        return JOBS_LAYERS.get(parts[1], -1) if len(parts) > 1 else -1
+def _jobs_package(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[0] == "jobs" else None
 
-    wrong = sorted((module, name) for module, names in EDGES.items()
-                   if module.startswith("jobs.") for name in names
-                   if name.startswith("jobs.") and layer(name) > layer(module))
-    assert wrong == []
+
+def _upward(edges: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """The imports in ``edges`` of a jobs module from a jobs layer above its own."""
+    def layer(module: str) -> int:
+        return JOBS_LAYERS.get(_jobs_package(module) or "", -1)
+
+    return sorted((module, name) for module, names in edges.items()
+                  if _jobs_package(module) for name in names
+                  if _jobs_package(name) and layer(name) > layer(module))
+
+
+def _shared_beyond_the_core(edges: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """The imports in ``edges`` of a shared package from jobs packages other than
+    itself, the core and the record (another shared package included)."""
+    return sorted((module, name) for module, names in edges.items()
+                  if _jobs_package(module) in SHARED for name in names
+                  if _jobs_package(name) not in {None, _jobs_package(module), "protocol",
+                                                 "record"})
+
+
+def test_the_jobs_layers_import_only_those_below():
+    assert _upward(EDGES) == []
+
+
+def test_a_shared_package_imports_only_the_core_and_the_record():
+    assert _shared_beyond_the_core(EDGES) == []
+
+
+def test_the_layer_checks_refuse_planted_imports():
+    """Each check fails on the import it exists to refuse, planted beside the real ones."""
+    planted = {"jobs.protocol.executor": {"jobs.views.export"},    # the core, one layer up
+               "jobs.views.charts": {"jobs.pareto.pareto"},         # a view on a study
+               "jobs.record.store": {"jobs.protocol.spec"}}         # the record on the core
+    assert _upward({**EDGES, **planted}) == sorted(
+        (module, name) for module, names in planted.items() for name in names)
+    sideways = {"jobs.views.plots": {"jobs.costs.cost_model"},
+                "jobs.costs.cost_model": {"jobs.execution.work"}}
+    assert _shared_beyond_the_core({**EDGES, **sideways}) == sorted(
+        (module, name) for module, names in sideways.items() for name in names)
 
 
 def test_every_jobs_package_has_a_layer():

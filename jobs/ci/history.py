@@ -55,9 +55,9 @@ import numpy as np
 from pydantic import BaseModel, Field
 from scipy import stats
 
-from jobs.protocol.chart_groups import protocol_of
 from jobs.protocol.labels import resolved_params, run_label
 from jobs.protocol.results import method_params
+from jobs.views.chart_groups import protocol_of
 from metrics.registry import Metric
 from metrics.statistics import welch_test
 
@@ -103,7 +103,7 @@ class HistorySeries(BaseModel):
     spp: int
     frames: int
     protocol: str = Field(description="online training, or a sweep point's frozen cache "
-                                      "(jobs/protocol/chart_groups.py)")
+                                      "(jobs/views/chart_groups.py)")
     label: str = Field(description="what defines the series' runs (jobs/protocol/labels.py)")
     params: dict[str, Any] = Field(description="the newest run's resolved method parameters")
     points: list[HistoryPoint]

@@ -40,12 +40,12 @@ from jobs.execution.runner import (
     run_job,
 )
 from jobs.protocol.executor import RunSummary
-from jobs.protocol.export import export_run
 from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import RenderSpec
 from jobs.record.config import Settings
 from jobs.record.models import JobStatus
 from jobs.record.store import Store
+from jobs.views.export import export_run
 from renderers.backend import SUPPORTED_VARIANTS, BackendError, default_variant
 
 

@@ -26,7 +26,7 @@ not grow with spp are flagged. A point timed on a loaded machine (any of its sam
 is marked ``loaded`` and left out of the fronts, the baselines' curves and the speed-ups
 (listed in ``left_out`` with the reason) unless the spec allows loaded timings
 (``--allow-loaded``). With ``project_res`` every point's per-stage cost
-model (jobs.protocol.cost_model) is measured too and its frame time projected to
+model (jobs.costs.cost_model) is measured too and its frame time projected to
 that resolution: a projection from this device, beside the errors measured at the
 point's own resolution. Then, for MRSE and FLIP: the Pareto front over all
 points, and for every point outside the baseline its speed-up at equal error over the
@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field, create_model
 
+from jobs.costs import cost_model
 from jobs.pareto.plan import (
     BASELINE_LABELS,
     PAPER_PT,
@@ -70,22 +71,21 @@ from jobs.pareto.tradeoff import (
     bootstrap_speedup,
     sample_curves,
 )
-from jobs.protocol import cost_model
 from jobs.protocol.calibration import (
     DEFAULT_MAX_SPREAD,
     interleaved_rounds,
     probe_timings,
 )
-from jobs.protocol.envelope import Curve, envelope_line, envelope_pieces
 from jobs.protocol.executor import Prepared, execute, prepare
-from jobs.protocol.front import pareto_front
 from jobs.protocol.job import RenderJob
-from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
 from jobs.protocol.scene_store import load_spec_scene
 from jobs.protocol.spec import RenderSpec
 from jobs.record.config import Settings
 from jobs.record.store import DuplicateKeyError, Store
+from jobs.views.envelope import Curve, envelope_line, envelope_pieces
+from jobs.views.front import pareto_front
+from jobs.views.plots import plot_pareto
 from metrics.registry import BY_NAME, Metric
 from renderers.methods import BASELINE, METHODS, NotApplicable
 from renderers.methods.pt import PTParams
@@ -189,7 +189,7 @@ class ParetoPoint(_ParetoColumns):  # type: ignore[misc,valid-type]
                                           "trusted: a spread above the bound, a loaded machine")
     projection: dict[str, Any] | None = Field(
         None, description="its frame time projected to another resolution from this "
-                          "device's per-stage cost model (jobs.protocol.cost_model)")
+                          "device's per-stage cost model (jobs.costs.cost_model)")
     without_stages: list[str] = Field(
         default_factory=list,
         description="stages taken out of its time (--without-stage): not the method's whole "
@@ -399,7 +399,7 @@ def _project(runs: list[tuple[Planned, Any, bool]], jobs: dict[int, RenderJob],
              timings: list[Timing], spec: ParetoSpec, prepared: Prepared, settings: Settings,
              progress: Progress | None) -> None:
     """Measure each point's per-stage cost model at ``spec.cost_resolutions`` and project
-    its frame time to ``spec.project_res`` (jobs.protocol.cost_model)."""
+    its frame time to ``spec.project_res`` (jobs.costs.cost_model)."""
     assert spec.project_res is not None
     scene_at = cost_model.SceneSlot(lambda res: load_spec_scene(spec.scene, res, settings))
     for index, ((planned, _, _), timing) in enumerate(zip(runs, timings, strict=True)):

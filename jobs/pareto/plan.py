@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 from itertools import zip_longest
 from typing import Any
 
+from jobs.costs.cost_model import DEFAULT_RESOLUTIONS
 from jobs.pareto.tradeoff import RESAMPLES
-from jobs.protocol.baselines import STRONGEST_PT_LABEL, STRONGEST_PT_PARAMS, pt_core_methods
 from jobs.protocol.calibration import DEFAULT_ROUNDS
-from jobs.protocol.cost_model import DEFAULT_RESOLUTIONS
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
+from jobs.views.baselines import STRONGEST_PT_LABEL, STRONGEST_PT_PARAMS, pt_core_methods
 from renderers.methods import BASELINE, METHODS, Method, MethodError, parse_params
 
 #: The two named PT baselines (``--baseline``) and their labels. The paper's PT is the

@@ -33,8 +33,8 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from jobs.protocol.envelope import Curve, baseline_curve
-from jobs.protocol.front import finite
+from jobs.views.envelope import Curve, baseline_curve
+from jobs.views.front import finite
 
 #: Defaults of the bootstrap: replicates, confidence level, generator seed.
 RESAMPLES = 2000

@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 
 from jobs.protocol.calibration import calibrate_job
-from jobs.protocol.export import export_run
 from jobs.protocol.job import RenderJob
 from jobs.protocol.provenance import git_branch, git_commit, library_versions
 from jobs.protocol.quality import finite_record, judge_run
@@ -81,7 +80,7 @@ class RunSummary:
     estimator_version: int
     metric_version: int
     result: RunResultDetail     # the stored run as users see it (jobs.protocol.results)
-    files: dict[str, str] = field(default_factory=dict)
+    files: dict[str, str] = field(default_factory=dict)   # set where it is exported (jobs.views.export)
     reused: bool = False        # a run stored earlier (:func:`find_same_run`), not rendered now
 
     @classmethod
@@ -418,7 +417,7 @@ def replaced_settings(file_settings: dict[str, Any], spec: RenderSpec, resolutio
 
 def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], store: Store,
               settings: Settings, *, idempotency_key: str | None = None,
-              extra: dict[str, Any] | None = None, out_dir: Path | None = None) -> RunSummary:
+              extra: dict[str, Any] | None = None) -> RunSummary:
     """Evaluate K seeds' renders (:func:`render_seed`) against the reference and store them
     as one run.
 
@@ -499,11 +498,8 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
          for s, t in zip(per_seed, seed_timings, strict=True)],
         artifacts,
     )
-    summary = RunSummary.of_stored(run, spec, settings,
-                                   reference_rendered_now=reference.rendered_now)
-    if out_dir is not None:
-        summary.files = export_run(run, summary.to_json(), settings, out_dir)
-    return summary
+    return RunSummary.of_stored(run, spec, settings,
+                                reference_rendered_now=reference.rendered_now)
 
 
 def find_same_run(spec: RenderSpec, prepared: Prepared, store: Store) -> Any:
@@ -534,7 +530,6 @@ def execute(
     store: Store,
     settings: Settings,
     progress: Progress | None = None,
-    out_dir: Path | None = None,
     idempotency_key: str | None = None,
     reuse: bool = False,
 ) -> RunSummary:
@@ -542,7 +537,7 @@ def execute(
     that does not apply to the scene is refused (NotApplicable) before anything renders.
 
     With ``reuse``, a run of the same spec stored earlier (:func:`find_same_run`) is
-    returned (``reused`` set; exported to ``out_dir`` if given) instead of rendering.
+    returned (``reused`` set) instead of rendering.
 
     With a ``time_budget`` the spp (pt) or N_c (biased nirc) is first calibrated
     to it on this device (jobs.protocol.calibration); the run stores the calibrated spec
@@ -555,10 +550,7 @@ def execute(
     prepared = prepare(job, store, settings, progress, check_method=True)
     stored = find_same_run(job.spec, prepared, store) if reuse else None
     if stored is not None:
-        summary = RunSummary.of_stored(stored, job.spec, settings, reused=True)
-        if out_dir is not None:
-            summary.files = export_run(stored, summary.to_json(), settings, out_dir)
-        return summary
+        return RunSummary.of_stored(stored, job.spec, settings, reused=True)
     extra: dict[str, Any] = {}
     if job.spec.time_budget is not None:
         if progress:
@@ -582,5 +574,5 @@ def execute(
             prepared.reference.mean, spec.eps, keep_frames=spec.keep_frames,
             progress=(lambda done, total, label=label: progress(label, done, total))
             if progress else None, first_frame=(seed - spec.seed_start) * spec.frames))
-    return store_run(job, prepared, rendered, store, settings, out_dir=out_dir,
+    return store_run(job, prepared, rendered, store, settings,
                      idempotency_key=idempotency_key, extra=extra)

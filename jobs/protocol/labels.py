@@ -2,7 +2,7 @@
 
 One function, :func:`run_label`, names a run everywhere it is shown: ``runs list`` and
 ``runs show``, the REST API's ``method_label``, the dashboard, the charts' colours and
-lines (jobs/protocol/chart_groups.py), the history over commits (jobs/ci/history.py,
+lines (jobs/views/chart_groups.py), the history over commits (jobs/ci/history.py,
 where runs of different labels are never pooled) and exported summaries.
 
 A label is the method followed by every resolved parameter that differs from the

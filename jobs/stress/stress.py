@@ -48,9 +48,9 @@ from typing import Any, Literal, Protocol, get_args, get_origin
 import numpy as np
 from pydantic import BaseModel, Field
 
-from jobs.protocol.plots import dropped_points
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.stress import stress_scenes as scenes
+from jobs.views.plots import dropped_points
 from metrics.statistics import AgreementResult, agreement_test, image_mean_test, z_test
 from renderers.methods import BASELINE, METHODS, Method, NotApplicable, check_applies
 from renderers.scenes import SceneError
@@ -458,15 +458,17 @@ class EmbeddedBackend:
         from jobs.protocol.executor import execute
         from jobs.protocol.job import RenderJob
         from jobs.protocol.references import stored_reference
+        from jobs.views.export import export_run
         from metrics.imageio import read_exr
 
         with tempfile.TemporaryDirectory(prefix="nirc-stress-run-") as out:
             try:
-                summary = execute(RenderJob.parse(spec), self.store, self.settings,
-                                  out_dir=Path(out))
+                summary = execute(RenderJob.parse(spec), self.store, self.settings)
             except SceneError as err:
                 raise Refused(str(err)) from None
-            images = [read_exr(summary.files[f"image_seed{k}.exr"]) for k in range(spec.seeds)]
+            files = export_run(self.store.get_run(summary.run_id), summary.to_json(),
+                               self.settings, Path(out))
+            images = [read_exr(files[f"image_seed{k}.exr"]) for k in range(spec.seeds)]
         reference = stored_reference(self.store, self.settings.references_dir,
                                      summary.reference["id"])
         # Python values, not JSON: a NaN stays a NaN here (JSON would make it null).

@@ -601,7 +601,7 @@ def _convergence_curves(sweep: _Sweep) -> dict[str, dict[str, Any]]:
 def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[dict[str, Any]]:
     """Plots + result.json into ``out_dir``; returns the plots' artifact records."""
     # Matplotlib takes ~1 s to import: a render process that runs no sweep does not.
-    from jobs.protocol.plots import plot_convergence, plot_sweep
+    from jobs.views.plots import plot_convergence, plot_sweep
 
     out_dir.mkdir(parents=True, exist_ok=True)
     title = f"{sweep.prepared.scene.name} ({sweep.device_key})"

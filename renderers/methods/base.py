@@ -181,7 +181,7 @@ class Method:
     #: seeds (metrics.statistics.image_mean_test), not with the tile test.
     correlated_pixels: bool = False
     #: The size of each timed stage of a frame of ``pixels`` pixels at ``spp``: the unit
-    #: its time grows with (the per-stage cost model, jobs/protocol/cost_model.py). A
+    #: its time grows with (the per-stage cost model, jobs/costs/cost_model.py). A
     #: stage it does not name grows with pixels x spp.
     stage_sizes: StageSizes = lambda _params, _pixels, _spp: {}
     #: The parameters with the method's per-frame floors (work held at a fixed size in

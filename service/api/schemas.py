@@ -9,9 +9,9 @@ from typing import Any
 from pydantic import BaseModel, Field
 
 from jobs.ci.history import History
-from jobs.protocol.comparison import RunComparison
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import is_current
+from jobs.views.comparison import RunComparison
 from service.api.data_paths import served
 
 
@@ -91,7 +91,7 @@ class ArtifactOut(BaseModel):
 
 #: A result row (jobs.protocol.results: the one public model of a run).
 RunOut = RunResult
-#: Runs side by side (jobs.protocol.comparison).
+#: Runs side by side (jobs.views.comparison).
 Comparison = RunComparison
 #: A metric over commits with its step changes (jobs.ci.history).
 HistoryOut = History

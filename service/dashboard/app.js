@@ -28,7 +28,7 @@ const old = () => (document.getElementById("include-old").checked ? "&include_ol
 
 // A run's method configuration (its label), marked when older versions computed it.
 const label = (run) => `${run.method_label || run.method}${run.current ? "" : ` [old: estimator v${run.estimator_version}, metrics v${run.metric_version}]`}`;
-// What must match for two runs to be compared (as jobs/protocol/chart_groups.py groups them).
+// What must match for two runs to be compared (as jobs/views/chart_groups.py groups them).
 const protocol = (run) => ("sweep" in (run.params || {}) ? "frozen cache" : "online training");
 const setting = (run) => `${run.resolution.join("×")}, ${run.spp} spp, ${run.frames} frame${run.frames === 1 ? "" : "s"}, ${protocol(run)}`;
 

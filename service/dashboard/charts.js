@@ -1,5 +1,5 @@
 // Charts of the dashboard: Vega-Lite specs built by the service (GET /api/v1/charts/...,
-// jobs/protocol/charts.py) rendered by vega-embed, which the service serves itself
+// jobs/views/charts.py) rendered by vega-embed, which the service serves itself
 // (/vendor/vega.js). The page's Content-Security-Policy forbids eval, so expressions run in
 // Vega's interpreter (ast: true); vega-embed's and the tooltip's own styles are in style.css.
 

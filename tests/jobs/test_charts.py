@@ -1,5 +1,5 @@
-"""Chart specs (jobs/protocol/charts.py), which runs share a chart
-(jobs/protocol/chart_groups.py) and their colours (jobs/protocol/chart_styles.py):
+"""Chart specs (jobs/views/charts.py), which runs share a chart
+(jobs/views/chart_groups.py) and their colours (jobs/views/chart_styles.py):
 groups never mix settings, protocols or devices but hold every knob value of a method
 as one curve, families have distinct hues, axes and legends follow the rules."""
 
@@ -10,10 +10,10 @@ import json
 import numpy as np
 import pytest
 
-from jobs.protocol import chart_styles
-from jobs.protocol.chart_groups import FROZEN, ONLINE, curve_label, group_of, split_groups
-from jobs.protocol.chart_styles import FAMILY_COLOURS, FRONT_COLOUR, series_styles
-from jobs.protocol.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
+from jobs.views import chart_styles
+from jobs.views.chart_groups import FROZEN, ONLINE, curve_label, group_of, split_groups
+from jobs.views.chart_styles import FAMILY_COLOURS, FRONT_COLOUR, series_styles
+from jobs.views.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
 from metrics.registry import BY_NAME
 from renderers.methods import METHODS
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from jobs.protocol.cost_model import Probe, fit_line, measure, probes_for
+from jobs.costs.cost_model import Probe, fit_line, measure, probes_for
 
 FLOOR, FRACTION = 4096, 0.0316
 

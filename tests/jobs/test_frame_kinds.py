@@ -9,8 +9,8 @@ from types import SimpleNamespace
 
 import pytest
 
+from jobs.costs.cost_model import Probe, sample_of
 from jobs.pareto.pareto import stored_frame_times
-from jobs.protocol.cost_model import Probe, sample_of
 from renderers.timing import AFTER_KERNEL, FrameTime
 
 

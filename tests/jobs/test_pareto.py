@@ -31,10 +31,10 @@ from jobs.pareto.plan import (
     pt_core_methods,
     run_spec,
 )
-from jobs.protocol.plots import plot_pareto
 from jobs.protocol.results import RunResult
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from jobs.views.plots import plot_pareto
 from renderers.methods import BASELINE, METHODS
 
 

@@ -9,9 +9,9 @@ from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 from PIL import Image
 
-from jobs.protocol import plots
-from jobs.protocol.chart_styles import ENVELOPE_STYLE, ENVELOPE_WIDTH, FAMILY_COLOURS, FRONT_COLOUR
-from jobs.protocol.plots import plot_convergence, plot_pareto, plot_sweep
+from jobs.views import plots
+from jobs.views.chart_styles import ENVELOPE_STYLE, ENVELOPE_WIDTH, FAMILY_COLOURS, FRONT_COLOUR
+from jobs.views.plots import plot_convergence, plot_pareto, plot_sweep
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

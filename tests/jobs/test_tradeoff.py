@@ -13,14 +13,14 @@ from jobs.pareto.tradeoff import (
     equal_error_seconds,
     speedup,
 )
-from jobs.protocol.envelope import (
+from jobs.views.envelope import (
     Curve,
     baseline_curve,
     curve_error,
     envelope_error,
     envelope_pieces,
 )
-from jobs.protocol.front import pareto_front
+from jobs.views.front import pareto_front
 
 #: A synthetic baseline obeying the power law error = C * t^-A (PT: error ~ 1/spp, time ~ spp).
 C, A = 2e-3, 0.8

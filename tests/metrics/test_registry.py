@@ -78,8 +78,8 @@ def test_stored_keys_and_verdict_names_are_unchanged():
 
 
 def test_result_rows_and_api_fields_come_from_the_registry():
-    from jobs.protocol.plots import _SWEEP_PANELS
     from jobs.protocol.results import ReportRow
+    from jobs.views.plots import _SWEEP_PANELS
     from service.api.schemas import RunOut
     from service.tables import SWEEP_COLUMNS
 

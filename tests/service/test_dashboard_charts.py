@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import pytest
 
-from jobs.protocol.chart_styles import ENVELOPE_STYLE, FAMILY_COLOURS, FRONT_COLOUR
 from jobs.protocol.executor import execute
 from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import ReferenceSpec, RenderSpec
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from jobs.views.chart_styles import ENVELOPE_STYLE, FAMILY_COLOURS, FRONT_COLOUR
 from service.api.main import create_app
 from tests.service.conftest import ARTIFACTS, open_page, serve, wait_until
 

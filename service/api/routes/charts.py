@@ -1,5 +1,5 @@
-"""Chart specs for the dashboard: Vega-Lite dicts (jobs/protocol/charts.py) of stored
-results, each chart holding only comparable runs (jobs/protocol/chart_groups.py)."""
+"""Chart specs for the dashboard: Vega-Lite dicts (jobs/views/charts.py) of stored
+results, each chart holding only comparable runs (jobs/views/chart_groups.py)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Query, status
 
 from jobs.ci.history import MAX_HISTORY_RUNS, build_history
-from jobs.protocol.chart_groups import Setting, history_series_label, split_groups
-from jobs.protocol.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import current_estimator_versions
+from jobs.views.chart_groups import Setting, history_series_label, split_groups
+from jobs.views.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
 from metrics import METRIC_VERSION
 from metrics.registry import METRICS
 from service.api.deps import RowId, StoreDep
@@ -48,7 +48,7 @@ def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dic
 @router.get("/history")
 def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]:
     """Per listed metric its history over commits (GET /api/v1/ci/history), one chart per
-    setting (scene, resolution, frames, protocol, device: jobs/protocol/chart_groups.py),
+    setting (scene, resolution, frames, protocol, device: jobs/views/chart_groups.py),
     one line per run label and spp, never pooled."""
     runs = store.list_history_runs(scene, method, limit=MAX_HISTORY_RUNS)
     devices = sorted({run.device_key for run in runs})

@@ -7,10 +7,10 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
 
-from jobs.protocol.comparison import ComparisonError, compare_runs
 from jobs.protocol.versions import current_estimator_versions
 from jobs.record.artifacts import ArtifactStore
 from jobs.record.models import Artifact
+from jobs.views.comparison import ComparisonError, compare_runs
 from metrics import METRIC_VERSION
 from metrics.imageio import ImageReadError, png_bytes, read_exr
 from metrics.preview import tonemap_preview

@@ -6,7 +6,7 @@ convergence.png), so a page and a file agree.
 
 Every chart follows the same rules: one hue per method family, the same on every page,
 shades and dashes for a family's configurations, every series its own colour
-(jobs/protocol/chart_styles.py, given as explicit scales); the Pareto front black; the
+(jobs/views/chart_styles.py, given as explicit scales); the Pareto front black; the
 strongest PT's envelope one series of its own, wide and grey, under its candidates; legends
 beside or below the plot, never over it; axis titles with units; a log axis where the
 values are positive and span more than a decade; wheel zoom and drag pan; a tooltip
@@ -27,9 +27,9 @@ from typing import Any
 import altair as alt
 import vl_convert
 
-from jobs.protocol.baselines import strongest_pt_of
-from jobs.protocol.chart_groups import KNOB_PARAMS, Group, config_label, curve_label, knob_order
-from jobs.protocol.chart_styles import (
+from jobs.views.baselines import strongest_pt_of
+from jobs.views.chart_groups import KNOB_PARAMS, Group, config_label, curve_label, knob_order
+from jobs.views.chart_styles import (
     ENVELOPE_OPACITY,
     ENVELOPE_STYLE,
     ENVELOPE_WIDTH,
@@ -37,8 +37,8 @@ from jobs.protocol.chart_styles import (
     SeriesStyle,
     series_styles,
 )
-from jobs.protocol.envelope import baseline_curve, envelope_line
-from jobs.protocol.front import pareto_front
+from jobs.views.envelope import baseline_curve, envelope_line
+from jobs.views.front import pareto_front
 
 WIDTH, HEIGHT = 520, 300
 #: Where a chart's legend goes: below the plot, one entry a line, labels never cut.
@@ -58,7 +58,7 @@ def params_text(params: Mapping[str, Any] | None) -> str:
 def style_scales(series: Sequence[tuple[str, str]],
                  fixed: Mapping[str, SeriesStyle] | None = None) -> tuple[alt.Scale, alt.Scale]:
     """Explicit colour and dash scales of series labels from their (family, label) pairs
-    (jobs/protocol/chart_styles.py) and the ``fixed`` styles of other series (the strongest
+    (jobs/views/chart_styles.py) and the ``fixed`` styles of other series (the strongest
     PT's envelope); a chart gives both to one field, so one legend shows both."""
     styles = {**series_styles(series), **(fixed or {})}
     domain = sorted(styles)
@@ -112,7 +112,7 @@ def _title(text: str, notes: Sequence[str]) -> alt.Title:
 
 
 def envelope_rows(points: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """The strongest PT's envelope over a chart's points (jobs/protocol/envelope.py): per
+    """The strongest PT's envelope over a chart's points (jobs/views/envelope.py): per
     strongest PT (``strongest``: its name, None for a point of no candidate) the lower
     envelope of its candidates' curves of two points or more, as rows (``curve`` its
     name, ``stretch`` the polyline between gaps, ``ms``, ``value``)."""
@@ -133,7 +133,7 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                      metric: Mapping[str, Any]) -> dict[str, Any] | None:
     """Error against milliseconds per frame of one group's runs: each run a point with
     its stored interval, each method's curve through its runs in knob order (spp, N_c,
-    eps; jobs.protocol.chart_groups), the group's Pareto front in black. None when no
+    eps; jobs.views.chart_groups), the group's Pareto front in black. None when no
     run has the metric."""
     field, ci_field = metric["field"], metric.get("ci_field")
     usable = [r for r in runs if r.get(field) is not None and r.get("seconds_per_frame")]

@@ -13,7 +13,7 @@ paper):
   log-log, one series per method, the Pareto front highlighted, the strongest PT's
   envelope one series of its own.
 
-Colours and dashes are the charts' (jobs/protocol/chart_styles.py): one hue per
+Colours and dashes are the charts' (jobs/views/chart_styles.py): one hue per
 method family (a row's or point's ``method``), shades and dashes for its
 configurations, the Pareto front black. Every panel has both axis labels, and the
 left margin is widened until the y label and tick labels fit (:func:`fit_margins`).
@@ -36,8 +36,8 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from jobs.protocol.baselines import STRONGEST_PT_LABEL
-from jobs.protocol.chart_styles import (
+from jobs.views.baselines import STRONGEST_PT_LABEL
+from jobs.views.chart_styles import (
     ENVELOPE_OPACITY,
     ENVELOPE_STYLE,
     ENVELOPE_WIDTH,
@@ -168,7 +168,7 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
     bar), ``key``, ``front_<key>`` and ``loaded``. One line per series, through its
     points in the given (knob) order; the front is a black step line with ringed points;
     a point timed on a loaded machine is crossed in red. ``envelope``: the strongest PT's
-    envelope as polylines of (seconds, error) (jobs/protocol/envelope.py), drawn as one
+    envelope as polylines of (seconds, error) (jobs/views/envelope.py), drawn as one
     series, wide and grey under the others (chart_styles.ENVELOPE_STYLE). Points without
     a finite value and those <= 0 (off the log axes) are left out and counted in a note.
     """
@@ -283,7 +283,7 @@ def _draw_ci(ax: Axes, rows: list[dict[str, Any]], key: str, ci_key: str, colour
 
 
 def _styles(series: Iterable[tuple[str | None, str]]) -> dict[str, SeriesStyle]:
-    """The chart styles (jobs/protocol/chart_styles.py) of (method or None, label) pairs;
+    """The chart styles (jobs/views/chart_styles.py) of (method or None, label) pairs;
     a label without a method is a family of its own."""
     return series_styles((method or label, label) for method, label in series)
 

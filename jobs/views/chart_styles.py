@@ -1,5 +1,5 @@
 """The colour and dash of each series on a chart, the same rule for the dashboard's
-Vega-Lite charts (jobs/protocol/charts.py) and the PNG figures (jobs/protocol/plots.py).
+Vega-Lite charts (jobs/views/charts.py) and the PNG figures (jobs/views/plots.py).
 
 * **One hue per method family** (the method: ``pt``, ``nirc``, ...), fixed in
   :data:`FAMILY_COLOURS`, so a family has one hue on every page, chart and file. The hues
@@ -15,7 +15,7 @@ Vega-Lite charts (jobs/protocol/charts.py) and the PNG figures (jobs/protocol/pl
   chart has.
 
 * The strongest PT's envelope (the best of its candidates at each time,
-  jobs/protocol/envelope.py) is one series of its own, :data:`ENVELOPE_STYLE`: grey (no
+  jobs/views/envelope.py) is one series of its own, :data:`ENVELOPE_STYLE`: grey (no
   family's hue), drawn wide and translucent under its candidates' curves, so it is never
   mistaken for a candidate or for the black front.
 

@@ -52,7 +52,7 @@ def export_run(run: Any, summary: dict[str, Any], settings: Settings,
         shutil.copyfile(artifacts.path_of(artifact.path), files[name])
     # Error over frames (the NIRC paper's Fig. 10), as the dashboard draws it. Altair
     # and its PNG renderer take ~0.6 s to import: only a run that is exported pays it.
-    from jobs.protocol.charts import chart_png, convergence_chart
+    from jobs.views.charts import chart_png, convergence_chart
 
     convergence = convergence_chart(RunResultDetail.of(run).model_dump(mode="json"))
     if convergence is not None:

@@ -1,6 +1,6 @@
 """The lower envelope of several error-against-time curves: the strongest PT's curve
-(docs/pareto.md, "The strongest PT"), the core's so that the Pareto study's speed-ups
-(jobs/pareto/tradeoff.py) and the charts that draw it (jobs/protocol/charts.py, plots.py)
+(docs/pareto.md, "The strongest PT"), one for all, so that the Pareto study's speed-ups
+(jobs/pareto/tradeoff.py) and the charts that draw it (jobs/views/charts.py, plots.py)
 use one envelope.
 
 A curve is a series' own front, sorted by time, so error falls strictly as time grows,
@@ -17,7 +17,7 @@ from itertools import combinations, pairwise
 
 import numpy as np
 
-from jobs.protocol.front import pareto_front
+from jobs.views.front import pareto_front
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The Pareto front of (time, error) points: the core's, so that every study and the
+"""The Pareto front of (time, error) points: one for all, so that every study and the
 charts draw the same front (a point is on it when no other point is at least as fast
 and at least as accurate, and strictly better in one)."""
 

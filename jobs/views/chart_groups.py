@@ -20,7 +20,7 @@ lies on the curve of :func:`curve_label` (its run label, jobs/protocol/labels.py
 those knobs left out), ordered along it by :func:`knob_order`. The paper's PT (``pt``
 at its defaults) and the strongest PT's candidates (``pt``, ``pt-power`` and
 ``pt-spatial`` with ``rr_mode throughput``, docs/pareto.md) are curves of the chart
-like any other. Colours: jobs/protocol/chart_styles.py.
+like any other. Colours: jobs/views/chart_styles.py.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Its candidates are the registry's methods whose parameters are exactly the path-tracing
 core's (PT and its light selectors), each with :data:`STRONGEST_PT_PARAMS` on top of its
 defaults; the strongest PT is their lower envelope at equal time (docs/pareto.md, "The
-strongest PT"; jobs/protocol/envelope.py).
+strongest PT"; jobs/views/envelope.py).
 """
 
 from __future__ import annotations
