@@ -1,7 +1,8 @@
 """Answers for failures that are not the client's: always JSON, never a traceback.
 
 * The service cannot write (a full disk, a quota, a file size limit; the database
-  full): **507** with the cause, e.g. ``{"detail": "storage full: ..."}``.
+  full): **507** with the cause, e.g. ``{"detail": "storage full: ..."}``, the file it
+  names relative to the data folder (service/api/data_paths.py).
 * The database is unavailable (locked past its timeout, the connection lost):
   **503** with ``Retry-After``; the request changed nothing and may be sent again.
 * Anything else unexpected: **500** ``{"detail": "internal error ..."}``, logged
@@ -20,6 +21,7 @@ from sqlalchemy.exc import DBAPIError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 
 from jobs.record.storage import describe, storage_failure
+from service.api.data_paths import served
 from service.api.headers import security_headers
 
 log = logging.getLogger(__name__)
@@ -31,8 +33,8 @@ RETRY_AFTER_S = 5
 async def storage_failed(request: Request, exc: Exception) -> JSONResponse:
     kind = storage_failure(exc)
     if kind == "full":
-        return JSONResponse({"detail": describe(exc)},
-                            status_code=status.HTTP_507_INSUFFICIENT_STORAGE)
+        detail = served(describe(exc), request.app.state.settings.data_dir)
+        return JSONResponse({"detail": detail}, status_code=status.HTTP_507_INSUFFICIENT_STORAGE)
     if kind == "unavailable":
         return JSONResponse({"detail": f"{describe(exc)}; try again shortly"},
                             status_code=status.HTTP_503_SERVICE_UNAVAILABLE,

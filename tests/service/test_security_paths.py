@@ -7,6 +7,8 @@ both spellings of its path occur."""
 
 from __future__ import annotations
 
+import errno
+import os
 from collections.abc import Iterator
 from datetime import UTC, datetime
 
@@ -85,3 +87,18 @@ def test_errors_name_the_data_folders_files_relative_to_it(settings, api):
         assert str(data) not in text.replace(elsewhere, "")
         assert str(data.resolve()) not in text
     assert queue.get(sweep_job.id).error == error      # stored whole
+
+
+def test_a_full_disk_names_the_file_relative_to_the_data_folder(settings, api):
+    """A 507 (the handler of every route's storage failures) names the file it could
+    not write as the job errors do."""
+    target = settings.artifacts_dir / "run" / "image.exr"
+
+    def write() -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
+
+    api.app.add_api_route("/api/v1/test-full-disk", write)
+    response = api.get("/api/v1/test-full-disk")
+    assert response.status_code == 507
+    assert "(<data>/artifacts/run/image.exr)" in response.json()["detail"]
+    assert str(settings.data_dir) not in response.text
