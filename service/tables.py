@@ -219,20 +219,25 @@ def _load_text(load: dict[str, Any] | None) -> str:
 
 
 def stage_table(run: RunResult) -> Table:
-    """The median frame by stage: wall, kernel and harness milliseconds, launches."""
+    """The median frame by stage: wall milliseconds (of the median wall frame), kernel and
+    harness milliseconds (of the median kernel frame: its own wall less its own kernels,
+    so never a wall frame's time less another frame's kernels), launches."""
     wall = run.time_breakdown_ms or {}
-    kernel = run.kernel_breakdown_ms
+    kernel = run.kernel_breakdown_ms or {}
+    harness = run.harness_breakdown_ms or {}
     stages = (run.timings if isinstance(run, RunResultDetail) else {}).get("stages", {})
-    table = Table(title="the median frame by stage (ms; harness = wall - kernel: host work, "
-                        "tracing, launch gaps)")
+    table = Table(title="the median frame by stage (ms; kernel and harness of the median "
+                        "kernel frame, harness = its wall - its kernels: host work, tracing, "
+                        "launch gaps)")
     for column in ("stage", "wall", "kernel", "harness", "harness %", "launches"):
         table.add_column(column, justify="left" if column == "stage" else "right")
     for name, ms in wall.items():
-        k = None if kernel is None else kernel.get(name)
+        k, h = kernel.get(name), harness.get(name)
         launches = (stages.get(name) or {}).get("launches_median")
         table.add_row(name, _fmt(ms), "-" if k is None else _fmt(k),
-                      "-" if k is None else _fmt(ms - k),
-                      "-" if k is None or ms <= 0 else f"{100 * (ms - k) / ms:.0f}",
+                      "-" if h is None else _fmt(h),
+                      "-" if k is None or h is None or k + h <= 0
+                      else f"{100 * h / (k + h):.0f}",
                       "-" if launches is None else str(launches))
     return table
 

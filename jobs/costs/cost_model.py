@@ -152,8 +152,10 @@ class Probe:
 
 @dataclass
 class ProbeSample:
-    """One timed probe: per stage (and 'other'), its size and the median wall and kernel
-    seconds over the probe's frames; the stage total of the median frame."""
+    """One timed probe: per stage (and 'other'), its size, the median wall seconds over
+    the probe's wall frames, and the median kernel and harness seconds over its kernel
+    frames (each kernel frame's own wall less its own kernels: renderers.timing); the
+    stage total of the median frame."""
 
     probe: Probe
     sizes: dict[str, float]
@@ -161,30 +163,39 @@ class ProbeSample:
     kernel_s: dict[str, float] | None
     frame_s: float
     load: dict[str, Any] | None = None
+    harness_s: dict[str, float] | None = None
 
 
 def sample_of(probe: Probe, frames: Sequence[FrameTime], sizes: dict[str, float],
               load: dict[str, Any] | None = None) -> ProbeSample:
     """A :class:`ProbeSample` from a probe's timed frames; ``sizes`` per stage. Wall
-    times over its wall frames, kernel times over its kernel frames (renderers.timing)."""
+    times over its wall frames, kernel and harness times over its kernel frames
+    (renderers.timing)."""
     names = sorted({name for f in frames for name in f.parts()})
     walls, kernels = wall_frames(frames), kernel_frames(frames)
+
+    def over_kernel_frames(parts: Callable[[FrameTime], dict[str, float] | None]
+                           ) -> dict[str, float] | None:
+        return {name: median_low([(parts(f) or {}).get(name, 0.0) for f in kernels])
+                for name in names} if kernels else None
+
     return ProbeSample(
         probe, {name: sizes[name] for name in names},
         {name: median_low([f.parts().get(name, 0.0) for f in walls]) for name in names},
-        {name: median_low([(f.kernel_parts() or {}).get(name, 0.0) for f in kernels])
-         for name in names} if kernels else None,
-        median_low([f.total_s for f in walls]), load)
+        over_kernel_frames(FrameTime.kernel_parts),
+        median_low([f.total_s for f in walls]), load,
+        over_kernel_frames(FrameTime.harness_parts))
 
 
 @dataclass
 class StageModel:
-    """One stage's fitted wall and kernel time against its size."""
+    """One stage's fitted wall, kernel and harness time against its size."""
 
     stage: str
     unit: str
     wall: LinearFit
     kernel: LinearFit | None
+    harness: LinearFit | None = None
 
 
 @dataclass
@@ -194,6 +205,7 @@ class StageProjection:
     wall: Prediction
     kernel: Prediction | None
     extrapolation: float        # size / the largest probed size
+    harness: Prediction | None = None
 
 
 @dataclass
@@ -208,7 +220,7 @@ class Projection:
     frame_ci: tuple[float, float] | None
     other_s: float | None                       # between the stages, reported apart
     kernel_s: float | None                      # the whole frame's kernel time
-    harness_share: float | None                 # 1 - kernel / (stages + other)
+    harness_share: float | None                 # harness / (kernel + harness)
     notes: list[str] = field(default_factory=list)
     label: str = ""
 
@@ -240,13 +252,15 @@ class CostModel:
             size = sizes[name]
             wall = model.wall.predict(size)
             kernel = model.kernel.predict(size) if model.kernel is not None else None
+            harness = model.harness.predict(size) if model.harness is not None else None
             if wall.note:
                 notes.append(f"{name}: {wall.note}, not projectable to {size:g}")
             elif wall.value is not None and wall.value < 0:
                 notes.append(f"{name}: the fit goes below 0 at this size (its cost does "
                              "not grow measurably); counted as 0")
             stages.append(StageProjection(name, size, wall, kernel,
-                                          size / largest[name] if largest[name] else 1.0))
+                                          size / largest[name] if largest[name] else 1.0,
+                                          harness))
         def total(parts: list[Prediction | None]) -> tuple[float | None, tuple | None]:
             if any(p is None or p.value is None or p.ci is None for p in parts):
                 return None, None
@@ -259,13 +273,17 @@ class CostModel:
         other = next((s.wall for s in stages if s.stage == OTHER), None)
         other_s = None if other is None or other.value is None else max(other.value, 0.0)
         kernel_s, _ = total([s.kernel for s in stages])
-        whole = None if frame_s is None or other_s is None else frame_s + other_s
+        # The share of the kernel frames' own time outside their kernels: kernel and
+        # harness are fitted over the same frames, never a wall frame's time less a
+        # kernel frame's (renderers.timing), which can read below 0.
+        harness_s, _ = total([s.harness for s in stages])
+        spent = None if kernel_s is None or harness_s is None else kernel_s + harness_s
         reach = max(s.extrapolation for s in stages)
         if reach > 1.5:
             notes.append(f"extrapolated up to {reach:.3g}x beyond the largest probe")
         return Projection(
             width, height, self.device_key, stages, frame_s, frame_ci, other_s, kernel_s,
-            None if kernel_s is None or not whole else max(1 - kernel_s / whole, 0.0), notes,
+            None if not spent or harness_s is None else harness_s / spent, notes,
             label=f"projection to {width}x{height} from {self.device_key} (per-stage cost "
                   f"model, {CONFIDENCE:.0%} interval of the mean)")
 
@@ -274,7 +292,8 @@ class CostModel:
                 "rounds": self.rounds, "order": self.order, "flags": self.flags,
                 "load": self.load,
                 "stages": {name: {"unit": m.unit, "wall": m.wall.to_json(),
-                                  "kernel": m.kernel.to_json() if m.kernel else None}
+                                  "kernel": m.kernel.to_json() if m.kernel else None,
+                                  "harness": m.harness.to_json() if m.harness else None}
                            for name, m in self.stages.items()},
                 "samples": [asdict(s) for s in self.samples]}
 
@@ -292,7 +311,9 @@ def fit_model(method: str, spp: int, device_key: str, samples: Sequence[ProbeSam
         wall = fit_line(sizes, [s.wall_s.get(name, 0.0) for s in samples])
         kernel = (None if any(s.kernel_s is None for s in samples) else
                   fit_line(sizes, [(s.kernel_s or {}).get(name, 0.0) for s in samples]))
-        stages[name] = StageModel(name, units.get(name, PIXEL_UNIT), wall, kernel)
+        harness = (None if any(s.harness_s is None for s in samples) else
+                   fit_line(sizes, [(s.harness_s or {}).get(name, 0.0) for s in samples]))
+        stages[name] = StageModel(name, units.get(name, PIXEL_UNIT), wall, kernel, harness)
     flags = []
     by_probe: dict[Probe, list[float]] = {}
     for s in samples:

@@ -153,6 +153,10 @@ class RunResult(ResultMetrics):
     kernel_breakdown_ms: dict[str, float] | None = Field(
         None, description="kernel milliseconds of each part of the median frame (Dr.Jit's "
                           "kernel history); the rest of a part is harness")
+    harness_breakdown_ms: dict[str, float] | None = Field(
+        None, description="harness milliseconds of each part of the median kernel frame: "
+                          "its own wall time less its own kernels, part by part (host "
+                          "work, tracing, launch gaps)")
     kernel_seconds_per_frame: float | None = Field(
         None, description="kernel seconds of the median frame (device time; null for runs "
                           "stored before kernel time was measured)")
@@ -199,6 +203,7 @@ class RunResult(ResultMetrics):
             "render_seconds_per_frame": render_seconds(run.timings),
             "time_breakdown_ms": breakdown_ms(run.timings),
             "kernel_breakdown_ms": breakdown_ms(run.timings, "kernel_parts_s"),
+            "harness_breakdown_ms": breakdown_ms(run.timings, "harness_parts_s"),
             "kernel_seconds_per_frame": device_split(run.timings)[0],
             "harness_share": device_split(run.timings)[1],
             "timing_flags": timing_flags(run.timings),

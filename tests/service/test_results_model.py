@@ -15,7 +15,7 @@ from jobs.record.config import Settings
 from jobs.record.db import open_store
 from jobs.sweeps.sweep import point_row
 from service.api.main import create_app
-from service.tables import breakdown_table, metrics_table
+from service.tables import breakdown_table, metrics_table, stage_table
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=2,
                   reference=ReferenceSpec(spp=64, spp_per_pass=8))
@@ -57,6 +57,17 @@ def test_every_view_of_a_run_is_the_one_result_model(mi, data_dir):
     assert "the median frame by stage" in _text(metrics_table(summary.result))
     report_text = _text(breakdown_table("parts", [report_row]))
     assert "render" in report_text and "other" in report_text and "PT" in report_text
+
+
+def test_the_stage_table_takes_a_stages_harness_from_the_kernel_frame_alone():
+    """A kernel frame that does far more work than the wall frames (300 ms of kernels in
+    330 ms beside 11-ms wall frames): its harness is 30 ms, 9 % of it, where the wall
+    frame's time less the kernel frame's kernels would read -289 ms."""
+    run = RunResult.model_construct(
+        time_breakdown_ms={"render": 11.0}, kernel_breakdown_ms={"render": 300.0},
+        harness_breakdown_ms={"render": 30.0})
+    row = next(line for line in _text(stage_table(run)).splitlines() if "render" in line)
+    assert row.replace("│", " ").split() == ["render", "11", "300", "30", "9", "-"], row
 
 
 def test_a_runs_resolved_cache_configuration_is_served(api_and_store):
