@@ -46,6 +46,7 @@ from renderers.integrators.termination import (
     TerminationQuery,
     TerminationSettings,
     make_policy,
+    policy_params,
 )
 from renderers.integrators.training import TRAINING_PLUGIN, TrainingPathIntegrator
 
@@ -97,7 +98,7 @@ def nrc_terms(queries: QueryBuffer | InlineQueries, policy: TerminationPolicy | 
 def self_training_policy(params: NRCSettings) -> TerminationPolicy:
     """The spread heuristic (``sph``) that ends NRC's self-training paths, whatever
     policy the render paths use."""
-    return make_policy("sph", {}, params.termination_settings())
+    return make_policy(policy_params("sph"), params.termination_settings())
 
 
 def refuse_blending(policy: TerminationPolicy) -> TerminationPolicy:

@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 from pydantic import (
     BaseModel,
     Field,
+    SerializationInfo,
     SerializerFunctionWrapHandler,
     model_serializer,
     model_validator,
@@ -103,29 +104,44 @@ ADAPTIVE_EQUAL_BIAS: dict[str, Any] = {"termination": "adaptive", "pretrain_fram
 class TerminationChoice(BaseModel):
     """A caching method's termination policy (renderers.integrators.termination):
     ``termination`` names it (the method declares the field with the names of the
-    policies that serve its cache), ``termination_params`` are the policy's own
-    parameters, validated by the policy's model. Empty parameters are left out of
-    the dumped parameters, so parameter sets from before policies had parameters
-    dump, store and hash as they did."""
+    policies that serve its cache) and ``termination_params`` holds the policy's own
+    parameters as one typed object (the method declares it with the union of those
+    policies' tagged models, ``termination_params_type``), validated once, where the
+    method's parameters are parsed. Stored and sent, ``termination_params`` holds the
+    parameters that were given, without the tag, and is left out when none was, so
+    parameter sets from before policies had parameters dump, store and hash as they did."""
 
-    termination_params: dict[str, Any] = Field(
-        default_factory=dict, description="the termination policy's own parameters")
+    @model_validator(mode="before")
+    @classmethod
+    def _tag_termination_params(cls, values: Any) -> Any:
+        # The stored form names the policy once, in termination; its parameters' model
+        # is told by the tag ``policy``, filled in from that name.
+        if not isinstance(values, dict):
+            return values
+        named = cls.model_fields["termination"]
+        name = values.get("termination", named.default)
+        own = values.get("termination_params", {})
+        if not isinstance(own, dict) or name not in get_args(named.annotation):
+            return values    # refused by the fields' own validation
+        if "policy" in own:
+            raise ValueError("termination_params.policy: the policy is named by termination")
+        return {**values, "termination_params": {**own, "policy": name}}
 
     @model_validator(mode="after")
-    def _check_termination_params(self) -> TerminationChoice:
-        from renderers.integrators.termination import get_policy
-
-        get_policy(self.termination).Params.model_validate(  # type: ignore[attr-defined]
-            self.termination_params)
+    def _parameters_of_the_named_policy(self) -> TerminationChoice:
+        if self.termination_params.policy != self.termination:  # type: ignore[attr-defined]
+            raise ValueError(f"termination_params are {self.termination_params.policy}'s, "  # type: ignore[attr-defined]
+                             f"the policy is {self.termination}")  # type: ignore[attr-defined]
         return self
 
     @model_serializer(mode="wrap")
-    def _omit_empty_termination_params(self, handler: SerializerFunctionWrapHandler
-                                       ) -> dict[str, Any]:
+    def _untagged_termination_params(self, handler: SerializerFunctionWrapHandler,
+                                     info: SerializationInfo) -> dict[str, Any]:
         data = handler(self)
-        if not data.get("termination_params"):
-            data.pop("termination_params", None)
-        return data
+        del data["termination_params"]
+        given = self.termination_params.model_dump(  # type: ignore[attr-defined]
+            mode=info.mode, exclude_unset=True, exclude={"policy"})
+        return {"termination_params": given, **data} if given else data
 
     def termination_settings(self) -> Any:
         """What the policy takes from the method besides its own parameters (sph_c; N_c
@@ -142,8 +158,15 @@ class TerminationChoice(BaseModel):
         """The configured policy object the integrator asks at each vertex."""
         from renderers.integrators.termination import make_policy
 
-        return make_policy(self.termination, self.termination_params,  # type: ignore[attr-defined]
+        return make_policy(self.termination_params,  # type: ignore[attr-defined]
                            self.termination_settings())
+
+
+def termination_params_field() -> Any:
+    """The field ``termination_params`` (typed with ``termination_params_type`` of the
+    method's kind of cache), filled in from ``termination`` where it is not given; its
+    default, None, stands in only where ``termination`` is refused."""
+    return Field(None, description="the termination policy's own parameters")
 
 
 def load_integrators(plugin: str, params: CacheTrainingParams, key_vertex: str,

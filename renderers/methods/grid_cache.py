@@ -33,7 +33,7 @@ from typing import Any, Literal
 from pydantic import Field
 
 from renderers.frozen import Frozen, freezing, padded, weak_method
-from renderers.integrators.termination import policy_names
+from renderers.integrators.termination import policy_names, termination_params_type
 from renderers.methods import register
 from renderers.methods.base import (
     ComparisonRun,
@@ -44,12 +44,13 @@ from renderers.methods.base import (
     render_stage,
     run_frames,
 )
-from renderers.methods.cached import TerminationChoice
+from renderers.methods.cached import TerminationChoice, termination_params_field
 from renderers.methods.pt import PTParams
 from renderers.seeding import derive_seed
 
 #: The policies that serve the moment grid (the registry's).
 GridTermination = Literal[policy_names("grid")]  # type: ignore[valid-type]
+GridTerminationParams = termination_params_type("grid")
 
 GRID_AOVS = ("depth", "cache_depth", "cache_vertices", "weighted_length")
 
@@ -80,6 +81,7 @@ class GridCacheParams(PTParams, TerminationChoice):
 
     termination: GridTermination = Field(
         "var-bound", description="termination policy (renderers/integrators/termination)")
+    termination_params: GridTerminationParams = termination_params_field()
     cache: dict[str, Any] = Field(default_factory=dict,
                                   description="cache config overrides (MomentGridConfig)")
     cell_fraction: float = Field(1 / 16, gt=0.0, le=1.0,

@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from renderers.integrators.termination import get_policy, policy_names
+from renderers.integrators.termination import get_policy, policy_names, termination_params_type
 from renderers.methods import register
 from renderers.methods.base import ComparisonRun, Knob, Method, SweepRole
 from renderers.methods.cached import (
@@ -22,11 +22,13 @@ from renderers.methods.cached import (
     load_integrators,
     make_cache,
     scale_training_floors,
+    termination_params_field,
     training_stage_sizes,
 )
 
 #: The termination policies of NIRC's cache of incident radiance (the registry's).
 IncidentTermination = Literal[policy_names("incident")]  # type: ignore[valid-type]
+IncidentTerminationParams = termination_params_type("incident")
 
 
 class NIRCParams(CacheTrainingParams, TerminationChoice):
@@ -37,6 +39,7 @@ class NIRCParams(CacheTrainingParams, TerminationChoice):
                               "vertex (Eq. 13); 'unbiased': two-level Monte Carlo (Eq. 10-12)")
     termination: IncidentTermination = Field(
         "bth", description="biased termination policy (renderers/integrators/termination)")
+    termination_params: IncidentTerminationParams = termination_params_field()
     nc: list[int] | None = Field(
         None, description="N_c: [4] biased; [N_c at v1, N_c later] adaptive; "
                           "per non-specular vertex, e.g. [3,1,1], unbiased")

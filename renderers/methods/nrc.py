@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from renderers.integrators.termination import policy_names
+from renderers.integrators.termination import policy_names, termination_params_type
 from renderers.methods import register
 from renderers.methods.base import ComparisonRun, Method, SweepRole
 from renderers.methods.cached import (
@@ -26,11 +26,13 @@ from renderers.methods.cached import (
     load_integrators,
     make_cache,
     scale_training_floors,
+    termination_params_field,
     training_stage_sizes,
 )
 
 #: The termination policies of NRC's cache of outgoing radiance (the registry's).
 OutgoingTermination = Literal[policy_names("outgoing")]  # type: ignore[valid-type]
+OutgoingTerminationParams = termination_params_type("outgoing")
 
 
 class NRCParams(CacheTrainingParams, TerminationChoice):
@@ -38,6 +40,7 @@ class NRCParams(CacheTrainingParams, TerminationChoice):
 
     termination: OutgoingTermination = Field(
         "sph", description="termination policy (renderers/integrators/termination)")
+    termination_params: OutgoingTerminationParams = termination_params_field()
     self_training: bool = Field(
         True, description="NRC's self-training (paths end in the cache, every "
                           "unbiased_every-th one traced in full); false: full paths only")

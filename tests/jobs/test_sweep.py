@@ -26,6 +26,7 @@ from jobs.sweeps.sweep import (
     run_sweep,
     v1_mask,
 )
+from renderers.integrators.termination import policy_params
 
 SMALL = {"cache": {"batch_size": 1024}, "min_train_paths": 1024}
 
@@ -400,7 +401,8 @@ def _policy_spec(**overrides) -> SweepSpec:
 def test_a_dotted_parameter_sets_one_field_of_a_mapping_parameter():
     spec = _policy_spec()
     params = spec.parameter_point("grid-cache", 0.5)
-    assert params.termination_params == {"relative": False, "threshold": 0.5}
+    assert params.termination_params == policy_params("var-bound", relative=False,
+                                                      threshold=0.5)
     assert params.termination == "var-bound" and params.prefill_frames == 4
     with pytest.raises(ValueError, match="threshold"):
         _policy_spec(parameter=ParameterSweep(name="termination_params.threshold",

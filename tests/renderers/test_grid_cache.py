@@ -212,11 +212,11 @@ def _frames(mi, filled, policy, frames, seed=100):
 
 
 def _var_bound(threshold):
-    from renderers.integrators.termination import make_policy
+    from renderers.integrators.termination import make_policy, policy_params
     from renderers.methods.grid_cache import GridCacheParams
 
     settings = GridCacheParams().termination_settings()
-    return make_policy("var-bound", {"threshold": threshold}, settings)
+    return make_policy(policy_params("var-bound", threshold=threshold), settings)
 
 
 FRAMES = 96

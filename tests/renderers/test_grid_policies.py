@@ -30,10 +30,10 @@ FRAMES = 2
 
 
 def _policy(name: str, params: dict):
-    from renderers.integrators.termination import make_policy
+    from renderers.integrators.termination import make_policy, policy_params
     from renderers.methods.grid_cache import GridCacheParams
 
-    return make_policy(name, params, GridCacheParams().termination_settings())
+    return make_policy(policy_params(name, **params), GridCacheParams().termination_settings())
 
 
 def _length(mi, filled, name: str, params: dict) -> float:  # noqa: F811

@@ -36,6 +36,7 @@ from renderers.integrators.termination import (
     TerminationSettings,
     make_policy,
     policy_names,
+    policy_params,
 )
 from renderers.methods import METHODS, MethodError, parse_params
 from tests.support.untimed import UNTIMED
@@ -169,12 +170,12 @@ def toy(monkeypatch):
 
 
 def test_a_registered_policy_gets_its_typed_parameters(toy):
-    policy = make_policy("toy", {"threshold": 2.0}, TerminationSettings(0.01))
+    policy = make_policy(policy_params("toy", threshold=2.0), TerminationSettings(0.01))
     assert isinstance(policy, toy) and policy.params.threshold == 2.0
     with pytest.raises(ValidationError):
-        make_policy("toy", {"threshold": -1.0}, TerminationSettings(0.01))
+        policy_params("toy", threshold=-1.0)
     with pytest.raises(ValueError, match="unknown termination policy"):
-        make_policy("none-such", {}, TerminationSettings(0.01))
+        policy_params("none-such")
 
 
 @pytest.mark.parametrize("threshold, used", [(0.5, True), (1.0, False)])
@@ -187,7 +188,7 @@ def test_the_integrator_asks_the_policy_at_each_vertex(mi, toy, threshold, used)
     params = parse_params("nirc", {"estimator": "biased", "max_depth": 6})
     integrator, _trainer, cache = METHODS["nirc"].build(scene, params, 0)
     integrator.cache = cache
-    integrator.policy = make_policy("toy", {"threshold": threshold},
+    integrator.policy = make_policy(policy_params("toy", threshold=threshold),
                                     params.termination_settings())
     image, _valid, aovs = integrator.sample(scene.scene, _sampler(mi, scene, 64),
                                             _camera_rays(mi, scene, 64))
@@ -203,7 +204,7 @@ def test_nrc_refuses_a_blending_policy(toy, monkeypatch):
 
     monkeypatch.setattr(toy, "blends", True)
     with pytest.raises(ValueError, match="blends"):
-        refuse_blending(make_policy("toy", {"threshold": 0.5}, TerminationSettings(0.01)))
+        refuse_blending(make_policy(policy_params("toy", threshold=0.5), TerminationSettings(0.01)))
 
 
 class _FirstVertex(BaseModel):
@@ -242,7 +243,7 @@ def test_a_continuation_weight_blends_the_cache_with_the_next_segment(mi, monkey
     integrator.cache = cache
 
     def image(weight: float) -> np.ndarray:
-        integrator.policy = make_policy("blend-first", {"alpha": weight},
+        integrator.policy = make_policy(policy_params("blend-first", alpha=weight),
                                         params.termination_settings())
         film = np.asarray(mi.render(scene.scene, integrator=integrator, spp=4, seed=1),
                           dtype=np.float64)
@@ -309,7 +310,7 @@ def test_a_policy_reads_the_cache_here_and_one_vertex_ahead(mi, monkeypatch):
     params = parse_params("nirc", {"estimator": "biased", "max_depth": 3})
     integrator, _trainer, cache = METHODS["nirc"].build(scene, params, 0)
     integrator.cache = _PositionsCache()
-    integrator.policy = make_policy("look-ahead", {}, params.termination_settings())
+    integrator.policy = make_policy(policy_params("look-ahead"), params.termination_settings())
     dr.set_flag(dr.JitFlag.SymbolicLoops, False)   # each vertex's arrays are concrete
     try:
         integrator.sample(scene.scene, _sampler(mi, scene, 256), _camera_rays(mi, scene, 256))
@@ -345,7 +346,7 @@ def test_a_policy_carries_its_own_value_along_the_path(mi, monkeypatch):
     params = parse_params("nirc", {"estimator": "biased", "max_depth": 6})
     integrator, _trainer, cache = METHODS["nirc"].build(scene, params, 0)
     integrator.cache = cache
-    integrator.policy = make_policy("count", {}, params.termination_settings())
+    integrator.policy = make_policy(policy_params("count"), params.termination_settings())
     _image, _valid, aovs = integrator.sample(scene.scene, _sampler(mi, scene, 256),
                                              _camera_rays(mi, scene, 256))
     cache_depth = np.asarray(aovs[1])

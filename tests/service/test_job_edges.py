@@ -17,7 +17,8 @@ from jobs.execution.queue import JobQueue
 from jobs.execution.queued import QueuedRender, job_of
 from jobs.record.config import Settings
 from jobs.record.db import open_store
-from renderers.methods import get_method
+from renderers.integrators.termination import POLICIES, params_model
+from renderers.methods import get_method, parse_params
 from service.api.main import create_app
 from service.cli import main
 
@@ -55,6 +56,18 @@ def validations(monkeypatch):
         monkeypatch.setattr(model, "__pydantic_validator__", counter)
         return counter
     return spy
+
+
+@pytest.fixture
+def policy_validations(monkeypatch):
+    """The counters of every registered policy's parameter models (its own ``Params``
+    and the tagged model the methods hold), by model."""
+    counters = {}
+    for cls in POLICIES.values():
+        for model in {cls.Params, params_model(cls)}:
+            counters[model] = _Counting(model.__pydantic_validator__)
+            monkeypatch.setattr(model, "__pydantic_validator__", counters[model])
+    return counters
 
 
 @pytest.fixture
@@ -116,4 +129,17 @@ def test_a_submitted_job_is_validated_once_here_and_once_where_it_is_run(
     queued.run(store, settings, None, job_id=response.json()["id"])
     assert executed == [queued.job] and counter.calls == 2
     assert executed[0].params is queued.job.params
-    assert executed[0].params.termination_params == {"threshold": 0.5}
+    assert executed[0].params.termination_params.threshold == 0.5
+
+
+def test_the_policy_is_built_from_the_parsed_parameters_without_validating_them(
+        policy_validations):
+    """The method's parse validates the policy's parameters (nested in its own
+    validation); building the policy hands them over as they are. The spies see a
+    policy model validated on its own: as make_policy did before, the last call."""
+    params = parse_params("grid-cache", GOOD["params"])
+    policy = params.termination_policy()
+    assert policy.params is params.termination_params and policy.params.threshold == 0.5
+    assert sum(counter.calls for counter in policy_validations.values()) == 0
+    type(policy).Params.model_validate({"threshold": 0.5})     # the validation it no longer does
+    assert sum(counter.calls for counter in policy_validations.values()) == 1

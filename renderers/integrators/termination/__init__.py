@@ -31,17 +31,21 @@ of outgoing radiance, 'grid' for the hashed grid with three moments of the
 statistics the variance-trading policies read) and what it needs of N_c. Each registers itself with
 ``@register``, and importing this package imports every module in it
 (renderers/registry.py), so adding a policy adds one file; the
-methods' parameter models list the policies of the kind they serve. Reading the
+methods' parameter models list the policies of the kind they serve and hold the
+chosen one's parameters as its tagged model (:func:`params_model`, members of
+:func:`termination_params_type`), validated once where the method's parameters are
+parsed; :func:`make_policy` takes that object as it is. Reading the
 registry does not import Mitsuba: policies import it where they evaluate.
 docs/termination.md says how to add one.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from renderers.registry import Registry, discover
 
@@ -147,11 +151,35 @@ def get_policy(name: str) -> type[TerminationPolicy]:
                          f"known: {', '.join(POLICIES)}") from None
 
 
-def make_policy(name: str, params: dict[str, Any], settings: TerminationSettings
-                ) -> TerminationPolicy:
-    """The policy ``name`` with its parameters validated by its own model."""
-    cls = get_policy(name)
-    return cls(cls.Params.model_validate(params), settings)
+@functools.cache
+def params_model(cls: type[TerminationPolicy]) -> type[BaseModel]:
+    """``cls.Params`` tagged with the policy's name: its field ``policy`` (a name no
+    policy may give a parameter of its own) holds ``cls.name``, so one object says which
+    policy it configures and how. The methods' parameter models hold one of these."""
+    return create_model(f"{cls.__name__}Params", __base__=cls.Params,
+                        __module__=cls.__module__, policy=(Literal[cls.name], cls.name))
+
+
+def policy_params(name: str, **values: Any) -> BaseModel:
+    """The parameters of the policy ``name``, ``values`` validated by its model (the
+    defaults where none is given)."""
+    return params_model(get_policy(name))(**values)
+
+
+def termination_params_type(kind: CacheKind) -> Any:
+    """The type of a method's ``termination``: the union of the tagged parameter models
+    (:func:`params_model`) of the policies registered now that serve a cache of
+    ``kind``, told apart by their ``policy`` name."""
+    members = tuple(params_model(POLICIES[name]) for name in policy_names(kind))
+    if len(members) == 1:
+        return members[0]
+    return Annotated[Union[members], Field(discriminator="policy")]  # noqa: UP007
+
+
+def make_policy(params: BaseModel, settings: TerminationSettings) -> TerminationPolicy:
+    """The policy that the validated ``params`` (a :func:`params_model` instance) name,
+    configured by them; nothing is validated here."""
+    return get_policy(params.policy)(params, settings)  # type: ignore[attr-defined]
 
 
 discover(__name__, __path__)
