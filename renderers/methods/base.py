@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, PrivateAttr, ValidationError, model_validator
 
 from renderers.backend import host_runs_kernels
 from renderers.frozen import MAX_WARMUP_FRAMES, SETTLED_CALLS, Frozen, freezing
@@ -37,9 +37,13 @@ from renderers.timing import (
 
 class MethodParams(BaseModel):
     """Base of every method's parameter model: unknown fields are errors, and so are
-    cache overrides its cache preset cannot build (:meth:`cache_presets`)."""
+    cache overrides its cache preset cannot build (:meth:`cache_presets`). The configs
+    built from them while parsing are kept (:meth:`cache_config`): what the caches are
+    made with, not validated again."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    _cache_configs: dict[str, Any] = PrivateAttr(default_factory=dict)
 
     def cache_presets(self) -> dict[str, Callable[..., Any]]:
         """Each field of cache-config overrides and the preset (a function of
@@ -51,7 +55,7 @@ class MethodParams(BaseModel):
     def _cache_overrides_build(self) -> MethodParams:
         for name, preset in self.cache_presets().items():
             try:
-                preset(**getattr(self, name))
+                self._cache_configs[name] = preset(**getattr(self, name))
             except ValidationError as error:
                 detail = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}"
                                    for e in error.errors())
@@ -59,6 +63,11 @@ class MethodParams(BaseModel):
             except (ValueError, TypeError, AttributeError) as error:
                 raise ValueError(f"{name}: {error}") from None
         return self
+
+    def cache_config(self, name: str = "cache") -> Any:
+        """The typed config of the cache whose overrides are the field ``name``: its
+        preset with the overrides, built and validated when the parameters were parsed."""
+        return self._cache_configs[name]
 
 
 #: (parameters, pixels, spp) -> size per timed stage (:attr:`Method.stage_sizes`).

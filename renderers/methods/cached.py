@@ -191,13 +191,13 @@ def load_integrators(plugin: str, params: CacheTrainingParams, key_vertex: str,
     return integrator, trainer
 
 
-def make_cache(scene: Any, config_fn: Callable[..., Any], params: CacheTrainingParams,
-               seed: int) -> Any:
-    """A cache over the scene's bounding box, configured by a preset plus overrides."""
+def make_cache(scene: Any, config: Any, seed: int) -> Any:
+    """A cache over the scene's bounding box with ``config``, a validated CacheConfig
+    (the parameters' :meth:`~renderers.methods.base.MethodParams.cache_config`)."""
     from renderers.caches import NeuralCache
 
     bbox = scene.scene.bbox()
-    return NeuralCache(config_fn(**params.cache), list(bbox.min), list(bbox.max), seed=seed)
+    return NeuralCache(config, list(bbox.min), list(bbox.max), seed=seed)
 
 
 def train_once(cache: Any, trainer: Any, scene: Any, budget: TrainingBudget, seed: int,
@@ -338,8 +338,7 @@ def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Cal
 def training_stage_sizes(params: Any, pixels: int, _spp: int) -> dict[str, float]:
     """Training paths and records of a frame of ``pixels`` pixels: the training budget's
     rule, floors and cap included (:func:`frame_training_budget`)."""
-    config = params.cache_presets()["cache"](**params.cache)
-    budget = frame_training_budget(pixels, params, config)
+    budget = frame_training_budget(pixels, params, params.cache_config())
     return {"training_paths": budget.paths, "training": budget.records}
 
 

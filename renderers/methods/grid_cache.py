@@ -105,10 +105,18 @@ class GridCacheParams(PTParams, TerminationChoice):
         return TerminationSettings(CacheTrainingParams.model_fields["sph_c"].default)
 
     def resolved_grid(self, scene: Any) -> Any:
-        """The grid configuration of ``scene`` (a renderers.scenes scene)."""
+        """The grid configuration of ``scene`` (a renderers.scenes scene): the parsed
+        config (:meth:`cache_config`) with the cell edge ``cell_fraction`` of the
+        scene's largest extent, unless the overrides set ``cell_size``."""
+        config = self.cache_config()
+        if "cell_size" in self.cache:
+            return config
         extents = scene.scene.bbox().extents()
         cell = self.cell_fraction * max(float(extents[i]) for i in range(3))
-        return grid_config(**{"cell_size": cell, **self.cache})
+        if not cell > 0.0:
+            raise ValueError("the scene has no extent to size the grid's cells by "
+                             "(set cache.cell_size)")
+        return config.model_copy(update={"cell_size": cell})
 
 
 def build(scene: Any, params: GridCacheParams, seed: int) -> tuple[Any, Any, Any]:

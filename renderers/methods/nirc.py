@@ -83,12 +83,11 @@ class NIRCParams(CacheTrainingParams, TerminationChoice):
 
 def build(scene: Any, params: NIRCParams, seed: int) -> tuple[Any, Any, Any]:
     """(render integrator, training integrator, cache) of a NIRC render."""
-    from renderers.caches import nirc_config
     from renderers.integrators import nirc, register_plugins
 
     register_plugins()
     integrator, trainer = load_integrators(nirc.NIRC_PLUGIN, params, key_vertex="departure")
-    return integrator, trainer, make_cache(scene, nirc_config, params, seed)
+    return integrator, trainer, make_cache(scene, params.cache_config(), seed)
 
 
 def with_nc_at_v1(params: dict[str, Any], value: int) -> dict[str, Any]:

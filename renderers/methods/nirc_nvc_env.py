@@ -68,14 +68,17 @@ class NIRCEnvParams(NIRCParams):
 
     def env(self) -> NVCEnvParams:
         """The environment term's settings as `nvc-env`'s model (what its integrator and
-        its ``train_frame`` read: estimator, N_c, camera points, cache overrides)."""
-        return NVCEnvParams(estimator=self.env_estimator, nc=self.env_nc,
-                            camera_points=self.env_camera_points, cache=self.env_cache)
+        its ``train_frame`` read: estimator, N_c, camera points, cache overrides and
+        the config parsed from them), made of these validated values as they are."""
+        env = NVCEnvParams.model_construct(estimator=self.env_estimator, nc=self.env_nc,
+                                           camera_points=self.env_camera_points,
+                                           cache=self.env_cache)
+        env._cache_configs["cache"] = self.cache_config("env_cache")
+        return env
 
 
 def build(scene: Any, params: NIRCEnvParams, seed: int) -> tuple[Any, Any, Any, Any]:
     """(render integrator, NIRC training integrator, NIRC cache, visibility cache)."""
-    from renderers.caches import nirc_config
     from renderers.integrators import nirc_nvc_env, register_plugins
 
     register_plugins()
@@ -84,7 +87,7 @@ def build(scene: Any, params: NIRCEnvParams, seed: int) -> tuple[Any, Any, Any, 
     env = params.env()
     visibility = visibility_cache(scene, env, derive_seed(seed, "visibility"))
     integrator.configure_env(env, visibility)
-    return integrator, trainer, make_cache(scene, nirc_config, params, seed), visibility
+    return integrator, trainer, make_cache(scene, params.cache_config(), seed), visibility
 
 
 def render(scene: Any, params: NIRCEnvParams, *, seed_parts: tuple[Any, ...], spp: int,

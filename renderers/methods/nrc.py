@@ -55,7 +55,6 @@ class NRCParams(CacheTrainingParams, TerminationChoice):
 
 def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
     """(render integrator, training integrator, cache) of an NRC render."""
-    from renderers.caches import nrc_config
     from renderers.integrators import nrc, register_plugins
 
     register_plugins()
@@ -63,7 +62,7 @@ def build(scene: Any, params: NRCParams, seed: int) -> tuple[Any, Any, Any]:
                if params.self_training else None)
     integrator, trainer = load_integrators(nrc.NRC_PLUGIN, params, key_vertex="arrival",
                                            trainer_plugin=trainer)
-    return integrator, trainer, make_cache(scene, nrc_config, params, seed)
+    return integrator, trainer, make_cache(scene, params.cache_config(), seed)
 
 
 METHOD = register(Method(

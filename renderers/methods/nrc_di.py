@@ -38,12 +38,11 @@ def build(scene: Any, params: NRCDIParams, seed: int) -> tuple[Any, Any]:
     """(integrator, RGB cache): the prediction at first hits, untrained."""
     import mitsuba as mi
 
-    from renderers.caches import direct_light_config
     from renderers.integrators import register_plugins
     from renderers.integrators.nrc_di import PLUGIN_NAME, DirectLightRecords
 
     register_plugins()
-    cache = make_cache(scene, direct_light_config, params, seed)
+    cache = make_cache(scene, params.cache_config(), seed)
     # Its frame's training records, frozen where freezing is on (what train_frame reads).
     cache.training_records = DirectLightRecords(params.world_points, params.camera_points)
     return mi.load_dict({"type": PLUGIN_NAME}).with_cache(cache), cache

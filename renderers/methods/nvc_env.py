@@ -124,7 +124,7 @@ def visibility_cache(scene: Any, params: NVCEnvParams, seed: int) -> Any:
     caches' ``train_frame`` (renderers.methods.nvc_lights) reads."""
     from renderers.integrators.nvc_env import EnvVisibilityRecords
 
-    cache = make_cache(scene, params.cache_preset(), params, seed)
+    cache = make_cache(scene, params.cache_config(), seed)
     cache.training_records = EnvVisibilityRecords(params.camera_points, params.target)
     return cache
 

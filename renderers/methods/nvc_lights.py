@@ -50,7 +50,6 @@ delta emitters included) and a surface.
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable
 from typing import Any
@@ -157,15 +156,24 @@ def light_selection(scene: Any, params: VisibilityCacheParams, seed: int,
         cache, clusters, params.clamp, cluster_candidates), cache
 
 
+def with_outputs(params: VisibilityCacheParams, outputs: int) -> Any:
+    """The parsed cache config (:func:`one_output_visibility_config` with the overrides)
+    with ``outputs`` outputs, unless the overrides set the count themselves."""
+    config = params.cache_config()
+    if "n_outputs" in (params.cache.get("output") or {}):
+        return config
+    return config.model_copy(
+        update={"output": config.output.model_copy(update={"n_outputs": outputs})})
+
+
 def visibility_cache(scene: Any, params: VisibilityCacheParams, seed: int, outputs: int,
                      clusters: Any = None) -> Any:
     """A new visibility cache of ``outputs`` (one per light, or per cluster of ``clusters``)
     carrying what :func:`train_frame` reads: its clusters (``cache.clusters``) and its
     frame's training records (``cache.training_records``)."""
-    from renderers.caches import visibility_config
     from renderers.integrators.nvc_lights import VisibilityRecords
 
-    cache = make_cache(scene, functools.partial(visibility_config, outputs), params, seed)
+    cache = make_cache(scene, with_outputs(params, outputs), seed)
     cache.clusters = clusters
     cache.training_records = VisibilityRecords(params.world_points, params.camera_points,
                                                clusters)

@@ -6,6 +6,7 @@ objects, validated once more only where a process reads it from the queue."""
 from __future__ import annotations
 
 import sys
+from types import SimpleNamespace
 from typing import Any
 from unittest import mock
 
@@ -143,3 +144,27 @@ def test_the_policy_is_built_from_the_parsed_parameters_without_validating_them(
     assert sum(counter.calls for counter in policy_validations.values()) == 0
     type(policy).Params.model_validate({"threshold": 0.5})     # the validation it no longer does
     assert sum(counter.calls for counter in policy_validations.values()) == 1
+
+
+def test_the_cache_is_made_from_the_parsed_config_without_validating_it(monkeypatch):
+    """Parsing builds the cache's config from its preset and overrides once; the frame's
+    training budget and make_cache take that object. The spy sees a config validated on
+    its own: as make_cache did before (the preset called with the overrides), at the
+    end."""
+    from renderers.caches.config import CacheConfig, nirc_config
+    from renderers.methods.cached import make_cache
+
+    params = parse_params("nirc", {"cache": {"batch_size": 256}})
+    counter = _Counting(CacheConfig.__pydantic_validator__)
+    monkeypatch.setattr(CacheConfig, "__pydantic_validator__", counter)
+    made: list[Any] = []
+    monkeypatch.setattr("renderers.caches.NeuralCache",
+                        lambda config, *_args, **_kwargs: made.append(config))
+    box = SimpleNamespace(min=[0.0] * 3, max=[1.0] * 3)
+    get_method("nirc").stage_sizes(params, 64, 1)
+    make_cache(SimpleNamespace(scene=SimpleNamespace(bbox=lambda: box)),
+               params.cache_config(), seed=0)
+    assert made == [params.cache_config()] and made[0].batch_size == 256
+    assert counter.calls == 0
+    nirc_config(**params.cache)     # the validation it no longer does
+    assert counter.calls > 0
