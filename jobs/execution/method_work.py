@@ -24,6 +24,7 @@ or pre-fill frames the method renders before its timed ones), each counted as
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 from renderers.methods import METHODS
@@ -74,13 +75,20 @@ def path_factor(params: Any, defaults: Any) -> float:
     return factor
 
 
+@cache
+def _defaults(method_name: str) -> Any:
+    """The method's default parameters, built without validating (they are the model's
+    own defaults): a job's parameters are validated once, where it enters."""
+    return METHODS[method_name].params.model_construct()
+
+
 def frame_work(method_name: str, params: Any, pixels: int, spp: int) -> FrameWork:
     """Samples per frame and warm frames of ``method_name`` with ``params`` (its
     parameter model); an unknown method counts pixels x spp."""
     method = METHODS.get(method_name)
     if method is None:
         return FrameWork(float(pixels * spp), 0)
-    samples = pixels * spp * path_factor(params, method.params())
+    samples = pixels * spp * path_factor(params, _defaults(method_name))
     samples += sum(method.stage_sizes(params, pixels, spp).values())
     samples += sum(getattr(params, name, 0) for name in POINT_PARAMS)
     return FrameWork(samples, sum(getattr(params, name, 0) for name in WARM_FRAME_PARAMS))

@@ -75,11 +75,11 @@ class QueuedRender(_Queued):
         spec = self.job.spec
         stored = store is not None and reference_stored(
             store, spec.scene, spec.resolution, spec.reference, self.job.max_depth)
-        return render_work(spec, stored)
+        return render_work(spec, stored, self.job.params)
 
     def attempt_work(self) -> WorkEstimate:
         """What one attempt runs (the reference counted)."""
-        return render_work(self.job.spec)
+        return render_work(self.job.spec, params=self.job.params)
 
     def run(self, store: Store, settings: Settings, progress: Progress, *, job_id: int,
             reuse: bool = False) -> dict[str, Any]:

@@ -35,7 +35,7 @@ from jobs.record.models import Artifact, Reference
 from jobs.record.store import Store
 from jobs.sweeps.snapshots import V1_PASSES
 from metrics import METRIC_VERSION
-from renderers.methods import METHODS, equal_time_pairs
+from renderers.methods import METHODS, MethodParams, equal_time_pairs
 
 #: Bytes per pixel of a stored image: RGB float32 (an upper bound; EXRs compress).
 IMAGE_BYTES_PER_PIXEL = 12
@@ -78,18 +78,21 @@ def _reference(estimate: WorkEstimate, pixels: int, reference: ReferenceSpec) ->
                  frames=math.ceil(reference.spp / reference.spp_per_pass), renders=1)
 
 
-def render_work(spec: RenderSpec, reference_stored: bool = False) -> WorkEstimate:
+def render_work(spec: RenderSpec, reference_stored: bool = False,
+                params: MethodParams | None = None) -> WorkEstimate:
     """A render job: K seeds of ``frames`` frames at ``spp``, each frame and the
     pre-training frames as the method's parameters make them
     (jobs/execution/method_work.py); calibration probes and the largest candidate
-    when the spp is calibrated to a time budget."""
+    when the spp is calibrated to a time budget. ``params``: the job's parsed
+    parameters (a queued job's: not validated again), else parsed from the spec."""
     estimate = WorkEstimate()
     pixels = spec.resolution ** 2
     if not reference_stored:
         _reference(estimate, pixels, spec.reference)
     spp = spec.spp
     method = METHODS.get(spec.method)
-    params = method.params.model_validate(spec.params) if method is not None else None
+    if params is None and method is not None:
+        params = method.params.model_validate(spec.params)
 
     def frame(spp: int) -> FrameWork:
         return frame_work(spec.method, params, pixels, spp)
