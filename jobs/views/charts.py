@@ -94,6 +94,11 @@ def _not_drawn(count: int) -> list[str]:
             "on the log axis"] if count else []
 
 
+def _loaded(count: int) -> list[str]:
+    return [f"{count} run{'s' if count != 1 else ''} timed on a loaded machine: drawn, on no "
+            "front or envelope"] if count else []
+
+
 def _finish(chart: alt.TopLevelMixin) -> dict[str, Any]:
     spec = chart.to_dict()
     spec.pop("$schema", None)       # a URL; the page names the mode instead
@@ -118,7 +123,7 @@ def envelope_rows(points: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     name, ``stretch`` the polyline between gaps, ``ms``, ``value``)."""
     by_name: dict[str, dict[str, list[Mapping[str, Any]]]] = {}
     for p in points:
-        if p["strongest"] and p["value"] > 0:
+        if p["strongest"] and p["value"] > 0 and not p["loaded"]:
             by_name.setdefault(p["strongest"], {}).setdefault(p["curve"], []).append(p)
     rows = []
     for name, curves in by_name.items():
@@ -133,8 +138,9 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                      metric: Mapping[str, Any]) -> dict[str, Any] | None:
     """Error against milliseconds per frame of one group's runs: each run a point with
     its stored interval, each method's curve through its runs in knob order (spp, N_c,
-    eps; jobs.views.chart_groups), the group's Pareto front in black. None when no
-    run has the metric."""
+    eps; jobs.views.chart_groups), the group's Pareto front in black. A run timed on a
+    loaded machine is drawn (its tooltip says so) but is on no front and no envelope, as
+    in the pareto study without ``--allow-loaded``. None when no run has the metric."""
     field, ci_field = metric["field"], metric.get("ci_field")
     usable = [r for r in runs if r.get(field) is not None and r.get("seconds_per_frame")]
     if not usable:
@@ -147,10 +153,12 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                "config": config_label(r), "params": params_text(r["params"]),
                "spp": r["spp"], "frames": r["frames"], "seeds": r["seeds"],
                "device": r["device_key"], "href": run_link(r["id"]),
+               "loaded": bool(r.get("timing_flags")),
                "lo": (r.get(ci_field) or [None, None])[0] if ci_field else None,
                "hi": (r.get(ci_field) or [None, None])[1] if ci_field else None}
               for i, r in enumerate(drawn)]
-    on_front = pareto_front([p["ms"] for p in points], [p["value"] for p in points])
+    on_front = pareto_front([None if p["loaded"] else p["ms"] for p in points],
+                            [p["value"] for p in points])
     front = sorted((p for p, on in zip(points, on_front, strict=True) if on),
                    key=lambda p: p["ms"])
     x = alt.X("ms:Q", title="milliseconds per frame (online training included)",
@@ -167,6 +175,7 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                alt.Tooltip("hi:Q", title="95 % interval to", format=".4g"),
                alt.Tooltip("ms:Q", title="ms per frame", format=".4g"),
                "spp:Q", "frames:Q", "seeds:Q", "device:N",
+               alt.Tooltip("loaded:N", title="timed on a loaded machine"),
                alt.Tooltip("params:N", title="parameters")]
     data = alt.Data(values=points)
     zoom = alt.selection_interval(bind="scales")
@@ -193,6 +202,7 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                    ["black: Pareto front of this chart (spp, N_c, eps are points on a curve)",
                     *(["wide grey: the strongest PT, the best of its candidates at each time"]
                       if envelope else []),
+                    *_loaded(sum(p["loaded"] for p in points)),
                     *_not_drawn(len(usable) - len(drawn))])
     layers = ([strongest] if envelope else []) + ([curves, line] if front else [curves])
     layers += [bars] if any(p["lo"] for p in points) else []

@@ -224,3 +224,35 @@ def test_convergence_has_integer_frame_ticks_and_none_for_one_frame():
            "per_seed": [{"seed": 0, "metrics": {"convergence": {"frame_mrse": [0.4],
                                                                 "accumulated_mrse": [0.4]}}}]}
     assert convergence_chart(one) is None
+
+
+def test_a_run_timed_on_a_loaded_machine_is_drawn_on_no_front_or_envelope():
+    """As pareto's rule without --allow-loaded: a loaded run that would dominate every PT
+    run (fastest, less error) is drawn and says so, but is neither on the front nor part
+    of the strongest PT's envelope; the same run unflagged is on both."""
+    def candidate(run_id, method, spp, ms, error, **changes):
+        return run(run_id, method=method, spp=spp, seconds_per_frame=ms / 1e3, mrse=error,
+                   params={"rr_mode": "throughput"}, **changes)
+
+    flags = {"timing_flags": ["loaded: load average 6.1 on 2 cores"]}
+    pt = [candidate(1, "pt", 1, 2.0, 0.1), candidate(2, "pt", 2, 4.0, 0.05),
+          candidate(3, "pt", 4, 8.0, 0.02)]
+    power = candidate(11, "pt-power", 2, 9.0, 0.0009)
+
+    def chart(fastest: dict) -> dict:
+        (group, members), = split_groups([*pt, fastest, power]).items()
+        return error_time_chart(group, members, BY_NAME["mrse"].to_json())
+
+    def front_runs(spec: dict) -> set[int]:
+        front = next(lay for lay in spec["layer"] if lay["mark"].get("color") == FRONT_COLOUR)
+        return {p["run"] for p in front["data"]["values"]}
+
+    spec = chart(candidate(10, "pt-power", 1, 0.5, 0.001, **flags))
+    assert front_runs(spec) == {1, 2, 3, 11}
+    assert min(r["ms"] for r in envelope_of(spec)[1]) == 2.0      # pt's own, from 2 ms
+    assert {p["run"]: p["loaded"] for p in curve_layer(spec)["data"]["values"]}[10] is True
+    assert "1 run timed on a loaded machine" in " ".join(spec["title"]["subtitle"])
+    # Planted: the same run without its flag dominates pt's runs and starts the envelope.
+    unflagged = chart(candidate(10, "pt-power", 1, 0.5, 0.001))
+    assert front_runs(unflagged) == {10, 11}
+    assert min(r["ms"] for r in envelope_of(unflagged)[1]) == 0.5
