@@ -260,16 +260,42 @@ class Dispatcher:
     def recover(self, jobs: list[Job] | None = None) -> list[int]:
         """Submit again the jobs that nothing runs (``jobs``, or every such job in the
         database: queued ones without a task, running ones whose lease expired).
-        Returns their ids."""
+        Returns their ids. A job named in ``jobs`` (submitted again) whose task is still
+        on its way is looked at again when that task ends: a runner that meets a storage
+        failure leaves its job queued for the next round (jobs.execution.runner), and the
+        submission asked for it now."""
         busy = set(self._on_its_way())
         if jobs is None:
             jobs = self.queue.stranded(self.settings.job_lease_s, exclude=list(busy))
+        else:
+            for job in jobs:
+                if job.id in busy and job.parent_id is None:
+                    self._recover_when_done(job.id)
         lease_s = self.settings.job_lease_s
         stranded = [job for job in jobs if job.id not in busy
                     and job.parent_id is None and self.queue.is_stranded(job, lease_s)]
         for job in stranded:
             self.submit(job)
         return [job.id for job in stranded]
+
+    def _recover_when_done(self, job_id: int) -> None:
+        """When the task now running ``job_id`` ends, submit the job again if nothing
+        runs it then (its runner deferred it)."""
+        with self._lock:
+            future = self._tasks.get(job_id)
+        if future is None:
+            return
+
+        def again(_future: Any) -> None:
+            try:
+                job = self.queue.get(job_id)
+                if job is not None:
+                    self.recover([job])
+            except Exception as err:  # noqa: BLE001 - logged; the timer's rounds retry
+                if storage_failure(err) is None:
+                    log.exception("dispatching job %s again failed", job_id)
+
+        future.add_done_callback(again)
 
     def recover_every(self, interval_s: float) -> threading.Event:
         """Call :meth:`recover` every ``interval_s`` in a daemon thread, until the
