@@ -846,6 +846,10 @@ def serve(
         "--dask-dashboard",
         help="keep the embedded cluster's Dask dashboards, on loopback ports, open to every "
              "account of this machine (or NIRC_BENCH_DASK_DASHBOARD=true)")] = False,
+    key_quota_bytes: Annotated[int | None, typer.Option(
+        "--key-quota-bytes", min=0,
+        help="bytes each API key's results, uploads and unfinished jobs may take on disk "
+             "(0: no quota; default 10 GiB, or NIRC_BENCH_KEY_QUOTA_BYTES)")] = None,
     data_dir: DataDir = None,
 ) -> None:
     """Run the service: REST API (OpenAPI at /docs) + job queue on Dask."""
@@ -869,9 +873,11 @@ def serve(
             raise UsageError("--dask-dashboard is for the embedded cluster; a --scheduler's "
                              "dashboard is its own (`dask scheduler --dashboard-address`)")
         settings = settings.model_copy(update={"dask_dashboard": True})
-    if allowed_hosts is not None:
-        settings = ServiceSettings.model_validate({**settings.model_dump(),
-                                                   "allowed_hosts": allowed_hosts})
+    given = {name: value for name, value in (("allowed_hosts", allowed_hosts),
+                                             ("key_quota_bytes", key_quota_bytes))
+             if value is not None}
+    if given:
+        settings = ServiceSettings.model_validate({**settings.model_dump(), **given})
     hosts = decide_allowed_hosts(settings.allowed_hosts, host)
     settings = settings.model_copy(update={"public_read": public, "allowed_hosts": hosts})
 

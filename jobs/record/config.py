@@ -65,6 +65,14 @@ class Settings(BaseSettings):
     # Disk: None means no limit; with a limit, a submission whose estimated files would
     # take the data folder past it is refused (507).
     max_data_bytes: int | None = Field(None, ge=0)
+    # Per API key: the bytes its stored results (its runs' and sweeps' artifacts), its
+    # uploads (scenes, images) and the estimated files of its unfinished jobs may take;
+    # a submission or upload past it is refused (507). None or 0: no quota.
+    key_quota_bytes: int | None = Field(10 * 2**30, ge=0)
+    # Free-space floor: new jobs, sweeps and uploads are refused (507) while the data
+    # folder's filesystem has less free than the larger of these two.
+    min_free_bytes: int = Field(2 * 2**30, ge=0)
+    min_free_fraction: float = Field(0.05, ge=0.0, le=1.0)
     # `nirc-bench gc` removes unreferenced files, scenes and references older than this.
     gc_keep_days: float = Field(30.0, ge=0.0)
     # Retention of results' files (jobs/record/gc.py): `nirc-bench gc` removes the
@@ -73,12 +81,20 @@ class Settings(BaseSettings):
     # over artifact_max_bytes. None: no such limit.
     artifact_keep_days: float | None = Field(365.0, gt=0.0)
     artifact_max_bytes: int | None = Field(None, ge=0)
+    # The service applies that retention on its own every retention_interval_h hours
+    # (the first round one interval after it starts). None or 0: only `nirc-bench gc`.
+    retention_interval_h: float | None = Field(24.0, ge=0.0)
     # Folders whose Mitsuba XML scenes REST clients may name by path (docs/service.md);
     # none by default. The environment variable is a JSON list or an os.pathsep-
     # separated one: NIRC_BENCH_SCENE_ROOTS=/srv/scenes:/data/more-scenes.
     scene_roots: Annotated[list[Path], NoDecode] = Field(default_factory=list)
     # The size limit of scenes (each file, all files together) is one for every scene,
     # by path or over REST, read where it is used: renderers.scenes.vetting.scene_limits.
+
+    @field_validator("key_quota_bytes", "retention_interval_h")
+    @classmethod
+    def _zero_is_off(cls, value: float | None) -> float | None:
+        return value or None
 
     @field_validator("scene_roots", mode="before")
     @classmethod

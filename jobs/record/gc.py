@@ -18,10 +18,14 @@ in flight: it writes its files before the rows that name them). And, by the
 retention policy, the **artifacts of runs and sweeps** (images, error maps,
 previews, plots: their rows and files; the results stay): those of runs and sweeps
 created more than ``artifact_keep_days`` ago, and, while the artifact store holds
-more than ``artifact_max_bytes``, those of the oldest runs and sweeps first.
+more than ``artifact_max_bytes``, those of the oldest runs and sweeps first; a run the
+user named or tagged (``nirc-bench runs tag``) keeps its artifacts.
 Artifacts of references and cache snapshots are kept: later jobs reuse them. An
 uploaded image goes with its run's artifacts (those this plan removes, or none left)
-whatever its age: nothing is left to compare it with.
+whatever its age: nothing is left to compare it with; the run's and key's folders go
+once empty. A removed scene takes its owners' marks (jobs/record/usage.py) with it.
+The service runs the same plan on its own every ``retention_interval_h`` hours
+(service/retention.py).
 
 :func:`plan` only looks; :func:`apply` removes what a plan lists.
 """
@@ -40,6 +44,7 @@ from sqlalchemy import delete, func, select
 from jobs.record.config import Settings
 from jobs.record.models import Artifact, CacheSnapshot, Job, Reference, Run, Sweep
 from jobs.record.store import Store
+from jobs.record.usage import forget_scene
 
 
 @dataclass
@@ -132,7 +137,7 @@ def _expired_artifacts(store: Store, settings: Settings) -> list[Removal]:
     with store.session() as session:
         rows = session.execute(
             select(Artifact.id, Artifact.bytes, Artifact.run_id, Artifact.sweep_id,
-                   func.coalesce(Run.created_at, Sweep.created_at))
+                   func.coalesce(Run.created_at, Sweep.created_at), Run.name, Run.tags)
             .outerjoin(Run, Artifact.run_id == Run.id)
             .outerjoin(Sweep, Artifact.sweep_id == Sweep.id)
             .where(Artifact.reference_id.is_(None), Artifact.snapshot_id.is_(None),
@@ -140,7 +145,9 @@ def _expired_artifacts(store: Store, settings: Settings) -> list[Removal]:
         total = int(session.scalar(select(func.coalesce(func.sum(Artifact.bytes), 0))) or 0)
     owners: dict[tuple[str, int], Removal] = {}
     ages: dict[tuple[str, int], datetime] = {}
-    for artifact_id, size, run_id, sweep_id, created in rows:
+    for artifact_id, size, run_id, sweep_id, created, name, tags in rows:
+        if name is not None or tags:
+            continue            # a run the user named or tagged is kept
         owner = ("run", run_id) if run_id is not None else ("sweep", sweep_id)
         removal = owners.setdefault(owner, Removal(f"{owner[0]} artifacts", None, 0,
                                                    owner_id=owner[1]))
@@ -240,11 +247,25 @@ def apply(store: Store, settings: Settings, gc_plan: Plan) -> int:
             if removal.path.name not in named:
                 freed += sum(map(_size, _files(removal.path)))
                 shutil.rmtree(removal.path, ignore_errors=True)
+                forget_scene(settings, removal.path.name)
             continue
         for path in [*removal.files, *([removal.path] if removal.path else [])]:
             freed += _size(path)
             path.unlink(missing_ok=True)
+        if removal.what == "uploaded image" and removal.path is not None:
+            _remove_empty(removal.path.parent, settings.uploaded_images_dir)
     return freed
+
+
+def _remove_empty(folder: Path, root: Path) -> None:
+    """Remove ``folder`` and its parents up to ``root`` (kept) while they are empty: the
+    run and key folders of uploaded images that are gone."""
+    while folder != root and root in folder.parents:
+        try:
+            folder.rmdir()
+        except OSError:         # not empty (or gone): an upload still lives there
+            return
+        folder = folder.parent
 
 
 def _remove_artifact_rows(store: Store, settings: Settings, artifact_ids: list[int]) -> int:

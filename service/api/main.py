@@ -6,7 +6,9 @@ serve``) passes a :class:`jobs.execution.dispatch.Dispatcher`, tests may pass No
 stay queued) or a stand-in. On start, and then every ``redispatch_interval_s``, every
 job that nothing runs is dispatched again: queued ones run, and running ones left by
 a killed process, or given up by a runner that could not write the database, are
-taken over once their heartbeat lease expires (jobs.execution.queue). A storage
+taken over once their heartbeat lease expires (jobs.execution.queue); every
+``retention_interval_h`` the retention of `nirc-bench gc` is applied
+(service/retention.py). A storage
 failure is answered in JSON: 507 when the service cannot write (disk full), 503
 while the database is unavailable (service/api/failures.py). A request that fails validation is
 answered 422 with the errors as JSON, even when the bad value is NaN or Infinity
@@ -47,9 +49,11 @@ from service.api.failures import add_failure_handlers
 from service.api.headers import SecurityHeaders, viewer_policy
 from service.api.limits import BodySizeLimit, bounded_json_body
 from service.api.nesting import JsonDepthLimit
+from service.api.quota import add_no_room_handler
 from service.api.routes import auth, charts, ci, images, jobs, pixels, results, scenes
 from service.api.unprocessable import validation_failed
 from service.config import ServiceSettings, host_patterns
+from service.retention import start_retention
 
 #: The dashboard's files (HTML, CSS, JavaScript, the vendored image slider): served
 #: from here, never from a CDN; the chart library from service/api/vendor.py.
@@ -83,15 +87,16 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        stop = None
+        stops = [start_retention(store, settings)]
         if dispatcher is not None:
             dispatcher.recover()
-            stop = dispatcher.recover_every(settings.redispatch_interval_s)
+            stops.append(dispatcher.recover_every(settings.redispatch_interval_s))
         try:
             yield
         finally:
-            if stop is not None:
-                stop.set()
+            for stop in stops:
+                if stop is not None:
+                    stop.set()
             store.close()
 
     # Swagger UI (/docs) and ReDoc (/redoc) load their scripts and styles from the
@@ -123,6 +128,7 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     app.state.scene_parses = asyncio.Semaphore(settings.max_scene_parses)
     app.add_exception_handler(RequestValidationError, validation_failed)
     add_failure_handlers(app)
+    add_no_room_handler(app)
     # A scene upload reads its body under its own cap (the scenes' size limit) and
     # checks its own nesting. The depth check runs inside the size limit, which bounds
     # the body it reads.

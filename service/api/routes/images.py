@@ -10,7 +10,9 @@ does not authorize it). Bounds, all existing limits of the service:
   any pixel is decoded, so a small compressed file cannot make the service decode a
   large image (422 otherwise, naming both sizes);
 * a key keeps its latest :data:`IMAGES_PER_KEY` uploads: a new one removes its oldest;
-* a new image that would take the data folder past ``max_data_bytes`` is refused (507);
+* a new image that would take the data folder past ``max_data_bytes``, its key past its
+  quota, or that comes while the disk is under its free-space floor is refused (507,
+  service/api/quota.py); a key's images count in its quota;
   uploaded images count in the data folder's size (jobs.execution.work.data_bytes), so
   jobs and scene uploads are refused for them as for any stored file;
 * they are kept under their run (``<key id>/<run id>/<sha256>.exr``): ``nirc-bench gc``
@@ -42,6 +44,7 @@ from jobs.record.config import Settings
 from jobs.record.store import Store
 from metrics.imageio import ImageReadError, read_exr
 from service.api.deps import CallerDep, SettingsDep, StoreDep
+from service.api.quota import check_room
 from service.api.unprocessable import unprocessable
 
 router = APIRouter(prefix="/api/v1", tags=["images"])
@@ -104,6 +107,7 @@ def _store(body: bytes, key_id: int, run_id: int, resolution: tuple[int, int], s
     target = folder / f"{image_id}.exr"
     created = not target.is_file()
     if created:
+        check_room(store, settings, key_id, len(body), "image upload")
         if settings.max_data_bytes is not None:
             if data_bytes(store, settings) + len(body) > settings.max_data_bytes:
                 raise HTTPException(status.HTTP_507_INSUFFICIENT_STORAGE,
@@ -146,7 +150,8 @@ def uploaded_image(settings: Settings, image_id: str) -> np.ndarray:
                         413: {"description": "the file is over max_body_bytes"},
                         415: {"description": "not sent as an EXR file"},
                         422: {"description": "not a readable RGB EXR of the run's size"},
-                        507: {"description": "the data folder has no room for it"}},
+                        507: {"description": "no room: the data folder's cap or "
+                                             "free-space floor, or the API key's quota"}},
              openapi_extra={"requestBody": {"required": True, "content": {
                  "image/x-exr": {"schema": {"type": "string", "format": "binary"}}}}})
 async def upload_image(request: Request, response: Response, caller: CallerDep,

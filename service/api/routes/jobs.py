@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import asyncio
 import time
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
 from jobs.execution.queue import IdempotencyKeyReused, TooManyJobs
@@ -36,6 +37,8 @@ from renderers.methods import (
 from renderers.scenes import builtin_names
 from renderers.scenes.vetting import SceneRefused
 from service.api.deps import CallerDep, DispatcherDep, QueueDep, RowId, SettingsDep
+from service.api.failures import RETRY_AFTER_S
+from service.api.quota import check_room
 from service.api.schemas import JobOut
 from service.api.unprocessable import unprocessable
 
@@ -105,10 +108,11 @@ def _check_applies(job: RenderJob) -> None:
         return
 
 
-def _check_work(job: QueuedRender | QueuedSweep, store, settings, device_class: str) -> None:
+def _check_work(job: QueuedRender | QueuedSweep, store, settings, device_class: str,
+                key_id: int) -> None:
     """Refuse what is too big before it is queued: too many stage jobs, samples or
     estimated seconds for this service's limits (422), or more files than its disk
-    limit allows (507)."""
+    limit, its free-space floor or the key's quota allow (507, service/api/quota.py)."""
     kind = job.kind
     stages = len(job.stages())
     if stages > settings.max_sweep_stages:
@@ -142,6 +146,7 @@ def _check_work(job: QueuedRender | QueuedSweep, store, settings, device_class: 
                 f"{estimate.artifact_bytes / 1e6:.1f} MB more, past this service's limit "
                 f"of {settings.max_data_bytes / 1e6:.1f} MB (max_data_bytes); free space "
                 "with `nirc-bench gc --apply`"))
+    check_room(store, settings, key_id, estimate.artifact_bytes, f"{kind} job")
 
 
 def _sources(sources: dict[str, str]) -> str:
@@ -151,11 +156,11 @@ def _sources(sources: dict[str, str]) -> str:
 
 def _enqueue(parsed: QueuedRender | QueuedSweep, queue, dispatcher, response: Response,
              idempotency_key: str | None, device_class: str, settings,
-             caller: ApiKey) -> JobOut:
+             caller: ApiKey) -> JobOut | JSONResponse:
     reason = dispatcher.unavailable(device_class) if dispatcher is not None else None
     if reason:
         raise HTTPException(status.HTTP_409_CONFLICT, reason)
-    _check_work(parsed, queue.store, settings, device_class)
+    _check_work(parsed, queue.store, settings, device_class, caller.id)
     try:
         job, created = queue.submit(parsed.kind, parsed.stored(), parsed.key(device_class),
                                     idempotency_key=idempotency_key, device_class=device_class,
@@ -171,26 +176,48 @@ def _enqueue(parsed: QueuedRender | QueuedSweep, queue, dispatcher, response: Re
             dispatcher.submit(job)
         else:   # a duplicate: never answer with a job that nothing will run
             dispatcher.recover([job])
-    response.headers["Location"] = f"/api/v1/jobs/{job.id}"
-    return JobOut.of(job, stalled=queue.stalled(job, settings.job_lease_s),
-                     data_dir=settings.data_dir)
+    location = f"/api/v1/jobs/{job.id}"
+    answer = JobOut.of(job, stalled=queue.stalled(job, settings.job_lease_s),
+                       data_dir=settings.data_dir)
+    if answer.stalled is not None:
+        # The job exists and was dispatched again, but cannot run before the service
+        # can write its database: not an acceptance, a retry later.
+        return JSONResponse(
+            {"detail": f"job {job.id} of this spec is stalled ({answer.stalled}); it was "
+                       "dispatched again and runs once the service can write its database: "
+                       f"poll {location}", "job": answer.model_dump(mode="json")},
+            status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
+            headers={"Location": location, "Retry-After": str(RETRY_AFTER_S)})
+    response.headers["Location"] = location
+    return answer
 
 
-@router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
+#: Answers of a submission besides 202 that the OpenAPI document lists.
+SUBMISSION_ANSWERS: dict[int | str, dict[str, Any]] = {
+    503: {"description": "the spec's job exists but is stalled (the service cannot write "
+                         "its database): `detail` says why, `job` is the job, `Location` "
+                         "its URL; send again or poll after Retry-After"},
+    507: {"description": "no room: the data folder's cap or free-space floor, or the API "
+                         "key's quota (`limit` names the setting, with the numbers)"}}
+
+
+@router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut,
+             responses=SUBMISSION_ANSWERS)
 def submit_job(spec: RenderSpec, response: Response, queue: QueueDep,
                dispatcher: DispatcherDep, settings: SettingsDep, caller: CallerDep,
                idempotency_key: IdempotencyKey = None,
-               device_class: DeviceClass = "cpu") -> JobOut:
+               device_class: DeviceClass = "cpu") -> JobOut | JSONResponse:
     """Queue a render job (K seeds of a method on a scene, against its reference)."""
     return _enqueue(_check_render(spec, settings), queue, dispatcher, response,
                     idempotency_key, device_class, settings, caller)
 
 
-@router.post("/sweeps", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut)
+@router.post("/sweeps", status_code=status.HTTP_202_ACCEPTED, response_model=JobOut,
+             responses=SUBMISSION_ANSWERS)
 def submit_sweep(spec: SweepSpec, response: Response, queue: QueueDep,
                  dispatcher: DispatcherDep, settings: SettingsDep, caller: CallerDep,
                  idempotency_key: IdempotencyKey = None,
-                 device_class: DeviceClass = "cpu") -> JobOut:
+                 device_class: DeviceClass = "cpu") -> JobOut | JSONResponse:
     """Queue a sweep (adaptive equal-bias over eps, or over N_c); poll it as a job."""
     return _enqueue(_check_sweep(spec, settings), queue, dispatcher, response,
                     idempotency_key, device_class, settings, caller)

@@ -15,7 +15,10 @@ service's scene roots. An upload is one body, in either of two forms:
 The scene is vetted — it may read only its own files — and stored
 content-addressed; the answer's ``id`` (``upload:<digest>``) is then the ``scene``
 of a job or sweep. The same upload twice gives the same id. A new scene that would
-take the data folder past ``max_data_bytes`` is refused with 507.
+take the data folder past ``max_data_bytes`` is refused with 507, as is any upload
+while the disk is under its free-space floor or one of the uploading key's size past
+its quota (service/api/quota.py; counted as received, before the scene is vetted, so
+a scene already stored is refused too); a stored upload counts in its key's quota.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from jobs.execution.work import data_bytes
 from jobs.protocol.scene_store import NoRoom, save_upload
 from jobs.record.artifacts import make_private_dir
+from jobs.record.usage import mark_scene_owner
 from renderers.scenes.vetting import (
     STAGED_SCENE,
     Blob,
@@ -49,9 +53,10 @@ from renderers.scenes.vetting import (
     scene_limits,
     upload_name,
 )
-from service.api.deps import SettingsDep, StoreDep, WriteAccess
+from service.api.deps import CallerDep, SettingsDep, StoreDep
 from service.api.limits import MAX_DEPTH, is_unicode
 from service.api.nesting import nested_deeper_than, too_deep_message
+from service.api.quota import check_room
 from service.api.schemas import SceneUploadOut
 from service.api.unprocessable import unprocessable
 
@@ -199,19 +204,26 @@ async def _json_upload(request: Request, limit: int) -> SceneUpload:
     return upload
 
 
+def _upload_bytes(xml: bytes, files: dict[str, Blob]) -> int:
+    """The bytes an upload may store: its XML and its files as received."""
+    return len(xml) + sum(len(blob) if isinstance(blob, bytes) else blob.stat().st_size
+                          for blob in files.values())
+
+
 @router.post(UPLOAD_PATH.removeprefix(router.prefix), status_code=status.HTTP_201_CREATED,
-             response_model=SceneUploadOut, dependencies=[WriteAccess],
+             response_model=SceneUploadOut,
              responses={200: {"model": SceneUploadOut, "description": "already stored"},
                         413: {"description": "a file or the whole scene is over the limit"},
                         415: {"description": "neither a tar archive nor JSON"},
                         503: {"description": "every upload slot is vetting a scene: send it "
                                              "again after Retry-After"},
-                        507: {"description": "the data folder has no room for it"}},
+                        507: {"description": "no room: the data folder's cap or "
+                                             "free-space floor, or the API key's quota"}},
              openapi_extra={"requestBody": {"required": True, "content": {
                  "application/x-tar": {"schema": {"type": "string", "format": "binary"}},
                  "application/json": {"schema": SceneUpload.model_json_schema()}}}})
 async def upload_scene(request: Request, response: Response, settings: SettingsDep,
-                       store: StoreDep) -> SceneUploadOut:
+                       store: StoreDep, caller: CallerDep) -> SceneUploadOut:
     """Upload a Mitsuba XML scene and the files it reads; answers its id
     (``upload:<digest>``), to use as the ``scene`` of jobs and sweeps."""
     limits = scene_limits()
@@ -235,12 +247,16 @@ async def upload_scene(request: Request, response: Response, settings: SettingsD
         # The XML is held and parsed from here on: a bounded number at once.
         async with _parse_slot(request, settings.max_scene_parses):
             xml, files = await run_in_threadpool(read)
+            await run_in_threadpool(check_room, store, settings, caller.id,
+                                    _upload_bytes(xml, files), "scene upload")
             room = None
             if settings.max_data_bytes is not None:
                 room = settings.max_data_bytes - await run_in_threadpool(data_bytes, store,
                                                                          settings)
             scene_id, staged, created = await run_in_threadpool(save_upload, xml, files,
                                                                 settings, room)
+            await run_in_threadpool(mark_scene_owner, settings, caller.id, staged.digest,
+                                    staged.total_bytes)
         # Counted before the received files are removed.
         answer = SceneUploadOut(id=scene_id, files=len(staged.files) - 1,
                                 bytes=staged.total_bytes)

@@ -1,0 +1,98 @@
+"""What one API key holds on disk, for its storage quota (``Settings.key_quota_bytes``).
+
+A key holds:
+
+* the artifacts of the runs and sweeps its jobs stored (a job's ``run_id`` and
+  ``sweep_id``; each file once): one query on the store;
+* the images it uploaded for comparison (``uploaded_images/<key id>/``, at most a
+  handful of files: a walk of that folder alone);
+* the scenes it uploaded: each upload leaves an owner mark
+  ``scenes/.owners/<key id>/<digest>`` holding the scene's bytes, counted while the
+  scene is stored (gc removes the marks with their scene).
+
+References and cache snapshots are shared: any key's later job reuses them, so they
+count in the data folder's size (``max_data_bytes``) and in no key's quota; so do
+the runs a sweep's stages store (their keys are content keys, shared by every
+sweep that needs them). The estimated files of a key's unfinished jobs are added by
+the service, which knows how to estimate a job (service/api/quota.py).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from sqlalchemy import func, or_, select
+
+from jobs.record.artifacts import PRIVATE_FILE_MODE, make_private_dir
+from jobs.record.config import Settings
+from jobs.record.models import Artifact, Job, JobStatus
+from jobs.record.store import Store
+
+#: The folder of the scenes' owner marks, inside the scenes folder (gc and the scene
+#: loader skip names that start with a dot).
+SCENE_OWNERS = ".owners"
+
+
+def scene_owners_dir(settings: Settings) -> Path:
+    return settings.scenes_dir / SCENE_OWNERS
+
+
+def mark_scene_owner(settings: Settings, key_id: int, digest: str, scene_bytes: int) -> None:
+    """Record that key ``key_id`` uploaded the stored scene ``digest`` of
+    ``scene_bytes`` bytes (the same scene uploaded by two keys counts for both)."""
+    folder = make_private_dir(scene_owners_dir(settings) / str(key_id))
+    mark = folder / digest
+    mark.write_text(str(scene_bytes))
+    os.chmod(mark, PRIVATE_FILE_MODE)
+
+
+def forget_scene(settings: Settings, digest: str) -> None:
+    """Remove every key's owner mark of scene ``digest`` (the scene is gone)."""
+    folder = scene_owners_dir(settings)
+    if folder.is_dir():
+        for mark in folder.glob(f"*/{digest}"):
+            mark.unlink(missing_ok=True)
+
+
+def _scene_bytes(settings: Settings, key_id: int) -> int:
+    folder = scene_owners_dir(settings) / str(key_id)
+    if not folder.is_dir():
+        return 0
+    total = 0
+    for mark in folder.iterdir():
+        if (settings.scenes_dir / mark.name).is_dir():
+            try:
+                total += int(mark.read_text() or 0)
+            except (OSError, ValueError):
+                continue        # a mark being written or removed: counted next time
+    return total
+
+
+def _image_bytes(settings: Settings, key_id: int) -> int:
+    folder = settings.uploaded_images_dir / str(key_id)
+    if not folder.is_dir():
+        return 0
+    return sum(path.stat().st_size for path in folder.rglob("*.exr") if path.is_file())
+
+
+def stored_bytes(store: Store, settings: Settings, key_id: int) -> int:
+    """Bytes key ``key_id`` holds on disk: its jobs' runs' and sweeps' artifacts (each
+    file once) and its uploaded images and scenes."""
+    owned = Job.owner_key_id == key_id
+    with store.session() as session:
+        files = select(Artifact.path, func.max(Artifact.bytes).label("bytes")).where(or_(
+            Artifact.run_id.in_(select(Job.run_id).where(owned, Job.run_id.is_not(None))),
+            Artifact.sweep_id.in_(select(Job.sweep_id).where(owned, Job.sweep_id.is_not(None)))
+        )).group_by(Artifact.path).subquery()
+        artifacts = int(session.scalar(select(func.coalesce(func.sum(files.c.bytes), 0))) or 0)
+    return artifacts + _image_bytes(settings, key_id) + _scene_bytes(settings, key_id)
+
+
+def unfinished_jobs(store: Store, key_id: int) -> list[Job]:
+    """The queued and running jobs (renders and sweeps; a sweep's stages go with it)
+    of key ``key_id``."""
+    with store.session() as session:
+        return list(session.scalars(select(Job).where(
+            Job.owner_key_id == key_id, Job.parent_id.is_(None),
+            Job.status.in_([JobStatus.QUEUED.value, JobStatus.RUNNING.value]))))
