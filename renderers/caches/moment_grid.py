@@ -19,7 +19,26 @@ from which (paper, Sec. 4.4 and appendix A)
   bounding uses instead of the plain variance (that one also holds the spread of
   E[Y | y] across the cell), and
 * the average squared bias E[(E[Y | y] - E[Y])^2] = E[E[Y | y]^2] - E[Y]^2 of using the
-  cell's value at any of its points, the MSE rule's local bias.
+  cell's value at any of its points, the MSE rule's local bias. It is formed within each
+  pass, from that pass's samples alone, and only then averaged over passes: E[Y]^2 by the
+  products M_v M_w of the sample means of two *distinct* vertices of the record
+  (independent, so E[M_v M_w] = E[Y]^2), and E[E[Y | y]^2] by the U-statistic above.
+  Averaging E[E[Y|y]^2] and E[Y] over passes first would add the variance of the
+  record's mean over time (its drift while radiance propagates, and the noise of the
+  records it reads) to the bias. A pass that updates a record from one vertex gives no
+  such estimate.
+
+and, for the MSE rule's look-ahead (Sec. 4.3), the *deferred* squared bias
+E[(f cos / p)^2 b^2(x)] of ending one vertex later: each sample's squared BSDF weight
+(luminance) times the squared bias of the record its hit x reads (0 where it reads
+none), averaged like E[Y]. It is a property of the record, so a path's decision to
+stop at y depends on its prefix only, never on the sample that continues it.
+
+History: a record's averages weigh a pass's observations n by n / min(count + n, H)
+with H = ``max_history`` (or the shorter window a pre-fill passes): the plain mean
+until H observations, then an exponential average over about the last H.
+:meth:`MomentGrid.restart_history` keeps what the records hold as one observation, so
+the long history starts from the pre-fill's equilibrium.
 
 Keys: the integer cell of a position (and the normal's bin) hashed twice, once for the
 slot and once as a checksum stored in the slot (0 = empty); linear probing over
@@ -68,6 +87,20 @@ def marginal_second_moment(sum_y: mi.Float, sum_y2: mi.Float, k: int) -> mi.Floa
     return (dr.square(sum_y) - sum_y2) / (k * (k - 1))
 
 
+def _weight(count: mi.Float, n: mi.Float, history: mi.Float | float) -> mi.Float:
+    """The weight of a pass's n observations in a running average over ``count``
+    (module doc, History); a pass with more observations than the history holds
+    replaces the average."""
+    return dr.minimum(n / dr.maximum(dr.minimum(count + n, history), 1.0), 1.0)
+
+
+def _running(average: mi.Float, count: mi.Float, value: mi.Float, n: mi.Float,
+             history: mi.Float | float) -> tuple[mi.Float, mi.Float]:
+    """(average, count) after folding in ``value`` with ``n`` observations."""
+    return (dr.lerp(average, value, _weight(count, n, history)),
+            dr.minimum(count + n, history))
+
+
 @dataclass
 class GridValue:
     """What a lookup returns; zeros where ``found`` is False."""
@@ -75,21 +108,24 @@ class GridValue:
     radiance: mi.Color3f
     local_variance: mi.Float
     squared_bias: mi.Float
+    deferred_bias: mi.Float   # E[(f cos / p)^2 b^2] at the next vertex (module doc)
     found: mi.Bool
 
 
 class MomentGrid:
     """The table and its records (see the module doc). ``keys`` holds each slot's
-    checksum; per slot: ``count`` (vertex estimates averaged so far, capped at
-    ``max_history``), ``mean`` (RGB, 3 per slot), ``second`` and ``marginal``
-    (luminance); ``vertices`` the representative points (position and normal, 6 floats
-    each, ``vertices_per_record`` per slot) with ``vertex_used``."""
+    checksum; per slot: ``count`` (vertex estimates averaged so far, capped at the
+    history), ``mean`` (RGB, 3 per slot), ``second``, ``marginal``, ``deferred`` and the
+    per-pass squared bias ``bias`` (luminance) with its own ``bias_count`` (passes give
+    it only from two vertices on); ``vertices`` the representative points (position and
+    normal, 6 floats each, ``vertices_per_record`` per slot) with ``vertex_used``."""
 
     #: The arrays a lookup reads (:meth:`lookup_arrays`, :meth:`bind_lookup`): what a frozen
     #: render that looks the grid up takes as its arguments (renderers.frozen).
-    LOOKUP_ARRAYS = ("keys", "count", "mean", "second", "marginal")
-    #: Every array of its state: the lookup's, and the representatives (:meth:`arrays`).
-    ARRAYS = (*LOOKUP_ARRAYS, "vertices", "vertex_used")
+    LOOKUP_ARRAYS = ("keys", "count", "mean", "second", "marginal", "bias", "deferred")
+    #: Every array of its state: the lookup's, the bias's count and the representatives
+    #: (:meth:`arrays`).
+    ARRAYS = (*LOOKUP_ARRAYS, "bias_count", "vertices", "vertex_used")
 
     def __init__(self, config: MomentGridConfig) -> None:
         self.config = config
@@ -99,6 +135,9 @@ class MomentGrid:
         self.mean = dr.zeros(mi.Float, 3 * size)
         self.second = dr.zeros(mi.Float, size)
         self.marginal = dr.zeros(mi.Float, size)
+        self.bias = dr.zeros(mi.Float, size)
+        self.bias_count = dr.zeros(mi.Float, size)
+        self.deferred = dr.zeros(mi.Float, size)
         self.vertices = dr.zeros(mi.Float, 6 * size * config.vertices_per_record)
         self.vertex_used = dr.zeros(mi.UInt32, size * config.vertices_per_record)
 
@@ -158,44 +197,66 @@ class MomentGrid:
         radiance = dr.gather(mi.Color3f, self.mean, slot, found)
         second = dr.gather(mi.Float, self.second, slot, found)
         marginal = dr.gather(mi.Float, self.marginal, slot, found)
-        mean_luminance = mi.luminance(radiance)
-        return GridValue(radiance,
-                         dr.maximum(second - marginal, 0.0),
-                         dr.maximum(marginal - dr.square(mean_luminance), 0.0),
-                         found)
+        bias = dr.gather(mi.Float, self.bias, slot, found)
+        deferred = dr.gather(mi.Float, self.deferred, slot, found)
+        # Noisy estimates of non-negative quantities, read as at least 0.
+        return GridValue(radiance, dr.maximum(second - marginal, 0.0),
+                         dr.maximum(bias, 0.0), dr.maximum(deferred, 0.0), found)
 
     # ---- writing -------------------------------------------------------------------
 
-    def accumulate(self, slot: mi.UInt32, samples: mi.Color3f, active: mi.Bool) -> None:
-        """Fold one update into the records: ``samples`` holds K =
-        ``samples_per_vertex`` independent estimates Y per vertex, vertex-major (vertex v
-        owns entries v K .. v K + K - 1); ``slot`` and ``active`` are per vertex.
+    def accumulate(self, slot: mi.UInt32, samples: mi.Color3f, active: mi.Bool,
+                   deferred: mi.Float | None = None,
+                   history: mi.Float | float | None = None) -> None:
+        """Fold one pass into the records: ``samples`` holds K = ``samples_per_vertex``
+        independent estimates Y per vertex, vertex-major (vertex v owns entries
+        v K .. v K + K - 1), ``deferred`` (same layout; None: zeros) each sample's
+        (f cos / p)^2 b^2 at its hit; ``slot`` and ``active`` are per vertex.
 
         Each vertex is one observation of the partition: its sample mean (for E[Y]), its
-        mean of Y^2 and its U-statistic for E[Y | y]^2. A record's running averages take
-        the frame's observations with weight min(1, n / min(count + n, max_history))."""
+        mean of Y^2, its U-statistic for E[Y | y]^2 and its mean deferred bias. A
+        record's running averages take the pass's n observations with weight
+        min(1, n / min(count + n, H)), H = ``history`` (default ``max_history``; a
+        Dr.Jit Float where a frozen pass takes it as an input). The squared bias is
+        formed from this pass's observations first (module doc), from two on."""
         k = self.config.samples_per_vertex
+        history = self.config.max_history if history is None else history
         luminance = mi.luminance(samples)
         sum_rgb = mi.Color3f(*(dr.block_sum(samples[c], k) for c in range(3)))
         sum_y = dr.block_sum(luminance, k)
         sum_y2 = dr.block_sum(dr.square(luminance), k)
         marginal = marginal_second_moment(sum_y, sum_y2, k)
+        vertex_mean = sum_y / k
 
         size = self.config.table_size
         n = dr.zeros(mi.Float, size)
         batch_mean = dr.zeros(mi.Float, 3 * size)
         batch_second = dr.zeros(mi.Float, size)
         batch_marginal = dr.zeros(mi.Float, size)
+        batch_deferred = dr.zeros(mi.Float, size)
+        # Sums of the vertices' means and of their squares: the products of distinct
+        # vertices' means sum to (sum M)^2 - sum M^2.
+        batch_y = dr.zeros(mi.Float, size)
+        batch_y_sq = dr.zeros(mi.Float, size)
         dr.scatter_add(n, 1.0, slot, active)
         dr.scatter_add(batch_mean, sum_rgb / k, slot, active)   # Color3f: 3 floats per slot
         dr.scatter_add(batch_second, sum_y2 / k, slot, active)
         dr.scatter_add(batch_marginal, marginal, slot, active)
+        dr.scatter_add(batch_y, vertex_mean, slot, active)
+        dr.scatter_add(batch_y_sq, dr.square(vertex_mean), slot, active)
+        if deferred is not None:
+            dr.scatter_add(batch_deferred, dr.block_sum(deferred, k) / k, slot, active)
 
-        total = self.count + n
-        # A frame with more observations than the history holds replaces the record.
-        weight = dr.minimum(n / dr.maximum(dr.minimum(total, self.config.max_history), 1.0),
-                            1.0)
         per_observation = dr.rcp(dr.maximum(n, 1.0))
+        # [VTT24] Sec. 4.4: E[E[Y|y]^2] - E[Y]^2 within this pass; E[Y]^2 from the
+        # n (n - 1) ordered pairs of distinct vertices.
+        pairs = n * (n - 1.0)
+        pass_bias = (batch_marginal * per_observation
+                     - (dr.square(batch_y) - batch_y_sq) * dr.rcp(dr.maximum(pairs, 1.0)))
+        self.bias, self.bias_count = _running(self.bias, self.bias_count, pass_bias,
+                                              dr.select(pairs > 0, n, 0.0), history)
+
+        weight = _weight(self.count, n, history)
         # New arrays, never a scatter into the grid's own: what a frozen pass returns.
         of_slot = dr.arange(mi.UInt32, 3 * size) // 3   # the mean's 3 floats per slot
         self.mean = dr.lerp(self.mean, batch_mean * dr.gather(mi.Float, per_observation,
@@ -203,8 +264,28 @@ class MomentGrid:
                             dr.gather(mi.Float, weight, of_slot))
         self.second = dr.lerp(self.second, batch_second * per_observation, weight)
         self.marginal = dr.lerp(self.marginal, batch_marginal * per_observation, weight)
-        self.count = dr.minimum(total, self.config.max_history)
-        dr.eval(self.mean, self.second, self.marginal, self.count)
+        self.deferred = dr.lerp(self.deferred, batch_deferred * per_observation, weight)
+        self.count = dr.minimum(self.count + n, history)
+        dr.eval(self.mean, self.second, self.marginal, self.deferred, self.count, self.bias,
+                self.bias_count)
+
+    def restart_history(self) -> None:
+        """Start the long history from what the records hold now (a pre-fill's
+        equilibrium): it stays in the averages as one observation, so no record is
+        empty, and the next passes outweigh it."""
+        self.count = dr.minimum(self.count, 1.0)
+        self.bias_count = dr.minimum(self.bias_count, 1.0)
+        dr.eval(self.count, self.bias_count)
+
+    def mean_luminance(self) -> float:
+        """The luminance of the records' radiance, averaged over the records that hold
+        an estimate (0 where none does): the pre-fill's convergence measure."""
+        held = self.count > 0
+        luminance = mi.luminance(dr.gather(mi.Color3f, self.mean,
+                                           dr.arange(mi.UInt32, self.config.table_size)))
+        total = dr.sum(dr.select(held, luminance, 0.0), axis=None)
+        records = dr.sum(dr.select(held, 1.0, 0.0), axis=None)
+        return float(total[0]) / max(float(records[0]), 1.0)
 
     def store_vertices(self, slot: mi.UInt32, position: mi.Point3f, normal: mi.Vector3f,
                        choice: mi.Float, active: mi.Bool) -> None:

@@ -83,16 +83,13 @@ class GridState(CacheState):
 
 class GridStatistics:
     """What a policy's :meth:`TerminationQuery.statistics` reads: the record looked up
-    at the current vertex (once, also for the cache term), or at another point."""
+    at the current vertex (once, also for the cache term)."""
 
-    def __init__(self, grid: MomentGrid, si: mi.SurfaceInteraction3f, value: GridValue,
-                 sampler: mi.Sampler) -> None:
-        self.grid, self.si, self.value, self.sampler = grid, si, value, sampler
+    def __init__(self, value: GridValue) -> None:
+        self.value = value
 
     def statistics(self, si: mi.SurfaceInteraction3f, active: mi.Bool) -> GridValue:
-        if si is self.si:
-            return self.value
-        return self.grid.lookup(si.p, si.sh_frame.n, self.sampler.next_2d(active), active)
+        return self.value
 
 
 @register
@@ -136,7 +133,7 @@ class GridCacheIntegrator(PathIntegrator):
 
         # ---- The policy's continuation weight ([VTT24] Sec. 4.2-4.3) ----
         query = TerminationQuery(vertex, state, usable,
-                                 cache=GridStatistics(self.grid, si, value, vertex.sampler))
+                                 cache=GridStatistics(value))
         alpha, state = self.policy.continuation(query)
         alpha = dr.select(usable, mi.Float(alpha), 1.0)
         ending = usable & state.pending          # the vertex a blended path ends at

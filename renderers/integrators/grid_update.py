@@ -48,14 +48,17 @@ class UpdateState:
         "hit_p": mi.Point3f,      # the vertex x the BSDF sample reached
         "hit_n": mi.Vector3f,
         "hit": mi.Bool,
+        "deferred": mi.Float,     # (f cos / p)^2 b^2(x): the deferred squared bias
     }
 
-    def __init__(self, emitted=None, found=None, hit_p=None, hit_n=None, hit=None):
+    def __init__(self, emitted=None, found=None, hit_p=None, hit_n=None, hit=None,
+                 deferred=None):
         self.emitted = emitted
         self.found = found
         self.hit_p = hit_p
         self.hit_n = hit_n
         self.hit = hit
+        self.deferred = deferred
 
 
 @register
@@ -68,7 +71,7 @@ class GridUpdateIntegrator(PathIntegrator):
 
     def init_state(self, ray: mi.Ray3f, sampler: mi.Sampler) -> Any:
         return UpdateState(mi.Spectrum(0), mi.Bool(False), dr.zeros(mi.Point3f),
-                           dr.zeros(mi.Vector3f), mi.Bool(False))
+                           dr.zeros(mi.Vector3f), mi.Bool(False), mi.Float(0.0))
 
     def after_emission(self, vertex: Vertex, state: Any) -> Any:
         first = vertex.active & (vertex.depth == 0)
@@ -83,6 +86,10 @@ class GridUpdateIntegrator(PathIntegrator):
         state.hit_p = dr.select(second, vertex.si.p, state.hit_p)
         state.hit_n = dr.select(second, n, state.hit_n)
         state.hit |= second
+        # [VTT24] Sec. 4.3: the squared bias of ending at x, weighted by the squared
+        # throughput y -> x (beta is f cos / p here: the path starts at y with beta 1).
+        state.deferred = dr.select(second, dr.square(mi.luminance(vertex.beta))
+                                   * value.squared_bias, state.deferred)
         terms = VertexTerms(L_add=dr.select(second, value.radiance, 0.0),
                             stop=vertex.depth >= 1, stop_indirect=mi.Bool(False),
                             skip_nee=vertex.depth >= 1)
@@ -90,23 +97,25 @@ class GridUpdateIntegrator(PathIntegrator):
 
 
 def update_grid(scene: mi.Scene, integrator: GridUpdateIntegrator, seed: int,
-                hit_store_probability: float) -> int:
+                hit_store_probability: float, history: float | None = None) -> int:
     """One pass over the grid's representatives; returns how many vertices it updated."""
     place = integrator.grid.places()
     vertices = dr.width(place)
     if vertices:   # an opaque count: one kernel for every count
         update_places(scene, integrator, place, dr.opaque(mi.UInt32, vertices), seed,
-                      hit_store_probability)
+                      hit_store_probability, history)
     return vertices
 
 
 def update_places(scene: mi.Scene, integrator: GridUpdateIntegrator, place: mi.UInt32,
                   vertices: mi.UInt32, seed: int | mi.UInt32,
-                  hit_store_probability: float) -> None:
+                  hit_store_probability: float,
+                  history: mi.Float | float | None = None) -> None:
     """The pass over the representatives at the first ``vertices`` entries of ``place``
     (:meth:`MomentGrid.places`); entries past them (padding, renderers.frozen.padded) are
     masked: their paths are not traced and they update and store nothing. Lane i of
-    the sampler is seeded by (seed, i) alone, so padding changes no vertex's samples."""
+    the sampler is seeded by (seed, i) alone, so padding changes no vertex's samples.
+    ``history``: the records' averaging window (:meth:`MomentGrid.accumulate`)."""
     grid = integrator.grid
     k = grid.config.samples_per_vertex
     slot, position, normal = grid.representatives(place)
@@ -124,7 +133,7 @@ def update_places(scene: mi.Scene, integrator: GridUpdateIntegrator, place: mi.U
     dr.eval(L, state, sampler)
     # A vertex the ray no longer finds (a moved or thin surface) gives no sample.
     found = dr.block_sum(dr.select(state.found, 1.0, 0.0), k) == k
-    grid.accumulate(slot, L - state.emitted, found)
+    grid.accumulate(slot, L - state.emitted, found, state.deferred, history)
     store = state.hit & (sampler.next_1d() < hit_store_probability)
     hit_slot, inserted = grid.find(state.hit_p, state.hit_n, store, insert=True)
     grid.store_vertices(hit_slot, state.hit_p, state.hit_n, sampler.next_1d(), inserted)

@@ -7,10 +7,10 @@ as a representative with the config's ``primary_store_probability``, then
 renderers/integrators/grid_update.py over every representative; frozen where freezing
 is on, :class:`Propagation`), then renders with
 the core asking the policy at every vertex (``render``; renderers/integrators/
-grid_cache.py). Static scenes are pre-filled for ``prefill_frames`` passes first
-(the paper fills and propagates "until it reaches an equilibrium state", Sec. 6):
-radiance propagates one bounce per pass, so the pre-fill bounds the bounces the
-cache holds.
+grid_cache.py). Static scenes are pre-filled to equilibrium first (the paper fills
+and propagates "until it reaches an equilibrium state", Sec. 6; :func:`prefill`): with
+a short history, until the grid's mean stops changing, then the long history restarts
+from there.
 
 The policies (``termination``, with their own ``termination_params``): `var-bound`
 (threshold t, absolute or relative), `mse-min` (sample target s, margin, clamp) and
@@ -88,7 +88,14 @@ class GridCacheParams(PTParams, TerminationChoice):
                                  description="cell edge / the scene's largest extent "
                                              "(unless cache.cell_size is given)")
     prefill_frames: int = Field(48, ge=0, le=100_000,
-                                description="propagation passes before the first frame")
+                                description="most pre-fill passes before the first frame")
+    prefill_history: int = Field(4, ge=1, le=1_000_000,
+                                 description="observations a record averages over in the "
+                                             "pre-fill (then cache.max_history)")
+    prefill_tolerance: float = Field(2e-3, gt=0.0, le=1.0,
+                                     description="the pre-fill ends when the grid's mean "
+                                                 "luminance changes by less than this, "
+                                                 "relative, per pass")
     hit_store_probability: float = Field(0.02, ge=0.0, le=1.0,
                                          description="chance that a propagation sample's "
                                                      "hit becomes a representative")
@@ -174,7 +181,9 @@ class Propagation:
         self._met: set[tuple[int, bool]] = set()
         self._last_seed: int | None = None
 
-    def __call__(self, seed: int) -> int:
+    def __call__(self, seed: int, history: int | None = None) -> int:
+        """One pass; ``history``: the records' averaging window (default the config's
+        ``max_history``)."""
         import drjit as dr
         import mitsuba as mi
 
@@ -182,6 +191,7 @@ class Propagation:
 
         self._last_seed = seed
         grid, scene = self.grid, self.scene
+        history = grid.config.max_history if history is None else history
         grid.bind(self._store(scene, grid.arrays(),
                               dr.opaque(mi.UInt32, derive_seed(seed, "store"))))
         place = grid.places()
@@ -198,7 +208,8 @@ class Propagation:
         state = self.updater.frame_state(scene)
         grid.bind(self._update(scene, grid.arrays(), state, padded(place, width),
                                dr.opaque(mi.UInt32, vertices),
-                               dr.opaque(mi.UInt32, derive_seed(seed, "update"))))
+                               dr.opaque(mi.UInt32, derive_seed(seed, "update")),
+                               dr.opaque(mi.Float, history)))
         self.updater.bind_frame_state(scene, state)   # a recording bound its own inputs
         if grown and before is not None:
             self.growth_recordings += self.recordings() - before
@@ -240,19 +251,56 @@ class Propagation:
         return self.grid.arrays()
 
     def _update_pass(self, scene: Any, arrays: dict[str, Any], state: dict[str, Any],
-                     place: Any, vertices: Any, seed: Any) -> dict[str, Any]:
+                     place: Any, vertices: Any, seed: Any, history: Any) -> dict[str, Any]:
         from renderers.integrators.grid_update import update_places
 
         self.grid.bind(arrays)
         self.updater.bind_frame_state(scene, state)
         update_places(scene, self.updater, place, vertices, seed,
-                      self.params.hit_store_probability)
+                      self.params.hit_store_probability, history)
         return self.grid.arrays()
 
 
 def propagate(scene: Any, updater: Any, grid: Any, params: GridCacheParams, seed: int) -> int:
     """One traced propagation pass (:class:`Propagation`); returns the vertices updated."""
     return Propagation(scene, updater, grid, params, frozen=False)(seed)
+
+
+#: Passes over which the pre-fill measures the change of the grid's mean (a slope over
+#: several passes, so that one pass's noise does not end it early).
+PREFILL_SPAN = 4
+
+
+def prefill_settled(means: list[float], tolerance: float) -> bool:
+    """Whether the grid's mean luminance changed by at most ``tolerance`` (relative) per
+    pass, on average over the last :data:`PREFILL_SPAN` passes."""
+    change = abs(means[-1] - means[-1 - PREFILL_SPAN]) / PREFILL_SPAN
+    return change <= tolerance * abs(means[-1])
+
+
+def prefill(propagation: Propagation, params: GridCacheParams,
+            seed_parts: tuple[Any, ...]) -> tuple[int, list[float]]:
+    """Pre-fill the grid to equilibrium ([VTT24] Sec. 6: "fill and propagate the radiance
+    cache in a preprocess until it reaches an equilibrium state").
+
+    Each pass propagates one bounce, so the records solve the rendering equation by a
+    fixed-point iteration. Averaged over every pass since the start (the long history)
+    a record's value lags that iteration, converging like t^-(1 - albedo); with a short
+    window (``prefill_history`` observations, an exponential average over the last
+    few passes) the iteration converges geometrically. Passes run until the grid's
+    mean luminance changes by less than ``prefill_tolerance`` (relative) per pass over
+    the last :data:`PREFILL_SPAN` passes (:func:`prefill_settled`), at most ``prefill_frames``; then the long history restarts from the records' values
+    (:meth:`MomentGrid.restart_history`), so the averages that follow are taken at
+    equilibrium. Returns (passes taken, the grid's mean luminance after each)."""
+    grid = propagation.grid
+    means: list[float] = []
+    for index in range(params.prefill_frames):
+        propagation(derive_seed(*seed_parts, "prefill", index), params.prefill_history)
+        means.append(grid.mean_luminance())
+        if len(means) > PREFILL_SPAN and prefill_settled(means, params.prefill_tolerance):
+            break
+    grid.restart_history()
+    return len(means), means
 
 
 def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], spp: int,
@@ -267,8 +315,7 @@ def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], 
     # Read by no timer: the history off, as in the wall frames (a frozen pass records
     # anew under the other flag; the frames' warm-up settles both).
     with kernel_history(False):
-        for index in range(params.prefill_frames):
-            propagate(derive_seed(*seed_parts, "prefill", index))
+        prefill_passes, _means = prefill(propagate, params, seed_parts)
     prefill_s = time.perf_counter() - start
     prefill_recordings = propagate.recordings()
     updated: list[int] = []
@@ -289,7 +336,8 @@ def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], 
     output.path_stats.update(rr_survival=params.rr_survival, rr_depth=params.rr_depth,
                              rr_mode=params.rr_mode)
     output.method_stats = {
-        "prefill_frames": params.prefill_frames, "prefill_s": prefill_s,
+        "prefill_frames": params.prefill_frames, "prefill_passes": prefill_passes,
+        "prefill_s": prefill_s,
         "rr_survival": params.rr_survival,
         "grid_records": grid.records(),
         "updated_vertices_per_frame": sum(updated) / max(len(updated), 1),
@@ -320,7 +368,7 @@ def diffuse_only(features: Any) -> tuple[bool, str]:
 
 METHOD = register(Method(
     "grid-cache", "hashed-grid radiance cache with three moments, variance-trading "
-    "termination", GridCacheParams, render, version=1, requires=diffuse_only, build=build,
+    "termination", GridCacheParams, render, version=2, requires=diffuse_only, build=build,
     label="Grid cache", unbiased=False,
     # In the method comparison and the Pareto plot: its default policy (var-bound,
     # absolute t = 0.1), with PT matched to its frame time.

@@ -305,10 +305,10 @@ def test_the_local_variance_is_the_within_vertex_variance(mi, filled, monkeypatc
     captured = {}
     original = MomentGrid.accumulate
 
-    def capture(self, slot, samples, active):
+    def capture(self, slot, samples, active, *rest):
         captured.update(slot=np.asarray(slot), samples=np.asarray(mi.luminance(samples)),
                         active=np.asarray(active))
-        return original(self, slot, samples, active)
+        return original(self, slot, samples, active, *rest)
 
     monkeypatch.setattr(MomentGrid, "accumulate", capture)
     update_grid(scene.scene, updater, 77, 0.0)
@@ -421,12 +421,12 @@ def test_the_frozen_propagation_pass_gives_the_traced_records(grid_states, monke
 
     original = grid_update.update_places
 
-    def unmasked(scene, integrator, place, _vertices, seed, probability):
+    def unmasked(scene, integrator, place, _vertices, seed, probability, history):
         import drjit as dr
         import mitsuba as mi
 
         original(scene, integrator, place, dr.opaque(mi.UInt32, len(place)), seed,
-                 probability)
+                 probability, history)
 
     monkeypatch.setattr(grid_update, "update_places", unmasked)
     planted = _passes(scene, states, params, True, [0])[0]

@@ -62,8 +62,8 @@ def test_the_first_pass_is_the_path_tracers_direct_light(mi, furnace):
     _, position, normal = grid.representatives()
     samples = []
     original = grid.accumulate
-    grid.accumulate = lambda slot, y, active: (samples.append(np.asarray(y)[0]),
-                                               original(slot, y, active))
+    grid.accumulate = lambda slot, y, active, *rest: (samples.append(np.asarray(y)[0]),
+                                                      original(slot, y, active, *rest))
     update_grid(furnace, integrator, seed=1, hit_store_probability=0.0)
     pass_samples = samples[0]
 
@@ -94,7 +94,8 @@ def test_passes_propagate_radiance_to_the_furnace_fixed_point(mi, furnace, monke
         lookup = grid_update.MomentGrid.lookup
         monkeypatch.setattr(grid_update.MomentGrid, "lookup",
                             lambda self, *a, **kw: type(lookup(self, *a, **kw))(
-                                mi.Color3f(0.0), mi.Float(0.0), mi.Float(0.0), mi.Bool(False)))
+                                mi.Color3f(0.0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0),
+                                mi.Bool(False)))
     grid, integrator = seeded_grid(mi, furnace, samples_per_vertex=8, max_history=2)
     means = []
     for frame in range(12):

@@ -74,11 +74,14 @@ def feed(mi, cache, means, sigmas, frames, rng, k):
 
 @pytest.mark.parametrize("planted", [False, True], ids=["u-statistic", "self-pairs"])
 def test_the_three_moments_estimate_variance_and_bias(mi, monkeypatch, planted):
-    """200 cells, each 4 points with E[Y|y] in {0.5, 1, 2, 4} and sd(Y|y) 2, K = 8, 30
-    updates: per cell the average local variance must estimate E[V[Y|y]] = 4 and the
-    squared bias Var(E[Y|y]) = 1.8125 (t-tests across the independent cells). Pairing
-    each sample with itself, (sum Y / K)^2, adds V/K = 0.5 to the marginal moment: the
-    variance comes out 3.5 and the bias 2.31, which the tests must reject."""
+    """200 cells, each 4 representatives drawn at random from points with E[Y|y] in
+    {0.5, 1, 2, 4} (equally likely) and sd(Y|y) 2, K = 8, 30 updates: per cell the
+    average local variance must estimate E[V[Y|y]] = 4 and the squared bias
+    Var(E[Y|y]) = 1.8125 (t-tests across the independent cells; the bias is formed
+    within each update from its distinct representatives, so it estimates the
+    variance over the cell's points, of which the 4 are a sample). Pairing each sample
+    with itself, (sum Y / K)^2, adds V/K = 0.5 to the marginal moment: the variance
+    comes out 3.5 and the bias 2.31, which the tests must reject."""
     import renderers.caches.moment_grid as moment_grid
 
     if planted:
@@ -86,9 +89,10 @@ def test_the_three_moments_estimate_variance_and_bias(mi, monkeypatch, planted):
                             lambda sum_y, sum_y2, k: dr.square(sum_y / k))
     k, cells = 8, 200
     cache = grid(samples_per_vertex=k)
-    means = np.tile([0.5, 1.0, 2.0, 4.0], (cells, 1))
+    rng = np.random.default_rng(7)
+    means = rng.choice([0.5, 1.0, 2.0, 4.0], size=(cells, 4))
     sigmas = np.full_like(means, 2.0)
-    slot = feed(mi, cache, means, sigmas, 30, np.random.default_rng(7), k)
+    slot = feed(mi, cache, means, sigmas, 30, rng, k)
     first = np.asarray(slot)[::4]
     value = cache.lookup(points(mi, (np.arange(cells)[:, None] + 0.5) * CELL
                                 * np.array([[1.0, 0.0, 0.0]])), up(mi, cells))

@@ -19,9 +19,11 @@ the next vertex). What a policy may read is a :class:`TerminationQuery`:
   declares, :meth:`TerminationPolicy.path_state`);
 * the N_c coupling of NIRC (``nc``: the number of cache samples at the first
   vertex and at later ones; the Balanced Termination Heuristic depends on it);
-* read access to the cache's statistics at the current vertex and, by tracing
-  the continuation ray, at the next one (:meth:`TerminationQuery.statistics`;
-  caches that keep no statistics raise).
+* read access to the cache's statistics at the current vertex
+  (:meth:`TerminationQuery.statistics`; caches that keep no statistics raise). A
+  decision reads the path's prefix only, never its continuation sample: a rule whose
+  decision to stop depends on the sample that would continue the path biases the
+  image ([VTT24] Sec. 3).
 
 Each policy is declared in its own module of this package with its own typed
 parameters (a pydantic model, ``Params``), the caches it serves (``serves``:
@@ -45,7 +47,15 @@ import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, create_model
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidatorFunctionWrapHandler,
+    create_model,
+    field_serializer,
+    field_validator,
+)
 
 from renderers.registry import Registry, discover
 
@@ -81,18 +91,12 @@ class TerminationQuery:
     usable: Any                   # mi.Bool: the cache may replace the next segment here
     cache: Any = None             # the integrator's cache (statistics, where it keeps any)
 
-    def statistics(self, at: Literal["current", "next"] = "current") -> Any:
-        """The cache's statistics at this vertex or at the next one (the hit of the
-        continuation ray, traced here: a look-ahead costs one ray)."""
+    def statistics(self) -> Any:
+        """The cache's statistics at this vertex."""
         reader = getattr(self.cache, "statistics", None)
         if reader is None:
             raise TypeError(f"{type(self.cache).__name__} keeps no statistics")
-        vertex = self.vertex
-        if at == "current":
-            return reader(vertex.si, self.usable)
-        ray = vertex.si.spawn_ray(vertex.si.to_world(vertex.bsdf_sample.wo))
-        hit = vertex.scene.ray_intersect(ray, self.usable)
-        return reader(hit, self.usable & hit.is_valid())
+        return reader(self.vertex.si, self.usable)
 
 
 class TerminationPolicy:
@@ -151,13 +155,31 @@ def get_policy(name: str) -> type[TerminationPolicy]:
                          f"known: {', '.join(POLICIES)}") from None
 
 
+def _whole_number_as_given(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
+    """A float parameter given a whole number keeps it (checked as the float it equals),
+    so that it dumps as given: parameters stored before the policies' models were typed
+    hold it so, and their keys hash it so."""
+    checked = handler(value)
+    return value if type(value) is int and checked == value else checked
+
+
+def _as_held(value: Any) -> Any:
+    return value
+
+
 @functools.cache
 def params_model(cls: type[TerminationPolicy]) -> type[BaseModel]:
     """``cls.Params`` tagged with the policy's name: its field ``policy`` (a name no
     policy may give a parameter of its own) holds ``cls.name``, so one object says which
-    policy it configures and how. The methods' parameter models hold one of these."""
+    policy it configures and how. The methods' parameter models hold one of these.
+    A whole number given for a float parameter is kept (:func:`_whole_number_as_given`)."""
+    floats = [name for name, field in cls.Params.model_fields.items() if field.annotation is float]
+    validators = ({"_whole_numbers_as_given": field_validator(*floats, mode="wrap")(
+                       _whole_number_as_given),
+                   "_dumped_as_held": field_serializer(*floats)(_as_held)} if floats else {})
     return create_model(f"{cls.__name__}Params", __base__=cls.Params,
-                        __module__=cls.__module__, policy=(Literal[cls.name], cls.name))
+                        __module__=cls.__module__, __validators__=validators,
+                        policy=(Literal[cls.name], cls.name))
 
 
 def policy_params(name: str, **values: Any) -> BaseModel:

@@ -13,9 +13,11 @@ S: the prefixed local variances of the vertices the path continued from (carried
 ``CacheState.termination_value``, as variance bounding carries it); P: this vertex's
 prefixed local variance (var_bound.py); g: the throughput's luminance; b^2: the
 record's average squared bias E[E[Y|y]^2] - E[Y]^2 (Sec. 4.4); d: the deferred squared
-bias E[(f / p)^2 b_next^2], estimated with the path's own continuation sample, whose
-f cos / p and the next vertex's record it reads (the look-ahead costs one ray). Where
-the continuation reaches no record (it escapes, or hits an unexplored cell) d is 0.
+bias E[(f cos / p)^2 b_next^2] of the record, "the average bias when terminating at the
+next vertex" (Sec. 4.3), which the propagation pass estimates from its own samples
+(renderers/caches/moment_grid.py). So the decision depends on the path's prefix only
+(Sec. 3): a look-ahead along the path's own continuation sample would make the
+decision to stop depend on the sample that continues, and bias the image.
 The margin and the clamp are the paper's heuristic factors, whose values and exact
 form it does not give; this project's reading is in the docs and in
 :func:`renderers.termination_model.mse_min_terminates`, the discrete model's own rule.
@@ -58,17 +60,13 @@ class MSEMinimizing(TerminationPolicy):
 
         from renderers.termination_model import mse_min_terminates
 
-        here = query.statistics("current")
-        ahead = query.statistics("next")
+        here = query.statistics()
         state, vertex = query.state, query.vertex
         local = prefixed_local_variance(query, here.local_variance)
-        deferred = dr.select(ahead.found,
-                             dr.square(mi.luminance(vertex.bsdf_weight)) * ahead.squared_bias,
-                             0.0)
         p = self.params
         stop = query.usable & mse_min_terminates(
             state.termination_value, local, dr.square(mi.luminance(vertex.beta)),
-            here.squared_bias, deferred, p.samples, p.margin, p.clamp)
+            here.squared_bias, here.deferred_bias, p.samples, p.margin, p.clamp)
         state.termination_value = dr.select(query.usable & ~stop,
                                             state.termination_value + local,
                                             state.termination_value)

@@ -17,9 +17,12 @@ S is carried in ``CacheState.termination_value``. The weight and the comparison 
 ``relative``: t is relative to the pixel's brightness; the absolute threshold is t
 times the squared luminance of the pixel estimated from the cache at the first hit
 (its emission plus the cache's reflected radiance, Sec. 5), kept along the path as
-this policy's own ``scale`` (:meth:`VarianceBounding.path_state`). Not counted: the
-variance of the first hit within the pixel (P_0 of Eq. 1, the pixel footprint), which
-no record estimates.
+this policy's own ``scale`` (:meth:`VarianceBounding.path_state`). Where the first hit
+has no record, the first vertex that has one estimates the pixel (the light gathered
+so far plus the throughput times its record), and the path is not bounded before it:
+a brightness of 0 would make the threshold 0 and end every such path at its next
+vertex. Not counted: the variance of the first hit within the pixel (P_0 of Eq. 1,
+the pixel footprint), which no record estimates.
 """
 
 from __future__ import annotations
@@ -58,10 +61,12 @@ class VarianceBounding(TerminationPolicy):
     blends = True
 
     def path_state(self) -> dict[str, Any]:
-        """``relative``: the squared pixel brightness, set at the first hit (Sec. 5)."""
+        """``relative``: the squared pixel brightness, set at the first vertex with a
+        record (Sec. 5), and whether it is set."""
         import mitsuba as mi
 
-        return {"scale": mi.Float(1.0)} if self.params.relative else {}
+        return ({"scale": mi.Float(1.0), "scaled": mi.Bool(False)} if self.params.relative
+                else {})
 
     def continuation(self, query: TerminationQuery) -> tuple[Any, Any]:
         import drjit as dr
@@ -69,23 +74,27 @@ class VarianceBounding(TerminationPolicy):
 
         from renderers.termination_model import variance_bound_weight
 
-        stats = query.statistics("current")
+        stats = query.statistics()
         state, vertex = query.state, query.vertex
+        bounded = query.usable
         if self.params.relative:
-            # Sec. 5: the pixel's brightness from the cache at the first hit.
-            first = vertex.active & (vertex.depth == 0)
-            brightness = mi.luminance(vertex.L + vertex.beta * stats.radiance)
+            # Sec. 5: the pixel's brightness from the cache at the first hit, or at the
+            # first vertex with a record where the first hit has none (module doc).
             own = state.policy_state
+            first = vertex.active & stats.found & ~own["scaled"]
+            brightness = mi.luminance(vertex.L + vertex.beta * stats.radiance)
             own["scale"] = dr.select(first, dr.square(brightness), own["scale"])
+            own["scaled"] |= first
+            bounded &= own["scaled"]
             threshold = self.params.threshold * own["scale"]
         else:
             threshold = mi.Float(self.params.threshold)
         local = prefixed_local_variance(query, stats.local_variance)
         alpha = variance_bound_weight(state.termination_value, local, threshold)
-        alpha = dr.select(query.usable, alpha, 1.0)
+        alpha = dr.select(bounded, alpha, 1.0)
         # What the path keeps of Eq. 2: the full P where it continues, alpha^2 P where
         # it blends (Eq. 5); nothing where it stops.
-        state.termination_value = dr.select(query.usable,
+        state.termination_value = dr.select(bounded,
                                             state.termination_value + dr.square(alpha) * local,
                                             state.termination_value)
         return alpha, state
