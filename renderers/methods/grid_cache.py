@@ -89,7 +89,7 @@ class GridCacheParams(PTParams, TerminationChoice):
                                              "(unless cache.cell_size is given)")
     prefill_frames: int = Field(48, ge=0, le=100_000,
                                 description="most pre-fill passes before the first frame")
-    prefill_history: int = Field(4, ge=1, le=1_000_000,
+    prefill_history: int = Field(2, ge=1, le=1_000_000,
                                  description="observations a record averages over in the "
                                              "pre-fill (then cache.max_history)")
     prefill_tolerance: float = Field(2e-3, gt=0.0, le=1.0,
