@@ -8,6 +8,7 @@ answered 202 like any accepted one. Each test plants the defect it guards agains
 
 from __future__ import annotations
 
+import os
 import shutil
 from datetime import UTC, datetime, timedelta
 from types import SimpleNamespace
@@ -167,3 +168,42 @@ def test_a_resubmitted_stalled_job_is_503_naming_it(api, monkeypatch):
     assert body["job"]["id"] == job["id"]
     assert body["job"]["stalled"] == "storage: database unavailable: locked"
     assert f"job {job['id']} of this spec is stalled" in body["detail"]
+
+
+def test_serve_takes_the_key_quota_from_its_flag_or_the_environment(tmp_path, monkeypatch):
+    """`serve --key-quota-bytes N` (0: no quota) over NIRC_BENCH_KEY_QUOTA_BYTES over
+    the 10 GiB default: the settings the app is built with."""
+    from typer.testing import CliRunner
+
+    from service.cli import app
+
+    built = []
+
+    class Dispatcher:
+        dashboard_url = None
+
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr("jobs.execution.dispatch.Dispatcher", Dispatcher)
+    monkeypatch.setattr("service.api.main.create_app",
+                        lambda settings, dispatcher: built.append(settings.key_quota_bytes))
+    monkeypatch.setattr("uvicorn.run", lambda *args, **kwargs: None)
+    umask = os.umask(0o022)         # serve sets the process's umask: put it back after
+    os.umask(umask)
+    try:
+        serve = ["serve", "--data-dir", str(tmp_path / "data")]
+        for args, env in (([], None), (["--key-quota-bytes", "5000"], "7"),
+                          (["--key-quota-bytes", "0"], None), ([], "0"), ([], "7")):
+            if env is None:
+                monkeypatch.delenv("NIRC_BENCH_KEY_QUOTA_BYTES", raising=False)
+            else:
+                monkeypatch.setenv("NIRC_BENCH_KEY_QUOTA_BYTES", env)
+            result = CliRunner().invoke(app, [*serve, *args])
+            assert result.exit_code == 0, result.output
+    finally:
+        os.umask(umask)
+    assert built == [10 * quota.GIB, 5000, None, None, 7]
