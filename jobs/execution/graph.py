@@ -5,8 +5,8 @@ needs what earlier steps stored: the reference; per method and seed a trained
 cache with its converged cache-at-v1 image (a snapshot); per method the eps
 points, which need every seed's snapshot; finally the sweep job itself, which
 adds the "NIRC equal time" series (it needs both methods' points), the plots
-and the sweep row, re-using everything else. For an N_c sweep the points only
-need the reference.
+and the sweep row, re-using everything else. For a parameter sweep (the N_c sweep
+among them) the points only need the reference.
 
 Each step is a *stage* job in the database (kind ``stage``, ``parent_id`` the
 sweep's job), so it is queued, isolated, retried and resumed like any job, and
@@ -44,9 +44,6 @@ def sweep_stages(spec: SweepSpec) -> list[Stage]:
                                {"stage": "parameter-point", "method": method, "value": value},
                                ("reference",))
                          for method in spec.methods for value in spec.parameter.values]
-    if spec.kind == "nc":
-        return stages + [Stage(f"nc {nc}", {"stage": "nc-point", "nc": nc}, ("reference",))
-                         for nc in spec.nc or []]
     for method in spec.methods:
         caches = [Stage(f"{method} cache {seed + 1}/{spec.seeds}",
                         {"stage": "snapshot", "method": method, "seed": seed}, ("reference",))

@@ -138,7 +138,7 @@ def stage_work(spec: SweepSpec, task: dict[str, Any]) -> WorkEstimate:
             estimate.add("points", points * pixels * spec.frames * spec.seeds,
                          points * point_bytes, frames=points * spec.frames * spec.seeds,
                          renders=points * spec.seeds)
-        case "nc-point":
+        case "parameter-point":
             estimate.add("points", pixels * (spec.train_frames + spec.frames) * spec.seeds,
                          point_bytes, frames=(spec.train_frames + spec.frames) * spec.seeds,
                          renders=spec.seeds)

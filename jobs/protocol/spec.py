@@ -214,21 +214,58 @@ def _with_nested(values: dict[str, Any], path: list[str], value: Any) -> dict[st
     return {**values, path[0]: _with_nested(inner, path[1:], value)}
 
 
-def _knob_method() -> str:
-    """The method an N_c sweep and the equal-time series vary the knob of."""
-    return next(name for name in SWEEP_METHODS if METHODS[name].sweep.knob_point is not None)
+def _knob_method(methods: list[str] | None = None) -> str:
+    """The method an N_c sweep over ``methods`` and the equal-time series vary the knob
+    of: the first of an equal-time pair of ``methods``, else the first sweep method
+    that has an equal-time series."""
+    pairs = equal_time_pairs(methods or [])
+    return pairs[0][0] if pairs else next(
+        name for name in SWEEP_METHODS if METHODS[name].sweep.equal_time_against is not None)
 
 
-def _knob_default(parameter: str) -> Any:
-    """The default of one parameter of the knob method (from its parameter model)."""
-    return METHODS[_knob_method()].params.model_fields[parameter].default
+def _stored_termination() -> Any:
+    """What sweep specs stored as their top-level ``termination`` while they had one: the
+    knob method's default policy (read by the N_c sweep alone)."""
+    return METHODS[_knob_method()].params.model_fields["termination"].default
+
+
+def _nc_sweep_form(data: dict[str, Any]) -> dict[str, Any]:
+    """A sweep given as an N_c sweep (``nc`` without eps and without a parameter; a
+    top-level ``termination``), as the CLI, REST clients and stored specs give it: a
+    parameter sweep over the knob of the knob method alone, the termination policy one
+    of its parameters where it is not the default (docs/protocol.md)."""
+    termination = data.pop("termination", None)
+    nc_sweep = (data.get("nc") is not None and data.get("eps") is None
+                and data.get("parameter") is None)
+    if nc_sweep:
+        methods = data.get("methods")
+        method = _knob_method(methods if isinstance(methods, list) else None)
+        values = data.pop("nc")
+        if isinstance(values, str):
+            values = parse_range(values, integer=True)
+        if isinstance(values, list) and all(type(v) is int for v in values):
+            values = sorted(set(values))
+        data = {**data, "methods": [method],
+                "parameter": {"name": METHODS[method].knob.name, "values": values}}
+    if termination is None or termination == _stored_termination():
+        return data
+    if not nc_sweep:
+        raise ValueError("termination at the top level is the N_c sweep's (nc without eps); "
+                         "give a method's termination policy as params.termination")
+    params = data.get("params")
+    params = dict(params) if isinstance(params, dict) else {}
+    if params.get("termination", termination) != termination:
+        raise ValueError("termination is given twice (top level and params.termination) "
+                         "with different policies")
+    return {**data, "params": {**params, "termination": termination}}
 
 
 class SweepSpec(BaseModel):
-    """A sweep: the adaptive equal-bias protocol over eps (NIRC paper Sec. 6.3), a
-    sweep over N_c of biased NIRC, or a sweep over any declared parameter of any method
-    (``parameter``). Expanded by ``jobs.sweeps.sweep`` into render jobs that share the
-    reference (and, for the first, the trained caches)."""
+    """A sweep: the adaptive equal-bias protocol over eps (NIRC paper Sec. 6.3), or a
+    sweep over any declared parameter of any method (``parameter``), of which the N_c
+    sweep of biased NIRC is one (given by ``nc`` alone, :func:`_nc_sweep_form`).
+    Expanded by ``jobs.sweeps.sweep`` into render jobs that share the reference (and,
+    for the first, the trained caches)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
@@ -239,11 +276,13 @@ class SweepSpec(BaseModel):
                           "list, or the CLI's text forms '0.05:1.0' (step = start), "
                           "'a:b:step', 'a,b,c'")
     nc: list[int] | None = Field(
-        None, description="without eps: the N_c values of a biased-NIRC sweep; with eps: the "
-                          "N_c candidates of the 'NIRC equal time' series; a list or text "
-                          "like '1:32' or '1,2,4'")
+        None, description="with eps: the N_c candidates of the 'NIRC equal time' series; "
+                          "alone: an N_c sweep of biased NIRC (a parameter sweep over nc); "
+                          "a list or text like '1:32' or '1,2,4'")
     parameter: ParameterSweep | None = Field(
-        None, description="without eps and nc: the parameter and values of a parameter sweep")
+        None, description="without eps and nc: the parameter and values of a parameter "
+                          "sweep (a method's knob, NIRC's nc, is set as its equal-time "
+                          "calibration sets it: N_c at the first vertex)")
     methods: list[str] = Field(default_factory=lambda: list(SWEEP_METHODS),
                                description="methods of the sweep: those with a sweep role for "
                                            "eps and N_c sweeps, any for a parameter sweep")
@@ -275,17 +314,17 @@ class SweepSpec(BaseModel):
     allow_loaded: bool = Field(False, description="equal time: use calibration probes timed "
                                                   "on a loaded machine (default: left out "
                                                   "and taken again)")
-    termination: str = Field(default_factory=lambda: _knob_default("termination"),
-                             min_length=1,
-                             description="N_c sweep: the termination policy of the method "
-                                         "whose N_c it varies (one its parameters accept; "
-                                         "default: that method's own)")
     metric_eps: float = Field(0.01, gt=0.0, le=1.0, description="epsilon of MRSE / rBias2")
     params: dict[str, Any] = Field(default_factory=dict,
                                    description="extra parameters for every method")
     reference: ReferenceSpec = Field(default_factory=ReferenceSpec)
 
     _check_params = field_validator("params")(finite_params)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _nc_sweep(cls, data: Any) -> Any:
+        return _nc_sweep_form(dict(data)) if isinstance(data, dict) else data
 
     @field_validator("eps", "nc", mode="before")
     @classmethod
@@ -341,21 +380,18 @@ class SweepSpec(BaseModel):
             raise ValueError("set max_depth on the sweep, not in params")
         if self.max_depth == 0:
             raise ValueError("max_depth must be -1 (unbounded) or >= 1")
-        if self.kind == "nc":
-            method = self.knob_method
-            for nc in self.nc or []:
-                try:
-                    parse_params(method, METHODS[method].sweep.knob_point(nc, self.termination))
-                except MethodError as err:
-                    raise ValueError(str(err)) from None
         return self
 
     @model_serializer(mode="wrap")
-    def _omit_no_parameter(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        # Specs from before parameter sweeps dump, store and hash as they did.
+    def _stored_form(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # Specs from before parameter sweeps dump, store and hash as they did, and so do
+        # all but N_c sweeps from before the top-level termination was dropped: it held the
+        # knob method's default wherever the N_c sweep's was not given.
         data = handler(self)
         if data.get("parameter") is None:
             data.pop("parameter", None)
+        if not self.is_nc_sweep:
+            data["termination"] = _stored_termination()
         return data
 
     def _check_parameter(self, sweep: ParameterSweep) -> None:
@@ -375,26 +411,38 @@ class SweepSpec(BaseModel):
 
     def parameter_point(self, method: str, value: ParameterValue) -> Any:
         """The validated parameters of ``method`` at one value of a parameter sweep: the
-        sweep's parameters and depth, the value, and ``train_frames`` pre-training
-        frames where the method trains a cache."""
+        sweep's parameters and depth, the value (a knob's by the knob), and
+        ``train_frames`` pre-training frames where the method trains a cache."""
         assert self.parameter is not None
-        values = _with_nested({**self.params, "max_depth": self.max_depth},
-                              self.parameter.name.split("."), value)
+        shared = {**self.params, "max_depth": self.max_depth}
+        knob = METHODS[method].knob
+        if knob is not None and knob.apply is not None and knob.name == self.parameter.name:
+            # Set as the equal-time calibration sets the knob (NIRC: N_c at v1).
+            if not knob.usable(shared):
+                raise MethodError(f"{method}'s {knob.name} is swept as its knob, which needs "
+                                  f"{knob.requirement}")
+            values = knob.apply(shared, value)  # type: ignore[arg-type]
+        else:
+            values = _with_nested(shared, self.parameter.name.split("."), value)
         if "pretrain_frames" in METHODS[method].params.model_fields:
             values.setdefault("pretrain_frames", self.train_frames)
         return parse_params(method, values)
 
     @property
     def kind(self) -> str:
-        if self.parameter is not None:
-            return "parameter"
-        return "eps" if self.eps is not None else "nc"
+        return "parameter" if self.parameter is not None else "eps"
+
+    @property
+    def is_nc_sweep(self) -> bool:
+        """A sweep over the knob of the knob method alone (the N_c sweep)."""
+        method = _knob_method()
+        return (self.parameter is not None and self.methods == [method]
+                and self.parameter.name == METHODS[method].knob.name)
 
     @property
     def knob_method(self) -> str:
-        """The method whose knob an N_c sweep varies (and the equal-time series calibrates)."""
-        pairs = equal_time_pairs(self.methods)
-        return pairs[0][0] if pairs else _knob_method()
+        """The method whose knob the equal-time series calibrates."""
+        return _knob_method(self.methods)
 
     def nc_candidates(self) -> list[int]:
         knob = METHODS[self.knob_method].knob

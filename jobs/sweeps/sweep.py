@@ -1,4 +1,5 @@
-"""Sweeps: the adaptive equal-bias protocol (NIRC paper Sec. 6.3, Fig. 13) and N_c sweeps.
+"""Sweeps: the adaptive equal-bias protocol (NIRC paper Sec. 6.3, Fig. 13) and parameter
+sweeps (the N_c sweep of biased NIRC among them).
 
 Adaptive equal-bias sweep, per caching method (NIRC, NRC) and seed k:
 
@@ -254,7 +255,7 @@ class _Sweep:
         self._bias: dict[str, np.ndarray] = {}  # relative-bias maps by snapshot key
         self._params: dict[tuple[str, int | None], Any] = {}  # validated, by (method, N_c)
         # One bar across the whole sweep: caches, then points (reused ones count too).
-        n_points = (len(spec.eps or spec.nc or []) if spec.parameter is None
+        n_points = (len(spec.eps or []) if spec.parameter is None
                     else len(spec.parameter.values) * len(spec.methods))
         equal_time_series = len(equal_time_pairs(spec.methods)) if spec.equal_time else 0
         self.units_total = (len(spec.methods) * (spec.seeds + n_points)
@@ -511,28 +512,11 @@ class _Sweep:
         self.report("calibration", self.work["calibrations"] + 1, len(self.spec.eps))
         return seconds
 
-    def nc_point(self, nc: int) -> Any:
-        """The stored run of the knob method (biased NIRC) with ``nc`` (N_c sweep),
-        rendering it if missing."""
-        method = self.spec.knob_method
-        params = parse_params(method, {
-            **self.spec.params, "max_depth": self.spec.max_depth,
-            **get_method(method).sweep.knob_point(nc, self.spec.termination),
-            "pretrain_frames": self.spec.train_frames})
-        return self._stored_or_rendered("sweep-nc-point", self.point_job(method, params))
-
-
     def parameter_point(self, method: str, value: Any) -> Any:
         """The stored run of ``method`` at one value of a parameter sweep, rendering it
         if missing (every value with the same seeds and the sweep's reference)."""
-        return self._stored_or_rendered(
-            "sweep-parameter-point", self.point_job(method, self.spec.parameter_point(method, value)))
-
-    def _stored_or_rendered(self, kind: str, job: RenderJob) -> Any:
-        """The stored run of a point ``job`` (keyed by ``kind``, its spec, the device, the
-        reference and the versions), rendering and storing it if missing."""
-        key = digest(kind, self.by_content(job.spec), self.device_key,
-                     self.prepared.reference.key, job.spec.versions(), length=32)
+        job = self.point_job(method, self.spec.parameter_point(method, value))
+        key = self.parameter_point_key(job)
         run = self.store.find_run_by_idempotency_key(key)
         if run is not None:
             self.work["points_reused"] += 1
@@ -541,6 +525,14 @@ class _Sweep:
                           progress=self.report)
         self.work["points_rendered"] += 1
         return self.store.get_run(summary.run_id)
+
+    def parameter_point_key(self, job: RenderJob) -> str:
+        """The stored key of a parameter sweep's point ``job``: its spec, the device, the
+        reference and the versions. An N_c sweep's points keep the keys they had as a
+        study of their own (the same parameters), so they are found again."""
+        kind = "sweep-nc-point" if self.spec.is_nc_sweep else "sweep-parameter-point"
+        return digest(kind, self.by_content(job.spec), self.device_key,
+                      self.prepared.reference.key, job.spec.versions(), length=32)
 
 
 def matching_rbias2(run: Any) -> float | None:
@@ -644,7 +636,7 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
                             spec=spec.model_dump(mode="json"), result={},
                             device_key=sweep.device_key, **spec.versions())
     try:
-        rows = {"eps": _eps_rows, "nc": _nc_rows, "parameter": _parameter_rows}[spec.kind](sweep)
+        rows = {"eps": _eps_rows, "parameter": _parameter_rows}[spec.kind](sweep)
         result = SweepResult(
             sweep_id=row.id, key=key, kind=spec.kind, scene=sweep.prepared.scene.name,
             parameter=spec.parameter.name if spec.parameter else None,
@@ -697,17 +689,6 @@ def unpaired_equal_time(methods: list[str]) -> list[Skipped]:
             and (against := get_method(method).sweep.equal_time_against)]
 
 
-def _nc_rows(sweep: _Sweep) -> list[SweepRow]:
-    """A sweep over N_c of biased NIRC (online training, ``train_frames`` pre-training)."""
-    rows = []
-    for nc in sweep.spec.nc or []:
-        run = sweep.nc_point(nc)
-        sweep.advance()
-        rows.append(point_row(f"{get_method(sweep.spec.knob_method).sweep.knob_label} "
-                              f"{sweep.spec.termination.upper()}", None, run))
-    return rows
-
-
 def _parameter_rows(sweep: _Sweep) -> list[SweepRow]:
     """A sweep over one parameter: a series per method, a row per value (online training,
     ``train_frames`` pre-training where the method trains a cache)."""
@@ -734,8 +715,6 @@ def run_stage(spec: SweepSpec, task: dict[str, Any], store: Store, settings: Set
             sweep.snapshot(task["method"], int(task["seed"]))
         case "series":
             sweep.series(task["method"])
-        case "nc-point":
-            sweep.nc_point(int(task["nc"]))
         case "parameter-point":
             sweep.parameter_point(task["method"], task["value"])
         case other:

@@ -121,17 +121,12 @@ class SweepRole:
     equal-bias point on top of those and the shared ones; ``knob_value`` is None
     except for the equal-time series. ``equal_time_against``: the method whose frame time
     this method's knob is calibrated to (the series ``<name>-equal-time``).
-    ``knob_point(value, termination)``: the parameters of a point of a sweep over
-    the knob (the N_c sweep), for the one method that has it; ``knob_label``
-    names that series.
     """
 
     label: str
     equal_bias: dict[str, Any]
     point: Callable[[int | None], dict[str, Any]] = lambda _value: {}
     equal_time_against: str | None = None
-    knob_point: Callable[[int, str], dict[str, Any]] | None = None
-    knob_label: str = ""
 
 
 @dataclass(frozen=True)

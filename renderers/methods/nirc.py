@@ -111,11 +111,7 @@ METHOD = register(Method(
     knob=Knob("nc", NC_CANDIDATES, apply=with_nc_at_v1, usable=_biased,
               requirement="biased nirc"),
     sweep=SweepRole("NIRC", ADAPTIVE_EQUAL_BIAS, point=lambda nc_v1: {"estimator": "biased", "nc": [nc_v1 or 1, 1]},
-                    equal_time_against="nrc",
-                    knob_point=lambda nc, termination: {"estimator": "biased",
-                                                        "termination": termination,
-                                                        "nc": [nc]},
-                    knob_label="NIRC biased"),
+                    equal_time_against="nrc"),
     build=build, requires=has_surface, label="NIRC",
     stage_sizes=training_stage_sizes, scale_floors=scale_training_floors,
     comparison=(

@@ -9,6 +9,11 @@ the restir values are those of `restir-di` version 3 (pairwise MIS). The metric
 version is part of every key but the parameters' (references included): GOLDEN holds
 those of metric version 3 (a cache method's rBias² the mean over its caches), and at
 version 2 the code still gives the values from before.
+
+The N_c sweep's spec keys are the exception: since it became a parameter sweep over
+NIRC's ``nc`` (NIRC alone, the termination policy one of its parameters) its spec dumps
+otherwise, and the store migration 0011 re-keys the stored ones (its test). Its points
+keep their keys (``N_C_POINT_KEYS``, computed by the code before).
 """
 
 from __future__ import annotations
@@ -74,9 +79,9 @@ GOLDEN_METRIC_VERSION_2 = {
     "idempotency sweep eps":
         "a9d3b106cc60381207a6797a771313c0786db9873bf2ad3bec71b3adc861922e",
     "sweep-spec nc":
-        "03297169cea3fb3e36535d881aaaa573db6fe24075f8d901923f250d3a382281",
+        "94f48b70f21bafe3d0bdaca75fd48baebb84041ce7666e11b56e013d602c0d63",
     "idempotency sweep nc":
-        "b07bf1d1f859e3b1217a048090120adb33bc0b910df2c5a650d2597ec188a171",
+        "e595ee4fde2e399c80f3a4f450bf8d1338ca6395634fd264cb22fd5b95bcc899",
     "params nirc bth":
         "39c614cd6df7d3c6db1c1da2de621cce85540fb8458c96b2d2fe29b5109a8e2a",
     "params nirc sph":
@@ -120,9 +125,9 @@ GOLDEN = GOLDEN_METRIC_VERSION_2 | {
     "idempotency sweep eps":
         "4751e7efbade1f4c2806a4d48a0cc60e34e7b45c5a4c1c57367267ab85a0c37c",
     "sweep-spec nc":
-        "f8c06a10deecc436db4b7559cdf6815ffe9e91a308f438c9703baf3bf8fe5d16",
+        "49e45331bc0e76cbab9194348376f4e5ed333d3b399b6048293036da0e713416",
     "idempotency sweep nc":
-        "7eb100b9d6dee1d0cd56e3267b09a1107f3b495ea0c18d9ff18b2a9c98295712",
+        "bb6940fa7a59ad2925ae89828a6d89323057660fc80705a63ed64367d77b3dbb",
 }
 
 
@@ -223,3 +228,73 @@ def test_the_keys_before_the_metric_version_bump_are_unchanged(monkeypatch):
     for module in (references, spec, versions):
         monkeypatch.setattr(module, "METRIC_VERSION", 2)
     assert _keys() == GOLDEN_METRIC_VERSION_2
+
+
+#: The keys of N_c sweep points, computed by the code before the N_c sweep was a
+#: parameter sweep (its own study, with a top-level termination): by (sweep, N_c).
+N_C_SWEEPS = {"sph": SWEEPS["nc"], "default": SweepSpec(scene="cornell-box", nc=[3, 8],
+                                                          train_frames=7)}
+N_C_POINT_KEYS = {("sph", 1): "d3f7211f7832043ddecebb990e120dae",
+                  ("sph", 2): "e76645835726dfd85140de55892987c9",
+                  ("default", 3): "7793cf2ea19b503641e9089eb6fcbf57",
+                  ("default", 8): "fb39d4caf7cb0527a88f8434f2e627fd"}
+
+
+def _nc_point_keys() -> dict[tuple[str, int], str]:
+    from jobs.sweeps.sweep import _Sweep
+
+    keys = {}
+    for name, spec in N_C_SWEEPS.items():
+        sweep = object.__new__(_Sweep)   # its keys only: no reference is prepared
+        sweep.spec, sweep.base, sweep.device_key = spec, spec.base_render_spec(), "device"
+        sweep.prepared = SimpleNamespace(scene=SimpleNamespace(fingerprint="fingerprint"),
+                                         reference=SimpleNamespace(key="refkey"))
+        for nc in spec.parameter.values:
+            job = sweep.point_job("nirc", spec.parameter_point("nirc", nc))
+            keys[(name, nc)] = sweep.parameter_point_key(job)
+    return keys
+
+
+def test_an_nc_sweep_finds_its_points_under_their_keys_from_before(monkeypatch):
+    assert _nc_point_keys() == N_C_POINT_KEYS
+    # Planted: keyed as any other parameter sweep's points, none is found.
+    monkeypatch.setattr(SweepSpec, "is_nc_sweep", property(lambda self: False))
+    assert not set(_nc_point_keys().values()) & set(N_C_POINT_KEYS.values())
+
+
+def test_the_nc_sweep_form_is_a_parameter_sweep_over_nc():
+    from jobs.protocol.spec import ParameterSweep
+
+    given = SweepSpec(scene="cornell-box", methods=["nirc"], params={"sph_c": 0.02,
+                                                                       "termination": "sph"},
+                      parameter=ParameterSweep(name="nc", values=[1, 2]))
+    assert SWEEPS["nc"] == given and SWEEPS["nc"].is_nc_sweep
+    assert SweepSpec.model_validate(given.model_dump(mode="json")) == given
+    # The stored form of every other sweep keeps the default policy it held (its key).
+    assert SWEEPS["eps"].model_dump(mode="json")["termination"] == \
+        parse_params("nirc", {}).termination
+    assert "termination" not in given.model_dump(mode="json")
+
+
+#: A grid-cache policy's parameters as stored by the code before the policies' models were
+#: typed: a whole number given for a float parameter as given.
+GOLDEN_POLICY_PARAMS = {
+    '{"threshold": 1}': "913d2ae0d9612304015b621350dff41bfbdb61605726da1bfde66bf563144fda",
+    '{"threshold": 2, "relative": false}':
+        "8fb3bd5e5e23ba9c72ef83d52081313907b0e12a4906214073c68b72519ade8a",
+}
+
+
+def test_a_whole_number_for_a_float_policy_parameter_dumps_as_given():
+    import json
+
+    def key(given: dict) -> str:
+        params = parse_params("grid-cache", {"termination": "var-bound",
+                                             "termination_params": given})
+        return digest(params.model_dump(mode="json")["termination_params"])
+
+    assert {text: key(json.loads(text)) for text in GOLDEN_POLICY_PARAMS} == GOLDEN_POLICY_PARAMS
+    # Planted: dumped as the float it equals, the key is another.
+    assert key({"threshold": 1.0}) != GOLDEN_POLICY_PARAMS['{"threshold": 1}']
+    with pytest.raises(MethodError, match="threshold"):   # still checked as a float
+        key({"threshold": -1})

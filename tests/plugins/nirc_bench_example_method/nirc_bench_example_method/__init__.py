@@ -29,5 +29,4 @@ DIRECT = Method("example-direct", "direct lighting only (an example method from 
 
 SWEPT = replace(nirc.METHOD, name="example-nirc", label="ex-NIRC", comparison=(),
                 description="NIRC under another name (an example method from a package)",
-                sweep=replace(nirc.METHOD.sweep, label="example NIRC", equal_time_against=None,
-                              knob_point=None))
+                sweep=replace(nirc.METHOD.sweep, label="example NIRC", equal_time_against=None))
