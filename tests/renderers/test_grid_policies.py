@@ -17,6 +17,11 @@ area-spread at c = 0.01, 100, 1e6: 1.85, 4.09, 5.20.
 
 Planted: a policy whose parameter never reaches its decision (mse-min reading s = 1
 whatever it is given) renders the same length, 1.10, at every target and is caught.
+
+Also here: mse-min's decisions depend on the path's prefix only (the same paths with
+another continuation sample stop at the same vertices; a look-ahead along the path's
+own continuation, planted, does not), and relative var-bound takes the pixel's
+brightness from the first vertex with a record where the first hit has none.
 """
 
 from __future__ import annotations
@@ -66,3 +71,136 @@ def test_a_sample_target_that_does_not_reach_the_decision_is_caught(mi, filled, 
     monkeypatch.setattr(termination_model, "mse_min_terminates", ignoring_samples)
     with pytest.raises(AssertionError):
         test_mse_min_paths_get_longer_as_the_sample_target_grows(mi, filled)
+
+
+# ---- mse-min decides on the path's prefix ------------------------------------------
+
+class _AskedTwice:
+    """Asks ``policy`` at every vertex twice: with the vertex's own continuation sample
+    and with another one (the direction mirrored about the normal's axis, the weight
+    scaled by 0.3), the path state as it came each time; counts in ``differ`` the lanes whose
+    two decisions differ, and answers the first."""
+
+    def __init__(self, policy) -> None:
+        import drjit as dr
+        import mitsuba as mi
+
+        self.policy = policy
+        self.differ = dr.zeros(mi.UInt32, 1)
+
+    def path_state(self) -> dict:
+        return self.policy.path_state()
+
+    def continuation(self, query):
+        import dataclasses
+
+        import drjit as dr
+        import mitsuba as mi
+
+        vertex, before = query.vertex, query.state.termination_value
+        alpha, state = self.policy.continuation(query)
+        after, state.termination_value = state.termination_value, before
+        sample = mi.BSDFSample3f(vertex.bsdf_sample)
+        sample.wo = mi.Vector3f(-sample.wo.x, -sample.wo.y, sample.wo.z)
+        other = dataclasses.replace(vertex, bsdf_sample=sample,
+                                    bsdf_weight=0.3 * vertex.bsdf_weight)
+        other_alpha, state = self.policy.continuation(
+            dataclasses.replace(query, vertex=other, state=state))
+        state.termination_value = after
+        dr.scatter_add(self.differ, mi.UInt32(1), mi.UInt32(0),
+                       query.usable & (alpha != other_alpha))
+        return alpha, state
+
+
+def _differing_decisions(mi, filled) -> int:  # noqa: F811
+    asked = _AskedTwice(_policy("mse-min", {"samples": 100.0}))
+    _frames(mi, filled, asked, 4)
+    print("differing decisions", int(asked.differ[0]))
+    return int(asked.differ[0])
+
+
+def test_mse_min_decides_on_the_prefix_only(mi, filled, monkeypatch):  # noqa: F811
+    """[VTT24] Sec. 3 and 4.3: the decision to stop at a vertex depends on the path's
+    prefix, and the deferred squared bias is the record's average over next vertices,
+    so the same path with another continuation sample is stopped at the same vertices.
+    Planted: the deferred bias read at the vertex the path's own continuation reaches
+    (a look-ahead ray, lum(f cos / p)^2 b^2 there), whose decision moves with the
+    sample that continues the path and biases the image."""
+    assert _differing_decisions(mi, filled) == 0
+
+    import dataclasses
+
+    import drjit as dr
+
+    from renderers.integrators.termination import TerminationQuery
+
+    grid = filled[4]
+    real = TerminationQuery.statistics
+
+    def looking_ahead(self):
+        vertex = self.vertex
+        ray = vertex.si.spawn_ray(vertex.si.to_world(vertex.bsdf_sample.wo))
+        hit = vertex.scene.ray_intersect(ray, self.usable)
+        ahead = grid.lookup(hit.p, hit.sh_frame.n, None, self.usable & hit.is_valid())
+        return dataclasses.replace(real(self), deferred_bias=dr.square(
+            mi.luminance(vertex.bsdf_weight)) * ahead.squared_bias)
+
+    monkeypatch.setattr(TerminationQuery, "statistics", looking_ahead)
+    assert _differing_decisions(mi, filled) > 0
+
+
+# ---- relative var-bound where the first hit has no record -----------------------------
+
+def _hiding_first_records(monkeypatch) -> None:
+    """The render's lookups find no record at the first hit (as in a scene whose visible
+    cells are not explored yet)."""
+    import drjit as dr
+
+    from renderers.caches.moment_grid import GridValue
+    from renderers.integrators.grid_cache import GridCacheIntegrator
+
+    real = GridCacheIntegrator.vertex_terms
+
+    def hiding(self, vertex, state):
+        grid, lookup = self.grid, type(self.grid).lookup
+        kept = vertex.depth > 0
+
+        def later_only(*args):
+            value = lookup(grid, *args)
+            return GridValue(dr.select(kept, value.radiance, 0.0), value.local_variance,
+                             value.squared_bias, value.deferred_bias, value.found & kept)
+
+        grid.lookup = later_only
+        try:
+            return real(self, vertex, state)
+        finally:
+            del grid.lookup
+
+    monkeypatch.setattr(GridCacheIntegrator, "vertex_terms", hiding)
+
+
+def _relative_length(mi, filled, policy=None) -> float:  # noqa: F811
+    policy = policy or _policy("var-bound", {"threshold": 1.0, "relative": True})
+    return _frames(mi, filled, policy, FRAMES)[1]
+
+
+def test_relative_var_bound_scales_by_the_first_record_found(mi, filled,  # noqa: F811
+                                                             monkeypatch):
+    """Where the first hit has no record, the first vertex with one estimates the pixel's
+    brightness and the bound starts there: paths are no shorter than where the first
+    hit has its record (measured 16x16, t = 1: 4.86 vertices against 3.98). Planted:
+    the brightness of a first hit without a record taken as its emission, 0 (the
+    threshold 0): paths end at their second vertex (1.83, the light's pixels
+    included)."""
+    recorded = _relative_length(mi, filled)
+    _hiding_first_records(monkeypatch)
+    hidden = _relative_length(mi, filled)
+    print("relative var-bound lengths", recorded, hidden)
+    assert hidden >= 0.95 * recorded
+
+    dark = _policy("var-bound", {"threshold": 1.0, "relative": True})
+    monkeypatch.setattr(dark, "path_state", lambda: {"scale": mi.Float(0.0),
+                                                     "scaled": mi.Bool(True)})
+    planted = _relative_length(mi, filled, dark)
+    print("planted", planted)
+    assert planted < 0.95 * recorded

@@ -5,6 +5,7 @@ These are the oracle for renderer-side termination rules."""
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 
@@ -120,18 +121,45 @@ def test_mse_minimization_with_exact_caches_terminates_at_once():
         assert optimal_frontier(tree, samples)[1].mse(samples) < 1e-24
 
 
-def test_mse_minimization_against_the_exhaustive_optimum():
-    """Fig. 5 and Sec. 7: the greedy rule is never better than the exhaustive optimum and
-    is not optimal in general; the measured differences are in docs/variance_trading.md."""
+TARGETS = (1, 10, 100, 1000, 10000)
+
+
+@functools.cache
+def _optimal_mse(samples: float) -> float:
+    """The exhaustive optimum's MSE on Fig. 5's tree at ``samples``."""
+    return optimal_frontier(binary_tree(4, biases=BIASES), samples)[1].mse(samples)
+
+
+def _fig5_problems(rule_for) -> list[str]:
+    """What is wrong with the rules ``rule_for(s)`` on Fig. 5's tree: at its own target
+    s a rule must be the best of the five targets' rules (Fig. 5's dots) and within 5x
+    of the exhaustive optimum (the greedy rule's measured gap is at most 4.9x, at
+    s = 100; docs/variance_trading.md)."""
     tree = binary_tree(4, biases=BIASES)
-    ratios = {}
-    for samples in (1, 10, 100, 1000, 10000):
-        greedy = evaluate(tree, MSEMinimizing(samples))
-        _, best = optimal_frontier(tree, samples)
-        assert greedy.mse(samples) >= best.mse(samples) * (1 - 1e-12)
-        ratios[samples] = greedy.mse(samples) / best.mse(samples)
-    assert ratios[1] == pytest.approx(1.0)          # one sample: the root's cache is best
-    assert max(ratios.values()) > 2.0               # greedy is not optimal (Sec. 4.3, 7)
+    problems = []
+    for samples in TARGETS:
+        mse = {target: evaluate(tree, rule_for(target)).mse(samples) for target in TARGETS}
+        best = _optimal_mse(samples)
+        if mse[samples] > min(mse.values()) * (1 + 1e-12):
+            problems.append(f"s={samples}: another target's rule is better")
+        if mse[samples] > 5.0 * best:
+            problems.append(f"s={samples}: {mse[samples] / best:.1f}x the optimum")
+    return problems
+
+
+def test_mse_minimization_against_the_exhaustive_optimum():
+    """Fig. 5 and Sec. 7: each target's greedy rule is the best of the five at its own
+    sample count and, though not optimal, within 5x of the exhaustive optimum. Planted
+    rules fail: ending every path at the root (16-234x the optimum from s = 100), a
+    rule that ignores its sample target (s = 1 everywhere) and one without the clamp
+    (both 16x at s = 100), and never terminating (280x at s = 1)."""
+    assert _fig5_problems(MSEMinimizing) == []
+    planted = {"root": lambda s: (lambda state: 0.0),
+               "ignores s": lambda s: MSEMinimizing(1),
+               "unclamped": lambda s: MSEMinimizing(s, clamp=math.inf),
+               "path tracing": lambda s: (lambda state: 1.0)}
+    for name, rule_for in planted.items():
+        assert _fig5_problems(rule_for), name
 
 
 def test_the_clamp_defers_past_every_biased_cache_for_many_samples():
