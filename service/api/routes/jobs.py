@@ -4,7 +4,10 @@ A job belongs to the API key that submitted it: only that key, or an admin key,
 may cancel it; a key's Idempotency-Keys are its own; a key holds at most
 ``max_jobs_per_key`` unfinished jobs (429 beyond). An identical spec already live
 or done is answered with that job, whoever submitted it (the work is done once),
-and a job found that way which nothing is running is dispatched again.
+and a job found that way which nothing is running is dispatched again; if it is
+stalled (the service cannot write its database), the answer is 503 with the job and
+the reason instead of a 202. Room on disk (a key's quota, the free-space floor) is
+checked before anything is queued: service/api/quota.py.
 """
 
 from __future__ import annotations
