@@ -289,7 +289,8 @@ def prefill(propagation: Propagation, params: GridCacheParams,
     window (``prefill_history`` observations, an exponential average over the last
     few passes) the iteration converges geometrically. Passes run until the grid's
     mean luminance changes by less than ``prefill_tolerance`` (relative) per pass over
-    the last :data:`PREFILL_SPAN` passes (:func:`prefill_settled`), at most ``prefill_frames``; then the long history restarts from the records' values
+    the last :data:`PREFILL_SPAN` passes (:func:`prefill_settled`), at most
+    ``prefill_frames``; then the long history restarts from the records' values
     (:meth:`MomentGrid.restart_history`), so the averages that follow are taken at
     equilibrium. Returns (passes taken, the grid's mean luminance after each)."""
     grid = propagation.grid
