@@ -318,7 +318,8 @@ def test_an_nc_sweep_run_as_stages_renders_its_points_in_the_stages(sweep_env):
     result = _run_staged(spec, store, settings_)
     assert result.work["points_rendered"] == 0 and result.work["points_reused"] == 2
     assert result.stage_work["points_rendered"] == 2
-    assert [row.nc for row in result.rows] == [1, 2]
+    assert [row.nc for row in result.rows] == [row.value for row in result.rows] == [1, 2]
+    assert result.kind == "parameter" and result.parameter == "nc"
 
 
 # ---- A parameter sweep (any declared parameter of any method) -----------------------
@@ -380,9 +381,22 @@ def test_bad_parameter_sweeps_are_explained(values, fragment):
 
 
 def test_the_nc_sweep_takes_a_termination_the_method_accepts():
-    assert small_spec(eps=None, termination="sph").termination == "sph"
-    with pytest.raises(ValueError, match="termination"):
-        small_spec(eps=None, termination="magic")
+    """An N_c sweep's top-level termination (the form of old clients and stored specs)
+    is NIRC's parameter; elsewhere only the default, which every other sweep stores."""
+    spec = small_spec(eps=None, termination="sph")
+    assert spec.is_nc_sweep and spec.params["termination"] == "sph"
+    assert spec == small_spec(eps=None, params={**SMALL, "termination": "sph"})
+    default = small_spec().model_dump(mode="json")["termination"]
+    assert small_spec(termination=default) == small_spec()
+    assert small_spec(eps=None, termination=default) == small_spec(eps=None)
+    for values, fragment in [({"eps": None, "termination": "magic"}, "termination"),
+                             ({"termination": "sph"}, "is the N_c sweep's"),
+                             ({"eps": None, "termination": "sph",
+                               "params": {"termination": "adaptive"}}, "given twice"),
+                             ({"eps": None, "params": {"estimator": "unbiased"}},
+                              "needs biased nirc")]:
+        with pytest.raises(ValueError, match=fragment):
+            small_spec(**values)
 
 
 # ---- A parameter inside a mapping parameter (a dotted path) --------------------------

@@ -117,3 +117,16 @@ def test_every_422_is_built_in_one_place():
     writers = sorted(str(path.relative_to(service)) for path in service.rglob("*.py")
                      if "HTTP_422" in path.read_text() or "status_code=422" in path.read_text())
     assert writers == ["api/unprocessable.py"]
+
+
+def test_an_nc_sweep_of_old_clients_is_a_parameter_sweep_with_its_termination(client):
+    """A top-level termination: an N_c sweep's is NIRC's parameter; on an eps sweep a
+    policy other than the default is refused, naming where a method's policy goes."""
+    answer = _post(client, "/api/v1/sweeps", {"scene": "cornell-box", "nc": [2, 1],
+                                              "termination": "sph", "seeds": 2})
+    assert answer.status_code == 202, answer.text
+    spec = answer.json()["spec"]
+    assert spec["parameter"] == {"name": "nc", "values": [1, 2]} and spec["methods"] == ["nirc"]
+    assert spec["params"] == {"termination": "sph"} and "termination" not in spec
+    refused = _post(client, "/api/v1/sweeps", {**SWEEP, "termination": "sph"})
+    assert refused.status_code == 422 and "params.termination" in refused.text
