@@ -34,6 +34,8 @@ def test_every_stage_follows_the_stages_it_needs():
 
 def test_nc_sweep_points_need_only_the_reference():
     stages = sweep_stages(_spec(eps=None, nc=[1, 4]))
-    assert [(s.name, s.after) for s in stages[1:]] == [("nc 1", ("reference",)),
-                                                        ("nc 4", ("reference",))]
-    assert [s.name for s in final_stages(stages)] == ["nc 1", "nc 4"]
+    assert [(s.name, s.after) for s in stages[1:]] == [("nirc nc=1", ("reference",)),
+                                                        ("nirc nc=4", ("reference",))]
+    assert [s.task for s in stages[1:]] == [
+        {"stage": "parameter-point", "method": "nirc", "value": nc} for nc in (1, 4)]
+    assert [s.name for s in final_stages(stages)] == ["nirc nc=1", "nirc nc=4"]
