@@ -21,9 +21,11 @@ class MomentGridConfig(BaseModel):
     ``vertices_per_record``   representative vertices kept per record (the paper: 4)
     ``samples_per_vertex``    independent samples per vertex and update, paired all
                               with all for the marginal second moment (the paper: 32)
-    ``max_history``           samples a record's running moments average over; beyond
-                              it they become an exponential average, so radiance that
-                              propagates over frames is followed
+    ``max_history``           vertex estimates a record's running moments average
+                              over; beyond it they become an exponential average, so
+                              radiance that propagates over frames is followed (a
+                              pre-fill averages over a shorter window first, then
+                              restarts this history at equilibrium)
     ``jitter``                stochastic interpolation: the lookup position is
                               jittered by up to half a cell in the tangent plane
     ``primary_store_probability``  the path tracer stores a primary vertex as a
