@@ -20,6 +20,7 @@ the service, which knows how to estimate a job (service/api/quota.py).
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
 
 from sqlalchemy import func, or_, select
@@ -89,10 +90,21 @@ def stored_bytes(store: Store, settings: Settings, key_id: int) -> int:
     return artifacts + _image_bytes(settings, key_id) + _scene_bytes(settings, key_id)
 
 
-def unfinished_jobs(store: Store, key_id: int) -> list[Job]:
-    """The queued and running jobs (renders and sweeps; a sweep's stages go with it)
-    of key ``key_id``."""
+def unfinished_spec_keys(store: Store, key_id: int) -> list[str]:
+    """The spec keys of the queued and running jobs (renders and sweeps; a sweep's
+    stages go with it) of key ``key_id``: one narrow query, no spec read."""
     with store.session() as session:
-        return list(session.scalars(select(Job).where(
+        return list(session.scalars(select(Job.spec_key).where(
             Job.owner_key_id == key_id, Job.parent_id.is_(None),
             Job.status.in_([JobStatus.QUEUED.value, JobStatus.RUNNING.value]))))
+
+
+def jobs_with_spec_keys(store: Store, spec_keys: Iterable[str]) -> list[Job]:
+    """One job row per spec key of ``spec_keys`` (the rows of equal keys hold equal
+    specs)."""
+    keys = list(spec_keys)
+    if not keys:
+        return []
+    with store.session() as session:
+        rows = session.scalars(select(Job).where(Job.spec_key.in_(keys)))
+        return list({row.spec_key: row for row in rows}.values())

@@ -13,16 +13,15 @@ Both answer 507 with a JSON body that says which limit, its setting and the numb
   jobs/execution/work.py, the estimate of the data folder's cap ``max_data_bytes``)
   plus the request's own estimate must stay within it. The usage is one query on
   the store and a walk of the key's own upload folders; a job's estimate depends on
-  its spec alone and is kept per spec key (:func:`_estimated_bytes`), so each queued
-  job is estimated once per process.
+  its spec alone and is kept per spec key (:func:`queued_bytes`), so each queued
+  job's spec is read and estimated once per process.
 """
 
 from __future__ import annotations
 
 import logging
 import shutil
-from dataclasses import dataclass, field
-from functools import lru_cache
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,7 @@ from fastapi.responses import JSONResponse
 from jobs.execution.queued import job_of
 from jobs.record.config import Settings
 from jobs.record.store import Store
-from jobs.record.usage import stored_bytes, unfinished_jobs
+from jobs.record.usage import jobs_with_spec_keys, stored_bytes, unfinished_spec_keys
 
 log = logging.getLogger(__name__)
 
@@ -78,25 +77,34 @@ def check_free_space(settings: Settings) -> None:
             limit="min_free_bytes", free_bytes=usage.free, floor_bytes=int(floor))
 
 
-@dataclass(frozen=True)
-class _QueuedRow:
-    """A job row as its estimate sees it; equal (and hashed) by its spec key alone,
-    which is a digest of its kind and spec."""
-
-    spec_key: str
-    kind: str = field(compare=False)
-    spec: dict[str, Any] = field(compare=False)
+#: The estimated files of each spec key seen (a job's estimate depends on its spec
+#: alone, and a spec key is a digest of its kind and spec), bounded: cleared when full.
+_ESTIMATES: dict[str, int] = {}
+_MAX_ESTIMATES = 4096
 
 
-@lru_cache(maxsize=4096)
-def _estimated_bytes(row: _QueuedRow) -> int:
+def _estimated_bytes(job: Any) -> int:
     """The files a queued job may write: its whole work's ``artifact_bytes`` (a render's
     reference counted, a sweep's every stage)."""
     try:
-        return job_of(row).work().artifact_bytes
+        return job_of(job).work().artifact_bytes
     except ValueError as err:       # a spec today's parser refuses: it will not run
-        log.warning("job of spec key %s cannot be estimated: %s", row.spec_key, err)
+        log.warning("job of spec key %s cannot be estimated: %s", job.spec_key, err)
         return 0
+
+
+def queued_bytes(store: Store, key_id: int) -> int:
+    """The estimated files of key ``key_id``'s unfinished jobs: their spec keys are
+    read, and a spec only for keys not estimated before (a submission reads no spec
+    of the jobs queued before it)."""
+    spec_keys = unfinished_spec_keys(store, key_id)
+    unknown = set(spec_keys).difference(_ESTIMATES)
+    if unknown:
+        if len(_ESTIMATES) + len(unknown) > _MAX_ESTIMATES:
+            _ESTIMATES.clear()
+        for job in jobs_with_spec_keys(store, unknown):
+            _ESTIMATES[job.spec_key] = _estimated_bytes(job)
+    return sum(_ESTIMATES.get(key, 0) for key in spec_keys)
 
 
 @dataclass(frozen=True)
@@ -110,9 +118,7 @@ class KeyUsage:
 
 
 def key_usage(store: Store, settings: Settings, key_id: int) -> KeyUsage:
-    queued = sum(_estimated_bytes(_QueuedRow(job.spec_key, job.kind, job.spec))
-                 for job in unfinished_jobs(store, key_id))
-    return KeyUsage(stored_bytes(store, settings, key_id), queued)
+    return KeyUsage(stored_bytes(store, settings, key_id), queued_bytes(store, key_id))
 
 
 def check_room(store: Store, settings: Settings, key_id: int, request_bytes: int,

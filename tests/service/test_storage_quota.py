@@ -96,7 +96,7 @@ def test_a_key_over_its_quota_is_507_with_the_numbers_and_others_are_unaffected(
             body["request_bytes"]) == (int(2.5 * each), 2 * each, 2 * each, each), body
     assert submit(other, 4).status_code == 202          # another key: its own quota
     with monkeypatch.context() as planted:              # queued jobs not counted
-        planted.setattr(quota, "unfinished_jobs", lambda store, key_id: [])
+        planted.setattr(quota, "queued_bytes", lambda store, key_id: 0)
         accepted = submit(client, 4)
         assert accepted.status_code == 202, accepted.text
     # One job stored a run of 2 x each bytes, the others were canceled: the stored
