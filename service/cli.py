@@ -42,6 +42,7 @@ from service.cli_common import (
 )
 from service.errors import UsageError, describe_user_error, is_user_error
 from service.progress import progress_reporter
+from service.reproduce_command import reproduce_app
 from service.runs_command import parse_pairs, runs_app
 from service.tables import metrics_table, reference_table, render_tables, scenes_table
 
@@ -344,6 +345,10 @@ def render(
     allow_loaded: Annotated[bool, typer.Option(
         "--allow-loaded", help="equal time: use calibration probes timed on a loaded machine "
                                "(default: left out and taken again)")] = False,
+    denoised: Annotated[bool | None, typer.Option(
+        "--denoised/--no-denoised", show_default=False,
+        help="also score each seed's last frames after Intel Open Image Denoise (MRSE and "
+             "FLIP of one frame and of four accumulated; default: the spec's, off)")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="write images and summary.json here")] = None,
     rerun: Annotated[bool, typer.Option(
         "--rerun", help="render even if a run of this spec by this commit, estimator "
@@ -378,7 +383,8 @@ def render(
                          "--budget-ms or --budget-pt-spp")
     spec = RenderSpec(scene=scene, method=method, params=params, resolution=res, spp=spp,
                       frames=frames, seeds=seeds, eps=eps, reference=ReferenceSpec(spp=ref_spp),
-                      time_budget=budget)
+                      time_budget=budget,
+                      **({} if denoised is None else {"denoised": denoised}))
     queued = QueuedRender(job=RenderJob.parse(spec))    # parsed once, here
     tags = parse_pairs(tag, "--tag")
     if server and rerun:
@@ -1075,6 +1081,7 @@ def _soak(res: int | None, frames: int | None, seeds: int | None,
 
 
 app.add_typer(runs_app, name="runs")
+app.add_typer(reproduce_app, name="reproduce")
 apikey_app = typer.Typer(help="API keys of the service's write endpoints.", no_args_is_help=True,
                          rich_markup_mode=None)
 app.add_typer(apikey_app, name="apikey")

@@ -1,0 +1,87 @@
+"""What a reproduced figure reports: our numbers with 95 % intervals, point by point,
+beside the paper's; written as Markdown and JSON next to the figure's PNG."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, Field
+
+
+class Estimate(BaseModel):
+    """A number and its 95 % interval (None: none could be made; ``note`` says how or why)."""
+
+    value: float | None
+    ci95: list[float] | None = None
+    note: str | None = None
+
+    def text(self) -> str:
+        if self.value is None or not math.isfinite(self.value):
+            return "—"
+        if self.ci95 is None:
+            return f"{self.value:.3g}"
+        lo, hi = self.ci95
+        return f"{self.value:.3g} [{lo:.3g}, {hi:.3g}]"
+
+
+class Point(BaseModel):
+    """One point (a row of the table): a scene, a series and the swept value ``x``."""
+
+    scene: str
+    series: str
+    x: float | None = None
+    values: dict[str, Estimate]
+    paper: dict[str, float] = Field(default_factory=dict,
+                                    description="the paper's values of the same quantities")
+    run_id: int | None = None
+
+
+class Reproduction(BaseModel):
+    """A figure or table of a paper as measured here."""
+
+    paper: str
+    figure: str
+    title: str
+    mode: str
+    settings: dict[str, Any] = Field(description="what was rendered: resolution, seeds, "
+                                                 "frames, reference, grid preset, ...")
+    x_label: str
+    quantities: dict[str, str] = Field(description="quantity key -> column label, in order")
+    points: list[Point]
+    notes: list[str] = Field(default_factory=list)
+    claims: list[dict[str, Any]] = Field(default_factory=list,
+                                         description="the paper's quoted claims with pages")
+    work: dict[str, int] = Field(default_factory=dict,
+                                 description="points rendered now and read from the store")
+
+    def markdown(self) -> str:
+        settings = ", ".join(f"{k} {v}" for k, v in self.settings.items())
+        lines = [f"# {self.title}", "", f"Mode `{self.mode}`: {settings}.", ""]
+        lines += [f"- {note}" for note in self.notes]
+        if self.claims:
+            lines += ["", "The paper's claims:", ""]
+            lines += [f"- p. {c['page']}: \"{c['quote']}\"" for c in self.claims]
+        paper_keys = [k for k in self.quantities if any(k in p.paper for p in self.points)]
+        header = ["scene", "series", self.x_label, *self.quantities.values(),
+                  *(f"paper: {self.quantities[k]}" for k in paper_keys)]
+        lines += ["", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        for p in self.points:
+            cells = [p.scene, p.series, "—" if p.x is None else f"{p.x:g}",
+                     *(p.values[k].text() if k in p.values else "—" for k in self.quantities),
+                     *(f"{p.paper[k]:g}" if k in p.paper else "—" for k in paper_keys)]
+            lines.append("| " + " | ".join(cells) + " |")
+        notes = sorted({e.note for p in self.points for e in p.values.values() if e.note})
+        if notes:
+            lines += ["", "Intervals:", "", *(f"- {note}" for note in notes)]
+        return "\n".join(lines) + "\n"
+
+    def write(self, out_dir: Path) -> dict[str, Path]:
+        """table.md and table.json in ``out_dir`` (the figure's PNG is drawn beside them)."""
+        out_dir.mkdir(parents=True, exist_ok=True)
+        paths = {"markdown": out_dir / "table.md", "json": out_dir / "table.json"}
+        paths["markdown"].write_text(self.markdown())
+        paths["json"].write_text(json.dumps(self.model_dump(mode="json"), indent=1) + "\n")
+        return paths

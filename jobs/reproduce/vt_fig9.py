@@ -1,0 +1,86 @@
+"""[VTT24] Fig. 9: MSE minimization at several sample targets s, as MSE against the
+sample count N, one line per target (its marker at N = s), with the path tracer and
+area-spread (c = 0.01) for reference.
+
+Ours: `grid-cache` with `mse-min` on `cornell-box` and `white-room`, which stand in for
+the paper's Bunny and Classroom (neither is a scene here), the paper's grid preset.
+Each line is one render of K x F one-spp frames per target, its MSE at N samples
+rBias² + F rVar / N (jobs/reproduce/measure.py: the bias does not shrink with N, the
+variance does), relative as MRSE."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from jobs.reproduce.measure import (
+    MSE_NOTE,
+    budget_settings,
+    full_budget,
+    grid_params,
+    grid_presets,
+    mse_at,
+    quick_budget,
+    sweep,
+)
+from jobs.reproduce.plot import Panel, plot_panels
+from jobs.reproduce.registry import Context, FigureSpec, register
+from jobs.reproduce.results import Point, Reproduction
+
+#: Our scenes for the paper's (Bunny, Classroom).
+SCENES = {"cornell-box": "Bunny", "white-room": "Classroom"}
+#: The sample counts N each line is evaluated at: 10^(k/2), 1 ... 10^4.
+SAMPLE_COUNTS = tuple(float(round(10 ** (k / 2))) for k in range(9))
+QUANTITIES = {"mse": "MSE at N samples (relative)"}
+
+QUICK = quick_budget((1.0, 10.0, 100.0, 1000.0))
+FULL = full_budget((1.0, 10.0, 100.0, 1000.0, 10000.0))
+
+
+def _line(scene: str, series: str, row: Any, frames: int) -> list[Point]:
+    """One render's MSE at every sample count of :data:`SAMPLE_COUNTS`."""
+    return [Point(scene=scene, series=series, x=n, run_id=row.id,
+                  values={"mse": mse_at(row, frames, n)}) for n in SAMPLE_COUNTS]
+
+
+def measure(ctx: Context) -> Reproduction:
+    frames = ctx.budget.frames
+    points: list[Point] = []
+    presets: set[str] = set()
+    for scene in SCENES:
+        for row, run in sweep(ctx, scene, "grid-cache", "termination_params.samples",
+                              list(ctx.budget.values), grid_params(ctx, "mse-min", {})):
+            presets |= grid_presets(run)
+            points += _line(scene, f"mse-min s = {row.value:g}", row, frames)
+        [(spread, _run)] = sweep(ctx, scene, "grid-cache", "termination_params.c", [0.01],
+                                 grid_params(ctx, "area-spread", {}))
+        points += _line(scene, "area-spread c = 0.01", spread, frames)
+        [(pt, _run)] = sweep(ctx, scene, "pt", "rr_survival", [0.9], {})
+        points += _line(scene, "PT (survival 90 %)", pt, frames)
+    return Reproduction(
+        paper="vt", figure="fig9", title="[VTT24] Fig. 9: MSE minimization, MSE against "
+                                         "sample count",
+        mode="", settings=budget_settings(ctx, **{"runs' grid presets":
+                                                  sorted(presets)}),
+        x_label="sample count N", quantities=QUANTITIES, points=points,
+        notes=[f"{ours} stands in for the paper's {theirs}" for ours, theirs in SCENES.items()]
+        + ["each line's enlarged marker is its own sample target N = s; ideally each line "
+           "is the lowest at its target", MSE_NOTE])
+
+
+def at_target(point: Point) -> bool:
+    """A point of an mse-min line at its own sample target."""
+    return point.series.startswith("mse-min s = ") and point.x == float(
+        point.series.removeprefix("mse-min s = "))
+
+
+def draw(reproduction: Reproduction, path: Path) -> Path:
+    panels = [Panel("mse", f"{scene} (for {theirs})", scene=scene)
+              for scene, theirs in SCENES.items()]
+    return plot_panels(reproduction, panels, path, marked=at_target)
+
+
+FIGURE = register(FigureSpec("vt", "fig9", "MSE minimization on cornell-box and white-room "
+                             "(for Bunny, Classroom): MSE against sample count per target s, "
+                             "PT and area-spread", {"quick": QUICK, "full": FULL}, measure,
+                             draw))
