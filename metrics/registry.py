@@ -27,6 +27,7 @@ from typing import Any, Literal
 import numpy as np
 
 from metrics.bias_intervals import bias_verdict
+from metrics.denoised import DENOISER_KEY
 from metrics.errors import efficiency, psnr_tonemapped
 from metrics.statistics import interval_or_reason
 
@@ -74,6 +75,9 @@ class Metric:
                                         # calls a regression; None: not gated (needs seed_key)
     interval: bool = False         # a BIAS_VARIANCE value stored with its 95 % interval
                                    # (``<key>_ci95``, metrics.bias_intervals)
+    requires: str | None = None    # a key of a run's metrics present only where the run
+                                   # computed this metric (an option of the run): without
+                                   # it, tables leave the metric out
 
     @property
     def verdict_name(self) -> str:
@@ -151,6 +155,18 @@ METRICS: tuple[Metric, ...] = (
            "10 log10(1/MSE) on [0, 1]", "higher", Aggregate.MEAN, key="psnr_mean",
            seed_key="psnr", per_seed=psnr_tonemapped, unit="dB", field="psnr",
            ci_min_change=0.05),
+    # After Intel Open Image Denoise, where the run asks for it (metrics.denoised).
+    *(Metric(f"denoised_{name}_{what}", f"{label} denoised ({frames})",
+             f"{quantity} after Intel Open Image Denoise of {description} (runs with "
+             "denoised on)", "lower", Aggregate.MEAN, key=f"denoised_{name}_{what}_mean",
+             seed_key=f"denoised_{name}_{what}", group=group, log_axis=name == "mrse",
+             requires=DENOISER_KEY)
+      for what, frames, description in (
+          ("frame", "1 frame", "each of a seed's last four frames alone, mean over the "
+                               "frames"),
+          ("accum", "4 frames", "the mean of a seed's last four frames"))
+      for name, label, quantity, group in (("mrse", "MRSE", "MRSE", "mrse"),
+                                           ("flip", "FLIP", "HDR-FLIP", "flip"))),
 )
 
 BY_NAME: dict[str, Metric] = {m.name: m for m in METRICS}

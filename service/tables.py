@@ -117,7 +117,7 @@ def _metric_rows(m: dict[str, Any], run: RunResultDetail) -> dict[str, Any]:
     """The run table's rows of every registered metric (values as :func:`_shown` gives
     them), each interval with how it was made or why there is none."""
     rows: dict[str, Any] = {}
-    for metric in METRICS:
+    for metric in _computed(METRICS, run):
         absent = "n/a (K = 1)" if metric.needs_k2 else "-"
         if metric.aggregate is Aggregate.PER_CACHE and not run.caches:
             continue    # a method without a cache has no per-cache statistics
@@ -130,6 +130,11 @@ def _metric_rows(m: dict[str, Any], run: RunResultDetail) -> dict[str, Any]:
         for label, key in metric.details:
             rows[label] = metric_text(key, m.get(key, absent))
     return rows
+
+
+def _computed(metrics: tuple[Metric, ...], run: RunResultDetail) -> list[Metric]:
+    """``metrics`` less those of a run option ``run`` did not ask for (``Metric.requires``)."""
+    return [m for m in metrics if m.requires is None or m.requires in run.metrics]
 
 
 def metrics_table(run: RunResultDetail) -> Group:
@@ -167,10 +172,11 @@ def metrics_table(run: RunResultDetail) -> Group:
         "estimator / metric version": f"{run.estimator_version} / {run.metric_version}",
     }
     seeds = Table(title="per seed")
-    for column in ("seed", *(m.label for m in PER_SEED), "ms/frame", "non-finite"):
+    per_seed = _computed(PER_SEED, run)
+    for column in ("seed", *(m.label for m in per_seed), "ms/frame", "non-finite"):
         seeds.add_column(column, justify="right")
     for s in run.per_seed:
-        seeds.add_row(str(s.seed), *(_fmt(_shown(s.metrics.get(m.seed_key))) for m in PER_SEED),
+        seeds.add_row(str(s.seed), *(_fmt(_shown(s.metrics.get(m.seed_key))) for m in per_seed),
                       _fmt(_ms(s.metrics.get("seconds_per_frame"))),
                       str(s.metrics.get("nonfinite_pixels")))
     parts: list[Any] = [key_value_table(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import gc
 import sys
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
@@ -41,6 +42,12 @@ from jobs.record.config import Settings
 from jobs.record.store import Store
 from metrics.bias_intervals import per_cache_headline
 from metrics.checks import MetricError
+from metrics.denoised import (
+    ACCUMULATED_FRAMES,
+    DENOISER_KEY,
+    denoised_metrics,
+    denoiser_provenance,
+)
 from metrics.errors import (
     bias_variance,
     image_metrics,
@@ -55,6 +62,7 @@ from metrics.quality import withhold
 from metrics.registry import METRICS, Aggregate, per_seed_values, seed_mean
 from metrics.statistics import RunningMoments
 from renderers.backend import device_info, init_backend
+from renderers.denoise_features import FEATURE_SPP, render_features
 from renderers.methods import check_applies, get_method
 from renderers.methods.base import FrameHooks, OnFrame, RenderOutput
 from renderers.timing import pooled
@@ -181,9 +189,10 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
     # A cache trained per seed: rBias^2 is the mean over the caches, which cannot cancel.
     if all("caches" in (s.get("method_stats") or {}) for s in per_seed):
         metrics.update(per_cache_headline(metrics))
-    # ---- Means over seeds (MEAN entries) ----
+    # ---- Means over seeds (MEAN entries; none where no seed computed it: a metric of a
+    # run option the run did not ask for, such as the denoised errors) ----
     for metric in METRICS:
-        if metric.aggregate is Aggregate.MEAN:
+        if metric.aggregate is Aggregate.MEAN and any(metric.seed_key in s for s in per_seed):
             metrics[metric.key] = seed_mean(metric, per_seed)
     metrics["seconds_per_frame"] = frame_seconds
     # ---- Values derived from the aggregates above (DERIVED entries) ----
@@ -233,6 +242,15 @@ def frame_moments_hook(moments: RunningMoments) -> OnFrame:
     return add
 
 
+def last_frames_hook(kept: deque[np.ndarray]) -> OnFrame:
+    """A FrameHooks.on_frame that keeps the frames in ``kept`` (a bounded deque: the last
+    ones; the frame loop hands each frame over as a new array)."""
+    def keep(_index: int, frame: np.ndarray, _accumulated: np.ndarray) -> None:
+        kept.append(frame)
+
+    return keep
+
+
 def chain(*hooks: OnFrame) -> OnFrame:
     """One FrameHooks.on_frame that calls ``hooks`` in order."""
     def call_all(index: int, frame: np.ndarray, accumulated: np.ndarray) -> None:
@@ -249,6 +267,7 @@ class SeedRender:
     output: RenderOutput
     convergence: dict[str, Any]     # ConvergenceTracker.result()
     moments: RunningMoments         # per-pixel moments of its frames (per-cache rBias^2/rVar)
+    last_frames: list[np.ndarray]   # its last ACCUMULATED_FRAMES frames (denoised metrics)
 
 
 def render_seed(render: Callable[[FrameHooks], RenderOutput], reference: np.ndarray, eps: float,
@@ -256,16 +275,18 @@ def render_seed(render: Callable[[FrameHooks], RenderOutput], reference: np.ndar
                 progress: Callable[[int, int], None] | None = None,
                 first_frame: int = 0) -> SeedRender:
     """Run ``render(hooks)`` (one seed's frame loop) with the error-over-frames tracker and
-    the frame moments attached: the one frame loop of every stored run (render jobs, sweep
-    points). ``first_frame``: where the seed's frames start in the run's schedule of wall
-    and kernel frames (FrameHooks.first_frame)."""
+    the frame moments and the last frames kept: the one frame loop of every stored run
+    (render jobs, sweep points). ``first_frame``: where the seed's frames start in the run's
+    schedule of wall and kernel frames (FrameHooks.first_frame)."""
     tracker = ConvergenceTracker(reference, eps)
     moments = RunningMoments()
+    last: deque[np.ndarray] = deque(maxlen=ACCUMULATED_FRAMES)
     gc.collect()   # the previous seed's objects, before this seed's frozen calls (prepare)
     output = render(FrameHooks(keep_frames=keep_frames, warmup=warmup, progress=progress,
-                               on_frame=chain(tracker, frame_moments_hook(moments)),
+                               on_frame=chain(tracker, frame_moments_hook(moments),
+                                              last_frames_hook(last)),
                                first_frame=first_frame))
-    return SeedRender(output, tracker.result(), moments)
+    return SeedRender(output, tracker.result(), moments, list(last))
 
 
 class ConvergenceTracker:
@@ -437,14 +458,18 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
     scratch = settings.data_dir / "tmp"
     scratch.mkdir(parents=True, exist_ok=True)
     outputs = [rendered.output for rendered in seeds]
+    # The denoiser's features, once per run (renderers.denoise_features).
+    features = render_features(scene.scene) if spec.denoised else None
     per_seed, artifacts = [], []
-    for index, (output, curve) in enumerate(zip(outputs, (r.convergence for r in seeds),
-                                                strict=True)):
-        seed = spec.seed_start + index
+    for index, (output, rendered) in enumerate(zip(outputs, seeds, strict=True)):
+        seed, curve = spec.seed_start + index, rendered.convergence
         values = image_metrics(output.accumulated, reference.mean, eps=spec.eps,
                                flip_exposures=reference.flip_exposures,
                                ref_variance=reference.variance)
         values.update(per_seed_values(output.accumulated, reference.mean))
+        if features is not None:
+            values.update(denoised_metrics(rendered.last_frames, reference.mean, spec.eps,
+                                           reference.flip_exposures, features))
         values["seconds_per_frame"] = output.timings["frame_median_s"]
         per_seed.append({"seed": seed, **values, "path_stats": output.path_stats,
                          "method_stats": output.method_stats, "convergence": curve})
@@ -467,6 +492,8 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
     metrics = aggregate(per_seed, [o.accumulated for o in outputs], reference, spec.eps,
                         frame_seconds, [rendered.moments for rendered in seeds],
                         get_method(spec.method).correlated_frames)
+    if features is not None:
+        metrics[DENOISER_KEY] = {**denoiser_provenance(), "feature_spp": FEATURE_SPP}
     metrics.update(extra or {})
     metrics, per_seed, nonfinite = finite_record(metrics, per_seed)
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])

@@ -9,8 +9,10 @@ from importlib import metadata
 from pathlib import Path
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
+# pyoidn: the denoiser of the denoised errors (its own version; it ships OIDN's, which a
+# denoised run also stores under metrics['denoiser']).
 _LIBRARIES = ("nirc-bench", "mitsuba", "drjit", "numpy", "flip-evaluator", "OpenEXR",
-              "colour-science", "sqlalchemy")
+              "colour-science", "sqlalchemy", "pyoidn")
 
 
 def library_versions() -> dict[str, str]:

@@ -129,6 +129,11 @@ def keyed_budget(data: dict[str, Any]) -> dict[str, Any]:
     return data
 
 
+#: Whether a render job scores its frames after denoising unless told (docs/metrics.md,
+#: "Denoised error": what it costs).
+DENOISED_DEFAULT = False
+
+
 class RenderSpec(BaseModel):
     """One render job: a method on a scene, K seeds, compared with a reference."""
 
@@ -148,8 +153,21 @@ class RenderSpec(BaseModel):
     keep_frames: bool = False
     time_budget: TimeBudget | None = Field(
         None, description="calibrate spp (pt) or N_c (nirc biased) to this frame time")
+    denoised: bool = Field(
+        DENOISED_DEFAULT, description="also score each seed's last frames after Intel Open "
+                                      "Image Denoise (metrics.denoised: MRSE and FLIP of a "
+                                      "frame and of four frames accumulated)")
 
     _check_params = field_validator("params")(finite_params)
+
+    @model_serializer(mode="wrap")
+    def _stored_form(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # Specs from before ``denoised`` existed dump, store and hash as they did: the
+        # field is written only where it is not its default.
+        data = handler(self)
+        if data.get("denoised") == DENOISED_DEFAULT:
+            data.pop("denoised")
+        return data
 
     def versions(self) -> dict[str, int]:
         """The estimator version of the method and the metric version, as of today."""

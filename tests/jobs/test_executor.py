@@ -47,6 +47,10 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
     assert run.metrics["per_cache_frames"] == 2 and run.metrics["per_cache_unavailable"] is None
     assert run.device_key == summary.device["device_key"]
     assert run.git_commit and run.versions["mitsuba"]
+    # Denoising is off unless asked for: no denoised value, no denoiser, and the stored
+    # spec is the one from before the option existed.
+    assert "denoiser" not in run.metrics and "denoised" not in run.params["spec"]
+    assert not any(key.startswith("denoised") for s in run.seed_results for key in s.metrics)
     assert "sync" in run.timings["protocol"] and run.timings["warmup_s"] > 0
     # One statistic over the 3 x 2 timed frames: the median frame's stages are the frame
     # time, and no stage's median exceeds it.
@@ -247,7 +251,8 @@ def test_per_cache_metrics_say_why_they_are_missing():
 
 def test_every_registered_metric_is_stored_served_and_tabulated(env):
     """The registry drives the executor, the API row, the CLI tables and the sweep row:
-    PSNR (one registry entry) appears in each without code of its own there."""
+    PSNR (one registry entry) appears in each without code of its own there. The run
+    denoises (the denoised errors are registered too) and records the denoiser."""
     from rich.console import Console
 
     from jobs.sweeps.sweep import SweepResult, point_row
@@ -256,7 +261,8 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     from service.tables import metric_label, metrics_table, sweep_table
 
     settings, store = env
-    summary = execute(RenderJob.parse(SPEC), store, settings)
+    summary = execute(RenderJob.parse(SPEC.model_copy(update={"denoised": True})), store,
+                      settings)
     run = store.get_run(summary.run_id)
     for metric in METRICS:
         assert metric.key in run.metrics, metric.name
@@ -265,6 +271,12 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     seeds = [s.metrics["psnr"] for s in run.seed_results]
     assert all(0 < p < 100 for p in seeds)
     assert run.metrics["psnr_mean"] == pytest.approx(np.mean(seeds))
+    # The denoiser's provenance: OIDN's version as the installed package ships it.
+    from pyoidn.version import oidn_version
+    assert run.metrics["denoiser"]["version"] == oidn_version
+    assert run.versions["pyoidn"].startswith(oidn_version)
+    assert run.params["spec"]["denoised"] is True
+    assert all(s.metrics["denoised_frames"] == 2 for s in run.seed_results)
 
     row = RunOut.of(run).model_dump()
     for metric in LISTED:
