@@ -13,6 +13,7 @@ from rich.text import Text
 
 from jobs.protocol.calibration import ADVICE
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
+from metrics.denoised import DENOISER_KEY
 from metrics.registry import (
     BY_NAME,
     LISTED,
@@ -161,6 +162,8 @@ def metrics_table(run: RunResultDetail) -> Group:
         "floor / rBias2, floor / MRSE": f"{_fmt(run.ref_floor_ratio_rbias2)}, "
                                         f"{_fmt(run.ref_floor_ratio_mrse)}",
         **_metric_rows(m, run),
+        **({"denoiser": _denoiser_text(run.metrics[DENOISER_KEY])}
+           if DENOISER_KEY in run.metrics else {}),
         "ms per frame": _ms(run.seconds_per_frame),
         "kernel ms / harness share": _device_text(run),
         "ms render stage": _ms(run.render_seconds_per_frame),
@@ -189,6 +192,13 @@ def metrics_table(run: RunResultDetail) -> Group:
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
     return Group(*parts)
+
+
+def _denoiser_text(denoiser: dict[str, Any]) -> str:
+    """What denoised a run (metrics.denoised.denoiser_provenance), in one line."""
+    return (f"{denoiser['library']} {denoiser['version']} ({denoiser['filter']} filter, "
+            f"{denoiser['quality']} quality, features at {denoiser['feature_spp']} spp) of "
+            f"each seed's last {denoiser['accumulated_frames']} frames")
 
 
 def reference_text(reference: Any) -> str:

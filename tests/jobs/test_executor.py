@@ -7,6 +7,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from pyoidn.version import oidn_version
+from rich.console import Console
 
 from jobs.protocol.executor import aggregate, execute, per_cache_metrics
 from jobs.protocol.job import RenderJob
@@ -15,6 +17,7 @@ from jobs.record.config import Settings
 from jobs.record.db import open_store
 from metrics.statistics import RunningMoments
 from renderers import methods
+from service.tables import metrics_table
 
 SPEC = RenderSpec(scene="cornell-box", resolution=8, spp=1, frames=2, seeds=3,
                   reference=ReferenceSpec(spp=64, spp_per_pass=8))
@@ -51,6 +54,9 @@ def test_a_run_is_stored_with_seeds_artifacts_and_provenance(env):
     # spec is the one from before the option existed.
     assert "denoiser" not in run.metrics and "denoised" not in run.params["spec"]
     assert not any(key.startswith("denoised") for s in run.seed_results for key in s.metrics)
+    text = Console(width=250, record=True)
+    text.print(metrics_table(summary.result))
+    assert "denois" not in text.export_text()
     assert "sync" in run.timings["protocol"] and run.timings["warmup_s"] > 0
     # One statistic over the 3 x 2 timed frames: the median frame's stages are the frame
     # time, and no stage's median exceeds it.
@@ -253,12 +259,10 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     """The registry drives the executor, the API row, the CLI tables and the sweep row:
     PSNR (one registry entry) appears in each without code of its own there. The run
     denoises (the denoised errors are registered too) and records the denoiser."""
-    from rich.console import Console
-
     from jobs.sweeps.sweep import SweepResult, point_row
     from metrics.registry import LISTED, METRICS, PER_SEED, Aggregate
     from service.api.schemas import RunOut
-    from service.tables import metric_label, metrics_table, sweep_table
+    from service.tables import metric_label, sweep_table
 
     settings, store = env
     summary = execute(RenderJob.parse(SPEC.model_copy(update={"denoised": True})), store,
@@ -272,7 +276,6 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     assert all(0 < p < 100 for p in seeds)
     assert run.metrics["psnr_mean"] == pytest.approx(np.mean(seeds))
     # The denoiser's provenance: OIDN's version as the installed package ships it.
-    from pyoidn.version import oidn_version
     assert run.metrics["denoiser"]["version"] == oidn_version
     assert run.versions["pyoidn"].startswith(oidn_version)
     assert run.params["spec"]["denoised"] is True
@@ -289,6 +292,7 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     for metric in METRICS:   # pt has no cache: no per-cache rows
         cached = metric.aggregate is not Aggregate.PER_CACHE
         assert (metric_label(metric) in text) == cached, metric.name
+    assert f"Intel Open Image Denoise {oidn_version} (RT filter" in text
     assert "PSNR (dB, higher better)" in text and "MRSE (lower better)" in text
     sweep_row = point_row("nirc", 0.5, run)
     assert {m.field for m in LISTED} <= set(sweep_row.model_dump()) \

@@ -152,6 +152,17 @@ def test_stored_keys_are_those_from_before():
     assert _keys() == GOLDEN
 
 
+def test_denoising_keys_a_spec_anew_only_where_it_is_on():
+    """The ``denoised`` option is dumped, stored and keyed only where it is on, so the
+    keys above (all with it off) stay; on, it keys a different job."""
+    off = RENDERS["pt"]
+    on = RenderSpec(scene="cornell-box", denoised=True)
+    assert "denoised" not in off.model_dump(mode="json")
+    assert RenderSpec.model_validate(on.model_dump(mode="json")) == on
+    assert on.key() != off.key()
+    assert spec_key("render", on, "cpu") != spec_key("render", off, "cpu")
+
+
 def test_a_job_is_immutable():
     job = RenderJob.parse(RENDERS["nirc_adaptive"])
     with pytest.raises(dataclasses.FrozenInstanceError):
