@@ -33,6 +33,7 @@ from jobs.protocol.versions import reference_estimator_version
 from jobs.record.config import DATABASE_FILENAME, Settings
 from jobs.record.models import Artifact, Reference
 from jobs.record.store import Store
+from jobs.record.usage import distinct_file_bytes
 from jobs.sweeps.snapshots import V1_PASSES
 from metrics import METRIC_VERSION
 from renderers.methods import METHODS, MethodParams, equal_time_pairs
@@ -208,7 +209,7 @@ def data_bytes(store: Store, settings: Settings) -> int:
                      if entry.is_file())
     for folder in (settings.scenes_dir, settings.uploaded_images_dir):
         if folder.is_dir():
-            total += sum(entry.stat().st_size for entry in folder.rglob("*") if entry.is_file())
+            total += distinct_file_bytes(folder.rglob("*"))
     database = settings.data_dir / DATABASE_FILENAME
     for path in (database, database.with_name(database.name + "-wal")):
         if str(settings.database_url).startswith("sqlite") and path.is_file():

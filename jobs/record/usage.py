@@ -70,11 +70,22 @@ def _scene_bytes(settings: Settings, key_id: int) -> int:
     return total
 
 
+def distinct_file_bytes(paths: Iterable[Path]) -> int:
+    """Bytes the files ``paths`` take, each file once: hard links to one file (an image a
+    key uploaded for several runs, service/api/routes/images.py) count once."""
+    seen: dict[tuple[int, int], int] = {}
+    for path in paths:
+        if path.is_file():
+            info = path.stat()
+            seen[(info.st_dev, info.st_ino)] = info.st_size
+    return sum(seen.values())
+
+
 def _image_bytes(settings: Settings, key_id: int) -> int:
     folder = settings.uploaded_images_dir / str(key_id)
     if not folder.is_dir():
         return 0
-    return sum(path.stat().st_size for path in folder.rglob("*.exr") if path.is_file())
+    return distinct_file_bytes(folder.rglob("*.exr"))
 
 
 def stored_bytes(store: Store, settings: Settings, key_id: int) -> int:

@@ -162,3 +162,38 @@ def test_uploaded_images_count_in_the_data_folder_s_size(served):
                 assert upload(tight, run_id, body, key).status_code == status
     finally:
         store.close()
+
+
+def test_one_file_uploaded_for_two_runs_is_stored_once(served):
+    """The same bytes uploaded by one key for two runs of the image's size are one file
+    on disk (a hard link under the second run, so gc still removes each run's name with
+    its run): the second answer is 200 with the same id, the data folder and the key's
+    usage grow by the file's size once. Planted: a second copy under another run (what
+    storing per run did) grows both by the size again."""
+    from jobs.execution.work import data_bytes
+    from jobs.record.usage import stored_bytes
+    from tests.jobs.factories import run_fields
+
+    client, settings, run_id, reference, _, folder = served
+    store = open_store(settings)
+    try:
+        row, key = create_api_key(store, "twice")
+        key_id = row.id
+        other_run = store.add_run(run_fields(width=8, height=8), [], []).id
+        body = exr_bytes(folder, reference + 400)
+        before = data_bytes(store, settings)
+        first, second = (upload(client, run, body, key) for run in (run_id, other_run))
+        assert (first.status_code, second.status_code) == (201, 200), second.text
+        assert first.json()["id"] == second.json()["id"]
+        names = sorted((settings.uploaded_images_dir / str(key_id)).rglob("*.exr"))
+        assert [path.parent.name for path in names] == sorted([str(run_id), str(other_run)])
+        assert names[0].samefile(names[1])
+        assert data_bytes(store, settings) == before + len(body)
+        assert stored_bytes(store, settings, key_id) == len(body)
+        # Planted: a copy per run is counted as what it is, twice the bytes.
+        names[1].unlink()
+        names[1].write_bytes(body)
+        assert data_bytes(store, settings) == before + 2 * len(body)
+        assert stored_bytes(store, settings, key_id) == 2 * len(body)
+    finally:
+        store.close()

@@ -17,7 +17,11 @@ does not authorize it). Bounds, all existing limits of the service:
   jobs and scene uploads are refused for them as for any stored file;
 * they are kept under their run (``<key id>/<run id>/<sha256>.exr``): ``nirc-bench gc``
   removes them with their run's artifacts and once older than ``gc_keep_days`` since
-  their last upload (jobs/record/gc.py).
+  their last upload (jobs/record/gc.py);
+* a key's file is stored once, whatever the runs it is uploaded for: the same bytes for
+  another run are a hard link to the key's stored copy (content-addressed by their
+  digest within the key's folder), counted once in the key's usage and the data
+  folder's size.
 
 A file that is not OpenEXR, is damaged, has no R, G, B channels or holds a value that is
 not finite is a 422 saying which. The answer's ``id`` is the SHA-256 of the file's bytes
@@ -105,7 +109,8 @@ def _store(body: bytes, key_id: int, run_id: int, resolution: tuple[int, int], s
     folder = make_private_dir(key_folder / str(run_id))
     image_id = hashlib.sha256(body).hexdigest()
     target = folder / f"{image_id}.exr"
-    created = not target.is_file()
+    stored = _stored_copy(key_folder, image_id)
+    created = stored is None or not _linked(stored, target)
     if created:
         check_room(store, settings, key_id, len(body), "image upload")
         if settings.max_data_bytes is not None:
@@ -128,6 +133,25 @@ def _store(body: bytes, key_id: int, run_id: int, resolution: tuple[int, int], s
         old.unlink(missing_ok=True)
     return ImageUploadOut(id=image_id, width=resolution[0], height=resolution[1],
                           bytes=len(body), kept=min(len(kept), IMAGES_PER_KEY)), created
+
+
+def _stored_copy(key_folder: Path, image_id: str) -> Path | None:
+    """The key's stored file of ``image_id`` (under any of its runs), if it keeps one."""
+    return next(iter(sorted(key_folder.glob(f"*/{image_id}.exr"))), None)
+
+
+def _linked(stored: Path, target: Path) -> bool:
+    """Whether ``target`` now names the bytes of ``stored`` (a hard link: one file on
+    disk); False when ``stored`` went meanwhile (a concurrent upload removed it)."""
+    if stored == target:
+        return True
+    try:
+        os.link(stored, target)
+    except FileExistsError:
+        return True         # a concurrent upload of the same bytes for the same run
+    except FileNotFoundError:
+        return False
+    return True
 
 
 def uploaded_image(settings: Settings, image_id: str) -> np.ndarray:
