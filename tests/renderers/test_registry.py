@@ -107,9 +107,10 @@ def _features(**values):
 #: caches of `nvc-lights` and `nvc-env` live on positions too (their other limits:
 #: test_nvc_lights.py, test_nvc_env.py), as does `nirc-nvc-env`, whose two caches its
 #: own build makes; `restir-di`, `restir-nvc`, `neural-di` and
-#: `nrc-di` shade surface points (test_restir.py, test_neural_di.py, test_nrc_di.py).
+#: `nrc-di` shade surface points (test_restir.py, test_neural_di.py, test_nrc_di.py), as
+#: do the control variates at first hits (test_control_variates.py).
 NEED_A_SURFACE = {"nvc-lights", "nvc-env", "nirc-nvc-env", "restir-di", "restir-nvc",
-                  "neural-di", "nrc-di"}
+                  "neural-di", "nrc-di", "cv-sh"}
 #: Lighting each method needs besides (nvc-env: an environment map; restir-di: area
 #: emitters only, so none).
 ENVMAP = {"nvc-env": True, "nirc-nvc-env": True, "restir-di": False, "restir-nvc": False}
@@ -263,7 +264,9 @@ def test_every_cache_override_field_is_checked_at_parse_time():
         for field in fields:
             with pytest.raises(MethodError, match=f"{field}: unknown cache config field"):
                 parse_params(name, {field: {"no_such_setting": 1}})
-        assert bool(fields) == (name not in ("pt", "pt-power", "pt-spatial", "restir-di")), name
+        # The control variates' model overrides (``sh``): test_control_variates.py.
+        assert bool(fields) == (name not in ("pt", "pt-power", "pt-spatial", "restir-di",
+                                             "cv-sh")), name
 
 
 def test_checking_cache_overrides_does_not_import_mitsuba():
@@ -335,7 +338,7 @@ def test_the_integrator_plugins_keep_their_names(mi):
 
     register_plugins()
     assert sorted(PLUGINS) == [
-        "nirc_grid_cache", "nirc_grid_update", "nirc_neural_di", "nirc_nirc",
+        "nirc_control_variate", "nirc_grid_cache", "nirc_grid_update", "nirc_neural_di", "nirc_nirc",
         "nirc_nirc_nvc_env", "nirc_nrc", "nirc_nrc_di", "nirc_nvc_env", "nirc_path",
         "nirc_training_nrcselftrainingintegrator", "nirc_training_trainingpathintegrator"]
     assert all(cls.plugin_name == name for name, cls in PLUGINS.items())

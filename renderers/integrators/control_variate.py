@@ -1,0 +1,138 @@
+"""Control variates with a closed-form integral at the camera rays' first hits.
+
+NIRC paper Eq. 7 and Sec. 6.1: a control variate g with a known integral G turns
+the one-sample estimate of an integral F = int f into
+
+    <F> = G + (f(w) - g(w)) / q(w),        w ~ q,                       (Eq. 7)
+
+unbiased for *any* g that does not depend on w, provided q(w) > 0 wherever
+f - g != 0. Here f is the shading integrand at the first hit x of a camera ray,
+
+    f(w) = L_i(x, w) f_s(x, w, w_o) |cos theta|                      (Eq. 1)
+
+(the incident radiance L_i estimated by a path traced from x along w, Mitsuba's
+``path`` with one segment less than the method's ``max_depth``), and g is a
+per-pixel model of the whole integrand (BSDF and cosine included, as the paper's
+SH and vMF control variates are), fitted from earlier frames: an SH expansion
+(renderers.caches.sh) or a vMF mixture. The pixel's radiance is L_e(x) + <F>.
+
+The domain. g and G live on the whole sphere (their closed forms are over S^2),
+while BSDF sampling has q = 0 below the surface, where g is not 0: G with
+BSDF-sampled residuals would miss -int_{q=0} g. So w is drawn from a one-sample
+mixture of uniform sphere sampling (probability ``uniform_fraction`` = a) and
+sampling the BSDF's smooth lobes (1 - a), and every sample is divided by the
+mixture density
+
+    q(w) = a / (4 pi) + (1 - a) p_bsdf(w)  >=  a / (4 pi)  >  0 on S^2.
+
+A BSDF sample that fails (p_bsdf = 0) contributes 0: the density of the
+directions actually produced is q, with the failed mass lost, so
+E[(f - g)/q; produced] = int_S2 (f - g). Delta lobes are not sampled (the method
+refuses scenes with delta BSDFs), and emitters are reached only by these
+directions (it refuses delta emitters): there is no next-event estimation at x.
+
+Fitting: the sample's f(w) / q(w) (0 where no direction was produced) is recorded
+into the pixel's model (``record``) during the render; the model folds the records
+into g only between frames, so a frame's g never depends on its own samples.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import drjit as dr
+import mitsuba as mi
+
+from renderers.integrators import register
+from renderers.integrators.cached import pixel_index, smooth_context
+
+PLUGIN_NAME = "nirc_control_variate"
+
+
+class DirectionalModel(Protocol):
+    """A per-pixel model g_p(w) of the shading integrand with a closed-form integral."""
+
+    def eval(self, pixel: mi.UInt32, w: mi.Vector3f, active: mi.Bool) -> mi.Spectrum:
+        """g_p(w), w a world-space unit direction."""
+        ...
+
+    def integral(self, pixel: mi.UInt32, active: mi.Bool) -> mi.Spectrum:
+        """G_p = int_S2 g_p(w) dw, in closed form."""
+        ...
+
+    def record(self, pixel: mi.UInt32, w: mi.Vector3f, weighted: mi.Spectrum,
+               active: mi.Bool) -> None:
+        """Keep one sample (f / q at w) for the pixel's next fit."""
+        ...
+
+
+def mixture_pdf(uniform_fraction: float, bsdf_pdf: mi.Float) -> mi.Float:
+    """q(w) = a / (4 pi) + (1 - a) p_bsdf(w) (module docstring)."""
+    return uniform_fraction * dr.inv_four_pi + (1.0 - uniform_fraction) * bsdf_pdf
+
+
+@register
+class ControlVariateIntegrator(mi.SamplingIntegrator):
+    """L = L_e(x) + G_p + (f(w) - g_p(w)) / q(w) at the first hit x (module docstring).
+
+    Properties: ``max_depth`` (-1 or >= 2, as Mitsuba's ``path``), ``uniform_fraction``
+    (a in (0, 1]). The model must be set on the loaded instance (:meth:`with_model`);
+    ``fitting`` says whether the render records its samples into it.
+    """
+    plugin_name = PLUGIN_NAME
+
+    def __init__(self, props: mi.Properties) -> None:
+        super().__init__(props)
+        self.max_depth = int(props.get("max_depth", -1))
+        self.uniform_fraction = float(props.get("uniform_fraction", 0.25))
+        if self.max_depth == 0 or self.max_depth == 1 or self.max_depth < -1:
+            raise ValueError("max_depth must be -1 (unbounded) or >= 2")
+        if not 0.0 < self.uniform_fraction <= 1.0:
+            raise ValueError("uniform_fraction must be in (0, 1]: q must cover the sphere")
+        self.incident = mi.load_dict({"type": "path", "max_depth": max(self.max_depth - 1, -1)})
+        self.model: DirectionalModel | None = None
+        self.fitting = True
+
+    def with_model(self, model: DirectionalModel) -> ControlVariateIntegrator:
+        self.model = model
+        return self
+
+    def aov_names(self) -> list[str]:
+        return ["depth"]
+
+    def sample_direction(self, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF, sampler: mi.Sampler,
+                         active: mi.Bool) -> tuple[mi.Vector3f, mi.Spectrum, mi.Float, mi.Bool]:
+        """(w local, f_s cos at w, q(w), produced): one sample of the mixture."""
+        ctx = smooth_context()
+        uniform = sampler.next_1d(active) < self.uniform_fraction
+        u1, u2 = sampler.next_1d(active), sampler.next_2d(active)
+        bs, _ = bsdf.sample(ctx, si, u1, u2, active & ~uniform)
+        w_local = dr.select(uniform, mi.warp.square_to_uniform_sphere(u2), bs.wo)
+        produced = active & (uniform | (bs.pdf > 0))
+        f_cos, bsdf_pdf = bsdf.eval_pdf(ctx, si, w_local, produced)
+        return w_local, f_cos, mixture_pdf(self.uniform_fraction, bsdf_pdf), produced
+
+    def sample(self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.RayDifferential3f,
+               medium: mi.Medium = None,
+               active: mi.Bool = True) -> tuple[mi.Spectrum, mi.Bool, list[mi.Float]]:
+        if self.model is None:
+            raise ValueError("ControlVariateIntegrator needs a model: call with_model first")
+        si = scene.ray_intersect(mi.Ray3f(ray), active)
+        hit = active & si.is_valid()
+        # si.emitter() is the environment (or none) where the ray missed.
+        L = mi.Spectrum(si.emitter(scene, active).eval(si, active))
+        pixel = pixel_index(ray, sampler)
+
+        w_local, f_cos, q, produced = self.sample_direction(si, si.bsdf(ray), sampler, hit)
+        w = si.to_world(w_local)
+        lit = produced & (dr.max(mi.unpolarized_spectrum(f_cos)) > 0)
+        L_i, _, _ = self.incident.sample(scene, sampler, si.spawn_ray(w), None, lit)
+        f = dr.select(lit, f_cos * L_i, 0.0)
+        g = self.model.eval(pixel, w, produced)
+        # Eq. 7: G + (f - g) / q; a direction not produced adds no residual.
+        residual = dr.select(produced, (f - g) / q, 0.0)
+        L += dr.select(hit, self.model.integral(pixel, hit) + residual, 0.0)
+        if self.fitting:
+            self.model.record(pixel, w, dr.select(produced, f / q, 0.0), hit)
+        valid = hit | (active & (scene.environment() is not None))
+        return L, valid, [dr.select(hit, 1.0, 0.0)]
