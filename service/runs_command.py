@@ -84,7 +84,10 @@ def _text(value: Any) -> str:
 
 def _cell(column: str, value: Any) -> str:
     """A table cell (:func:`_text`), short where the column allows: a square resolution
-    as '32²', a commit as its first 7 characters (and '-dirty')."""
+    as '32²', a commit as its first 7 characters (and '-dirty'), an interval's ends to 3
+    digits as every number ('[0.0442, 0.0607]'; CSV and JSON keep every digit)."""
+    if column.endswith("_ci95") and isinstance(value, list):
+        return f"[{', '.join(map(_text, value))}]"
     if column == "resolution" and isinstance(value, list) and len(value) == 2:
         width, height = value
         return f"{width}²" if width == height else f"{width}×{height}"

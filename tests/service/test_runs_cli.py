@@ -153,6 +153,36 @@ def test_runs_list_fits_120_columns_and_never_cuts_a_number(store_dir, monkeypat
         set_run(*saved)
 
 
+def test_runs_list_intervals_read_to_3_digits_as_every_number(store_dir, monkeypatch):
+    """docs/runs.md's column choice with MRSE's interval at 120 columns: the interval's
+    ends read to 3 digits like the MRSE beside them (they read to 17 before), nothing is
+    cut; CSV keeps every digit. Planted: a cell laid out as plain text (JSON) shows
+    the 17 digits."""
+    from rich.console import Console
+
+    from service import runs_command
+
+    data, _ = store_dir
+    columns = "id,name,method_label,seeds,mrse,mrse_ci95,flip,ms,device_key"
+
+    def listed() -> str:
+        console = Console(width=120, record=True, emoji=False)
+        monkeypatch.setattr(runs_command, "console", console)
+        cli("runs", "list", "--columns", columns, data=data)
+        return console.export_text()
+
+    row = json.loads(cli("runs", "list", "--json", data=data))[0]
+    low, high = row["mrse_ci95"]
+    shown = f"[{low:.3g}, {high:.3g}]"
+    text = listed()
+    assert shown in text and repr(low) not in text and "…" not in text
+    assert max(map(len, text.splitlines())) <= 120
+    exported = cli("runs", "list", "--columns", columns, "--csv", data=data)
+    assert repr(low) in exported
+    monkeypatch.setattr(runs_command, "_cell", lambda _column, value: runs_command._text(value))
+    assert shown not in listed()
+
+
 def test_runs_show_prints_parameters_provenance_and_reference(store_dir, capsys):
     data, _ = store_dir
     text = cli("runs", "show", "3", data=data)
