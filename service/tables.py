@@ -154,6 +154,7 @@ def metrics_table(run: RunResultDetail) -> Group:
         "resolution": "x".join(map(str, run.resolution)),
         "spp x frames": f"{run.spp} x {run.frames}",
         "seeds (K)": run.seeds,
+        "eps of the relative errors": m.get("eps", "-"),
         "reference": f"{reference_text(reference)} (reference {reference.id})"
         if reference else "-",
         "reference floor MRSE (est.)":
@@ -366,6 +367,8 @@ def calibration_table(title: str, cal: dict[str, Any]) -> Table:
     return key_value_table(title, rows)
 
 
+#: After a time measured on a loaded machine (as the pareto table and the dashboard mark it).
+LOADED_MARK = "L"
 #: The sweep table's columns (SweepRow attribute, header); the metric columns (each with
 #: its 95 % interval) come from metrics.registry.
 SWEEP_COLUMNS = (
@@ -422,6 +425,8 @@ def sweep_table(result: SweepResult) -> Group:
             value = getattr(row, key)
             if key in metric_cells:
                 cells.append(metrics[metric_cells[key]])
+            elif key == "ms_frame" and row.timing_flags:
+                cells.append(f"{_fmt(value)} {LOADED_MARK}")
             elif key == "nc" and (row.calibration_capped or row.calibration_unstable):
                 flags = [name for name in ("capped", "unstable")
                          if getattr(row, f"calibration_{name}")]
@@ -439,6 +444,9 @@ def sweep_table(result: SweepResult) -> Group:
                 f"(runs {', '.join(str(r.id) for r in [row, *alike])}; --json lists each)")
         table.add_row(*(escape(cell) for cell in cells))
     lines: list[Any] = [table, *(Text(line) for line in collapsed)]
+    if any(row.timing_flags for row in result.rows):
+        lines.append(f"{LOADED_MARK} after ms/frame: timed on a loaded machine (`nirc-bench "
+                     "runs show RUN` says how loaded); its time is not comparable")
     lines += [f"skipped {s.method}: {s.reason}" for s in result.skipped]
     if result.stage_work:
         lines.append(f"rendered by its stage jobs: {_work_line(result.stage_work)}")

@@ -454,3 +454,52 @@ def test_an_external_scene_lists_the_settings_the_run_replaced(tmp_path):
         assert line in text
     stored = json.loads(cli("runs", "show", "1", "--json", data=data))
     assert stored["scene_overrides"] == replaced and "scene_overrides" not in stored["params"]
+
+
+def test_run_and_sweep_tables_state_eps_and_mark_loaded_times(store_dir):
+    """The run table names the eps of its relative errors (the run's own: 0.05 here); a
+    sweep row timed on a loaded machine reads 'L' after its ms/frame, explained under
+    the table, a quiet one reads its time alone. Planted: with the flags dropped no
+    row is marked and no line explains."""
+    from rich.console import Console
+
+    from jobs.protocol.results import RunResultDetail
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from jobs.sweeps.sweep import SweepResult, point_row
+    from service.tables import metrics_table, sweep_table
+
+    data, _ = store_dir
+    run = open_store(Settings(data_dir=data)).get_run(1)
+
+    def shown(table) -> str:
+        console = Console(width=300, record=True)
+        console.print(table)
+        return console.export_text()
+
+    detail = RunResultDetail.of(run)
+    detail = detail.model_copy(update={"metrics": {**detail.metrics, "eps": 0.05}})
+    eps_row = next(line for line in shown(metrics_table(detail)).splitlines()
+                   if "eps of the relative errors" in line)
+    assert "0.05" in eps_row
+    loaded = ["loaded: other work held the CPU"]
+    work = dict.fromkeys(("reference_rendered", "snapshots_trained", "snapshots_reused",
+                          "points_rendered", "points_reused", "calibrations"), 0)
+
+    def sweep(flags: list[list[str]]) -> str:
+        rows = [point_row("nirc", eps, run).model_copy(update={
+            "timing_flags": flag, "seconds_per_frame": 0.002 * (k + 1), "render_key": str(k)})
+            for k, (eps, flag) in enumerate(zip((0.1, 0.5), flags, strict=True))]
+        return shown(sweep_table(SweepResult(sweep_id=1, key="k", kind="eps",
+                                             scene="cornell-box", device_key=run.device_key,
+                                             rows=rows, skipped=[], work=work)))
+
+    text = sweep(flags=[[], loaded])
+    cells = [[cell.strip() for cell in line.split("│")] for line in text.splitlines()
+             if line.startswith("│")]
+    ms_column = next(line for line in text.splitlines() if "series" in line).split("┃")
+    ms_index = [cell.strip() for cell in ms_column].index("ms/frame")
+    assert [row[ms_index] for row in cells] == ["2", "4 L"]
+    assert "L after ms/frame: timed on a loaded machine" in text
+    planted = sweep(flags=[[], []])
+    assert " L" not in planted and "loaded machine" not in planted
