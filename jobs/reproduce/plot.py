@@ -32,8 +32,9 @@ def plot_panels(reproduction: Reproduction, panels: list[Panel], path: Path, *,
     for ax in axes[len(panels):]:
         figure.delaxes(ax)
     for ax, panel in zip(axes, panels, strict=False):
-        points = [p for p in reproduction.points
-                  if panel.scene is None or p.scene == panel.scene]
+        # A point without a swept value (a table's PT row) has no place on the x axis.
+        points = [p for p in reproduction.points if p.x is not None
+                  and (panel.scene is None or p.scene == panel.scene)]
         plotted, hidden, dropped = False, 0, 0
         for series in dict.fromkeys(p.series for p in points):
             members = [p for p in points if p.series == series and panel.quantity in p.values]
@@ -59,6 +60,7 @@ def plot_panels(reproduction: Reproduction, panels: list[Panel], path: Path, *,
         if panel.log_y:
             ax.set_yscale("log")
         ax.grid(True, which="major", alpha=0.3)
-        ax.legend(fontsize="x-small")
+        if plotted:
+            ax.legend(fontsize="x-small")
         _annotate(ax, plotted, hidden, dropped)
     return _save_png(figure, path)

@@ -1,0 +1,122 @@
+"""``nirc-bench reproduce`` (jobs/reproduce): the registry lists its figures, a figure runs
+end to end at a tiny budget and writes its PNG and a table with 95 % intervals, reading
+its points back from the store when run again; a bad figure name exits 2 with the
+choices; the paper's data file parses and every row states its page."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from unittest import mock
+
+import pytest
+from typer.testing import CliRunner
+
+from jobs.record.config import Settings
+from jobs.reproduce import measure, vt_fig7, vt_table1
+from jobs.reproduce.papers import PaperValue, paper_data
+from jobs.reproduce.registry import Budget, figures
+from jobs.reproduce.results import Estimate, Point, Reproduction
+from jobs.reproduce.run import reproduce
+from jobs.views import plots
+from service.cli import app, main
+
+#: Two thresholds at 8x8, K = 3 (the fewest seeds that give an interval), one frame.
+TINY = Budget(resolution=8, seeds=3, frames=1, ref_spp=16, grid_preset="cpu", why="test",
+              values=(0.1, 10.0))
+
+
+def test_list_names_every_registered_figure() -> None:
+    result = CliRunner().invoke(app, ["reproduce", "list", "--json"])
+    assert result.exit_code == 0, result.output
+    listed = {row["command"] for row in json.loads(result.output)}
+    assert listed == {f"nirc-bench reproduce {f.paper} {f.key}" for f in figures()}
+    assert {"fig7", "fig9", "table1"} <= {f.key for f in figures()}
+
+
+def assert_intervals(reproduction: Reproduction) -> None:
+    """Every drawn quantity of every point has a finite value inside its 95 % interval."""
+    for point in reproduction.points:
+        for key in reproduction.quantities:
+            estimate = point.values[key]
+            assert estimate.value is not None and estimate.ci95 is not None, (point, key)
+            low, high = estimate.ci95
+            assert low <= estimate.value <= high, (point, key)
+
+
+def _no_sweep_plot(_rows: object, path: Path, *_args: object, **_kwargs: object) -> Path:
+    """The sweep's own plot (not this command's figure) costs seconds and is tested with
+    the sweep: an empty file stands for it."""
+    path.write_bytes(b"")
+    return path
+
+
+def test_fig7_runs_end_to_end_and_reuses_its_points(sqlite_store, data_folder: Path,
+                                                     tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(vt_fig7, "SURVIVALS", (0.6,))
+    monkeypatch.setattr(measure, "PREFILL_FRAMES", 1)
+    monkeypatch.setattr(plots, "plot_sweep", _no_sweep_plot)
+    settings = Settings(data_dir=data_folder)
+    result, paths = reproduce("vt", "fig7", "quick", tmp_path / "out", sqlite_store, settings,
+                              budget=TINY)
+    assert paths["figure"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    stored = Reproduction.model_validate_json(paths["json"].read_text())
+    assert [p.x for p in stored.points] == [0.1, 10.0]
+    assert_intervals(stored)
+    assert stored.work == {"points_rendered": 2, "points_reused": 0}
+    assert stored.settings["runs' grid presets"] == ["cpu"]
+    assert stored.claims and all(c["page"] >= 1 for c in stored.claims)
+    table = paths["markdown"].read_text()
+    assert "| door | survival 60% | 0.1 |" in table and "Intervals:" in table
+    # A run's estimates without intervals (planted) are caught by the same check.
+    stripped = result.model_copy(update={"points": [
+        p.model_copy(update={"values": {k: Estimate(value=e.value) for k, e in p.values.items()}})
+        for p in result.points]})
+    with pytest.raises(AssertionError):
+        assert_intervals(stripped)
+    again, _paths = reproduce("vt", "fig7", "quick", tmp_path / "again", sqlite_store,
+                              settings, budget=TINY)
+    assert again.work == {"points_rendered": 0, "points_reused": 2}
+    assert [p.run_id for p in again.points] == [p.run_id for p in result.points]
+
+
+def test_a_bad_figure_name_exits_2_naming_the_choices(capsys, data_folder: Path) -> None:
+    argv = ["nirc-bench", "reproduce", "vt", "fig8", "--data-dir", str(data_folder)]
+    with mock.patch.object(sys, "argv", argv), pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("nirc-bench: error: unknown figure 'fig8'") and "table1" in err
+    assert err.count("\n") == 1
+
+
+def test_the_papers_data_file_parses_and_every_row_has_a_page() -> None:
+    data = paper_data("vt")
+    assert data.values and data.claims
+    assert all(row.page >= 1 and row.quote for row in [*data.values, *data.claims])
+    # Every row of Table 1 we render has the paper's path length beside it.
+    values, _claims = data.of("table1")
+    lengths = {(v.scene, v.series, v.setting) for v in values if v.quantity == "path_length"}
+    wanted = {(theirs, policy, setting) for theirs in vt_table1.SCENES.values()
+              for policy, _name, settings, _fixed, _symbol in vt_table1.POLICIES
+              for setting in settings}
+    assert wanted <= lengths
+    row = data.values[0].model_dump()
+    del row["page"]
+    with pytest.raises(ValueError, match="page"):
+        PaperValue.model_validate(row)   # a row without its page is refused
+
+
+def _point(series: str, ours: float, theirs: float) -> Point:
+    return Point(scene="door", series=series, values={"path_length": Estimate(value=ours)},
+                 paper={"path_length": theirs})
+
+
+def test_policy_order_counts_pairs_ordered_alike() -> None:
+    alike = [_point("a", 1.0, 1.0), _point("b", 2.0, 4.0), _point("c", 3.0, 3.0)]
+    order, agree, total = vt_table1.policy_order(alike, "door", "path_length")
+    assert (order, agree, total) == (["a", "c", "b"], 2, 3)
+    reversed_ = [_point("a", 3.0, 1.0), _point("b", 2.0, 2.0), _point("c", 1.0, 3.0)]
+    assert vt_table1.policy_order(reversed_, "door", "path_length")[1:] == (0, 3)
