@@ -28,7 +28,15 @@ import altair as alt
 import vl_convert
 
 from jobs.views.baselines import strongest_pt_of
-from jobs.views.chart_groups import KNOB_PARAMS, Group, config_label, curve_label, knob_order
+from jobs.views.chart_groups import (
+    FROZEN,
+    KNOB_PARAMS,
+    ONLINE,
+    Group,
+    config_label,
+    curve_label,
+    knob_order,
+)
 from jobs.views.chart_styles import (
     ENVELOPE_OPACITY,
     ENVELOPE_STYLE,
@@ -134,6 +142,13 @@ def envelope_rows(points: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return rows
 
 
+#: The time axis of an error-vs-time chart per protocol (jobs.views.chart_groups): a
+#: run's frame time includes its online training; a sweep point's is the render alone
+#: with its frozen, converged cache.
+TIME_AXIS_TITLES = {ONLINE: "milliseconds per frame (online training included)",
+                    FROZEN: "milliseconds per frame (render with a frozen cache)"}
+
+
 def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                      metric: Mapping[str, Any]) -> dict[str, Any] | None:
     """Error against milliseconds per frame of one group's runs: each run a point with
@@ -161,7 +176,7 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                             [p["value"] for p in points])
     front = sorted((p for p, on in zip(points, on_front, strict=True) if on),
                    key=lambda p: p["ms"])
-    x = alt.X("ms:Q", title="milliseconds per frame (online training included)",
+    x = alt.X("ms:Q", title=TIME_AXIS_TITLES[group.protocol],
               scale=value_scale([p["ms"] for p in points], True))
     y_scale = value_scale([p["value"] for p in points], log)
     y = alt.Y("value:Q", title=axis_title(metric), scale=y_scale)

@@ -201,6 +201,24 @@ def test_error_time_chart_has_units_links_tooltips_a_front_and_no_schema_url():
     assert spec["params"][0]["bind"] == "scales"                 # wheel zoom, drag pan
 
 
+def test_the_time_axis_says_what_a_frame_time_holds():
+    """An online-training group's frame times include the caches' training; a sweep
+    point's (frozen cache) are the render alone, and its chart says so (it read
+    'online training included' before)."""
+    online = [run(1), run(2, method="nirc", method_label="nirc", mrse=0.05)]
+    frozen = [run(k, method="nirc", method_label=f"nirc (adaptive, eps {eps})",
+                  params={"sweep": {"eps": eps}}, mrse=0.1 * eps)
+              for k, eps in ((3, 0.1), (4, 0.5))]
+    titles = {}
+    for runs in (online, frozen):
+        group = group_of(runs[0])
+        spec = error_time_chart(group, runs, BY_NAME["mrse"].to_json())
+        titles[group.protocol] = layer(spec, "point")["encoding"]["x"]["title"]
+    assert titles[ONLINE] == "milliseconds per frame (online training included)"
+    assert titles[FROZEN].startswith("milliseconds per frame") \
+        and "frozen cache" in titles[FROZEN] and "training" not in titles[FROZEN]
+
+
 def test_log_axis_only_where_values_span_decades_and_nonpositive_values_are_counted():
     rbias = BY_NAME["rbias2"].to_json()
     history = [("pt", [{"commit": f"c{i}", "time": f"2025-01-0{i + 1}", "median": m,
