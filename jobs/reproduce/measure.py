@@ -12,9 +12,12 @@ from jobs.reproduce.results import Estimate
 #: The most pre-fill passes (the method's default limit).
 PREFILL_FRAMES = 48
 
-MSE_NOTE = ("MSE at N samples per pixel (relative, as MRSE): rBias² + F rVar / N, rVar "
-            "being the variance of a render of F one-spp frames; its interval adds the "
-            "ends of rBias²'s and rVar's 95 % intervals (at least 90 % coverage)")
+MSE_NOTE = ("MSE at N samples per pixel (relative, as MRSE): rBias² + rVar₁ / N, rVar₁ the "
+            "variance of one one-spp frame; its interval adds the ends of the two 95 % "
+            "intervals (at least 90 % coverage)")
+SAMPLE_VARIANCE_NOTE = ("rVar₁: the relative variance of one frame about its own cache's "
+                        "mean (each seed's F frames), the mean over the K seeds; 95 % "
+                        "interval: Student t (K-1 degrees of freedom) over the seeds")
 LENGTH_NOTE = ("path length: the paper's (vertices up to the termination vertex, a blended "
                "segment by its weight); 95 % interval: Student t (K-1 degrees of freedom) "
                "over the K renders' means")
@@ -54,10 +57,26 @@ def metric(row: Any, field: str, scale: float = 1.0) -> Estimate:
                     note=f"{field}: {getattr(row, f'{field}_ci_note')}")
 
 
-def mse_at(row: Any, frames: int, samples: float) -> Estimate:
-    """The relative MSE of an N-sample estimate (:data:`MSE_NOTE`): the squared bias does
-    not shrink with N, the variance of one sample does (Eq. 4 with N samples)."""
-    bias2, var = metric(row, "rbias2"), metric(row, "rvar", frames / samples)
+def sample_variance(run: Any, scale: float = 1.0) -> Estimate:
+    """rVar₁ (:data:`SAMPLE_VARIANCE_NOTE`) times ``scale``: what averaging N frames with
+    one cache divides by N, unlike the seeds' spread of the render (``rvar``), which
+    also holds the caches' differences. For the path tracer the two agree."""
+    from metrics.bias_intervals import bias_interval
+
+    per_seed = (run.metrics or {}).get("rvar_per_cache")
+    if not per_seed:
+        return Estimate(value=None, note=(run.metrics or {}).get("per_cache_unavailable"))
+    interval, note = bias_interval(per_seed, SAMPLE_VARIANCE_NOTE)
+    mean = sum(per_seed) / len(per_seed)
+    return Estimate(value=scale * mean, note=note,
+                    ci95=None if interval is None else [scale * v for v in interval])
+
+
+def mse_at(row: Any, run: Any, samples: float) -> Estimate:
+    """The relative MSE of an N-sample estimate (:data:`MSE_NOTE`): the cache's squared
+    bias does not shrink with N, the variance of one sample does ([VTT24] Eq. 4 over N
+    samples). rBias² is the caches' own (per cache) for `grid-cache`."""
+    bias2, var = metric(row, "rbias2"), sample_variance(run, 1.0 / samples)
     if bias2.value is None or var.value is None:
         return Estimate(value=None, note=MSE_NOTE)
     interval = (None if bias2.ci95 is None or var.ci95 is None else

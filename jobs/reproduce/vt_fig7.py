@@ -6,8 +6,9 @@ Ours: `grid-cache` with `var-bound` (absolute t) on `door`, the paper's grid pre
 roulette's survival from the fifth vertex (the method's ``rr_depth``), paths at most
 :data:`MAX_DEPTH` segments long (at 100 % survival only the limit ends a path that
 stays in the closed room), the reference alike. Relative figures (docs/metrics.md), per
-one-spp frame so that they read as the paper's one-sample quantities: rVar x F,
-rBias², and their sum, the MSE of one sample."""
+one-spp frame so that they read as the paper's one-sample quantities: rVar₁ (one
+frame's variance about its cache's mean), rBias² (the caches' own), and their sum, the
+MSE of one sample (jobs/reproduce/measure.py)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from jobs.reproduce.measure import (
     mse_at,
     path_length,
     quick_budget,
+    sample_variance,
     sweep,
 )
 from jobs.reproduce.plot import Panel, plot_panels
@@ -41,7 +43,6 @@ FULL = full_budget((0.001, 0.01, 0.1, 1.0, 10.0, 100.0))
 
 
 def measure(ctx: Context) -> Reproduction:
-    frames = ctx.budget.frames
     points: list[Point] = []
     presets: set[str] = set()
     for survival in SURVIVALS:
@@ -53,9 +54,9 @@ def measure(ctx: Context) -> Reproduction:
                               max_depth=MAX_DEPTH):
             presets |= grid_presets(run)
             points.append(Point(scene=SCENE, series=series, x=float(row.value), run_id=row.id,
-                                values={"rvar": metric(row, "rvar", frames),
+                                values={"rvar": sample_variance(run),
                                         "rbias2": metric(row, "rbias2"),
-                                        "mse": mse_at(row, frames, 1),
+                                        "mse": mse_at(row, run, 1),
                                         "path_length": path_length(run)}))
     return Reproduction(
         paper="vt", figure="fig7", title="[VTT24] Fig. 7: variance bounding on door",

@@ -5,8 +5,8 @@ area-spread (c = 0.01) for reference.
 Ours: `grid-cache` with `mse-min` on `cornell-box` and `white-room`, which stand in for
 the paper's Bunny and Classroom (neither is a scene here), the paper's grid preset.
 Each line is one render of K x F one-spp frames per target, its MSE at N samples
-rBias² + F rVar / N (jobs/reproduce/measure.py: the bias does not shrink with N, the
-variance does), relative as MRSE."""
+rBias² + rVar₁ / N (jobs/reproduce/measure.py: the cache's bias does not shrink with N,
+one frame's variance does), relative as MRSE."""
 
 from __future__ import annotations
 
@@ -37,26 +37,25 @@ QUICK = quick_budget((1.0, 10.0, 100.0, 1000.0))
 FULL = full_budget((1.0, 10.0, 100.0, 1000.0, 10000.0))
 
 
-def _line(scene: str, series: str, row: Any, frames: int) -> list[Point]:
+def _line(scene: str, series: str, row: Any, run: Any) -> list[Point]:
     """One render's MSE at every sample count of :data:`SAMPLE_COUNTS`."""
     return [Point(scene=scene, series=series, x=n, run_id=row.id,
-                  values={"mse": mse_at(row, frames, n)}) for n in SAMPLE_COUNTS]
+                  values={"mse": mse_at(row, run, n)}) for n in SAMPLE_COUNTS]
 
 
 def measure(ctx: Context) -> Reproduction:
-    frames = ctx.budget.frames
     points: list[Point] = []
     presets: set[str] = set()
     for scene in SCENES:
         for row, run in sweep(ctx, scene, "grid-cache", "termination_params.samples",
                               list(ctx.budget.values), grid_params(ctx, "mse-min", {})):
             presets |= grid_presets(run)
-            points += _line(scene, f"mse-min s = {row.value:g}", row, frames)
-        [(spread, _run)] = sweep(ctx, scene, "grid-cache", "termination_params.c", [0.01],
-                                 grid_params(ctx, "area-spread", {}))
-        points += _line(scene, "area-spread c = 0.01", spread, frames)
-        [(pt, _run)] = sweep(ctx, scene, "pt", "rr_survival", [0.9], {})
-        points += _line(scene, "PT (survival 90 %)", pt, frames)
+            points += _line(scene, f"mse-min s = {row.value:g}", row, run)
+        [(row, run)] = sweep(ctx, scene, "grid-cache", "termination_params.c", [0.01],
+                             grid_params(ctx, "area-spread", {}))
+        points += _line(scene, "area-spread c = 0.01", row, run)
+        [(row, run)] = sweep(ctx, scene, "pt", "rr_survival", [0.9], {})
+        points += _line(scene, "PT (survival 90 %)", row, run)
     return Reproduction(
         paper="vt", figure="fig9", title="[VTT24] Fig. 9: MSE minimization, MSE against "
                                          "sample count",

@@ -22,8 +22,9 @@ from jobs.reproduce.run import reproduce
 from jobs.views import plots
 from service.cli import app, main
 
-#: Two thresholds at 8x8, K = 3 (the fewest seeds that give an interval), one frame.
-TINY = Budget(resolution=8, seeds=3, frames=1, ref_spp=16, grid_preset="cpu", why="test",
+#: Two thresholds at 8x8, K = 3 (the fewest seeds that give an interval), F = 2 (the fewest
+#: frames that give one frame's variance about its cache).
+TINY = Budget(resolution=8, seeds=3, frames=2, ref_spp=16, grid_preset="cpu", why="test",
               values=(0.1, 10.0))
 
 
