@@ -4,7 +4,9 @@ over commits never pools runs of two labels."""
 from __future__ import annotations
 
 import json
+import re
 from datetime import UTC, datetime
+from pathlib import Path
 from types import SimpleNamespace
 
 from jobs.ci.history import build_history
@@ -45,6 +47,18 @@ def test_labels_show_resolved_values_that_differ_from_the_defaults():
     assert changed_params("pt", {"max_depth": -1}) == {}
     # Parameters today's model refuses (stored by older code) are shown as stored.
     assert resolved_params("nirc", {"rr_survival": 2.0, "nc": None})["nc"] is None
+
+
+def test_the_readme_names_runs_as_tables_do():
+    """The README's example of a table's title is the label of its parameters, and its
+    NIRC at the defaults reads as the tables print it (it read 'nirc (biased, bth, N_c
+    4)' while tables printed 'nirc')."""
+    text = " ".join((Path(__file__).parents[2] / "README.md").read_text().split())
+    passage = text[text.index('"scene / method" row read e.g.'):]
+    example, at_defaults = re.findall(r"`([^`]+)`", passage)[:2]
+    assert example == run_label("nirc", {"termination": "sph", "nc": [8]})
+    assert at_defaults == run_label("nirc", {"estimator": "biased", "termination": "bth",
+                                             "nc": [4]})
 
 
 def _run(run_id: int, params: dict, commit: str, value: float) -> SimpleNamespace:
