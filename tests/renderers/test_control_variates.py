@@ -96,13 +96,29 @@ def _integrator(mi, model, max_depth=2, cls=None):
     return integrator.with_model(model)
 
 
-def _fitted(mi, scene, frames=2, spp=256, max_depth=2, bands=5):
-    """(integrator, SH model) fitted from ``frames`` frames of ``spp`` samples, the
-    fit then frozen (the moment renders below record nothing)."""
-    from renderers.caches.sh import SHConfig, SHModel
+#: Fitting of each model: (frames, spp) before its fit is frozen. SH projects every
+#: sample alike, so two frames suffice; stepwise EM takes one batch per frame.
+FITS = {"sh": (2, 256), "vmf": (8, 32)}
 
-    model = SHModel(SHConfig(bands=bands), RES * RES)
+
+def _model(kind: str):
+    """A zero (unfitted) model: SH at the paper's 5 bands, or a vMF mixture of 3 lobes
+    (11 lobes compile a kernel several times larger; the fingerprint test renders
+    them)."""
+    from renderers.caches.sh import SHConfig, SHModel
+    from renderers.caches.vmf import VMFConfig, VMFModel
+
+    if kind == "sh":
+        return SHModel(SHConfig(), RES * RES)
+    return VMFModel(VMFConfig(lobes=3), RES * RES)
+
+
+def _fitted(mi, scene, kind="sh", max_depth=2):
+    """(integrator, model) fitted from the model's FITS frames, the fit then frozen (the
+    moment renders below record nothing)."""
+    model = _model(kind)
     integrator = _integrator(mi, model, max_depth)
+    frames, spp = FITS[kind]
     for frame in range(frames):
         mi.render(scene.scene, integrator=integrator, spp=spp, seed=1000 + frame)
         model.update()
@@ -176,53 +192,63 @@ def reference(mixed):
     return render_moments(mixed.scene, {"type": "path", "max_depth": 2}, SPP, seed=2)
 
 
-def test_zero_and_fitted_models_agree_with_the_reference(mi, mixed, reference):
-    """g = 0 (the plain estimator) and a fitted g both agree with ``path``; the fitted
-    model is far from zero and lowers the variance where the pixels see a surface."""
-    from renderers.caches.sh import SHConfig, SHModel
-
-    zero = _integrator(mi, SHModel(SHConfig(), RES * RES))
+@pytest.fixture(scope="module")
+def zero_moments(mi, mixed):
+    zero = _integrator(mi, _model("sh"))
     zero.fitting = False
-    mean_0, var_0 = render_moments(mixed.scene, zero, SPP, seed=1)
-    result = agreement_test(mean_0, var_0, *reference)
+    return render_moments(mixed.scene, zero, SPP, seed=1)
+
+
+def test_the_zero_model_agrees_with_the_reference(zero_moments, reference):
+    """g = 0: the plain estimator, mixture-sampled."""
+    result = agreement_test(*zero_moments, *reference)
     assert result.passed, result.summary()
 
-    integrator, model = _fitted(mi, mixed)
+
+@pytest.mark.parametrize("kind", ["sh", "vmf"])
+def test_a_fitted_model_agrees_with_the_reference_and_lowers_variance(mi, mixed, reference,
+                                                                     zero_moments, kind):
+    """The fitted g agrees with ``path``, is far from zero (its integral is most of the
+    pixel) and lowers the variance where the pixels see a surface."""
+    integrator, model = _fitted(mi, mixed, kind)
     mean_g, var_g = render_moments(mixed.scene, integrator, SPP, seed=3)
     result = agreement_test(mean_g, var_g, *reference)
     assert result.passed, result.summary()
+    var_0 = zero_moments[1]
     surface = var_0[..., 1] > 1e-6   # the sky's pixels have no variance to lower
     G = np.asarray(model.integral(mi.UInt32(np.arange(RES * RES)), True)).T
-    assert np.median(G.reshape(RES, RES, 3)[surface] / np.asarray(mean_g)[surface]) > 0.5
+    assert np.median(G.reshape(RES, RES, 3)[surface] / mean_g[surface]) > 0.5
     ratio = np.median(var_g[surface] / var_0[surface])
     assert ratio < 0.9, f"median variance ratio fitted / zero model {ratio:.2f}"
 
-
-def test_planted_integral_and_domain_errors_are_rejected(mi, mixed, reference):
-    """G x 1.05, and G over the sphere with BSDF-only sampling, fail the agreement test."""
-    integrator, model = _fitted(mi, mixed)
     integrator.with_model(ScaledIntegral(model))
-    assert not agreement_test(*render_moments(mixed.scene, integrator, SPP, seed=4), *reference).passed
+    assert not agreement_test(*render_moments(mixed.scene, integrator, SPP, seed=4),
+                              *reference).passed
 
+
+def test_a_full_sphere_integral_with_bsdf_only_sampling_is_rejected(mi, mixed, reference):
+    """G over the sphere while q = 0 below the surface misses -int_{q=0} g."""
+    _, model = _fitted(mi, mixed)
     bsdf_only = _integrator(mi, model, cls=_bsdf_only(mi))
     bsdf_only.fitting = False
-    assert not agreement_test(*render_moments(mixed.scene, bsdf_only, SPP, seed=5), *reference).passed
+    assert not agreement_test(*render_moments(mixed.scene, bsdf_only, SPP, seed=5),
+                              *reference).passed
 
 
 def test_plane_under_a_constant_sky_has_the_known_expectation(mi, plane):
-    """Oracle-like: every pixel's expectation is RHO * SKY. The fitted model agrees with
-    it and lowers the variance several-fold; its integral scaled by 1.05 is rejected."""
-    class Known(mi.SamplingIntegrator):
-        def sample(self, scene, sampler, ray, medium=None, active=True):
-            return mi.Spectrum(RHO * SKY), True, []
+    """Oracle-like: every pixel's expectation is RHO * SKY (grey: its XYZ is the white
+    point times it, as the moment renders convert). The fitted SH model agrees with it
+    and lowers the variance at least twofold (a clamped cosine is smooth: measured
+    0.25); its integral scaled by 1.05 is rejected."""
+    from tests.support.moments import FLOAT32_REL_PRECISION
 
-    expected = render_moments(plane.scene, Known(mi.Properties()), 1, seed=0)
-    from renderers.caches.sh import SHConfig, SHModel
-
-    zero = _integrator(mi, SHModel(SHConfig(), RES * RES))
+    value = np.asarray(mi.srgb_to_xyz(mi.ScalarColor3f(RHO * SKY))).ravel()
+    expected = (np.broadcast_to(value, (RES, RES, 3)),
+                np.broadcast_to((FLOAT32_REL_PRECISION * value) ** 2, (RES, RES, 3)))
+    zero = _integrator(mi, _model("sh"))
     zero.fitting = False
     _, var_0 = render_moments(plane.scene, zero, 256, seed=1)
-    integrator, model = _fitted(mi, plane, frames=2, spp=512)
+    integrator, model = _fitted(mi, plane)
     mean_g, var_g = render_moments(plane.scene, integrator, 256, seed=2)
     result = agreement_test(mean_g, var_g, *expected)
     assert result.passed, result.summary()
@@ -230,43 +256,76 @@ def test_plane_under_a_constant_sky_has_the_known_expectation(mi, plane):
     assert ratio < 0.5, f"median variance ratio fitted / zero model {ratio:.3f}"
 
     integrator.with_model(ScaledIntegral(model))
-    assert not agreement_test(*render_moments(plane.scene, integrator, 256, seed=3), *expected).passed
+    assert not agreement_test(*render_moments(plane.scene, integrator, 256, seed=3),
+                              *expected).passed
 
 
-def test_cv_sh_render_is_reproducible_and_stores_its_memory(mi, mixed):
+@pytest.mark.parametrize("name, params, floats", [
+    ("cv-sh", {}, {"model": 3 * 25, "fit": 3 * 25 + 1}),
+    ("cv-vmf", {"vmf": {"lobes": 3}}, {"model": 7 * 3, "fit": 9 * 3 + 2}),
+])
+def test_a_cv_render_is_reproducible_and_stores_its_memory(mi, mixed, name, params, floats):
     from tests.support.untimed import UNTIMED
 
-    method = get_method("cv-sh")
-    params = parse_params("cv-sh", {"max_depth": 2, "pretrain_frames": 1})
-    a, b = (method.render(mixed, params, seed_parts=("cv",), spp=2, frames=2, hooks=UNTIMED)
+    method = get_method(name)
+    values = parse_params(name, {"max_depth": 2, "pretrain_frames": 1, **params})
+    a, b = (method.render(mixed, values, seed_parts=("cv",), spp=2, frames=2, hooks=UNTIMED)
             for _ in range(2))
     np.testing.assert_array_equal(a.accumulated, b.accumulated)
     model = a.method_stats["model"]
-    assert model["config"] == {"bands": 5}
-    assert model["floats_per_pixel"] == {"model": 3 * 25, "fit": 3 * 25 + 1}
-    assert model["nonfinite_samples"] == 0 and model["fit_samples_per_pixel"] > 0
+    assert model["floats_per_pixel"] == floats
+    assert model["nonfinite_samples"] == 0
     assert set(a.timings["stages"]) == {"render", "fit"}
 
 
-@pytest.mark.parametrize("values, fragment", [
-    ({"max_depth": 1}, "max_depth"),
-    ({"uniform_fraction": 0.0}, "uniform_fraction"),
-    ({"sh": {"bands": 0}}, "sh: bands"),
-    ({"sh": {"lobes": 3}}, "sh: lobes"),
+@pytest.mark.parametrize("name, values, fragment", [
+    ("cv-sh", {"max_depth": 1}, "max_depth"),
+    ("cv-sh", {"uniform_fraction": 0.0}, "uniform_fraction"),
+    ("cv-sh", {"sh": {"bands": 0}}, "sh: bands"),
+    ("cv-sh", {"sh": {"lobes": 3}}, "sh: lobes"),
+    ("cv-vmf", {"vmf": {"lobes": 0}}, "vmf: lobes"),
+    ("cv-vmf", {"vmf": {"step_exponent": 0.5}}, "vmf: step_exponent"),
 ])
-def test_invalid_cv_sh_parameters(values, fragment):
+def test_invalid_cv_parameters(name, values, fragment):
     with pytest.raises(MethodError, match=fragment):
-        parse_params("cv-sh", values)
+        parse_params(name, values)
 
 
-def test_cv_sh_refuses_delta_lobes_and_delta_emitters():
+@pytest.mark.parametrize("name", ["cv-sh", "cv-vmf"])
+def test_cv_methods_refuse_delta_lobes_and_delta_emitters(name):
     from types import SimpleNamespace
 
     def features(**changes):
         return SimpleNamespace(**{"shape_count": 2, "emitter_count": 2, "area_emitter_count": 1,
                                   "has_envmap": True, "has_delta": False, **changes})
 
-    method = get_method("cv-sh")
+    method = get_method(name)
     assert method.applies_to(features()) == (True, "")
     assert "delta BSDF" in method.applies_to(features(has_delta=True))[1]
     assert "delta emitter" in method.applies_to(features(has_envmap=False))[1]
+
+
+def test_vmf_lobes_integrate_to_one_and_start_spread_over_the_sphere(mi):
+    """The normalised lobe integrates to 1 (so G = sum of amplitudes) from nearly uniform
+    to narrow lobes, and the Fibonacci lattice leaves no lobe far from the others."""
+    from renderers.caches.vmf import VMFConfig, VMFModel, fibonacci_directions
+
+    z, wz = np.polynomial.legendre.leggauss(200)
+    phi = (np.arange(64) + 0.5) * 2 * np.pi / 64
+    zz, pp = np.meshgrid(z, phi, indexing="ij")
+    weights = (wz[:, None] * np.full_like(pp, 2 * np.pi / 64)).ravel()
+    r = np.sqrt(1 - zz**2)
+    w = mi.Vector3f(*(a.ravel() for a in (r * np.cos(pp), r * np.sin(pp), zz)))
+    for kappa in (1e-3, 1.0, 50.0):
+        model = VMFModel(VMFConfig(lobes=1, initial_kappa=kappa), 1)
+        model.amplitude[:] = 1.0
+        model.mean[:] = (0.0, 0.0, 1.0)
+        model._upload()
+        g = np.asarray(model.eval(mi.UInt32(np.zeros(weights.size, dtype=np.uint32)), w, True))
+        assert g[0] @ weights == pytest.approx(1.0, rel=1e-4), kappa
+
+    lattice = fibonacci_directions(11)
+    np.testing.assert_allclose(np.linalg.norm(lattice, axis=1), 1.0, rtol=1e-12)
+    cosines = lattice @ lattice.T - 2 * np.eye(11)
+    # 11 points spread evenly: each has a neighbour within ~70 degrees, none closer than ~45.
+    assert 0.3 < cosines.max(axis=1).min() and cosines.max() < 0.75

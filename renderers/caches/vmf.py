@@ -1,0 +1,239 @@
+"""Per-pixel mixture of von Mises-Fisher lobes, a control variate with a closed-form
+integral (NIRC paper Sec. 6.1: 11 lobes of 7 coefficients, directions initialised on
+a spherical Fibonacci lattice, fitted by stepwise EM [VKS*14]).
+
+Lobe k of pixel p: mean direction mu_k (3 floats), concentration kappa_k (1) and an
+amplitude a_kc per colour channel (3): 7 floats per lobe, 77 per pixel at 11 lobes.
+With the normalised vMF density
+
+    v(w; mu, kappa) = kappa / (2 pi (1 - exp(-2 kappa))) exp(kappa (mu.w - 1)),
+    int_S2 v dw = 1,
+
+the model and its closed-form integral over the sphere are
+
+    g_pc(w) = sum_k a_kc v(w; mu_k, kappa_k),        G_pc = sum_k a_kc.
+
+Fitting: stepwise EM over weighted samples (Vorba et al. 2014, Sec. 4-5). A sample
+w_j of the pixel, drawn with density q, with integrand estimate f_jc carries the
+weights o_jc = f_jc / q(w_j) (their channel mean o_j for the shape). With mixture
+weights pi_k proportional to the amplitudes' channel mean (the same statistic),
+
+    E-step:  gamma_jk = pi_k v_k(w_j) / sum_l pi_l v_l(w_j)      (current lobes)
+    batch:   A_kc = 1/N sum_j o_jc gamma_jk,   S_k = 1/N sum_j o_j gamma_jk w_j
+    step:    a <- (1 - eta_t) a + eta_t A,   s <- (1 - eta_t) s + eta_t S,
+             eta_t = (t + 1)^(-step_exponent), t the pixel's batches so far
+    M-step:  mu_k = s_k / |s_k|,  rbar = |s_k| / mean_c a_kc,
+             kappa_k = rbar (3 - rbar^2) / (1 - rbar^2)   (Banerjee et al. 2005)
+
+so a_kc estimates int f_c gamma_k and sum_k a_kc estimates int f_c. One batch is
+one frame's samples of the pixel (its spp first hits), recorded during the render
+(:meth:`VMFModel.record`) with the lobes of the previous frames and folded in by
+:meth:`VMFModel.update` between frames: a frame's g never depends on its own
+samples. The first batch (eta_0 = 1) replaces the initial amplitudes, which are 0
+(g = 0: the plain estimator) until then.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+CHANNELS = 3
+#: Floats per lobe of the model: mean direction (3), concentration (1), amplitude (3).
+LOBE_FLOATS = 7
+#: Bounds of kappa: below, the lobe is uniform to float precision; above, a lobe
+#: narrower than float32 directions resolve.
+KAPPA_RANGE = (1e-3, 1e4)
+
+
+class VMFConfig(BaseModel):
+    """The per-pixel vMF mixture (module docstring)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    lobes: int = Field(11, ge=1, le=64, description="vMF lobes per pixel")
+    initial_kappa: float = Field(5.0, ge=KAPPA_RANGE[0], le=KAPPA_RANGE[1],
+                                 description="concentration of every lobe before the fit")
+    step_exponent: float = Field(0.7, gt=0.5, le=1.0,
+                                 description="stepwise EM's rate eta_t = (t+1)^-exponent")
+
+    def floats_per_pixel(self) -> dict[str, int]:
+        """The model's floats per pixel (what g is), and the fit's: the running mean
+        direction statistic (3 per lobe), one frame's batch sums (6 per lobe) and the
+        batch's sample count and the batches so far (2)."""
+        return {"model": LOBE_FLOATS * self.lobes, "fit": 9 * self.lobes + 2}
+
+
+def vmf_config(**overrides: Any) -> VMFConfig:
+    """The vMF preset with ``overrides`` (a method's ``vmf`` parameter)."""
+    return VMFConfig(**overrides)
+
+
+def fibonacci_directions(count: int) -> np.ndarray:
+    """``count`` unit vectors on a spherical Fibonacci lattice (z uniform in (-1, 1),
+    azimuth stepped by the golden angle): near-uniform coverage of the sphere."""
+    index = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * index / count
+    phi = index * math.pi * (3.0 - math.sqrt(5.0))
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+
+def kappa_from_mean_length(rbar: np.ndarray) -> np.ndarray:
+    """Banerjee et al.'s approximation of the maximum-likelihood kappa in 3-D."""
+    rbar = np.clip(rbar, 0.0, 1.0 - 1e-6)
+    return np.clip(rbar * (3.0 - rbar * rbar) / (1.0 - rbar * rbar), *KAPPA_RANGE)
+
+
+class VMFModel:
+    """The vMF mixtures of ``pixels`` pixels (module docstring); host arrays hold the
+    fit, Dr.Jit arrays what the render reads and the batch it records."""
+
+    def __init__(self, config: VMFConfig, pixels: int) -> None:
+        self.config = config
+        self.pixels = pixels
+        lobes = config.lobes
+        self.mean = np.broadcast_to(fibonacci_directions(lobes), (pixels, lobes, 3)).copy()
+        self.kappa = np.full((pixels, lobes), config.initial_kappa)
+        self.amplitude = np.zeros((pixels, lobes, CHANNELS))
+        self.direction_sum = np.zeros((pixels, lobes, 3))
+        self.batches = np.zeros(pixels)
+        self.nonfinite = 0
+        self._upload()
+        self._clear_batch()
+
+    # ---- What the render reads: per lobe (pixel-major) mu, kappa, log-normaliser, a ----
+    def _upload(self) -> None:
+        import mitsuba as mi
+
+        kappa = self.kappa
+        # log(kappa / (2 pi (1 - exp(-2 kappa)))), -> log(1 / (4 pi)) as kappa -> 0.
+        log_norm = np.log(kappa) - np.log(2 * np.pi) - np.log(-np.expm1(-2 * kappa))
+        self.lobe_data = {name: mi.Float(np.ascontiguousarray(values, dtype=np.float32).ravel())
+                          for name, values in (("mean", self.mean), ("kappa", kappa),
+                                               ("log_norm", log_norm),
+                                               ("amplitude", self.amplitude))}
+
+    def _clear_batch(self) -> None:
+        import drjit as dr
+        import mitsuba as mi
+
+        lobes = self.config.lobes
+        self.batch_amplitude = dr.zeros(mi.Float, self.pixels * lobes * CHANNELS)
+        self.batch_direction = dr.zeros(mi.Float, self.pixels * lobes * 3)
+        self.batch_count = dr.zeros(mi.Float, self.pixels)
+        self.batch_nonfinite = dr.zeros(mi.Float, 1)
+
+    def _lobes(self, pixel: Any, w: Any, active: Any) -> list[tuple[Any, list[Any]]]:
+        """(v_k(w), [a_kc]) of every lobe k of ``pixel``."""
+        import drjit as dr
+        import mitsuba as mi
+
+        data = self.lobe_data
+        lobes = []
+        for k in range(self.config.lobes):
+            lobe = pixel * self.config.lobes + k
+            mean = mi.Vector3f(*(dr.gather(mi.Float, data["mean"], lobe * 3 + i, active)
+                                 for i in range(3)))
+            kappa = dr.gather(mi.Float, data["kappa"], lobe, active)
+            log_norm = dr.gather(mi.Float, data["log_norm"], lobe, active)
+            density = dr.exp(log_norm + kappa * (dr.dot(mean, w) - 1.0))
+            amplitude = [dr.gather(mi.Float, data["amplitude"], lobe * CHANNELS + c, active)
+                         for c in range(CHANNELS)]
+            lobes.append((density, amplitude))
+        return lobes
+
+    def eval(self, pixel: Any, w: Any, active: Any) -> Any:
+        """g_p(w) = sum_k a_k v_k(w), per channel."""
+        import mitsuba as mi
+
+        value = [mi.Float(0.0) for _ in range(CHANNELS)]
+        for density, amplitude in self._lobes(pixel, w, active):
+            for c in range(CHANNELS):
+                value[c] += amplitude[c] * density
+        return mi.Spectrum(*value)
+
+    def integral(self, pixel: Any, active: Any) -> Any:
+        """G_p = sum_k a_k (each lobe integrates to 1 over the sphere), per channel."""
+        import drjit as dr
+        import mitsuba as mi
+
+        total = [mi.Float(0.0) for _ in range(CHANNELS)]
+        for k in range(self.config.lobes):
+            lobe = pixel * self.config.lobes + k
+            for c in range(CHANNELS):
+                total[c] += dr.gather(mi.Float, self.lobe_data["amplitude"],
+                                      lobe * CHANNELS + c, active)
+        return mi.Spectrum(*total)
+
+    def record(self, pixel: Any, w: Any, weighted: Any, active: Any) -> None:
+        """The E-step for one sample (weights ``weighted`` = f / q): its responsibilities
+        under the current lobes, added to the pixel's batch sums."""
+        import drjit as dr
+        import mitsuba as mi
+
+        finite = dr.all(dr.isfinite(weighted))
+        dr.scatter_reduce(dr.ReduceOp.Add, self.batch_nonfinite, mi.Float(1.0), mi.UInt32(0),
+                          active & ~finite)
+        active = active & finite
+        lobes = self._lobes(pixel, w, active)
+        # pi_k proportional to the amplitudes' channel mean (uniform while they are all 0).
+        priors = [sum(amplitude) / CHANNELS for _, amplitude in lobes]
+        total_prior = sum(priors)
+        uniform = total_prior <= 0
+        scores = [dr.select(uniform, 1.0, prior) * density
+                  for prior, (density, _) in zip(priors, lobes, strict=True)]
+        total_score = sum(scores)
+        shape_weight = sum(weighted[c] for c in range(CHANNELS)) / CHANNELS
+        for k, score in enumerate(scores):
+            gamma = dr.select(total_score > 0, score / total_score, 1.0 / len(scores))
+            lobe = pixel * self.config.lobes + k
+            for c in range(CHANNELS):
+                dr.scatter_reduce(dr.ReduceOp.Add, self.batch_amplitude, weighted[c] * gamma,
+                                  lobe * CHANNELS + c, active)
+            for i in range(3):
+                dr.scatter_reduce(dr.ReduceOp.Add, self.batch_direction,
+                                  shape_weight * gamma * w[i], lobe * 3 + i, active)
+        dr.scatter_reduce(dr.ReduceOp.Add, self.batch_count, mi.Float(1.0), pixel, active)
+
+    def update(self) -> None:
+        """The stepwise blend and the M-step for every pixel with a batch, then clear it."""
+        lobes = self.config.lobes
+        count = np.asarray(self.batch_count, dtype=np.float64)
+        self.nonfinite += int(np.asarray(self.batch_nonfinite)[0])
+        fed = count > 0
+        if fed.any():
+            n = count[fed][:, None, None]
+            batch_a = np.asarray(self.batch_amplitude, dtype=np.float64).reshape(
+                self.pixels, lobes, CHANNELS)[fed] / n
+            batch_s = np.asarray(self.batch_direction, dtype=np.float64).reshape(
+                self.pixels, lobes, 3)[fed] / n
+            eta = ((self.batches[fed] + 1.0) ** -self.config.step_exponent)[:, None, None]
+            self.amplitude[fed] += eta * (batch_a - self.amplitude[fed])
+            self.direction_sum[fed] += eta * (batch_s - self.direction_sum[fed])
+            self.batches[fed] += 1
+            self._m_step(fed)
+            self._upload()
+        self._clear_batch()
+
+    def _m_step(self, fed: np.ndarray) -> None:
+        """mu and kappa of the fed pixels' lobes from the running statistics; a lobe with
+        no weight (or no mean direction) keeps its mu and kappa."""
+        weight = self.amplitude[fed].mean(axis=-1)
+        length = np.linalg.norm(self.direction_sum[fed], axis=-1)
+        moved = (weight > 0) & (length > 0)
+        mean, kappa = self.mean[fed], self.kappa[fed]
+        mean[moved] = self.direction_sum[fed][moved] / length[moved][:, None]
+        kappa[moved] = kappa_from_mean_length(length[moved] / weight[moved])
+        self.mean[fed], self.kappa[fed] = mean, kappa
+
+    def stats(self) -> dict[str, Any]:
+        """What a run stores of the model: its config, floats per pixel, the EM batches
+        each pixel has had on average and the non-finite samples left out."""
+        return {"config": self.config.model_dump(mode="json"),
+                "floats_per_pixel": self.config.floats_per_pixel(),
+                "em_batches_per_pixel": float(self.batches.mean()),
+                "nonfinite_samples": self.nonfinite}

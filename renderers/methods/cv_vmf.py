@@ -1,0 +1,52 @@
+"""`cv-vmf`: a per-pixel mixture of von Mises-Fisher lobes as control variate at the
+first hits.
+
+NIRC paper Sec. 6.1 (Fig. 6): the shading integrand at each pixel's first hit
+(incident radiance x BSDF x cosine) is modelled by ``vmf.lobes`` vMF lobes of 7
+coefficients (11 lobes: 77 floats per pixel, the paper's equal-memory preset),
+their directions initialised on a spherical Fibonacci lattice and fitted by
+stepwise EM with one batch per frame: the frame's spp samples of the pixel
+(renderers.caches.vmf), and used as a control variate with its closed-form
+integral (Eq. 7; renderers.integrators.control_variate). Unbiased whatever the
+fit. Parameters: those of renderers.methods.cv_frames and ``vmf`` (overrides of
+renderers.caches.vmf.VMFConfig, e.g. ``{"lobes": 4}``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import Field
+
+from renderers.methods import register
+from renderers.methods.base import Knob, Method
+from renderers.methods.cv_frames import ControlVariateParams, applies, control_variate_render
+from renderers.methods.pt import SPP_CANDIDATES
+
+
+class CVVMFParams(ControlVariateParams):
+    """The control-variate estimator's parameters and the vMF model's overrides."""
+
+    vmf: dict[str, Any] = Field(default_factory=dict,
+                                description="vMF model overrides (renderers.caches.vmf.VMFConfig)")
+
+    def cache_presets(self) -> dict[str, Any]:
+        from renderers.caches.vmf import vmf_config
+
+        return {"vmf": vmf_config}
+
+
+def vmf_model(params: CVVMFParams, pixels: int) -> Any:
+    """The per-pixel vMF mixtures of ``pixels`` pixels, zero (g = 0) until the first fit."""
+    from renderers.caches.vmf import VMFModel
+
+    return VMFModel(params.cache_config("vmf"), pixels)
+
+
+render = control_variate_render(vmf_model, lambda model: {"model": model.stats()})
+
+METHOD = register(Method(
+    "cv-vmf", "per-pixel vMF-mixture control variate of the first hits' shading integrand "
+              "(stepwise EM), closed-form integral (unbiased)",
+    CVVMFParams, render, version=1, requires=applies, label="vMF CV",
+    knob=Knob("spp", SPP_CANDIDATES), unbiased=True))
