@@ -20,6 +20,8 @@ const api = (path) => fetch(`/api/v1${path}`).then((r) => {
 const view = () => document.getElementById("view");
 const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 const num = (v, d = 3) => (v === null || v === undefined ? "–" : Number(v).toPrecision(d));
+// A share as a whole percentage ("100", never "1.0e+2" as toPrecision(2) writes it).
+const percent = (share) => (100 * share).toFixed(0);
 const enc = encodeURIComponent;
 const runLink = (id, text) => `<a href="#/run/${id}" title="run ${id}">${text}</a>`;
 let timer = null;
@@ -127,10 +129,10 @@ function timingTable(run) {
     const k = kernel[name];
     const launches = (stages[name] || {}).launches_median;
     return `<tr><td class="text">${esc(name)}</td><td>${num(ms)}</td><td>${num(k)}</td>
-      <td>${k === undefined ? "–" : num(ms - k)}</td><td>${k === undefined || ms <= 0 ? "–" : num(100 * (ms - k) / ms, 2)}</td>
+      <td>${k === undefined ? "–" : num(ms - k)}</td><td>${k === undefined || ms <= 0 ? "–" : percent((ms - k) / ms)}</td>
       <td>${launches ?? "–"}</td></tr>`;
   }).join("");
-  const share = run.harness_share === null || run.harness_share === undefined ? "–" : `${num(100 * run.harness_share, 2)} %`;
+  const share = run.harness_share === null || run.harness_share === undefined ? "–" : `${percent(run.harness_share)} %`;
   const quiet = !load ? "not measured" : load.loaded === true ? "LOADED" : load.loaded === false ? "quiet" : "unknown";
   return `<p>${num(run.seconds_per_frame * 1e3)} ms per frame (the median frame's stages), kernel
     ${num((run.kernel_seconds_per_frame ?? NaN) * 1e3)} ms, harness share ${share}; machine while timed: <b>${quiet}</b>
@@ -181,7 +183,7 @@ async function runPage(runId, otherId) {
   }) : "";
   const params = Object.entries(run.params || {}).map(([k, v]) => `${k}=${typeof v === "object" ? JSON.stringify(v) : v}`).join(", ");
   view().innerHTML = `<h2>Run ${run.id}: ${esc(label(run))}</h2>
-    <p><a href="#/scene/${enc(run.scene)}">${esc(run.scene)}</a> — ${esc(setting(run))}, ${run.seeds} seeds — ${esc(run.device_key)}
+    <p><a href="#/scene/${enc(run.scene)}">${esc(run.scene)}</a> — ${esc(setting(run))}, ${run.seeds} seeds, eps ${esc((run.metrics || {}).eps ?? "–")} — ${esc(run.device_key)}
     — commit <code>${esc(run.git_commit ?? "unknown")}</code> — ${esc(run.created_at)}</p>
     <p class="muted">parameters (resolved): ${esc(params || "defaults")}</p>
     ${(run.scene_overrides || []).length ? `<p class="muted">scene file settings not used: ${run.scene_overrides.map(esc).join("; ")}</p>` : ""}

@@ -171,6 +171,12 @@ def test_run_page_compares_images(chromium, site):
     page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     wait_until(page, "document.getElementById('readout').innerText.includes('pixel')")
     assert "reference" in page.inner_text("#readout")
+    # What ran names the eps of its relative errors; a stage's harness share is a whole
+    # percentage (the 'other' stage, all harness, read '1.0e+2').
+    assert ", 3 seeds, eps 0.01 — " in page.inner_text("body")
+    shares = page.locator("#timing table tr td:nth-child(5)").all_inner_texts()
+    assert "100" in shares and all(s.isdigit() for s in shares), shares
+    # docs/images/dashboard_comparison.png is this screenshot.
     page.screenshot(path=str(ARTIFACTS / "dashboard-compare.png"), full_page=True)
     assert errors == []
 
