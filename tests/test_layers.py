@@ -26,8 +26,9 @@ ALLOWED = {"service": {"jobs", "renderers", "metrics"}, "jobs": {"renderers", "m
 SHARED = ("views", "costs")
 #: The studies: each builds on the core of a job and is run by execution or the service.
 STUDIES = ("sweeps", "pareto", "ci", "stress")
+#: Above the studies: execution runs them; reproduce composes their runs into papers' figures.
 JOBS_LAYERS = {"record": 0, "protocol": 1, **dict.fromkeys(SHARED, 2),
-               **dict.fromkeys(STUDIES, 3), "execution": 4}
+               **dict.fromkeys(STUDIES, 3), "execution": 4, "reproduce": 4}
 #: (study, study) imports allowed: none (every study needs only the core).
 STUDY_EDGES: set[tuple[str, str]] = set()
 #: Sub-package circles allowed: none (the oracle caches, which import the path-tracing
