@@ -83,7 +83,7 @@ def plane(mi, tmp_path_factory):
     return _load(tmp_path_factory, PLANE)
 
 
-def _integrator(mi, model, max_depth=2, cls=None):
+def _integrator(mi, model, cls=None, max_depth=2):
     from renderers.integrators import control_variate, register_plugins
 
     register_plugins()
@@ -113,12 +113,12 @@ def _model(kind: str):
     return VMFModel(VMFConfig(lobes=3), RES * RES)
 
 
-def _fitted(mi, scene, kind="sh", max_depth=2):
-    """(integrator, model) fitted from the model's FITS frames, the fit then frozen (the
-    moment renders below record nothing)."""
+def _fitted(mi, scene, kind="sh", fit=None):
+    """(integrator, model) fitted from ``fit`` = (frames, spp) (the model's FITS by
+    default), the fit then frozen (the moment renders below record nothing)."""
     model = _model(kind)
-    integrator = _integrator(mi, model, max_depth)
-    frames, spp = FITS[kind]
+    integrator = _integrator(mi, model)
+    frames, spp = fit or FITS[kind]
     for frame in range(frames):
         mi.render(scene.scene, integrator=integrator, spp=spp, seed=1000 + frame)
         model.update()
@@ -238,8 +238,8 @@ def test_a_full_sphere_integral_with_bsdf_only_sampling_is_rejected(mi, mixed, r
 def test_plane_under_a_constant_sky_has_the_known_expectation(mi, plane):
     """Oracle-like: every pixel's expectation is RHO * SKY (grey: its XYZ is the white
     point times it, as the moment renders convert). The fitted SH model agrees with it
-    and lowers the variance at least twofold (a clamped cosine is smooth: measured
-    0.25); its integral scaled by 1.05 is rejected."""
+    from 2 x 512 samples and lowers the variance at least twofold (a clamped cosine is
+    smooth: measured 0.25); its integral scaled by 1.05 is rejected."""
     from tests.support.moments import FLOAT32_REL_PRECISION
 
     value = np.asarray(mi.srgb_to_xyz(mi.ScalarColor3f(RHO * SKY))).ravel()
@@ -248,7 +248,7 @@ def test_plane_under_a_constant_sky_has_the_known_expectation(mi, plane):
     zero = _integrator(mi, _model("sh"))
     zero.fitting = False
     _, var_0 = render_moments(plane.scene, zero, 256, seed=1)
-    integrator, model = _fitted(mi, plane)
+    integrator, model = _fitted(mi, plane, fit=(2, 512))
     mean_g, var_g = render_moments(plane.scene, integrator, 256, seed=2)
     result = agreement_test(mean_g, var_g, *expected)
     assert result.passed, result.summary()
