@@ -102,12 +102,22 @@ class LoadMonitor:
         }
 
 
+def stall_text(stall: float) -> str:
+    """How long tasks waited for a core, as a share of the window: at most all of it.
+    The kernel adds to its stall counter in steps, so over a window of a few
+    milliseconds it can advance by more than the window (7.7 times it, measured on the
+    shared 2-core machine), which reads as the whole window, never as '773 %'."""
+    if stall >= 1.0:
+        return "tasks waited for a core all of the time"
+    return f"tasks waited for a core {100 * stall:.0f} % of the time"
+
+
 def judge(stall: float | None, cpu_share: float | None) -> dict[str, Any]:
     """``loaded`` and ``reasons`` from the stall share (preferred) or the CPU share."""
     if stall is not None:
         loaded = stall > STALL_LIMIT
-        reason = (f"other work held the CPU: tasks waited for a core {100 * stall:.0f} % of "
-                  f"the time (limit {100 * STALL_LIMIT:.0f} %)")
+        reason = (f"other work held the CPU: {stall_text(stall)} "
+                  f"(limit {100 * STALL_LIMIT:.0f} %)")
         return {"loaded": loaded, "basis": "cpu pressure", "reasons": [reason] if loaded else []}
     if cpu_share is not None:
         loaded = cpu_share < CPU_SHARE_LIMIT

@@ -25,6 +25,7 @@ from metrics.registry import (
     metric_interval,
     within_noise,
 )
+from renderers.load import stall_text
 
 if TYPE_CHECKING:
     from jobs.pareto.report import Report
@@ -231,7 +232,7 @@ def _load_text(load: dict[str, Any] | None) -> str:
     verdict = {True: "LOADED", False: "quiet", None: "unknown"}[load["loaded"]]
     windows = load.get("windows") or [load]
     stalls = [w["cpu_stall_fraction"] for w in windows if w.get("cpu_stall_fraction") is not None]
-    detail = f" (tasks waited for a core {100 * max(stalls):.0f} % of the time)" if stalls else ""
+    detail = f" ({stall_text(max(stalls))})" if stalls else ""
     return verdict + detail
 
 

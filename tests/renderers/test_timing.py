@@ -223,3 +223,7 @@ def test_the_load_verdict_falls_back_to_the_cpu_share_and_says_when_it_cannot_te
     assert judge(None, 0.95)["loaded"] is False
     unknown = judge(None, None)
     assert unknown["loaded"] is None and "unknown" in unknown["reasons"][0]
+    # A share of the window is at most all of it: the kernel's stall counter, advanced
+    # in steps, once read 7.73 windows over a short one ('773 % of the time').
+    assert "waited for a core 50 % of the time" in judge(0.5, None)["reasons"][0]
+    assert "waited for a core all of the time" in judge(7.73, None)["reasons"][0]
