@@ -358,7 +358,9 @@ class SweepSpec(BaseModel):
     def _check_eps(cls, values: list[float] | None) -> list[float] | None:
         if values is None:
             return None
-        if not values or any(not 0.0 < v <= 100.0 for v in values):
+        if not values:
+            raise ValueError("give at least one eps value")
+        if any(not 0.0 < v <= 100.0 for v in values):
             raise ValueError("eps values must be in (0, 100]")
         return sorted(set(values))
 
@@ -367,7 +369,9 @@ class SweepSpec(BaseModel):
     def _check_nc(cls, values: list[int] | None) -> list[int] | None:
         if values is None:
             return None
-        if not values or any(not 1 <= v <= 256 for v in values):
+        if not values:
+            raise ValueError("give at least one nc value")
+        if any(not 1 <= v <= 256 for v in values):
             raise ValueError("nc values must be in 1..256")
         return sorted(set(values))
 

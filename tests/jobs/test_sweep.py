@@ -81,6 +81,8 @@ def test_authors_average_path_length_from_the_histogram_and_the_background():
     ({"eps": None, "nc": None}, "eps values"),
     ({"eps": [0.0, 0.5]}, "(0, 100]"),
     ({"nc": [0]}, "1..256"),
+    ({"eps": []}, "give at least one eps value"),     # not 'must be in (0, 100]'
+    ({"nc": []}, "give at least one nc value"),
     ({"methods": []}, "at least one method"),
     ({"methods": ["pt"]}, "nirc"),
     ({"seeds": 1}, "greater than or equal to 2"),
