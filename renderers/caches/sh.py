@@ -12,7 +12,8 @@ Y_0 = 1 / (2 sqrt(pi)) is constant, so
 
     G_p = int_S2 g_p dw = c_0(p) * 4 pi / (2 sqrt(pi)) = 2 sqrt(pi) c_0(p).
 
-Fitting (projection, the least-squares fit of an orthonormal basis): with samples
+Fitting (projection, the least-squares fit of an orthonormal basis: the minimiser of
+int_S2 (f - g)^2, the expectation of the L2 loss of NIRC Eq. 17): with samples
 w_j ~ q of the integrand f(w) (incident radiance x BSDF x cosine at the pixel's
 primary hit) and their estimates f_j,
 
