@@ -232,7 +232,9 @@ async function historyPage(scene, method) {
     const section = document.createElement("section");
     section.innerHTML = `<h4>${esc(m.label)}</h4><div class="plots"></div>`;
     box.appendChild(section);
-    if (!m.charts.length) note(section, `No value of ${m.label} in a run of ${method} on ${scene} with a clean commit.`);
+    if (!m.charts.length) note(section, m.below_noise_floor
+      ? `Every median of ${m.label} of ${method} on ${scene} (${m.below_noise_floor}) is at or below 0, below the noise floor: none can be drawn on its log axis.`
+      : `No value of ${m.label} in a run of ${method} on ${scene} with a clean commit.`);
     for (const c of m.charts) await chart(section.querySelector(".plots"), c.spec);
     for (const p of m.steps) steps.push([m, p]);
   }

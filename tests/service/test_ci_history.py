@@ -170,3 +170,23 @@ def test_history_charts_group_by_setting_with_a_line_per_label_and_spp(api_and_s
     assert lines == {online: {"pt (max_depth 8), 1 spp": [0.1] * 3,
                               "pt (max_depth 8), 4 spp": [0.05] * 3},
                      frozen: {"pt (eps 0.5, max_depth 8), 1 spp": [0.2] * 3}}
+
+
+def test_a_history_below_the_noise_floor_says_so_rather_than_none(api_and_store):
+    """rBias² medians all at or below 0 cannot be drawn on its log axis: the answer
+    counts them (the dashboard said 'No value of rBias²'); a history with no value
+    counts none; MRSE's positive medians are drawn and none is counted."""
+    http, store = api_and_store
+    history = "/api/v1/charts/history?scene=cornell-box&method=pt"
+
+    def section(metric: str) -> dict:
+        return next(m for m in http.get(history).json()["metrics"] if m["metric"] == metric)
+
+    assert section("rbias2")["below_noise_floor"] == section("rbias2")["medians"] == 0
+    for i, value in enumerate((-0.001, -0.0002)):
+        store.add_run(run_fields(git_commit=f"d{i:06d}", created_at=START + timedelta(hours=i),
+                                 metrics={"rbias2": value, "mrse_mean": 0.1}),
+                      [{"seed": s, "metrics": {"mrse": 0.1}, "timings": {}} for s in range(2)])
+    rbias2, mrse = section("rbias2"), section("mrse")
+    assert rbias2["charts"] == [] and rbias2["below_noise_floor"] == rbias2["medians"] == 2
+    assert mrse["charts"] and mrse["below_noise_floor"] == 0

@@ -49,7 +49,8 @@ def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dic
 def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]:
     """Per listed metric its history over commits (GET /api/v1/ci/history), one chart per
     setting (scene, resolution, frames, protocol, device: jobs/views/chart_groups.py),
-    one line per run label and spp, never pooled."""
+    one line per run label and spp, never pooled; ``below_noise_floor`` counts the
+    medians at or below 0 a metric's log axis cannot draw, of its ``medians``."""
     runs = store.list_history_runs(scene, method, limit=MAX_HISTORY_RUNS)
     devices = sorted({run.device_key for run in runs})
     answer = []
@@ -69,7 +70,13 @@ def history_charts(store: StoreDep, scene: Name, method: Name) -> dict[str, Any]
         charts = [{"setting": setting.title, "spec": spec} for setting, series in ordered
                   if (spec := history_chart(metric.to_json(), setting.title, method,
                                             sorted(series, key=lambda s: s[0])))]
+        medians = [point["median"] for _, series in ordered for _, points in series
+                   for point in points if point["median"] is not None]
         answer.append({"metric": metric.name, "label": metric.label, "charts": charts,
+                       # Medians a log axis cannot draw (a noise-corrected value <= 0 is
+                       # below the noise floor): all of them when no chart is drawn.
+                       "below_noise_floor": sum(m <= 0 for m in medians)
+                       if metric.log_axis else 0, "medians": len(medians),
                        "steps": [{**point, "setting": setting.title, "config": label}
                                  for setting, series in ordered
                                  for label, points in series for point in points
