@@ -329,3 +329,23 @@ def test_vmf_lobes_integrate_to_one_and_start_spread_over_the_sphere(mi):
     cosines = lattice @ lattice.T - 2 * np.eye(11)
     # 11 points spread evenly: each has a neighbour within ~70 degrees, none closer than ~45.
     assert 0.3 < cosines.max(axis=1).min() and cosines.max() < 0.75
+
+
+def test_each_frame_uses_the_model_fitted_from_the_frames_before_it(mi, mixed):
+    """The method's frame t renders with g fitted from frames 0..t-1 only: its frames
+    equal renders of the same seeds with the model updated between them (frame 0 with
+    g = 0); a schedule that folded a frame's own samples in first would differ."""
+    from renderers.methods.base import FrameHooks
+    from renderers.seeding import derive_seed
+
+    params = parse_params("cv-sh", {"max_depth": 2})
+    out = get_method("cv-sh").render(mixed, params, seed_parts=("order",), spp=4, frames=2,
+                                     hooks=FrameHooks(keep_frames=True, warmup=False,
+                                                      kernel_every=0))
+    model = _model("sh")
+    integrator = _integrator(mi, model)
+    for index, frame in enumerate(out.frames):
+        image = mi.render(mixed.scene, integrator=integrator, spp=4,
+                          seed=derive_seed("order", index))
+        np.testing.assert_array_equal(frame, np.asarray(image)[..., :3])
+        model.update()
