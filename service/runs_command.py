@@ -221,8 +221,9 @@ def export(
     run = _get_run(open_store(settings), run_id)
     spec = RenderSpec.model_validate(run.params["spec"])
     files = export_run(run, RunSummary.of_stored(run, spec, settings).to_json(), settings, out)
-    for name in sorted(files):
-        console.print(f"{name}: {files[name]}", markup=False, highlight=False)
+    # Each file by its name in the folder (the names docs/runs.md lists), not by its kind.
+    for path in sorted(map(Path, files.values()), key=lambda path: path.name):
+        console.print(f"{path.name}: {path}", markup=False, highlight=False)
 
 
 @runs_app.command("tag")

@@ -10,6 +10,7 @@ import io
 import json
 import os
 import sys
+from pathlib import Path
 from unittest import mock
 
 import pytest
@@ -286,12 +287,16 @@ def test_runs_export_writes_every_stored_file(store_dir, capsys, tmp_path):
     settings = Settings(data_dir=data)
     run = open_store(settings).get_run(3)
     out = tmp_path / "export"
-    cli("runs", "export", "3", "--out", str(out), data=data)
+    printed = cli("runs", "export", "3", "--out", str(out), data=data)
     expected = {"reference.exr", "reference.variance.exr", "reference_preview.png",
                 "convergence.png", "summary.json", "preview_seed0.png",
                 "error_map_seed0.png", "rel_bias_map.exr", "rel_variance_map.exr",
                 *(f"image_seed{k}.exr" for k in range(3))}
     assert {path.name for path in out.iterdir()} == expected
+    # Each line names a file as the folder does ('convergence: ...' before).
+    listed = dict(line.split(": ", 1) for line in printed.splitlines())
+    assert set(listed) == expected and all(out / name == Path(path)
+                                           for name, path in listed.items())
 
     def sha(path) -> str:
         return hashlib.sha256(path.read_bytes()).hexdigest()
