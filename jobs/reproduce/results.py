@@ -60,6 +60,9 @@ class Reproduction(BaseModel):
     def markdown(self) -> str:
         settings = ", ".join(f"{k} {v}" for k, v in self.settings.items())
         lines = [f"# {self.title}", "", f"Mode `{self.mode}`: {settings}.", ""]
+        if self.work:
+            lines += [f"Points rendered now: {self.work.get('points_rendered', 0)}, read "
+                      f"from the store: {self.work.get('points_reused', 0)}.", ""]
         lines += [f"- {note}" for note in self.notes]
         if self.claims:
             lines += ["", "The paper's claims:", ""]
