@@ -17,16 +17,22 @@ FRAMES = 4
 
 
 @pytest.fixture(scope="module")
-def smooth_renders(mi):
-    """An empty Cornell box (diffuse walls and the ceiling light, no boxes) at 32x32:
-    SEEDS x FRAMES independent 1-spp path-traced frames, a 1024-spp reference and the
-    denoiser's features (renderers.denoise_features)."""
-    from renderers.denoise_features import render_features
-
+def empty_box(mi):
+    """An empty Cornell box (diffuse walls and the ceiling light, no boxes) at 32x32, and
+    its scene description."""
     scene_dict = mi.cornell_box()
     del scene_dict["small-box"], scene_dict["large-box"]
     scene_dict["sensor"]["film"].update(width=32, height=32)
-    scene = mi.load_dict(scene_dict)
+    return mi.load_dict(scene_dict), scene_dict
+
+
+@pytest.fixture(scope="module")
+def smooth_renders(mi, empty_box):
+    """The empty box's SEEDS x FRAMES independent 1-spp path-traced frames, a 1024-spp
+    reference and the denoiser's features (renderers.denoise_features)."""
+    from renderers.denoise_features import render_features
+
+    scene = empty_box[0]
     path = mi.load_dict({"type": "path", "max_depth": 6})
     frames = [[np.asarray(mi.render(scene, integrator=path, spp=1, seed=1 + FRAMES * k + f))
                for f in range(FRAMES)] for k in range(SEEDS)]
@@ -71,6 +77,25 @@ def test_oidn_lowers_mrse_and_flip_of_noisy_frames_of_a_smooth_scene(smooth_rend
 def test_a_planted_identity_denoiser_fails_the_check(smooth_renders):
     with pytest.raises(AssertionError):
         _check_denoising_lowers_errors(smooth_renders, _identity)
+
+
+def test_the_features_are_albedo_and_normal_at_the_first_hit(empty_box):
+    """The image's centre sees the back wall: the white diffuse reflectance and the
+    wall's normal towards the camera (+z); the same again (a fixed seed: the same
+    samples, summed into the film's pixels in the threads' order)."""
+    from renderers.denoise_features import render_features
+
+    scene, scene_dict = empty_box
+    features = render_features(scene, spp=16)
+    white = scene_dict["white"]["reflectance"]["value"]
+    np.testing.assert_allclose(features.albedo[15:17, 15:17], np.broadcast_to(white, (2, 2, 3)),
+                               rtol=1e-5)
+    np.testing.assert_allclose(features.normal[15:17, 15:17],
+                               np.broadcast_to([0.0, 0.0, 1.0], (2, 2, 3)), atol=1e-5)
+    assert features.albedo.max() <= 1 and np.abs(features.normal).max() <= 1
+    again = render_features(scene, spp=16)
+    for image, repeated in zip(features, again, strict=True):
+        np.testing.assert_allclose(repeated, image, rtol=1e-5, atol=1e-6)
 
 
 # ---- Inputs (a box blur stands in for OIDN: these tests are about the bookkeeping) ----
