@@ -62,11 +62,15 @@ Denoiser = Callable[[np.ndarray, Features], np.ndarray]
 
 def oidn_denoise(color: np.ndarray, features: Features) -> np.ndarray:
     """``color`` (non-negative linear radiance) denoised by OIDN's RT filter with the
-    albedo and normal features (:data:`OIDN_SETTINGS`)."""
-    import pyoidn  # the native library loads only where a run denoises
+    albedo and normal features (:data:`OIDN_SETTINGS`); MetricError naming OIDN's own
+    message where it fails (a device it cannot create, an unsupported CPU)."""
+    try:
+        import pyoidn  # the native library loads only where a run denoises
 
-    return pyoidn.denoise(color, features.albedo, features.normal, hdr=True, clean_aux=True,
-                          quality="high")
+        return pyoidn.denoise(color, features.albedo, features.normal, hdr=True,
+                              clean_aux=True, quality="high")
+    except (ImportError, OSError, RuntimeError) as err:
+        raise MetricError(f"Intel Open Image Denoise failed: {err}") from None
 
 
 def denoiser_provenance() -> dict[str, Any]:

@@ -153,3 +153,16 @@ def test_negative_values_are_clamped_to_zero_before_denoising_and_counted():
     assert all(image.min() >= 0 for image in log)
     # The frame alone and the mean of the one frame: 3 values each.
     assert values["denoised_negative_values"] == 6
+
+
+def test_a_failing_denoiser_leaves_the_seed_unscored_with_its_message(monkeypatch):
+    import pyoidn
+
+    def fail(*_args, **_kwargs):
+        raise RuntimeError("OIDN device creation failed (error 1): no CPU support")
+
+    monkeypatch.setattr(pyoidn, "denoise", fail)
+    values = denoised_metrics([np.ones(SHAPE, np.float32)], REFERENCE, EPS, (0.0, 0.0),
+                              FEATURES)
+    assert values["denoised_mrse_accum"] is None
+    assert "Intel Open Image Denoise failed: OIDN device creation" in values["denoised_note"]
