@@ -200,7 +200,8 @@ def _denoiser_text(denoiser: dict[str, Any]) -> str:
     """What denoised a run (metrics.denoised.denoiser_provenance), in one line."""
     return (f"{denoiser['library']} {denoiser['version']} ({denoiser['filter']} filter, "
             f"{denoiser['quality']} quality, features at {denoiser['feature_spp']} spp) of "
-            f"each seed's last {denoiser['accumulated_frames']} frames")
+            f"each seed's last {denoiser['accumulated_frames']} frames; "
+            f"{denoiser['seeds_denoised']} seeds denoised (see each seed's denoised_note)")
 
 
 def reference_text(reference: Any) -> str:

@@ -493,7 +493,11 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
                         frame_seconds, [rendered.moments for rendered in seeds],
                         get_method(spec.method).correlated_frames)
     if features is not None:
-        metrics[DENOISER_KEY] = {**denoiser_provenance(), "feature_spp": FEATURE_SPP}
+        # The means over seeds leave out a seed that was not denoised (its denoised_note
+        # says why): how many were is said with the denoiser.
+        metrics[DENOISER_KEY] = {**denoiser_provenance(), "feature_spp": FEATURE_SPP,
+                                 "seeds_denoised": sum(s["denoised_note"] is None
+                                                       for s in per_seed)}
     metrics.update(extra or {})
     metrics, per_seed, nonfinite = finite_record(metrics, per_seed)
     path_stats = mean_over_seeds([s["path_stats"] for s in per_seed])

@@ -280,6 +280,7 @@ def test_every_registered_metric_is_stored_served_and_tabulated(env):
     assert run.versions["pyoidn"].startswith(oidn_version)
     assert run.params["spec"]["denoised"] is True
     assert all(s.metrics["denoised_frames"] == 2 for s in run.seed_results)
+    assert run.metrics["denoiser"]["seeds_denoised"] == 3
 
     row = RunOut.of(run).model_dump()
     for metric in LISTED:
