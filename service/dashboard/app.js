@@ -32,7 +32,9 @@ const old = () => (document.getElementById("include-old").checked ? "&include_ol
 const label = (run) => `${run.method_label || run.method}${run.current ? "" : ` [old: estimator v${run.estimator_version}, metrics v${run.metric_version}]`}`;
 // What must match for two runs to be compared (as jobs/views/chart_groups.py groups them).
 const protocol = (run) => ("sweep" in (run.params || {}) ? "frozen cache" : "online training");
-const setting = (run) => `${run.resolution.join("×")}, ${run.spp} spp, ${run.frames} frame${run.frames === 1 ? "" : "s"}, ${protocol(run)}`;
+// "1 frame", "4 frames".
+const count = (n, noun) => `${n} ${noun}${n === 1 ? "" : "s"}`;
+const setting = (run) => `${run.resolution.join("×")}, ${run.spp} spp, ${count(run.frames, "frame")}, ${protocol(run)}`;
 
 // The metric registry (GET /api/v1/metrics): columns are built from it, once per page load.
 let registry = null;
@@ -183,7 +185,7 @@ async function runPage(runId, otherId) {
   }) : "";
   const params = Object.entries(run.params || {}).map(([k, v]) => `${k}=${typeof v === "object" ? JSON.stringify(v) : v}`).join(", ");
   view().innerHTML = `<h2>Run ${run.id}: ${esc(label(run))}</h2>
-    <p><a href="#/scene/${enc(run.scene)}">${esc(run.scene)}</a> — ${esc(setting(run))}, ${run.seeds} seeds, eps ${esc((run.metrics || {}).eps ?? "–")} — ${esc(run.device_key)}
+    <p><a href="#/scene/${enc(run.scene)}">${esc(run.scene)}</a> — ${esc(setting(run))}, ${count(run.seeds, "seed")}, eps ${esc((run.metrics || {}).eps ?? "–")} — ${esc(run.device_key)}
     — commit <code>${esc(run.git_commit ?? "unknown")}</code> — ${esc(run.created_at)}</p>
     <p class="muted">parameters (resolved): ${esc(params || "defaults")}</p>
     ${(run.scene_overrides || []).length ? `<p class="muted">scene file settings not used: ${run.scene_overrides.map(esc).join("; ")}</p>` : ""}
@@ -254,8 +256,8 @@ function duration(job) {
 }
 function specText(spec) {
   const res = Array.isArray(spec.resolution) ? spec.resolution.join("×") : spec.resolution && `${spec.resolution}×${spec.resolution}`;
-  return [res, spec.spp && `${spec.spp} spp`, spec.frames && `${spec.frames} frames`,
-    spec.seeds && `${spec.seeds} seeds`, spec.eps && `eps ${spec.eps}`].filter(Boolean).join(", ");
+  return [res, spec.spp && `${spec.spp} spp`, spec.frames && count(spec.frames, "frame"),
+    spec.seeds && count(spec.seeds, "seed"), spec.eps && `eps ${spec.eps}`].filter(Boolean).join(", ");
 }
 
 async function jobsPage() {

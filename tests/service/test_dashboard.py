@@ -189,6 +189,7 @@ def test_a_one_seed_run_offers_no_bias_or_variance_map_and_no_convergence(chromi
     options = page.locator("#layer-a option").all_inner_texts()
     assert options == ["reference", "image, seed 0", "error map, seed 0"]
     assert "one frame" in page.inner_text("#convergence")
+    assert "24×24, 1 spp, 1 frame, online training, 1 seed, eps 0.01 — " in page.inner_text("body")
     assert errors == []
 
 
