@@ -19,10 +19,10 @@ primary hit) and their estimates f_j,
 
     c_k(p) = int_S2 f Y_k dw  ~=  1/N_p sum_j f_j Y_k(w_j) / q(w_j),
 
-summed over *every* sample of the pixel recorded so far (:meth:`SHModel.record`, a
-Dr.Jit scatter during the render) and divided only when :meth:`SHModel.update`
-runs (between frames). So a frame's g is fitted from earlier frames' samples
-only, never from the samples whose residual it controls (docs/control_variates.md).
+summed over *every* sample of the pixel so far: :meth:`SHModel.fit` adds one
+render's samples (renderers.integrators.control_variate_records) between frames,
+so a frame's g is fitted from earlier frames' samples only, never from the samples
+whose residual it controls (docs/control_variates.md).
 """
 
 from __future__ import annotations
@@ -53,7 +53,8 @@ class SHConfig(BaseModel):
 
     def floats_per_pixel(self) -> dict[str, int]:
         """The model's floats per pixel (what g is), and the fit's running sums and
-        sample count, which a frame keeps besides."""
+        sample count, kept besides (a render's samples add 8 floats per sample until
+        the fit: renderers.integrators.control_variate_records)."""
         return {"model": CHANNELS * self.coefficients,
                 "fit": CHANNELS * self.coefficients + 1}
 
@@ -65,7 +66,8 @@ def sh_config(**overrides: Any) -> SHConfig:
 
 class SHModel:
     """The per-pixel SH coefficients of ``pixels`` pixels (module docstring), zero
-    until the first :meth:`update`: g = 0, the plain estimator."""
+    until the first :meth:`fit`: g = 0, the plain estimator. Arrays per coefficient
+    k and channel c, indexed by pixel."""
 
     def __init__(self, config: SHConfig, pixels: int) -> None:
         import drjit as dr
@@ -73,20 +75,19 @@ class SHModel:
 
         self.config = config
         self.pixels = pixels
-        size = pixels * CHANNELS * config.coefficients
-        self.coefficients = dr.zeros(mi.Float, size)
-        self.sums = dr.zeros(mi.Float, size)
+        shape = (config.coefficients, CHANNELS)
+        self.coefficients = [[dr.zeros(mi.Float, pixels) for _ in range(shape[1])]
+                             for _ in range(shape[0])]
+        self.sums = [[dr.zeros(mi.Float, pixels) for _ in range(shape[1])]
+                     for _ in range(shape[0])]
         self.counts = dr.zeros(mi.Float, pixels)
         #: Samples left out of the fit because their estimate was NaN or infinite.
-        self.nonfinite = dr.zeros(mi.Float, 1)
+        self.nonfinite = 0
 
     def _basis(self, w: Any) -> list[Any]:
         import drjit as dr
 
         return dr.sh_eval(w, self.config.bands - 1)
-
-    def _slot(self, pixel: Any, k: int, channel: int) -> Any:
-        return (pixel * self.config.coefficients + k) * CHANNELS + channel
 
     def eval(self, pixel: Any, w: Any, active: Any) -> Any:
         """g_p(w) per channel (a Spectrum)."""
@@ -94,10 +95,9 @@ class SHModel:
         import mitsuba as mi
 
         value = [mi.Float(0.0) for _ in range(CHANNELS)]
-        for k, y_k in enumerate(self._basis(w)):
+        for y_k, coefficients in zip(self._basis(w), self.coefficients, strict=True):
             for c in range(CHANNELS):
-                value[c] += y_k * dr.gather(mi.Float, self.coefficients,
-                                            self._slot(pixel, k, c), active)
+                value[c] += y_k * dr.gather(mi.Float, coefficients[c], pixel, active)
         return mi.Spectrum(*value)
 
     def integral(self, pixel: Any, active: Any) -> Any:
@@ -105,38 +105,23 @@ class SHModel:
         import drjit as dr
         import mitsuba as mi
 
-        return mi.Spectrum(*[Y0_INTEGRAL * dr.gather(mi.Float, self.coefficients,
-                                                      self._slot(pixel, 0, c), active)
+        return mi.Spectrum(*[Y0_INTEGRAL * dr.gather(mi.Float, self.coefficients[0][c],
+                                                      pixel, active)
                              for c in range(CHANNELS)])
 
-    def record(self, pixel: Any, w: Any, weighted: Any, active: Any) -> None:
-        """Add one sample to pixel ``pixel``'s fit: ``weighted`` = f_j / q(w_j) (0 for a
-        direction that was not sampled, which still counts). A non-finite estimate is
-        left out and counted (:attr:`nonfinite`)."""
+    def fit(self, records: Any) -> None:
+        """Add one render's samples (f_j / q(w_j) at w_j; 0 for a direction not
+        produced, which still counts) to the running sums; c_k = sums / count."""
         import drjit as dr
-        import mitsuba as mi
 
-        finite = dr.all(dr.isfinite(weighted))
-        dr.scatter_reduce(dr.ReduceOp.Add, self.nonfinite, mi.Float(1.0), mi.UInt32(0),
-                          active & ~finite)
-        active = active & finite
-        for k, y_k in enumerate(self._basis(w)):
+        for y_k, sums in zip(self._basis(records.w), self.sums, strict=True):
             for c in range(CHANNELS):
-                dr.scatter_reduce(dr.ReduceOp.Add, self.sums, y_k * weighted[c],
-                                  self._slot(pixel, k, c), active)
-        dr.scatter_reduce(dr.ReduceOp.Add, self.counts, mi.Float(1.0), pixel, active)
-
-    def update(self) -> None:
-        """c_k = the running sums / the pixel's sample count: g of the next frame."""
-        import drjit as dr
-        import mitsuba as mi
-
-        dr.eval(self.sums, self.counts)
-        per_slot = dr.arange(mi.UInt32, dr.width(self.sums)) // (
-            CHANNELS * self.config.coefficients)
-        count = dr.gather(mi.Float, self.counts, per_slot)
-        self.coefficients = self.sums / dr.maximum(count, 1.0)
-        dr.eval(self.coefficients)
+                sums[c] += records.per_pixel_sum(y_k * records.weighted[c])
+        self.counts += records.per_pixel_sum(records.counts)
+        self.nonfinite += records.nonfinite_count()
+        samples = dr.maximum(self.counts, 1.0)
+        self.coefficients = [[total / samples for total in sums] for sums in self.sums]
+        dr.eval(self.coefficients, self.sums, self.counts)
 
     def stats(self) -> dict[str, Any]:
         """What a run stores of the model: its config, floats per pixel, the samples
@@ -146,4 +131,4 @@ class SHModel:
         return {"config": self.config.model_dump(mode="json"),
                 "floats_per_pixel": self.config.floats_per_pixel(),
                 "fit_samples_per_pixel": float(np.mean(np.asarray(self.counts))),
-                "nonfinite_samples": int(np.asarray(self.nonfinite)[0])}
+                "nonfinite_samples": self.nonfinite}

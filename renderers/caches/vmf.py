@@ -26,10 +26,10 @@ weights pi_k proportional to the amplitudes' channel mean (the same statistic),
              kappa_k = rbar (3 - rbar^2) / (1 - rbar^2)   (Banerjee et al. 2005)
 
 so a_kc estimates int f_c gamma_k and sum_k a_kc estimates int f_c. One batch is
-one frame's samples of the pixel (its spp first hits), recorded during the render
-(:meth:`VMFModel.record`) with the lobes of the previous frames and folded in by
-:meth:`VMFModel.update` between frames: a frame's g never depends on its own
-samples. The first batch (eta_0 = 1) replaces the initial amplitudes, which are 0
+one frame's samples of the pixel (its spp first hits), which the render keeps
+(renderers.integrators.control_variate_records) and :meth:`VMFModel.fit` folds in
+between frames, its E-step under the lobes that frame rendered with: a frame's g
+never depends on its own samples. The first batch (eta_0 = 1) replaces the initial amplitudes, which are 0
 (g = 0: the plain estimator) until then.
 """
 
@@ -62,9 +62,10 @@ class VMFConfig(BaseModel):
 
     def floats_per_pixel(self) -> dict[str, int]:
         """The model's floats per pixel (what g is), and the fit's: the running mean
-        direction statistic (3 per lobe), one frame's batch sums (6 per lobe) and the
-        batch's sample count and the batches so far (2)."""
-        return {"model": LOBE_FLOATS * self.lobes, "fit": 9 * self.lobes + 2}
+        direction statistic (3 per lobe) and the batches so far (1). A render's
+        samples add 8 floats per sample until the fit
+        (renderers.integrators.control_variate_records)."""
+        return {"model": LOBE_FLOATS * self.lobes, "fit": 3 * self.lobes + 1}
 
 
 def vmf_config(**overrides: Any) -> VMFConfig:
@@ -90,7 +91,7 @@ def kappa_from_mean_length(rbar: np.ndarray) -> np.ndarray:
 
 class VMFModel:
     """The vMF mixtures of ``pixels`` pixels (module docstring); host arrays hold the
-    fit, Dr.Jit arrays what the render reads and the batch it records."""
+    fit, Dr.Jit arrays what the render reads."""
 
     def __init__(self, config: VMFConfig, pixels: int) -> None:
         self.config = config
@@ -103,7 +104,6 @@ class VMFModel:
         self.batches = np.zeros(pixels)
         self.nonfinite = 0
         self._upload()
-        self._clear_batch()
 
     # ---- What the render reads: per lobe (pixel-major) mu, kappa, log-normaliser, a ----
     def _upload(self) -> None:
@@ -116,16 +116,6 @@ class VMFModel:
                           for name, values in (("mean", self.mean), ("kappa", kappa),
                                                ("log_norm", log_norm),
                                                ("amplitude", self.amplitude))}
-
-    def _clear_batch(self) -> None:
-        import drjit as dr
-        import mitsuba as mi
-
-        lobes = self.config.lobes
-        self.batch_amplitude = dr.zeros(mi.Float, self.pixels * lobes * CHANNELS)
-        self.batch_direction = dr.zeros(mi.Float, self.pixels * lobes * 3)
-        self.batch_count = dr.zeros(mi.Float, self.pixels)
-        self.batch_nonfinite = dr.zeros(mi.Float, 1)
 
     def _lobes(self, pixel: Any, w: Any, active: Any) -> list[tuple[Any, list[Any]]]:
         """(v_k(w), [a_kc]) of every lobe k of ``pixel``."""
@@ -169,55 +159,50 @@ class VMFModel:
                                       lobe * CHANNELS + c, active)
         return mi.Spectrum(*total)
 
-    def record(self, pixel: Any, w: Any, weighted: Any, active: Any) -> None:
-        """The E-step for one sample (weights ``weighted`` = f / q): its responsibilities
-        under the current lobes, added to the pixel's batch sums."""
+    def _batch(self, records: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The E-step over one render's samples under the current lobes: per pixel the
+        batch's samples N and the sums N A_kc and N S_k (module docstring)."""
         import drjit as dr
-        import mitsuba as mi
 
-        finite = dr.all(dr.isfinite(weighted))
-        dr.scatter_reduce(dr.ReduceOp.Add, self.batch_nonfinite, mi.Float(1.0), mi.UInt32(0),
-                          active & ~finite)
-        active = active & finite
-        lobes = self._lobes(pixel, w, active)
+        lobes = self._lobes(records.pixel, records.w, True)
         # pi_k proportional to the amplitudes' channel mean (uniform while they are all 0).
         priors = [sum(amplitude) / CHANNELS for _, amplitude in lobes]
-        total_prior = sum(priors)
-        uniform = total_prior <= 0
+        uniform = sum(priors) <= 0
         scores = [dr.select(uniform, 1.0, prior) * density
                   for prior, (density, _) in zip(priors, lobes, strict=True)]
         total_score = sum(scores)
-        shape_weight = sum(weighted[c] for c in range(CHANNELS)) / CHANNELS
-        for k, score in enumerate(scores):
+        shape_weight = sum(records.weighted[c] for c in range(CHANNELS)) / CHANNELS
+        amplitude_sums, direction_sums = [], []
+        for score in scores:
             gamma = dr.select(total_score > 0, score / total_score, 1.0 / len(scores))
-            lobe = pixel * self.config.lobes + k
-            for c in range(CHANNELS):
-                dr.scatter_reduce(dr.ReduceOp.Add, self.batch_amplitude, weighted[c] * gamma,
-                                  lobe * CHANNELS + c, active)
-            for i in range(3):
-                dr.scatter_reduce(dr.ReduceOp.Add, self.batch_direction,
-                                  shape_weight * gamma * w[i], lobe * 3 + i, active)
-        dr.scatter_reduce(dr.ReduceOp.Add, self.batch_count, mi.Float(1.0), pixel, active)
+            amplitude_sums.append([records.per_pixel_sum(records.weighted[c] * gamma)
+                                   for c in range(CHANNELS)])
+            direction_sums.append([records.per_pixel_sum(shape_weight * gamma * records.w[i])
+                                   for i in range(3)])
+        count = records.per_pixel_sum(records.counts)
+        dr.eval(amplitude_sums, direction_sums, count)
 
-    def update(self) -> None:
-        """The stepwise blend and the M-step for every pixel with a batch, then clear it."""
-        lobes = self.config.lobes
-        count = np.asarray(self.batch_count, dtype=np.float64)
-        self.nonfinite += int(np.asarray(self.batch_nonfinite)[0])
+        def host(sums: list[list[Any]]) -> np.ndarray:   # (pixels, lobes, 3)
+            return np.stack([np.stack([np.asarray(v, dtype=np.float64) for v in lobe], -1)
+                             for lobe in sums], axis=1)
+
+        return np.asarray(count, dtype=np.float64), host(amplitude_sums), host(direction_sums)
+
+    def fit(self, records: Any) -> None:
+        """The E-step over one render's samples, then for every pixel that had one the
+        stepwise blend and the M-step."""
+        self.nonfinite += records.nonfinite_count()
+        count, amplitude_sums, direction_sums = self._batch(records)
         fed = count > 0
-        if fed.any():
-            n = count[fed][:, None, None]
-            batch_a = np.asarray(self.batch_amplitude, dtype=np.float64).reshape(
-                self.pixels, lobes, CHANNELS)[fed] / n
-            batch_s = np.asarray(self.batch_direction, dtype=np.float64).reshape(
-                self.pixels, lobes, 3)[fed] / n
-            eta = ((self.batches[fed] + 1.0) ** -self.config.step_exponent)[:, None, None]
-            self.amplitude[fed] += eta * (batch_a - self.amplitude[fed])
-            self.direction_sum[fed] += eta * (batch_s - self.direction_sum[fed])
-            self.batches[fed] += 1
-            self._m_step(fed)
-            self._upload()
-        self._clear_batch()
+        if not fed.any():
+            return
+        n = count[fed][:, None, None]
+        eta = ((self.batches[fed] + 1.0) ** -self.config.step_exponent)[:, None, None]
+        self.amplitude[fed] += eta * (amplitude_sums[fed] / n - self.amplitude[fed])
+        self.direction_sum[fed] += eta * (direction_sums[fed] / n - self.direction_sum[fed])
+        self.batches[fed] += 1
+        self._m_step(fed)
+        self._upload()
 
     def _m_step(self, fed: np.ndarray) -> None:
         """mu and kappa of the fed pixels' lobes from the running statistics; a lobe with

@@ -31,9 +31,10 @@ E[(f - g)/q; produced] = int_S2 (f - g). Delta lobes are not sampled (the method
 refuses scenes with delta BSDFs), and emitters are reached only by these
 directions (it refuses delta emitters): there is no next-event estimation at x.
 
-Fitting: the sample's f(w) / q(w) (0 where no direction was produced) is recorded
-into the pixel's model (``record``) during the render; the model folds the records
-into g only between frames, so a frame's g never depends on its own samples.
+Fitting: the render keeps each sample's w and f(w) / q(w) (0 where no direction
+was produced; renderers.integrators.control_variate_records); the model is fitted
+from them only between frames (``fit``), so a frame's g never depends on its own
+samples.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ import mitsuba as mi
 
 from renderers.integrators import register
 from renderers.integrators.cached import pixel_index, smooth_context
+from renderers.integrators.control_variate_records import SampleRecords
 
 PLUGIN_NAME = "nirc_control_variate"
 
@@ -60,9 +62,8 @@ class DirectionalModel(Protocol):
         """G_p = int_S2 g_p(w) dw, in closed form."""
         ...
 
-    def record(self, pixel: mi.UInt32, w: mi.Vector3f, weighted: mi.Spectrum,
-               active: mi.Bool) -> None:
-        """Keep one sample (f / q at w) for the pixel's next fit."""
+    def fit(self, records: SampleRecords) -> None:
+        """Fold one render's samples into the model (between frames)."""
         ...
 
 
@@ -77,7 +78,8 @@ class ControlVariateIntegrator(mi.SamplingIntegrator):
 
     Properties: ``max_depth`` (-1 or >= 2, as Mitsuba's ``path``), ``uniform_fraction``
     (a in (0, 1]). The model must be set on the loaded instance (:meth:`with_model`);
-    ``fitting`` says whether the render records its samples into it.
+    ``fitting`` says whether a render keeps its samples (:attr:`records`) for the
+    model's next fit.
     """
     plugin_name = PLUGIN_NAME
 
@@ -92,6 +94,7 @@ class ControlVariateIntegrator(mi.SamplingIntegrator):
         self.incident = mi.load_dict({"type": "path", "max_depth": max(self.max_depth - 1, -1)})
         self.model: DirectionalModel | None = None
         self.fitting = True
+        self.records: SampleRecords | None = None   # of the last render, while fitting
 
     def with_model(self, model: DirectionalModel) -> ControlVariateIntegrator:
         self.model = model
@@ -133,6 +136,7 @@ class ControlVariateIntegrator(mi.SamplingIntegrator):
         residual = dr.select(produced, (f - g) / q, 0.0)
         L += dr.select(hit, self.model.integral(pixel, hit) + residual, 0.0)
         if self.fitting:
-            self.model.record(pixel, w, dr.select(produced, f / q, 0.0), hit)
+            self.records = SampleRecords.write(w, dr.select(produced, f / q, 0.0), hit,
+                                               sampler.sample_count())
         valid = hit | (active & (scene.environment() is not None))
         return L, valid, [dr.select(hit, 1.0, 0.0)]

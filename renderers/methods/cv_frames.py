@@ -3,8 +3,8 @@ they apply to, and the frame loop that fits each pixel's model between frames.
 
 The estimator is renderers.integrators.control_variate (NIRC paper Eq. 7 at the
 first hits; docs/control_variates.md). A frame is one ``mi.render`` ('render': the
-samples are also recorded into the model) followed by the fold of those records
-into the model ('fit'), so frame t's g is fitted from the samples of all frames
+render also keeps its samples) followed by the model's fit from those samples
+('fit'), so frame t's g is fitted from the samples of all frames
 before it: the ``pretrain_frames`` fitting frames, the warm-up frame and frames
 0..t-1 (every sample of every pixel's first hits), never from frame t's own.
 Given the past, each frame is unbiased, so the frames' errors are uncorrelated
@@ -80,7 +80,7 @@ class ModelFrames:
                               seed=seed)
             synchronize(image)
         with timer.stage("fit"):
-            self.model.update()
+            self.model.fit(self.integrator.records)
         return image
 
 
