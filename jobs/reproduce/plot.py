@@ -27,8 +27,10 @@ def plot_panels(reproduction: Reproduction, panels: list[Panel], path: Path, *,
     """Draw ``panels`` (one line per series, x the points' swept value) to ``path``;
     points for which ``marked`` holds are drawn enlarged (e.g. a sample target)."""
     rows = math.ceil(len(panels) / columns)
+    height = 3.6 * rows + 0.8   # inches: the panels and a band for the title above them
     figure, axes = _new_figure(rows, columns, reproduction.title,
-                               figsize=(4.6 * columns, 3.6 * rows))
+                               figsize=(4.6 * columns, height))
+    figure.subplots_adjust(top=1.0 - 0.8 / height, bottom=0.6 / height)
     for ax in axes[len(panels):]:
         figure.delaxes(ax)
     for ax, panel in zip(axes, panels, strict=False):
