@@ -7,14 +7,17 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 from unittest import mock
 
 import pytest
 from typer.testing import CliRunner
 
 from jobs.record.config import Settings
-from jobs.reproduce import measure, vt_fig7, vt_table1
+from jobs.reproduce import measure, vt_fig7, vt_fig9, vt_table1
 from jobs.reproduce.papers import PaperValue, paper_data
 from jobs.reproduce.registry import Budget, figures
 from jobs.reproduce.results import Estimate, Point, Reproduction
@@ -121,3 +124,56 @@ def test_policy_order_counts_pairs_ordered_alike() -> None:
     assert (order, agree, total) == (["a", "c", "b"], 2, 3)
     reversed_ = [_point("a", 3.0, 1.0), _point("b", 2.0, 2.0), _point("c", 1.0, 3.0)]
     assert vt_table1.policy_order(reversed_, "door", "path_length")[1:] == (0, 3)
+
+
+def _stored(value: float, preset: str) -> tuple[Any, Any]:
+    """A sweep row and its run as the store gives them, with seeded-looking numbers."""
+    note = {f"{k}_ci_note": "t" for k in ("rvar", "rbias2", "mrse")}
+    row = SimpleNamespace(id=int(value * 1000), value=value, rvar=0.2, rvar_ci95=[0.1, 0.4],
+                          rbias2=0.05, rbias2_ci95=[0.01, 0.09], mrse=0.3,
+                          mrse_ci95=[0.2, 0.5], kernel_breakdown_ms={"render": 3.0,
+                                                                     "propagation": 9.0},
+                          **note)
+    seeds = [SimpleNamespace(metrics={"path_stats": {"weighted_length": length},
+                                      "method_stats": {"caches": {"cache": {"preset": preset}}}})
+             for length in (2.0, 2.5, 3.0)]
+    run = SimpleNamespace(metrics={"rvar_per_cache": [0.7, 0.8, 0.9]},
+                          path_stats={"weighted_length": 2.5}, seed_results=seeds)
+    return row, run
+
+
+@pytest.mark.parametrize("module", [vt_fig7, vt_fig9, vt_table1])
+def test_every_figure_measures_writes_and_draws_from_stored_points(
+        module: Any, monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """Each registered figure asks the sweep for its points with the budget's grid preset
+    and writes a table with intervals and its PNG (the sweep stubbed: its points are
+    rendered in the end-to-end test above)."""
+    calls: list[dict[str, Any]] = []
+
+    def sweep(ctx: Any, scene: str, method: str, parameter: str, values: list[Any],
+              params: dict[str, Any], max_depth: int = -1) -> list[tuple[Any, Any]]:
+        calls.append({"method": method, "params": params, "max_depth": max_depth})
+        return [_stored(float(v), ctx.budget.grid_preset) for v in values]
+
+    monkeypatch.setattr(module, "sweep", sweep)
+    budget = replace(TINY, values=(1.0, 10.0))   # sample targets on Fig. 9's N axis
+    result, paths = reproduce("vt", module.FIGURE.key, "quick", tmp_path, None, None,
+                              budget=budget)
+    assert paths["figure"].read_bytes()[:4] == b"\x89PNG"
+    grid = [c for c in calls if c["method"] == "grid-cache"]
+    assert grid and all(c["params"]["cache"] == {"preset": "cpu"} for c in grid)
+    assert result.settings["runs' grid presets"] == ["cpu"]
+    assert all(p.values for p in result.points)
+    assert all(e.ci95 is not None for p in result.points for e in p.values.values()
+               if e.value is not None and p.series != "PT (survival 90%)"
+               and "ms" not in str(e.note or "ms"))
+    table = paths["markdown"].read_text()
+    assert "[0.0" in table or "[0.1" in table   # intervals printed beside the values
+    if module is vt_fig7:
+        assert {c["params"]["rr_survival"] for c in grid} == set(vt_fig7.SURVIVALS)
+        assert {c["max_depth"] for c in grid} == {vt_fig7.MAX_DEPTH}
+    if module is vt_fig9:   # every target's line has its marker at N = s
+        assert sum(vt_fig9.at_target(p) for p in result.points) == 2 * len(budget.values)
+    if module is vt_table1:   # the paper's path length beside ours
+        door = next(p for p in result.points if p.series == "var-bound t = 0.1")
+        assert door.paper["path_length"] == 4.86 and "| 4.86 |" in table
