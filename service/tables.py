@@ -408,11 +408,12 @@ def same_render_runs(rows: list[Any]) -> list[tuple[Any, list[Any]]]:
 def sweep_table(result: SweepResult) -> Group:
     """The sweep's points (one row per series and eps / N_c / value), skipped methods,
     work done. Rows that render what the row before them renders are shown once, and said
-    so (:func:`same_render_runs`; the JSON keeps every point). The value column is a
-    parameter sweep's only."""
+    so (:func:`same_render_runs`; the JSON keeps every point). A parameter sweep shows
+    its value column instead of eps and N_c at v1."""
     table = Table(title=f"sweep {result.sweep_id}: {result.scene} on {result.device_key}")
-    columns = [(key, header) for key, header in SWEEP_COLUMNS
-               if key != "value" or result.kind == "parameter"]
+    # A parameter sweep's points have no eps and no N_c at v1 of their own (they read '-').
+    hidden = {"eps", "nc"} if result.kind == "parameter" else {"value"}
+    columns = [(key, header) for key, header in SWEEP_COLUMNS if key not in hidden]
     for key, header in columns:
         # The series label is what a reader looks rows up by: never wrapped.
         header = result.parameter or header if key == "value" else header
@@ -420,7 +421,9 @@ def sweep_table(result: SweepResult) -> Group:
                          no_wrap=header == "series")
     metric_cells = {m.field: index for index, m in enumerate(LISTED)}
     collapsed: list[str] = []
-    for row, alike in same_render_runs(result.rows):
+    shown = same_render_runs(result.rows) if result.kind != "parameter" \
+        else [(row, []) for row in result.rows]      # each value is a point of its own
+    for row, alike in shown:
         metrics = _metric_cells(row)
         cells = []
         for key, _ in columns:

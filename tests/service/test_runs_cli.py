@@ -508,3 +508,33 @@ def test_run_and_sweep_tables_state_eps_and_mark_loaded_times(store_dir):
     assert "L after ms/frame: timed on a loaded machine" in text
     planted = sweep(flags=[[], []])
     assert " L" not in planted and "loaded machine" not in planted
+
+
+def test_a_parameter_sweep_table_shows_its_value_not_eps_or_n_c(store_dir):
+    """A parameter sweep's rows are its values: the table heads the value column with
+    the parameter and shows no eps or N_c at v1 column (both read '-' in every row)."""
+    from rich.console import Console
+
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from jobs.sweeps.sweep import SweepResult, point_row
+    from service.tables import sweep_table
+
+    data, _ = store_dir
+    run = open_store(Settings(data_dir=data)).get_run(1)
+    work = dict.fromkeys(("reference_rendered", "snapshots_trained", "snapshots_reused",
+                          "points_rendered", "points_reused", "calibrations"), 0)
+    rows = [point_row("nirc", None, run).model_copy(update={"value": value, "nc": None})
+            for value in (0.01, 0.1)]
+
+    def header(kind: str, parameter: str | None) -> list[str]:
+        console = Console(width=300, record=True)
+        console.print(sweep_table(SweepResult(sweep_id=1, key="k", kind=kind, parameter=parameter,
+                                              scene="cornell-box", device_key=run.device_key,
+                                              rows=rows, skipped=[], work=work)))
+        line = next(line for line in console.export_text().splitlines() if "series" in line)
+        return [cell.strip() for cell in line.split("┃") if cell.strip()]
+
+    swept = header("parameter", "sph_c")
+    assert swept[:2] == ["series", "sph_c"] and "eps" not in swept and "N_c v1" not in swept
+    assert header("eps", None)[:3] == ["series", "eps", "N_c v1"]
