@@ -511,6 +511,15 @@ def _row_value(row: RunResult, key: str, field: str | None) -> str:
     return value_text(key, value, getattr(row, f"{field}_ci95", None))
 
 
+def _difference_text(run: RunResult, setting: str, value: Any) -> str:
+    """A compared setting's value for ``run``: a parameter its method does not have reads
+    so, not 'None' (pt beside nirc has no nc)."""
+    name = setting.removeprefix("params.")
+    if name != setting and name not in run.params:
+        return f"- (not a {run.method} parameter)"
+    return _fmt(value)
+
+
 def comparison_table(comparison: RunComparison) -> Group:
     """Runs side by side: what differs between them, then each later run's metrics
     against the first's with the interval of the change."""
@@ -523,7 +532,8 @@ def comparison_table(comparison: RunComparison) -> Group:
     head.add_row("name", *(escape(r.name or "-") for r in rows))
     head.add_row("created", *(r.created_at.strftime("%Y-%m-%d %H:%M") for r in rows))
     for setting, values in comparison.differences.items():
-        head.add_row(escape(setting), *(escape(_fmt(v)) for v in values))
+        head.add_row(escape(setting), *(escape(_difference_text(r, setting, v))
+                                        for r, v in zip(rows, values, strict=True)))
     if not comparison.differences:
         head.add_row("(settings)", *("the same" for _ in rows))
     standings = comparison.standings

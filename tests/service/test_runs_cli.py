@@ -241,6 +241,34 @@ def test_runs_compare_names_what_differs_and_refuses_other_metric_versions(store
     assert "different metric definitions" in refused and "run 2: v1" in refused
 
 
+def test_runs_compare_says_which_parameters_a_method_does_not_have(store_dir):
+    """Beside a nirc run, pt's nc reads '- (not a pt parameter)' (it read 'None', like a
+    value); a parameter both have keeps its value."""
+    from rich.console import Console
+
+    from jobs.record.config import Settings
+    from jobs.record.db import open_store
+    from jobs.views.comparison import compare_runs
+    from service.tables import comparison_table
+
+    data, _ = store_dir
+    store = open_store(Settings(data_dir=data))
+    comparison = compare_runs([store.get_run(1), store.get_run(3)])
+    nirc = comparison.runs[1].model_copy(update={"method": "nirc",
+                                                 "params": {**comparison.runs[1].params,
+                                                            "nc": [4]}})
+    comparison = comparison.model_copy(update={
+        "runs": [comparison.runs[0], nirc],
+        "differences": {**comparison.differences, "params.nc": [None, [4]]}})
+    console = Console(width=300, record=True)
+    console.print(comparison_table(comparison))
+    rows = {line.split("│")[1].strip(): line for line in console.export_text().splitlines()
+            if line.startswith("│")}
+    assert "- (not a pt parameter)" in rows["params.nc"] and "None" not in rows["params.nc"]
+    assert "[4]" in rows["params.nc"]
+    assert "- (not a" not in rows["params.max_depth"]
+
+
 def test_runs_compare_does_not_call_loaded_timings_comparable(store_dir):
     """Run 2 marked as timed on a loaded machine: the comparison names it and its flag;
     unloaded, the same runs are comparable (planted: the flag ignored)."""
