@@ -6,15 +6,23 @@ the one-sample estimate of an integral F = int f into
     <F> = G + (f(w) - g(w)) / q(w),        w ~ q,                       (Eq. 7)
 
 unbiased for *any* g that does not depend on w, provided q(w) > 0 wherever
-f - g != 0. Here f is the shading integrand at the first hit x of a camera ray,
+f - g != 0. As NIRC splits the incident light (Eq. 8: L_i = L_ind + L_nee), the
+pixel's radiance at the first hit x of a camera ray is
 
-    f(w) = L_i(x, w) f_s(x, w, w_o) |cos theta|                      (Eq. 1)
+    L = L_e(x) + <L_nee(x)> + G_p + (f(w) - g_p(w)) / q(w),
+    f(w) = L_ind(x, w) f_s(x, w, w_o) |cos theta|                     (Eq. 1, 8-9)
 
-(the incident radiance L_i estimated by a path traced from x along w, Mitsuba's
-``path`` with one segment less than the method's ``max_depth``), and g is a
-per-pixel model of the whole integrand (BSDF and cosine included, as the paper's
-SH and vMF control variates are), fitted from earlier frames: an SH expansion
-(renderers.caches.sh) or a vMF mixture. The pixel's radiance is L_e(x) + <F>.
+<L_nee> one emitter sample (next-event estimation, no MIS weight: the sampled
+directions below never count emission they hit), L_ind(x, w) the radiance leaving
+the point y that w hits, without y's emission: a path traced from x along w
+(Mitsuba's ``path`` with one segment less than ``max_depth``) estimates L_i(x, w),
+whose first term is y's emission L_e(y) with weight 1, and L_e(y), evaluated at the
+same hit, is subtracted (``path``'s ``hide_emitters`` would not do: it ends the
+path where its first hit is an emitter, dropping that emitter's reflected light), and g_p a
+per-pixel model of f (BSDF and cosine included, as the paper's SH and vMF control
+variates are), fitted from earlier frames: an SH expansion (renderers.caches.sh)
+or a vMF mixture (renderers.caches.vmf). So L has the expectation of ``path`` at
+``max_depth``, whatever g is.
 
 The domain. g and G live on the whole sphere (their closed forms are over S^2),
 while BSDF sampling has q = 0 below the surface, where g is not 0: G with
@@ -27,9 +35,8 @@ mixture density
 
 A BSDF sample that fails (p_bsdf = 0) contributes 0: the density of the
 directions actually produced is q, with the failed mass lost, so
-E[(f - g)/q; produced] = int_S2 (f - g). Delta lobes are not sampled (the method
-refuses scenes with delta BSDFs), and emitters are reached only by these
-directions (it refuses delta emitters): there is no next-event estimation at x.
+E[(f - g)/q; produced] = int_S2 (f - g). Delta lobes are neither sampled nor
+evaluated (the method refuses scenes with delta BSDFs).
 
 Fitting: the render keeps each sample's w and f(w) / q(w) (0 where no direction
 was produced; renderers.integrators.control_variate_records); the model is fitted
@@ -115,6 +122,14 @@ class ControlVariateIntegrator(mi.SamplingIntegrator):
         f_cos, bsdf_pdf = bsdf.eval_pdf(ctx, si, w_local, produced)
         return w_local, f_cos, mixture_pdf(self.uniform_fraction, bsdf_pdf), produced
 
+    def next_event(self, scene: mi.Scene, si: mi.SurfaceInteraction3f, bsdf: mi.BSDF,
+                   sampler: mi.Sampler, active: mi.Bool) -> mi.Spectrum:
+        """<L_nee(x)>: one emitter sample, shadow ray included, f_s cos L_e / p_light."""
+        ds, emitted = scene.sample_emitter_direction(si, sampler.next_2d(active), True, active)
+        seen = active & (ds.pdf != 0)
+        f_cos = bsdf.eval(smooth_context(), si, si.to_local(ds.d), seen)
+        return dr.select(seen, f_cos * emitted, 0.0)
+
     def sample(self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.RayDifferential3f,
                medium: mi.Medium = None,
                active: mi.Bool = True) -> tuple[mi.Spectrum, mi.Bool, list[mi.Float]]:
@@ -125,12 +140,17 @@ class ControlVariateIntegrator(mi.SamplingIntegrator):
         # si.emitter() is the environment (or none) where the ray missed.
         L = mi.Spectrum(si.emitter(scene, active).eval(si, active))
         pixel = pixel_index(ray, sampler)
+        bsdf = si.bsdf(ray)
+        L += self.next_event(scene, si, bsdf, sampler, hit)
 
-        w_local, f_cos, q, produced = self.sample_direction(si, si.bsdf(ray), sampler, hit)
+        w_local, f_cos, q, produced = self.sample_direction(si, bsdf, sampler, hit)
         w = si.to_world(w_local)
         lit = produced & (dr.max(mi.unpolarized_spectrum(f_cos)) > 0)
-        L_i, _, _ = self.incident.sample(scene, sampler, si.spawn_ray(w), None, lit)
-        f = dr.select(lit, f_cos * L_i, 0.0)
+        # L_ind = L_i - L_e(y): NEE at x counts the emission the direction reaches.
+        toward = si.spawn_ray(w)
+        y = scene.ray_intersect(toward, lit)
+        L_i, _, _ = self.incident.sample(scene, sampler, toward, None, lit)
+        f = dr.select(lit, f_cos * (L_i - y.emitter(scene, lit).eval(y, lit)), 0.0)
         g = self.model.eval(pixel, w, produced)
         # Eq. 7: G + (f - g) / q; a direction not produced adds no residual.
         residual = dr.select(produced, (f - g) / q, 0.0)

@@ -13,7 +13,8 @@ Given the past, each frame is unbiased, so the frames' errors are uncorrelated
 ==================  ========  ====================================================
 parameter           default   meaning
 ==================  ========  ====================================================
-max_depth           -1        longest path in segments (-1: unbounded; >= 2)
+max_depth           -1        longest path in segments (-1: unbounded; >= 2; at 2
+                              the indirect integrand the model fits is 0)
 uniform_fraction    0.25      probability of a uniform sphere sample in the
                               one-sample mixture with BSDF sampling (> 0)
 pretrain_frames     0         frames rendered only to fit the model first
@@ -52,15 +53,12 @@ class ControlVariateParams(MethodParams):
 
 
 def applies(features: Any) -> tuple[bool, str]:
-    """A surface; no delta BSDF lobe and no delta emitter (the estimator samples only
-    smooth lobes and has no next-event estimation at the first hit)."""
+    """A surface and no delta BSDF lobe (the estimator samples and evaluates only
+    smooth lobes at the first hit)."""
     if features.shape_count == 0:
         return False, "the scene has no surface to shade"
     if features.has_delta:
         return False, "a delta BSDF lobe: the control variate samples only smooth lobes"
-    if features.emitter_count > features.area_emitter_count + int(features.has_envmap):
-        return False, "a delta emitter (point, spot, directional): directions sampled at " \
-                      "the first hit never reach it"
     return True, ""
 
 
