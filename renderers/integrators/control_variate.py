@@ -81,7 +81,8 @@ def mixture_pdf(uniform_fraction: float, bsdf_pdf: mi.Float) -> mi.Float:
 
 @register
 class ControlVariateIntegrator(mi.SamplingIntegrator):
-    """L = L_e(x) + G_p + (f(w) - g_p(w)) / q(w) at the first hit x (module docstring).
+    """L = L_e(x) + <L_nee(x)> + G_p + (f(w) - g_p(w)) / q(w) at the first hit x (module
+    docstring).
 
     Properties: ``max_depth`` (-1 or >= 2, as Mitsuba's ``path``), ``uniform_fraction``
     (a in (0, 1]). The model must be set on the loaded instance (:meth:`with_model`);
