@@ -190,7 +190,9 @@ def _run_embedded(job: Callable[[Any, Any, Any], Any], data_dir: Path | None, as
 @app.command()
 def scenes(
     as_json: JsonOut = False,
-    res: Annotated[int, typer.Option("--res", min=1, max=8192)] = 64,
+    res: Annotated[int, typer.Option(
+        "--res", min=1, max=8192, help="width and height the scenes are loaded at (the "
+                                       "fingerprints and features do not depend on it)")] = 64,
 ) -> None:
     """List the built-in scenes with their fingerprints and features."""
     from renderers.backend import init_backend
@@ -319,7 +321,8 @@ def render(
         "--method", "-m", help=f"one of {', '.join(METHODS)}")] = BASELINE,
     res: Res = 64,
     spp: Annotated[int, typer.Option("--spp", min=1, max=1 << 16, help="spp per frame")] = 1,
-    frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 1,
+    frames: Annotated[int, typer.Option("--frames", min=1, max=100_000,
+                                        help="frames per seed, accumulated")] = 1,
     seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000, help="K independent renders")] = 4,
     max_depth: MethodMaxDepth = None,
     param: Annotated[list[str] | None, typer.Option(
@@ -420,7 +423,9 @@ def render(
 def evaluate(
     reference_path: Annotated[Path, typer.Option("--reference", "-r", help="reference EXR")],
     image: Annotated[Path, typer.Option("--image", "-i", help="test EXR")],
-    eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0)] = 0.01,
+    eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0,
+                                       help="epsilon of the relative errors, (X-R)^2/(R^2+eps)")
+                   ] = 0.01,
     as_json: JsonOut = False,
 ) -> None:
     """Compute MSE, MRSE, FLIP and non-finite counts of an image against a reference."""
@@ -444,9 +449,13 @@ def evaluate(
 def report(
     scene: Scene,
     res: Res = 64,
-    frames: Annotated[int, typer.Option("--frames", min=1, max=100_000)] = 16,
-    seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000)] = 2,
-    pretrain: Annotated[int, typer.Option("--pretrain", min=0, max=100_000)] = 100,
+    frames: Annotated[int, typer.Option("--frames", min=1, max=100_000,
+                                        help="frames per seed")] = 16,
+    seeds: Annotated[int, typer.Option("--seeds", min=1, max=1000,
+                                       help="K independent renders per method")] = 2,
+    pretrain: Annotated[int, typer.Option(
+        "--pretrain", min=0, max=100_000,
+        help="frames the caches train before the rendered frames (pretrain_frames)")] = 100,
     max_depth: MaxDepth = -1,
     ref_spp: RefSpp = REF_SPP,
     allow_loaded: Annotated[bool, typer.Option(
@@ -824,8 +833,11 @@ def _with_tls(settings: ServiceSettings, scheduler: str, ca_file: Path | None,
 
 @app.command()
 def serve(
-    host: Annotated[str, typer.Option("--host")] = "127.0.0.1",
-    port: Annotated[int, typer.Option("--port", min=1, max=65535)] = 8000,
+    host: Annotated[str, typer.Option(
+        "--host", help="address to listen on (off loopback, choose --public-read or "
+                       "--no-public-read)")] = "127.0.0.1",
+    port: Annotated[int, typer.Option("--port", min=1, max=65535,
+                                      help="port to listen on")] = 8000,
     scheduler: Annotated[str | None, typer.Option(
         "--scheduler", help="Dask scheduler address, tls://HOST:8786 with the --tls-* options "
                             "(default: an embedded LocalCluster)")] = None,
@@ -975,7 +987,7 @@ def stress(
         "--case", help="a stress case (repeat; default: all, docs/stress.md)")] = None,
     res: Annotated[int | None, typer.Option(
         "--res", min=4, max=512, help="resolution (default 16; --soak 32)")] = None,
-    spp: Annotated[int, typer.Option("--spp", min=1, max=1024)] = 4,
+    spp: Annotated[int, typer.Option("--spp", min=1, max=1024, help="spp per frame")] = 4,
     frames: Annotated[int | None, typer.Option(
         "--frames", min=1, max=4096, help="frames (default 2, at most 64; --soak 64)")] = None,
     seeds: Annotated[int | None, typer.Option(

@@ -99,7 +99,7 @@ def _cell(column: str, value: Any) -> str:
 @runs_app.command("list")
 def list_runs(
     scene: Annotated[str | None, typer.Option("--scene", "-s", help="scene name")] = None,
-    method: Annotated[str | None, typer.Option("--method", "-m")] = None,
+    method: Annotated[str | None, typer.Option("--method", "-m", help="method name")] = None,
     param: Annotated[list[str] | None, typer.Option(
         "--param", "-p", help="method parameter NAME=VALUE the run has (repeatable)")] = None,
     device: Annotated[str | None, typer.Option("--device", help="device key")] = None,
@@ -119,7 +119,8 @@ def list_runs(
                           "'changed' (resolved parameters not at their default), 'ms', "
                           "params.NAME, "
                           f"tags.NAME (default: {','.join(DEFAULT_COLUMNS)})")] = None,
-    limit: Annotated[int, typer.Option("--limit", min=1, max=100_000)] = 50,
+    limit: Annotated[int, typer.Option("--limit", min=1, max=100_000,
+                                       help="list at most this many runs")] = 50,
     as_json: JsonOut = False,
     as_csv: Annotated[bool, typer.Option("--csv", help="print CSV instead of a table")] = False,
     data_dir: DataDir = None,
