@@ -181,6 +181,10 @@ def test_one_file_uploaded_for_two_runs_is_stored_once(served):
         key_id = row.id
         other_run = store.add_run(run_fields(width=8, height=8), [], []).id
         body = exr_bytes(folder, reference + 400)
+        # A refused upload leaves no folder behind (it left an empty one per run).
+        assert upload(client, other_run, b"not an EXR file", key).status_code == 422
+        assert not (settings.uploaded_images_dir / str(key_id)).exists() or not any(
+            (settings.uploaded_images_dir / str(key_id)).iterdir())
         before = data_bytes(store, settings)
         first, second = (upload(client, run, body, key) for run in (run_id, other_run))
         assert (first.status_code, second.status_code) == (201, 200), second.text

@@ -106,11 +106,11 @@ def _store(body: bytes, key_id: int, run_id: int, resolution: tuple[int, int], s
     """Check and keep ``body`` for key ``key_id`` under run ``run_id``; (the stored
     image, whether it is new)."""
     key_folder = make_private_dir(settings.uploaded_images_dir / str(key_id))
-    folder = make_private_dir(key_folder / str(run_id))
+    folder = key_folder / str(run_id)    # made once the image is kept: a refusal leaves none
     image_id = hashlib.sha256(body).hexdigest()
     target = folder / f"{image_id}.exr"
     stored = _stored_copy(key_folder, image_id)
-    created = stored is None or not _linked(stored, target)
+    created = stored is None or not _linked(stored, make_private_dir(folder) / target.name)
     if created:
         check_room(store, settings, key_id, len(body), "image upload")
         if settings.max_data_bytes is not None:
@@ -119,11 +119,12 @@ def _store(body: bytes, key_id: int, run_id: int, resolution: tuple[int, int], s
                                     f"storing {len(body)} bytes would take the data folder "
                                     f"past its limit of {settings.max_data_bytes} bytes "
                                     "(max_data_bytes)")
-        scratch = folder / f".{image_id}.{os.getpid()}.part"
+        scratch = key_folder / f".{image_id}.{os.getpid()}.part"
         try:
             scratch.write_bytes(body)
             os.chmod(scratch, 0o600)
             _checked(scratch, resolution)
+            make_private_dir(folder)
             scratch.replace(target)
         finally:
             scratch.unlink(missing_ok=True)
