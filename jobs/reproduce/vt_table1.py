@@ -78,7 +78,7 @@ def policy_order(points: list[Point], scene: str, key: str) -> tuple[list[str], 
         if theirs != 0 and ours != 0:
             total += 1
             agree += (theirs > 0) == (ours > 0)
-    return [p.series for p in rows], agree, total
+    return [p.series if p.x is None else f"{p.series} {p.x:g}" for p in rows], agree, total
 
 
 def measure(ctx: Context) -> Reproduction:
@@ -97,8 +97,8 @@ def measure(ctx: Context) -> Reproduction:
                                                       rr_survival=RR_SURVIVAL)):
                 presets |= grid_presets(run)
                 paper = {} if suffix else _paper_values(scene, policy, float(row.value))
-                points.append(_point(scene, f"{policy}{suffix} {symbol} = {row.value:g}",
-                                     float(row.value), row, run, paper))
+                points.append(_point(scene, f"{policy}{suffix} ({symbol})", float(row.value),
+                                     row, run, paper))
     notes = [f"roulette survival {RR_SURVIVAL:.0%} from the fifth vertex in every row",
              "times: kernel ms of the median frame on this machine's CPU; the paper's are "
              "an RTX 3070 Ti's at 1920x1080: compare their order, not their values"]

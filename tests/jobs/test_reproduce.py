@@ -175,5 +175,5 @@ def test_every_figure_measures_writes_and_draws_from_stored_points(
     if module is vt_fig9:   # every target's line has its marker at N = s
         assert sum(vt_fig9.at_target(p) for p in result.points) == 2 * len(budget.values)
     if module is vt_table1:   # the paper's path length beside ours
-        door = next(p for p in result.points if p.series == "var-bound t = 0.1")
-        assert door.paper["path_length"] == 4.86 and "| 4.86 |" in table
+        door = next(p for p in result.points if (p.series, p.x) == ("var-bound (t)", 1.0))
+        assert door.paper["path_length"] == 7.41 and "| 7.41 |" in table
