@@ -316,26 +316,39 @@ def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
 
 
 def sweep_chart(sweep_id: int, rows: Sequence[Mapping[str, Any]],
-                metric: Mapping[str, Any]) -> dict[str, Any] | None:
-    """A sweep's metric against the share of indirect-radiance bounces, one line per
-    series (a method's 'equal time' series a darker, dashed shade of its hue), each point
-    linked to its run."""
+                metric: Mapping[str, Any], parameter: str | None = None
+                ) -> dict[str, Any] | None:
+    """A sweep's metric against the share of indirect-radiance bounces (an eps sweep, the
+    NIRC paper's Fig. 13) or, for a sweep over ``parameter``, against its values; one
+    line per series (a method's 'equal time' series a darker, dashed shade of its hue),
+    each point linked to its run."""
     field, log = metric["field"], metric["log_axis"]
     usable = [r for r in rows if r.get(field) is not None]
     drawn = [r for r in usable if r[field] > 0 or not log]
     if not drawn:
         return None
     values = [{"pct": r["ir_bounces_pct"], "value": r[field], "config": r["series"],
-               "family": family_of(r, r["series"]), "eps": r.get("eps"), "run": r.get("id"), "href": run_link(r["id"]) if r.get("id") else None}
+               "family": family_of(r, r["series"]), "eps": r.get("eps"),
+               "swept": r.get("value"), "run": r.get("id"),
+               "href": run_link(r["id"]) if r.get("id") else None}
               for r in drawn]
     colours, dashes = style_scales([(v["family"], v["config"]) for v in values])
+    if parameter is None:
+        x = alt.X("pct:Q", title="indirect-radiance bounces (%)")
+    elif all(isinstance(v["swept"], int | float) for v in values):
+        x = alt.X("swept:Q", title=parameter,
+                  scale=value_scale([v["swept"] for v in values], True))
+    else:
+        x = alt.X("swept:N", title=parameter)
     chart = alt.Chart(alt.Data(values=values)).mark_line(point=True).encode(
-        x=alt.X("pct:Q", title="indirect-radiance bounces (%)"),
+        x=x,
         y=alt.Y("value:Q", title=axis_title(metric),
                 scale=value_scale([v["value"] for v in values], log)),
         color=alt.Color("config:N", scale=colours, legend=LEGEND),
         strokeDash=alt.StrokeDash("config:N", scale=dashes, legend=LEGEND),
-        tooltip=[alt.Tooltip("config:N", title="series"), alt.Tooltip("eps:Q", title="eps"),
+        tooltip=[alt.Tooltip("config:N", title="series"),
+                 alt.Tooltip("swept:N", title=parameter) if parameter is not None
+                 else alt.Tooltip("eps:Q", title="eps"),
                  alt.Tooltip("pct:Q", title="% IR bounces", format=".3g"),
                  alt.Tooltip("value:Q", title=metric["label"], format=".4g"),
                  alt.Tooltip("run:Q", title="run")],

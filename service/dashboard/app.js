@@ -102,7 +102,7 @@ async function scenePage(scene) {
   const v = view();
   v.innerHTML = `<h2>${esc(scene)}</h2><p><a href="#/history/${enc(scene)}">history over commits</a></p>
     <h3>Error vs time</h3><p class="muted">One group per resolution, frames, protocol, device and versions: only comparable runs share a chart. In it each method configuration is one curve over its equal-time knob (spp, N_c, eps: points on a curve, not groups), one hue per method with shades and dashes for its configurations, and the group's Pareto front in black. Hover a point for the run's parameters; click it to open the run; wheel to zoom, drag to pan.</p>
-    <div id="pareto"></div><h3>Adaptive equal-bias sweep</h3><div class="plots" id="sweep"></div>
+    <div id="pareto"></div><h3 id="sweep-title">Sweeps</h3><div class="plots" id="sweep"></div>
     <h3>Runs</h3><div id="runs"></div>`;
   const pareto = document.getElementById("pareto");
   if (!charts.groups.length) note(pareto, "No runs of this scene yet.");
@@ -115,7 +115,11 @@ async function scenePage(scene) {
   }
   const sweepEl = document.getElementById("sweep");
   if (!sweeps.length) note(sweepEl, "No sweep of this scene yet (nirc-bench sweep --scene NAME --eps 0.05:1.0).");
-  else for (const spec of (await api(`/charts/sweeps/${sweeps[0].id}`)).charts) await chart(sweepEl, spec);
+  else {
+    const answer = await api(`/charts/sweeps/${sweeps[0].id}`);
+    document.getElementById("sweep-title").textContent = `${answer.title} (the latest, sweep ${sweeps[0].id})`;
+    for (const spec of answer.charts) await chart(sweepEl, spec);
+  }
   document.getElementById("runs").innerHTML = resultsTable(runs, (await metricRegistry()).filter((m) => m.field));
 }
 

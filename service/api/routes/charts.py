@@ -99,10 +99,15 @@ def run_charts(run_id: RowId, store: StoreDep) -> dict[str, Any]:
 
 @router.get("/sweeps/{sweep_id}")
 def sweep_charts(sweep_id: RowId, store: StoreDep) -> dict[str, Any]:
-    """A sweep's curves, one chart per metric the registry plots for sweeps."""
+    """A sweep's curves, one chart per metric the registry plots for sweeps, and what it
+    swept (``title``): the adaptive equal-bias sweep over eps, or a sweep over one
+    parameter, drawn against its values."""
     sweep = store.get_sweep(sweep_id)
     if sweep is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no sweep {sweep_id}")
     rows = (sweep.result or {}).get("rows") or []
-    charts = [sweep_chart(sweep_id, rows, m.to_json()) for m in METRICS if m.sweep_plot]
-    return {"sweep": sweep_id, "charts": [chart for chart in charts if chart]}
+    parameter = (sweep.result or {}).get("parameter") if sweep.kind == "parameter" else None
+    charts = [sweep_chart(sweep_id, rows, m.to_json(), parameter)
+              for m in METRICS if m.sweep_plot]
+    title = f"Sweep over {parameter}" if parameter else "Adaptive equal-bias sweep"
+    return {"sweep": sweep_id, "title": title, "charts": [chart for chart in charts if chart]}
