@@ -310,7 +310,9 @@ def comparison_tables(report: Report) -> Group:
                  breakdown_table(f"{report.scene}: ms per frame by part (the median frame; "
                                  "render includes cache inference unless listed)",
                                  report.equal_spp),
-                 calibration_table("N_c calibration (NIRC biased)", report.calibration),
+                 # None when the calibration was left out (loaded machine) or not run.
+                 *([calibration_table("N_c calibration (NIRC biased)", report.calibration)]
+                   if report.calibration else []),
                  *(f"skipped {s.label or s.method}: {s.reason}" for s in report.skipped),
                  *(["L: timed on a loaded machine (the note says how loaded)"]
                    if any(r.timing_flags for r in [*report.equal_spp, *report.equal_time])

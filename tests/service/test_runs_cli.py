@@ -566,3 +566,22 @@ def test_a_parameter_sweep_table_shows_its_value_not_eps_or_n_c(store_dir):
     swept = header("parameter", "sph_c")
     assert swept[:2] == ["series", "sph_c"] and "eps" not in swept and "N_c v1" not in swept
     assert header("eps", None)[:3] == ["series", "eps", "N_c v1"]
+
+
+def test_the_report_prints_without_a_calibration_left_out_on_a_loaded_machine():
+    """A report whose N_c calibration was left out (every probe timed on a loaded
+    machine) prints its rows and the reason; it stopped with 'internal error
+    (KeyError): 'fits'' after the renders."""
+    from rich.console import Console
+
+    from jobs.pareto.report import Report, Skipped
+    from service.tables import comparison_tables
+
+    left_out = Skipped(method="nirc", label="NIRC (equal time)",
+                       reason="every calibration probe was timed on a loaded machine")
+    console = Console(width=300, record=True)
+    console.print(comparison_tables(Report(scene="cornell-box", device="cpu",
+                                           left_out=[left_out])))
+    text = console.export_text()
+    assert "left out NIRC (equal time): every calibration probe" in text
+    assert "N_c calibration" not in text
