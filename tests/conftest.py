@@ -9,6 +9,7 @@ tests of migrating are marked ``empty_database`` and start without one.
 from __future__ import annotations
 
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -20,6 +21,17 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers", "empty_database: the test's database starts empty, not as a copy of "
                    "a migrated one (tests/conftest.py, tests/pg.py)")
+
+
+@pytest.fixture(autouse=True)
+def _no_job_scene_outlives_its_test():
+    """A job run in this process keeps its scene for the next job's collection
+    (jobs.protocol.executor.JobCollector): let go of it when the test ends, so that no
+    later test's renders trace that scene's objects too (slower, and other kernels)."""
+    yield
+    executor = sys.modules.get("jobs.protocol.executor")
+    if executor is not None:
+        executor.COLLECTOR.release()
 
 
 @pytest.fixture(scope="session")

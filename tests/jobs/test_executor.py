@@ -451,6 +451,41 @@ def test_the_collection_before_a_job_is_full_only_where_an_earlier_scene_outlive
         gc.collect()
 
 
+def test_release_lets_go_of_the_last_jobs_scene_and_what_it_froze():
+    """After release() neither the kept scene nor a scene held by a frozen cycle is alive,
+    nothing stays frozen, and the next job collects in full (as the first). Planted: a
+    release that only drops the kept scene leaves the frozen cycle's scene alive."""
+    import gc
+    import weakref
+
+    from jobs.protocol.executor import JobCollector
+
+    def job(collector: JobCollector) -> tuple[weakref.ref, weakref.ref]:
+        collector.before_job()
+        kept, cycled = _Scene(), _Scene()
+        holder: dict = {"scene": cycled}
+        holder["self"] = holder
+        collector.after_load(kept)
+        del holder
+        return weakref.ref(kept), weakref.ref(cycled)
+
+    try:
+        collector = JobCollector()
+        kept, cycled = job(collector)
+        assert kept() is not None and cycled() is not None and gc.get_freeze_count() > 0
+        collector.release()
+        assert kept() is None and cycled() is None and gc.get_freeze_count() == 0
+        assert collector.before_job() is True
+
+        planted = JobCollector()
+        kept, cycled = job(planted)
+        planted._scene = None                   # planted: the scene dropped, nothing collected
+        assert kept() is None and cycled() is not None
+    finally:
+        gc.unfreeze()
+        gc.collect()
+
+
 def test_seeds_that_train_caches_report_the_mean_of_their_caches_rbias2():
     """Four caches biased +-15 % in turn (opposite biases): pooled, rBias^2 cancels to
     about -b^2/(K-1); for seeds whose method_stats name a cache the headline is the
