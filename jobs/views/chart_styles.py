@@ -43,6 +43,9 @@ FAMILY_COLOURS = {
     "restir-nvc": "#8cd17d",    # light green
     "neural-di": "#a0cbe8",     # light blue
     "nrc-di": "#d7b5a6",        # light brown
+    # Control variates at first hits (the NIRC paper's Sec. 6.1 comparison):
+    "cv-sh": "#499894",         # dark teal
+    "cv-vmf": "#b6992d",        # olive
 }
 #: Hues for families not in the table: the rest of Tableau 20 and Vega's category10.
 SPARE_COLOURS = ("#ffbe7d", "#86bcb6", "#f1ce63", "#ff9d9a", "#fabfd2", "#1f77b4",

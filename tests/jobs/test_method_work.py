@@ -22,6 +22,7 @@ DO_NOT_SCALE_WORK = {
     "spatial_radius": "where the neighbours are picked, not how many",
     "unbiased_every": "fewer unbiased paths as it grows",
     "cell_fraction": "larger grid cells: fewer of them",
+    "uniform_fraction": "the share of a first hit's one direction drawn uniformly, not its count",
 }
 
 
