@@ -67,7 +67,9 @@ def sh_config(**overrides: Any) -> SHConfig:
 class SHModel:
     """The per-pixel SH coefficients of ``pixels`` pixels (module docstring), zero
     until the first :meth:`fit`: g = 0, the plain estimator. Arrays per coefficient
-    k and channel c, indexed by pixel."""
+    k and channel c, indexed by pixel. Its frames may be frozen (renderers.frozen)."""
+
+    freezable = True
 
     def __init__(self, config: SHConfig, pixels: int) -> None:
         import drjit as dr
@@ -83,6 +85,14 @@ class SHModel:
         self.counts = dr.zeros(mi.Float, pixels)
         #: Samples left out of the fit because their estimate was NaN or infinite.
         self.nonfinite = 0
+
+    def state(self) -> dict[str, Any]:
+        """The Dr.Jit data a render reads (a frozen render's argument, renderers.frozen)."""
+        return {"coefficients": self.coefficients}
+
+    def bind(self, state: dict[str, Any]) -> None:
+        """Read :meth:`state`'s data from ``state``."""
+        self.coefficients = state["coefficients"]
 
     def _basis(self, w: Any) -> list[Any]:
         import drjit as dr

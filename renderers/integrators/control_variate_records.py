@@ -51,6 +51,15 @@ class SampleRecords:
             nonfinite=kept(dr.select(hit & ~finite, 1.0, 0.0)),
             spp=spp)
 
+    def arrays(self) -> tuple[mi.Vector3f, mi.Spectrum, mi.Float, mi.Float]:
+        """The buffers, e.g. as a frozen render's outputs (:meth:`of` takes them back)."""
+        return self.w, self.weighted, self.counts, self.nonfinite
+
+    @classmethod
+    def of(cls, arrays: tuple[mi.Vector3f, mi.Spectrum, mi.Float, mi.Float],
+           spp: int) -> SampleRecords:
+        return cls(*arrays, spp=spp)
+
     @property
     def pixel(self) -> mi.UInt32:
         """Each lane's pixel."""

@@ -63,23 +63,57 @@ def applies(features: Any) -> tuple[bool, str]:
 
 
 class ModelFrames:
-    """A frame function of the control-variate integrator: render, then fit."""
+    """A frame function of the control-variate integrator: render, then fit. The render
+    is frozen (renderers.frozen) while freezing is on and the model allows it
+    (``freezable``: the SH model does, the vMF model not), the model's data handed over as
+    its argument every frame and the kept samples returned; :meth:`settle` runs it
+    alone, which changes no state (the warm-up fits once, frozen or not)."""
 
     def __init__(self, scene: Any, integrator: Any, model: Any, spp: int) -> None:
-        self.scene, self.integrator, self.model, self.spp = scene, integrator, model, spp
+        from renderers.frozen import Frozen, freezing, weak_method
 
-    def __call__(self, _index: int, seed: int, timer: StageTimer) -> Any:
+        self.scene, self.integrator, self.model, self.spp = scene, integrator, model, spp
+        self.frozen = (Frozen(weak_method(self._render), auto_opaque=False)
+                       if freezing() and model.freezable else None)
+        if self.frozen is not None:
+            self.recordings = self.frozen.recordings
+
+    def _render(self, scene: Any, seed: Any, state: dict[str, Any]) -> tuple[Any, Any]:
         import mitsuba as mi
 
+        self.model.bind(state)
+        image = mi.render(scene, integrator=self.integrator, spp=self.spp, seed=seed)
+        return image, self.integrator.records.arrays()
+
+    def _render_frame(self, seed: int) -> Any:
+        """The frame's image; the integrator keeps its samples (``records``)."""
+        import mitsuba as mi
+
+        from renderers.integrators.control_variate_records import SampleRecords
         from renderers.timing import synchronize
 
-        with timer.stage("render"):
+        if self.frozen is None:
             image = mi.render(self.scene.scene, integrator=self.integrator, spp=self.spp,
                               seed=seed)
-            synchronize(image)
+        else:
+            state = self.model.state()
+            image, arrays = self.frozen(self.scene.scene, mi.UInt32(seed), state)
+            # A recording bound the model to its own inputs: bind the frame's again.
+            self.model.bind(state)
+            self.integrator.records = SampleRecords.of(arrays, self.spp)
+        synchronize(image)
+        return image
+
+    def __call__(self, _index: int, seed: int, timer: StageTimer) -> Any:
+        with timer.stage("render"):
+            image = self._render_frame(seed)
         with timer.stage("fit"):
             self.model.fit(self.integrator.records)
         return image
+
+    def settle(self, _index: int, seed: int, timer: StageTimer) -> None:
+        with timer.stage("render"):
+            self._render_frame(seed)
 
 
 #: (method parameters, pixels) -> the model (renderers.integrators.control_variate).

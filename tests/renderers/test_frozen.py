@@ -60,7 +60,12 @@ def render(scenes, name: str, frozen: bool, frames: int = 3):
 NOT_REPRODUCIBLE = {"grid-cache"}
 
 
-@pytest.mark.parametrize("name", list(METHODS))
+#: Methods whose frames are never frozen, and why.
+UNFROZEN = {"cv-vmf": "its frozen render recorded anew after most fits "
+                      "(renderers.caches.vmf.VMFModel)"}
+
+
+@pytest.mark.parametrize("name", [name for name in METHODS if name not in UNFROZEN])
 def test_frozen_and_unfrozen_frames_give_the_same_images(scenes, name):
     frozen, unfrozen = render(scenes, name, True), render(scenes, name, False)
     if name not in NOT_REPRODUCIBLE:
