@@ -23,6 +23,8 @@ DO_NOT_SCALE_WORK = {
     "unbiased_every": "fewer unbiased paths as it grows",
     "cell_fraction": "larger grid cells: fewer of them",
     "uniform_fraction": "the share of a first hit's one direction drawn uniformly, not its count",
+    "prefill_history": "the pre-fill's averaging window, not its passes (prefill_frames bounds them)",
+    "prefill_tolerance": "when the pre-fill stops early; prefill_frames, in the estimate, bounds it",
 }
 
 
