@@ -22,8 +22,14 @@ WITH_SERVICES := bash scripts/with_test_services.sh
 # test-fast: the fixed subset listed in tests/fast_tests.txt (marked `fast`), a few
 # minutes on 2 cores; it fails naming any product module none of its tests exercised
 # (tests/fast_subset.py). `make test` runs them all.
+# test: the suite on TEST_WORKERS processes (pytest-xdist), each test file on one process
+# (--dist loadfile: a file's module fixtures, its scenes and trained caches, are built
+# once). Two on a 2-core machine: much of the suite is single-threaded Python or waits
+# on the processes it starts (servers, workers, render processes), and a second process
+# fills that time. TEST_WORKERS=0 runs it in this one process.
+TEST_WORKERS ?= 2
 test: bootstrap
-	$(WITH_SERVICES) $(PY) -m pytest -q
+	$(WITH_SERVICES) $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: bootstrap
 	$(WITH_SERVICES) $(PY) -m pytest -q -rfE --fast-subset
