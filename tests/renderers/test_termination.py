@@ -279,47 +279,52 @@ class _PositionsCache:
         return dr.select(active & si.is_valid(), si.p, mi.Point3f(0.0))
 
 
-class _LookAhead(TerminationPolicy):
-    """Records the statistics at the current and the next vertex; always continues."""
+class _Recorder(TerminationPolicy):
+    """Records the statistics the cache gives at each vertex asked; always continues."""
 
-    name = "look-ahead"
-    description = "records what the cache says here and one vertex ahead"
+    name = "recorder"
+    description = "records what the cache says at the vertex"
     serves = frozenset({"incident"})
-    log: ClassVar[list[tuple[Any, Any]]] = []
+    log: ClassVar[list[Any]] = []
 
     def continuation(self, query: TerminationQuery) -> tuple[Any, Any]:
         import drjit as dr
         import mitsuba as mi
 
-        here, ahead = query.statistics("current"), query.statistics("next")
-        dr.eval(here, ahead)
-        self.log.append((np.asarray(here), np.asarray(ahead)))
+        here = query.statistics()
+        dr.eval(here)
+        self.log.append(np.asarray(here))
         return mi.Float(1.0), query.state
 
 
-def test_a_policy_reads_the_cache_here_and_one_vertex_ahead(mi, monkeypatch):
-    """The statistics 'next' of a vertex are those of the vertex the path reaches next
-    (traced by the query along the continuation), 'current' those of the vertex."""
+def test_a_policy_reads_the_cache_at_its_vertex(mi, monkeypatch):
+    """The statistics a policy reads at the first vertex are the cache's at that vertex
+    (the camera rays' first hits), and at the second vertex those of other points: the
+    rule depends on the path's prefix only (no look-ahead along its continuation)."""
     import drjit as dr
 
     from renderers.scenes import load_scene
 
-    monkeypatch.setitem(POLICIES, _LookAhead.name, _LookAhead)
-    monkeypatch.setattr(_LookAhead, "log", [])
+    monkeypatch.setitem(POLICIES, _Recorder.name, _Recorder)
+    monkeypatch.setattr(_Recorder, "log", [])
     scene = load_scene("cornell-box", 8)
     params = parse_params("nirc", {"estimator": "biased", "max_depth": 3})
     integrator, _trainer, cache = METHODS["nirc"].build(scene, params, 0)
     integrator.cache = _PositionsCache()
-    integrator.policy = make_policy(policy_params("look-ahead"), params.termination_settings())
+    integrator.policy = make_policy(policy_params("recorder"), params.termination_settings())
+    rays = _camera_rays(mi, scene, 256)
+    first = scene.scene.ray_intersect(rays)
     dr.set_flag(dr.JitFlag.SymbolicLoops, False)   # each vertex's arrays are concrete
     try:
-        integrator.sample(scene.scene, _sampler(mi, scene, 256), _camera_rays(mi, scene, 256))
+        integrator.sample(scene.scene, _sampler(mi, scene, 256), rays)
     finally:
         dr.set_flag(dr.JitFlag.SymbolicLoops, True)
-    (here_0, ahead_0), (here_1, _ahead_1) = _LookAhead.log[:2]
-    reached = np.all(here_1 != 0, axis=0) & np.all(ahead_0 != 0, axis=0)
-    assert reached.mean() > 0.5 and np.any(here_0 != 0)
-    np.testing.assert_allclose(ahead_0[:, reached], here_1[:, reached], atol=1e-4)
+    here_0, here_1 = _Recorder.log[:2]
+    hit = np.asarray(first.is_valid())
+    assert hit.mean() > 0.5
+    np.testing.assert_allclose(here_0[:, hit], np.asarray(first.p)[:, hit], atol=1e-4)
+    moved = np.all(here_1 != 0, axis=0) & hit
+    assert moved.any() and not np.allclose(here_1[:, moved], here_0[:, moved], atol=1e-3)
 
 
 class _CountVertices(TerminationPolicy):
