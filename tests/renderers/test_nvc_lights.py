@@ -133,13 +133,22 @@ def test_pmfs_sum_to_one_sample_returns_its_pmf_and_no_weight_is_zero(mi, many_l
 
     integrator, _ = _trained(many_lights, frames=2)
     sampler = integrator.light_sampler(many_lights.scene)
+    lights = 32
+
+    def facing_up(si):
+        # Shading points facing up (the floor's orientation), seen from above.
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 1, 0))
+        si.wi = mi.Vector3f(0, 0, 1)
+        si.shape = dr.gather(mi.ShapePtr, many_lights.scene.shapes_dr(), mi.UInt32(0))
+        return si
+
     si, rng = random_points(mi, many_lights.scene)
-    # Shading points facing up (the floor's orientation), seen from above.
-    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 1, 0))
-    si.wi = mi.Vector3f(0, 0, 1)
-    si.shape = dr.gather(mi.ShapePtr, many_lights.scene.shapes_dr(), mi.UInt32(0))
-    # An opaque index: one kernel for the 32 queries.
-    total = sum(sampler.pmf(si, dr.opaque(mi.UInt32, i), True).numpy() for i in range(32))
+    si = facing_up(si)
+    # Every light's pmf at each point, in one kernel: the points repeated once per light.
+    every = facing_up(dr.zeros(mi.SurfaceInteraction3f, lights * 64))
+    every.p = mi.Point3f(*(mi.Float(np.tile(np.asarray(si.p)[k], lights)) for k in range(3)))
+    light = mi.UInt32(np.repeat(np.arange(lights, dtype=np.uint32), 64))
+    total = sampler.pmf(every, light, True).numpy().reshape(lights, 64).sum(axis=0)
     np.testing.assert_allclose(total, 1.0, rtol=1e-5)
     chosen, pmf, u_reused = sampler.sample(si, mi.Float(rng.uniform(size=64)), True)
     np.testing.assert_allclose(pmf.numpy(), sampler.pmf(si, chosen, True).numpy(), rtol=1e-5)
