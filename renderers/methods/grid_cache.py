@@ -295,10 +295,15 @@ PREFILL_SPAN = 4
 
 
 def prefill_settled(means: list[float], tolerance: float) -> bool:
-    """Whether the grid's mean luminance changed by at most ``tolerance`` (relative) per
-    pass, on average over the last :data:`PREFILL_SPAN` passes."""
-    change = abs(means[-1] - means[-1 - PREFILL_SPAN]) / PREFILL_SPAN
-    return change <= tolerance * abs(means[-1])
+    """Whether the grid's mean luminance changed by at most ``tolerance`` (relative) in
+    each of the last :data:`PREFILL_SPAN` passes. Each pass, not the span's ends: a mean
+    still moving can come back near where it was :data:`PREFILL_SPAN` passes before
+    (measured on cornell-box 32x32 with 16 passes at most: 2 seeds of 16 stopped after 5
+    and 6 passes by the ends' rule, far from equilibrium, with 1.4-2.2x the other seeds'
+    MRSE)."""
+    last = means[-1 - PREFILL_SPAN:]
+    return all(abs(after - before) <= tolerance * abs(means[-1])
+               for before, after in zip(last, last[1:], strict=False))
 
 
 def prefill(propagation: Propagation, params: GridCacheParams,
