@@ -47,4 +47,6 @@ METHOD = register(Method(
     "cv-sh", "per-pixel spherical-harmonics control variate of the first hits' shading "
              "integrand, closed-form integral (unbiased)",
     CVSHParams, render, version=1, requires=applies, label="SH CV",
-    knob=Knob("spp", SPP_CANDIDATES), unbiased=True))
+    # Not claimed unbiased yet: the stress suite (8x8, 2 spp x 2 frames, 4 seeds) rejects
+    # cv-sh on its near-black case (aggregate test, p 6e-6); its own tests agree.
+    knob=Knob("spp", SPP_CANDIDATES), unbiased=None))

@@ -49,4 +49,6 @@ METHOD = register(Method(
     "cv-vmf", "per-pixel vMF-mixture control variate of the first hits' shading integrand "
               "(stepwise EM), closed-form integral (unbiased)",
     CVVMFParams, render, version=1, requires=applies, label="vMF CV",
-    knob=Knob("spp", SPP_CANDIDATES), unbiased=True))
+    # Not claimed unbiased yet: the stress suite (8x8, 2 spp x 2 frames, 4 seeds) rejects
+    # cv-sh on its near-black case (aggregate test, p 6e-6); its own tests agree.
+    knob=Knob("spp", SPP_CANDIDATES), unbiased=None))
