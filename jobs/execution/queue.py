@@ -38,7 +38,7 @@ say so, the database being what failed.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
 from typing import Any
@@ -156,7 +156,8 @@ class JobQueue:
                idempotency_key: str | None = None, device_class: str = "cpu",
                max_attempts: int = 3, parent_id: int | None = None,
                owner_key_id: int | None = None,
-               max_unfinished: int | None = None) -> tuple[Job, bool]:
+               max_unfinished: int | None = None,
+               admit: Callable[[], None] | None = None) -> tuple[Job, bool]:
         """Store a new queued job, or return the existing one: the job submitted
         under ``idempotency_key`` (by the same ``owner_key_id``), else a live or
         succeeded job with the same spec (whoever submitted it: the work is done
@@ -169,7 +170,9 @@ class JobQueue:
         return the winner. Raises :class:`IdempotencyKeyReused` when
         ``idempotency_key`` names a job of another kind, spec or device class, and
         :class:`TooManyJobs` when the owner already holds ``max_unfinished`` queued
-        or running jobs (counted in the inserting transaction).
+        or running jobs (counted in the inserting transaction). ``admit`` is called
+        before a new job is inserted, never when an existing job answers (it costs
+        nothing new); what it raises refuses the submission.
         """
         stored_key = scoped_idempotency_key(owner_key_id, idempotency_key)
         for _ in range(_INSERT_ATTEMPTS):
@@ -177,6 +180,8 @@ class JobQueue:
             if existing is not None:
                 return _same_request(existing, kind, spec, device_class, idempotency_key,
                                      stored_key), False
+            if admit is not None:
+                admit()
             job = _new_job(kind, spec, spec_key, stored_key, device_class,
                            max_attempts, parent_id, owner_key_id)
             try:

@@ -7,7 +7,8 @@ or done is answered with that job, whoever submitted it (the work is done once),
 and a job found that way which nothing is running is dispatched again; if it is
 stalled (the service cannot write its database), the answer is 503 with the job and
 the reason instead of a 202. Room on disk (a key's quota, the free-space floor) is
-checked before anything is queued: service/api/quota.py.
+checked before a new job is queued, not for one answered by an existing job (which
+writes nothing more): service/api/quota.py.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from starlette.concurrency import run_in_threadpool
 from jobs.execution.queue import IdempotencyKeyReused, TooManyJobs
 from jobs.execution.queued import QueuedRender, QueuedSweep
 from jobs.execution.timecost import estimate_seconds
-from jobs.execution.work import data_bytes
+from jobs.execution.work import WorkEstimate, data_bytes
 from jobs.protocol.job import RenderJob
 from jobs.protocol.scene_store import builtin_features, rest_scene
 from jobs.protocol.spec import RenderSpec, SweepSpec
@@ -111,11 +112,10 @@ def _check_applies(job: RenderJob) -> None:
         return
 
 
-def _check_work(job: QueuedRender | QueuedSweep, store, settings, device_class: str,
-                key_id: int) -> None:
+def _check_work(job: QueuedRender | QueuedSweep, store, settings,
+                device_class: str) -> WorkEstimate:
     """Refuse what is too big before it is queued: too many stage jobs, samples or
-    estimated seconds for this service's limits (422), or more files than its disk
-    limit, its free-space floor or the key's quota allow (507, service/api/quota.py)."""
+    estimated seconds for this service's limits (422). Returns the job's estimate."""
     kind = job.kind
     stages = len(job.stages())
     if stages > settings.max_sweep_stages:
@@ -141,6 +141,13 @@ def _check_work(job: QueuedRender | QueuedSweep, store, settings, device_class: 
                 ctx={"estimated_s": round(time.seconds, 1),
                      "parts_s": {part: round(seconds, 1) for part, seconds in time.parts.items()},
                      "limit_s": settings.max_job_seconds})
+    return estimate
+
+
+def _check_room(estimate: WorkEstimate, kind: str, store, settings, key_id: int) -> None:
+    """Refuse a new job whose files the disk has no room for: more than the data
+    folder's cap, or its free-space floor or the key's quota allow (507,
+    service/api/quota.py)."""
     if settings.max_data_bytes is not None:
         used = data_bytes(store, settings)
         if used + estimate.artifact_bytes > settings.max_data_bytes:
@@ -163,12 +170,16 @@ def _enqueue(parsed: QueuedRender | QueuedSweep, queue, dispatcher, response: Re
     reason = dispatcher.unavailable(device_class) if dispatcher is not None else None
     if reason:
         raise HTTPException(status.HTTP_409_CONFLICT, reason)
-    _check_work(parsed, queue.store, settings, device_class, caller.id)
+    estimate = _check_work(parsed, queue.store, settings, device_class)
     try:
+        # Room is asked of a new job only: an identical one (or an Idempotency-Key's)
+        # answers without writing anything more.
         job, created = queue.submit(parsed.kind, parsed.stored(), parsed.key(device_class),
                                     idempotency_key=idempotency_key, device_class=device_class,
                                     owner_key_id=caller.id,
-                                    max_unfinished=settings.max_jobs_per_key)
+                                    max_unfinished=settings.max_jobs_per_key,
+                                    admit=lambda: _check_room(estimate, parsed.kind,
+                                                              queue.store, settings, caller.id))
     except IdempotencyKeyReused as err:
         raise unprocessable(str(err), ("header", "Idempotency-Key")) from None
     except TooManyJobs as err:
