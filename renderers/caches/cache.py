@@ -433,10 +433,13 @@ class NeuralCache:
         losses: list[float] = []
         if n == 0 or steps <= 0:
             return losses
+        # Records sharing a shading point (L_V's groups) are drawn whole.
+        group = self.config.loss.records_per_point
+        batch_size = max(batch_size // group, 1) * group
         # Always the configured batch size, repeating records when a frame has
         # fewer: the tensor-mode kernels bake the batch size into their IR, and
         # a new size per frame meant a JIT compilation (~1 s) per training step.
-        draws = self._batch_indices(n, batch_size, steps)
+        draws = self._batch_indices(n, batch_size, steps, group)
         taken = []
         for s in range(steps):
             index = dr.gather(mi.UInt32, usable, mi.UInt32(draws[s]))
@@ -527,13 +530,21 @@ class NeuralCache:
                              f"{self.n_outputs} outputs")
 
     def _usable_indices(self, records: TrainingRecords, count: bool = True) -> mi.UInt32:
-        """Indices of records that are valid with finite inputs and targets."""
+        """Indices of records that are valid with finite inputs and targets; where
+        records come in groups sharing a shading point (L_V), of whole groups only."""
         n = len(records)
         valid = mi.Bool(True) if records.valid is None else mi.Bool(records.valid)
         valid = valid & dr.full(mi.Bool, True, n)
         finite_target = records.finite_targets()
         finite_input = records.finite_inputs()
         keep = valid & finite_target & finite_input
+        group = self.config.loss.records_per_point
+        if group > 1:
+            if n % group:
+                raise ValueError(f"the loss takes records in groups of {group} sharing a "
+                                 f"shading point; got {n} records")
+            whole = dr.block_sum(mi.UInt32(dr.select(keep, 1, 0)), group) == group
+            keep &= dr.gather(mi.Bool, whole, dr.arange(mi.UInt32, n) // group)
         if count:
             counts = [dr.count(~valid), dr.count(valid & ~finite_target),
                       dr.count(valid & finite_target & ~finite_input), dr.count(keep)]
@@ -545,12 +556,16 @@ class NeuralCache:
             self.stats["records_seen"] += kept
         return dr.compress(keep)
 
-    def _batch_indices(self, n: int, batch: int, steps: int) -> list[np.ndarray]:
-        """``steps`` batches of indices into ``n`` records, from the seed and step count."""
+    def _batch_indices(self, n: int, batch: int, steps: int,
+                       group: int = 1) -> list[np.ndarray]:
+        """``steps`` batches of indices into ``n`` records, from the seed and step count;
+        with ``group`` > 1, permutations of whole groups of consecutive records."""
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, self._attempted_steps]))
-        needed = steps * batch
-        perms = [rng.permutation(n) for _ in range(-(-needed // n))]
-        flat = np.concatenate(perms)[:needed].astype(np.uint32)
+        needed = steps * batch // group
+        groups = n // group
+        perms = [rng.permutation(groups) for _ in range(-(-needed // groups))]
+        first = np.concatenate(perms)[:needed].astype(np.uint32) * group
+        flat = (first[:, None] + np.arange(group, dtype=np.uint32)).ravel()
         return [flat[s * batch:(s + 1) * batch] for s in range(steps)]
 
     def _train_step(self, opt: Adam, ema: dict[str, Any], counters: dict[str, Any],

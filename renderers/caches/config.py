@@ -135,12 +135,23 @@ class LossConfig(_Frozen):
     training distribution. ``relative_to='luminance'`` normalises every
     channel by the luminance of the prediction (tiny-cuda-nn's
     RelativeL2Luminance, the authors' code); ``'channel'`` by each channel's
-    own prediction. ``l2`` is the plain squared error (visibility caches).
+    own prediction. ``l2`` is the plain squared error, Eq. 17 (visibility
+    caches). ``variance`` is L_V, Eq. 16: the squared residual minus the
+    residual's expectation F_r at the record's shading point, which is
+    estimated from ``group_size`` records sharing that point (consecutive
+    records form a group; renderers/caches/losses.py).
     """
 
-    kind: Literal["relative_l2", "l2"] = "relative_l2"
+    kind: Literal["relative_l2", "l2", "variance"] = "relative_l2"
     relative_to: Literal["luminance", "channel"] = "luminance"
     epsilon: float = Field(0.01, gt=0.0)
+    group_size: int = Field(8, ge=2, le=256)
+
+    @property
+    def records_per_point(self) -> int:
+        """Consecutive training records that share one shading point: ``group_size``
+        for L_V (its F_r estimate), else 1."""
+        return self.group_size if self.kind == "variance" else 1
 
 
 class OptimizerConfig(_Frozen):

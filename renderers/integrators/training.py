@@ -29,6 +29,13 @@ x_j itself (from the primary hit x_0 on) with direction w_o = -w_{j-1}, and
 the target is divided by NRC's albedo demodulation factor at x_j (misses are
 invalid: there is no surface).
 NIRC records use ``key_vertex='departure'`` (inputs of x_j, direction w_j).
+
+The variance-based loss L_V (NIRC paper Eq. 16) needs the residual's
+expectation F_r at each record's shading point, estimated from several samples
+there (Fig. 4). With ``paths_per_point`` K > 1 the paths come in groups of K
+consecutive paths through one film position (one camera ray: the same first
+vertex x_0 for a pinhole camera), each sampling its own directions from there;
+the K records at x_0 (``record_depth`` 1) are the loss's group.
 """
 
 from __future__ import annotations
@@ -70,6 +77,7 @@ class TrainingPathIntegrator(PathIntegrator):
             raise ValueError("key_vertex must be 'departure' or 'arrival'")
         self.buffers: dict[str, Any] = {}
         self.n_paths = 0
+        self.paths_per_point = 1   # set by configure
         # The records of a frame, frozen (renderers.frozen) where the frame can be: all
         # inputs opaque from the first call (the seed changes every frame).
         self._records_fn = (Frozen(weak_method(self._trace_records), auto_opaque=False)
@@ -77,8 +85,13 @@ class TrainingPathIntegrator(PathIntegrator):
         self._last_call: tuple[Any, int, int] | None = None   # for settle()
 
     def configure(self, params: Any) -> None:
-        """Take the method's validated parameters: plain training paths need none
-        beyond the PT core's properties (a subclass may, e.g. NRC self-training)."""
+        """Take the method's validated parameters: plain training paths need only the
+        records per shading point of the cache's loss (``paths_per_point``; a subclass
+        may need more, e.g. NRC self-training)."""
+        self.paths_per_point = params.cache_config().loss.records_per_point
+        if self.paths_per_point > 1 and self.record_depth != 1:
+            raise ValueError("a loss that takes several records per shading point (L_V) "
+                             "trains on the first vertex only: set record_depth=1")
 
     def _slot(self, record: mi.UInt32) -> mi.UInt32:
         return self.path_index() * self.record_depth + record
@@ -154,6 +167,8 @@ class TrainingPathIntegrator(PathIntegrator):
                        state: dict[str, Any]) -> dict[str, Any]:
         self.bind_frame_state(scene, state)
         sensor = scene.sensors()[0]
+        group = self.paths_per_point
+        n_paths = -(-n_paths // group) * group
         size = n_paths * self.record_depth
         self.n_paths = n_paths
         self.buffers = {name: dr.zeros(kind, size) for name, kind in RECORD_FIELDS.items()}
@@ -164,10 +179,15 @@ class TrainingPathIntegrator(PathIntegrator):
         sampler = sensor.sampler().clone()
         sampler.seed(seed, n_paths)
         # A uniformly random film position per path (not a pixel grid): every
-        # surface seen by the camera can be trained on.
+        # surface seen by the camera can be trained on; per group of paths with
+        # paths_per_point > 1.
+        camera_samples = (sampler.next_1d(), sampler.next_2d(), sampler.next_2d())
+        if group > 1:
+            first = dr.arange(mi.UInt32, n_paths) // group * group
+            camera_samples = tuple(dr.gather(type(v), v, first) for v in camera_samples)
         ray, ray_weight = sensor.sample_ray(
-            time=0.0, sample1=sampler.next_1d(), sample2=sampler.next_2d(),
-            sample3=sampler.next_2d())
+            time=0.0, sample1=camera_samples[0], sample2=camera_samples[1],
+            sample3=camera_samples[2])
         L, _, _, _ = self.trace(scene, sampler, ray)
 
         records = dict(self.buffers)

@@ -6,7 +6,7 @@ training in renderers/methods/cached.py.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
@@ -31,8 +31,17 @@ IncidentTermination = Literal[policy_names("incident")]  # type: ignore[valid-ty
 IncidentTerminationParams = termination_params_type("incident")
 
 
+#: The training losses (NIRC paper Sec. 4.1) by parameter value, and the cache's
+#: LossConfig.kind of each.
+TrainingLoss = Literal["relative-l2", "l2", "variance"]
+LOSS_KINDS = {"relative-l2": "relative_l2", "l2": "l2", "variance": "variance"}
+
+
 class NIRCParams(CacheTrainingParams, TerminationChoice):
     """Parameters of the `nirc` method (PT core and training parameters included)."""
+
+    #: The cache serves every non-specular vertex up to len(nc) (renderers.integrators.nirc).
+    primary_only: ClassVar[bool] = False
 
     estimator: Literal["biased", "unbiased"] = Field(
         "biased", description="'biased': the cache's incident radiance at the termination "
@@ -43,6 +52,11 @@ class NIRCParams(CacheTrainingParams, TerminationChoice):
     nc: list[int] | None = Field(
         None, description="N_c: [4] biased; [N_c at v1, N_c later] adaptive; "
                           "per non-specular vertex, e.g. [3,1,1], unbiased")
+    loss: TrainingLoss = Field(
+        "relative-l2", description="training loss (NIRC paper Sec. 4.1): 'relative-l2' "
+                                   "(Eq. 18), 'l2' (Eq. 17) or 'variance' (L_V, Eq. 16: F_r "
+                                   "from cache.loss.group_size paths per first vertex; "
+                                   "record_depth 1)")
 
     @model_validator(mode="after")
     def _check_nc(self) -> NIRCParams:
@@ -56,12 +70,27 @@ class NIRCParams(CacheTrainingParams, TerminationChoice):
                              "the biased estimator takes one N_c (e.g. nc=[4])")
         if self.estimator == "unbiased" and len(nc) > 3:
             raise ValueError("the unbiased estimator takes at most 3 entries (one per vertex)")
+        if self.loss == "variance" and self.record_depth != 1:
+            raise ValueError("loss 'variance' trains on the first vertex only, where a group "
+                             "of training paths shares the shading point: set record_depth=1")
         return self
 
     def cache_presets(self) -> dict[str, Any]:
         from renderers.caches.config import nirc_config
 
-        return {"cache": nirc_config}
+        kind = LOSS_KINDS[self.loss]
+        if kind == "relative_l2":
+            return {"cache": nirc_config}   # the preset's own loss
+
+        def with_loss(**overrides: Any) -> Any:
+            chosen = overrides.get("loss", {}).get("kind", kind)
+            if chosen != kind:
+                raise ValueError(f"loss.kind {chosen!r} contradicts the parameter "
+                                 f"loss={self.loss!r}")
+            loss = {**overrides.get("loss", {}), "kind": kind}
+            return nirc_config(**{**overrides, "loss": loss})
+
+        return {"cache": with_loss}
 
     def sample_counts(self) -> list[int]:
         if self.nc is not None:
