@@ -48,6 +48,7 @@ from renderers.caches.encodings import InputEncoder, PositionEncoding, Vec3, to_
 from renderers.caches.inference import PackedMLP
 from renderers.caches.losses import cache_loss
 from renderers.caches.records import TrainingRecords
+from renderers.caches.screen import ScreenLatentEncoding, ScreenProjection
 from renderers.frozen import Frozen, freezing, weak_method
 from renderers.seeding import derive_seed
 
@@ -141,6 +142,9 @@ class NeuralCache:
             0-17 % of a training step measured); False uses Dr.Jit's float
             atomics, whose summation order varies between runs on a
             multi-core CPU.
+        screen: the camera's projection, for a config with screen-space latent
+            features (SS NIRC, :mod:`renderers.caches.screen`), whose table then
+            stands where the hash grid does (``hashgrid_*`` of :meth:`describe`).
 
     Attributes:
         loss_history: loss of every optimizer step taken, in order.
@@ -159,7 +163,7 @@ class NeuralCache:
 
     def __init__(self, config: CacheConfig, bbox_min: Vec3, bbox_max: Vec3,
                  seed: int = 0, split_first_layer: bool = True,
-                 deterministic: bool = True) -> None:
+                 deterministic: bool = True, screen: ScreenProjection | None = None) -> None:
         self.config = config
         self.seed = int(seed)
         self.split_first_layer = bool(split_first_layer)
@@ -169,7 +173,7 @@ class NeuralCache:
 
         # ---- Inputs and network, initialised from the seed ----
         self.encoder = InputEncoder(config, self.bbox_min, self.bbox_max,
-                                    dr.rng(derive_seed(self.seed, "hashgrid")))
+                                    dr.rng(derive_seed(self.seed, "hashgrid")), screen)
         self.encoder.position.deterministic_grad = self.deterministic
         arch = build_mlp(config)
         self._net = arch.alloc(mi.TensorXf, config.n_inputs,
@@ -184,7 +188,7 @@ class NeuralCache:
         self._opt = ScheduledAdam(lr=o.lr, beta_1=o.beta1, beta_2=o.beta2, epsilon=o.eps)
         for key in self._mlp_keys:
             self._opt[key] = self._net[key]
-        self._opt[GRID_KEY] = self.encoder.position.grid.data
+        self._opt[GRID_KEY] = self.encoder.position.data
         self._keys = [*self._mlp_keys, GRID_KEY]
 
         # ---- Exponential moving average of the weights (inference) ----
@@ -284,7 +288,7 @@ class NeuralCache:
         """The Dr.Jit arrays inference reads (packed weights, hash-grid table), changed
         by every training step: a frozen frame takes them as an argument and
         :meth:`bind_inference` s them (renderers.frozen)."""
-        return {"mlp": self._infer.arrays(), "grid": self._infer_position.grid.data}
+        return {"mlp": self._infer.arrays(), "grid": self._infer_position.data}
 
     def bind_inference(self, state: dict[str, Any]) -> None:
         """Infer with ``state`` (:meth:`inference_state`)."""
@@ -513,10 +517,11 @@ class NeuralCache:
                                 self.split_first_layer)
         grid_data = params[GRID_KEY]
         dr.eval(grid_data)
-        self._infer_position: PositionEncoding = self.encoder.position.with_data(grid_data)
+        self._infer_position: PositionEncoding | ScreenLatentEncoding = (
+            self.encoder.position.with_data(grid_data))
 
     def _input_rows(self, records: TrainingRecords,
-                    position: PositionEncoding) -> list[mi.Float]:
+                    position: PositionEncoding | ScreenLatentEncoding) -> list[mi.Float]:
         surface = self.encoder.surface(records.position, records.normal, records.roughness,
                                        records.albedo, records.albedo_spec,
                                        position_encoding=position)

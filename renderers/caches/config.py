@@ -61,6 +61,17 @@ class HashGridConfig(_Frozen):
         return self.base_resolution * self.per_level_scale ** (self.n_levels - 1)
 
 
+class ScreenLatentConfig(_Frozen):
+    """Screen-space latent features (SS NIRC, NIRC paper Sec. 6.1): one trainable vector
+    of ``features`` floats per film pixel, read at the pixel the shading point projects
+    to, in place of the hash grid (74 floats: the paper's equal-memory preset beside 5
+    SH bands and 11 vMF lobes). Initialised uniformly in [-init_scale, init_scale] like
+    the hash grid's table; trained by the same Adam as the MLP."""
+
+    features: int = Field(74, ge=1, le=1024)
+    init_scale: float = Field(1e-4, gt=0.0)
+
+
 class DirectionEncodingConfig(_Frozen):
     """Encoding of the query direction (w_i for NIRC, w_o for NRC).
 
@@ -212,6 +223,8 @@ class CacheConfig(_Frozen):
     Inputs are concatenated in this order: hash-grid(position), normal,
     roughness, albedo, specular albedo (the per-surface features, computed once
     per shading point, NIRC Sec. 4.5), then the direction encoding.
+    ``screen_latent``, when set, replaces the hash grid by per-pixel latent features
+    (:class:`ScreenLatentConfig`; ``position`` is then unused).
     ``normal``/``roughness`` = None leave the input out; ``albedo`` and
     ``albedo_spec`` are identity-encoded RGB when enabled. Roughness r enters
     as 1 - exp(-r) [MRNK21] so that it lies in [0, 1).
@@ -226,6 +239,7 @@ class CacheConfig(_Frozen):
     """
 
     position: HashGridConfig = HashGridConfig()
+    screen_latent: ScreenLatentConfig | None = None
     direction: DirectionEncodingConfig = DirectionEncodingConfig()
     normal: ScalarEncodingConfig | None = ScalarEncodingConfig()
     roughness: ScalarEncodingConfig | None = ScalarEncodingConfig()
@@ -258,7 +272,8 @@ class CacheConfig(_Frozen):
     @property
     def n_surface_features(self) -> int:
         """Width of the direction-independent part of the network input."""
-        n = self.position.n_features
+        n = (self.position.n_features if self.screen_latent is None
+             else self.screen_latent.features)
         if self.normal is not None:
             n += self.normal.n_features(3)
         if self.roughness is not None:
@@ -383,6 +398,14 @@ def nirc_config(**overrides: Any) -> CacheConfig:
         batch_size=16384,
         steps_per_frame=4,
     )
+    return _preset(base.model_dump(), overrides)
+
+
+def ss_nirc_config(**overrides: Any) -> CacheConfig:
+    """Screen-space NIRC (NIRC paper Sec. 6.1): :func:`nirc_config` with one latent
+    vector of 74 floats per pixel instead of the hash grid and 6 hidden layers ("both
+    NIRC models ... 6 layers"); the other inputs, the loss and the training as NIRC's."""
+    base = nirc_config(screen_latent=ScreenLatentConfig(), mlp={"hidden_layers": 6})
     return _preset(base.model_dump(), overrides)
 
 

@@ -44,6 +44,7 @@ from renderers.caches.config import (
     ScalarEncodingConfig,
 )
 from renderers.caches.grid_grad import GridHandle, grid_lookup
+from renderers.caches.screen import ScreenLatentEncoding, ScreenProjection
 
 #: A 3-vector given as a Dr.Jit 3-array (Point3f, Vector3f, Color3f) or 3 Floats.
 Vec3 = Any
@@ -235,6 +236,11 @@ class PositionEncoding(Encoding):
     def n_params(self) -> int:
         return int(self.grid.n_params)
 
+    @property
+    def data(self) -> mi.Float:
+        """The trainable table."""
+        return self.grid.data
+
     def resolutions(self) -> list[int]:
         """Grid vertices per axis of every level (Dr.Jit's convention)."""
         return [self.grid._resolution(self.grid._level_scale(level))  # noqa: SLF001
@@ -283,6 +289,9 @@ def direction_encoding(config: DirectionEncodingConfig) -> Encoding | None:
 class InputEncoder:
     """All input groups of a :class:`CacheConfig`, in the network's input order.
 
+    The position input is the hash grid, or per-pixel latent features where the
+    config has ``screen_latent`` (renderers.caches.screen; ``screen`` is then the
+    camera's projection).
     :meth:`surface` encodes everything that does not depend on the query
     direction (hash grid, normal, roughness, albedos) — once per shading
     point, shared by its N_c directions (NIRC paper Sec. 4.5);
@@ -290,9 +299,16 @@ class InputEncoder:
     """
 
     def __init__(self, config: CacheConfig, bbox_min: Sequence[float],
-                 bbox_max: Sequence[float], rng: Any) -> None:
+                 bbox_max: Sequence[float], rng: Any, screen: ScreenProjection | None = None) -> None:
         self.config = config
-        self.position = PositionEncoding(config.position, bbox_min, bbox_max, rng)
+        self.position: PositionEncoding | ScreenLatentEncoding
+        if config.screen_latent is None:
+            self.position = PositionEncoding(config.position, bbox_min, bbox_max, rng)
+        elif screen is None:
+            raise ValueError("a cache with screen-space latent features needs the camera's "
+                             "projection (screen)")
+        else:
+            self.position = ScreenLatentEncoding(config.screen_latent, screen, rng)
         self.normal = None if config.normal is None else _scalar_encoding(config.normal, 3)
         self.roughness = (None if config.roughness is None
                           else _scalar_encoding(config.roughness, 1))
@@ -305,7 +321,8 @@ class InputEncoder:
     def surface(self, position: Vec3, normal: Vec3 | None = None,
                 roughness: mi.Float | None = None, albedo: Vec3 | None = None,
                 albedo_spec: Vec3 | None = None,
-                position_encoding: PositionEncoding | None = None) -> list[mi.Float]:
+                position_encoding: PositionEncoding | ScreenLatentEncoding | None = None,
+                ) -> list[mi.Float]:
         """Per-surface feature rows; ``position_encoding`` overrides the grid
         (the cache passes its inference grid here)."""
         grid = position_encoding or self.position

@@ -66,6 +66,38 @@ def corner_lookups(grid: Any, p: list[mi.Float], level: int) -> list[tuple[Any, 
     return lookups
 
 
+def fixed_point_scale(grad_out: list[mi.Float], terms_per_lane: int) -> tuple[Any, Any]:
+    """(scale, finite) of a fixed-point accumulation of the rows ``grad_out`` (each lane
+    adding at most ``terms_per_lane`` terms |g w| <= max |g| into one entry): a power of
+    two under which no sum can overflow, and whether every g is finite."""
+    Float64 = _types()[0]
+    n = max(dr.width(g) for g in grad_out)
+    # The largest |g| and whether every g is finite, over all rows at once: the rows
+    # are combined lane by lane first, so each is one kernel and one reduction
+    # (a reduction per row was two launches per feature of every level).
+    abs_max, row_finite = dr.abs(grad_out[0]), dr.isfinite(grad_out[0])
+    for g in grad_out[1:]:
+        abs_max, row_finite = dr.maximum(abs_max, dr.abs(g)), row_finite & dr.isfinite(g)
+    g_max = dr.maximum(dr.max(abs_max), 0.0)
+    # |sum| <= n * terms * g_max; keep it below 2^_ACC_BITS.
+    bound = Float64(dr.maximum(g_max, 1e-30)) * float(n * terms_per_lane)
+    scale = dr.exp2(dr.floor(_ACC_BITS - dr.log2(bound)))
+    dr.make_opaque(scale)
+    return scale, dr.all(row_finite)
+
+
+def fixed_point_add(acc: Any, value: mi.Float, index: mi.UInt32, scale: Any) -> None:
+    """Add ``value`` at ``index`` into the Int64 accumulator ``acc`` in fixed point."""
+    Float64, Int64 = _types()[:2]
+    dr.scatter_add(acc, Int64(dr.round(Float64(value) * scale)), index)
+
+
+def fixed_point_gradient(acc: Any, scale: Any, finite: Any) -> mi.Float:
+    """The accumulated gradient as Floats; NaN everywhere where some g was not finite."""
+    grad = mi.Float(_types()[0](acc) / scale)
+    return dr.select(finite, grad, dr.nan)
+
+
 class DeterministicGridLookup(dr.CustomOp):
     """``grid(p)`` with table ``data``; backward via fixed-point accumulation."""
 
@@ -81,39 +113,23 @@ class DeterministicGridLookup(dr.CustomOp):
         raise NotImplementedError("forward-mode derivatives of the hash grid are not needed")
 
     def backward(self) -> None:
-        Float64, Int64, _, _ = _types()
+        Int64 = _types()[1]
         grad_out = list(self.grad_out())
         grid = self.grid
         n_feat = grid.n_features_per_level
-        n = max(dr.width(g) for g in grad_out)
-
-        # ---- Fixed-point scale: a power of two with no overflow possible ----
-        # The largest |g| and whether every g is finite, over all rows at once: the rows
-        # are combined lane by lane first, so each is one kernel and one reduction
-        # (a reduction per row was two launches per feature of every level).
-        abs_max, row_finite = dr.abs(grad_out[0]), dr.isfinite(grad_out[0])
-        for g in grad_out[1:]:
-            abs_max, row_finite = dr.maximum(abs_max, dr.abs(g)), row_finite & dr.isfinite(g)
-        g_max = dr.maximum(dr.max(abs_max), 0.0)
-        finite = dr.all(row_finite)
-        # |sum| <= n * 2^D * g_max (weights <= 1); keep it below 2^_ACC_BITS.
-        bound = Float64(dr.maximum(g_max, 1e-30)) * float(n * 2**grid.dimension)
-        scale = dr.exp2(dr.floor(_ACC_BITS - dr.log2(bound)))
-        dr.make_opaque(scale)
+        # |sum| <= n * 2^D * max |g| (weights <= 1)
+        scale, finite = fixed_point_scale(grad_out, 2**grid.dimension)
 
         # ---- Accumulate grad * weight into the table, as integers ----
         acc = dr.zeros(Int64, self.n_data)
         for level in range(grid.n_levels):
             for index, weight in corner_lookups(grid, self.p, level):
                 for k in range(n_feat):
-                    g = grad_out[level * n_feat + k] * mi.Float(weight)
-                    fixed = Int64(dr.round(Float64(g) * scale))
-                    dr.scatter_add(acc, fixed, index * n_feat + k)
+                    fixed_point_add(acc, grad_out[level * n_feat + k] * mi.Float(weight),
+                                    index * n_feat + k, scale)
 
-        grad = mi.Float(Float64(acc) / scale)
-        grad = dr.select(finite, grad, dr.nan)
         self.handle.finite = finite
-        self.set_grad_in("data", grad)
+        self.set_grad_in("data", fixed_point_gradient(acc, scale, finite))
 
     def name(self) -> str:
         return "DeterministicGridLookup"

@@ -40,8 +40,9 @@ Two estimators use it:
   cache unless L_ind is uniform over the hemisphere: P_s depends on the
   direction the continuing path then follows and the continuing path is not
   reweighted (docs/estimators.md).
-* unbiased (Eq. 10-11, two-level Monte Carlo): at the first three
-  non-specular vertices add L_c and the residual with the path's own
+* unbiased (Eq. 10-11, two-level Monte Carlo): at the first len(nc) (at most
+  three) non-specular vertices (with ``primary_only``, SS NIRC: at the primary
+  hit alone, where it is non-specular) add L_c and the residual with the path's own
   continuation direction w, -n(x, w) f cos / p(w) (only where w is a smooth
   sample: a delta continuation estimates I_delta, which L_c leaves out), then
   continue as PT: the path's continuation is the one-sample estimate of
@@ -78,6 +79,8 @@ class NIRCSettings(Protocol):
     (renderers.methods.nirc.NIRCParams; that module declares this integrator)."""
 
     estimator: str
+    #: Use the cache at the primary hit only (SS NIRC, whose key is the pixel).
+    primary_only: bool
 
     def sample_counts(self) -> list[int]: ...
 
@@ -110,6 +113,7 @@ class NIRCIntegrator(CachedPathIntegrator):
     def configure(self, params: NIRCSettings) -> None:
         """Take the method's parameters (validated once, by the model)."""
         self.estimator = params.estimator
+        self.primary_only = params.primary_only
         self.nc = params.sample_counts()
         self.policy = params.termination_policy()
 
@@ -155,6 +159,8 @@ class NIRCIntegrator(CachedPathIntegrator):
                         usable: mi.Bool) -> tuple[VertexTerms, CacheState]:
         # ---- Two-level MC (Eq. 10-11): L_c plus the residual along the continuation ----
         use = usable & (state.cache_vertices < len(self.nc))
+        if self.primary_only:
+            use &= vertex.depth == 0
         nc_lane = mi.UInt32(self.nc[-1])
         for index in reversed(range(len(self.nc) - 1)):
             nc_lane = dr.select(state.cache_vertices == index, self.nc[index], nc_lane)
