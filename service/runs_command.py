@@ -82,10 +82,14 @@ def _text(value: Any) -> str:
     return str(value)
 
 
-def _cell(column: str, value: Any) -> str:
+def _cell(column: str, value: Any, below_floor: list[str]) -> str:
     """A table cell (:func:`_text`), short where the column allows: a square resolution
     as '32²', a commit as its first 7 characters (and '-dirty'), an interval's ends to 3
-    digits as every number ('[0.0442, 0.0607]'; CSV and JSON keep every digit)."""
+    digits as every number ('[0.0442, 0.0607]'; CSV and JSON keep every digit). A
+    noise-corrected metric of the row's ``below_floor`` (negative: below the noise floor,
+    read as ~0) reads '<0 (noise, -0.00123)', not as a small error to rank by."""
+    if column in below_floor:
+        return f"<0 (noise, {_text(value)})"
     if column.endswith("_ci95") and isinstance(value, list):
         return f"[{', '.join(map(_text, value))}]"
     if column == "resolution" and isinstance(value, list) and len(value) == 2:
@@ -150,7 +154,9 @@ def list_runs(
         return
     table = Table(title=f"{len(rows)} stored runs" + (f" (the first {limit})"
                                                        if len(rows) == limit else ""))
-    texts = [[_cell(column, v) for column, v in zip(chosen, row, strict=True)] for row in cells]
+    texts = [[_cell(column, v, row.below_noise_floor) for column, v in zip(chosen, values,
+                                                                              strict=True)]
+             for row, values in zip(rows, cells, strict=True)]
     for index, column in enumerate(chosen):
         header = HEADERS.get(column, column)
         if column in NUMBER_COLUMNS or column.endswith("_ci95"):

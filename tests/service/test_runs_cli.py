@@ -180,7 +180,8 @@ def test_runs_list_intervals_read_to_3_digits_as_every_number(store_dir, monkeyp
     assert max(map(len, text.splitlines())) <= 120
     exported = cli("runs", "list", "--columns", columns, "--csv", data=data)
     assert repr(low) in exported
-    monkeypatch.setattr(runs_command, "_cell", lambda _column, value: runs_command._text(value))
+    monkeypatch.setattr(runs_command, "_cell",
+                        lambda _column, value, _below: runs_command._text(value))
     assert shown not in listed()
 
 
@@ -376,6 +377,15 @@ def test_intervals_and_signs_are_honest_in_tables_and_json(store_dir, tmp_path):
     assert "below the noise floor (-0.00123)" in cli("runs", "show", "1", data=two)
     row = json.loads(cli("runs", "list", "--json", data=two))[0]
     assert row["below_noise_floor"] == ["rbias2"] and row["rbias2"] == -0.00123
+    # `runs list` marks it too (it printed a plain -0.00123); CSV keeps the number.
+    listed = cli("runs", "list", "--columns", "id,rbias2,rvar", data=two)
+    assert "<0 (noise, -0.00123)" in listed
+    assert "-0.00123" in cli("runs", "list", "--columns", "id,rbias2", "--csv", data=two)
+    with store.session(write=True) as session:   # a positive one stays a plain number
+        run = session.get(Run, 1)
+        run.metrics = {**run.metrics, "rbias2": 0.00123}
+    listed = cli("runs", "list", "--columns", "id,rbias2,rvar", data=two)
+    assert "0.00123" in listed and "noise" not in listed
 
 
 def test_tables_say_what_ran_and_methods_lists_parameters(store_dir, capsys):
