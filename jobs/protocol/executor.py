@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from jobs.protocol.animation import execute_animated
 from jobs.protocol.calibration import calibrate_job
 from jobs.protocol.job import RenderJob
 from jobs.protocol.provenance import git_branch, git_commit, library_versions
@@ -65,6 +66,7 @@ from renderers.backend import device_info, init_backend
 from renderers.denoise_features import FEATURE_SPP, render_features
 from renderers.methods import check_applies, get_method
 from renderers.methods.base import FrameHooks, OnFrame, RenderOutput
+from renderers.scenes.loader import animated
 from renderers.timing import pooled
 
 #: progress(stage, done, total): stage is 'reference' or 'seed k/K'.
@@ -418,6 +420,8 @@ def prepare(job: RenderJob, store: Store, settings: Settings,
     COLLECTOR.before_job()
     spec = job.spec
     scene = load_spec_scene(spec.scene, spec.resolution, settings)
+    if spec.animation is not None:
+        scene = animated(scene, spec.animation)
     if check_method:
         check_applies(job.method, scene.features)
     started = datetime.now(UTC)
@@ -605,6 +609,8 @@ def execute(
         extra["calibration"] = calibration.to_json()
         if progress:
             progress("calibration", 1, 1)
+    if prepared.scene.animation is not None:
+        return execute_animated(job, prepared, store, settings, progress, idempotency_key, extra)
     spec, params = job.spec, job.params
     param_json = params.model_dump(mode="json")
     rendered = []

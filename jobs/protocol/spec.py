@@ -36,6 +36,7 @@ from renderers.methods import (
 )
 from renderers.methods.pt import DEFAULT_MAX_DEPTH
 from renderers.reference import ReferenceSettings
+from renderers.scenes.animation import Animation
 from renderers.seeding import digest
 
 
@@ -157,16 +158,21 @@ class RenderSpec(BaseModel):
         DENOISED_DEFAULT, description="also score each seed's last frames after Intel Open "
                                       "Image Denoise (metrics.denoised: MRSE and FLIP of a "
                                       "frame and of four frames accumulated)")
+    animation: Animation | None = Field(
+        None, description="animate the (static) scene: camera keys, shape motions, emitter "
+                          "changes (docs/animation.md); built-in animated scenes have theirs")
 
     _check_params = field_validator("params")(finite_params)
 
     @model_serializer(mode="wrap")
     def _stored_form(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        # Specs from before ``denoised`` existed dump, store and hash as they did: the
-        # field is written only where it is not its default.
+        # Specs from before ``denoised`` and ``animation`` existed dump, store and hash as
+        # they did: each is written only where it is not its default.
         data = handler(self)
         if data.get("denoised") == DENOISED_DEFAULT:
             data.pop("denoised")
+        if data.get("animation", 0) is None:
+            data.pop("animation")
         return data
 
     def versions(self) -> dict[str, int]:

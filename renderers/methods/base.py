@@ -247,7 +247,9 @@ class FrameHooks:
     timed frame in that schedule, so that a run of several seeds continues it from
     seed to seed (the executor passes seed index x frames): a run of one frame per
     seed then still has kernel frames, and its pooled timings (renderers.timing.pooled)
-    take wall times from some seeds and kernel times from others.
+    take wall times from some seeds and kernel times from others. ``before_frame(index)``
+    before each timed frame, outside its time (an animation's scene update, which its
+    caller times as a stage of its own: jobs.protocol.animation).
     """
 
     keep_frames: bool = False
@@ -256,6 +258,7 @@ class FrameHooks:
     warmup: bool = True
     kernel_every: int = KERNEL_EVERY
     first_frame: int = 0
+    before_frame: Callable[[int], None] | None = None
 
     def __post_init__(self) -> None:
         if self.kernel_every < 0 or self.kernel_every == 2:
@@ -438,6 +441,8 @@ def run_frames(
     with LoadMonitor(host_bound_cpu=host_runs_kernels()) as load:
         for index in range(frames):
             kind = frame_kind(hooks.first_frame + index, hooks.kernel_every)
+            if hooks.before_frame:
+                hooks.before_frame(index)
             with kernel_history(kind == KERNEL):
                 timer = StageTimer()
                 with timer.frame():

@@ -14,6 +14,7 @@ stored under it), its features (which methods apply) and its resolution.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import stat
 import xml.etree.ElementTree as ET
@@ -21,6 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from renderers.scenes.animated import ANIMATED, get_animated
+from renderers.scenes.animation import Animation, AnimationPlayer
 from renderers.scenes.errors import SceneError
 from renderers.scenes.features import SceneFeatures, compute_features
 from renderers.scenes.fingerprint import _referenced_names as referenced_names
@@ -31,6 +34,7 @@ from renderers.scenes.resolution import DEFAULT_RESOLUTION, Resolution, normaliz
 from renderers.scenes.runtime import mitsuba
 from renderers.scenes.vetting import MAX_FILE_BYTES_VARIABLE, scene_limits
 from renderers.scenes.xml_scene import is_scene_file, load_xml_scene
+from renderers.seeding import digest
 
 
 @dataclass
@@ -47,10 +51,12 @@ class LoadedScene:
     #: What an XML file sets that a run replaces (renderers.scenes.xml_settings): film
     #: size before the resolution override, integrator, its max_depth, sampler spp.
     file_settings: dict[str, Any] = field(default_factory=dict)
+    #: Its animation (renderers.scenes.animation), None for a static scene.
+    animation: Animation | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Everything but the ``mi.Scene``, as JSON-ready values."""
-        return {
+        data = {
             "name": self.name,
             "source": self.source,
             "fingerprint": self.fingerprint,
@@ -58,6 +64,23 @@ class LoadedScene:
             "resolution": list(self.resolution),
             "description": self.description,
         }
+        if self.animation is not None:
+            data["animation"] = self.animation.model_dump(mode="json")
+        return data
+
+
+def animated(loaded: LoadedScene, animation: Animation, name: str | None = None,
+             description: str | None = None) -> LoadedScene:
+    """``loaded`` with ``animation``: its fingerprint joined with the animation's digest,
+    every name the animation uses checked against the scene (SceneError), frame 0 shown."""
+    if loaded.animation is not None:
+        raise SceneError(f"scene '{loaded.name}' is animated already: give an animation "
+                         "only with a static scene")
+    AnimationPlayer(loaded.scene, animation).apply(0)
+    return dataclasses.replace(
+        loaded, name=name or loaded.name, animation=animation,
+        fingerprint=digest("animated-scene", loaded.fingerprint, animation.digest()),
+        description=description or f"{loaded.description}, animated")
 
 
 def _load_builtin(name: str, resolution: Resolution | None) -> LoadedScene:
@@ -153,5 +176,9 @@ def load_scene(
     size = normalize_resolution(resolution)
     if name not in BUILTINS and Path(name).suffix.lower() == ".xml":
         return _load_xml(name, size)
+    if name in ANIMATED:
+        scene = get_animated(name)
+        return animated(_load_builtin(scene.base, size), scene.animation, scene.name,
+                        scene.description)
     # Unknown names fail here with the list of built-ins.
     return _load_builtin(name, size)
