@@ -36,6 +36,7 @@ from service.cli_common import (
     RefSpp,
     console,
     err_console,
+    number_in,
     open_settings,
     open_store,
     print_json,
@@ -231,7 +232,8 @@ def reference(
     max_depth: MaxDepth = -1,
     integrator: Annotated[str, typer.Option("--integrator", help="'path' (Mitsuba) or 'pt'")] = "path",
     rel_stderr: Annotated[float | None, typer.Option(
-        "--rel-stderr", min=0.0, help="stop early below this relative standard error")] = None,
+        "--rel-stderr", parser=number_in(0.0), metavar="FLOAT",
+        help="stop early below this relative standard error (>= 0)")] = None,
     out: Annotated[Path | None, typer.Option("--out", help="copy the reference EXR here")] = None,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
@@ -338,10 +340,12 @@ def render(
         "--pretrain", min=0, max=100_000,
         help=_shortcut_help("pretrain_frames", "cache training frames before timing"))] = None,
     ref_spp: RefSpp = REF_SPP,
-    eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0, help="MRSE epsilon")] = 0.01,
+    eps: Annotated[float, typer.Option("--eps", parser=number_in(1e-9, 1.0), metavar="FLOAT",
+                                       help="MRSE epsilon, in [1e-9, 1]")] = 0.01,
     budget_ms: Annotated[float | None, typer.Option(
-        "--budget-ms", min=1e-6, max=1e7,
-        help=f"equal time: calibrate {_knob_help()} to this ms per frame")] = None,
+        "--budget-ms", parser=number_in(1e-6, 1e7), metavar="FLOAT",
+        help=f"equal time: calibrate {_knob_help()} to this ms per frame (1e-6 to 1e7)")
+    ] = None,
     budget_pt_spp: Annotated[int | None, typer.Option(
         "--budget-pt-spp", min=1, max=1 << 16,
         help="equal time: calibrate to the frame time of PT at this spp")] = None,
@@ -423,9 +427,9 @@ def render(
 def evaluate(
     reference_path: Annotated[Path, typer.Option("--reference", "-r", help="reference EXR")],
     image: Annotated[Path, typer.Option("--image", "-i", help="test EXR")],
-    eps: Annotated[float, typer.Option("--eps", min=1e-9, max=1.0,
-                                       help="epsilon of the relative errors, (X-R)^2/(R^2+eps)")
-                   ] = 0.01,
+    eps: Annotated[float, typer.Option(
+        "--eps", parser=number_in(1e-9, 1.0), metavar="FLOAT",
+        help="epsilon of the relative errors, (X-R)^2/(R^2+eps), in [1e-9, 1]")] = 0.01,
     as_json: JsonOut = False,
 ) -> None:
     """Compute MSE, MRSE, FLIP and non-finite counts of an image against a reference."""
@@ -509,8 +513,9 @@ def sweep(
                                "'termination' parameter; default: that method's)")] = None,
     equal_time: Annotated[bool, typer.Option(
         "--equal-time/--no-equal-time", help="add the 'NIRC equal time' series")] = True,
-    tolerance_ms: Annotated[float, typer.Option("--tolerance-ms", min=0.0, max=1e6,
-                                                help="equal time within this many ms")] = 1.0,
+    tolerance_ms: Annotated[float, typer.Option(
+        "--tolerance-ms", parser=number_in(0.0, 1e6), metavar="FLOAT",
+        help="equal time within this many ms (0 to 1e6)")] = 1.0,
     allow_loaded: Annotated[bool, typer.Option(
         "--allow-loaded", help="equal time: use calibration probes timed on a loaded machine "
                                "(default: left out and taken again)")] = False,
@@ -842,7 +847,8 @@ def serve(
         "--scheduler", help="Dask scheduler address, tls://HOST:8786 with the --tls-* options "
                             "(default: an embedded LocalCluster)")] = None,
     job_timeout: Annotated[float | None, typer.Option(
-        "--job-timeout", min=1.0, help="seconds before an attempt is killed")] = None,
+        "--job-timeout", parser=number_in(1.0), metavar="FLOAT",
+        help="seconds before an attempt is killed (>= 1)")] = None,
     gpus: Annotated[int | None, typer.Option(
         "--gpus", min=0, max=64,
         help="GPU workers of the embedded cluster (default: one per GPU found)")] = None,
@@ -953,8 +959,8 @@ def gc(
     apply_: Annotated[bool, typer.Option("--apply", help="remove (default: only list what "
                                                          "would be removed)")] = False,
     keep_days: Annotated[float | None, typer.Option(
-        "--keep-days", min=0.0,
-        help="keep anything younger (default: the gc_keep_days setting)")] = None,
+        "--keep-days", parser=number_in(0.0), metavar="FLOAT",
+        help="keep anything younger (>= 0; default: the gc_keep_days setting)")] = None,
     data_dir: DataDir = None,
 ) -> None:
     """Free disk: remove references no run uses, stored scenes and files no stored row

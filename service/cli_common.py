@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -28,6 +30,33 @@ JsonOut = Annotated[bool, typer.Option("--json", help="print JSON instead of a t
 REF_SPP = 4096
 RefSpp = Annotated[int, typer.Option("--ref-spp", min=8, max=1 << 24,
                                      help="spp of the converged reference")]
+
+
+def number_in(low: float, high: float = math.inf) -> Callable[[Any], float]:
+    """The parser of a float option whose value lies in [low, high]. Its refusals say
+    what is wrong: 'nan' is not a number, 'inf' not a finite one (a bare range check
+    reads NaN as above the maximum: "less than or equal to 1"). The option's help
+    states the range (a parser hides Typer's)."""
+    def parse(value: Any) -> float:
+        from pydantic_core import PydanticCustomError  # read by Typer's option check
+
+        def refuse(why: str) -> PydanticCustomError:
+            return PydanticCustomError("option_value", "'{value}' " + why, {"value": value})
+
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise refuse("is not a number") from None
+        if math.isnan(number):
+            raise refuse("is not a number")
+        if math.isinf(number):
+            raise refuse("is not a finite number")
+        if not low <= number <= high:
+            raise refuse(f"is not in [{low:g}, {high:g}]" if math.isfinite(high)
+                         else f"is below {low:g}")
+        return number
+
+    return parse
 
 
 def open_settings(data_dir: Path | None) -> Any:

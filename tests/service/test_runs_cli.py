@@ -467,6 +467,14 @@ def test_user_errors_are_one_line_and_text_is_never_markup(tmp_path, capsys):
     assert "is a file, not a folder" in cli_error(capsys, "runs", "list", data=a_file)
     assert "'1:b:2'" in cli_error(capsys, "sweep", "-s", "cornell-box", "--eps", "1:b:2",
                                   data=data)
+    # A float option's refusal says what is wrong: NaN is not a number (a bare range
+    # check read it as above the maximum: "less than or equal to 1"), inf not finite.
+    for option, value, why in (("--eps", "nan", "'nan' is not a number"),
+                               ("--eps", "inf", "'inf' is not a finite number"),
+                               ("--eps", "2", "'2' is not in [1e-09, 1]"),
+                               ("--budget-ms", "nan", "'nan' is not a number")):
+        assert f"Invalid value for '{option}': {why}" in cli_error(
+            capsys, "render", "-s", "cornell-box", option, value, data=data)
     help_text = cli("sweep", "--help")
     assert "a:b:step" in help_text and "\N{NEGATIVE SQUARED LATIN CAPITAL LETTER B}" not in help_text
 
