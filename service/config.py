@@ -62,6 +62,10 @@ class ServiceSettings(Settings):
     # window of body_window_s while the service waits for it; it is cut otherwise.
     body_window_s: float = Field(10.0, gt=0.0)
     body_min_bytes_per_s: float = Field(1000.0, ge=0.0)
+    # Connections open at once: a request on any connection while more are open is
+    # answered 503 and its connection closed (each costs a socket, a file descriptor
+    # and buffers; keep it well under the process's open-file limit, `ulimit -n`).
+    max_connections: int = Field(512, ge=1)
     # ---- Scale-out: the Dask scheduler connection (docs/security.md) ----
     # TLS of the scale-out Dask connections (tls:// scheduler addresses): the CA that
     # signed the scheduler's and workers' certificates, and this process's own

@@ -100,6 +100,9 @@ class Service(Process):
 
     def start(self) -> None:
         super().start()
+        self.wait_until_serving()
+
+    def wait_until_serving(self) -> None:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             try:
@@ -130,6 +133,25 @@ class Service(Process):
                 return job
             time.sleep(0.3)
         raise AssertionError(f"job {job_id} timed out: {job}")
+
+
+def start_together(*services: Service) -> None:
+    """Start ``services`` at once, then wait until each serves: their start-ups (imports,
+    Dask clients) overlap instead of adding up."""
+    for service in services:
+        Process.start(service)
+    for service in services:
+        service.wait_until_serving()
+
+
+def stop_together(*processes: Process) -> None:
+    """Ask ``processes`` to stop at once (SIGTERM), then wait for each (killing one that
+    does not stop)."""
+    for process in processes:
+        if process.alive():
+            os.killpg(process.proc.pid, signal.SIGTERM)
+    for process in processes:
+        process.stop()
 
 
 class Scheduler(Process):
