@@ -72,10 +72,13 @@ class FigureSpec:
 PAPERS: dict[str, Paper] = {
     "vt": Paper("vt", "Optimizing Path Termination for Radiance Caching Through Explicit "
                       "Variance Trading", "VTT24", "variance_trading.toml"),
+    "nirc": Paper("nirc", "Neural Two-Level Monte Carlo Real-Time Rendering", "DKHD24",
+                  "nirc.toml"),
 }
 
 #: The modules that register figures.
-FIGURE_MODULES = ("jobs.reproduce.vt_fig7", "jobs.reproduce.vt_fig9", "jobs.reproduce.vt_table1")
+FIGURE_MODULES = ("jobs.reproduce.vt_fig7", "jobs.reproduce.vt_fig9", "jobs.reproduce.vt_table1",
+                  "jobs.reproduce.nirc_fig4")
 
 _FIGURES: dict[tuple[str, str], FigureSpec] = {}
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
@@ -39,6 +39,14 @@ class Point(BaseModel):
     run_id: int | None = None
 
 
+class Verdict(BaseModel):
+    """Whether one of the paper's claims holds in our numbers."""
+
+    claim: str                      # the claim, short
+    verdict: Literal["holds", "does not hold", "not comparable"]
+    reason: str
+
+
 class Reproduction(BaseModel):
     """A figure or table of a paper as measured here."""
 
@@ -56,6 +64,8 @@ class Reproduction(BaseModel):
                                          description="the paper's quoted claims with pages")
     work: dict[str, int] = Field(default_factory=dict,
                                  description="points rendered now and read from the store")
+    verdicts: list[Verdict] = Field(default_factory=list,
+                                    description="per claim: does it hold here, and why")
 
     def markdown(self) -> str:
         settings = ", ".join(f"{k} {v}" for k, v in self.settings.items())
@@ -67,6 +77,9 @@ class Reproduction(BaseModel):
         if self.claims:
             lines += ["", "The paper's claims:", ""]
             lines += [f"- p. {c['page']}: \"{c['quote']}\"" for c in self.claims]
+        if self.verdicts:
+            lines += ["", "Verdicts:", ""]
+            lines += [f"- {v.claim}: **{v.verdict}** ({v.reason})" for v in self.verdicts]
         paper_keys = [k for k in self.quantities if any(k in p.paper for p in self.points)]
         header = ["scene", "series", self.x_label, *self.quantities.values(),
                   *(f"paper: {self.quantities[k]}" for k in paper_keys)]
