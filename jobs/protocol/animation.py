@@ -132,7 +132,7 @@ def execute_animated(job: RenderJob, prepared: Any, store: Store, settings: Sett
 
     spec, scene = job.spec, prepared.scene
     method = get_method(spec.method)
-    player = AnimationPlayer(scene.scene, scene.animation)
+    player = scene.player
     references = frame_references(store, settings, scene, player,
                                   spec.reference.settings(job.max_depth), spec.frames, progress)
     segment = last_segment_start(player, spec.frames)

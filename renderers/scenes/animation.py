@@ -261,8 +261,10 @@ class AnimationPlayer:
         self.animation = animation
         self.params = mi.traverse(scene)
         self.update_seconds: list[float] = []   # of the applies that changed the scene
+        self.scene = scene
         self._current: str | None = None
         self._rest: dict[str, Any] = {}
+        self._moved: dict[str, np.ndarray] = {}   # the last matrix applied to each shape
         if animation.camera:
             sensor = scene.sensors()[0].id()
             self._camera = (f"{sensor}.to_world", f"{sensor}.x_fov")
@@ -311,6 +313,8 @@ class AnimationPlayer:
         import drjit as dr
         import mitsuba as mi
 
+        from renderers.frozen import geometry_changed
+
         state_key = self.animation.state_key(frame)
         if state_key == self._current:
             return
@@ -322,14 +326,20 @@ class AnimationPlayer:
                 look_at_matrix(position, target, up))
             if fov is not None:
                 self.params[self._camera[1]] = fov
+        meshes_moved = False
         for motion in self.animation.shapes:
             translate, angle = state.shapes[motion.shape]
-            self._move(self._shapes[motion.shape],
-                       rigid_matrix(translate, angle, motion.axis, motion.pivot))
+            key = self._shapes[motion.shape]
+            matrix = rigid_matrix(translate, angle, motion.axis, motion.pivot)
+            if not np.array_equal(matrix, self._moved.get(key)):
+                self._move(key, matrix)
+                meshes_moved |= key.endswith(".vertex_positions")
         for name, scale in state.emitters.items():
             radiance = self._emitters[name]
             self.params[radiance] = self._rest[radiance] * scale
         self.params.update()
+        if meshes_moved:
+            geometry_changed(self.scene)
         dr.sync_thread()
         self.update_seconds.append(time.perf_counter() - start)
         self._current = state_key
@@ -337,6 +347,7 @@ class AnimationPlayer:
     def _move(self, key: str, matrix: np.ndarray) -> None:
         import mitsuba as mi
 
+        self._moved[key] = matrix
         rest = self._rest[key]
         if key.endswith(".to_world"):
             self.params[key] = mi.AffineTransform4f(matrix @ rest)

@@ -51,8 +51,11 @@ class LoadedScene:
     #: What an XML file sets that a run replaces (renderers.scenes.xml_settings): film
     #: size before the resolution override, integrator, its max_depth, sampler spp.
     file_settings: dict[str, Any] = field(default_factory=dict)
-    #: Its animation (renderers.scenes.animation), None for a static scene.
+    #: Its animation (renderers.scenes.animation), None for a static scene, and the one
+    #: player that applies it: a player keeps the parameters' values as loaded, so a
+    #: second one made after frames were shown would move from the moved pose.
     animation: Animation | None = None
+    player: AnimationPlayer | None = None
 
     def to_json(self) -> dict[str, Any]:
         """Everything but the ``mi.Scene``, as JSON-ready values."""
@@ -76,9 +79,10 @@ def animated(loaded: LoadedScene, animation: Animation, name: str | None = None,
     if loaded.animation is not None:
         raise SceneError(f"scene '{loaded.name}' is animated already: give an animation "
                          "only with a static scene")
-    AnimationPlayer(loaded.scene, animation).apply(0)
+    player = AnimationPlayer(loaded.scene, animation)
+    player.apply(0)
     return dataclasses.replace(
-        loaded, name=name or loaded.name, animation=animation,
+        loaded, name=name or loaded.name, animation=animation, player=player,
         fingerprint=digest("animated-scene", loaded.fingerprint, animation.digest()),
         description=description or f"{loaded.description}, animated")
 
