@@ -11,8 +11,23 @@ from pydantic import BaseModel, Field
 from jobs.ci.history import History
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import is_current
+from jobs.record.models import JobStatus
 from jobs.views.comparison import RunComparison
 from service.api.data_paths import served
+
+#: The status served for a running job whose cancel was requested: its runner stops it,
+#: then it is 'canceled' (a served status, not stored: the row stays 'running' with
+#: ``cancel_requested`` until the runner has stopped it).
+CANCELING = "canceling"
+STATUS_DESCRIPTION = ("queued, running, canceling (a cancel was requested: its runner "
+                      "stops it, then it is canceled), succeeded, failed or canceled")
+
+
+def served_status(job: Any) -> str:
+    """``job``'s status as served: :data:`CANCELING` for a running job asked to stop."""
+    if job.status == JobStatus.RUNNING.value and job.cancel_requested:
+        return CANCELING
+    return str(job.status)
 
 
 class StageOut(BaseModel):
@@ -20,7 +35,7 @@ class StageOut(BaseModel):
 
     id: int
     name: str
-    status: str
+    status: str = Field(description=STATUS_DESCRIPTION)
     progress: dict[str, Any]
     attempts: int
     error: str | None
@@ -31,7 +46,7 @@ class StageOut(BaseModel):
 class JobOut(BaseModel):
     id: int
     kind: str
-    status: str
+    status: str = Field(description=STATUS_DESCRIPTION)
     progress: dict[str, Any]
     attempts: int
     max_attempts: int
@@ -60,10 +75,11 @@ class JobOut(BaseModel):
         Its texts name files of the data folder ``data_dir`` relative to it
         (service/api/data_paths.py)."""
         out = cls.model_validate(job, from_attributes=True)
+        out.status = served_status(job)
         out.error, out.stalled = served(job.error, data_dir), served(stalled, data_dir)
         if stages:
             out.stages = [StageOut(id=stage.id, name=stage.spec.get("name", ""),
-                                   status=stage.status, progress=stage.progress,
+                                   status=served_status(stage), progress=stage.progress,
                                    attempts=stage.attempts, error=served(stage.error, data_dir),
                                    work=stage.work)
                           for stage in stages]

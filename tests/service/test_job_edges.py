@@ -168,3 +168,27 @@ def test_the_cache_is_made_from_the_parsed_config_without_validating_it(monkeypa
     assert counter.calls == 0
     nirc_config(**params.cache)     # the validation it no longer does
     assert counter.calls > 0
+
+
+def test_a_cancel_answer_says_the_cancel_was_requested_as_a_read_after_it_does(api):
+    """A queued job is canceled at once; a running one is 'canceling' (the answer said
+    'running', as if the cancel had not been heard) in the answer and in every read until
+    its runner has stopped it, then 'canceled'."""
+    client, queue, _, _ = api
+    running, queued = (client.post("/api/v1/jobs", json={**GOOD, "seeds": seeds}).json()["id"]
+                       for seeds in (2, 3))
+    assert queue.claim(running, "worker-1") is not None
+
+    def status(job_id: int) -> str:
+        return client.get(f"/api/v1/jobs/{job_id}").json()["status"]
+
+    assert status(running) == "running"
+    answer = client.post(f"/api/v1/jobs/{running}/cancel")
+    assert answer.status_code == 200 and answer.json()["status"] == "canceling"
+    assert status(running) == "canceling"
+    assert [j["status"] for j in client.get("/api/v1/jobs").json() if j["id"] == running] \
+        == ["canceling"]
+    assert client.post(f"/api/v1/jobs/{queued}/cancel").json()["status"] == "canceled"
+    assert status(queued) == "canceled"
+    queue.fail(running, "canceled while running", retry=True)   # as its runner stops it
+    assert status(running) == "canceled"

@@ -299,8 +299,9 @@ async def _wait_until_final(request: Request, queue, job, deadline: float, max_w
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut)
 def cancel_job(job_id: RowId, queue: QueueDep, caller: CallerDep,
                settings: SettingsDep) -> JobOut:
-    """Cancel a queued job now; a running job is stopped by its runner. Only the key
-    that submitted the job, or an admin key, may cancel it (403 otherwise)."""
+    """Cancel a queued job now (the answer says 'canceled'); a running job is stopped by
+    its runner (the answer, and every read until it has stopped, says 'canceling'). Only
+    the key that submitted the job, or an admin key, may cancel it (403 otherwise)."""
     job = queue.get(job_id)
     if job is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no job {job_id}")
