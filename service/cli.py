@@ -920,10 +920,8 @@ def serve(
     deadlines = ClientDeadlines(settings.header_timeout_s, settings.body_window_s,
                                 settings.body_min_bytes_per_s)
     try:
-        # uvicorn answers 503 once its open connections reach limit_concurrency, this
-        # request's own among them: one more lets max_connections be served.
         uvicorn.run(create_app(settings, dispatcher), host=host, port=port,
-                    http=deadlines.protocol(), limit_concurrency=settings.max_connections + 1)
+                    http=deadlines.protocol(settings.max_connections))
     finally:
         dispatcher.close()
 

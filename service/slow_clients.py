@@ -21,17 +21,26 @@ watched from h11's state of the client's side of the connection:
 
 While the route works on a complete request, nothing is timed here (a long poll
 may take its time).
+
+The same protocol bounds the connections open at once (``max_connections``): while
+more are open, a request on any of them is answered 503 in JSON with ``Retry-After``
+and its connection closed (as uvicorn's own ``limit_concurrency`` does, whose answer
+is plain text without the security headers).
 """
 
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 from dataclasses import dataclass
 from typing import Literal
 
 import h11
+from starlette.types import Receive, Scope, Send
 from uvicorn.protocols.http.h11_impl import H11Protocol
+
+from service.api.headers import security_headers
 
 log = logging.getLogger(__name__)
 
@@ -50,9 +59,26 @@ class ClientDeadlines:
     body_window_s: float
     body_min_bytes_per_s: float
 
-    def protocol(self) -> type[H11Protocol]:
-        """uvicorn's h11 protocol with these deadlines (uvicorn's ``http=``)."""
-        return type("DeadlineH11Protocol", (DeadlineH11Protocol,), {"deadlines": self})
+    def protocol(self, max_connections: int | None = None) -> type[H11Protocol]:
+        """uvicorn's h11 protocol with these deadlines (uvicorn's ``http=``), serving at
+        most ``max_connections`` connections at once (None: any number)."""
+        return type("DeadlineH11Protocol", (DeadlineH11Protocol,),
+                    {"deadlines": self, "max_connections": max_connections})
+
+
+#: Seconds a client refused for too many connections is asked to wait.
+BUSY_RETRY_AFTER_S = 1
+
+
+async def too_many_connections(scope: Scope, receive: Receive, send: Send) -> None:
+    """The answer to a request while more connections are open than are served."""
+    body = json.dumps({"detail": "the service has more connections open than it serves at "
+                                 "once (max_connections); try again shortly"}).encode()
+    await send({"type": "http.response.start", "status": 503, "headers": [
+        (b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+        (b"retry-after", str(BUSY_RETRY_AFTER_S).encode()), (b"connection", b"close"),
+        *security_headers(scope["path"])]})
+    await send({"type": "http.response.body", "body": body})
 
 
 class DeadlineH11Protocol(H11Protocol):
@@ -60,6 +86,7 @@ class DeadlineH11Protocol(H11Protocol):
     made with its deadlines by :meth:`ClientDeadlines.protocol`."""
 
     deadlines: ClientDeadlines
+    max_connections: int | None = None
     _timer: asyncio.TimerHandle | None = None
     _phase: Phase | None = None
     _bytes = 0      # received in this phase (headers), or this window (body)
@@ -72,6 +99,13 @@ class DeadlineH11Protocol(H11Protocol):
         self._bytes += len(data)
         super().data_received(data)
         self._watch()
+
+    def handle_events(self) -> None:
+        # The connections open now include this one; past the limit its request (each
+        # request of it while the limit is passed) gets the 503.
+        busy = self.max_connections is not None and len(self.connections) > self.max_connections
+        self.app = too_many_connections if busy else self.config.loaded_app
+        super().handle_events()
 
     def on_response_complete(self) -> None:
         super().on_response_complete()

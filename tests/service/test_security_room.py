@@ -11,12 +11,13 @@ named, tagged and young runs.
 On one service whose free-space floor lies above any disk's free space (the floor is
 what refuses, the disk is not filled) and which takes at most MAX_CONNECTIONS
 connections at once: jobs, sweeps and uploads are 507 naming the floor; with
-MAX_CONNECTIONS connections open another one's request is answered 503 (before: 200,
-and thousands of connections were held), and once one closes a request is served.
+MAX_CONNECTIONS connections open another one's request is answered 503 in JSON
+(before: 200, and thousands of connections were held), and once one closes a request is served.
 """
 
 from __future__ import annotations
 
+import json
 import socket
 import time
 from collections.abc import Iterator
@@ -197,16 +198,27 @@ def test_under_the_free_space_floor_new_work_is_507_naming_it(tight):
     assert tight.get("/api/v1/jobs") == []
 
 
-def _request(sock: socket.socket) -> bytes:
-    """One kept-alive GET on ``sock``: the answer's status line."""
+def _answer(sock: socket.socket) -> tuple[bytes, set[bytes], bytes]:
+    """One kept-alive GET on ``sock``: the answer's status line, headers (lower-case)
+    and body."""
     sock.sendall(b"GET /api/v1/scenes HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
     answer = b""
-    while b"\r\n" not in answer:
+    while b"\r\n\r\n" not in answer:
         chunk = sock.recv(65536)
         if not chunk:
             break
         answer += chunk
-    return answer.split(b"\r\n", 1)[0]
+    head, _, body = answer.partition(b"\r\n\r\n")
+    status, *headers = head.split(b"\r\n")
+    length = next((int(line.split(b":")[1]) for line in headers
+                   if line.lower().startswith(b"content-length:")), 0)
+    while len(body) < length and (chunk := sock.recv(65536)):
+        body += chunk
+    return status, {line.lower() for line in headers}, body
+
+
+def _request(sock: socket.socket) -> bytes:
+    return _answer(sock)[0]
 
 
 def test_a_connection_past_the_limit_is_answered_503(tight):
@@ -217,7 +229,11 @@ def test_a_connection_past_the_limit_is_answered_503(tight):
     try:
         assert [_request(sock) for sock in opened] == [b"HTTP/1.1 200 OK"] * MAX_CONNECTIONS
         with socket.create_connection(("127.0.0.1", tight.port), timeout=10) as extra:
-            assert _request(extra) == b"HTTP/1.1 503 Service Unavailable"
+            status, headers, body = _answer(extra)
+            assert status == b"HTTP/1.1 503 Service Unavailable", (status, body)
+            assert b"max_connections" in json.loads(body)["detail"].encode()
+            assert {b"retry-after: 1", b"connection: close",
+                    b"x-content-type-options: nosniff"} <= headers, headers
         opened.pop().close()
         time.sleep(0.2)         # the service sees it close
         with socket.create_connection(("127.0.0.1", tight.port), timeout=10) as another:
