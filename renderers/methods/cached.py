@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any, get_args
+from typing import Any, ClassVar, get_args
 
 import numpy as np
 from pydantic import (
@@ -109,7 +109,11 @@ class TerminationChoice(BaseModel):
     policies' tagged models, ``termination_params_type``), validated once, where the
     method's parameters are parsed. Stored and sent, ``termination_params`` holds the
     parameters that were given, without the tag, and is left out when none was, so
-    parameter sets from before policies had parameters dump, store and hash as they did."""
+    parameter sets from before policies had parameters dump, store and hash as they did.
+    Fields named in ``DUMPED_OFF_DEFAULT`` (parameters added later whose default renders
+    as before) are likewise left out at their default."""
+
+    DUMPED_OFF_DEFAULT: ClassVar[tuple[str, ...]] = ()
 
     @model_validator(mode="before")
     @classmethod
@@ -139,6 +143,9 @@ class TerminationChoice(BaseModel):
                                      info: SerializationInfo) -> dict[str, Any]:
         data = handler(self)
         del data["termination_params"]
+        for name in self.DUMPED_OFF_DEFAULT:
+            if getattr(self, name) == type(self).model_fields[name].default:
+                data.pop(name, None)
         given = self.termination_params.model_dump(  # type: ignore[attr-defined]
             mode=info.mode, exclude_unset=True, exclude={"policy"})
         return {"termination_params": given, **data} if given else data

@@ -58,6 +58,9 @@ class NIRCParams(CacheTrainingParams, TerminationChoice):
                                    "from cache.loss.group_size paths per first vertex; "
                                    "record_depth 1)")
 
+    #: Stored, sent and hashed only when not the default: runs from before keep their keys.
+    DUMPED_OFF_DEFAULT = ("loss",)
+
     @model_validator(mode="after")
     def _check_nc(self) -> NIRCParams:
         nc = self.sample_counts()
