@@ -87,7 +87,7 @@ from jobs.protocol.executor import (
 from jobs.protocol.job import RenderJob
 from jobs.protocol.results import RunResult, Skipped
 from jobs.protocol.spec import SweepSpec
-from jobs.record.artifacts import ArtifactStore, artifact_record
+from jobs.record.artifacts import ArtifactStore, artifact_record, make_private_dir
 from jobs.record.config import Settings
 from jobs.record.store import Store
 from jobs.sweeps.snapshots import Snapshot, get_or_make_snapshot
@@ -597,11 +597,13 @@ def _convergence_curves(sweep: _Sweep) -> dict[str, dict[str, Any]]:
 
 
 def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[dict[str, Any]]:
-    """Plots + result.json into ``out_dir``; returns the plots' artifact records."""
+    """Plots + result.json into ``out_dir``; returns the plots' artifact records. The
+    folders it creates are owner-only, as the rest of the data folder (a CLI sweep
+    runs under the user's umask, the service under 077)."""
     # Matplotlib takes ~1 s to import: a render process that runs no sweep does not.
     from jobs.views.plots import plot_convergence, plot_sweep
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_private_dir(out_dir)
     title = f"{sweep.prepared.scene.name} ({sweep.device_key})"
     files: dict[str, Path] = {}
     rows = result.to_json()["rows"]

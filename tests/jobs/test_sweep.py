@@ -8,6 +8,8 @@ rBias^2 of NIRC grows with its mask, and nothing is rendered twice.
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -97,9 +99,14 @@ def test_bad_sweep_specs_are_explained(values, fragment):
 
 @pytest.fixture(scope="module")
 def sweep_env(tmp_path_factory, mi):
+    """A small sweep, run as from the CLI under a user's usual umask (022)."""
     settings_ = Settings(data_dir=Path(tmp_path_factory.mktemp("sweep")) / "data")
     store = open_store(settings_)
-    first = run_sweep(small_spec(), store, settings_)
+    umask = os.umask(0o022)
+    try:
+        first = run_sweep(small_spec(), store, settings_)
+    finally:
+        os.umask(umask)
     yield settings_, store, first
     store.close()
 
@@ -233,6 +240,11 @@ def test_plots_are_written_and_referenced_from_the_database(sweep_env):
     _, store, result = sweep_env
     for name in ("fig13", "fig10", "result"):
         assert Path(result.files[name]).stat().st_size > 0
+    # Its folder, data/sweeps/sweep-<id>, is owner-only as the data folder is (it was
+    # created world-readable under the umask).
+    folder = Path(result.files["result"]).parent
+    for created in (folder, folder.parent):
+        assert stat.S_IMODE(created.stat().st_mode) == 0o700, created
     row = store.get_sweep(result.sweep_id)
     assert row.status == "succeeded" and row.result["rows"] == result.to_json()["rows"]
     assert {a.kind for a in row.artifacts} == {"fig13", "fig10"}
