@@ -46,9 +46,10 @@ FAMILY_COLOURS = {
     # Control variates at first hits (the NIRC paper's Sec. 6.1 comparison):
     "cv-sh": "#499894",         # dark teal
     "cv-vmf": "#b6992d",        # olive
+    "ss-nirc": "#ff9d9a",       # light red (screen-space NIRC, beside nirc)
 }
 #: Hues for families not in the table: the rest of Tableau 20 and Vega's category10.
-SPARE_COLOURS = ("#ffbe7d", "#86bcb6", "#f1ce63", "#ff9d9a", "#fabfd2", "#1f77b4",
+SPARE_COLOURS = ("#ffbe7d", "#86bcb6", "#f1ce63", "#fabfd2", "#1f77b4",
                  "#2ca02c", "#9467bd", "#17becf", "#bcbd22", "#e377c2", "#8c564b")
 FRONT_COLOUR = "#000000"
 #: How far toward black the last configuration of a family is darkened.
