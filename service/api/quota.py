@@ -63,16 +63,25 @@ def _existing(path: Path) -> Path:
     return path
 
 
+def readable_size(n_bytes: float) -> str:
+    """``n_bytes`` with three significant digits in the largest binary unit that keeps
+    it at least 1 (a tiny quota reads '48.8 KiB', not '0.000 GiB')."""
+    for unit, scale in (("GiB", GIB), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if abs(n_bytes) >= scale:
+            return f"{n_bytes / scale:.3g} {unit}"
+    return f"{int(n_bytes)} B"
+
+
 def check_free_space(settings: Settings) -> None:
     """507 while the data folder's filesystem has less free than the floor."""
     usage = shutil.disk_usage(_existing(settings.data_dir))
     floor = max(settings.min_free_bytes, settings.min_free_fraction * usage.total)
     if usage.free < floor:
         raise NoRoom(
-            f"the data folder's disk has {usage.free / GIB:.2f} GiB free, under this "
-            f"service's floor of {floor / GIB:.2f} GiB (the larger of min_free_bytes, "
-            f"{settings.min_free_bytes / GIB:.2f} GiB, and min_free_fraction, "
-            f"{settings.min_free_fraction:.0%} of {usage.total / GIB:.1f} GiB): no new work "
+            f"the data folder's disk has {readable_size(usage.free)} free, under this "
+            f"service's floor of {readable_size(floor)} (the larger of min_free_bytes, "
+            f"{readable_size(settings.min_free_bytes)}, and min_free_fraction, "
+            f"{settings.min_free_fraction:.0%} of {readable_size(usage.total)}): no new work "
             "until space is freed (`nirc-bench gc --apply`)",
             limit="min_free_bytes", free_bytes=usage.free, floor_bytes=int(floor))
 
@@ -133,10 +142,10 @@ def check_room(store: Store, settings: Settings, key_id: int, request_bytes: int
     usage = key_usage(store, settings, key_id)
     if usage.bytes + request_bytes > quota:
         raise NoRoom(
-            f"this {what} may write {request_bytes / GIB:.3f} GiB; this API key holds "
-            f"{usage.bytes / GIB:.3f} GiB ({usage.stored_bytes / GIB:.3f} GiB stored, "
-            f"{usage.queued_bytes / GIB:.3f} GiB estimated for its unfinished jobs) of its "
-            f"quota of {quota / GIB:.3f} GiB (key_quota_bytes): cancel unfinished jobs, or "
+            f"this {what} may write {readable_size(request_bytes)}; this API key holds "
+            f"{readable_size(usage.bytes)} ({readable_size(usage.stored_bytes)} stored, "
+            f"{readable_size(usage.queued_bytes)} estimated for its unfinished jobs) of its "
+            f"quota of {readable_size(quota)} (key_quota_bytes): cancel unfinished jobs, or "
             "ask the operator to free space (`nirc-bench gc`, artifact_keep_days)",
             limit="key_quota_bytes", quota_bytes=quota, used_bytes=usage.bytes,
             stored_bytes=usage.stored_bytes, queued_bytes=usage.queued_bytes,

@@ -92,6 +92,9 @@ def test_a_key_over_its_quota_is_507_with_the_numbers_and_others_are_unaffected(
     assert third.status_code == 507, third.text
     body = third.json()
     assert body["limit"] == "key_quota_bytes" and "key_quota_bytes" in body["detail"]
+    # A quota of kilobytes reads in kilobytes, not as '0.000 GiB'.
+    assert f"quota of {quota.readable_size(int(2.5 * each))} " in body["detail"]
+    assert "0.000" not in body["detail"], body["detail"]
     assert (body["quota_bytes"], body["used_bytes"], body["queued_bytes"],
             body["request_bytes"]) == (int(2.5 * each), 2 * each, 2 * each, each), body
     assert submit(other, 4).status_code == 202          # another key: its own quota
