@@ -53,7 +53,7 @@ class SHConfig(BaseModel):
 
     def floats_per_pixel(self) -> dict[str, int]:
         """The model's floats per pixel (what g is), and the fit's running sums and
-        sample count, kept besides (a render's samples add 8 floats per sample until
+        sample count, kept besides (a render's samples add 9 floats per sample until
         the fit: renderers.integrators.control_variate_records)."""
         return {"model": CHANNELS * self.coefficients,
                 "fit": CHANNELS * self.coefficients + 1}

@@ -63,7 +63,7 @@ class VMFConfig(BaseModel):
     def floats_per_pixel(self) -> dict[str, int]:
         """The model's floats per pixel (what g is), and the fit's: the running mean
         direction statistic (3 per lobe) and the batches so far (1). A render's
-        samples add 8 floats per sample until the fit
+        samples add 9 floats per sample until the fit
         (renderers.integrators.control_variate_records)."""
         return {"model": LOBE_FLOATS * self.lobes, "fit": 3 * self.lobes + 1}
 

@@ -38,7 +38,7 @@ directions actually produced is q, with the failed mass lost, so
 E[(f - g)/q; produced] = int_S2 (f - g). Delta lobes are neither sampled nor
 evaluated (the method refuses scenes with delta BSDFs).
 
-Fitting: the render keeps each sample's w and f(w) / q(w) (0 where no direction
+Fitting: the render keeps each sample's w, f(w) / q(w) and q(w) (0 where no direction
 was produced; renderers.integrators.control_variate_records); the model is fitted
 from them only between frames (``fit``), so a frame's g never depends on its own
 samples.
@@ -157,7 +157,8 @@ class ControlVariateIntegrator(mi.SamplingIntegrator):
         residual = dr.select(produced, (f - g) / q, 0.0)
         L += dr.select(hit, self.model.integral(pixel, hit) + residual, 0.0)
         if self.fitting:
-            self.records = SampleRecords.write(w, dr.select(produced, f / q, 0.0), hit,
+            self.records = SampleRecords.write(w, dr.select(produced, f / q, 0.0),
+                                               dr.select(produced, q, 0.0), hit,
                                                sampler.sample_count())
         valid = hit | (active & (scene.environment() is not None))
         return L, valid, [dr.select(hit, 1.0, 0.0)]

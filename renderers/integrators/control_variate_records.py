@@ -1,7 +1,8 @@
 """One render's first-hit samples, kept for the control-variate models' fit.
 
 The control-variate integrator writes, per lane of the render's wavefront, the
-sampled direction w, the sample's f / q and whether it counts (a surface hit with
+sampled direction w, the sample's f / q, its density q (which a model trained on the
+residual's variance needs) and whether it counts (a surface hit with
 a finite estimate) into lane-indexed buffers: plain scatters, one slot per lane,
 executed with the render's kernel. A model reduces them per pixel between frames
 (:meth:`SampleRecords.per_pixel_sum`): Mitsuba lays a wavefront out pixel-major
@@ -27,10 +28,12 @@ class SampleRecords:
     weighted: mi.Spectrum     # f(w) / q(w); 0 where no direction was produced
     counts: mi.Float          # 1 where the lane's sample enters the fit, else 0
     nonfinite: mi.Float       # 1 where a hit's estimate was NaN or infinite (left out)
+    pdf: mi.Float             # q(w); 0 where no direction was produced
     spp: int
 
     @staticmethod
-    def write(w: mi.Vector3f, weighted: mi.Spectrum, hit: mi.Bool, spp: int) -> SampleRecords:
+    def write(w: mi.Vector3f, weighted: mi.Spectrum, pdf: mi.Float, hit: mi.Bool,
+              spp: int) -> SampleRecords:
         """Scatter one render's lanes into buffers of their own (called in ``sample``)."""
         lanes = dr.width(hit)
         lane = dr.arange(mi.UInt32, lanes)
@@ -49,14 +52,15 @@ class SampleRecords:
                                    for c in range(3))),
             counts=kept(dr.select(counted, 1.0, 0.0)),
             nonfinite=kept(dr.select(hit & ~finite, 1.0, 0.0)),
+            pdf=kept(dr.select(counted, pdf, 0.0)),
             spp=spp)
 
-    def arrays(self) -> tuple[mi.Vector3f, mi.Spectrum, mi.Float, mi.Float]:
+    def arrays(self) -> tuple[mi.Vector3f, mi.Spectrum, mi.Float, mi.Float, mi.Float]:
         """The buffers, e.g. as a frozen render's outputs (:meth:`of` takes them back)."""
-        return self.w, self.weighted, self.counts, self.nonfinite
+        return self.w, self.weighted, self.counts, self.nonfinite, self.pdf
 
     @classmethod
-    def of(cls, arrays: tuple[mi.Vector3f, mi.Spectrum, mi.Float, mi.Float],
+    def of(cls, arrays: tuple[mi.Vector3f, mi.Spectrum, mi.Float, mi.Float, mi.Float],
            spp: int) -> SampleRecords:
         return cls(*arrays, spp=spp)
 
