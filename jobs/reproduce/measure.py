@@ -10,7 +10,7 @@ from jobs.reproduce.registry import Budget, Context
 from jobs.reproduce.results import Estimate
 
 #: The most pre-fill passes (the method's default limit).
-PREFILL_FRAMES = 48
+PREFILL_FRAMES = 128
 
 MSE_NOTE = ("MSE at N samples per pixel (relative, as MRSE): rBias² + rVar₁ / N, rVar₁ the "
             "variance of one one-spp frame; its interval adds the ends of the two 95 % "

@@ -28,6 +28,14 @@ from which (paper, Sec. 4.4 and appendix A)
   records it reads) to the bias. A pass that updates a record from one vertex gives no
   such estimate.
 
+Unknown bias: a record that no pass has updated from two vertices (one representative
+so far: 7 % of cornell-box's records and 15 % of door's after the pre-fill, 32x32) has
+no squared-bias estimate. Its stored 0 would read as unbiased, and the MSE rule would
+end every path there; a lookup says so instead (``bias_known``), and the rule treats
+such a record as it treats a missing one: a path does not end in it, and an update
+sample whose hit reads it adds 0 to the deferred squared bias, as one reading no
+record does (the path would go on there, not end).
+
 and, for the MSE rule's look-ahead (Sec. 4.3), the *deferred* squared bias
 E[(f cos / p)^2 b^2(x)] of ending one vertex later: each sample's squared BSDF weight
 (luminance) times the squared bias of the record its hit x reads (0 where it reads
@@ -110,6 +118,10 @@ class GridValue:
     squared_bias: mi.Float
     deferred_bias: mi.Float   # E[(f cos / p)^2 b^2] at the next vertex (module doc)
     found: mi.Bool
+    # Whether the record holds a squared-bias estimate: a pass gives one only from two
+    # of its vertices, so a record updated from one at a time has none and its
+    # ``squared_bias`` (0) says nothing (module doc, Unknown bias).
+    bias_known: mi.Bool
 
 
 class MomentGrid:
@@ -199,9 +211,10 @@ class MomentGrid:
         marginal = dr.gather(mi.Float, self.marginal, slot, found)
         bias = dr.gather(mi.Float, self.bias, slot, found)
         deferred = dr.gather(mi.Float, self.deferred, slot, found)
+        bias_known = found & (dr.gather(mi.Float, self.bias_count, slot, found) > 0)
         # Noisy estimates of non-negative quantities, read as at least 0.
         return GridValue(radiance, dr.maximum(second - marginal, 0.0),
-                         dr.maximum(bias, 0.0), dr.maximum(deferred, 0.0), found)
+                         dr.maximum(bias, 0.0), dr.maximum(deferred, 0.0), found, bias_known)
 
     # ---- writing -------------------------------------------------------------------
 

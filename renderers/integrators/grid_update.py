@@ -87,7 +87,9 @@ class GridUpdateIntegrator(PathIntegrator):
         state.hit_n = dr.select(second, n, state.hit_n)
         state.hit |= second
         # [VTT24] Sec. 4.3: the squared bias of ending at x, weighted by the squared
-        # throughput y -> x (beta is f cos / p here: the path starts at y with beta 1).
+        # throughput y -> x (beta is f cos / p here: the path starts at y with beta 1);
+        # 0 where x has no record or its record no squared-bias estimate, where a path
+        # goes on instead of ending (renderers/caches/moment_grid.py, Unknown bias).
         state.deferred = dr.select(second, dr.square(mi.luminance(vertex.beta))
                                    * value.squared_bias, state.deferred)
         terms = VertexTerms(L_add=dr.select(second, value.radiance, 0.0),

@@ -106,7 +106,7 @@ class GridCacheParams(PTParams, TerminationChoice):
     cell_fraction: float = Field(1 / 16, gt=0.0, le=1.0,
                                  description="cell edge / the scene's largest extent "
                                              "(unless cache.cell_size is given)")
-    prefill_frames: int = Field(48, ge=0, le=100_000,
+    prefill_frames: int = Field(128, ge=0, le=100_000,
                                 description="most pre-fill passes before the first frame")
     prefill_history: int = Field(2, ge=1, le=1_000_000,
                                  description="observations a record averages over in the "
@@ -302,10 +302,12 @@ def prefill_settled(means: list[float], tolerance: float) -> bool:
     it, and the pre-fill always ran to its limit), and two passes :data:`PREFILL_SPAN`
     apart can meet it while the mean still moves (cornell-box 32x32 with 16 passes at
     most: 2 seeds of 16 stopped after 5 and 6 passes, far from equilibrium, with
-    1.4-2.2x the other seeds' MRSE)."""
+    1.4-2.2x the other seeds' MRSE). A mean of 0 has not settled: no light has reached
+    the records yet (corridor 32x32, lit at its far end: the first 4-8 passes' means are
+    0 on some seeds, and 0 moved by 0 met the relative tolerance)."""
     recent = sum(means[-PREFILL_SPAN:]) / PREFILL_SPAN
     before = sum(means[-2 * PREFILL_SPAN:-PREFILL_SPAN]) / PREFILL_SPAN
-    return abs(recent - before) / PREFILL_SPAN <= tolerance * abs(recent)
+    return recent > 0.0 and abs(recent - before) / PREFILL_SPAN <= tolerance * recent
 
 
 def prefill(propagation: Propagation, params: GridCacheParams,
@@ -400,7 +402,7 @@ def diffuse_only(features: Any) -> tuple[bool, str]:
 
 METHOD = register(Method(
     "grid-cache", "hashed-grid radiance cache with three moments, variance-trading "
-    "termination", GridCacheParams, render, version=2, requires=diffuse_only, build=build,
+    "termination", GridCacheParams, render, version=3, requires=diffuse_only, build=build,
     label="Grid cache", unbiased=False,
     # In the method comparison and the Pareto plot: its default policy (var-bound,
     # absolute t = 0.1), with PT matched to its frame time.

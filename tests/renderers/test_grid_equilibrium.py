@@ -110,3 +110,23 @@ def test_the_squared_bias_does_not_read_drift(furnace_fills):
           f"over passes {old.mean():.5f}")
     assert abs(relative.mean()) <= 4 * error and relative.mean() < 1e-3
     assert old.mean() > 4 * old.std(ddof=1) / np.sqrt(old.size) and old.mean() > 2e-3
+
+
+def test_a_grid_no_light_has_reached_has_not_settled():
+    """The pre-fill's stop rule on the grid's mean luminance per pass: corridor 32x32 (lit
+    at its far end) read 0 for the first 2-8 passes over 16 seeds, 8 on one, after which
+    light arrived (0.0042, 0.0047, ...). Eight passes of 0 are no equilibrium; the rule
+    without the check (planted: 0 moved by 0 is within any relative tolerance) stopped
+    there, and it still stops a mean that has stopped moving."""
+    from renderers.methods.grid_cache import PREFILL_SPAN, prefill_settled
+
+    dark = [0.0] * (2 * PREFILL_SPAN)
+    still = [2.0] * (2 * PREFILL_SPAN)
+    assert not prefill_settled(dark, 2e-3) and prefill_settled(still, 2e-3)
+
+    def without_the_check(means, tolerance):
+        recent = sum(means[-PREFILL_SPAN:]) / PREFILL_SPAN
+        before = sum(means[-2 * PREFILL_SPAN:-PREFILL_SPAN]) / PREFILL_SPAN
+        return abs(recent - before) / PREFILL_SPAN <= tolerance * abs(recent)
+
+    assert without_the_check(dark, 2e-3)

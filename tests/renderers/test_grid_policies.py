@@ -154,9 +154,10 @@ def test_mse_min_decides_on_the_prefix_only(mi, filled, monkeypatch):  # noqa: F
 def _hiding_first_records(monkeypatch) -> None:
     """The render's lookups find no record at the first hit (as in a scene whose visible
     cells are not explored yet)."""
+    import dataclasses
+
     import drjit as dr
 
-    from renderers.caches.moment_grid import GridValue
     from renderers.integrators.grid_cache import GridCacheIntegrator
 
     real = GridCacheIntegrator.vertex_terms
@@ -167,8 +168,9 @@ def _hiding_first_records(monkeypatch) -> None:
 
         def later_only(*args):
             value = lookup(grid, *args)
-            return GridValue(dr.select(kept, value.radiance, 0.0), value.local_variance,
-                             value.squared_bias, value.deferred_bias, value.found & kept)
+            return dataclasses.replace(value, radiance=dr.select(kept, value.radiance, 0.0),
+                                       found=value.found & kept,
+                                       bias_known=value.bias_known & kept)
 
         grid.lookup = later_only
         try:
@@ -204,3 +206,61 @@ def test_relative_var_bound_scales_by_the_first_record_found(mi, filled,  # noqa
     planted = _relative_length(mi, filled, dark)
     print("planted", planted)
     assert planted < 0.95 * recorded
+
+
+# ---- mse-min and records without a squared-bias estimate ---------------------------
+
+class _CountingEnds:
+    """Answers ``policy``'s decision and counts, over the lanes asked at a usable record,
+    the records without a squared-bias estimate (``unknown``) and the paths ended in one
+    (``ended``). ``as_unbiased`` (planted: the old reading) shows the policy every
+    record's bias as known, 0 where none was estimated."""
+
+    def __init__(self, policy, as_unbiased: bool = False) -> None:
+        import drjit as dr
+        import mitsuba as mi
+
+        self.policy, self.as_unbiased = policy, as_unbiased
+        self.unknown = dr.zeros(mi.UInt32, 1)
+        self.ended = dr.zeros(mi.UInt32, 1)
+
+    def path_state(self) -> dict:
+        return self.policy.path_state()
+
+    def continuation(self, query):
+        import dataclasses
+
+        import drjit as dr
+        import mitsuba as mi
+
+        from renderers.integrators.grid_cache import GridStatistics
+
+        value = query.statistics()
+        unknown = query.usable & ~value.bias_known
+        if self.as_unbiased:
+            query = dataclasses.replace(query, cache=GridStatistics(
+                dataclasses.replace(value, bias_known=value.found)))
+        alpha, state = self.policy.continuation(query)
+        dr.scatter_add(self.unknown, mi.UInt32(1), mi.UInt32(0), unknown)
+        dr.scatter_add(self.ended, mi.UInt32(1), mi.UInt32(0), unknown & (alpha < 1.0))
+        return alpha, state
+
+
+def _ends_in_unknown_bias(mi, filled, as_unbiased: bool = False) -> tuple[int, int]:  # noqa: F811
+    counting = _CountingEnds(_policy("mse-min", {"samples": 100.0}), as_unbiased)
+    _frames(mi, filled, counting, 1)
+    print("queries at records without a bias estimate, paths ended there",
+          int(counting.unknown[0]), int(counting.ended[0]))
+    return int(counting.unknown[0]), int(counting.ended[0])
+
+
+def test_mse_min_does_not_end_paths_where_the_bias_is_unknown(mi, filled):  # noqa: F811
+    """A record updated from one vertex at a time has no squared-bias estimate (a pass
+    forms it from two of its vertices); the MSE rule must not read its stored 0 as
+    unbiased. Paths reach such records (the check has something to reject) and none
+    ends in one. Planted: the old reading (every record's bias known, 0 where none was
+    estimated) ends paths there."""
+    unknown, ended = _ends_in_unknown_bias(mi, filled)
+    assert unknown > 0 and ended == 0
+    _unknown, ended_planted = _ends_in_unknown_bias(mi, filled, as_unbiased=True)
+    assert ended_planted > 0

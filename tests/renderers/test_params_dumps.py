@@ -32,6 +32,10 @@ def _dump(method: str, params: dict[str, Any]) -> dict[str, Any]:
 ADDED_SINCE: dict[str, tuple[int, dict[str, Any]]] = {
     "grid-cache": (2, {"prefill_history": 2, "prefill_tolerance": 0.002}),
 }
+#: Defaults changed since, with the estimator version that changed them: (before, now).
+CHANGED_SINCE: dict[str, tuple[int, dict[str, tuple[Any, Any]]]] = {
+    "grid-cache": (3, {"prefill_frames": (48, 128)}),
+}
 
 
 @pytest.mark.parametrize("entry", BEFORE, ids=lambda e: f"{e['method']} {canonical_json(e['params'])}")
@@ -41,6 +45,12 @@ def test_a_parsed_parameter_set_dumps_as_before(entry):
     if added:
         assert METHODS[entry["method"]].version >= version
         assert {name: dumped.pop(name) for name in added} == added
+    version, changed = CHANGED_SINCE.get(entry["method"], (None, {}))
+    for name, (before, now) in changed.items():
+        assert METHODS[entry["method"]].version >= version
+        if name not in entry["params"]:
+            assert dumped[name] == now
+            dumped[name] = before
     assert canonical_json(dumped) == canonical_json(entry["dump"])
     assert list(dumped) == list(entry["dump"])          # the same fields, in the same order
 

@@ -64,7 +64,9 @@ class MSEMinimizing(TerminationPolicy):
         state, vertex = query.state, query.vertex
         local = prefixed_local_variance(query, here.local_variance)
         p = self.params
-        stop = query.usable & mse_min_terminates(
+        # A record without a squared-bias estimate is not read as unbiased: the path
+        # goes on, as where there is no record (renderers/caches/moment_grid.py).
+        stop = query.usable & here.bias_known & mse_min_terminates(
             state.termination_value, local, dr.square(mi.luminance(vertex.beta)),
             here.squared_bias, here.deferred_bias, p.samples, p.margin, p.clamp)
         state.termination_value = dr.select(query.usable & ~stop,
