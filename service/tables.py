@@ -13,6 +13,7 @@ from rich.text import Text
 
 from jobs.protocol.calibration import ADVICE
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
+from metrics.bias_intervals import PER_CACHE
 from metrics.denoised import DENOISER_KEY
 from metrics.registry import (
     BY_NAME,
@@ -191,9 +192,26 @@ def metrics_table(run: RunResultDetail) -> Group:
         parts.append(stage_table(run))
     parts.append(seeds)
     parts += [f"warning: {text}" for text in [*run.warnings, *run.timing_flags]]
+    if (note := per_cache_sum_note(run.metrics)) is not None:
+        parts.append(note)
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
     return Group(*parts)
+
+
+def per_cache_sum_note(metrics: dict[str, Any]) -> str | None:
+    """Why a cache method's rBias² + rVar is not its MRSE, in one line (None for a pooled
+    rBias²): rBias² is the caches' mean, rVar and MRSE are pooled over the seeds, so
+    rBias² + rVar = MRSE - ref floor + (rBias² - pooled rBias²) (docs/metrics.md,
+    "K independent renders")."""
+    if metrics.get("rbias2_basis") != PER_CACHE:
+        return None
+    per_cache, pooled = metrics.get("rbias2"), metrics.get("rbias2_pooled")
+    excess = (f" = {_fmt(per_cache - pooled)}"
+              if isinstance(per_cache, float) and isinstance(pooled, float) else "")
+    return ("note: rBias² is the caches' mean (t-interval), rVar and MRSE are pooled over "
+            "seeds: rBias² + rVar = MRSE - ref floor + (rBias² - pooled rBias²"
+            f"{excess}), the caches' bias spread (docs/metrics.md)")
 
 
 def _denoiser_text(denoiser: dict[str, Any]) -> str:

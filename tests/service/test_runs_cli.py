@@ -386,6 +386,16 @@ def test_intervals_and_signs_are_honest_in_tables_and_json(store_dir, tmp_path):
         run.metrics = {**run.metrics, "rbias2": 0.00123}
     listed = cli("runs", "list", "--columns", "id,rbias2,rvar", data=two)
     assert "0.00123" in listed and "noise" not in listed
+    # rBias² + rVar vs MRSE: a note under a cache method's run (per-cache rBias²) only.
+    note = "rVar and MRSE are pooled over seeds: rBias² + rVar = MRSE - ref floor"
+    assert note not in cli("runs", "show", "1", data=two)       # pt: pooled, they add up
+    with store.session(write=True) as session:
+        run = session.get(Run, 1)
+        run.metrics = {**run.metrics, "rbias2_basis": "per cache", "rbias2": 0.003,
+                       "rbias2_pooled": 0.001}
+    shown = cli("runs", "show", "1", data=two)
+    (line,) = [line for line in shown.splitlines() if note in line]   # one line
+    assert "(rBias² - pooled rBias² = 0.002)" in line and len(line) <= 220
 
 
 def test_tables_say_what_ran_and_methods_lists_parameters(store_dir, capsys):
