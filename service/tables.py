@@ -27,6 +27,7 @@ from metrics.registry import (
     within_noise,
 )
 from renderers.load import stall_text
+from service.animation_tables import ANIMATION_KEY, animation_tables
 
 if TYPE_CHECKING:
     from jobs.pareto.report import Report
@@ -196,6 +197,8 @@ def metrics_table(run: RunResultDetail) -> Group:
         parts.append(note)
     if m.get("calibration"):
         parts.append(calibration_table("equal-time calibration", m["calibration"]))
+    if ANIMATION_KEY in run.metrics:
+        parts.append(animation_tables(run.metrics[ANIMATION_KEY]))
     return Group(*parts)
 
 

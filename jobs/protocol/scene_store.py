@@ -38,6 +38,7 @@ from pathlib import Path
 from jobs.record.config import Settings
 from renderers.backend import BackendError, default_variant, init_backend
 from renderers.scenes import LoadedScene, SceneError, SceneFeatures, builtin_names, load_scene
+from renderers.scenes.animated import animated_names
 from renderers.scenes.errors import SceneNotFinite
 from renderers.scenes.vetting import (
     STAGED_SCENE,
@@ -64,11 +65,17 @@ _features: dict[str, SceneFeatures] = {}
 _features_lock = threading.Lock()
 
 
+def named_scenes() -> list[str]:
+    """The scenes a job may name as they are: the built-in static and animated scenes
+    (renderers.scenes.library, renderers.scenes.animated)."""
+    return [*builtin_names(), *animated_names()]
+
+
 def unavailable_message() -> str:
     """The one answer for a scene that does not exist *or* may not be used; it does
     not even repeat the name, so two answers can be compared byte for byte."""
     return ("the scene is not available: give a built-in scene "
-            f"({', '.join(builtin_names())}), the id of an uploaded scene (upload:<digest>, "
+            f"({', '.join(named_scenes())}), the id of an uploaded scene (upload:<digest>, "
             "from POST /api/v1/scenes) or the path of a Mitsuba XML file under the "
             "service's scene roots")
 
@@ -135,7 +142,7 @@ def is_stored(staged: StagedScene, settings: Settings) -> bool:
 def rest_scene(scene: str, settings: Settings) -> str:
     """The scene a REST job renders, as its spec will name it: a built-in name, or
     the id of a stored copy. Raises SceneRefused with a message safe to serve."""
-    if scene in builtin_names():
+    if scene in named_scenes():
         return scene
     if SCENE_ID.match(scene):
         if stored_scene_file(scene, settings) is None:
@@ -161,8 +168,8 @@ def features_backend() -> None:
 
 
 def builtin_features(name: str) -> SceneFeatures:
-    """The features of the built-in scene ``name`` (what decides which methods apply to
-    it), loaded once per process: known without rendering anything, so that a job whose
+    """The features of the built-in (static or animated) scene ``name`` (what decides
+    which methods apply to it), loaded once per process: known without rendering anything, so that a job whose
     method does not apply can be refused before it is queued. Raises BackendError where
     no scene can be loaded (no usable libLLVM)."""
     with _features_lock:

@@ -27,7 +27,7 @@ from jobs.execution.queued import QueuedRender, QueuedSweep
 from jobs.execution.timecost import estimate_seconds
 from jobs.execution.work import WorkEstimate, data_bytes
 from jobs.protocol.job import RenderJob
-from jobs.protocol.scene_store import builtin_features, rest_scene
+from jobs.protocol.scene_store import builtin_features, named_scenes, rest_scene
 from jobs.protocol.spec import RenderSpec, SweepSpec
 from jobs.record.config import Settings
 from jobs.record.models import FINAL_JOB_STATES, ApiKey
@@ -38,7 +38,7 @@ from renderers.methods import (
     check_applies,
     parse_params,
 )
-from renderers.scenes import builtin_names
+from renderers.scenes.animated import animated_names
 from renderers.scenes.vetting import SceneRefused
 from service.api.deps import CallerDep, DispatcherDep, QueueDep, RowId, SettingsDep
 from service.api.failures import RETRY_AFTER_S
@@ -81,6 +81,9 @@ def _check_render(spec: RenderSpec, settings: Settings) -> QueuedRender:
     except MethodError as err:
         raise _unprocessable("params", str(err)) from None
     job = job.with_spec(scene=_check_scene(spec.scene, settings))
+    if spec.animation is not None and spec.scene in animated_names():
+        raise _unprocessable("animation", f"scene '{spec.scene}' is animated already: give "
+                                          "an animation only with a static scene")
     _check_applies(job)
     return QueuedRender(job=job)
 
@@ -102,7 +105,7 @@ def _check_applies(job: RenderJob) -> None:
     features, before the job is queued. A stored scene is not loaded here (an upload
     may be large; its render process loads it) and neither is anything where no scene
     can be loaded: the render process refuses those first thing, before the reference."""
-    if job.spec.scene not in builtin_names():
+    if job.spec.scene not in named_scenes():
         return
     try:
         check_applies(job.method, builtin_features(job.spec.scene))
