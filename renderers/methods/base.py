@@ -220,6 +220,9 @@ class RenderOutput:
     timings: dict[str, Any]                 # see renderers.timing.summarize
     path_stats: dict[str, Any] = field(default_factory=dict)
     method_stats: dict[str, Any] = field(default_factory=dict)  # e.g. loss curve, cache config
+    #: (H, W, 3) sample variance of the residual estimator at the primary hit, NaN where
+    #: unknown (metrics.residual_variance); None for a method without one
+    residual_variance: np.ndarray | None = None
 
 
 #: Renders frame ``index`` with ``seed``, timing its stages with ``timer``;

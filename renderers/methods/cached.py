@@ -336,10 +336,37 @@ def cached_render(build: Callable[[Any, Any, int], tuple[Any, Any, Any]]) -> Cal
     def render(scene: Any, params: CacheTrainingParams, *, seed_parts: tuple[Any, ...],
                spp: int, frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
         integrator, trainer, cache = build(scene, params, derive_seed(*seed_parts, "cache"))
-        return render_with_cache(scene, params, integrator, trainer, cache,
-                                 seed_parts=seed_parts, spp=spp, frames=frames, hooks=hooks)
+        output = render_with_cache(scene, params, integrator, trainer, cache,
+                                   seed_parts=seed_parts, spp=spp, frames=frames, hooks=hooks)
+        if getattr(params, "estimator", None) == "unbiased":
+            probe_residuals(scene, params, cache, output, spp=max(spp, 2),
+                            seed=derive_seed(*seed_parts, "residual probe"))
+        return output
 
     return render
+
+
+def probe_residuals(scene: Any, params: Any, cache: Any, output: RenderOutput, *, spp: int,
+                    seed: int) -> None:
+    """After the frame loop, untimed: ``spp`` residual samples per pixel of the two-level
+    estimator with the final ``cache`` (renderers.integrators.residual_probe), kept as
+    ``output.residual_variance`` (metrics.residual_variance) and described in
+    ``method_stats['residual_probe']``."""
+    import mitsuba as mi
+
+    from metrics.residual_variance import residual_variance_map
+    from renderers.integrators.residual_probe import ResidualProbe
+
+    probe = mi.load_dict({"type": ResidualProbe.plugin_name, **params.core()})
+    probe.configure(params)
+    probe.cache = cache
+    values, probed = probe.residual_samples(scene.scene, spp, seed)
+    output.residual_variance, nonfinite = residual_variance_map(values, probed)
+    output.method_stats["residual_probe"] = {
+        "samples_per_pixel": spp,
+        "pixels": int(np.isfinite(output.residual_variance).all(axis=-1).sum()),
+        "nonfinite_samples": nonfinite,
+    }
 
 
 def training_stage_sizes(params: Any, pixels: int, _spp: int) -> dict[str, float]:
