@@ -134,7 +134,7 @@ class Frozen:
     def __call__(self, *args: Any) -> Any:
         # A scene's geometry generation is part of the key: a replay after a mesh moved
         # would use the recorded geometry (tests/renderers/test_animation.py).
-        generations = tuple(_GEOMETRY.get(id(arg), 0) for arg in args if is_scene(arg))
+        generations = tuple(scene_generation(arg) for arg in args if is_scene(arg))
         args = tuple(self._arrays(arg) if is_scene(arg) else arg for arg in args)
         key = CallKey.of((generations, *args))
         # No garbage collection inside a call: collecting another frozen function (an
@@ -269,12 +269,19 @@ _GEOMETRY: dict[int, int] = {}
 
 
 def geometry_changed(scene: Any) -> None:
-    """Say that ``scene``'s mesh vertices changed (``params.update()``): frozen calls
-    given it record again. Measured with Mitsuba 3.9.1: a replay after a mesh's
-    ``vertex_positions`` changed rendered the old geometry in part (the moved box's
-    pixels differed from a traced render by up to 0.13), while a changed ``to_world`` of
-    a shape or a changed radiance was followed."""
+    """Say that ``scene``'s shapes moved or its emitters changed (``params.update()``):
+    frozen calls given it record again, and light selectors built for it are built
+    again (renderers.integrators.lights.current_sampler: their power and position
+    tables would be stale, and a recording holds some of them as constants). Measured
+    with Mitsuba 3.9.1: a replay after a mesh's ``vertex_positions`` changed rendered the
+    old geometry in part (the moved box's pixels differed from a traced render by up to
+    0.13), while a changed ``to_world`` of a shape or a changed radiance was followed."""
     _GEOMETRY[id(scene)] = _GEOMETRY.get(id(scene), 0) + 1
+
+
+def scene_generation(scene: Any) -> int:
+    """How many times :func:`geometry_changed` was said of ``scene``."""
+    return _GEOMETRY.get(id(scene), 0)
 
 
 def is_scene(value: Any) -> bool:

@@ -88,6 +88,8 @@ class LightSampler:
     #: that :meth:`frame_arrays` does not hand over: a frame that uses it is not frozen
     #: (renderers.frozen), since a replay would not see the new values.
     stateful = False
+    #: The scene's generation it was built at (:func:`current_sampler`).
+    generation = 0
     #: The attributes holding the per-scene Dr.Jit data the selection reads: a frozen
     #: frame takes them as arguments (:meth:`frame_arrays`, :meth:`bind`), since a
     #: recording may only read Dr.Jit values it was given.
@@ -195,6 +197,22 @@ class UniformLightSampler(LightSampler):
 
     def pdf_emitter_direction(self, prev_si, ds, active):
         return self.scene.pdf_emitter_direction(prev_si, ds, active)
+
+
+def current_sampler(sampler: LightSampler | None, scene: mi.Scene,
+                    kind: type[LightSampler]) -> LightSampler:
+    """``sampler``, or a new ``kind(scene)`` where it is of another kind, for another
+    scene, or built before the scene's shapes moved or its emitters changed
+    (renderers.frozen.geometry_changed: its emitter powers and positions would be
+    stale; a stale pmf stays positive, so it costs variance, not bias)."""
+    from renderers.frozen import scene_generation
+
+    generation = scene_generation(scene)
+    if (sampler is None or sampler.scene is not scene or type(sampler) is not kind
+            or sampler.generation != generation):
+        sampler = kind(scene)
+        sampler.generation = generation
+    return sampler
 
 
 def _mean_luminance(emitter: mi.Emitter, si: mi.SurfaceInteraction3f) -> float:

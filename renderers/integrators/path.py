@@ -56,7 +56,7 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.integrators import PLUGINS
-from renderers.integrators.lights import LightSampler, UniformLightSampler
+from renderers.integrators.lights import LightSampler, UniformLightSampler, current_sampler
 
 PLUGIN_NAME = "nirc_path"
 RR_MODES = ("fixed", "throughput")
@@ -201,13 +201,11 @@ class PathIntegrator(mi.SamplingIntegrator):
 
     def light_sampler(self, scene: mi.Scene) -> LightSampler:
         """The light sampler of ``scene``, built on first use (a selector may
-        precompute per-scene data, e.g. emitter powers) and kept for that scene."""
-        cached = getattr(self, "_light_sampler", None)
-        if (cached is None or cached.scene is not scene
-                or type(cached) is not self.light_sampler_type):
-            cached = self.light_sampler_type(scene)
-            self._light_sampler = cached
-        return cached
+        precompute per-scene data, e.g. emitter powers) and kept for that scene until
+        its shapes move or its emitters change (lights.current_sampler)."""
+        self._light_sampler = current_sampler(getattr(self, "_light_sampler", None), scene,
+                                              self.light_sampler_type)
+        return self._light_sampler
 
     # ---- Hooks (overridden by the caching methods) ----
 

@@ -67,7 +67,7 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.frozen import Frozen, freezing, weak_method
-from renderers.integrators.lights import LightSampler, PowerLightSampler
+from renderers.integrators.lights import LightSampler, PowerLightSampler, current_sampler
 
 
 class ReSTIRParams(Protocol):
@@ -281,6 +281,8 @@ class ReSTIRDI:
     def render(self, seed: int) -> mi.TensorXf:
         """One frame, its reservoirs kept for the next: a (replicas, height, width, 4)
         tensor of RGB and whether a surface was hit."""
+        # Built again after the scene's emitters changed (an animation's update).
+        self.lights = current_sampler(self.lights, self.scene, type(self.lights))
         image, self.history = self._frame(self.scene, mi.UInt32(seed), self.history,
                                           self.lights.frame_arrays())
         return image
