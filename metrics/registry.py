@@ -151,6 +151,10 @@ METRICS: tuple[Metric, ...] = (
     Metric("efficiency", "efficiency", "1 / (MRSE x seconds per frame)", "higher",
            Aggregate.DERIVED, key="efficiency", derive=_efficiency, unit="1/s",
            log_axis=True),
+    Metric("v_rel", "V_rel(<F_r>)", "relative variance of the residual estimator at the "
+           "primary hit, S²/(R²+eps) per pixel, mean over pixels (two-level methods)",
+           "lower", Aggregate.MEAN_CI, key="v_rel_mean", seed_key="v_rel", log_axis=True,
+           requires="v_rel_mean"),
     Metric("psnr", "PSNR", "PSNR of the tone-mapped images (clamp + sRGB), "
            "10 log10(1/MSE) on [0, 1]", "higher", Aggregate.MEAN, key="psnr_mean",
            seed_key="psnr", per_seed=psnr_tonemapped, unit="dB", field="psnr",

@@ -61,7 +61,8 @@ from metrics.pixel_maps import relative_bias_variance_maps
 from metrics.preview import error_map_preview, tonemap_preview
 from metrics.quality import withhold
 from metrics.registry import METRICS, Aggregate, per_seed_values, seed_mean
-from metrics.statistics import RunningMoments
+from metrics.residual_variance import relative_residual_variance
+from metrics.statistics import RunningMoments, interval_or_reason
 from renderers.backend import device_info, init_backend
 from renderers.denoise_features import FEATURE_SPP, render_features
 from renderers.methods import check_applies, get_method
@@ -184,9 +185,10 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
                                      ref_variance=reference.variance))
     else:
         metrics.update({m.key: per_seed[0][m.seed_key] for m in METRICS
-                        if m.aggregate is Aggregate.MEAN_CI})
+                        if m.aggregate is Aggregate.MEAN_CI and m.seed_key in per_seed[0]})
         metrics.update({key: per_seed[0][key] for key in
                         ("mrse_corrected", "ref_floor", "ref_floor_ratio_mrse", "warnings")})
+    metrics.update(mean_ci_of_seed_values(per_seed, metrics))
     metrics.update(per_cache_metrics(frame_moments, reference, eps, correlated_frames))
     # A cache trained per seed: rBias^2 is the mean over the caches, which cannot cancel.
     if all("caches" in (s.get("method_stats") or {}) for s in per_seed):
@@ -202,6 +204,25 @@ def aggregate(per_seed: list[dict[str, Any]], images: list[np.ndarray],
         if metric.aggregate is Aggregate.DERIVED:
             metrics[metric.key] = metric.derive(metrics)
     return metrics
+
+
+def mean_ci_of_seed_values(per_seed: list[dict[str, Any]],
+                           metrics: dict[str, Any]) -> dict[str, Any]:
+    """MEAN_CI metrics that no joint pass gave (V_rel): the seeds' values
+    (``<seed_key>_per_seed``), their mean and its 95 % interval on the log scale
+    (metrics.statistics.interval_or_reason); only where some seed has a value."""
+    result: dict[str, Any] = {}
+    for metric in METRICS:
+        if (metric.aggregate is not Aggregate.MEAN_CI or metric.key in metrics
+                or not any(metric.seed_key in s for s in per_seed)):
+            continue
+        values = [s[metric.seed_key] for s in per_seed if s.get(metric.seed_key) is not None]
+        ci, note = interval_or_reason(values)
+        result.update({f"{metric.seed_key}_per_seed": values,
+                       metric.key: float(np.mean(values)) if values else None,
+                       metric.ci_key: list(ci) if ci else None,
+                       f"{metric.seed_key}_ci_note": note})
+    return result
 
 
 #: Keys of the per-cache statistics (metrics.errors.per_cache_bias_variance).
@@ -486,6 +507,9 @@ def store_run(job: RenderJob, prepared: Prepared, seeds: Sequence[SeedRender], s
                                flip_exposures=reference.flip_exposures,
                                ref_variance=reference.variance)
         values.update(per_seed_values(output.accumulated, reference.mean))
+        if output.residual_variance is not None:
+            values["v_rel"] = relative_residual_variance(output.residual_variance,
+                                                         reference.mean, spec.eps)
         if features is not None:
             values.update(denoised_metrics(rendered.last_frames, reference.mean, spec.eps,
                                            reference.flip_exposures, features))

@@ -68,7 +68,7 @@ def test_stored_keys_and_verdict_names_are_unchanged():
     assert stored == {"mse": "mse_mean", "mrse": "mrse_mean", "flip_hdr": "flip_hdr_mean",
                       "flip_ldr": "flip_ldr_mean", "rbias2": "rbias2", "rvar": "rvar",
                       "rbias2_per_cache": "rbias2_per_cache_mean", "efficiency": "efficiency",
-                      "psnr": "psnr_mean",
+                      "psnr": "psnr_mean", "v_rel": "v_rel_mean",
                       **{f"denoised_{m}_{f}": f"denoised_{m}_{f}_mean" for f in ("frame", "accum")
                          for m in ("mrse", "flip")}}
     # The denoised errors are withheld with the raw error they denoise.
@@ -77,7 +77,8 @@ def test_stored_keys_and_verdict_names_are_unchanged():
                            "flip": ("flip_hdr", "flip_ldr", "denoised_flip_frame",
                                     "denoised_flip_accum"),
                            "rbias2": ("rbias2", "noise_floor"), "rvar": ("rvar",),
-                           "efficiency": ("efficiency",), "psnr": ("psnr",)}
+                           "efficiency": ("efficiency",), "v_rel": ("v_rel",),
+                           "psnr": ("psnr",)}
     assert [m.field for m in LISTED] == ["mrse", "flip", "rbias2", "rvar", "psnr"]
     assert [m.name for m in METRICS if m.needs_k2] == ["rbias2", "rvar"]
     assert {m.name for m in METRICS if m.direction == "higher"} == {"efficiency", "psnr"}
