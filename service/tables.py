@@ -259,16 +259,16 @@ def _load_text(load: dict[str, Any] | None) -> str:
 
 
 def stage_table(run: RunResult) -> Table:
-    """The median frame by stage: wall milliseconds (of the median wall frame), kernel and
-    harness milliseconds (of the median kernel frame: its own wall less its own kernels,
-    so never a wall frame's time less another frame's kernels), launches."""
+    """The median frame by stage: wall milliseconds, split into kernel and harness by the
+    stage's kernel share of the median kernel frame (jobs.protocol.results.device_split:
+    kernel + harness is the wall time, whatever the kernel frames cost), launches."""
     wall = run.time_breakdown_ms or {}
     kernel = run.kernel_breakdown_ms or {}
     harness = run.harness_breakdown_ms or {}
     stages = (run.timings if isinstance(run, RunResultDetail) else {}).get("stages", {})
-    table = Table(title="the median frame by stage (ms; kernel and harness of the median "
-                        "kernel frame, harness = its wall - its kernels: host work, tracing, "
-                        "launch gaps)")
+    table = Table(title="the median frame by stage (ms; its wall split into kernel and "
+                        "harness (host work, tracing, launch gaps) by the stage's kernel "
+                        "share of the median kernel frame)")
     for column in ("stage", "wall", "kernel", "harness", "harness %", "launches"):
         table.add_column(column, justify="left" if column == "stage" else "right")
     for name, ms in wall.items():
@@ -284,7 +284,8 @@ def stage_table(run: RunResult) -> Table:
 
 def breakdown_table(title: str, rows: list[ReportRow]) -> Table:
     """Milliseconds per frame of each part of the rows' median frames (the NIRC paper's
-    Table 1), their total, kernel time and harness share."""
+    Table 1), their total (the stages), its kernel time and harness share (of the same
+    frame: jobs.protocol.results.device_split)."""
     parts = list(dict.fromkeys(name for r in rows for name in (r.time_breakdown_ms or {})))
     table = Table(title=title)
     for column in ("method", *parts, "total", "kernel", "harness %"):

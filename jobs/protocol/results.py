@@ -81,26 +81,51 @@ def _metric_fields(metrics: tuple[Metric, ...]) -> dict[str, Any]:
 ResultMetrics = create_model("ResultMetrics", **_metric_fields(LISTED))
 
 
-def breakdown_ms(timings: dict[str, Any], key: str = "parts_s") -> dict[str, float] | None:
+def breakdown_ms(timings: dict[str, Any]) -> dict[str, float] | None:
     """The Table-1-style breakdown of the median frame in milliseconds per part (render,
-    training_paths, training, inference, ..., other): its wall time (``parts_s``) or its
-    kernel time (``kernel_parts_s``); None for runs stored before it."""
-    parts = (timings.get("breakdown") or {}).get(key)
+    training_paths, training, inference, ..., other): its wall time (``parts_s``); None
+    for runs stored before it."""
+    parts = (timings.get("breakdown") or {}).get("parts_s")
     return None if parts is None else {name: 1e3 * s for name, s in parts.items()}
 
 
-def device_split(timings: dict[str, Any]) -> tuple[float | None, float | None]:
-    """Kernel seconds of the median kernel frame and its harness share (its wall time
-    outside its own kernels over its wall time, renderers.timing.breakdown); runs stored
-    before that share: the median wall frame's wall time against the kernel time; None
-    for runs stored without kernel time."""
+#: The part of a frame outside its stages (renderers.timing.OTHER, which loads Dr.Jit).
+OTHER_PART = "other"
+
+
+def device_split(timings: dict[str, Any]) -> dict[str, Any] | None:
+    """The median (wall) frame's parts split into kernel and harness by the kernel
+    frame's shares (docs/timing.md, "The median frame"): each part's kernel share of the
+    median kernel frame (its kernel over its own wall time of the part, in [0, 1]) times
+    the median frame's wall time of the part, and the rest harness; so each part's kernel
+    + harness is its wall time, and the frame's kernel time, summed over its stages,
+    never exceeds its frame time (a kernel frame slower than the wall frames, under load
+    or with more work, no longer shows more kernel time than the frame took). Returns
+    ``kernel_ms`` and ``harness_ms`` per part, the stages' ``kernel_s`` and its
+    ``harness_share`` of their wall time; None for runs stored without kernel time."""
     frame = timings.get("breakdown") or {}
-    kernel, wall = frame.get("frame_kernel_s"), frame.get("frame_s")
-    if kernel is None or not wall:
-        return kernel, None
-    if "harness_share" in frame:
-        return kernel, frame["harness_share"]
-    return kernel, max(wall - kernel, 0.0) / wall
+    wall, kernel = frame.get("parts_s"), frame.get("kernel_parts_s")
+    if not wall or kernel is None:
+        return None
+    harness = frame.get("harness_parts_s")
+    # The kernel frame's own wall time of each part (runs stored before harness parts:
+    # their kernel parts are the median frame's own).
+    kernel_frame = ({name: kernel.get(name, 0.0) + harness.get(name, 0.0) for name in kernel}
+                    if harness is not None else wall)
+    kernel_s = {name: seconds * _share(kernel.get(name, 0.0), kernel_frame.get(name, 0.0))
+                for name, seconds in wall.items()}
+    stages = [name for name in wall if name != OTHER_PART]
+    stage_wall = sum(wall[name] for name in stages)
+    stage_kernel = sum(kernel_s[name] for name in stages)
+    return {"kernel_ms": {name: 1e3 * s for name, s in kernel_s.items()},
+            "harness_ms": {name: 1e3 * (wall[name] - s) for name, s in kernel_s.items()},
+            "kernel_s": stage_kernel,
+            "harness_share": 1.0 - stage_kernel / stage_wall if stage_wall > 0 else None}
+
+
+def _share(part: float, whole: float) -> float:
+    """``part`` over ``whole``, in [0, 1] (0 where ``whole`` is not positive)."""
+    return min(max(part / whole, 0.0), 1.0) if whole > 0 else 0.0
 
 
 def timing_flags(timings: dict[str, Any]) -> list[str]:
@@ -151,18 +176,20 @@ class RunResult(ResultMetrics):
                           "inference, other) of the median frame, as in the NIRC paper's "
                           "Table 1; they add up to its wall time")
     kernel_breakdown_ms: dict[str, float] | None = Field(
-        None, description="kernel milliseconds of each part of the median frame (Dr.Jit's "
-                          "kernel history); the rest of a part is harness")
+        None, description="kernel milliseconds of each part of the median frame: its wall "
+                          "time of the part times the part's kernel share of the median "
+                          "kernel frame (Dr.Jit's kernel history; docs/timing.md)")
     harness_breakdown_ms: dict[str, float] | None = Field(
-        None, description="harness milliseconds of each part of the median kernel frame: "
-                          "its own wall time less its own kernels, part by part (host "
-                          "work, tracing, launch gaps)")
+        None, description="harness milliseconds of each part of the median frame: its wall "
+                          "time less its kernel milliseconds (host work, tracing, launch "
+                          "gaps)")
     kernel_seconds_per_frame: float | None = Field(
-        None, description="kernel seconds of the median frame (device time; null for runs "
-                          "stored before kernel time was measured)")
+        None, description="kernel seconds of the median frame's stages (the kernel parts "
+                          "but 'other'; at most seconds_per_frame; null for runs stored "
+                          "before kernel time was measured)")
     harness_share: float | None = Field(
-        None, description="share of the median frame's wall time outside kernels: host "
-                          "work, Python tracing, launch gaps")
+        None, description="share of the median frame's stage time outside kernels: "
+                          "1 - kernel_seconds_per_frame / seconds_per_frame")
     timing_flags: list[str] = Field(
         default_factory=list, description="why the timing may not be trusted (a loaded "
                                           "machine)")
@@ -191,6 +218,7 @@ class RunResult(ResultMetrics):
     def fields_of(cls, run: Any) -> dict[str, Any]:
         """The field values of the stored ``run`` (jobs.record.models.Run)."""
         m, q = run.metrics, run.quality
+        split = device_split(run.timings) or {}
         return {
             **row_values(m), "id": run.id, "created_at": run.created_at,
             "name": run.name, "tags": run.tags or {},
@@ -202,10 +230,10 @@ class RunResult(ResultMetrics):
             "seeds": run.seeds, "seconds_per_frame": run.timings.get("seconds_per_frame"),
             "render_seconds_per_frame": render_seconds(run.timings),
             "time_breakdown_ms": breakdown_ms(run.timings),
-            "kernel_breakdown_ms": breakdown_ms(run.timings, "kernel_parts_s"),
-            "harness_breakdown_ms": breakdown_ms(run.timings, "harness_parts_s"),
-            "kernel_seconds_per_frame": device_split(run.timings)[0],
-            "harness_share": device_split(run.timings)[1],
+            "kernel_breakdown_ms": split.get("kernel_ms"),
+            "harness_breakdown_ms": split.get("harness_ms"),
+            "kernel_seconds_per_frame": split.get("kernel_s"),
+            "harness_share": split.get("harness_share"),
             "timing_flags": timing_flags(run.timings),
             "device_key": run.device_key, "git_commit": run.git_commit,
             "git_branch": run.git_branch, "quality": q, "verdict": q.get("verdict"),
