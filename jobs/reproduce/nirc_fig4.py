@@ -30,8 +30,8 @@ RESIDUAL_SAMPLES = 8
 QUANTITIES = {"flip": "FLIP (F-frame image)"}
 
 QUICK_WHY = ("--quick: 16x16, K = 3, F = 2 frames, epochs 0/10 before them: 2 scenes x "
-             "6 series x 2 points x 3 seeds = 72 renders, each training from scratch (about "
-             "10 min on the loaded 2-core CPU); FLIP at 16x16 is coarse (its filters span "
+             "6 series x 2 points x 3 seeds = 72 renders, each training from scratch (2.9 min "
+             "of CPU time, 12.5 min wall on the loaded 2-core machine); FLIP at 16x16 is coarse (its filters span "
              "several pixels), so compare series, not the paper's numbers")
 FULL_WHY = ("--full: 32x32, K = 6, F = 4 frames, epochs 0-120: the paper trains for "
             "hundreds of epochs at 1080p on a GPU, out of reach here")
