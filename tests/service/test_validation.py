@@ -66,6 +66,18 @@ def test_nan_and_infinity_are_422_naming_the_field(client, path, change, field):
     assert field in detail and ("finite" in detail or "valid integer" in detail), detail
 
 
+@pytest.mark.parametrize("path, field", [
+    ("/api/v1/jobs/1?wait_s=nan", "wait_s"),
+    ("/api/v1/ci/history?metric=mrse&scene=cornell-box&method=pt&alpha=nan", "alpha"),
+])
+def test_a_nan_query_number_is_422_saying_it_is_not_a_finite_number(client, path, field):
+    """A range check alone read NaN as above the maximum ('less than or equal to 60')."""
+    response = client.get(path)
+    assert response.status_code == 422, response.text
+    (error,) = response.json()["detail"]
+    assert error["loc"] == ["query", field] and error["msg"] == "Input should be a finite number"
+
+
 NOT_A_NUMBER = [
     ("/api/v1/jobs", {"resolution": "16"}, "resolution"),
     ("/api/v1/jobs", {"spp": True}, "spp"),

@@ -34,8 +34,9 @@ def history(store: StoreDep, metric: Name, scene: Name, method: Name,
             branch: Filter = None, res: Resolution = None, device: Filter = None,
             limit: Annotated[int, Query(ge=1, le=500, description="commits per series, "
                                                                   "newest")] = 100,
-            alpha: Annotated[float, Query(gt=0, lt=1, description="family-wise error rate "
-                                                                  "of the step test")]
+            alpha: Annotated[float, Query(gt=0, lt=1, allow_inf_nan=False,
+                                          description="family-wise error rate of the step "
+                                                      "test")]
             = STEP_ALPHA) -> HistoryOut:
     """The metric's values per commit of one method on one scene (median over the seeds of
     the commit's runs, an interval for it, n), one series per setting (resolution, spp,

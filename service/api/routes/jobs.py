@@ -256,10 +256,10 @@ def list_jobs(queue: QueueDep, settings: SettingsDep,
                         "wait_s, 429 while the service already holds its most long polls.")
 async def get_job(job_id: RowId, request: Request, queue: QueueDep, settings: SettingsDep,
                   wait_s: Annotated[float, Query(
-                      ge=0, le=60, description="long poll: answer when the job is final or "
-                                               "after this many seconds (at most the "
-                                               "service's long_poll_max_s), whichever is "
-                                               "first")] = 0) -> JobOut:
+                      ge=0, le=60, allow_inf_nan=False,
+                      description="long poll: answer when the job is final or after "
+                                  "this many seconds (at most the service's "
+                                  "long_poll_max_s), whichever is first")] = 0) -> JobOut:
     # Async, with each database read in a worker thread: a waiting poll holds no thread,
     # so polls cannot starve the thread pool that the other endpoints run on.
     deadline = time.monotonic() + min(wait_s, settings.long_poll_max_s)
