@@ -24,6 +24,8 @@ def _number(text: str, original: str, integer: bool) -> Decimal:
     except InvalidOperation:
         raise RangeError(f"'{original}': '{text}' is not a number; expected a:b, a:b:step "
                          "or a comma list like 1,2,4") from None
+    if value.is_nan():
+        raise RangeError(f"'{original}': '{text}' is not a number")
     if not value.is_finite():
         raise RangeError(f"'{original}': values must be finite")
     if integer and value != value.to_integral_value():

@@ -31,6 +31,13 @@ def test_malformed_ranges_are_clear_errors(text):
         parse_range(text)
 
 
+def test_nan_is_not_a_number_and_infinity_not_finite():
+    with pytest.raises(RangeError, match="'nan' is not a number"):
+        parse_range("0.1,nan")
+    with pytest.raises(RangeError, match="values must be finite"):
+        parse_range("0.1:inf")
+
+
 def test_integer_ranges_reject_fractions():
     with pytest.raises(RangeError, match="integer"):
         parse_range("1:4:0.5", integer=True)
