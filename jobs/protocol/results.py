@@ -94,13 +94,12 @@ OTHER_PART = "other"
 
 
 def device_split(timings: dict[str, Any]) -> dict[str, Any] | None:
-    """The median (wall) frame's parts split into kernel and harness by the kernel
-    frame's shares (docs/timing.md, "The median frame"): each part's kernel share of the
-    median kernel frame (its kernel over its own wall time of the part, in [0, 1]) times
-    the median frame's wall time of the part, and the rest harness; so each part's kernel
-    + harness is its wall time, and the frame's kernel time, summed over its stages,
-    never exceeds its frame time (a kernel frame slower than the wall frames, under load
-    or with more work, no longer shows more kernel time than the frame took). Returns
+    """The median (wall) frame's parts split into kernel and harness by the median kernel
+    frame's shares (docs/timing.md, "Kernel and harness beside the frame time"): each
+    part's kernel share of the median kernel frame (its kernel over its own wall time of
+    the part, in [0, 1]) times the median frame's wall time of the part, the rest
+    harness. So a part's kernel + harness is its wall time and the stages' kernel time
+    never exceeds the frame time, however slow the kernel frames were. Returns
     ``kernel_ms`` and ``harness_ms`` per part, the stages' ``kernel_s`` and its
     ``harness_share`` of their wall time; None for runs stored without kernel time."""
     frame = timings.get("breakdown") or {}
