@@ -47,6 +47,7 @@ FAMILY_COLOURS = {
     "cv-sh": "#499894",         # dark teal
     "cv-vmf": "#b6992d",        # olive
     "ss-nirc": "#ff9d9a",       # light red (screen-space NIRC, beside nirc)
+    "ncv": "#17becf",           # cyan (neural control variate)
 }
 #: Hues for families not in the table: the rest of Tableau 20 and Vega's category10.
 SPARE_COLOURS = ("#ffbe7d", "#86bcb6", "#f1ce63", "#fabfd2", "#1f77b4",

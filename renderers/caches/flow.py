@@ -138,6 +138,7 @@ def bin_edges(widths: Rows, heights: Rows) -> tuple[Rows, Rows]:
     for b, width in enumerate(widths[:-1]):
         lefts.append(lefts[-1] + width)
         belows.append(dr.fma(0.5 * (heights[b] + heights[b + 1]), width, belows[-1]))
+    dr.eval(lefts, belows)
     return lefts, belows
 
 
@@ -150,11 +151,11 @@ def locate(value: mi.Float, lefts: Rows) -> mi.UInt32:
 
 
 def pick(rows: Rows, index: mi.UInt32) -> mi.Float:
-    """Each lane's row ``index``: a gather from the rows stacked (lane-major per row),
-    cheaper to compile than a select per row and differentiable alike."""
-    lanes = max(dr.width(row) for row in rows)
-    return dr.gather(mi.Float, to_tensor(rows).array,
-                     index * lanes + dr.arange(mi.UInt32, lanes))
+    """Each lane's row ``index`` (the rows evaluated: one small kernel for any width)."""
+    value = rows[0]
+    for k, row in enumerate(rows[1:], start=1):
+        value = dr.select(index == k, row, value)
+    return value
 
 
 def quadratic_cdf(x: mi.Float, widths: Rows, heights: Rows) -> tuple[mi.Float, mi.Float]:
@@ -203,10 +204,23 @@ def coupling_mlp(config: FlowConfig) -> nn.Sequential:
 
 def network_rows(net: nn.Sequential, rows: Rows) -> Rows:
     """A tensor-mode MLP applied to feature rows, its outputs as rows."""
+    # Rows evaluated first: to_tensor's copy takes the width as a constant, so only
+    # that small copy compiles per width; an unevaluated input also made every
+    # matmul's kernel compile anew.
+    dr.eval(rows)
     inputs = to_tensor(rows)
-    dr.eval(inputs)   # an unevaluated input made every matmul's kernel compile anew
+    dr.eval(inputs)
     out = mlp_forward_tensor(net, inputs)
-    return [out[i].array for i in range(out.shape[0])]
+    lanes = out.shape[1]
+    lane = dr.arange(mi.UInt32, lanes)
+    return [dr.gather(mi.Float, out.array, lane + lane_count(i * lanes))
+            for i in range(out.shape[0])]
+
+
+def lane_count(value: int) -> mi.UInt32:
+    """An offset or count as an opaque array, not a literal of the kernel: the kernels
+    then serve every batch and wavefront width instead of compiling anew for each."""
+    return dr.opaque(mi.UInt32, value)
 
 
 class SphereFlow:

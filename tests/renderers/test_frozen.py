@@ -62,7 +62,9 @@ NOT_REPRODUCIBLE = {"grid-cache"}
 
 #: Methods whose frames are never frozen, and why.
 UNFROZEN = {"cv-vmf": "its frozen render recorded anew after most fits "
-                      "(renderers.caches.vmf.VMFModel)"}
+                      "(renderers.caches.vmf.VMFModel)",
+            "ncv": "its render evaluates the flow layer by layer (renderers.caches.flow); "
+                   "freezing it was not tried"}
 
 
 @pytest.mark.parametrize("name", [name for name in METHODS if name not in UNFROZEN])

@@ -108,9 +108,9 @@ def _features(**values):
 #: test_nvc_lights.py, test_nvc_env.py), as does `nirc-nvc-env`, whose two caches its
 #: own build makes; `restir-di`, `restir-nvc`, `neural-di` and
 #: `nrc-di` shade surface points (test_restir.py, test_neural_di.py, test_nrc_di.py), as
-#: do the control variates at first hits (test_control_variates.py).
+#: do the control variates at first hits (test_control_variates.py, test_ncv.py).
 NEED_A_SURFACE = {"nvc-lights", "nvc-env", "nirc-nvc-env", "restir-di", "restir-nvc",
-                  "neural-di", "nrc-di", "cv-sh", "cv-vmf"}
+                  "neural-di", "nrc-di", "cv-sh", "cv-vmf", "ncv"}
 #: Lighting each method needs besides (nvc-env: an environment map; restir-di: area
 #: emitters only, so none).
 ENVMAP = {"nvc-env": True, "nirc-nvc-env": True, "restir-di": False, "restir-nvc": False}
@@ -264,9 +264,10 @@ def test_every_cache_override_field_is_checked_at_parse_time():
         for field in fields:
             with pytest.raises(MethodError, match=f"{field}: unknown cache config field"):
                 parse_params(name, {field: {"no_such_setting": 1}})
-        # The control variates' model overrides (``sh``, ``vmf``): test_control_variates.py.
+        # The control variates' model overrides (``sh``, ``vmf``, ``ncv``):
+        # test_control_variates.py, test_ncv.py.
         assert bool(fields) == (name not in ("pt", "pt-power", "pt-spatial", "restir-di",
-                                             "cv-sh", "cv-vmf")), name
+                                             "cv-sh", "cv-vmf", "ncv")), name
 
 
 def test_checking_cache_overrides_does_not_import_mitsuba():

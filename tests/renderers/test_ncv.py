@@ -1,0 +1,108 @@
+"""The neural control variate `ncv` (renderers/caches/ncv.py, renderers/methods/ncv.py):
+unbiased with power against a closed-form reference, a planted wrong integral rejected,
+the method's renders reproducible with their memory stored.
+
+The reference is the furnace of test_control_variates.py (the camera inside a diffuse,
+uniformly emitting sphere: every pixel's expectation is known in closed form); per-pixel
+Šidák z-test and block chi^2 (metrics.statistics.agreement_test) on per-pixel moments.
+The networks are small (the estimator, not the capacity, is under test; the flow's own
+tests take the paper's sizes) and trained for a few frames of 64 samples a pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from metrics.statistics import agreement_test
+from renderers.methods import MethodError, get_method, parse_params
+from tests.renderers.test_control_variates import (
+    FURNACE,
+    FURNACE_SPP,
+    RES,
+    ScaledIntegral,
+    _furnace_expectation,
+    _integrator,
+    _load,
+)
+from tests.support.moments import render_moments
+
+#: A small model: 16 bins, MLPs of 2 x 32, a 4-level hash grid, steps of 1024 samples.
+SMALL = {"flow": {"bins": 16, "width": 32, "hidden_layers": 2},
+         "integral_width": 32, "integral_hidden_layers": 2,
+         "position": {"n_levels": 4, "log2_hashmap_size": 10, "base_resolution": 4},
+         "batch_size": 1024, "steps_per_frame": 4, "learning_rate": 1e-2}
+#: Training: frames of SPP samples a pixel (the method render below uses the same spp,
+#: so that both compile the same kernels).
+FRAMES, SPP = 4, 64
+
+
+@pytest.fixture(scope="module")
+def furnace(mi, tmp_path_factory):
+    return _load(tmp_path_factory, FURNACE)
+
+
+def _trained(mi, scene):
+    """(integrator, model) trained for FRAMES frames, the training then frozen."""
+    from renderers.caches.ncv import NCVConfig, NCVModel
+
+    model = NCVModel(NCVConfig(**SMALL), scene.scene, seed=1)
+    integrator = _integrator(mi, model)
+    for frame in range(FRAMES):
+        mi.render(scene.scene, integrator=integrator, spp=SPP, seed=1000 + frame)
+        model.fit(integrator.records)
+    integrator.fitting = False
+    return integrator, model
+
+
+def test_ncv_agrees_with_the_furnace_lowers_its_variance_and_a_scaled_integral_is_rejected(
+        mi, furnace):
+    """The trained control variate agrees with the closed form and lowers the variance
+    below the plain estimator's (g = 0: the first frame's); its integral G scaled by
+    1.05 (g unchanged) is rejected."""
+    expected = _furnace_expectation(mi)
+    integrator, model = _trained(mi, furnace)
+    mean, variance = render_moments(furnace.scene, integrator, FURNACE_SPP, seed=2)
+    result = agreement_test(mean, variance, *expected)
+    assert result.passed, result.summary()
+
+    from renderers.caches.sh import SHConfig, SHModel
+
+    plain = _integrator(mi, SHModel(SHConfig(bands=1), RES * RES))   # zero: g = 0
+    plain.fitting = False
+    _, plain_variance = render_moments(furnace.scene, plain, FURNACE_SPP, seed=3)
+    ratio = np.median(variance / plain_variance)
+    print(f"median variance ratio NCV / plain {ratio:.3f}")
+    assert ratio < 0.5, f"median variance ratio NCV / plain {ratio:.3f}"
+
+    integrator.with_model(ScaledIntegral(model))
+    assert not agreement_test(*render_moments(furnace.scene, integrator, FURNACE_SPP, seed=4),
+                              *expected).passed
+
+
+def test_an_ncv_render_is_reproducible_and_stores_its_memory(mi, furnace):
+    from tests.support.untimed import UNTIMED
+
+    method = get_method("ncv")
+    values = parse_params("ncv", {"max_depth": 3, "ncv": {**SMALL, "steps_per_frame": 1}})
+    a, b = (method.render(furnace, values, seed_parts=("ncv",), spp=SPP, frames=1,
+                          hooks=UNTIMED) for _ in range(2))
+    np.testing.assert_array_equal(a.accumulated, b.accumulated)
+    model = a.method_stats["model"]
+    per_pixel = model["floats_per_pixel"]["per_pixel_buffers"]
+    assert per_pixel == {"surface": 6, "condition": 4 * 2 + 3 * 4, "integral": 3}
+    shared = sum(model["parameters"].values()) / (RES * RES)
+    assert model["floats_per_pixel"]["model"] == pytest.approx(sum(per_pixel.values()) + shared)
+    assert model["steps"] == 2 and model["nonfinite_samples"] == 0   # warm-up and frame
+    assert set(a.timings["stages"]) == {"render", "fit"}
+
+
+@pytest.mark.parametrize("values, fragment", [
+    ({"ncv": {"flow": {"bins": 1}}}, "ncv: flow.bins"),
+    ({"ncv": {"batch_size": 0}}, "ncv: batch_size"),
+    ({"ncv": {"lobes": 3}}, "ncv: lobes"),
+    ({"max_depth": 1}, "max_depth"),
+])
+def test_invalid_ncv_parameters(values, fragment):
+    with pytest.raises(MethodError, match=fragment):
+        parse_params("ncv", values)
