@@ -132,8 +132,9 @@ class Frozen:
         self._scene: SceneLayout | None = None   # of the last scene handed over
 
     def __call__(self, *args: Any) -> Any:
-        # A scene's geometry generation is part of the key: a replay after a mesh moved
-        # would use the recorded geometry (tests/renderers/test_animation.py).
+        # A scene's generation is part of the key: a replay after a mesh moved would use
+        # the recorded geometry (tests/renderers/test_animation.py), and one after its
+        # emitters changed a light selector's recorded constants.
         generations = tuple(scene_generation(arg) for arg in args if is_scene(arg))
         args = tuple(self._arrays(arg) if is_scene(arg) else arg for arg in args)
         key = CallKey.of((generations, *args))
@@ -266,22 +267,32 @@ _VALUES = (int, float, complex, str, bytes, type(None), enum.Enum)
 
 #: Geometry generations of scenes by ``id``: bumped by :func:`geometry_changed`.
 _GEOMETRY: dict[int, int] = {}
+#: The emitters' and shapes' state of scenes by ``id``: set by :func:`lights_changed`.
+_LIGHTS: dict[int, str] = {}
 
 
 def geometry_changed(scene: Any) -> None:
-    """Say that ``scene``'s shapes moved or its emitters changed (``params.update()``):
-    frozen calls given it record again, and light selectors built for it are built
-    again (renderers.integrators.lights.current_sampler: their power and position
-    tables would be stale, and a recording holds some of them as constants). Measured
-    with Mitsuba 3.9.1: a replay after a mesh's ``vertex_positions`` changed rendered the
-    old geometry in part (the moved box's pixels differed from a traced render by up to
-    0.13), while a changed ``to_world`` of a shape or a changed radiance was followed."""
+    """Say that ``scene``'s mesh vertices changed (``params.update()``): frozen calls
+    given it record again. Measured with Mitsuba 3.9.1: a replay after a mesh's
+    ``vertex_positions`` changed rendered the old geometry in part (the moved box's
+    pixels differed from a traced render by up to 0.13), while a changed ``to_world`` of
+    a shape or a changed radiance was followed."""
     _GEOMETRY[id(scene)] = _GEOMETRY.get(id(scene), 0) + 1
 
 
-def scene_generation(scene: Any) -> int:
-    """How many times :func:`geometry_changed` was said of ``scene``."""
-    return _GEOMETRY.get(id(scene), 0)
+def lights_changed(scene: Any, state: str) -> None:
+    """Say that ``scene``'s emitters and shapes are now in the state named ``state``
+    (``params.update()``): light selectors built for another state are built again
+    (renderers.integrators.lights.current_sampler: their power and position tables
+    would be stale), and frozen calls replay a recording of this state, or record one
+    (a recording holds some of those tables as constants)."""
+    _LIGHTS[id(scene)] = state
+
+
+def scene_generation(scene: Any) -> tuple[int, str]:
+    """What a recording or a light selector of ``scene`` was made for: its geometry
+    generation and its emitters' and shapes' state."""
+    return _GEOMETRY.get(id(scene), 0), _LIGHTS.get(id(scene), "")
 
 
 def is_scene(value: Any) -> bool:

@@ -88,8 +88,8 @@ class LightSampler:
     #: that :meth:`frame_arrays` does not hand over: a frame that uses it is not frozen
     #: (renderers.frozen), since a replay would not see the new values.
     stateful = False
-    #: The scene's generation it was built at (:func:`current_sampler`).
-    generation = 0
+    #: The scene's generation it was built for (:func:`current_sampler`).
+    generation: tuple[int, str] | None = None
     #: The attributes holding the per-scene Dr.Jit data the selection reads: a frozen
     #: frame takes them as arguments (:meth:`frame_arrays`, :meth:`bind`), since a
     #: recording may only read Dr.Jit values it was given.
@@ -202,8 +202,8 @@ class UniformLightSampler(LightSampler):
 def current_sampler(sampler: LightSampler | None, scene: mi.Scene,
                     kind: type[LightSampler]) -> LightSampler:
     """``sampler``, or a new ``kind(scene)`` where it is of another kind, for another
-    scene, or built before the scene's shapes moved or its emitters changed
-    (renderers.frozen.geometry_changed: its emitter powers and positions would be
+    scene, or built for another state of the scene's shapes and emitters
+    (renderers.frozen.scene_generation: its emitter powers and positions would be
     stale; a stale pmf stays positive, so it costs variance, not bias)."""
     from renderers.frozen import scene_generation
 

@@ -281,7 +281,7 @@ class ReSTIRDI:
     def render(self, seed: int) -> mi.TensorXf:
         """One frame, its reservoirs kept for the next: a (replicas, height, width, 4)
         tensor of RGB and whether a surface was hit."""
-        # Built again after the scene's emitters changed (an animation's update).
+        # Built again after the scene's emitters or shapes changed (an animation's update).
         self.lights = current_sampler(self.lights, self.scene, type(self.lights))
         image, self.history = self._frame(self.scene, mi.UInt32(seed), self.history,
                                           self.lights.frame_arrays())

@@ -265,7 +265,6 @@ class AnimationPlayer:
         self._current: str | None = None
         self._rest: dict[str, Any] = {}
         self._moved: dict[str, np.ndarray] = {}   # the last matrix applied to each shape
-        self._emitter_scales: dict[str, float] | None = None   # the last ones applied
         if animation.camera:
             sensor = scene.sensors()[0].id()
             self._camera = (f"{sensor}.to_world", f"{sensor}.x_fov")
@@ -314,7 +313,7 @@ class AnimationPlayer:
         import drjit as dr
         import mitsuba as mi
 
-        from renderers.frozen import geometry_changed
+        from renderers.frozen import geometry_changed, lights_changed
 
         state_key = self.animation.state_key(frame)
         if state_key == self._current:
@@ -327,23 +326,23 @@ class AnimationPlayer:
                 look_at_matrix(position, target, up))
             if fov is not None:
                 self.params[self._camera[1]] = fov
-        # A moved shape or a changed emitter: frozen calls record again and light
-        # selection tables (emitter powers, positions) are built again.
-        changed = state.emitters != self._emitter_scales
+        meshes_moved = False
         for motion in self.animation.shapes:
             translate, angle = state.shapes[motion.shape]
             key = self._shapes[motion.shape]
             matrix = rigid_matrix(translate, angle, motion.axis, motion.pivot)
             if not np.array_equal(matrix, self._moved.get(key)):
                 self._move(key, matrix)
-                changed = True
+                meshes_moved |= key.endswith(".vertex_positions")
         for name, scale in state.emitters.items():
             radiance = self._emitters[name]
             self.params[radiance] = self._rest[radiance] * scale
-        self._emitter_scales = state.emitters
         self.params.update()
-        if changed:
+        if meshes_moved:
             geometry_changed(self.scene)
+        # Light selection tables (emitter powers, positions) follow shapes and emitters.
+        lights_changed(self.scene, digest("animation-lights", json_rounded(
+            state.model_dump(mode="json", include={"shapes", "emitters"}))))
         dr.sync_thread()
         self.update_seconds.append(time.perf_counter() - start)
         self._current = state_key
