@@ -21,7 +21,6 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 #: Relative excess over the steady error within which a frame counts as recovered.
 RECOVERY_TOLERANCE = 0.10
@@ -42,6 +41,8 @@ def frame_error_curve(errors: np.ndarray, confidence: float = CONFIDENCE) -> dic
     mean = errors.mean(axis=0)
     if seeds < 2:
         return {"mean": mean.tolist(), "low": None, "high": None, "seeds": seeds}
+    from scipy import stats  # imported here: a render process starts without it
+
     half = stats.t.ppf(0.5 + confidence / 2, seeds - 1) * errors.std(axis=0, ddof=1) \
         / np.sqrt(seeds)
     return {"mean": mean.tolist(), "low": (mean - half).tolist(),
