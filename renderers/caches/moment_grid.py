@@ -134,10 +134,10 @@ class MomentGrid:
 
     #: The arrays a lookup reads (:meth:`lookup_arrays`, :meth:`bind_lookup`): what a frozen
     #: render that looks the grid up takes as its arguments (renderers.frozen).
-    LOOKUP_ARRAYS = ("keys", "count", "mean", "second", "marginal", "bias", "deferred")
-    #: Every array of its state: the lookup's, the bias's count and the representatives
-    #: (:meth:`arrays`).
-    ARRAYS = (*LOOKUP_ARRAYS, "bias_count", "vertices", "vertex_used")
+    LOOKUP_ARRAYS = ("keys", "count", "mean", "second", "marginal", "bias", "bias_count",
+                     "deferred")
+    #: Every array of its state: the lookup's and the representatives (:meth:`arrays`).
+    ARRAYS = (*LOOKUP_ARRAYS, "vertices", "vertex_used")
 
     def __init__(self, config: MomentGridConfig) -> None:
         self.config = config

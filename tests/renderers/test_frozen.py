@@ -217,9 +217,12 @@ def grid_cache(scenes):
     return scene, params, integrator, updater, grid
 
 
-def test_a_frozen_grid_cache_render_matches_the_traced_one(grid_cache):
+@pytest.mark.parametrize("termination", ["var-bound", "mse-min"])
+def test_a_frozen_grid_cache_render_matches_the_traced_one(grid_cache, termination):
     """Between propagation passes (which change the grid's records): a replayed render
-    gives the traced render's image bitwise, from the grid as it is now."""
+    gives the traced render's image bitwise, from the grid as it is now. Each policy
+    reads its own arrays of the grid (mse-min the squared bias and whether a record has
+    one): a policy reading one the frozen render is not handed fails its recording."""
     import mitsuba as mi
 
     from renderers.methods import grid_cache as method
@@ -227,6 +230,8 @@ def test_a_frozen_grid_cache_render_matches_the_traced_one(grid_cache):
     from renderers.timing import StageTimer
 
     scene, params, integrator, updater, grid = grid_cache
+    integrator.policy = parse_params(
+        "grid-cache", {"max_depth": 3, "termination": termination}).termination_policy()
     with frozen_frames(True):
         frame = render_stage(scene, integrator, 1)
     for index in range(4):
