@@ -147,10 +147,12 @@ def test_correlated_pixels_are_not_rejected_for_their_correlation():
     reference = (np.ones((8, 8, 3)), np.full((8, 8, 3), 1e-4))
     shared = 0.1 * rng.standard_normal((8, 1, 1, 1))
     images = list(1.0 + shared + 0.01 * rng.standard_normal((8, 8, 8, 3)))
-    assert stress.agreement(images, reference, 0.01)[0] == "DIFFERS"
-    assert stress.agreement(images, reference, 0.01, correlated_pixels=True)[0] == "agrees"
+    assert stress.agreement(images, reference, 0.01, samples_ratio=1.0)[0] == "DIFFERS"
+    assert stress.agreement(images, reference, 0.01, correlated_pixels=True,
+                            samples_ratio=1.0)[0] == "agrees"
     brighter = [1.3 * image for image in images]
-    assert stress.agreement(brighter, reference, 0.01, correlated_pixels=True)[0] == "DIFFERS"
+    assert stress.agreement(brighter, reference, 0.01, correlated_pixels=True,
+                            samples_ratio=1.0)[0] == "DIFFERS"
 
 
 def _correct_row(rng: np.random.Generator, level: float) -> str:
@@ -160,7 +162,7 @@ def _correct_row(rng: np.random.Generator, level: float) -> str:
     passes = truth + 0.2 * rng.standard_normal((16, 8, 8, 3))
     reference = (passes.mean(axis=0), passes.var(axis=0, ddof=1) / 16)
     return stress.agreement(list(truth + 0.2 * rng.standard_normal((8, 8, 8, 3))),
-                            reference, level)[0]
+                            reference, level, samples_ratio=16 / 8)[0]
 
 
 @pytest.mark.slow
@@ -175,6 +177,69 @@ def test_correct_methods_rarely_fail_the_suite_by_chance():
     differed = sum(_correct_row(rng, level) == "DIFFERS"
                    for _ in range(4 * stress.required_pairs()))
     assert differed == 0
+
+
+#: The CI's stress run: K = 4 seeds of 2 spp x 2 frames, a 256-spp reference.
+CI_SEEDS, CI_SAMPLES, CI_REFERENCE_SPP = 4, 4, 256
+
+
+def _sampled_render(rng: np.random.Generator, draw, seeds: int = CI_SEEDS,
+                    scale: float = 1.0):
+    """(seeds' images, reference moments, samples ratio) of a render whose samples
+    ``draw(rng, count)`` gives, (count, 8, 8, 3) each, at the CI's sample counts; the
+    seeds' images ``scale`` times too bright."""
+    samples = draw(rng, seeds * CI_SAMPLES).reshape(seeds, CI_SAMPLES, 8, 8, 3)
+    images = list(scale * samples.mean(1))
+    passes = draw(rng, CI_REFERENCE_SPP)
+    reference = (passes.mean(0), passes.var(0, ddof=1) / CI_REFERENCE_SPP)
+    return images, reference, CI_REFERENCE_SPP / (seeds * CI_SAMPLES)
+
+
+def _rare_hits(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Samples of a black image but for 4 pixels of one tile that a bright shape covers
+    3-8 % of (the box's edge in ``near-black``): a sample there is 30 or 0."""
+    coverage = np.zeros((8, 8, 1))
+    coverage[4:7, 4:6, 0] = [[0.04, 0.05], [0.08, 0.0], [0.03, 0.0]]
+    return np.repeat(30.0 * (rng.random((count, 8, 8, 1)) < coverage), 3, axis=-1)
+
+
+def test_seeds_that_miss_a_rare_contribution_are_not_rejected():
+    """Correct renders of pixels that a bright shape covers a few percent of, at the CI's
+    sample counts: the seeds' variance floored at half the reference integrator's
+    (stress.floored_variance) rejects none of 120; the seeds' variance alone
+    (samples_ratio 0: the test before) rejects several (measured 7), as it rejected
+    `cv-sh` on `near-black` (all 16 samples of a pixel 0: variance 0)."""
+    rng = np.random.default_rng(7)
+    level = stress.agreement_level(0.01)
+    renders = [_sampled_render(rng, _rare_hits) for _ in range(120)]
+    floored = sum(stress.agreement(images, reference, level, samples_ratio=ratio)[0]
+                  == "DIFFERS" for images, reference, ratio in renders)
+    unfloored = sum(stress.agreement(images, reference, level, samples_ratio=0.0)[0]
+                    == "DIFFERS" for images, reference, _ in renders)
+    assert floored == 0
+    assert unfloored >= 2
+
+
+def test_the_variance_floor_keeps_the_power_against_a_brighter_render():
+    """Renders 10 % too bright (normal pixel noise, 8 seeds of the CI's samples): the
+    floored test rejects about as many as the seeds' variance alone (measured 42 of 60
+    each), and most; renders 20 % too bright it rejects all."""
+    rng = np.random.default_rng(8)
+    level = stress.agreement_level(0.01)
+    truth = rng.uniform(0.5, 1.5, (8, 8, 3))
+
+    def noisy(rng, count):
+        return truth + rng.standard_normal((count, 8, 8, 3))
+
+    renders = [_sampled_render(rng, noisy, seeds=8, scale=1.1) for _ in range(60)]
+    floored = sum(stress.agreement(images, reference, level, samples_ratio=ratio)[0]
+                  == "DIFFERS" for images, reference, ratio in renders)
+    unfloored = sum(stress.agreement(images, reference, level, samples_ratio=0.0)[0]
+                    == "DIFFERS" for images, reference, _ in renders)
+    assert floored >= 0.9 * unfloored and floored > 30, (floored, unfloored)
+    brighter = [_sampled_render(rng, noisy, seeds=8, scale=1.2) for _ in range(10)]
+    assert all(stress.agreement(images, reference, level, samples_ratio=ratio)[0]
+               == "DIFFERS" for images, reference, ratio in brighter)
 
 
 def test_the_table_has_a_row_per_case_and_method(report):
