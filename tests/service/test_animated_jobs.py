@@ -8,10 +8,14 @@ from __future__ import annotations
 import pytest
 from rich.console import Console
 
+from jobs.protocol.executor import execute
+from jobs.protocol.job import RenderJob
 from jobs.protocol.results import RunResultDetail
+from jobs.protocol.spec import RenderSpec
 from jobs.record.config import Settings
+from jobs.record.db import open_store
 from service.tables import metrics_table
-from tests.service.test_api import _api, _wait
+from tests.service.test_api import ThreadDispatcher, _api
 
 #: cornell-box-sudden changes at frame 8: frames 8-12 are the segment after it (the
 #: steady window of 4 frames and one before it). 4x4 pixels, 2 seeds, a small reference.
@@ -22,6 +26,8 @@ ANIMATED = {"scene": "cornell-box-sudden", "method": "pt", "resolution": 4, "spp
 @pytest.fixture
 def api(data_folder, monkeypatch):
     monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    # Jobs stay queued: what runs them is the executor's, tested below in-process.
+    monkeypatch.setattr(ThreadDispatcher, "submit", lambda self, job: None)
     yield from _api(Settings(data_dir=data_folder))
 
 
@@ -56,16 +62,24 @@ def test_an_animation_of_an_animated_scene_is_422(api):
     assert "animated already" in response.text
 
 
-def test_an_animated_scene_job_runs_and_its_table_shows_frames_and_recovery(api):
+def test_a_job_names_an_animated_scene_and_is_queued(api):
     client = api[0]
     response = client.post("/api/v1/jobs", json=ANIMATED)
     assert response.status_code == 202, response.text
-    job = _wait(client, response.json()["id"])
-    assert job["status"] == "succeeded", job
-    run = client.get(f"/api/v1/runs/{job['run_id']}").json()
-    animation = run["metrics"]["animation"]
+    queued = client.get(f"/api/v1/jobs/{response.json()['id']}").json()
+    assert queued["spec"]["scene"] == "cornell-box-sudden", queued
+
+
+def test_an_animated_runs_table_shows_frames_recovery_and_the_update(data_folder, mi):
+    """The table `render` prints and `runs show` starts with, of a stored animated run."""
+    settings = Settings(data_dir=data_folder)
+    store = open_store(settings)
+    summary = execute(RenderJob.parse(RenderSpec.model_validate(ANIMATED)), store, settings)
+    run = RunResultDetail.of(store.get_run(summary.run_id))   # as `runs show` reads it
+    store.close()
+    animation = run.metrics["animation"]
     assert animation["change_frames"] == [8]
-    text = _text(metrics_table(RunResultDetail.model_validate(run)))
+    text = _text(metrics_table(run))
     curve = animation["frame_mrse"]["mean"]
     # Each segment's first and last frame, with its error as stored.
     for frame in (0, 7, 8, 12):
