@@ -42,7 +42,7 @@ Each colour channel has a flow of its own (2R MLPs each). The MLPs run in tensor
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import drjit as dr
@@ -102,19 +102,64 @@ def from_cylindrical(u1: mi.Float, u2: mi.Float) -> mi.Vector3f:
     return mi.Vector3f(sin_t * cos_p, sin_t * sin_p, cos_t)
 
 
-def bin_shape(raw: Sequence[mi.Float], bins: int) -> tuple[Rows, Rows]:
-    """Normalised widths W_1..K and vertex heights V_1..K+1 from an MLP's raw outputs
-    (NIS Eq. 8, module docstring); the maxima are subtracted for range only."""
-    raw_widths, raw_heights = list(raw[:bins]), list(raw[bins:])
-    top = dr.detach(_maximum(raw_widths))
-    exp_widths = [dr.exp(w - top) for w in raw_widths]
-    total = _sum(exp_widths)
-    widths = [e / total for e in exp_widths]
-    top = dr.detach(_maximum(raw_heights))
-    exp_heights = [dr.exp(h - top) for h in raw_heights]
-    area = _sum([0.5 * (exp_heights[b] + exp_heights[b + 1]) * widths[b]
-                 for b in range(bins)])
-    return widths, [h / area for h in exp_heights]
+@dataclass
+class BinTable:
+    """The K bins of every lane's transform, lane-major (lane n's bin b at n K + b):
+    widths W_b, the heights V_b and V_{b+1} at the bin's vertices, its left edge and the
+    CDF there. Arrays of K N values cost a few Dr.Jit operations per layer, where one
+    array per bin cost thousands (the Python side dominated small renders)."""
+
+    bins: int
+    widths: mi.Float
+    left_heights: mi.Float
+    right_heights: mi.Float
+    lefts: mi.Float
+    belows: mi.Float
+
+    def locate(self, value: mi.Float, edges: mi.Float) -> mi.UInt32:
+        """Per lane, the last bin whose edge (``lefts`` or ``belows``) ``value`` reaches."""
+        reached = dr.block_sum(dr.select(dr.repeat(value, self.bins) >= edges, 1.0, 0.0),
+                               self.bins)
+        return mi.UInt32(dr.clip(reached - 1.0, 0.0, self.bins - 1.0))
+
+    def pick(self, values: mi.Float, index: mi.UInt32) -> mi.Float:
+        """Each lane's entry ``index`` of a per-bin array."""
+        lanes = dr.width(values) // self.bins
+        return dr.gather(mi.Float, values, dr.arange(mi.UInt32, lanes) * self.bins + index)
+
+
+def bin_widths(raw: mi.Float, bins: int) -> mi.Float:
+    """W_b = exp(W^_b) / sum_k exp(W^_k) per lane (NIS Eq. 8); the lane's maximum is
+    subtracted for range only."""
+    top = dr.repeat(dr.block_reduce(dr.ReduceOp.Max, dr.detach(raw), bins), bins)
+    exp_widths = dr.exp(raw - top)
+    return exp_widths / dr.repeat(dr.block_sum(exp_widths, bins), bins)
+
+
+def bin_table(raw: mi.TensorXf, bins: int) -> BinTable:
+    """The bins from an MLP's raw outputs (rows W^_1..K, V^_1..K+1; NIS Eq. 8):
+    V_b = exp(V^_b) / sum_k (exp(V^_k) + exp(V^_{k+1})) / 2 W_k, so the density is
+    continuous and integrates to 1."""
+    lanes = raw.shape[1]
+    slot = dr.arange(mi.UInt32, bins * lanes)
+    lane, b = slot // bins, slot % bins
+
+    def rows(first: int) -> mi.Float:   # row first + b of each lane, lane-major
+        return dr.gather(mi.Float, raw.array, dr.fma(b + first, lane_count(lanes), lane))
+
+    widths = bin_widths(rows(0), bins)
+    raw_left, raw_right = rows(bins), rows(bins + 1)
+    top = dr.repeat(dr.block_reduce(dr.ReduceOp.Max, dr.detach(dr.maximum(raw_left, raw_right)),
+                                    bins), bins)
+    exp_left, exp_right = dr.exp(raw_left - top), dr.exp(raw_right - top)
+    area = dr.repeat(dr.block_sum(0.5 * (exp_left + exp_right) * widths, bins), bins)
+    left, right = exp_left / area, exp_right / area
+    table = BinTable(bins, widths, left, right,
+                     lefts=dr.block_prefix_sum(widths, bins, exclusive=True),
+                     belows=dr.block_prefix_sum(0.5 * (left + right) * widths, bins,
+                                                exclusive=True))
+    dr.eval(table.widths, table.left_heights, table.right_heights, table.lefts, table.belows)
+    return table
 
 
 def bin_density(fraction: mi.Float, left: mi.Float, right: mi.Float) -> mi.Float:
@@ -132,65 +177,25 @@ def bin_fraction(mass: mi.Float, width: mi.Float, left: mi.Float,
     return dr.clip(2.0 * mass / dr.maximum(linear + dr.sqrt(discriminant), 1e-30), 0.0, 1.0)
 
 
-def bin_edges(widths: Rows, heights: Rows) -> tuple[Rows, Rows]:
-    """Each bin's left edge sum_{k<b} W_k and the CDF there, sum_{k<b} (V_k + V_{k+1}) / 2 W_k."""
-    lefts, belows = [mi.Float(0.0)], [mi.Float(0.0)]
-    for b, width in enumerate(widths[:-1]):
-        lefts.append(lefts[-1] + width)
-        belows.append(dr.fma(0.5 * (heights[b] + heights[b + 1]), width, belows[-1]))
-    dr.eval(lefts, belows)
-    return lefts, belows
-
-
-def locate(value: mi.Float, lefts: Rows) -> mi.UInt32:
-    """The bin whose left edge is the last that ``value`` reaches (bin 0 below all)."""
-    index = mi.UInt32(0)
-    for left in lefts[1:]:
-        index += dr.select(value >= left, 1, 0)
-    return index
-
-
-def pick(rows: Rows, index: mi.UInt32) -> mi.Float:
-    """Each lane's row ``index`` (the rows evaluated: one small kernel for any width)."""
-    value = rows[0]
-    for k, row in enumerate(rows[1:], start=1):
-        value = dr.select(index == k, row, value)
-    return value
-
-
-def quadratic_cdf(x: mi.Float, widths: Rows, heights: Rows) -> tuple[mi.Float, mi.Float]:
+def quadratic_cdf(x: mi.Float, table: BinTable) -> tuple[mi.Float, mi.Float]:
     """(C(x), C'(x)) of the piecewise-quadratic transform (module docstring)."""
-    lefts, belows = bin_edges(widths, heights)
-    b = locate(x, lefts)
-    width, left, right = pick(widths, b), pick(heights[:-1], b), pick(heights[1:], b)
-    fraction = dr.clip((x - pick(lefts, b)) / width, 0.0, 1.0)
-    y = pick(belows, b) + width * fraction * dr.fma(0.5 * fraction, right - left, left)
+    b = table.locate(x, table.lefts)
+    width = table.pick(table.widths, b)
+    left, right = table.pick(table.left_heights, b), table.pick(table.right_heights, b)
+    fraction = dr.clip((x - table.pick(table.lefts, b)) / width, 0.0, 1.0)
+    y = table.pick(table.belows, b) + width * fraction * dr.fma(0.5 * fraction, right - left,
+                                                                left)
     return y, bin_density(fraction, left, right)
 
 
-def quadratic_inverse(y: mi.Float, widths: Rows,
-                      heights: Rows) -> tuple[mi.Float, mi.Float]:
+def quadratic_inverse(y: mi.Float, table: BinTable) -> tuple[mi.Float, mi.Float]:
     """(C^-1(y), C'(C^-1(y))): the bin whose CDF range holds y, then :func:`bin_fraction`."""
-    lefts, belows = bin_edges(widths, heights)
-    b = locate(y, belows)
-    width, left, right = pick(widths, b), pick(heights[:-1], b), pick(heights[1:], b)
-    fraction = bin_fraction(y - pick(belows, b), width, left, right)
-    return dr.clip(dr.fma(fraction, width, pick(lefts, b)), 0.0, 1.0), \
+    b = table.locate(y, table.belows)
+    width = table.pick(table.widths, b)
+    left, right = table.pick(table.left_heights, b), table.pick(table.right_heights, b)
+    fraction = bin_fraction(y - table.pick(table.belows, b), width, left, right)
+    return dr.clip(dr.fma(fraction, width, table.pick(table.lefts, b)), 0.0, 1.0), \
         bin_density(fraction, left, right)
-
-
-def _maximum(rows: Sequence[mi.Float]) -> mi.Float:
-    top = rows[0]
-    for row in rows[1:]:
-        top = dr.maximum(top, row)
-    return top
-
-
-def _sum(rows: Sequence[mi.Float]) -> mi.Float:
-    total = rows[0]
-    for row in rows[1:]:
-        total = total + row
-    return total
 
 
 def coupling_mlp(config: FlowConfig) -> nn.Sequential:
@@ -202,15 +207,20 @@ def coupling_mlp(config: FlowConfig) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def network_rows(net: nn.Sequential, rows: Rows) -> Rows:
-    """A tensor-mode MLP applied to feature rows, its outputs as rows."""
+def network_tensor(net: nn.Sequential, rows: Rows) -> mi.TensorXf:
+    """A tensor-mode MLP applied to feature rows: outputs of shape (outputs, N)."""
     # Rows evaluated first: to_tensor's copy takes the width as a constant, so only
     # that small copy compiles per width; an unevaluated input also made every
     # matmul's kernel compile anew.
     dr.eval(rows)
     inputs = to_tensor(rows)
     dr.eval(inputs)
-    out = mlp_forward_tensor(net, inputs)
+    return mlp_forward_tensor(net, inputs)
+
+
+def network_rows(net: nn.Sequential, rows: Rows) -> Rows:
+    """:func:`network_tensor`'s outputs as rows."""
+    out = network_tensor(net, rows)
     lanes = out.shape[1]
     lane = dr.arange(mi.UInt32, lanes)
     return [dr.gather(mi.Float, out.array, lane + lane_count(i * lanes))
@@ -248,21 +258,18 @@ class SphereFlow:
                 for key in list(net.keys()):
                     net[key] = parameters[f"flow.{c}.{k}.{key}"]
 
-    def _shape(self, channel: int, layer: int, passed: mi.Float,
-               condition: Rows) -> tuple[Rows, Rows]:
+    def _table(self, channel: int, layer: int, passed: mi.Float, condition: Rows) -> BinTable:
         rows = one_blob(passed, self.config.blob_bins) + list(condition)
-        shape = bin_shape(network_rows(self.networks[channel][layer], rows), self.config.bins)
-        dr.eval(shape)
-        return shape
+        return bin_table(network_tensor(self.networks[channel][layer], rows), self.config.bins)
 
     def _check(self, condition: Rows) -> None:
         if len(condition) != self.n_condition:
             raise ValueError(f"the flow is conditioned on {self.n_condition} features, "
                              f"got {len(condition)}")
 
-    # Every layer's bin shape and transform are evaluated on their own: the layers then
-    # reuse the same few kernels, where one kernel of the whole flow compiled for seconds
-    # anew whenever the set of arrays it kept changed.
+    # Every layer's bins and transform are evaluated on their own: the layers then reuse
+    # the same few kernels, where one kernel of the whole flow compiled for seconds anew
+    # whenever the set of arrays it kept changed.
     def forward(self, u: tuple[mi.Float, mi.Float], condition: Rows,
                 channel: int) -> tuple[tuple[mi.Float, mi.Float], mi.Float]:
         """(z, log |det dz/du|): data on the square to the uniform latent."""
@@ -270,8 +277,8 @@ class SphereFlow:
         z, log_det = [mi.Float(u[0]), mi.Float(u[1])], mi.Float(0.0)
         for layer in range(self.config.couplings):
             a = layer % 2
-            widths, heights = self._shape(channel, layer, z[1 - a], condition)
-            z[a], density = quadratic_cdf(z[a], widths, heights)
+            z[a], density = quadratic_cdf(z[a], self._table(channel, layer, z[1 - a],
+                                                            condition))
             log_det += dr.log(density)
             dr.eval(z[a], log_det)
         return (z[0], z[1]), log_det
@@ -283,8 +290,8 @@ class SphereFlow:
         u, log_det = [mi.Float(z[0]), mi.Float(z[1])], mi.Float(0.0)
         for layer in reversed(range(self.config.couplings)):
             a = layer % 2
-            widths, heights = self._shape(channel, layer, u[1 - a], condition)
-            u[a], density = quadratic_inverse(u[a], widths, heights)
+            u[a], density = quadratic_inverse(u[a], self._table(channel, layer, u[1 - a],
+                                                                condition))
             log_det -= dr.log(density)
             dr.eval(u[a], log_det)
         return (u[0], u[1]), log_det

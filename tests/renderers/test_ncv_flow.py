@@ -96,16 +96,17 @@ def test_density_integrates_to_one_on_the_sphere(monkeypatch: pytest.MonkeyPatch
     assert np.all(np.abs(integrals - 1.0) < 5e-3), integrals
     assert contrast > 100.0, contrast   # far from uniform, or the test would show little
 
-    # Planted: the widths' softmax normalised without the last bin (the heights
-    # normalised consistently with those widths): the density spills past u = 1.
-    right_shape = F.bin_shape
+    # Planted: the widths' softmax normalised without the last bin, sum_{k<K} exp(W^_k)
+    # (the heights normalised with those widths): the density spills past u = 1.
+    right_widths = F.bin_widths
 
-    def spilling_shape(raw, bins):
-        widths, heights = right_shape(raw, bins)
-        scale = 1.0 / (1.0 - widths[-1])
-        return [w * scale for w in widths], [h / scale for h in heights]
+    def spilling_widths(raw, bins):
+        widths = right_widths(raw, bins)
+        lanes = dr.width(widths) // bins
+        last = dr.gather(mi.Float, widths, dr.arange(mi.UInt32, lanes) * bins + bins - 1)
+        return widths / dr.repeat(1.0 - last, bins)
 
-    monkeypatch.setattr(F, "bin_shape", spilling_shape)
+    monkeypatch.setattr(F, "bin_widths", spilling_widths)
     integrals, _ = sphere_integrals(flow, conditions=1)
     assert np.all(np.abs(integrals - 1.0) > 2e-2), integrals
 
