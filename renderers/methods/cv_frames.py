@@ -1,5 +1,7 @@
 """What the control-variate methods (`cv-sh`, `cv-vmf`) share: parameters, the scenes
-they apply to, and the frame loop that fits each pixel's model between frames.
+they apply to, the frame loop that fits each pixel's model between frames, and the
+method built around a model (:func:`control_variate_method`: a method module adds its
+model's parameters and factory).
 
 The estimator is renderers.integrators.control_variate (NIRC paper Eq. 7 at the
 first hits; docs/control_variates.md). A frame is one ``mi.render`` ('render': the
@@ -28,7 +30,16 @@ from typing import Any
 
 from pydantic import Field, model_validator
 
-from renderers.methods.base import FrameHooks, MethodParams, RenderOutput, run_frames
+from renderers.methods import register
+from renderers.methods.base import (
+    FrameHooks,
+    Knob,
+    Method,
+    MethodParams,
+    RenderOutput,
+    run_frames,
+)
+from renderers.methods.pt import SPP_CANDIDATES
 from renderers.seeding import derive_seed
 from renderers.timing import StageTimer
 
@@ -116,8 +127,9 @@ class ModelFrames:
             self._render_frame(seed)
 
 
-#: (method parameters, pixels) -> the model (renderers.integrators.control_variate).
-ModelFactory = Callable[[Any, int], Any]
+#: (method parameters, scene, seed parts) -> the model (renderers.integrators.
+#: control_variate), zero (g = 0) until its first fit.
+ModelFactory = Callable[[Any, Any, tuple[Any, ...]], Any]
 
 
 def film_pixels(scene: Any) -> int:
@@ -126,10 +138,9 @@ def film_pixels(scene: Any) -> int:
     return int(width) * int(height)
 
 
-def control_variate_render(make_model: ModelFactory,
-                           model_stats: Callable[[Any], dict[str, Any]]) -> Callable[..., RenderOutput]:
+def control_variate_render(make_model: ModelFactory) -> Callable[..., RenderOutput]:
     """The render function of a control-variate method whose per-pixel model
-    ``make_model`` builds; ``model_stats(model)`` is stored with the run."""
+    ``make_model`` builds; the model's ``stats()`` are stored with the run."""
 
     def render(scene: Any, params: ControlVariateParams, *, seed_parts: tuple[Any, ...],
                spp: int, frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
@@ -141,14 +152,24 @@ def control_variate_render(make_model: ModelFactory,
         integrator = mi.load_dict({"type": control_variate.PLUGIN_NAME,
                                    "max_depth": params.max_depth,
                                    "uniform_fraction": params.uniform_fraction})
-        model = make_model(params, film_pixels(scene))
+        model = make_model(params, scene, seed_parts)
         frame = ModelFrames(scene, integrator.with_model(model), model, spp)
         for index in range(params.pretrain_frames):
             frame(index, derive_seed(*seed_parts, "pretrain", index), StageTimer())
         output = run_frames(frame, seed_parts=seed_parts, frames=frames, spp=spp,
                             hooks=hooks)
         output.method_stats = {"pretrain_frames": params.pretrain_frames,
-                               **model_stats(model)}
+                               "model": model.stats()}
         return output
 
     return render
+
+
+def control_variate_method(name: str, description: str, params: type[ControlVariateParams],
+                           make_model: ModelFactory, *, version: int, label: str) -> Method:
+    """The registered Method of a control-variate model: the frames above, the scenes
+    :func:`applies` accepts, spp as its knob, and unbiased (NIRC Eq. 7 whatever the
+    fit; docs/control_variates.md)."""
+    return register(Method(name, description, params, control_variate_render(make_model),
+                           version=version, requires=applies, label=label,
+                           knob=Knob("spp", SPP_CANDIDATES), unbiased=True))

@@ -16,10 +16,7 @@ from typing import Any
 
 from pydantic import Field
 
-from renderers.methods import register
-from renderers.methods.base import Knob, Method
-from renderers.methods.cv_frames import ControlVariateParams, applies, control_variate_render
-from renderers.methods.pt import SPP_CANDIDATES
+from renderers.methods.cv_frames import ControlVariateParams, control_variate_method, film_pixels
 
 
 class CVSHParams(ControlVariateParams):
@@ -34,19 +31,14 @@ class CVSHParams(ControlVariateParams):
         return {"sh": sh_config}
 
 
-def sh_model(params: CVSHParams, pixels: int) -> Any:
-    """The per-pixel SH model of ``pixels`` pixels, zero (g = 0) until the first fit."""
+def sh_model(params: CVSHParams, scene: Any, _seed_parts: tuple[Any, ...]) -> Any:
+    """The per-pixel SH model of the scene's pixels, zero (g = 0) until the first fit."""
     from renderers.caches.sh import SHModel
 
-    return SHModel(params.cache_config("sh"), pixels)
+    return SHModel(params.cache_config("sh"), film_pixels(scene))
 
 
-render = control_variate_render(sh_model, lambda model: {"model": model.stats()})
-
-METHOD = register(Method(
+METHOD = control_variate_method(
     "cv-sh", "per-pixel spherical-harmonics control variate of the first hits' shading "
              "integrand, closed-form integral (unbiased)",
-    CVSHParams, render, version=1, requires=applies, label="SH CV",
-    # Not claimed unbiased yet: the stress suite (8x8, 2 spp x 2 frames, 4 seeds) rejects
-    # cv-sh on its near-black case (aggregate test, p 6e-6); its own tests agree.
-    knob=Knob("spp", SPP_CANDIDATES), unbiased=None))
+    CVSHParams, sh_model, version=1, label="SH CV")

@@ -18,10 +18,7 @@ from typing import Any
 
 from pydantic import Field
 
-from renderers.methods import register
-from renderers.methods.base import Knob, Method
-from renderers.methods.cv_frames import ControlVariateParams, applies, control_variate_render
-from renderers.methods.pt import SPP_CANDIDATES
+from renderers.methods.cv_frames import ControlVariateParams, control_variate_method, film_pixels
 
 
 class CVVMFParams(ControlVariateParams):
@@ -36,19 +33,14 @@ class CVVMFParams(ControlVariateParams):
         return {"vmf": vmf_config}
 
 
-def vmf_model(params: CVVMFParams, pixels: int) -> Any:
-    """The per-pixel vMF mixtures of ``pixels`` pixels, zero (g = 0) until the first fit."""
+def vmf_model(params: CVVMFParams, scene: Any, _seed_parts: tuple[Any, ...]) -> Any:
+    """The per-pixel vMF mixtures of the scene's pixels, zero (g = 0) until the first fit."""
     from renderers.caches.vmf import VMFModel
 
-    return VMFModel(params.cache_config("vmf"), pixels)
+    return VMFModel(params.cache_config("vmf"), film_pixels(scene))
 
 
-render = control_variate_render(vmf_model, lambda model: {"model": model.stats()})
-
-METHOD = register(Method(
+METHOD = control_variate_method(
     "cv-vmf", "per-pixel vMF-mixture control variate of the first hits' shading integrand "
               "(stepwise EM), closed-form integral (unbiased)",
-    CVVMFParams, render, version=1, requires=applies, label="vMF CV",
-    # Not claimed unbiased yet: the stress suite (8x8, 2 spp x 2 frames, 4 seeds) rejects
-    # cv-sh on its near-black case (aggregate test, p 6e-6); its own tests agree.
-    knob=Knob("spp", SPP_CANDIDATES), unbiased=None))
+    CVVMFParams, vmf_model, version=1, label="vMF CV")
