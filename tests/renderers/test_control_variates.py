@@ -138,6 +138,13 @@ def _fitted(mi, scene, kind="sh", fit=None):
     return integrator, model
 
 
+def _zero(mi):
+    """The integrator with a zero model (g = 0) that records nothing."""
+    integrator = _integrator(mi, _model("sh"))
+    integrator.fitting = False
+    return integrator
+
+
 class ScaledIntegral:
     """Planted: a model whose closed-form integral is 1.05 times the true one."""
 
@@ -172,6 +179,17 @@ def _bsdf_only(mi):
     return BSDFOnly
 
 
+def _sphere_quadrature(mi, cosines: int, azimuths: int):
+    """(directions, weights): Gauss-Legendre in cos theta x the midpoint rule in phi,
+    exact for polynomials of the directions' components up to degree 2 cosines - 1."""
+    z, wz = np.polynomial.legendre.leggauss(cosines)
+    phi = (np.arange(azimuths) + 0.5) * 2 * np.pi / azimuths
+    zz, pp = np.meshgrid(z, phi, indexing="ij")
+    weights = (wz[:, None] * np.full_like(pp, 2 * np.pi / azimuths)).ravel()
+    r = np.sqrt(1 - zz**2)
+    return mi.Vector3f(*(a.ravel() for a in (r * np.cos(pp), r * np.sin(pp), zz))), weights
+
+
 def test_sh_integral_is_the_quadrature_of_the_model(mi):
     """G = 2 sqrt(pi) c_0 equals the integral of g over the sphere (Gauss-Legendre in
     cos theta x uniform phi: exact for these polynomials) for random coefficients, and
@@ -180,12 +198,7 @@ def test_sh_integral_is_the_quadrature_of_the_model(mi):
 
     from renderers.caches.sh import SHConfig, SHModel
 
-    z, wz = np.polynomial.legendre.leggauss(16)
-    phi = (np.arange(32) + 0.5) * 2 * np.pi / 32
-    zz, pp = np.meshgrid(z, phi, indexing="ij")
-    weights = (wz[:, None] * np.full_like(pp, 2 * np.pi / 32)).ravel()
-    r = np.sqrt(1 - zz**2)
-    w = mi.Vector3f(*(a.ravel() for a in (r * np.cos(pp), r * np.sin(pp), zz)))
+    w, weights = _sphere_quadrature(mi, 16, 32)
     basis = np.array([np.broadcast_to(np.asarray(y, dtype=np.float64), weights.shape)
                       for y in dr.sh_eval(w, 4)])
     np.testing.assert_allclose((basis * weights) @ basis.T, np.eye(25), atol=1e-5)
@@ -205,18 +218,13 @@ def reference(mixed):
     return render_moments(mixed.scene, {"type": "path", "max_depth": DEPTH}, SPP, seed=2)
 
 
-def test_the_zero_model_agrees_with_the_reference(mi, mixed, reference):
-    """g = 0: the plain estimator (NEE, mixture-sampled indirect light)."""
-    zero = _integrator(mi, _model("sh"))
-    zero.fitting = False
-    result = agreement_test(*render_moments(mixed.scene, zero, SPP, seed=1), *reference)
-    assert result.passed, result.summary()
-
-
-@pytest.mark.parametrize("kind", ["sh", "vmf"])
-def test_a_fitted_model_agrees_with_the_reference(mi, mixed, reference, kind):
-    integrator, _ = _fitted(mi, mixed, kind)
-    result = agreement_test(*render_moments(mixed.scene, integrator, SPP, seed=3), *reference)
+@pytest.mark.parametrize("kind", ["zero", "sh", "vmf"])
+def test_a_model_agrees_with_the_reference(mi, mixed, reference, kind):
+    """g = 0 (the plain estimator: NEE, mixture-sampled indirect light) and the fitted
+    SH and vMF models."""
+    integrator, seed = (_zero(mi), 1) if kind == "zero" else (_fitted(mi, mixed, kind)[0], 3)
+    result = agreement_test(*render_moments(mixed.scene, integrator, SPP, seed=seed),
+                            *reference)
     assert result.passed, result.summary()
 
 
@@ -232,9 +240,7 @@ def _furnace_expectation(mi):
 
 @pytest.fixture(scope="module")
 def furnace_zero_variance(mi, furnace):
-    zero = _integrator(mi, _model("sh"))
-    zero.fitting = False
-    mean, variance = render_moments(furnace.scene, zero, FURNACE_SPP, seed=1)
+    mean, variance = render_moments(furnace.scene, _zero(mi), FURNACE_SPP, seed=1)
     result = agreement_test(mean, variance, *_furnace_expectation(mi))
     assert result.passed, result.summary()
     return variance
@@ -327,12 +333,7 @@ def test_vmf_lobes_integrate_to_one_and_start_spread_over_the_sphere(mi):
     to narrow lobes, and the Fibonacci lattice leaves no lobe far from the others."""
     from renderers.caches.vmf import VMFConfig, VMFModel, fibonacci_directions
 
-    z, wz = np.polynomial.legendre.leggauss(200)
-    phi = (np.arange(64) + 0.5) * 2 * np.pi / 64
-    zz, pp = np.meshgrid(z, phi, indexing="ij")
-    weights = (wz[:, None] * np.full_like(pp, 2 * np.pi / 64)).ravel()
-    r = np.sqrt(1 - zz**2)
-    w = mi.Vector3f(*(a.ravel() for a in (r * np.cos(pp), r * np.sin(pp), zz)))
+    w, weights = _sphere_quadrature(mi, 200, 64)
     for kappa in (1e-3, 1.0, 50.0):
         model = VMFModel(VMFConfig(lobes=1, initial_kappa=kappa), 1)
         model.amplitude[:] = 1.0
