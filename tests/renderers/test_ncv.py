@@ -24,6 +24,7 @@ from tests.renderers.test_control_variates import (
     _furnace_expectation,
     _integrator,
     _load,
+    _zero,
 )
 from tests.support.moments import render_moments
 
@@ -66,11 +67,7 @@ def test_ncv_agrees_with_the_furnace_lowers_its_variance_and_a_scaled_integral_i
     result = agreement_test(mean, variance, *expected)
     assert result.passed, result.summary()
 
-    from renderers.caches.sh import SHConfig, SHModel
-
-    plain = _integrator(mi, SHModel(SHConfig(bands=1), RES * RES))   # zero: g = 0
-    plain.fitting = False
-    _, plain_variance = render_moments(furnace.scene, plain, FURNACE_SPP, seed=3)
+    _, plain_variance = render_moments(furnace.scene, _zero(mi), FURNACE_SPP, seed=3)
     ratio = np.median(variance / plain_variance)
     print(f"median variance ratio NCV / plain {ratio:.3f}")
     assert ratio < 0.5, f"median variance ratio NCV / plain {ratio:.3f}"
