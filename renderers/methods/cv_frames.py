@@ -166,10 +166,11 @@ def control_variate_render(make_model: ModelFactory) -> Callable[..., RenderOutp
 
 
 def control_variate_method(name: str, description: str, params: type[ControlVariateParams],
-                           make_model: ModelFactory, *, version: int, label: str) -> Method:
+                           make_model: ModelFactory, *, version: int, label: str,
+                           unbiased: bool | None) -> Method:
     """The registered Method of a control-variate model: the frames above, the scenes
-    :func:`applies` accepts, spp as its knob, and unbiased (NIRC Eq. 7 whatever the
-    fit; docs/control_variates.md)."""
+    :func:`applies` accepts, spp as its knob; ``unbiased``: what it claims (NIRC Eq. 7
+    is unbiased whatever the fit; docs/control_variates.md says what is claimed)."""
     return register(Method(name, description, params, control_variate_render(make_model),
                            version=version, requires=applies, label=label,
-                           knob=Knob("spp", SPP_CANDIDATES), unbiased=True))
+                           knob=Knob("spp", SPP_CANDIDATES), unbiased=unbiased))

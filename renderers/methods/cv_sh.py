@@ -41,4 +41,4 @@ def sh_model(params: CVSHParams, scene: Any, _seed_parts: tuple[Any, ...]) -> An
 METHOD = control_variate_method(
     "cv-sh", "per-pixel spherical-harmonics control variate of the first hits' shading "
              "integrand, closed-form integral (unbiased)",
-    CVSHParams, sh_model, version=1, label="SH CV")
+    CVSHParams, sh_model, version=1, label="SH CV", unbiased=True)

@@ -43,4 +43,9 @@ def vmf_model(params: CVVMFParams, scene: Any, _seed_parts: tuple[Any, ...]) -> 
 METHOD = control_variate_method(
     "cv-vmf", "per-pixel vMF-mixture control variate of the first hits' shading integrand "
               "(stepwise EM), closed-form integral (unbiased)",
-    CVVMFParams, vmf_model, version=1, label="vMF CV")
+    CVVMFParams, vmf_model, version=1, label="vMF CV",
+    # Unbiased in expectation but not claimed: fitted from batches of a few samples its
+    # lobes are narrow (kappa up to 1e4), so the residual's mean rests on rare samples;
+    # over 128 seeds of the stress suite's closed-box at its CI settings its image mean
+    # was 5.7 % above the reference (docs/control_variates.md).
+    unbiased=None)
