@@ -22,12 +22,8 @@ from typing import Any
 
 from pydantic import Field
 
-from renderers.methods import register
-from renderers.methods.base import FrameHooks, Knob, Method, RenderOutput, run_frames
-from renderers.methods.cv_frames import ControlVariateParams, ModelFrames, applies
-from renderers.methods.pt import SPP_CANDIDATES
+from renderers.methods.cv_frames import ControlVariateParams, control_variate_method
 from renderers.seeding import derive_seed
-from renderers.timing import StageTimer
 
 
 class NCVParams(ControlVariateParams):
@@ -42,36 +38,16 @@ class NCVParams(ControlVariateParams):
         return {"ncv": ncv_config}
 
 
-def render(scene: Any, params: NCVParams, *, seed_parts: tuple[Any, ...], spp: int,
-           frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
-    """The frames of renderers.methods.cv_frames with the NCV model, which needs the
-    scene (its pixels' surfaces), not only the pixel count the shared factory passes."""
-    import mitsuba as mi
-
+def ncv_model(params: NCVParams, scene: Any, seed_parts: tuple[Any, ...]) -> Any:
+    """The model on the scene's pixels' surfaces, networks initialised from the run's
+    seed; G = 0 until the first fit."""
     from renderers.caches.ncv import NCVModel
-    from renderers.integrators import control_variate, register_plugins
 
-    register_plugins()
-    integrator = mi.load_dict({"type": control_variate.PLUGIN_NAME,
-                               "max_depth": params.max_depth,
-                               "uniform_fraction": params.uniform_fraction})
-    model = NCVModel(params.cache_config("ncv"), scene.scene,
-                     seed=derive_seed(*seed_parts, "ncv"))
-    frame = ModelFrames(scene, integrator.with_model(model), model, spp)
-    for index in range(params.pretrain_frames):
-        frame(index, derive_seed(*seed_parts, "pretrain", index), StageTimer())
-    output = run_frames(frame, seed_parts=seed_parts, frames=frames, spp=spp, hooks=hooks)
-    output.method_stats = {"pretrain_frames": params.pretrain_frames,
-                           "model": model.stats()}
-    return output
+    return NCVModel(params.cache_config("ncv"), scene.scene,
+                    seed=derive_seed(*seed_parts, "ncv"))
 
 
-METHOD = register(Method(
+METHOD = control_variate_method(
     "ncv", "neural control variate of the first hits' shading integrand: a normalizing "
            "flow per channel times a learned integral (unbiased)",
-    NCVParams, render, version=1, requires=applies, label="NCV",
-    # Unbiased by construction and tested (tests/renderers/test_ncv.py), but declared as
-    # the other control variates of this estimator are: the stress suite rejected cv-sh
-    # on its near-black case for a cause not yet found, and the delta-lobe test needs a
-    # method it covers to take a mirror scene, which this estimator refuses.
-    knob=Knob("spp", SPP_CANDIDATES), unbiased=None))
+    NCVParams, ncv_model, version=1, label="NCV", unbiased=True)
