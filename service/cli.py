@@ -945,8 +945,12 @@ def worker(
     settings = _with_tls(ServiceSettings.of(open_settings(None)), scheduler, tls_ca_file,
                          tls_cert, tls_key, allow_plaintext_scheduler)
     tls = worker_tls_options(settings.scheduler_tls)
+    # Dask's worker HTTP pages (info, logs, health, metrics) are unauthenticated and
+    # listen on every interface: none are served unless the variable says otherwise.
+    environment = {"DASK_DISTRIBUTED__WORKER__HTTP__ROUTES": "[]", **os.environ,
+                   **dask_environment(QUIET_WORKER_CONFIG)}
     commands = [([*argv, *tls], env) for argv, env in worker_commands(
-        scheduler, gpus, {**os.environ, **dask_environment(QUIET_WORKER_CONFIG)})]
+        scheduler, gpus, environment)]
     os.umask(0o077)     # what the workers write into the data folder: owner-only
     if len(commands) == 1:      # nothing to supervise: become the worker
         argv, env = commands[0]

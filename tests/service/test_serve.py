@@ -77,6 +77,25 @@ def test_killing_a_worker_mid_job_then_starting_another_completes_it_once(tmp_pa
             process.stop()
 
 
+def _serving_health(workers: list[Worker]) -> list[int]:
+    """The ports of ``workers``' processes that answer Dask's ``/health`` page."""
+    import httpx
+    import psutil
+
+    ports = {conn.laddr.port for worker in workers
+             for process in (psutil.Process(worker.proc.pid),
+                             *psutil.Process(worker.proc.pid).children(recursive=True))
+             for conn in process.net_connections(kind="tcp") if conn.status == psutil.CONN_LISTEN}
+    serving = []
+    for port in ports:
+        try:
+            if httpx.get(f"http://127.0.0.1:{port}/health", timeout=2).status_code == 200:
+                serving.append(port)
+        except httpx.HTTPError:         # a Dask comm port, not HTTP
+            pass
+    return serving
+
+
 def test_a_sweeps_independent_stages_run_on_different_workers_at_once(tmp_path):
     """Scale-out: with two workers, the caches of a sweep train at the same time (the
     task graph lets them: each needs only the reference)."""
@@ -92,6 +111,7 @@ def test_a_sweeps_independent_stages_run_on_different_workers_at_once(tmp_path):
             worker.start()
         with Client(scheduler.address) as client:
             client.wait_for_workers(2, timeout=120)
+        assert not _serving_health(workers), "a scale-out worker serves Dask's HTTP pages"
         service.start()
         # Caches that train for seconds, not for the fraction of a second that warm
         # render processes need for 3 frames: long enough to overlap if both run. One
