@@ -40,13 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from renderers.caches.config import HashGridConfig
 from renderers.caches.encodings import OneBlobEncoding, PositionEncoding
-from renderers.caches.flow import (
-    CYLINDER_JACOBIAN,
-    FlowConfig,
-    SphereFlow,
-    network_rows,
-    to_cylindrical,
-)
+from renderers.caches.flow import FlowConfig, SphereFlow, network_rows
 from renderers.seeding import derive_seed
 
 CHANNELS = 3
@@ -172,10 +166,7 @@ class NCVModel:
     def shape_density(self, w: mi.Vector3f, normal: mi.Vector3f,
                       condition: list[mi.Float]) -> list[mi.Float]:
         """q_c(w) per channel, w in the frame of ``normal``."""
-        local = mi.Frame3f(normal).to_local(w)
-        u = to_cylindrical(local)
-        return [dr.exp(self.flow.forward(u, condition, c)[1]) * (1.0 / CYLINDER_JACOBIAN)
-                for c in range(self.config.flow.channels)]
+        return self.flow.sphere_density(mi.Frame3f(normal).to_local(w), condition)
 
     def _refresh(self) -> None:
         """Each pixel's condition rows and G, read by the renders until the next fit."""
