@@ -7,8 +7,8 @@ coefficients (11 lobes: 77 floats per pixel, the paper's equal-memory preset),
 their directions initialised on a spherical Fibonacci lattice and fitted by
 stepwise EM with one batch per frame: the frame's spp samples of the pixel
 (renderers.caches.vmf), and used as a control variate with its closed-form
-integral (Eq. 7; renderers.integrators.control_variate). Unbiased whatever the
-fit. Parameters: those of renderers.methods.cv_frames and ``vmf`` (overrides of
+integral (Eq. 7; renderers.integrators.control_variate). Unbiased in expectation
+whatever the fit, but not claimed (below). Parameters: those of renderers.methods.cv_frames and ``vmf`` (overrides of
 renderers.caches.vmf.VMFConfig, e.g. ``{"lobes": 4}``).
 """
 
@@ -42,7 +42,7 @@ def vmf_model(params: CVVMFParams, scene: Any, _seed_parts: tuple[Any, ...]) -> 
 
 METHOD = control_variate_method(
     "cv-vmf", "per-pixel vMF-mixture control variate of the first hits' shading integrand "
-              "(stepwise EM), closed-form integral (unbiased)",
+              "(stepwise EM), closed-form integral (unbiased in expectation; not claimed)",
     CVVMFParams, vmf_model, version=1, label="vMF CV",
     # Unbiased in expectation but not claimed: fitted from batches of a few samples its
     # lobes are narrow (kappa up to 1e4), so the residual's mean rests on rare samples;
