@@ -341,6 +341,6 @@ def test_the_integrator_plugins_keep_their_names(mi):
     assert sorted(PLUGINS) == [
         "nirc_control_variate", "nirc_grid_cache", "nirc_grid_update", "nirc_neural_di", "nirc_nirc",
         "nirc_nirc_nvc_env", "nirc_nrc", "nirc_nrc_di", "nirc_nvc_env", "nirc_path",
-        "nirc_training_nrcselftrainingintegrator", "nirc_training_trainingpathintegrator"]
+        "nirc_residual_probe", "nirc_training_nrcselftrainingintegrator", "nirc_training_trainingpathintegrator"]
     assert all(cls.plugin_name == name for name, cls in PLUGINS.items())
     assert type(mi.load_dict({"type": "nirc_path"})) is PLUGINS["nirc_path"]
