@@ -64,12 +64,11 @@ scene's emitters or shapes (renderers.frozen.scene_generation; a camera move
 changes no target, x_i is kept) that no longer holds: a light switched on, or a
 point x_i newly unoccluded, has p̂V_{x_i}(y) > 0 now where the previous reservoir
 could not have sampled y, and a_i takes a share of the canonical sample's
-weight that nothing makes up (measured on `many-lights-switch` at 8x8, 256
-replicas: the frame where 8 of 32 lights switch on 0.905 +- 0.007 of the
-reference's image mean with the confidence M_prev clamped at 160 against the
-canonical 8). So a frame whose scene state differs from its history's starts
+weight that nothing makes up (docs/estimators.md, "`restir-di`": the frame
+where 8 of 32 lights of `many-lights-switch` switch on was 10 % dark). So a frame whose scene state differs from its history's starts
 without temporal reuse (the previous reservoirs, their W and M, are dropped);
-spatial reuse, within the frame, is unaffected.
+spatial reuse, within the frame, is unaffected. While a shape moves
+continuously every frame is such a frame.
 """
 
 from __future__ import annotations
