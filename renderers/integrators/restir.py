@@ -65,8 +65,9 @@ changes no target, x_i is kept) that no longer holds: a light switched on, or a
 point x_i newly unoccluded, has p̂V_{x_i}(y) > 0 now where the previous reservoir
 could not have sampled y, and a_i takes a share of the canonical sample's
 weight that nothing makes up (docs/estimators.md, "`restir-di`": the frame
-where 8 of 32 lights of `many-lights-switch` switch on was 10 % dark). So a frame whose scene state differs from its history's starts
-without temporal reuse (the previous reservoirs, their W and M, are dropped);
+where 8 of 32 lights of `many-lights-switch` switch on was 10 % dark). So a
+frame whose scene state differs from its history's starts without temporal
+reuse (the previous reservoirs, their W and M, are dropped);
 spatial reuse, within the frame, is unaffected. While a shape moves
 continuously every frame is such a frame.
 """
