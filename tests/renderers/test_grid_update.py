@@ -95,7 +95,7 @@ def test_passes_propagate_radiance_to_the_furnace_fixed_point(mi, furnace, monke
         monkeypatch.setattr(grid_update.MomentGrid, "lookup",
                             lambda self, *a, **kw: type(lookup(self, *a, **kw))(
                                 mi.Color3f(0.0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0),
-                                mi.Bool(False)))
+                                mi.Bool(False), mi.Bool(False)))
     grid, integrator = seeded_grid(mi, furnace, samples_per_vertex=8, max_history=2)
     means = []
     for frame in range(12):
