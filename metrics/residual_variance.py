@@ -18,9 +18,10 @@ import numpy as np
 
 
 def residual_variance_map(values: np.ndarray, probed: np.ndarray) -> tuple[np.ndarray, int]:
-    """Per pixel and channel the sample variance S² (ddof 1) of the probed samples
+    """Per pixel and channel the sample variance S² (ddof 1, float64) of the probed samples
     (``values`` (H, W, n, 3), ``probed`` (H, W, n)); NaN where a pixel has fewer than
     two probed samples or a non-finite one. Also the count of non-finite probed samples."""
+    values = np.asarray(values, dtype=np.float64)
     finite = np.isfinite(values).all(axis=-1)
     nonfinite = int(np.count_nonzero(probed & ~finite))
     usable = probed & finite
@@ -31,7 +32,8 @@ def residual_variance_map(values: np.ndarray, probed: np.ndarray) -> tuple[np.nd
         squares = np.where(usable[..., None], (values - mean[..., None, :]) ** 2, 0.0)
         variance = squares.sum(axis=-2) / (count - 1)
     unusable = (count < 2) | (probed & ~finite).any(axis=-1)[..., None]
-    return np.where(unusable, np.nan, variance).astype(np.float32), nonfinite
+    # float64: radiance scaled by 1e6 has squared deviations past float32's range
+    return np.where(unusable, np.nan, variance), nonfinite
 
 
 def relative_residual_variance(variance: np.ndarray, reference: np.ndarray,

@@ -99,3 +99,15 @@ def test_variance_map_leaves_out_pixels_without_two_finite_samples():
     np.testing.assert_allclose(variance[0, 0], np.var([1, 3], ddof=1))
     assert np.isnan(variance[0, 1:]).all()
     assert relative_residual_variance(variance[:, 1:], np.ones((1, 2, 3)), EPS) is None
+
+
+def test_a_huge_but_finite_variance_stays_finite():
+    """Samples of 1e20 (float32, as the probe returns them) have a variance past float32's
+    range: it is computed and kept in float64, not turned into inf and then left out."""
+    values = np.full((1, 1, 4, 3), 1e20, np.float32)
+    values[0, 0, 0] = 0.0
+    variance, nonfinite = residual_variance_map(values, np.ones((1, 1, 4), bool))
+    assert nonfinite == 0 and np.isfinite(variance).all()
+    np.testing.assert_allclose(variance, 2.5e39, rtol=1e-6)
+    assert relative_residual_variance(variance, np.full((1, 1, 3), 1e20), EPS) \
+        == pytest.approx(0.25, rel=1e-6)
