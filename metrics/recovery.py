@@ -121,7 +121,7 @@ def recoveries(errors: np.ndarray, changes: list[int], **options: Any) -> list[d
     next change), as JSON; a segment too short to measure is listed with a reason."""
     frames = np.asarray(errors).shape[1]
     inside = [change for change in changes if 0 < change < frames]
-    ends = [*(change - 1 for change in inside[1:]), frames - 1]
+    ends = [*(change - 1 for change in inside[1:]), frames - 1] if inside else []
     found = []
     for change, end in zip(inside, ends, strict=True):
         measured = recovery(errors, change, end, **options)

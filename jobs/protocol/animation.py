@@ -154,6 +154,7 @@ def execute_animated(job: RenderJob, prepared: Any, store: Store, settings: Sett
     animation = {
         "digest": scene.animation.digest(),
         "change_frames": scene.animation.change_frames(),
+        "change_labels": scene.animation.change_labels(),
         "last_segment_start": segment,
         "frame_mrse": frame_error_curve(errors) if np.all(np.isfinite(errors)) else None,
         "recovery": (recoveries(errors, scene.animation.change_frames())

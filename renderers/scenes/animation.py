@@ -184,6 +184,26 @@ class Animation(_Strict):
         steps += [change.frame for change in self.emitters]
         return sorted({frame for frame in steps if frame > 0})
 
+    def change_labels(self) -> list[str]:
+        """What happens at each change frame (in :meth:`change_frames`' order), in a few
+        words: e.g. '8 lights off', 'light x4', 'door moves', 'camera cut'."""
+        return [self._change_label(frame) for frame in self.change_frames()]
+
+    def _change_label(self, frame: int) -> str:
+        before, after = self.state(frame - 1).emitters, self.state(frame).emitters
+        kinds: dict[str, int] = {}
+        for change in self.emitters:
+            if change.frame == frame and after[change.emitter] != before[change.emitter]:
+                kind = ("off" if change.scale == 0 else "on" if before[change.emitter] == 0
+                        else f"x{change.scale:g}")
+                kinds[kind] = kinds.get(kind, 0) + 1
+        parts = [f"{count} lights {kind}" if count > 1 else f"light {kind}"
+                 for kind, count in kinds.items()]
+        parts += [f"{motion.shape} moves" for motion in self.shapes
+                  if any(key.step and key.frame == frame for key in motion.keys)]
+        parts += ["camera cut" for key in self.camera if key.step and key.frame == frame]
+        return ", ".join(parts) or f"change at frame {frame}"
+
 
 def json_rounded(value: Any) -> Any:
     if isinstance(value, float):

@@ -10,7 +10,8 @@ from fastapi import APIRouter, HTTPException, Query, status
 from jobs.ci.history import MAX_HISTORY_RUNS, build_history
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import current_estimator_versions
-from jobs.views.chart_groups import Setting, history_series_label, split_groups
+from jobs.views.animation_chart import animated_view
+from jobs.views.chart_groups import Setting, config_label, history_series_label, split_groups
 from jobs.views.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
 from metrics import METRIC_VERSION
 from metrics.registry import METRICS
@@ -27,6 +28,12 @@ def _listed() -> list[dict[str, Any]]:
     return [m.to_json() for m in METRICS if m.field]
 
 
+def _animated(row: dict[str, Any], metrics: dict[str, Any]) -> dict[str, Any]:
+    """A run as jobs.views.animation_chart reads it."""
+    return {"id": row["id"], "method": row["method"], "label": config_label(row),
+            "animation": metrics.get("animation")}
+
+
 @router.get("/scene")
 def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dict[str, Any]:
     """Error-vs-time charts of a scene's runs: per group of comparable runs (scene,
@@ -34,14 +41,22 @@ def scene_charts(store: StoreDep, scene: Name, include_old: bool = False) -> dic
     curve over its knobs (spp, N_c, eps) in it, with the group's Pareto front."""
     versions = {} if include_old else {"current": current_estimator_versions(),
                                        "metric_version": METRIC_VERSION}
-    runs = [RunResult.of(run).model_dump(mode="json")
-            for run in store.list_runs(scene, None, None, limit=1000, **versions)]
+    stored = store.list_runs(scene, None, None, limit=1000, **versions)
+    runs = [RunResult.of(run).model_dump(mode="json") for run in stored]
+    animations = {run.id: run.metrics or {} for run in stored}
     metrics = [m for m in _listed() if m["field"] in TIME_METRICS]
     groups = []
     for group, members in split_groups(runs).items():
         charts = [chart for m in metrics if (chart := error_time_chart(group, members, m))]
+        # One animated chart per animation of the group: others change at other frames.
+        by_digest: dict[str, list[dict[str, Any]]] = {}
+        for r in members:
+            animated = _animated(r, animations[r["id"]])
+            if animated["animation"]:
+                by_digest.setdefault(animated["animation"]["digest"], []).append(animated)
         groups.append({"title": group.title, "runs": [r["id"] for r in members],
-                       "charts": charts})
+                       "charts": charts,
+                       "animations": [animated_view(same) for same in by_digest.values()]})
     return {"scene": scene, "groups": groups}
 
 
@@ -94,7 +109,8 @@ def run_charts(run_id: RowId, store: StoreDep) -> dict[str, Any]:
     chart = convergence_chart(detail)
     return {"run": run_id, "convergence": chart,
             "note": None if chart else "no convergence curve: the run has one frame "
-                                       "(or stored none)"}
+                                       "(or stored none)",
+            "animation": animated_view([_animated(detail, detail["metrics"])])}
 
 
 @router.get("/sweeps/{sweep_id}")
