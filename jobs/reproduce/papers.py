@@ -8,7 +8,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from jobs.reproduce.registry import PAPERS, ReproduceError
 
@@ -19,25 +19,49 @@ class _Row(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     figure: str = Field(min_length=1)
-    page: int = Field(ge=1, description="the paper's page, from 1")
+    page: int | None = Field(None, ge=1, description="the paper's page, from 1")
+    section: str | None = Field(None, min_length=1,
+                                description="the section or caption ('4.1', 'Figure 5') "
+                                            "where the text copy has no page numbers")
     quote: str = Field(min_length=1, description="the table row or sentence as printed")
+
+    @model_validator(mode="after")
+    def _located(self) -> _Row:
+        if self.page is None and self.section is None:
+            raise ValueError(f"{self.figure}: a row needs its page or its section")
+        return self
 
 
 class PaperValue(_Row):
     """One number the paper prints in a table or plots in a figure."""
 
     scene: str
-    series: str = Field(description="the policy: var-bound, mse-min, area-spread, pt")
+    series: str = Field(description="the method or policy (var-bound, nirc biased, ...)")
     parameter: str | None = None
     setting: float | None = None
     quantity: str
     value: float
     unit: str
-    source: Literal["table", "plot"] = Field(description="'plot': read off a plot by eye")
+    source: Literal["table", "text", "plot"] = Field(
+        description="'table': printed in a table; 'text': in a sentence or caption; "
+                    "'plot': read off a plot by eye")
+    precision: float | None = Field(None, gt=0, description="a plot reading's precision, "
+                                                            "+- in the value's unit")
+    device: str | None = Field(None, description="the paper's GPU for this number")
+    resolution: str | None = Field(None, description="the paper's image size, e.g. 1920x1080")
+
+    @model_validator(mode="after")
+    def _plot_readings_say_how_precise(self) -> PaperValue:
+        if self.source == "plot" and self.precision is None:
+            raise ValueError(f"{self.figure}: a value read off a plot needs its precision")
+        return self
 
 
 class PaperClaim(_Row):
-    """A sentence the paper states about a figure."""
+    """A sentence the paper states about a figure, and today's verdict on it where one
+    of our measurements has judged it (with where that measurement is written up)."""
+
+    verdict: str | None = None
 
 
 class PaperData(BaseModel):

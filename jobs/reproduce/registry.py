@@ -74,6 +74,8 @@ PAPERS: dict[str, Paper] = {
                       "Variance Trading", "VTT24", "variance_trading.toml"),
     "nirc": Paper("nirc", "Neural Two-Level Monte Carlo Real-Time Rendering", "DKHD24",
                   "nirc.toml"),
+    "nvc": Paper("nvc", "Neural Visibility Cache for Real-Time Light Sampling", "BM25",
+                 "nvc.toml"),
 }
 
 #: The modules that register figures.

@@ -45,7 +45,7 @@ def test_fig4_draws_its_series_with_intervals_and_its_verdicts(
         nirc_fig4.series_name(e, loss) for e in nirc_fig4.ESTIMATORS for loss in nirc_fig4.LOSSES}
     assert all(p.values["flip"].ci95 is not None for p in result.points)
     table = paths["markdown"].read_text()
-    assert "**holds**" in table and len(result.claims) == len(paper_data("nirc").claims)
+    assert "**holds**" in table and len(result.claims) == len(paper_data("nirc").of("fig4")[1])
 
 
 @pytest.mark.parametrize(("lv_flip", "verdict"), [(0.4, "holds"), (0.1, "does not hold"),
