@@ -15,9 +15,11 @@ them in the order the threads run, and a render would not repeat bit for bit.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 
 @dataclass
@@ -75,3 +77,18 @@ class SampleRecords:
 
     def nonfinite_count(self) -> int:
         return int(dr.sum(self.nonfinite)[0])
+
+    def residuals(self, model: Any, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        """Each lane's residual sample of Eq. 7 with ``model``'s g, (f(w) - g_p(w)) / q(w)
+        (0 where no direction was produced, NaN where the estimate was not finite), as
+        (H, W, spp, 3) values (float64) and (H, W, spp) the lanes that hit a surface."""
+        produced = self.pdf > 0
+        g = model.eval(self.pixel, self.w, produced)
+        residual = dr.select(produced, self.weighted - g / dr.select(produced, self.pdf, 1.0),
+                             0.0)
+        shape = (height, width, self.spp)
+        values = np.moveaxis(np.array(residual, dtype=np.float64), 0, -1).reshape(*shape, 3)
+        nonfinite = np.array(self.nonfinite, dtype=np.float64).reshape(shape) > 0
+        values[nonfinite] = np.nan
+        probed = (np.array(self.counts, dtype=np.float64).reshape(shape) > 0) | nonfinite
+        return values, probed

@@ -354,13 +354,21 @@ def probe_residuals(scene: Any, params: Any, cache: Any, output: RenderOutput, *
     ``method_stats['residual_probe']``."""
     import mitsuba as mi
 
-    from metrics.residual_variance import residual_variance_map
     from renderers.integrators.residual_probe import ResidualProbe
 
     probe = mi.load_dict({"type": ResidualProbe.plugin_name, **params.core()})
     probe.configure(params)
     probe.cache = cache
-    values, probed = probe.residual_samples(scene.scene, spp, seed)
+    keep_residual_variance(output, *probe.residual_samples(scene.scene, spp, seed), spp=spp)
+
+
+def keep_residual_variance(output: RenderOutput, values: np.ndarray, probed: np.ndarray, *,
+                           spp: int) -> None:
+    """Keep the per-pixel variance of a probe's residual samples (``values`` (H, W, spp, 3),
+    ``probed`` (H, W, spp); metrics.residual_variance) as ``output.residual_variance``,
+    described in ``method_stats['residual_probe']``."""
+    from metrics.residual_variance import residual_variance_map
+
     output.residual_variance, nonfinite = residual_variance_map(values, probed)
     output.method_stats["residual_probe"] = {
         "samples_per_pixel": spp,

@@ -160,9 +160,31 @@ def control_variate_render(make_model: ModelFactory) -> Callable[..., RenderOutp
                             hooks=hooks)
         output.method_stats = {"pretrain_frames": params.pretrain_frames,
                                "model": model.stats()}
+        probe_residuals(scene, integrator, model, output, spp=max(spp, 2),
+                        seed=derive_seed(*seed_parts, "residual probe"))
         return output
 
     return render
+
+
+def probe_residuals(scene: Any, integrator: Any, model: Any, output: RenderOutput, *,
+                    spp: int, seed: int) -> None:
+    """After the frame loop, untimed: ``spp`` residual samples (f - g) / q per pixel with
+    the final ``model`` (one render that keeps its samples and fits nothing; the render
+    frames are untouched), their per-pixel variance kept as ``output.residual_variance``
+    for V_rel (docs/metrics.md; renderers.methods.cached.keep_residual_variance)."""
+    import mitsuba as mi
+
+    from renderers.methods.cached import keep_residual_variance
+
+    width, height = scene.scene.sensors()[0].film().crop_size()
+    fitting, integrator.fitting = integrator.fitting, True
+    try:
+        mi.render(scene.scene, integrator=integrator, spp=spp, seed=seed)
+        values, probed = integrator.records.residuals(model, int(width), int(height))
+    finally:
+        integrator.fitting = fitting
+    keep_residual_variance(output, values, probed, spp=spp)
 
 
 def control_variate_method(name: str, description: str, params: type[ControlVariateParams],

@@ -368,3 +368,47 @@ def test_each_frame_uses_the_model_fitted_from_the_frames_before_it(mi, mixed):
                           seed=derive_seed("order", index))
         np.testing.assert_array_equal(frame, np.asarray(image)[..., :3])
         model.fit(integrator.records)
+
+
+
+def _relative_variance(variance, value):
+    """(mean, its standard error over the pixels) of S² / R² (the furnace is grey: each
+    pixel's channels averaged first, the pixels independent)."""
+    per_pixel = (variance / np.square(value)).mean(axis=-1).ravel()
+    return per_pixel.mean(), per_pixel.std(ddof=1) / np.sqrt(per_pixel.size)
+
+
+def test_the_zero_models_v_rel_is_the_plain_estimators_relative_variance(
+        mi, furnace, furnace_zero_variance):
+    """With g = 0 the residual (f - g) / q is the plain estimator's indirect sample f / q.
+    In the furnace the rest of the pixel's estimate is constant (L_e(x), and NEE's sample
+    of the sphere by area: f cos L_e / p = RHO L_e at every point), so the residual's
+    variance is the pixel's, measured independently by Mitsuba's ``moment`` integrator
+    (its variance of the mean times spp; the float32 term it adds is 1e-8 R² spp, far
+    below the tolerance). The method's V_rel (its probe, the metric's helper, R the closed
+    form, eps 0) agrees with it within 4 standard errors over the pixels; planted, the
+    residual normalised by the uniform density 1 / (4 pi) instead of the mixture's q, and
+    the variance of the pixel's mean (S² / n) instead of the samples', are rejected."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from metrics.residual_variance import relative_residual_variance, residual_variance_map
+    from renderers.methods.cv_frames import probe_residuals
+
+    plain, plain_error = _relative_variance(furnace_zero_variance * FURNACE_SPP,
+                                            _furnace_expectation(mi)[0])
+    integrator = _zero(mi)
+    output = SimpleNamespace(method_stats={}, residual_variance=None)
+    probe_residuals(furnace, integrator, integrator.model, output, spp=FURNACE_SPP, seed=7)
+    records = integrator.records
+    uniform = replace(records, weighted=records.weighted * records.pdf * 4 * np.pi)
+    value = np.full((RES, RES, 3), RADIANCE * (1 + RHO + RHO**2))
+    for variance, agrees in (
+            (output.residual_variance, True),
+            (residual_variance_map(*uniform.residuals(integrator.model, RES, RES))[0], False),
+            (output.residual_variance / FURNACE_SPP, False)):
+        v_rel = relative_residual_variance(variance, value, eps=0.0)
+        mean, error = _relative_variance(variance, value)
+        assert v_rel == pytest.approx(mean)
+        z = (v_rel - plain) / np.hypot(error, plain_error)
+        assert (abs(z) < 4) == agrees, (v_rel, plain, z)
