@@ -7,8 +7,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.markup import escape
-from rich.table import Table
 
 from service.cli_common import DataDir, JsonOut, console, open_settings, open_store, print_json
 from service.errors import UsageError
@@ -20,26 +18,34 @@ reproduce_app = typer.Typer(
 
 @reproduce_app.command("list")
 def list_figures(as_json: JsonOut = False) -> None:
-    """The figures each paper's command reproduces, with their --quick budget."""
-    from jobs.reproduce.registry import PAPERS, figures
+    """Every figure and table of the three papers: the scenes standing in for the
+    paper's, whether a command runs it (with its --quick budget) or what it needs, and
+    the claims it checks with today's verdict."""
+    from jobs.reproduce.catalogue import listing
+    from jobs.reproduce.registry import figures
 
-    rows = [{"paper": f.paper, "figure": f.key, "title": f.title,
-             "quick": {"resolution": f.budgets["quick"].resolution,
-                       "seeds": f.budgets["quick"].seeds,
-                       "grid_preset": f.budgets["quick"].grid_preset},
-             "command": f"nirc-bench reproduce {f.paper} {f.key}"} for f in figures()]
+    quick = {(f.paper, f.key): f.budgets["quick"] for f in figures()}
+    rows = listing()
+    for row in rows:
+        budget = quick.get((row["paper"], row["figure"]))
+        row["quick"] = budget and {"resolution": budget.resolution, "seeds": budget.seeds,
+                                   "grid_preset": budget.grid_preset}
     if as_json:
         print_json(rows)
         return
-    table = Table(title="reproducible figures")
-    for column in ("command", "paper", "what", "--quick"):
-        table.add_column(column)
     for row in rows:
-        quick = row["quick"]
-        table.add_row(escape(row["command"]), escape(PAPERS[row["paper"]].reference),
-                      escape(row["title"]), f"{quick['resolution']}x{quick['resolution']}, "
-                      f"K {quick['seeds']}, grid {quick['grid_preset']}")
-    console.print(table)
+        if row["command"]:
+            q = row["quick"]
+            status = (f"runs: {row['command']} (--quick: {q['resolution']}x"
+                      f"{q['resolution']}, K {q['seeds']}, grid {q['grid_preset']})")
+        else:
+            status = f"not yet: needs {row['needs']}"
+        lines = [f"[{row['reference']}] {row['figure']}: {row['title']}",
+                 f"  scenes: {', '.join(row['scenes']) or 'none'} ({row['stand_in']})",
+                 f"  status: {status}"]
+        lines += [f"  claim ({c['where']}): \"{c['quote']}\" -> {c['verdict']}"
+                  for c in row["claims"]]
+        console.print("\n".join(lines) + "\n", markup=False, highlight=False)
 
 
 def _paper_command(paper: str) -> None:
@@ -57,6 +63,7 @@ def _paper_command(paper: str) -> None:
         data_dir: DataDir = None,
         as_json: JsonOut = False,
     ) -> None:
+        from jobs.reproduce.catalogue import catalogue_entry
         from jobs.reproduce.registry import ReproduceError, get_figure
         from jobs.reproduce.run import default_out_dir, reproduce
         from service.progress import progress_reporter
@@ -64,6 +71,10 @@ def _paper_command(paper: str) -> None:
         try:
             get_figure(paper, figure)   # a bad name fails before anything renders
         except ReproduceError as err:
+            entry = catalogue_entry(paper, figure)
+            if entry is not None:
+                raise UsageError(f"{paper} {figure} is not reproduced yet: it needs "
+                                 f"{entry.needs}") from None
             raise UsageError(str(err)) from None
         settings = open_settings(data_dir)
         store = open_store(settings)
