@@ -72,9 +72,10 @@ def frame_error_chart(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any] | Non
     y = alt.Y("value:Q", title="MRSE against the frame's reference (relative, unitless)",
               scale=alt.Scale(zero=True))
     data = alt.Data(values=rows)
+    # The band's colour keeps the legend (legend=None on one layer drops the shared one).
     band = alt.Chart(data).transform_filter("datum.lo != null").mark_area(opacity=0.2).encode(
-        x=x, y=alt.Y("lo:Q"), y2="hi:Q",
-        color=alt.Color("series:N", scale=colours, legend=None))
+        x=x, y=alt.Y("lo:Q", stack=None), y2="hi:Q",
+        color=alt.Color("series:N", scale=colours, legend=LEGEND))
     line = alt.Chart(data).mark_line(point=alt.OverlayMarkDef(filled=True, size=30)).encode(
         x=x, y=y, color=alt.Color("series:N", scale=colours, legend=LEGEND),
         strokeDash=alt.StrokeDash("series:N", scale=dashes, legend=LEGEND),

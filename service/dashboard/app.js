@@ -112,6 +112,10 @@ async function scenePage(scene) {
     section.innerHTML = `<h4>${esc(group.title)}</h4><div class="plots"></div>`;
     pareto.appendChild(section);
     for (const spec of group.charts) await chart(section.querySelector(".plots"), spec);
+    for (const animated of group.animations) {
+      section.insertAdjacentHTML("beforeend", `<h5>Animated: error per frame</h5><div class="plots animation"></div>`);
+      await animatedView(section.querySelector(".plots.animation:last-of-type"), animated);
+    }
   }
   const sweepEl = document.getElementById("sweep");
   if (!sweeps.length) note(sweepEl, "No sweep of this scene yet (nirc-bench sweep --scene NAME --eps 0.05:1.0).");
@@ -121,6 +125,21 @@ async function scenePage(scene) {
     for (const spec of answer.charts) await chart(sweepEl, spec);
   }
   document.getElementById("runs").innerHTML = resultsTable(runs, (await metricRegistry()).filter((m) => m.field));
+}
+
+// An animated run's (or a scene's animated runs') error per frame (GET /api/v1/charts,
+// jobs/views/animation_chart.py) and, below it, the frames each run took to recover after
+// each change with the bootstrap interval.
+async function animatedView(container, view) {
+  if (view.chart) await chart(container, view.chart);
+  else note(container, view.note);
+  if (!view.recoveries.length) return;
+  const rows = view.recoveries.map((r) => `<tr><td class="text">${runLink(r.run, esc(r.series))}</td>
+    <td>${r.change_frame}</td><td class="text">${esc(r.label)}</td>
+    ${r.note ? `<td colspan="3" class="text muted">${esc(r.note)}</td>`
+      : `<td>${r.frames}${r.within_window ? " (in the steady window)" : ""}</td><td>${interval(r.low === null ? null : [r.low, r.high])}</td><td>${num(r.steady_error)}</td>`}</tr>`).join("");
+  container.insertAdjacentHTML("beforeend", `<table class="recovery"><caption>frames to recover after each change (95 % bootstrap interval over seeds)</caption>
+    <tr><th class="text">run</th><th>change at frame</th><th class="text">what changed</th><th>frames to recover</th><th>95% interval</th><th>steady MRSE</th></tr>${rows}</table>`);
 }
 
 // The run's median frame by stage: wall, kernel (Dr.Jit's kernel history) and harness
@@ -201,7 +220,8 @@ async function runPage(runId, otherId) {
     <form id="other-run" class="compare-controls">side by side with run <input id="other-id" type="number" min="1" value="${esc(otherId ?? "")}" size="6"> <button type="submit">show</button></form>
     <div id="compare"></div>
     <h3>Time per frame</h3><div id="timing">${timingTable(run)}</div>
-    <h3>Convergence over frames</h3><div class="plots" id="convergence"></div>`;
+    <h3>Convergence over frames</h3><div class="plots" id="convergence"></div>
+    ${charts.animation ? `<h3>Animated scene: error per frame and recovery</h3><div class="plots animation" id="animation"></div>` : ""}`;
   document.getElementById("other-run").onsubmit = (ev) => {
     ev.preventDefault();
     const id = document.getElementById("other-id").value;
@@ -210,6 +230,7 @@ async function runPage(runId, otherId) {
   const conv = document.getElementById("convergence");
   if (charts.convergence) await chart(conv, charts.convergence);
   else note(conv, charts.note);
+  if (charts.animation) await animatedView(document.getElementById("animation"), charts.animation);
   await comparisonView(document.getElementById("compare"), run, other);
 }
 
