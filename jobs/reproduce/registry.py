@@ -80,7 +80,7 @@ PAPERS: dict[str, Paper] = {
 
 #: The modules that register figures.
 FIGURE_MODULES = ("jobs.reproduce.vt_fig7", "jobs.reproduce.vt_fig9", "jobs.reproduce.vt_table1",
-                  "jobs.reproduce.nirc_fig4")
+                  "jobs.reproduce.nirc_fig4", "jobs.reproduce.nirc_fig6")
 
 _FIGURES: dict[tuple[str, str], FigureSpec] = {}
 

@@ -1,0 +1,151 @@
+"""[DKHD24] Fig. 6 (Sec. 6.1): the relative variance of the residual estimator,
+V_rel(<F_r>), of the control variates the paper compares (per-pixel SH and vMF, NCV)
+and of the neural caches (SS NIRC, unbiased NIRC with 6 hidden layers).
+
+Ours: each method at its equal-memory preset where it has one (SH 5 bands, 75 floats
+per pixel; vMF 11 lobes, 77; SS NIRC's latent table, 74), NCV and NIRC at their
+defaults (networks shared by every pixel: their floats per pixel are the parameters
+over the pixels, shown), on every scene; V_rel per seed from an untimed probe with the
+final model or cache after F frames (docs/metrics.md), its interval over the K seeds,
+and the median time per frame. The EMA curves over 4000 frames and the integrand images
+of the figure are not reproduced."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from jobs.reproduce.measure import sweep
+from jobs.reproduce.plot import Panel, plot_panels
+from jobs.reproduce.registry import Budget, Context, FigureSpec, register
+from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
+
+SCENES = ("cornell-box", "door", "white-room", "sky")
+#: (series, method, its parameters, a parameter at its default: the sweep's single point)
+SERIES = (
+    ("SH", "cv-sh", {}, "uniform_fraction", 0.25),
+    ("vMF", "cv-vmf", {}, "uniform_fraction", 0.25),
+    ("NCV", "ncv", {}, "uniform_fraction", 0.25),
+    ("SS NIRC", "ss-nirc", {}, "pretrain_frames", 0),
+    ("NIRC", "nirc", {"estimator": "unbiased", "cache": {"mlp": {"hidden_layers": 6}}},
+     "pretrain_frames", 0),
+)
+X_LABEL = "series: " + ", ".join(f"{i} {s[0]}" for i, s in enumerate(SERIES))
+QUANTITIES = {"v_rel": "V_rel(<F_r>)", "ms_per_frame": "ms per frame",
+              "floats_per_pixel": "floats per pixel"}
+#: NIRC's V_rel against NCV's, as the paper states it (1.1-1.32x lower).
+PAPER_RATIO = (1.1, 1.32)
+
+QUICK_WHY = ("--quick: 16x16, K = 3 seeds of F = 4 frames (the paper trains for thousands "
+             "of frames at 1080p on a GPU): 4 scenes x 5 methods x 3 seeds = 60 renders")
+FULL_WHY = "--full: 32x32, K = 4, F = 64 frames: still far below the paper's training"
+QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=256, grid_preset="—", why=QUICK_WHY)
+FULL = Budget(resolution=32, seeds=4, frames=64, ref_spp=1024, grid_preset="—", why=FULL_WHY)
+
+V_REL_NOTE = "V_rel: the K seeds' mean; 95 % interval: log-scale over the seeds (docs/metrics.md)"
+
+
+def v_rel(run: Any) -> Estimate:
+    metrics = run.metrics or {}
+    return Estimate(value=metrics.get("v_rel_mean"), ci95=metrics.get("v_rel_ci95"),
+                    note=V_REL_NOTE)
+
+
+def floats_per_pixel(run: Any, pixels: int) -> float | None:
+    """The model's floats per pixel as the run stores them (the control variates, SS NIRC,
+    NCV), else a network cache's parameters over the pixels."""
+    stats = (run.seed_results[0].metrics.get("method_stats") or {}) if run.seed_results else {}
+    floats = (stats.get("model") or {}).get("floats_per_pixel")
+    if isinstance(floats, dict):
+        floats = floats.get("model")
+    if floats is None and "total_params" in (stats.get("cache_stats") or {}):
+        floats = stats["cache_stats"]["total_params"] / pixels
+    return None if floats is None else float(floats)
+
+
+def measure(ctx: Context) -> Reproduction:
+    b = ctx.budget
+    points: list[Point] = []
+    for scene in SCENES:
+        for index, (series, method, params, parameter, value) in enumerate(SERIES):
+            [(row, run)] = sweep(ctx, scene, method, parameter, [value], params)
+            seconds = row.seconds_per_frame
+            points.append(Point(scene=scene, series=series, x=float(index), run_id=row.id,
+                                values={
+                "v_rel": v_rel(run),
+                "ms_per_frame": Estimate(value=None if seconds is None else 1e3 * seconds),
+                "floats_per_pixel": Estimate(value=floats_per_pixel(run, b.resolution**2))}))
+    return Reproduction(
+        paper="nirc", figure="fig6", title="[DKHD24] Fig. 6: V_rel(<F_r>) of the control "
+                                           "variates and the neural caches",
+        mode="", settings={"resolution": f"{b.resolution}x{b.resolution}", "seeds K": b.seeds,
+                           "frames F": b.frames, "reference spp": b.ref_spp, "why": b.why},
+        x_label=X_LABEL, quantities=QUANTITIES, points=points, verdicts=verdicts(points, b),
+        notes=["our scenes are the project's built-ins, not the paper's",
+               "V_rel is the same quantity for every method: the per-pixel sample variance "
+               "of the one-sample residual at the primary hit with the final model, over "
+               "R² + eps (NIRC: F_r of Eq. 11; control variates: (f - g) / q of Eq. 7)",
+               "ms per frame: the median frame on this shared 2-core CPU, not the paper's GPU",
+               "not reproduced: the EMA curves over 4000 frames and the integrand images"])
+
+
+def _get(points: list[Point], scene: str, series: str) -> Estimate | None:
+    found = [p.values["v_rel"] for p in points if (p.scene, p.series) == (scene, series)]
+    return found[0] if found and found[0].value is not None else None
+
+
+def _below(a: Estimate, b: Estimate) -> int:
+    """+1 when ``a``'s interval lies below ``b``'s, -1 above, 0 overlapping."""
+    if a.ci95 is None or b.ci95 is None:
+        return 0
+    return 1 if a.ci95[1] < b.ci95[0] else -1 if a.ci95[0] > b.ci95[1] else 0
+
+
+def verdicts(points: list[Point], budget: Budget) -> list[Verdict]:
+    short = (f"F = {budget.frames} training frames, far below the paper's thousands "
+             "(its NCV needs about a thousand, NIRC a few hundred)")
+    found = []
+    for other in ("NCV", "SH", "vMF"):
+        signs, detail = [], []
+        for scene in SCENES:
+            nirc, theirs = _get(points, scene, "NIRC"), _get(points, scene, other)
+            if nirc is not None and theirs is not None:
+                signs.append(_below(nirc, theirs))
+                detail.append(f"{scene}: {nirc.text()} vs {theirs.text()}")
+        found.append(_verdict(f"NIRC's V_rel below {other}'s", signs, "; ".join(detail), short))
+    ratios = []
+    for scene in SCENES:
+        nirc, ncv = _get(points, scene, "NIRC"), _get(points, scene, "NCV")
+        if nirc is not None and ncv is not None and nirc.value:
+            ratios.append(f"{scene} {ncv.value / nirc.value:.2f}x")
+    low, high = PAPER_RATIO
+    found.append(Verdict(claim=f"NIRC's V_rel {low}-{high}x lower than NCV's",
+                         verdict="not comparable",
+                         reason=f"{short}; NCV / NIRC here: {', '.join(ratios) or 'none'}"))
+    return found
+
+
+def _verdict(claim: str, signs: list[int], detail: str, short: str) -> Verdict:
+    if not signs:
+        return Verdict(claim=claim, verdict="not comparable", reason="no points measured")
+    if all(s > 0 for s in signs):
+        return Verdict(claim=claim, verdict="holds",
+                       reason=f"intervals apart on every scene; {detail} ({short})")
+    if all(s < 0 for s in signs):
+        return Verdict(claim=claim, verdict="does not hold",
+                       reason=f"the opposite, intervals apart, on every scene; {detail} "
+                              f"({short})")
+    return Verdict(claim=claim, verdict="not comparable",
+                   reason=f"intervals overlap or the order differs between scenes; {detail} "
+                          f"({short})")
+
+
+def draw(reproduction: Reproduction, path: Path) -> Path:
+    return plot_panels(reproduction, [Panel("v_rel", f"{scene}: V_rel", log_y=True, scene=scene)
+                                      for scene in SCENES], path, log_x=False)
+
+
+FIGURE = register(FigureSpec("nirc", "fig6", "V_rel of the residual estimator: SH, vMF and "
+                             "neural control variates, SS NIRC and NIRC (6 hidden layers) on "
+                             "four scenes, with time per frame and floats per pixel",
+                             {"quick": QUICK, "full": FULL}, measure, draw))
