@@ -9,18 +9,15 @@ from typing import Any
 from rich.console import Group
 from rich.table import Table
 
-#: The key of an animated run's metrics (jobs.protocol.animation.execute_animated).
-ANIMATION_KEY = "animation"
+from jobs.views.animation_comparison import (
+    AnimationDelta,
+    RunRecovery,
+    segment_bounds,
+)
 
 
 def _number(value: float | None) -> str:
     return "-" if value is None else f"{value:.4g}"
-
-
-def segment_bounds(changes: list[int], frames: int) -> list[tuple[int, int]]:
-    """(first, last) frame of each segment: frames between two change points."""
-    starts = [0, *(change for change in changes if 0 < change < frames)]
-    return [(start, end - 1) for start, end in zip(starts, [*starts[1:], frames], strict=True)]
 
 
 def frame_error_table(animation: dict[str, Any]) -> Table:
@@ -77,3 +74,33 @@ def animation_tables(animation: dict[str, Any]) -> Group:
         parts = [frame_error_table(animation), recovery_table(animation)]
     parts.append(scene_update_line(animation["scene_update"]))
     return Group(*parts)
+
+
+def _recovery_text(found: RunRecovery) -> str:
+    if found.frames is None:
+        return found.note or "-"
+    interval = "" if found.low is None else f" [{found.low:.3g}, {found.high:.3g}]"
+    return f"{found.frames}{interval}"
+
+
+def animation_comparison_tables(delta: AnimationDelta) -> Group | str:
+    """Per change both runs' frames to recover and whether they differ; per segment both
+    runs' steady error (jobs/views/animation_comparison.py)."""
+    if not delta.comparable:
+        return f"animation, run {delta.run} against run {delta.baseline}: {delta.note}"
+    runs = (f"run {delta.baseline}", f"run {delta.run}")
+    changes = Table(title=f"recovery after each change, run {delta.run} against run "
+                          f"{delta.baseline} (frames, 95% bootstrap interval)")
+    for column in ("change at frame", "what changed", *runs, "differs"):
+        changes.add_column(column, justify="left" if column == "what changed" else "right")
+    for change in delta.changes:
+        changes.add_row(str(change.change_frame), change.label, _recovery_text(change.baseline),
+                        _recovery_text(change.run),
+                        "-" if change.differs is None else "yes" if change.differs else "no")
+    segments = Table(title="steady MRSE per segment (seed mean over its last frames)")
+    for column in ("segment", "frames", *runs):
+        segments.add_column(column, justify="right")
+    for number, segment in enumerate(delta.segments):
+        segments.add_row(str(number), f"{segment.first}-{segment.last}",
+                         _number(segment.baseline), _number(segment.run))
+    return Group(changes, segments, f"note: {delta.note}")

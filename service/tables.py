@@ -13,6 +13,7 @@ from rich.text import Text
 
 from jobs.protocol.calibration import ADVICE
 from jobs.protocol.results import ReportRow, RunResult, RunResultDetail
+from jobs.views.animation_comparison import ANIMATION_KEY
 from metrics.bias_intervals import PER_CACHE
 from metrics.denoised import DENOISER_KEY
 from metrics.registry import (
@@ -27,7 +28,7 @@ from metrics.registry import (
     within_noise,
 )
 from renderers.load import stall_text
-from service.animation_tables import ANIMATION_KEY, animation_tables
+from service.animation_tables import animation_comparison_tables, animation_tables
 
 if TYPE_CHECKING:
     from jobs.pareto.report import Report
@@ -590,6 +591,7 @@ def comparison_table(comparison: RunComparison) -> Group:
                           "-" if m.differs is None else "yes" if m.differs else "no",
                           m.interval_note)
         parts.append(table)
+    parts += [animation_comparison_tables(delta) for delta in comparison.animation]
     parts.append(f"note: {comparison.note}")
     return Group(*parts)
 

@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from jobs.protocol.results import RunResult
+from jobs.views.animation_comparison import AnimationDelta, compare_animations
 from metrics.registry import LISTED, Metric, below_noise_floor
 from metrics.statistics import welch_interval
 
@@ -104,6 +105,11 @@ class RunComparison(BaseModel):
     standings: list[RunStanding] = Field(
         default_factory=list, description="each run's speed, efficiency, load flags and "
                                           "verdicts, in order")
+    animation: list[AnimationDelta] = Field(
+        default_factory=list, description="where a run is animated: each later run's "
+                                          "recovery after each change and steady error per "
+                                          "segment against the first's, or why they are not "
+                                          "comparable (jobs/views/animation_comparison.py)")
     note: str
 
 
@@ -194,8 +200,12 @@ def compare_runs(runs: list[Any]) -> RunComparison:
     deltas = [RunDelta(run=run.id, baseline=runs[0].id,
                        metrics=[metric_delta(m, runs[0], run) for m in LISTED])
               for run in runs[1:]]
+    animation = [delta for run in runs[1:]
+                 if (delta := compare_animations(runs[0].id, runs[0].metrics, run.id,
+                                                 run.metrics))]
+    notes += [delta.note for delta in animation if not delta.comparable]
     return RunComparison(runs=rows, same_device=same_device, same_reference_scene=same_scene,
                          metric_version=metric_versions[0],
                          estimator_versions={m: sorted(v) for m, v in estimators.items()},
-                         differences=found, deltas=deltas,
+                         differences=found, deltas=deltas, animation=animation,
                          standings=[standing(r) for r in rows], note="; ".join(notes))
