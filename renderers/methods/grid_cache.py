@@ -289,25 +289,36 @@ def propagate(scene: Any, updater: Any, grid: Any, params: GridCacheParams, seed
     return Propagation(scene, updater, grid, params, frozen=False)(seed)
 
 
-#: Passes over which the pre-fill measures the change of the grid's mean (a slope over
-#: several passes, so that one pass's noise does not end it early).
+#: Passes over which the pre-fill measures the change of the grid's mean and record
+#: count (a slope over several passes, so that one pass's noise does not end it early).
 PREFILL_SPAN = 4
 
 
-def prefill_settled(means: list[float], tolerance: float) -> bool:
-    """Whether the grid's mean luminance, averaged over the last :data:`PREFILL_SPAN`
-    passes, moved by at most ``tolerance`` (relative) per pass from its average over the
-    :data:`PREFILL_SPAN` passes before. Averages of windows, not single passes: a single
-    pass's noise exceeds the tolerance on small grids (so each pass's change never met
-    it, and the pre-fill always ran to its limit), and two passes :data:`PREFILL_SPAN`
-    apart can meet it while the mean still moves (cornell-box 32x32 with 16 passes at
-    most: 2 seeds of 16 stopped after 5 and 6 passes, far from equilibrium, with
-    1.4-2.2x the other seeds' MRSE). A mean of 0 has not settled: no light has reached
-    the records yet (corridor 32x32, lit at its far end: the first 4-8 passes' means are
-    0 on some seeds, and 0 moved by 0 met the relative tolerance)."""
-    recent = sum(means[-PREFILL_SPAN:]) / PREFILL_SPAN
-    before = sum(means[-2 * PREFILL_SPAN:-PREFILL_SPAN]) / PREFILL_SPAN
+def prefill_settled(series: list[float], tolerance: float) -> bool:
+    """Whether ``series`` (one value per pre-fill pass), averaged over the last
+    :data:`PREFILL_SPAN` passes, is above 0 and moved by at most ``tolerance`` (relative)
+    per pass from its average over the :data:`PREFILL_SPAN` passes before. Averages of
+    windows, not single passes: a single pass's noise exceeds the tolerance on small
+    grids (so each pass's change of the mean never met it, and the pre-fill always ran to
+    its limit), and two passes :data:`PREFILL_SPAN` apart can meet it while the mean
+    still moves (cornell-box 32x32 with 16 passes at most: 2 seeds of 16 stopped after 5
+    and 6 passes, far from equilibrium, with 1.4-2.2x the other seeds' MRSE). A value of
+    0 has not settled: for the mean, no light has reached the records yet (corridor
+    32x32, lit at its far end: the first 4-8 passes' means are 0 on some seeds, and 0
+    moved by 0 met the relative tolerance)."""
+    recent = sum(series[-PREFILL_SPAN:]) / PREFILL_SPAN
+    before = sum(series[-2 * PREFILL_SPAN:-PREFILL_SPAN]) / PREFILL_SPAN
     return recent > 0.0 and abs(recent - before) / PREFILL_SPAN <= tolerance * recent
+
+
+def prefill_equilibrium(means: list[float], records: list[float], tolerance: float) -> bool:
+    """Whether the pre-fill has reached equilibrium after these passes: the grid's mean
+    luminance and its number of records have both settled (:func:`prefill_settled`).
+    The mean alone has early flat stretches while exploration still adds records (door
+    32x32: 4 pre-fills of 64 stopped after 8-16 passes with a few hundred of the ~900
+    records a settled grid holds); the new records then enter the mean later."""
+    return (len(means) >= 2 * PREFILL_SPAN and prefill_settled(means, tolerance)
+            and prefill_settled(records, tolerance))
 
 
 def prefill(propagation: Propagation, params: GridCacheParams,
@@ -320,17 +331,20 @@ def prefill(propagation: Propagation, params: GridCacheParams,
     a record's value lags that iteration, converging like t^-(1 - albedo); with a short
     window (``prefill_history`` observations, an exponential average over the last
     few passes) the iteration converges geometrically. Passes run until the grid's
-    mean luminance, averaged over the last :data:`PREFILL_SPAN` passes, moves by less than
-    ``prefill_tolerance`` (relative) per pass from the window before (:func:`prefill_settled`), at most
+    mean luminance and its number of records, each averaged over the last
+    :data:`PREFILL_SPAN` passes, move by less than ``prefill_tolerance`` (relative) per
+    pass from the window before (:func:`prefill_equilibrium`), at most
     ``prefill_frames``; then the long history restarts from the records' values
     (:meth:`MomentGrid.restart_history`), so the averages that follow are taken at
     equilibrium. Returns (passes taken, the grid's mean luminance after each)."""
     grid = propagation.grid
     means: list[float] = []
+    records: list[float] = []
     for index in range(params.prefill_frames):
         propagation(derive_seed(*seed_parts, "prefill", index), params.prefill_history)
         means.append(grid.mean_luminance())
-        if len(means) >= 2 * PREFILL_SPAN and prefill_settled(means, params.prefill_tolerance):
+        records.append(float(grid.records()))
+        if prefill_equilibrium(means, records, params.prefill_tolerance):
             break
     grid.restart_history()
     return len(means), means

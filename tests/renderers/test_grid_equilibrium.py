@@ -130,3 +130,45 @@ def test_a_grid_no_light_has_reached_has_not_settled():
         return abs(recent - before) / PREFILL_SPAN <= tolerance * abs(recent)
 
     assert without_the_check(dark, 2e-3)
+
+
+class _ScriptedPasses:
+    """A propagation whose grid reports a scripted mean luminance and record count after
+    each pass (the pre-fill reads nothing else)."""
+
+    def __init__(self, means: list[float], records: list[int]) -> None:
+        self.passes = 0
+        self.grid = types.SimpleNamespace(
+            mean_luminance=lambda: means[self.passes - 1],
+            records=lambda: records[self.passes - 1],
+            restart_history=lambda: None)
+
+    def __call__(self, seed: int, history: int) -> None:
+        self.passes += 1
+
+
+def test_the_prefill_waits_for_the_records_to_settle(monkeypatch):
+    """Door 32x32's early stops: the grid's mean had a flat stretch from the first passes
+    while exploration still added records (a few hundred of the ~900 a settled grid
+    holds, growing for ~50 passes). Scripted so, with the mean flat from the start and
+    the records growing by 20 a pass up to pass 40, the pre-fill runs until the records'
+    windows settle (pass 40 + 2 spans); the old rule on the mean alone (planted) stops
+    after the first 2 spans."""
+    from renderers.methods import grid_cache
+    from renderers.methods.grid_cache import PREFILL_SPAN, prefill, prefill_settled
+
+    growth = 40
+    means = [0.3] * 128
+    records = [100 + 20 * min(index, growth) for index in range(128)]
+    params = parse_params("grid-cache", {"prefill_frames": 128})
+
+    def passes() -> int:
+        return prefill(_ScriptedPasses(means, records), params, (0,))[0]
+
+    assert growth < passes() <= growth + 2 * PREFILL_SPAN + 1
+
+    def mean_alone(means, _records, tolerance):
+        return len(means) >= 2 * PREFILL_SPAN and prefill_settled(means, tolerance)
+
+    monkeypatch.setattr(grid_cache, "prefill_equilibrium", mean_alone)
+    assert passes() == 2 * PREFILL_SPAN
