@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from jobs.reproduce.results import Point, Reproduction
-from jobs.views.plots import _annotate, _draw_ci, _new_figure, _plottable, _save_png
+from jobs.views.plots import annotate_points, draw_ci, new_figure, plottable, save_png
 
 
 @dataclass(frozen=True)
@@ -28,7 +28,7 @@ def plot_panels(reproduction: Reproduction, panels: list[Panel], path: Path, *,
     points for which ``marked`` holds are drawn enlarged (e.g. a sample target)."""
     rows = math.ceil(len(panels) / columns)
     height = 3.6 * rows + 0.8   # inches: the panels and a band for the title above them
-    figure, axes = _new_figure(rows, columns, reproduction.title,
+    figure, axes = new_figure(rows, columns, reproduction.title,
                                figsize=(4.6 * columns, height))
     figure.subplots_adjust(top=1.0 - 0.8 / height, bottom=0.6 / height)
     for ax in axes[len(panels):]:
@@ -42,14 +42,14 @@ def plot_panels(reproduction: Reproduction, panels: list[Panel], path: Path, *,
             members = [p for p in points if p.series == series and panel.quantity in p.values]
             rows_ = [{"x": p.x, "y": p.values[panel.quantity].value,
                       "ci": p.values[panel.quantity].ci95} for p in members]
-            xs, ys, below, missing = _plottable(((r["x"], r["y"]) for r in rows_),
+            xs, ys, below, missing = plottable(((r["x"], r["y"]) for r in rows_),
                                                 log=panel.log_y)
             hidden, dropped = hidden + below, dropped + missing
             if not xs:
                 continue
             (line,) = ax.plot(xs, ys, "o-", markersize=3, label=series)
             plotted = True
-            _draw_ci(ax, rows_, "y", "ci", line.get_color(), x_key="x")
+            draw_ci(ax, rows_, "y", "ci", line.get_color(), x_key="x")
             big = [(p.x, p.values[panel.quantity].value) for p in members if marked(p)]
             big = [(x, y) for x, y in big if y is not None and (y > 0 or not panel.log_y)]
             if big:
@@ -64,5 +64,5 @@ def plot_panels(reproduction: Reproduction, panels: list[Panel], path: Path, *,
         ax.grid(True, which="major", alpha=0.3)
         if plotted:
             ax.legend(fontsize="x-small")
-        _annotate(ax, plotted, hidden, dropped)
-    return _save_png(figure, path)
+        annotate_points(ax, plotted, hidden, dropped)
+    return save_png(figure, path)

@@ -15,7 +15,15 @@ from typing import Any
 
 import altair as alt
 
-from jobs.views.charts import HEIGHT, LEGEND, WIDTH, _finish, _title, run_link, style_scales
+from jobs.views.charts import (
+    HEIGHT,
+    LEGEND,
+    WIDTH,
+    chart_title,
+    finish_chart,
+    run_link,
+    style_scales,
+)
 
 #: The colour of the change rules and their labels (no method's hue: chart_styles).
 CHANGE_COLOUR = "#555555"
@@ -94,9 +102,9 @@ def frame_error_chart(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any] | Non
                                         dx=3, dy=2).encode(
         x="frame:Q", y=alt.value(0), text="label:N")
     layers = [band, line, rules, text] if marks else [band, line]
-    title = _title("MRSE per frame (seed mean, 95 % band)",
+    title = chart_title("MRSE per frame (seed mean, 95 % band)",
                    ["dashed rules: the scene's changes"] if marks else [])
-    return _finish(alt.layer(*layers).properties(width=WIDTH, height=HEIGHT, title=title))
+    return finish_chart(alt.layer(*layers).properties(width=WIDTH, height=HEIGHT, title=title))
 
 
 def recovery_rows(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:

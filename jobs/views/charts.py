@@ -107,7 +107,7 @@ def _loaded(count: int) -> list[str]:
             "front or envelope"] if count else []
 
 
-def _finish(chart: alt.TopLevelMixin) -> dict[str, Any]:
+def finish_chart(chart: alt.TopLevelMixin) -> dict[str, Any]:
     spec = chart.to_dict()
     spec.pop("$schema", None)       # a URL; the page names the mode instead
     return spec
@@ -119,7 +119,7 @@ def chart_png(spec: Mapping[str, Any], path: Path) -> Path:
     return path
 
 
-def _title(text: str, notes: Sequence[str]) -> alt.Title:
+def chart_title(text: str, notes: Sequence[str]) -> alt.Title:
     return alt.Title(text, subtitle=list(notes), anchor="start") if notes \
         else alt.Title(text, anchor="start")
 
@@ -213,7 +213,7 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
     ).encode(x="ms:Q", y=alt.Y("value:Q", scale=y_scale), detail="stretch:N",
              color=alt.Color("curve:N", scale=colours, legend=LEGEND),
              strokeDash=alt.StrokeDash("curve:N", scale=dashes, legend=LEGEND))
-    title = _title(f"{metric['label']} vs time — {group.title}",
+    title = chart_title(f"{metric['label']} vs time — {group.title}",
                    ["black: Pareto front of this chart (spp, N_c, eps are points on a curve)",
                     *(["wide grey: the strongest PT, the best of its candidates at each time"]
                       if envelope else []),
@@ -221,7 +221,7 @@ def error_time_chart(group: Group, runs: Sequence[Mapping[str, Any]],
                     *_not_drawn(len(usable) - len(drawn))])
     layers = ([strongest] if envelope else []) + ([curves, line] if front else [curves])
     layers += [bars] if any(p["lo"] for p in points) else []
-    return _finish(alt.layer(*layers, dots).properties(width=WIDTH, height=HEIGHT, title=title))
+    return finish_chart(alt.layer(*layers, dots).properties(width=WIDTH, height=HEIGHT, title=title))
 
 
 def history_chart(metric: Mapping[str, Any], setting: str, method: str,
@@ -280,10 +280,10 @@ def history_chart(metric: Mapping[str, Any], setting: str, method: str,
     rules = [alt.Chart(alt.Data(values=[m for m in marks if m["colour"] == colour])).mark_rule(
         strokeWidth=1.5, strokeDash=[4, 3], color=colour).encode(
         x=x, tooltip=["what:N", "commit:N"]) for colour in dict.fromkeys(m["colour"] for m in marks)]
-    title = _title(f"{metric['label']} over commits — {setting} ({metric['direction']} is better)",
+    title = chart_title(f"{metric['label']} over commits — {setting} ({metric['direction']} is better)",
                    ["red: detected step; grey: version change", *_not_drawn(below)])
     layers = [*rules, bars] if any(r["lo"] for r in rows) else rules
-    return _finish(alt.layer(*layers, line).properties(width=WIDTH, height=HEIGHT, title=title))
+    return finish_chart(alt.layer(*layers, line).properties(width=WIDTH, height=HEIGHT, title=title))
 
 
 def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
@@ -310,7 +310,7 @@ def convergence_chart(run: Mapping[str, Any]) -> dict[str, Any] | None:
                                   legend=None),     # the subtitle says which is which
         tooltip=["seed:N", "kind:N", "frame:Q", alt.Tooltip("value:Q", title="MRSE", format=".4g")],
     ).add_params(alt.selection_interval(bind="scales"))
-    return _finish(chart.properties(width=WIDTH, height=HEIGHT, title=_title(
+    return finish_chart(chart.properties(width=WIDTH, height=HEIGHT, title=chart_title(
         f"run {run['id']}: MRSE over frames — {config_label(run)}",
         ["solid: each frame; dashed: frames accumulated"])))
 
@@ -354,5 +354,5 @@ def sweep_chart(sweep_id: int, rows: Sequence[Mapping[str, Any]],
                  alt.Tooltip("run:Q", title="run")],
         href="href:N",
     ).add_params(alt.selection_interval(bind="scales"))
-    return _finish(chart.properties(width=WIDTH, height=HEIGHT, title=_title(
+    return finish_chart(chart.properties(width=WIDTH, height=HEIGHT, title=chart_title(
         f"{metric['label']} — sweep {sweep_id}", _not_drawn(len(usable) - len(drawn)))))

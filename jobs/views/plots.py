@@ -76,7 +76,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str,
     series = list(dict.fromkeys(str(row["series"]) for row in rows))
     styles = _styles((row.get("method"), str(row["series"])) for row in rows)
     nrows = math.ceil(len(_SWEEP_PANELS) / 2)
-    figure, axes = _new_figure(nrows, 2, title, figsize=(9.0, 3.5 * nrows))
+    figure, axes = new_figure(nrows, 2, title, figsize=(9.0, 3.5 * nrows))
     for ax in axes[len(_SWEEP_PANELS):]:  # an odd panel count leaves one cell empty
         figure.delaxes(ax)
     axes = axes[:len(_SWEEP_PANELS)]
@@ -85,7 +85,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str,
         for name in series:
             members = [row for row in rows if str(row["series"]) == name]
             pairs = ((row.get(x_key), row.get(key)) for row in members)
-            xs, ys, below, missing = _plottable(pairs, log=log)
+            xs, ys, below, missing = plottable(pairs, log=log)
             hidden, dropped = hidden + below, dropped + missing
             if xs:
                 # Open markers: an equal-time series often coincides with its base
@@ -97,7 +97,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str,
                         fillstyle="none" if open_marker else "full")
                 plotted = True
             if ci_key:
-                _draw_ci(ax, members, key, ci_key, styles[name].colour, x_key)
+                draw_ci(ax, members, key, ci_key, styles[name].colour, x_key)
         ax.set_title(label)
         ax.set_xlabel("% indirect-radiance bounces" if figure_13 else str(x_label or x_key))
         ax.set_ylabel(label)
@@ -109,7 +109,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str,
         if log:
             ax.set_yscale("log")
         ax.grid(True, which="major", alpha=0.3)
-        _annotate(ax, plotted, hidden, dropped)
+        annotate_points(ax, plotted, hidden, dropped)
 
     handles = {}
     for ax in axes:
@@ -119,7 +119,7 @@ def plot_sweep(rows: list[dict[str, Any]], path: Path, title: str,
         figure.legend(
             handles.values(), handles.keys(), loc="lower center", ncols=min(len(handles), 4)
         )
-    return _save_png(figure, path)
+    return save_png(figure, path)
 
 
 def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
@@ -134,7 +134,7 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
     note.
     """
     styles = _styles((curve.get("method"), label) for label, curve in curves.items())
-    figure, (ax,) = _new_figure(1, 1, title, figsize=(7.0, 4.5))
+    figure, (ax,) = new_figure(1, 1, title, figsize=(7.0, 4.5))
     plotted, hidden, dropped = False, 0, 0
     for label, curve in curves.items():
         for key, style, kind in (
@@ -143,7 +143,7 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
         ):
             if curve.get(key) is None:
                 continue
-            xs, ys, below, missing = _plottable(zip(curve["frame"], curve[key], strict=True),
+            xs, ys, below, missing = plottable(zip(curve["frame"], curve[key], strict=True),
                                                 log=True)
             hidden, dropped = hidden + below, dropped + missing
             if xs:
@@ -155,8 +155,8 @@ def plot_convergence(curves: dict[str, dict[str, Any]], path: Path, title: str) 
     ax.grid(True, which="major", alpha=0.3)
     if plotted:
         ax.legend(fontsize="small")
-    _annotate(ax, plotted, hidden, dropped)
-    return _save_png(figure, path)
+    annotate_points(ax, plotted, hidden, dropped)
+    return save_png(figure, path)
 
 
 def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
@@ -174,7 +174,7 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
     """
     series = list(dict.fromkeys(str(p["series"]) for p in points))
     styles = _styles((p.get("method"), str(p["series"])) for p in points)
-    figure, (ax,) = _new_figure(1, 1, title, figsize=(7.5, 5.0))
+    figure, (ax,) = new_figure(1, 1, title, figsize=(7.5, 5.0))
     plotted, hidden, dropped = False, 0, 0
     for name in series:
         members = [p for p in points if str(p["series"]) == name]
@@ -215,8 +215,8 @@ def plot_pareto(points: list[dict[str, Any]], key: str, label: str, path: Path,
     ax.grid(True, which="both", alpha=0.3)
     if plotted:
         ax.legend(fontsize="small")
-    _annotate(ax, plotted, hidden, dropped)
-    return _save_png(figure, path)
+    annotate_points(ax, plotted, hidden, dropped)
+    return save_png(figure, path)
 
 
 def _positive(value: Any) -> bool:
@@ -237,7 +237,7 @@ def dropped_points(values: Iterable[Any]) -> int:
     return sum(1 for value in values if _finite(value) is None)
 
 
-def _plottable(
+def plottable(
     pairs: Iterable[tuple[Any, Any]], *, log: bool
 ) -> tuple[list[float], list[float], int, int]:
     """The (x, y) pairs that can be drawn, as x-sorted coordinate lists, then how many
@@ -258,7 +258,7 @@ def _plottable(
     return [x for x, _ in points], [y for _, y in points], hidden, dropped
 
 
-def _draw_ci(ax: Axes, rows: list[dict[str, Any]], key: str, ci_key: str, colour: str,
+def draw_ci(ax: Axes, rows: list[dict[str, Any]], key: str, ci_key: str, colour: str,
              x_key: str = "ir_bounces_pct") -> None:
     """Error bars for the rows' ``ci_key`` intervals around ``key`` that fit on a log axis."""
     xs, ys, below, above = [], [], [], []
@@ -292,7 +292,7 @@ def _linestyle(style: SeriesStyle) -> str | tuple[int, tuple[int, ...]]:
     return (0, style.dash) if style.dash else "-"
 
 
-def _new_figure(
+def new_figure(
     nrows: int, ncols: int, title: str, figsize: tuple[float, float]
 ) -> tuple[Figure, list[Axes]]:
     """A pyplot-free figure on an Agg canvas, its axes in row-major order, titled ``title``."""
@@ -304,7 +304,7 @@ def _new_figure(
     return figure, list(figure.subplots(nrows, ncols, squeeze=False).ravel())
 
 
-def _annotate(ax: Axes, plotted: bool, hidden: int, dropped: int) -> None:
+def annotate_points(ax: Axes, plotted: bool, hidden: int, dropped: int) -> None:
     """Say on the panel when it is empty, when points <= 0 were left off its log axis and
     when points were missing or not finite."""
     lines = [] if plotted else ["no data"]
@@ -336,7 +336,7 @@ def fit_margins(figure: Figure, pad_px: float = 4.0) -> None:
         figure.subplots_adjust(left=figure.subplotpars.left + shift)
 
 
-def _save_png(figure: Figure, path: Path) -> Path:
+def save_png(figure: Figure, path: Path) -> Path:
     """Write ``figure`` as a PNG to ``path`` atomically (temp file, then ``os.replace``),
     its margins fitted first (:func:`fit_margins`)."""
     fit_margins(figure)

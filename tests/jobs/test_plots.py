@@ -48,13 +48,13 @@ def assert_no_temp_files(folder: Path) -> None:
 def figures(monkeypatch: pytest.MonkeyPatch) -> list[Figure]:
     """The figures the plot functions save, for checking what was drawn."""
     saved: list[Figure] = []
-    save = plots._save_png
+    save = plots.save_png
 
     def recording_save(figure: Figure, path: Path) -> Path:
         saved.append(figure)
         return save(figure, path)
 
-    monkeypatch.setattr(plots, "_save_png", recording_save)
+    monkeypatch.setattr(plots, "save_png", recording_save)
     return saved
 
 
