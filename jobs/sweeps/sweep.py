@@ -553,6 +553,12 @@ def matching_rbias2(run: Any) -> float | None:
 # Rows, plots, storage
 # ---------------------------------------------------------------------------
 
+def primary_nc(nc: list[int] | int | None) -> int | None:
+    """N_c at the primary hit: `nirc`'s per-vertex list starts with it, `ss-nirc`'s is one
+    number."""
+    return nc[0] if isinstance(nc, list) and nc else nc if isinstance(nc, int) else None
+
+
 def point_row(series: str, eps: float | None, run: Any) -> SweepRow:
     """One line of the sweep table from a stored run."""
     m, stats = run.metrics, run.path_stats
@@ -562,7 +568,7 @@ def point_row(series: str, eps: float | None, run: Any) -> SweepRow:
     calibration = sweep.get("calibration")
     return SweepRow.of(
         run, series=SERIES_LABELS.get(series, series), eps=eps,
-        nc=(run.params.get("nc") or [None])[0], rbias2_raw=m.get("rbias2_raw"),
+        nc=primary_nc(run.params.get("nc")), rbias2_raw=m.get("rbias2_raw"),
         avg_path_length=stats.get("avg_path_vertices"),
         ir_bounces_pct=ir_bounces_pct(fractions),
         avg_path_length_authors=avg_path_length_authors(fractions, background),
