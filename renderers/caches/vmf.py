@@ -22,8 +22,19 @@ weights pi_k proportional to the amplitudes' channel mean (the same statistic),
     batch:   A_kc = 1/N sum_j o_jc gamma_jk,   S_k = 1/N sum_j o_j gamma_jk w_j
     step:    a <- (1 - eta_t) a + eta_t A,   s <- (1 - eta_t) s + eta_t S,
              eta_t = (t + 1)^(-step_exponent), t the pixel's batches so far
-    M-step:  mu_k = s_k / |s_k|,  rbar = |s_k| / mean_c a_kc,
+    M-step:  mu_k = s_k / |s_k|,  rbar = |s_k| / mean_c a_kc  n_k / (n_k + nu),
              kappa_k = rbar (3 - rbar^2) / (1 - rbar^2)   (Banerjee et al. 2005)
+
+The M-step's mean length is a MAP estimate, not Vorba et al.'s maximum likelihood:
+a prior of nu pseudo-samples (``prior_samples``) of zero resultant, each carrying
+the lobe's mean weight, shrinks the data's rbar by n_k / (n_k + nu), n_k the
+lobe's effective sample count: Kish's (sum_j o_j gamma_jk)^2 / sum_j (o_j
+gamma_jk)^2 of each batch, summed over the batches. Without it (nu = 0) a lobe fed
+by one sample has rbar = 1 and kappa at its bound 1e4: g then puts the lobe's
+whole amplitude where the next frames' samples almost never go, so a frame's
+estimate is G - a_k too high unless a rare sample reaches the lobe and repays it
+at once (unbiased, but so heavy-tailed that the means of a few seeds were biased:
+docs/control_variates.md). With the prior kappa grows about as n_k / nu.
 
 so a_kc estimates int f_c gamma_k and sum_k a_kc estimates int f_c. One batch is
 one frame's samples of the pixel (its spp first hits), which the render keeps
@@ -59,13 +70,17 @@ class VMFConfig(BaseModel):
                                  description="concentration of every lobe before the fit")
     step_exponent: float = Field(0.7, gt=0.5, le=1.0,
                                  description="stepwise EM's rate eta_t = (t+1)^-exponent")
+    prior_samples: float = Field(1.0, ge=0.0, le=1e6,
+                                 description="pseudo-samples of zero mean resultant in "
+                                             "kappa's MAP estimate (0: maximum likelihood)")
 
     def floats_per_pixel(self) -> dict[str, int]:
         """The model's floats per pixel (what g is), and the fit's: the running mean
-        direction statistic (3 per lobe) and the batches so far (1). A render's
+        direction statistic (3 per lobe), the effective sample count (1 per lobe) and
+        the batches so far (1). A render's
         samples add 9 floats per sample until the fit
         (renderers.integrators.control_variate_records)."""
-        return {"model": LOBE_FLOATS * self.lobes, "fit": 3 * self.lobes + 1}
+        return {"model": LOBE_FLOATS * self.lobes, "fit": 4 * self.lobes + 1}
 
 
 def vmf_config(**overrides: Any) -> VMFConfig:
@@ -84,7 +99,7 @@ def fibonacci_directions(count: int) -> np.ndarray:
 
 
 def kappa_from_mean_length(rbar: np.ndarray) -> np.ndarray:
-    """Banerjee et al.'s approximation of the maximum-likelihood kappa in 3-D."""
+    """Banerjee et al.'s approximation of the kappa whose mean length is ``rbar``, in 3-D."""
     rbar = np.clip(rbar, 0.0, 1.0 - 1e-6)
     return np.clip(rbar * (3.0 - rbar * rbar) / (1.0 - rbar * rbar), *KAPPA_RANGE)
 
@@ -108,6 +123,7 @@ class VMFModel:
         self.kappa = np.full((pixels, lobes), config.initial_kappa)
         self.amplitude = np.zeros((pixels, lobes, CHANNELS))
         self.direction_sum = np.zeros((pixels, lobes, 3))
+        self.effective_samples = np.zeros((pixels, lobes))
         self.batches = np.zeros(pixels)
         self.nonfinite = 0
         self._upload()
@@ -174,9 +190,10 @@ class VMFModel:
                                       lobe * CHANNELS + c, active)
         return mi.Spectrum(*total)
 
-    def _batch(self, records: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _batch(self, records: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The E-step over one render's samples under the current lobes: per pixel the
-        batch's samples N and the sums N A_kc and N S_k (module docstring)."""
+        batch's samples N, the sums N A_kc and N S_k and the lobes' effective sample
+        counts (module docstring)."""
         import drjit as dr
 
         lobes = self._lobes(records.pixel, records.w, True)
@@ -187,27 +204,35 @@ class VMFModel:
                   for prior, (density, _) in zip(priors, lobes, strict=True)]
         total_score = sum(scores)
         shape_weight = sum(records.weighted[c] for c in range(CHANNELS)) / CHANNELS
-        amplitude_sums, direction_sums = [], []
+        amplitude_sums, direction_sums, shape_sums, square_sums = [], [], [], []
         for score in scores:
             gamma = dr.select(total_score > 0, score / total_score, 1.0 / len(scores))
             amplitude_sums.append([records.per_pixel_sum(records.weighted[c] * gamma)
                                    for c in range(CHANNELS)])
             direction_sums.append([records.per_pixel_sum(shape_weight * gamma * records.w[i])
                                    for i in range(3)])
+            shape_sums.append(records.per_pixel_sum(shape_weight * gamma))
+            square_sums.append(records.per_pixel_sum(dr.square(shape_weight * gamma)))
         count = records.per_pixel_sum(records.counts)
-        dr.eval(amplitude_sums, direction_sums, count)
+        dr.eval(amplitude_sums, direction_sums, shape_sums, square_sums, count)
 
         def host(sums: list[list[Any]]) -> np.ndarray:   # (pixels, lobes, 3)
             return np.stack([np.stack([np.asarray(v, dtype=np.float64) for v in lobe], -1)
                              for lobe in sums], axis=1)
 
-        return np.asarray(count, dtype=np.float64), host(amplitude_sums), host(direction_sums)
+        shape_sum, square_sum = (np.stack([np.asarray(v, dtype=np.float64) for v in sums], -1)
+                                 for sums in (shape_sums, square_sums))
+        # Kish's effective sample count of each lobe's weighted samples (0 if none weighs).
+        effective = np.divide(shape_sum ** 2, square_sum, out=np.zeros_like(shape_sum),
+                              where=square_sum > 0)
+        return (np.asarray(count, dtype=np.float64), host(amplitude_sums),
+                host(direction_sums), effective)
 
     def fit(self, records: Any) -> None:
         """The E-step over one render's samples, then for every pixel that had one the
         stepwise blend and the M-step."""
         self.nonfinite += records.nonfinite_count()
-        count, amplitude_sums, direction_sums = self._batch(records)
+        count, amplitude_sums, direction_sums, effective = self._batch(records)
         fed = count > 0
         if not fed.any():
             return
@@ -215,19 +240,23 @@ class VMFModel:
         eta = ((self.batches[fed] + 1.0) ** -self.config.step_exponent)[:, None, None]
         self.amplitude[fed] += eta * (amplitude_sums[fed] / n - self.amplitude[fed])
         self.direction_sum[fed] += eta * (direction_sums[fed] / n - self.direction_sum[fed])
+        self.effective_samples[fed] += effective[fed]
         self.batches[fed] += 1
         self._m_step(fed)
         self._upload()
 
     def _m_step(self, fed: np.ndarray) -> None:
-        """mu and kappa of the fed pixels' lobes from the running statistics; a lobe with
-        no weight (or no mean direction) keeps its mu and kappa."""
+        """mu and kappa of the fed pixels' lobes from the running statistics, rbar
+        shrunk by the prior (module docstring); a lobe with no weight (or no mean
+        direction) keeps its mu and kappa."""
         weight = self.amplitude[fed].mean(axis=-1)
         length = np.linalg.norm(self.direction_sum[fed], axis=-1)
         moved = (weight > 0) & (length > 0)
         mean, kappa = self.mean[fed], self.kappa[fed]
         mean[moved] = self.direction_sum[fed][moved] / length[moved][:, None]
-        kappa[moved] = kappa_from_mean_length(length[moved] / weight[moved])
+        samples = self.effective_samples[fed][moved]
+        shrink = samples / (samples + self.config.prior_samples)
+        kappa[moved] = kappa_from_mean_length(length[moved] / weight[moved] * shrink)
         self.mean[fed], self.kappa[fed] = mean, kappa
 
     def stats(self) -> dict[str, Any]:

@@ -7,9 +7,10 @@ coefficients (11 lobes: 77 floats per pixel, the paper's equal-memory preset),
 their directions initialised on a spherical Fibonacci lattice and fitted by
 stepwise EM with one batch per frame: the frame's spp samples of the pixel
 (renderers.caches.vmf), and used as a control variate with its closed-form
-integral (Eq. 7; renderers.integrators.control_variate). Unbiased in expectation
-whatever the fit, but not claimed (below). Parameters: those of renderers.methods.cv_frames and ``vmf`` (overrides of
-renderers.caches.vmf.VMFConfig, e.g. ``{"lobes": 4}``).
+integral (Eq. 7; renderers.integrators.control_variate): unbiased whatever the
+fit. The M-step's kappa has a prior that keeps lobes fitted from a few samples
+broad (renderers.caches.vmf). Parameters: those of renderers.methods.cv_frames
+and ``vmf`` (overrides of renderers.caches.vmf.VMFConfig, e.g. ``{"lobes": 4}``).
 """
 
 from __future__ import annotations
@@ -42,10 +43,5 @@ def vmf_model(params: CVVMFParams, scene: Any, _seed_parts: tuple[Any, ...]) -> 
 
 METHOD = control_variate_method(
     "cv-vmf", "per-pixel vMF-mixture control variate of the first hits' shading integrand "
-              "(stepwise EM), closed-form integral (unbiased in expectation; not claimed)",
-    CVVMFParams, vmf_model, version=1, label="vMF CV",
-    # Unbiased in expectation but not claimed: fitted from batches of a few samples its
-    # lobes are narrow (kappa up to 1e4), so the residual's mean rests on rare samples;
-    # over 128 seeds of the stress suite's closed-box at its CI settings its image mean
-    # was 5.7 % above the reference (docs/control_variates.md).
-    unbiased=None)
+              "(stepwise EM), closed-form integral (unbiased)",
+    CVVMFParams, vmf_model, version=2, label="vMF CV", unbiased=True)
