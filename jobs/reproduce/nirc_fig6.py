@@ -58,8 +58,9 @@ def floats_per_pixel(run: Any, pixels: int) -> float | None:
     floats = (stats.get("model") or {}).get("floats_per_pixel")
     if isinstance(floats, dict):
         floats = floats.get("model")
-    if floats is None and "total_params" in (stats.get("cache_stats") or {}):
-        floats = stats["cache_stats"]["total_params"] / pixels
+    cache = (stats.get("caches") or {}).get("cache") or {}
+    if floats is None and "parameters" in cache:
+        floats = cache["parameters"] / pixels
     return None if floats is None else float(floats)
 
 

@@ -11,6 +11,11 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field
 
 
+def where(claim: dict[str, Any]) -> str:
+    """A claim's place in the paper: its page, else its section or caption as given."""
+    return f"p. {claim['page']}" if claim.get("page") else str(claim["section"])
+
+
 class Estimate(BaseModel):
     """A number and its 95 % interval (None: none could be made; ``note`` says how or why)."""
 
@@ -76,7 +81,7 @@ class Reproduction(BaseModel):
         lines += [f"- {note}" for note in self.notes]
         if self.claims:
             lines += ["", "The paper's claims:", ""]
-            lines += [f"- p. {c['page']}: \"{c['quote']}\"" for c in self.claims]
+            lines += [f"- {where(c)}: \"{c['quote']}\"" for c in self.claims]
         if self.verdicts:
             lines += ["", "Verdicts:", ""]
             lines += [f"- {v.claim}: **{v.verdict}** ({v.reason})" for v in self.verdicts]

@@ -275,8 +275,10 @@ def cache_record(cache: Any, per_frame: dict[str, Any]) -> dict[str, Any]:
     """A cache's resolved configuration as a run stores it (``method_stats['caches']``):
     the whole network config after preset and overrides (encodings, MLP, output, loss,
     optimizer, EMA, batch and steps) and what it trains on per frame (``per_frame``:
-    paths or points, steps, batch size, records)."""
-    return {"config": cache.config.model_dump(mode="json"), "per_frame": per_frame}
+    paths or points, steps, batch size, records) and its trainable floats (``parameters``:
+    the hash grid's and the MLP's)."""
+    return {"config": cache.config.model_dump(mode="json"), "per_frame": per_frame,
+            "parameters": cache.describe()["total_params"]}
 
 
 def cache_method_stats(cache: Any, params: Any, pretrain_s: float,

@@ -19,7 +19,7 @@ from jobs.reproduce.run import reproduce
 V_REL = {"cv-sh": 0.5, "cv-vmf": 0.6, "ncv": 0.3, "ss-nirc": 0.25}
 STATS = {"cv-sh": {"model": {"floats_per_pixel": {"model": 75, "fit": 76}}},
          "ncv": {"model": {"floats_per_pixel": {"model": 40.5}}},
-         "nirc": {"cache_stats": {"total_params": 2560}}}
+         "nirc": {"caches": {"cache": {"parameters": 2560}}}}
 
 
 def stub_sweep(nirc_v_rel: float) -> Any:
