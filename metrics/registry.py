@@ -154,7 +154,7 @@ METRICS: tuple[Metric, ...] = (
     Metric("v_rel", "V_rel(<F_r>)", "relative variance of the residual estimator at the "
            "primary hit, S²/(R²+eps) per pixel, mean over pixels (two-level methods)",
            "lower", Aggregate.MEAN_CI, key="v_rel_mean", seed_key="v_rel", log_axis=True,
-           requires="v_rel_mean"),
+           group="rvar", requires="v_rel_mean"),
     Metric("psnr", "PSNR", "PSNR of the tone-mapped images (clamp + sRGB), "
            "10 log10(1/MSE) on [0, 1]", "higher", Aggregate.MEAN, key="psnr_mean",
            seed_key="psnr", per_seed=psnr_tonemapped, unit="dB", field="psnr",

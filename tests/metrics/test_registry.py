@@ -71,13 +71,13 @@ def test_stored_keys_and_verdict_names_are_unchanged():
                       "psnr": "psnr_mean", "v_rel": "v_rel_mean",
                       **{f"denoised_{m}_{f}": f"denoised_{m}_{f}_mean" for f in ("frame", "accum")
                          for m in ("mrse", "flip")}}
-    # The denoised errors are withheld with the raw error they denoise.
+    # The denoised errors are withheld with the raw error they denoise, V_rel with rVar.
     assert METRIC_KEYS == {"mse": ("mse",),
                            "mrse": ("mrse", "denoised_mrse_frame", "denoised_mrse_accum"),
                            "flip": ("flip_hdr", "flip_ldr", "denoised_flip_frame",
                                     "denoised_flip_accum"),
-                           "rbias2": ("rbias2", "noise_floor"), "rvar": ("rvar",),
-                           "efficiency": ("efficiency",), "v_rel": ("v_rel",),
+                           "rbias2": ("rbias2", "noise_floor"), "rvar": ("rvar", "v_rel"),
+                           "efficiency": ("efficiency",),
                            "psnr": ("psnr",)}
     assert [m.field for m in LISTED] == ["mrse", "flip", "rbias2", "rvar", "psnr"]
     assert [m.name for m in METRICS if m.needs_k2] == ["rbias2", "rvar"]
