@@ -1,14 +1,16 @@
 """The figures ``nirc-bench reproduce`` knows, by paper and figure key.
 
 A paper is a :class:`Paper` (a short key, its title, its data file under ``papers/``);
-a figure is a :class:`FigureSpec` registered by its module (listed in
-:data:`FIGURE_MODULES`, imported on first use). Another paper's figures slot in as a
-:class:`Paper` here and one module per figure.
+a figure is a :class:`FigureSpec` registered by its module, one module per figure named
+``<paper>_<figure>.py`` in this package (found by :func:`figure_modules`, imported on
+first use). Another paper's figures slot in as a :class:`Paper` here and one module per
+figure.
 """
 
 from __future__ import annotations
 
 import importlib
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,9 +80,13 @@ PAPERS: dict[str, Paper] = {
                  "nvc.toml"),
 }
 
-#: The modules that register figures.
-FIGURE_MODULES = ("jobs.reproduce.vt_fig7", "jobs.reproduce.vt_fig9", "jobs.reproduce.vt_table1",
-                  "jobs.reproduce.nirc_fig4", "jobs.reproduce.nirc_fig6")
+def figure_modules() -> list[str]:
+    """The modules that register figures: this package's ``<paper>_<figure>.py`` files,
+    ``<paper>`` a key of :data:`PAPERS`, ``<figure>`` ``fig<N>`` or ``table<N>``."""
+    pattern = re.compile(rf"^({'|'.join(PAPERS)})_(fig|table)\d+\.py$")
+    here = Path(__file__).parent
+    return sorted(f"{__package__}.{path.stem}" for path in here.iterdir()
+                  if pattern.match(path.name))
 
 _FIGURES: dict[tuple[str, str], FigureSpec] = {}
 
@@ -96,7 +102,7 @@ def register(spec: FigureSpec) -> FigureSpec:
 
 def figures() -> list[FigureSpec]:
     """Every registered figure, by paper and key."""
-    for module in FIGURE_MODULES:
+    for module in figure_modules():
         importlib.import_module(module)
     return sorted(_FIGURES.values(), key=lambda f: (f.paper, f.key))
 
