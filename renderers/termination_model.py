@@ -53,6 +53,12 @@ _TINY = 1e-30
 #: The probability of choosing the left child (the paper's trees: 90 %).
 LEFT_PROBABILITY = 0.9
 
+#: Inner nodes' cache biases of the MSE experiments (Fig. 5's kind of tree, depth 4;
+#: docs/variance_trading.md, "The discrete model").
+EXAMPLE_BIASES = {"": 0.3, "L": 0.1, "R": -0.2, "LL": 0.05, "LR": 0.3, "RL": -0.1, "RR": 0.0,
+                  "LLL": 0.02, "LLR": 0.1, "LRL": -0.05, "LRR": 0.2, "RLL": 0.0, "RLR": 0.1,
+                  "RRL": -0.1, "RRR": 0.05}
+
 
 @dataclass(frozen=True)
 class Node:

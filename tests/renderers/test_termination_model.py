@@ -12,6 +12,7 @@ import math
 import pytest
 
 from renderers.termination_model import (
+    EXAMPLE_BIASES,
     MSEMinimizing,
     Node,
     binary_tree,
@@ -23,10 +24,6 @@ from renderers.termination_model import (
     variance_bounding,
 )
 
-#: Fig. 5's kind of tree: inner nodes' caches biased by these amounts (docs/variance_trading.md).
-BIASES = {"": 0.3, "L": 0.1, "R": -0.2, "LL": 0.05, "LR": 0.3, "RL": -0.1, "RR": 0.0,
-          "LLL": 0.02, "LLR": 0.1, "LRL": -0.05, "LRR": 0.2, "RLL": 0.0, "RLR": 0.1,
-          "RRL": -0.1, "RRR": 0.05}
 THRESHOLDS = [10.0 ** (k / 4) for k in range(-12, 25)]      # 1e-3 .. 1e6
 
 
@@ -127,7 +124,7 @@ TARGETS = (1, 10, 100, 1000, 10000)
 @functools.cache
 def _optimal_mse(samples: float) -> float:
     """The exhaustive optimum's MSE on Fig. 5's tree at ``samples``."""
-    return optimal_frontier(binary_tree(4, biases=BIASES), samples)[1].mse(samples)
+    return optimal_frontier(binary_tree(4, biases=EXAMPLE_BIASES), samples)[1].mse(samples)
 
 
 def _fig5_problems(rule_for) -> list[str]:
@@ -135,7 +132,7 @@ def _fig5_problems(rule_for) -> list[str]:
     s a rule must be the best of the five targets' rules (Fig. 5's dots) and within 5x
     of the exhaustive optimum (the greedy rule's measured gap is at most 4.9x, at
     s = 100; docs/variance_trading.md)."""
-    tree = binary_tree(4, biases=BIASES)
+    tree = binary_tree(4, biases=EXAMPLE_BIASES)
     problems = []
     for samples in TARGETS:
         mse = {target: evaluate(tree, rule_for(target)).mse(samples) for target in TARGETS}
@@ -166,7 +163,7 @@ def test_the_clamp_defers_past_every_biased_cache_for_many_samples():
     """Sec. 4.3: with the deferred bias clamped below the local one, a large sample
     target ends paths only where the cache has no bias; without the clamp the biased
     root ends every path for any sample count (its deferred bias looks as large)."""
-    tree = binary_tree(4, biases=BIASES)
+    tree = binary_tree(4, biases=EXAMPLE_BIASES)
     bias_of = {node.name: node.local_bias for node in tree.nodes()}
     clamped = evaluate(tree, MSEMinimizing(1e6))
     assert all(bias_of[o.stopped_at] == 0.0 for o in clamped.outcomes)
