@@ -453,6 +453,36 @@ def registered_emitters() -> frozenset[int] | None:
     return frozenset(address for address in slots if address)
 
 
+#: Bytes a frozen call's input mapped from host memory is aligned to: Dr.Jit marks a
+#: mapped array unaligned when its address is not a multiple of min(64, vector width x
+#: item size) bytes, and that mark is part of the call's key.
+HOST_ALIGNMENT = 64
+
+
+def host_floats(values: Any) -> Any:
+    """``values`` (host numbers, e.g. a NumPy array) as a flat ``mi.Float`` that a frozen
+    call can take every frame without recording again.
+
+    Built from a contiguous NumPy array, a Dr.Jit array on the LLVM backend maps the
+    array's memory instead of copying it, and flags it unaligned unless its address is
+    a multiple of min(64, vector width x item size) bytes. The flag is part of the key
+    of a frozen call, and NumPy aligns its allocations to 16 bytes only: arrays
+    uploaded anew each frame (`cv-vmf`'s lobes after each fit) met a new pattern of
+    flags every few frames, and each pattern recorded again (measured: 4-7 recordings
+    in 10 frames after the warm-up). Copied into a buffer aligned to
+    :data:`HOST_ALIGNMENT`, the values are mapped aligned whatever NumPy allocates."""
+    import mitsuba as mi
+    import numpy as np
+
+    flat = np.asarray(values, dtype=np.float32).ravel()
+    itemsize = flat.dtype.itemsize
+    buffer = np.empty(flat.size + HOST_ALIGNMENT // itemsize, dtype=np.float32)
+    start = (-buffer.ctypes.data % HOST_ALIGNMENT) // itemsize
+    aligned = buffer[start:start + flat.size]
+    aligned[...] = flat
+    return mi.Float(aligned)
+
+
 class Capacity:
     """A width for a count that changes from call to call (a compaction's), that only
     grows: padded to it, a frozen pass sees the same few widths and records once per

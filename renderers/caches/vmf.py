@@ -108,12 +108,11 @@ class VMFModel:
     """The vMF mixtures of ``pixels`` pixels (module docstring); host arrays hold the
     fit, Dr.Jit arrays what the render reads.
 
-    Its frames are not frozen (``freezable``): a frozen render recorded anew after
-    most fits (measured: 4 recordings in 6 frames after the warm-up, with the render's
-    arrays made opaque or not), presumably as it reaches the host arrays through the
-    integrator; the cause is not established."""
+    Its frames may be frozen (renderers.frozen): the arrays the render reads are
+    uploaded after each fit at aligned addresses (``host_floats``), so a replay's key
+    does not change with where NumPy allocated them."""
 
-    freezable = False
+    freezable = True
 
     def __init__(self, config: VMFConfig, pixels: int) -> None:
         self.config = config
@@ -130,12 +129,12 @@ class VMFModel:
 
     # ---- What the render reads: per lobe (pixel-major) mu, kappa, log-normaliser, a ----
     def _upload(self) -> None:
-        import mitsuba as mi
+        from renderers.frozen import host_floats
 
         kappa = self.kappa
         # log(kappa / (2 pi (1 - exp(-2 kappa)))), -> log(1 / (4 pi)) as kappa -> 0.
         log_norm = np.log(kappa) - np.log(2 * np.pi) - np.log(-np.expm1(-2 * kappa))
-        self.lobe_data = {name: mi.Float(np.ascontiguousarray(values, dtype=np.float32).ravel())
+        self.lobe_data = {name: host_floats(values)
                           for name, values in (("mean", self.mean), ("kappa", kappa),
                                                ("log_norm", log_norm),
                                                ("amplitude", self.amplitude))}

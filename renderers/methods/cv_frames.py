@@ -76,7 +76,7 @@ def applies(features: Any) -> tuple[bool, str]:
 class ModelFrames:
     """A frame function of the control-variate integrator: render, then fit. The render
     is frozen (renderers.frozen) while freezing is on and the model allows it
-    (``freezable``: the SH model does, the vMF model not), the model's data handed over as
+    (``freezable``: the SH and vMF models do), the model's data handed over as
     its argument every frame and the kept samples returned; :meth:`settle` runs it
     alone, which changes no state (the warm-up fits once, frozen or not)."""
 
