@@ -403,7 +403,12 @@ def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], 
 
 def diffuse_only(features: Any) -> tuple[bool, str]:
     """The paper's scenes are diffuse only (Sec. 6): a record holds reflected radiance
-    without an outgoing direction, which a glossy or delta BSDF would need."""
+    without an outgoing direction, which a glossy or delta BSDF would need. An animation
+    that moves shapes is refused: the cell edge is sized once from the scene's extent as
+    loaded (:meth:`GridCacheParams.cache_config`), which moving shapes change."""
+    if "shapes" in features.animation_changes:
+        return False, ("the animation moves shapes: the grid's cell edge is sized from the "
+                       "scene's extent as loaded, and a scene update does not size it again")
     if features.shape_count == 0:
         return False, "the scene has no surface for the cache to live on"
     if features.has_glossy or features.has_delta:

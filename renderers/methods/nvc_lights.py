@@ -261,11 +261,23 @@ render = visibility_cache_render(build, train_frame)
 
 
 def applies(features: Any) -> tuple[bool, str]:
-    """At least 2 emitters (beyond 32 clustered) and a surface for the cache to live on."""
+    """At least 2 emitters (beyond 32 clustered) and a surface for the cache to live on;
+    not an animation moving shapes of a scene whose lights are clustered."""
     if features.emitter_count < 2:
         count = "one emitter" if features.emitter_count == 1 else "no emitter"
         return False, f"{count}: nothing to select"
-    return has_surface(features)
+    return clusters_kept(features) or has_surface(features)
+
+
+def clusters_kept(features: Any) -> tuple[bool, str] | None:
+    """(False, why) where the light clusters of more than MAX_LIGHTS emitters, grouped by
+    position once at load time (:func:`light_selection`), would go stale: an animation
+    that moves shapes (their emitters with them); None otherwise."""
+    if "shapes" in features.animation_changes and features.emitter_count > MAX_LIGHTS:
+        return False, (f"the animation moves shapes and the scene's {features.emitter_count} "
+                       f"emitters (more than {MAX_LIGHTS}) are clustered by position once at "
+                       "load time; a scene update does not cluster them again")
+    return None
 
 
 METHOD = register(Method("nvc-lights",

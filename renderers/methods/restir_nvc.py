@@ -43,6 +43,7 @@ from renderers.methods.base import (
 from renderers.methods.cached import cache_method_stats, point_training
 from renderers.methods.nvc_lights import (
     VisibilityCacheParams,
+    clusters_kept,
     light_selection,
     pretrain,
     train_frame,
@@ -82,10 +83,11 @@ def render(scene: Any, params: ReSTIRNVCParams, *, seed_parts: tuple[Any, ...], 
 
 
 def applies(features: Any) -> tuple[bool, str]:
-    """restir-di's scenes with at least 2 emitters (one emitter: nothing to select)."""
+    """restir-di's scenes with at least 2 emitters (one emitter: nothing to select); not
+    an animation moving shapes of a scene whose lights are clustered (nvc-lights')."""
     if features.emitter_count == 1:
         return False, "one emitter: nothing to select"
-    return restir_applies(features)
+    return clusters_kept(features) or restir_applies(features)
 
 
 METHOD = register(Method("restir-nvc",

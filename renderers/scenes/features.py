@@ -17,6 +17,8 @@ from renderers.scenes.runtime import mitsuba
 #: problem worth a method of its own (`nvc-lights`); below it, NEE's uniform
 #: choice is already good. A heuristic, stated here so it is visible.
 MANY_LIGHTS_MIN = 8
+#: The parts of a scene an animation can change (renderers.scenes.animation).
+ANIMATED_PARTS = ("camera", "shapes", "emitters")
 
 
 @dataclass(frozen=True)
@@ -34,10 +36,17 @@ class SceneFeatures:
     bbox_min: list[float]  # scene bounding box (shapes only)
     bbox_max: list[float]
     polygon_emitter_count: int = 0  # area emitters on meshes (rectangles, triangle meshes)
+    #: What an animation of the scene changes from frame to frame, of ANIMATED_PARTS
+    #: (renderers.scenes.loader.animated); empty for a static scene.
+    animation_changes: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
         data["resolution"] = list(self.resolution)
+        if self.animation_changes:
+            data["animation_changes"] = list(self.animation_changes)
+        else:   # a static scene's features are stored as they were before animations
+            del data["animation_changes"]
         return data
 
 

@@ -25,7 +25,7 @@ from typing import Any, Literal
 from renderers.scenes.animated import ANIMATED, get_animated
 from renderers.scenes.animation import Animation, AnimationPlayer
 from renderers.scenes.errors import SceneError
-from renderers.scenes.features import SceneFeatures, compute_features
+from renderers.scenes.features import ANIMATED_PARTS, SceneFeatures, compute_features
 from renderers.scenes.fingerprint import _referenced_names as referenced_names
 from renderers.scenes.fingerprint import builtin_fingerprint
 from renderers.scenes.library import BUILTINS, LIBRARY_VERSION, get_builtin
@@ -81,8 +81,10 @@ def animated(loaded: LoadedScene, animation: Animation, name: str | None = None,
                          "only with a static scene")
     player = AnimationPlayer(loaded.scene, animation)
     player.apply(0)
+    changes = tuple(part for part in ANIMATED_PARTS if getattr(animation, part))
     return dataclasses.replace(
         loaded, name=name or loaded.name, animation=animation, player=player,
+        features=dataclasses.replace(loaded.features, animation_changes=changes),
         fingerprint=digest("animated-scene", loaded.fingerprint, animation.digest()),
         description=description or f"{loaded.description}, animated")
 
