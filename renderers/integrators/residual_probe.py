@@ -19,6 +19,18 @@ added at x and rho(x) = -n(x, w) f cos / p its residual query (0 after a delta
 continuation, whose light L_c leaves out and the path carries). The cache is
 evaluated in the loop (deferred.InlineQueries), so each term is known where it
 is added; the render frames, deferred and frozen, are not touched.
+
+Why a render of its own and not an extra output of the frames' deferred pass: the
+probe is no second path loop (it is the render integrator's ``trace``, through the
+hooks above), but it cannot ride on a frame. V_rel is a per-pixel variance of F_r
+under one cache, the final one; a frame renders with the cache of its own epoch,
+which trains after every frame, and at the default spp of 1 it has one sample per
+pixel, no variance. Read off the frames, the samples of a pixel would come from as
+many caches as frames. And in the deferred pass L_c(x) is evaluated after the loop,
+in the query pass, so the primary hit's terms would have to be kept per lane as
+extra outputs of a timed, frozen frame, which the comparison of frame times must
+not pay for. One untimed render with ``max(spp, 2)`` samples per pixel and the final
+cache gives the variance directly.
 """
 
 from __future__ import annotations
