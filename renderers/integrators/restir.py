@@ -57,11 +57,26 @@ sum. The path ends at the first hit: the image is the emission seen by the
 camera plus direct light there (Mitsuba's ``path`` at max_depth 2). Emitters
 must be area emitters (a point on a surface).
 
+Temporal reuse along motion vectors: the previous reservoir reused at a pixel is
+that of the previous frame's pixel where x was seen, found by projecting x with
+the previous frame's camera (a perspective camera; :class:`Motion`). It is rejected
+(M_i = 0: its pair's share goes to c, no shadow ray) where x projects off the
+previous film or behind the previous camera, or where the previous first hit x_i
+found there is another surface: no hit, normals more than 25° apart, or
+distances from the previous camera differing by more than 10 % (the thresholds of
+Bitterli et al. 2020, Sec. 6, for reused reservoirs). The choice of input depends
+only on x and the previous G-buffer, and the pairwise weights already take x_i ≠ x
+(p̂V_{x_i} is evaluated at x_i), so the estimator stays unbiased whatever is
+reused; the projection only makes x_i ≈ x, so that the previous sample is a good
+one for x. While the camera stays where the history was made, the pixel's own
+previous reservoir is reused as before (x_i is x up to the pixel's jitter), and
+so it is with a camera that is not a perspective one.
+
 Temporal reuse needs the previous reservoir's support: a_i(y) must be 0 where
 the previous frame's p̂V_{x_i} was 0 (its sample cannot be there). The targets
 are evaluated in the scene as it is now, so after an animation changed the
 scene's emitters or shapes (renderers.frozen.scene_generation; a camera move
-changes no target, x_i is kept) that no longer holds: a light switched on, or a
+changes no target) that no longer holds: a light switched on, or a
 point x_i newly unoccluded, has p̂V_{x_i}(y) > 0 now where the previous reservoir
 could not have sampled y, and a_i takes a share of the canonical sample's
 weight that nothing makes up (docs/estimators.md, "`restir-di`": the frame
@@ -69,16 +84,21 @@ where 8 of 32 lights of `many-lights-switch` switch on was 10 % dark). So a
 frame whose scene state differs from its history's starts without temporal
 reuse (the previous reservoirs, their W and M, are dropped);
 spatial reuse, within the frame, is unaffected. While a shape moves
-continuously every frame is such a frame.
+continuously every frame is such a frame: object motion is treated as a
+disocclusion of every pixel (reprojecting x_i under the shape's previous pose
+would find the point, but its previous target p̂V_{x_i} would need the previous
+scene's geometry, which is not kept).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from renderers.frozen import Frozen, freezing, scene_generation, weak_method
 from renderers.integrators.lights import LightSampler, PowerLightSampler, current_sampler
@@ -111,6 +131,78 @@ class Frame:
 
     reservoirs: Reservoir
     si: mi.SurfaceInteraction3f
+
+
+#: A reused reservoir's first hit must face within this angle of x's (Bitterli et al. 2020,
+#: Sec. 6: 25°) ...
+MAX_NORMAL_ANGLE_DEG = 25.0
+#: ... and lie at a distance from the previous camera within this fraction of x's (10 %).
+MAX_DEPTH_CHANGE = 0.1
+
+
+@dataclass(frozen=True)
+class CameraProjection:
+    """A perspective camera as numbers: world point → film pixel, and its position."""
+
+    to_film: np.ndarray    # 4x4: (x, y, z, 1) → (u w, v w, ·, w), w the camera-space depth
+    position: np.ndarray   # 3
+
+    @classmethod
+    def of(cls, sensor: mi.Sensor) -> CameraProjection | None:
+        """The projection of ``sensor`` (None unless it is a perspective camera)."""
+        params = mi.traverse(sensor)
+        if "x_fov" not in params or "principal_point_offset_x" not in params:
+            return None
+        film = sensor.film()
+        to_sample = mi.perspective_projection(film.size(), film.crop_size(), film.crop_offset(),
+                                              float(params["x_fov"][0]), sensor.near_clip(),
+                                              sensor.far_clip())
+        to_world = np.array(sensor.world_transform().matrix, dtype=np.float64)[..., 0]
+        to_pixels = np.diag([*film.crop_size(), 1.0, 1.0])
+        offset = np.eye(4)   # the principal point's shift, in film fractions
+        offset[0, 3] = -float(params["principal_point_offset_x"][0])
+        offset[1, 3] = -float(params["principal_point_offset_y"][0])
+        return cls(to_pixels @ offset @ np.array(to_sample.matrix, dtype=np.float64)[..., 0]
+                   @ np.linalg.inv(to_world), to_world[:3, 3].copy())
+
+    def same(self, other: CameraProjection | None) -> bool:
+        return (other is not None and np.array_equal(self.to_film, other.to_film)
+                and np.array_equal(self.position, other.position))
+
+    def motion(self) -> Motion:
+        return Motion(mi.Matrix4f(self.to_film.astype(np.float32)),
+                      mi.Point3f(*(float(c) for c in self.position)))
+
+
+@dataclass
+class Motion:
+    """The previous frame's camera, handed to a frame whose camera moved since."""
+
+    to_film: mi.Matrix4f
+    position: mi.Point3f
+
+
+def reproject(si: mi.SurfaceInteraction3f, previous: Frame, motion: Motion,
+              lane: mi.UInt32, size: tuple[int, int]
+              ) -> tuple[mi.UInt32, mi.SurfaceInteraction3f, mi.Bool]:
+    """(the previous frame's lane where each lane's first hit x was seen, the first hit
+    x_i there, whether its reservoir may be reused): x projected with the previous camera, rejected
+    off the film, behind the camera or where the previous first hit found there is
+    another surface (module docstring)."""
+    width, height = size
+    pixel = lane % (width * height)
+    h = motion.to_film @ mi.Vector4f(si.p.x, si.p.y, si.p.z, 1.0)
+    u, v = h.x / h.w, h.y / h.w
+    kept = si.is_valid() & (h.w > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    x = dr.clip(mi.Int32(dr.floor(u)), 0, width - 1)
+    y = dr.clip(mi.Int32(dr.floor(v)), 0, height - 1)
+    source = dr.select(kept, lane - pixel + mi.UInt32(y) * width + mi.UInt32(x), lane)
+    x_i = dr.gather(mi.SurfaceInteraction3f, previous.si, source)
+    depth = dr.norm(si.p - motion.position)
+    kept &= (x_i.is_valid()
+             & (dr.dot(si.n, x_i.n) >= math.cos(math.radians(MAX_NORMAL_ANGLE_DEG)))
+             & (dr.abs(dr.norm(x_i.p - motion.position) - depth) <= MAX_DEPTH_CHANGE * depth))
+    return source, x_i, kept
 
 
 def target(scene: mi.Scene, si: mi.SurfaceInteraction3f, r: Reservoir,
@@ -261,7 +353,8 @@ class ReSTIRDI:
     reads state held in Python (``LightSampler.stateful``, `restir-nvc`'s cache)
     or freezing is off. The history carried between frames is :attr:`history`,
     made in the scene state :attr:`history_state` (module docstring: it is
-    dropped when the state changed).
+    dropped when the state changed) and seen by the camera :attr:`history_camera`
+    (a frame whose camera moved since reuses it along motion vectors).
     """
 
     def __init__(self, scene: mi.Scene, params: ReSTIRParams, replicas: int = 1,
@@ -272,6 +365,7 @@ class ReSTIRDI:
         self.lights = PowerLightSampler(scene) if lights is None else lights
         self.history: Frame | None = None
         self.history_state: tuple[int, str] | None = None
+        self.history_camera: CameraProjection | None = None
         self._frame = (Frozen(weak_method(self.frame), auto_opaque=False)
                        if freezing() and not self.lights.stateful else self.frame)
 
@@ -304,15 +398,23 @@ class ReSTIRDI:
         if state != self.history_state:  # reservoirs of another scene state: no temporal reuse
             self.history = None
         self.history_state = state
+        camera = CameraProjection.of(self.scene.sensors()[0])
+        moved = (self.history is not None and camera is not None
+                 and not camera.same(self.history_camera))
+        motion = self.history_camera.motion() if moved else None
+        self.history_camera = camera
         image, self.history = self._frame(self.scene, mi.UInt32(seed), self.history,
-                                          self.lights.frame_arrays())
+                                          self.lights.frame_arrays(), motion)
         return image
 
     def frame(self, scene: mi.Scene, seed: mi.UInt32, history: Frame | None,
-              lights: dict[str, Any]) -> tuple[mi.TensorXf, Frame]:
+              lights: dict[str, Any], motion: Motion | None = None
+              ) -> tuple[mi.TensorXf, Frame]:
         """One frame of ``scene`` from the previous frame's reservoirs (None: no temporal
-        reuse) and the light selector's data (``LightSampler.frame_arrays``): (image,
-        this frame's reservoirs). Reads no other Dr.Jit value."""
+        reuse), the light selector's data (``LightSampler.frame_arrays``) and the camera
+        the history was seen by where it differs from this frame's (None: each pixel
+        reuses its own previous reservoir): (image, this frame's reservoirs). Reads no
+        other Dr.Jit value."""
         self.lights.bind(lights)
         width, height = self.size
         n = self.replicas * width * height
@@ -324,10 +426,16 @@ class ReSTIRDI:
         reservoir = initial(scene, self.lights, si, sampler, self.params.candidates)
 
         if self.params.temporal and history is not None:
-            previous = dr.gather(Reservoir, history.reservoirs, lane)
-            previous.M = dr.minimum(previous.M, self.params.m_clamp * self.params.candidates)
-            reservoir = combine(scene, si, [(reservoir, si), (previous, history.si)],
-                                sampler)
+            clamp = self.params.m_clamp * self.params.candidates
+            if motion is None:
+                previous = dr.gather(Reservoir, history.reservoirs, lane)
+                previous.M = dr.minimum(previous.M, clamp)
+                x_i = history.si
+            else:
+                source, x_i, kept = reproject(si, history, motion, lane, self.size)
+                previous = dr.gather(Reservoir, history.reservoirs, source)
+                previous.M = dr.select(kept, dr.minimum(previous.M, clamp), 0)
+            reservoir = combine(scene, si, [(reservoir, si), (previous, x_i)], sampler)
         if self.params.spatial:
             # The neighbours gather from the reservoirs and the first hits: evaluate both in
             # one kernel. A gather from an unevaluated array evaluates that array alone, so
