@@ -1,0 +1,38 @@
+"""[DKHD24] Fig. 8 (Sec. 6.2): biased NIRC against NRC and PT with the sky light off
+(the paper's Bistro): MRSE and FLIP.
+
+Ours: Fig. 7's equal-time comparison (:func:`jobs.reproduce.nirc_fig7.equal_time_figure`)
+on `door`, lit without an environment; the paper prints no numbers for it, so the table
+holds ours alone and the verdict is Fig. 7's biased NIRC against NRC at equal time."""
+
+from __future__ import annotations
+
+from jobs.reproduce.nirc_fig7 import (
+    FULL,
+    QUICK,
+    biased_against_nrc,
+    draw,
+    equal_time_figure,
+    judge,
+)
+from jobs.reproduce.registry import Context, FigureSpec, register
+from jobs.reproduce.results import Point, Reproduction, Verdict
+
+SCENE = "door"
+
+
+def fig8_verdicts(points: list[Point], scenes: list[str]) -> list[Verdict]:
+    return [judge("biased NIRC below NRC at equal time without the sky light",
+                  biased_against_nrc(points, scenes), "lower error than NRC (no numbers)")]
+
+
+def measure(ctx: Context) -> Reproduction:
+    return equal_time_figure(ctx, {SCENE: None}, "fig8", "[DKHD24] Fig. 8: NIRC, NRC and "
+                             "PT without environment light (door)", fig8_verdicts,
+                             ["door stands for the paper's Bistro with its sky light off: it "
+                              "has no environment light"])
+
+
+FIGURE = register(FigureSpec("nirc", "fig8", "NIRC against NRC and PT without environment "
+                             "light (door): MRSE, FLIP and time as ratios to PT 1 spp",
+                             {"quick": QUICK, "full": FULL}, measure, draw))
