@@ -1,5 +1,5 @@
 """What the CLI prints of an animated run (docs/animation.md): the per-frame error, the
-recovery after each change and the scene-update stage, from the run's
+recovery after each change, the flicker and the scene-update stage, from the run's
 ``metrics['animation']`` (jobs.protocol.animation)."""
 
 from __future__ import annotations
@@ -66,12 +66,30 @@ def scene_update_line(update: dict[str, Any]) -> str:
             f"{1e3 * update['total_s']:.3g} ms in all, median {1e3 * update['median_s']:.3g} ms")
 
 
+def flicker_line(flicker: dict[str, Any]) -> str:
+    """The run's flicker (jobs.protocol.flicker) in one line, or why there is none."""
+    static = flicker.get("static_fraction")
+    region = ("" if static is None else
+              f", static region {100 * static:.3g} % of the pixels (reference change within "
+              f"{flicker['static_z']:g} sigma)")
+    if flicker.get("mean") is None:
+        return f"flicker: {flicker.get('note', 'none')}{region}"
+    interval = ("" if flicker["low"] is None
+                else f" [{_number(flicker['low'])}, {_number(flicker['high'])}]")
+    return (f"flicker (relative squared frame-to-frame difference over the static region, "
+            f"mean over {flicker['seeds']} seeds, 95% interval): "
+            f"{_number(flicker['mean'])}{interval}{region}")
+
+
 def animation_tables(animation: dict[str, Any]) -> Group:
-    """The per-frame error, the recovery times and the scene-update cost of a run."""
+    """The per-frame error, the recovery times, the flicker and the scene-update cost of a
+    run (a run stored before flicker was measured has none)."""
     if animation.get("frame_mrse") is None:
         parts: list[Any] = [f"animation: {animation.get('note', 'no per-frame error')}"]
     else:
         parts = [frame_error_table(animation), recovery_table(animation)]
+    if "flicker" in animation:
+        parts.append(flicker_line(animation["flicker"]))
     parts.append(scene_update_line(animation["scene_update"]))
     return Group(*parts)
 

@@ -11,12 +11,14 @@ The executor hands a job whose scene is animated (renderers.scenes.animation) to
 2. renders every seed's frames with the animation applied before each frame
    (FrameHooks.before_frame): the update's time is a stage of its own, 'scene
    update', outside the method's frame time;
-3. scores every frame against its own reference (MRSE), averages over seeds with an
-   interval and measures the recovery after each change (metrics.recovery);
+3. scores every frame against its own reference (MRSE and HDR-FLIP), averages over
+   seeds with an interval, measures the recovery after each change (metrics.recovery)
+   and the flicker over the static region of consecutive frames
+   (jobs.protocol.flicker);
 4. stores the run as any other (jobs.protocol.executor.store_run): its image is the
    mean of the frames of the last segment (the frames showing the last frame's
    state), scored against that segment's reference; the per-frame errors, recovery
-   times and scene-update times are the run's ``metrics['animation']``.
+   times, flicker and scene-update times are the run's ``metrics['animation']``.
 """
 
 from __future__ import annotations
@@ -25,16 +27,19 @@ import dataclasses
 import gc
 from collections import deque
 from collections.abc import Callable
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
 
+from jobs.protocol.flicker import frame_flicker, run_flicker, seed_flicker, static_mask
 from jobs.protocol.job import RenderJob
 from jobs.protocol.references import LoadedReference, get_or_render_reference
 from jobs.record.config import Settings
 from jobs.record.store import Store
 from metrics.denoised import ACCUMULATED_FRAMES
 from metrics.errors import mrse
+from metrics.flip import flip_hdr
 from metrics.recovery import RECOVERY_TOLERANCE, STEADY_FRAMES, frame_error_curve, recoveries
 from metrics.statistics import RunningMoments
 from renderers.methods.base import FrameHooks, RenderOutput
@@ -74,24 +79,42 @@ class AnimatedSeed:
 
     output: RenderOutput
     frame_mrse: list[float]
+    frame_flip: list[float]
+    flicker: float | None          # jobs.protocol.flicker's seed flicker
     moments: RunningMoments        # of the last segment's frames
     last_frames: list[np.ndarray]
 
 
+def static_masks(references: list[LoadedReference]) -> list[np.ndarray | None]:
+    """Each frame's static region against the frame before it (None for frame 0)."""
+    return [None, *(static_mask(previous, current)
+                    for previous, current in pairwise(references))]
+
+
 def render_animated_seed(render: Callable[[FrameHooks], RenderOutput], player: AnimationPlayer,
                          references: list[LoadedReference], eps: float, last_segment: int,
-                         *, first_frame: int, progress: Callable[[int, int], None] | None
-                         ) -> AnimatedSeed:
+                         statics: list[np.ndarray | None], *, first_frame: int,
+                         progress: Callable[[int, int], None] | None) -> AnimatedSeed:
     """Run one seed's frame loop with the animation applied before each frame, keeping
-    each frame's error against its reference and the mean of the frames from
-    ``last_segment`` on (the run's image)."""
+    each frame's error (MRSE, HDR-FLIP) against its reference, its flicker against the
+    frame before it over ``statics`` (:func:`static_masks`) and the mean of the frames
+    from ``last_segment`` on (the run's image)."""
     errors: list[float] = []
+    flips: list[float] = []
+    flickers: list[float | None] = []
+    previous: list[np.ndarray] = []
     moments = RunningMoments()
     last: deque[np.ndarray] = deque(maxlen=ACCUMULATED_FRAMES)
     segment_mean: list[np.ndarray] = []
 
     def on_frame(index: int, frame: np.ndarray, _accumulated: np.ndarray) -> None:
-        errors.append(float(mrse(frame, references[index].mean, eps)))
+        reference = references[index]
+        errors.append(float(mrse(frame, reference.mean, eps)))
+        flips.append(float(flip_hdr(reference.mean, frame, reference.flip_exposures)[0]))
+        static = statics[index]
+        if previous and static is not None:
+            flickers.append(frame_flicker(previous[0], frame, reference.mean, static, eps))
+        previous[:] = [frame]
         last.append(frame)
         if index >= last_segment:
             moments.add(frame)
@@ -104,7 +127,7 @@ def render_animated_seed(render: Callable[[FrameHooks], RenderOutput], player: A
     output = render(FrameHooks(on_frame=on_frame, before_frame=player.apply, progress=progress,
                                first_frame=first_frame))
     output.accumulated = segment_mean[0]
-    return AnimatedSeed(output, errors, moments, list(last))
+    return AnimatedSeed(output, errors, flips, seed_flicker(flickers), moments, list(last))
 
 
 def last_segment_start(player: AnimationPlayer, frames: int) -> int:
@@ -137,6 +160,7 @@ def execute_animated(job: RenderJob, prepared: Any, store: Store, settings: Sett
                                   spec.reference.settings(job.max_depth), spec.frames, progress)
     segment = last_segment_start(player, spec.frames)
     param_json = job.params.model_dump(mode="json")
+    statics = static_masks(references)
     player.update_seconds.clear()   # the references' updates are not the run's
     seeds: list[AnimatedSeed] = []
     for seed in range(spec.seed_start, spec.seed_start + spec.seeds):
@@ -146,11 +170,12 @@ def execute_animated(job: RenderJob, prepared: Any, store: Store, settings: Sett
                 scene, job.params,
                 seed_parts=(scene.fingerprint, spec.method, param_json, spec.spp, seed),
                 spp=spec.spp, frames=spec.frames, hooks=hooks),
-            player, references, spec.eps, segment,
+            player, references, spec.eps, segment, statics,
             first_frame=(seed - spec.seed_start) * spec.frames,
             progress=(lambda done, total, label=label: progress(label, done, total))
             if progress else None))
     errors = np.array([s.frame_mrse for s in seeds])
+    flips = np.array([s.frame_flip for s in seeds])
     animation = {
         "digest": scene.animation.digest(),
         "change_frames": scene.animation.change_frames(),
@@ -160,6 +185,9 @@ def execute_animated(job: RenderJob, prepared: Any, store: Store, settings: Sett
         "recovery": (recoveries(errors, scene.animation.change_frames())
                      if np.all(np.isfinite(errors)) else None),
         "recovery_rule": {"tolerance": RECOVERY_TOLERANCE, "steady_frames": STEADY_FRAMES},
+        "frame_flip": frame_error_curve(flips) if np.all(np.isfinite(flips)) else None,
+        "flicker": run_flicker([s.flicker for s in seeds],
+                               [float(m.mean()) for m in statics if m is not None]),
         "frame_references": [reference.id for reference in references],
         "scene_update": update_stage(player.update_seconds),
     }

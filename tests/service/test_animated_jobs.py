@@ -1,7 +1,7 @@
 """Animated scenes over REST and in the run's table: a job names a built-in animated
 scene, an invalid animation is 422 with the spec's message, and the stored run's table
 (what `render` and `runs show` print) shows the per-frame error, the recovery after the
-change with its interval and the scene-update cost."""
+change with its interval, the flicker and the scene-update cost."""
 
 from __future__ import annotations
 
@@ -87,5 +87,10 @@ def test_an_animated_runs_table_shows_frames_recovery_and_the_update(data_folder
     recovered = animation["recovery"][0]
     assert recovered["low"] is not None
     assert f"[{recovered['low']:.3g}, {recovered['high']:.3g}]" in text
+    flicker = animation["flicker"]
+    assert flicker["seeds"] == 2 and flicker["low"] < flicker["mean"] < flicker["high"]
+    assert f"{flicker['mean']:.4g} [{flicker['low']:.4g}, {flicker['high']:.4g}]" in text
+    assert 0 < flicker["static_fraction"] <= 1
+    assert len(animation["frame_flip"]["mean"]) == ANIMATED["frames"]
     assert "scene update (outside the frame time): " in text
     assert f"{animation['scene_update']['updates']} updates" in text
