@@ -23,8 +23,11 @@ max_depth           2         fixed: direct light at primary hits (the reference
 candidates          8         initial light samples per pixel and frame, drawn by
                               power (pt-power's selection) x uniform on the light's
                               area (paper Sec. 4.1: 8)
-temporal            true      reuse the pixel's reservoir of the previous frame
-                              (static camera: the same pixel)
+temporal            true      reuse the previous frame's reservoir where the pixel's
+                              first hit was seen (static camera: the same pixel; a
+                              moved camera: along motion vectors, rejected on a
+                              normal or depth change; after a change of the
+                              emitters or shapes: none)
 m_clamp             20        the previous reservoir's confidence M is clamped to
                               m_clamp x candidates (paper Sec. 4.1: 20x)
 spatial             true      reuse reservoirs of neighbouring pixels
@@ -144,6 +147,6 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = register(Method("restir-di",
                 "screen-space ReSTIR DI (8 candidates, temporal + spatial reuse, unbiased "
                 "pairwise MIS): direct light at primary hits only (max_depth 2)",
-                ReSTIRDIParams, render, version=3, requires=applies, label="ReSTIR DI",
+                ReSTIRDIParams, render, version=4, requires=applies, label="ReSTIR DI",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
                 correlated_pixels=True, correlated_frames=True))

@@ -93,7 +93,7 @@ def applies(features: Any) -> tuple[bool, str]:
 METHOD = register(Method("restir-nvc",
                 "restir-di with initial candidates from a (clustered) neural visibility cache "
                 "(paper Sec. 4.1.1): direct light at primary hits only (max_depth 2)",
-                ReSTIRNVCParams, render, version=4, requires=applies, label="ReSTIR NVC",
+                ReSTIRNVCParams, render, version=5, requires=applies, label="ReSTIR NVC",
                 knob=Knob("spp", SPP_CANDIDATES), unbiased=True,
                 correlated_pixels=True, correlated_frames=True,
                 stage_sizes=fixed_stages("training_paths", "training")))
