@@ -18,7 +18,8 @@ from jobs.reproduce.run import reproduce
 
 def stub_sweep(lv_biased_flip: float) -> Any:
     """A sweep whose runs have FLIP 0.2 (+-0.005 over 3 seeds), biased L_V's
-    ``lv_biased_flip``, growing with the epochs for L_V (divergence)."""
+    ``lv_biased_flip``, growing with the epochs for L_V (divergence) by 0.05 from the
+    first point to the last, whatever the budget's count of points."""
 
     def sweep(ctx: Any, scene: str, method: str, parameter: str, values: list[Any],
               params: dict[str, Any], max_depth: int = -1) -> list[tuple[Any, Any]]:
@@ -28,7 +29,8 @@ def stub_sweep(lv_biased_flip: float) -> Any:
         for index, value in enumerate(values):
             base = 0.2
             if params["loss"] == "variance":
-                base = (lv_biased_flip if params["estimator"] == "biased" else 0.2) + 0.05 * index
+                growth = 0.05 * index / (len(values) - 1)
+                base = (lv_biased_flip if params["estimator"] == "biased" else 0.2) + growth
             seeds = [SimpleNamespace(metrics={"flip_hdr": base + d}) for d in (-0.005, 0, 0.005)]
             out.append((SimpleNamespace(value=value, id=index), SimpleNamespace(seed_results=seeds)))
         return out
