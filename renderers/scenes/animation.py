@@ -4,15 +4,18 @@
 An :class:`Animation` is plain, validated data (pydantic, strict, no NaN or
 infinity): camera keys (position, target, up, field of view), rigid motions of
 named shapes (a translation and a turn about an axis through a pivot, relative to
-the shape's pose as loaded) and step changes of named emitters' radiance (a
-factor of the loaded radiance from a frame on; 0 switches an emitter off).
+the shape's pose as loaded), step changes of named emitters' radiance (a
+factor of the loaded radiance from a frame on; 0 switches an emitter off) and
+disocclusions (frames at which every pixel's motion vector is invalid: a
+renderer that reuses the previous frame's pixels starts that frame afresh, while
+the image is the same).
 Between two keys a value is interpolated linearly, or held until the later key
 where that key is a ``step`` (a cut: the frame jumps).
 
 :meth:`Animation.state` is what frame f shows; :meth:`Animation.state_key` names
 it, so frames that show the same state share a reference. The change points
-(:meth:`Animation.change_frames`) are the frames where the state jumps: emitter
-changes and step keys; recovery times are measured after them.
+(:meth:`Animation.change_frames`) are the frames where the state jumps (emitter
+changes and step keys) and the disocclusions; recovery times are measured after them.
 
 :class:`AnimationPlayer` applies a frame's state to a loaded ``mi.Scene`` through
 ``mi.traverse`` and ``params.update()`` only: parameter values change, the
@@ -132,6 +135,9 @@ class Animation(_Strict):
     camera: list[CameraKey] = Field(default_factory=list, max_length=MAX_ITEMS)
     shapes: list[ShapeMotion] = Field(default_factory=list, max_length=MAX_ITEMS)
     emitters: list[EmitterChange] = Field(default_factory=list, max_length=MAX_ITEMS)
+    disocclusions: list[int] = Field(
+        default_factory=list, max_length=MAX_ITEMS,
+        description="frames (>= 1) at which every pixel's motion vector is invalid")
 
     @field_validator("camera")
     @classmethod
@@ -140,11 +146,20 @@ class Animation(_Strict):
             raise ValueError("camera keys must all give fov or none of them")
         return _increasing(keys, "camera keys")
 
+    @field_validator("disocclusions")
+    @classmethod
+    def _disocclusions(cls, frames: list[int]) -> list[int]:
+        if any(not 1 <= frame <= MAX_FRAME for frame in frames):
+            raise ValueError(f"disocclusion frames must be 1..{MAX_FRAME}, got {frames}")
+        if any(b <= a for a, b in zip(frames, frames[1:], strict=False)):
+            raise ValueError(f"disocclusion frames must increase strictly, got {frames}")
+        return frames
+
     @model_validator(mode="after")
     def _consistent(self) -> Animation:
-        if not (self.camera or self.shapes or self.emitters):
-            raise ValueError("an animation needs camera keys, shape motions or emitter "
-                             "changes")
+        if not (self.camera or self.shapes or self.emitters or self.disocclusions):
+            raise ValueError("an animation needs camera keys, shape motions, emitter "
+                             "changes or disocclusions")
         names = [motion.shape for motion in self.shapes]
         if len(set(names)) != len(names):
             raise ValueError(f"a shape has two motions: {sorted(names)}")
@@ -154,7 +169,13 @@ class Animation(_Strict):
         return self
 
     def digest(self) -> str:
-        return digest("animation", self.model_dump(mode="json"))
+        # Animations without disocclusions keep the digests they had before they existed.
+        return digest("animation", self.model_dump(
+            mode="json", exclude=None if self.disocclusions else {"disocclusions"}))
+
+    def disocclusions_until(self, frame: int) -> int:
+        """How many disocclusions happened up to ``frame`` (inclusive)."""
+        return sum(1 for disocclusion in self.disocclusions if disocclusion <= frame)
 
     def state(self, frame: int) -> FrameState:
         camera = None
@@ -178,8 +199,9 @@ class Animation(_Strict):
         return digest("animation-state", rounded)
 
     def change_frames(self) -> list[int]:
-        """The frames at which the state jumps (emitter changes, step keys; not frame 0)."""
-        steps = [key.frame for key in self.camera if key.step]
+        """The frames at which the state jumps (emitter changes, step keys; not frame 0)
+        and the disocclusions."""
+        steps = [key.frame for key in self.camera if key.step] + self.disocclusions
         steps += [key.frame for motion in self.shapes for key in motion.keys if key.step]
         steps += [change.frame for change in self.emitters]
         return sorted({frame for frame in steps if frame > 0})
@@ -202,6 +224,7 @@ class Animation(_Strict):
         parts += [f"{motion.shape} moves" for motion in self.shapes
                   if any(key.step and key.frame == frame for key in motion.keys)]
         parts += ["camera cut" for key in self.camera if key.step and key.frame == frame]
+        parts += ["disocclusion" for disocclusion in self.disocclusions if disocclusion == frame]
         return ", ".join(parts) or f"change at frame {frame}"
 
 
@@ -282,7 +305,7 @@ class AnimationPlayer:
         self.params = mi.traverse(scene)
         self.update_seconds: list[float] = []   # of the applies that changed the scene
         self.scene = scene
-        self._current: str | None = None
+        self._current: tuple[str, int] | None = None
         self._rest: dict[str, Any] = {}
         self._moved: dict[str, np.ndarray] = {}   # the last matrix applied to each shape
         if animation.camera:
@@ -335,7 +358,8 @@ class AnimationPlayer:
 
         from renderers.frozen import geometry_changed, lights_changed
 
-        state_key = self.animation.state_key(frame)
+        # A disocclusion changes no parameter, but is a scene update of its own.
+        state_key = (self.animation.state_key(frame), self.animation.disocclusions_until(frame))
         if state_key == self._current:
             return
         start = time.perf_counter()
@@ -360,9 +384,13 @@ class AnimationPlayer:
         self.params.update()
         if meshes_moved:
             geometry_changed(self.scene)
-        # Light selection tables (emitter powers, positions) follow shapes and emitters.
-        lights_changed(self.scene, digest("animation-lights", json_rounded(
-            state.model_dump(mode="json", include={"shapes", "emitters"}))))
+        # Light selection tables (emitter powers, positions) follow shapes and emitters;
+        # a state named anew after each disocclusion makes ReSTIR drop its history
+        # (renderers.integrators.restir).
+        lights = json_rounded(state.model_dump(mode="json", include={"shapes", "emitters"}))
+        disocclusions = state_key[1]
+        lights_changed(self.scene, digest("animation-lights", lights, disocclusions)
+                       if disocclusions else digest("animation-lights", lights))
         dr.sync_thread()
         self.update_seconds.append(time.perf_counter() - start)
         self._current = state_key

@@ -101,3 +101,40 @@ def test_reuse_along_motion_vectors_is_unbiased(mi, monkeypatch, planted):
         results.append(agreement_test(mean, variance, *reference, alpha=level))
     summary = "\n".join(result.summary() for result in results)
     assert all(result.passed for result in results) != planted, summary
+
+
+@pytest.mark.parametrize("disocclusions", [[], [2]])
+def test_a_disocclusion_drops_the_history_at_its_frame(mi, disocclusions):
+    """An animation's disocclusion at frame 2 (a static camera): frame 2's reservoirs hold
+    only their own candidates (confidence M = C everywhere), frame 3's reuse them again;
+    without it frame 2 reuses frame 1's (M > C). The reference of every frame is one
+    (the image does not change)."""
+    from renderers.integrators.restir import ReSTIRDI
+    from renderers.scenes import load_scene
+    from renderers.scenes.animation import Animation
+    from renderers.scenes.loader import animated
+
+    animation = Animation(disocclusions=disocclusions or [9])   # 9: after the frames shown
+    scene = animated(load_scene("many-lights", 4), animation)
+    restir = ReSTIRDI(scene.scene, _params(temporal=True), replicas=1)
+    confidence = []
+    for frame in range(4):
+        scene.player.apply(frame)
+        restir.render(frame)
+        confidence.append(float(np.max(restir.history.reservoirs.M.numpy())))
+    candidates = _params().candidates
+    assert (confidence[2] == candidates) == bool(disocclusions), confidence
+    assert confidence[3] > candidates
+    assert len({animation.state_key(frame) for frame in range(4)}) == 1
+    assert animation.change_frames() == (disocclusions or [9])
+    assert animation.change_labels() == ["disocclusion"]
+
+
+@pytest.mark.parametrize("frames, message", [([0], "1.."), ([3, 2], "increase strictly")])
+def test_disocclusion_frames_are_validated(frames, message):
+    from pydantic import ValidationError
+
+    from renderers.scenes.animation import Animation
+
+    with pytest.raises(ValidationError, match=message):
+        Animation(disocclusions=frames)
