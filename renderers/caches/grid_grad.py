@@ -86,10 +86,12 @@ def fixed_point_scale(grad_out: list[mi.Float], terms_per_lane: int) -> tuple[An
     return scale, dr.all(row_finite)
 
 
-def fixed_point_add(acc: Any, value: mi.Float, index: mi.UInt32, scale: Any) -> None:
-    """Add ``value`` at ``index`` into the Int64 accumulator ``acc`` in fixed point."""
+def fixed_point_add(acc: Any, value: mi.Float, index: mi.UInt32, scale: Any,
+                    active: Any = True) -> None:
+    """Add ``value`` at ``index`` into the Int64 accumulator ``acc`` in fixed point
+    (the ``active`` lanes)."""
     Float64, Int64 = _types()[:2]
-    dr.scatter_add(acc, Int64(dr.round(Float64(value) * scale)), index)
+    dr.scatter_add(acc, Int64(dr.round(Float64(value) * scale)), index, active)
 
 
 def fixed_point_gradient(acc: Any, scale: Any, finite: Any) -> mi.Float:

@@ -52,6 +52,14 @@ Keys: the integer cell of a position (and the normal's bin) hashed twice, once f
 slot and once as a checksum stored in the slot (0 = empty); linear probing over
 ``max_probes`` slots; an insertion that loses a race for an empty slot probes on. A key
 that finds no slot is a miss, never another cell's record.
+
+Reproducible with several threads: a pass's writes do not depend on the order in which
+threads run. Its sums into the records are 64-bit fixed-point integer sums
+(:func:`order_free_sum`; float atomics would add in a run-dependent order, and float
+addition is not associative), keys racing for an empty slot are settled by an atomic
+maximum (the largest checksum takes it), and lanes storing a representative in one
+place by the largest lane index. One seed then gives the same records, and the same
+image, bit for bit at any thread count.
 """
 
 from __future__ import annotations
@@ -63,6 +71,7 @@ import drjit as dr
 import mitsuba as mi
 
 from renderers.caches.grid_config import MomentGridConfig
+from renderers.caches.grid_grad import fixed_point_add, fixed_point_gradient, fixed_point_scale
 
 #: 2^32 / golden ratio, and the constants of MurmurHash3's 32-bit finalizer.
 _GOLDEN = 0x9E3779B9
@@ -93,6 +102,22 @@ def marginal_second_moment(sum_y: mi.Float, sum_y2: mi.Float, k: int) -> mi.Floa
     ((sum Y)^2 - sum Y^2) / (K (K - 1)), unbiased since E[Y_i Y_j] = E[Y | y]^2 for
     i != j ([Lee90]; [VTT24] Sec. 4.4)."""
     return (dr.square(sum_y) - sum_y2) / (k * (k - 1))
+
+
+def order_free_sum(value: mi.Float, index: mi.UInt32, active: mi.Bool, size: int) -> mi.Float:
+    """The sums of ``value`` over the ``active`` lanes at each ``index`` (``size``
+    entries), the same bits whatever order threads add in: each term in 64-bit fixed
+    point under a power-of-two scale at which no sum can overflow (grid_grad), whose
+    quantum is about max |value| x lanes x 2^-62, far below float32's rounding of a sum.
+    An entry with a non-finite term is NaN (a float sum would be NaN or infinite)."""
+    finite = dr.isfinite(value)
+    term = dr.select(active & finite, value, 0.0)
+    scale, _finite = fixed_point_scale([term], 1)
+    total = dr.zeros(dr.int64_array_t(mi.Float), size)
+    fixed_point_add(total, term, index, scale, active & finite)
+    non_finite = dr.zeros(mi.UInt32, size)
+    dr.scatter_add(non_finite, 1, index, active & ~finite)
+    return dr.select(non_finite == 0, fixed_point_gradient(total, scale, True), dr.nan)
 
 
 def _weight(count: mi.Float, n: mi.Float, history: mi.Float | float) -> mi.Float:
@@ -181,7 +206,9 @@ class MomentGrid:
             hit = searching & (stored == check)
             if insert:
                 empty = searching & (stored == 0)
-                dr.scatter(self.keys, check, index, empty)
+                # Of the keys racing for this empty slot the largest checksum takes it,
+                # whichever thread writes first (module doc, Reproducible).
+                dr.scatter_reduce(dr.ReduceOp.Max, self.keys, check, index, empty)
                 hit |= empty & (dr.gather(mi.UInt32, self.keys, index, empty) == check)
             slot = dr.select(hit, index, slot)
             found |= hit
@@ -242,23 +269,21 @@ class MomentGrid:
         vertex_mean = sum_y / k
 
         size = self.config.table_size
-        n = dr.zeros(mi.Float, size)
-        batch_mean = dr.zeros(mi.Float, 3 * size)
-        batch_second = dr.zeros(mi.Float, size)
-        batch_marginal = dr.zeros(mi.Float, size)
-        batch_deferred = dr.zeros(mi.Float, size)
+        observations = dr.zeros(mi.UInt32, size)
+        dr.scatter_add(observations, 1, slot, active)
+        n = mi.Float(observations)
+        # The pass's sums per record (module doc, Reproducible); the mean's channel c at
+        # 3 slot + c, as its array holds it.
+        batch_mean = sum(order_free_sum(sum_rgb[c] / k, 3 * slot + c, active, 3 * size)
+                         for c in range(3))
+        batch_second = order_free_sum(sum_y2 / k, slot, active, size)
+        batch_marginal = order_free_sum(marginal, slot, active, size)
         # Sums of the vertices' means and of their squares: the products of distinct
         # vertices' means sum to (sum M)^2 - sum M^2.
-        batch_y = dr.zeros(mi.Float, size)
-        batch_y_sq = dr.zeros(mi.Float, size)
-        dr.scatter_add(n, 1.0, slot, active)
-        dr.scatter_add(batch_mean, sum_rgb / k, slot, active)   # Color3f: 3 floats per slot
-        dr.scatter_add(batch_second, sum_y2 / k, slot, active)
-        dr.scatter_add(batch_marginal, marginal, slot, active)
-        dr.scatter_add(batch_y, vertex_mean, slot, active)
-        dr.scatter_add(batch_y_sq, dr.square(vertex_mean), slot, active)
-        if deferred is not None:
-            dr.scatter_add(batch_deferred, dr.block_sum(deferred, k) / k, slot, active)
+        batch_y = order_free_sum(vertex_mean, slot, active, size)
+        batch_y_sq = order_free_sum(dr.square(vertex_mean), slot, active, size)
+        batch_deferred = (dr.zeros(mi.Float, size) if deferred is None else
+                          order_free_sum(dr.block_sum(deferred, k) / k, slot, active, size))
 
         per_observation = dr.rcp(dr.maximum(n, 1.0))
         # [VTT24] Sec. 4.4: E[E[Y|y]^2] - E[Y]^2 within this pass; E[Y]^2 from the
@@ -303,12 +328,17 @@ class MomentGrid:
     def store_vertices(self, slot: mi.UInt32, position: mi.Point3f, normal: mi.Vector3f,
                        choice: mi.Float, active: mi.Bool) -> None:
         """Keep (position, normal) as one of its record's representatives, in the place
-        ``choice`` in [0, 1) picks (a later store there replaces it)."""
+        ``choice`` in [0, 1) picks (a later store there replaces it; of the lanes storing
+        in one place the last lane's, whatever order threads write in)."""
         per_record = self.config.vertices_per_record
         place = slot * per_record + dr.minimum(mi.UInt32(choice * per_record), per_record - 1)
-        dr.scatter(self.vertices, position, 2 * place, active)
-        dr.scatter(self.vertices, normal, 2 * place + 1, active)
-        dr.scatter(self.vertex_used, mi.UInt32(1), place, active)
+        lane = dr.arange(mi.UInt32, dr.width(place)) + 1
+        claim = dr.zeros(mi.UInt32, self.most_places())
+        dr.scatter_reduce(dr.ReduceOp.Max, claim, lane, place, active)
+        won = active & (dr.gather(mi.UInt32, claim, place, active) == lane)
+        dr.scatter(self.vertices, position, 2 * place, won)
+        dr.scatter(self.vertices, normal, 2 * place + 1, won)
+        dr.scatter(self.vertex_used, mi.UInt32(1), place, won)
 
     def records(self) -> int:
         """How many records hold an estimate."""

@@ -421,7 +421,7 @@ def diffuse_only(features: Any) -> tuple[bool, str]:
 
 METHOD = register(Method(
     "grid-cache", "hashed-grid radiance cache with three moments, variance-trading "
-    "termination", GridCacheParams, render, version=3, requires=diffuse_only, build=build,
+    "termination", GridCacheParams, render, version=4, requires=diffuse_only, build=build,
     label="Grid cache", unbiased=False,
     # In the method comparison and the Pareto plot: its default policy (var-bound,
     # absolute t = 0.1), with PT matched to its frame time.

@@ -152,3 +152,65 @@ def test_representative_vertices_round_trip(mi):
     assert sorted(np.asarray(stored_slot).tolist()) == sorted(np.asarray(slot).tolist())
     assert np.allclose(np.sort(np.asarray(position)[0]), np.sort(at[:, 0]))
     assert np.allclose(np.asarray(normal)[2], 1.0)
+
+
+VERTICES = 32768
+
+
+def _contended_pass(mi, cache, rng) -> dict[str, np.ndarray]:
+    """One pass in which many lanes race: 32768 points of 512 cells of a 1024-slot table
+    inserted at once (probe chains collide), their samples summed into those records
+    and stored as representatives, many lanes per place. 32768 vertices x K = 4
+    samples span 8 of Dr.Jit's thread blocks (16384 lanes each)."""
+    k = cache.config.samples_per_vertex
+    cells = rng.integers(0, 8, size=(512, 3))
+    centres = (cells[rng.integers(0, 512, size=VERTICES)] + rng.random((VERTICES, 3))) * CELL
+    p = points(mi, centres)
+    slot, found = cache.find(p, up(mi, VERTICES), True, insert=True)
+    samples = mi.Color3f(*(mi.Float(rng.lognormal(0.0, 1.5, VERTICES * k)
+                                    .astype(np.float32)) for _ in range(3)))
+    cache.accumulate(slot, samples, found,
+                     mi.Float(rng.random(VERTICES * k).astype(np.float32)))
+    choice = mi.Float(rng.random(VERTICES).astype(np.float32))
+    cache.store_vertices(slot, p, up(mi, VERTICES), choice, found)
+    return {name: np.array(array) for name, array in cache.arrays().items()}
+
+
+def _twice_on_two_threads(mi) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    previous = dr.thread_count()
+    dr.set_thread_count(2)
+    try:
+        return tuple(_contended_pass(mi, grid(log2_table_size=10, samples_per_vertex=4),
+                                     np.random.default_rng(7)) for _ in range(2))
+    finally:
+        dr.set_thread_count(previous)
+
+
+def _float_atomic_sum(value, index, active, size):
+    """The sum that float atomics give (the planted defect): order-dependent bits."""
+    import mitsuba as mi
+
+    total = dr.zeros(mi.Float, size)
+    dr.scatter_add(total, value, index, active)
+    return total
+
+
+def test_a_pass_on_two_threads_is_reproducible_bit_for_bit(mi, monkeypatch):
+    """Two threads, the same inputs twice: every array of the grid is the same bits (keys
+    and representatives despite their races, moments despite the summation order).
+    Planted: the sums by float atomics; within 12 repeats a pass differs in its moments
+    (the threads' order varies: 9 repeats in 10 differed on a loaded 2-core machine)."""
+    from renderers.caches import moment_grid
+
+    first, second = _twice_on_two_threads(mi)
+    assert (first["count"] > 0).sum() > 250
+    for name in first:
+        np.testing.assert_array_equal(first[name], second[name], err_msg=name)
+
+    monkeypatch.setattr(moment_grid, "order_free_sum", _float_atomic_sum)
+    for _ in range(12):
+        first, second = _twice_on_two_threads(mi)
+        if any(not np.array_equal(first[name], second[name])
+               for name in ("mean", "second", "marginal", "deferred", "bias")):
+            return
+    raise AssertionError("float atomics summed alike in 12 repeats")
