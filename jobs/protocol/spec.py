@@ -342,6 +342,9 @@ class SweepSpec(BaseModel):
     params: dict[str, Any] = Field(default_factory=dict,
                                    description="extra parameters for every method")
     reference: ReferenceSpec = Field(default_factory=ReferenceSpec)
+    denoised: bool = Field(DENOISED_DEFAULT, description="a parameter sweep's points also "
+                                                         "scored after Intel Open Image "
+                                                         "Denoise (RenderSpec.denoised)")
 
     _check_params = field_validator("params")(finite_params)
 
@@ -404,6 +407,9 @@ class SweepSpec(BaseModel):
             if others:
                 raise ValueError(f"eps and N_c sweeps run {', '.join(SWEEP_METHODS)} (the "
                                  f"methods with a sweep role), not {', '.join(others)}")
+        if self.denoised and self.parameter is None:
+            raise ValueError("denoised scores a parameter sweep's points; eps and N_c "
+                             "sweeps do not denoise")
         if "max_depth" in self.params:
             raise ValueError("set max_depth on the sweep, not in params")
         if self.max_depth == 0:
@@ -414,10 +420,13 @@ class SweepSpec(BaseModel):
     def _stored_form(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         # Specs from before parameter sweeps dump, store and hash as they did, and so do
         # all but N_c sweeps from before the top-level termination was dropped: it held the
-        # knob method's default wherever the N_c sweep's was not given.
+        # knob method's default wherever the N_c sweep's was not given; sweeps from before
+        # ``denoised`` existed, as for render specs.
         data = handler(self)
         if data.get("parameter") is None:
             data.pop("parameter", None)
+        if data.get("denoised") == DENOISED_DEFAULT:
+            data.pop("denoised")
         if not self.is_nc_sweep:
             data["termination"] = _stored_termination()
         return data
@@ -480,7 +489,8 @@ class SweepSpec(BaseModel):
         """The render job every point of the sweep specialises (scene, reference, depth)."""
         return RenderSpec(scene=self.scene, method=BASELINE, params={"max_depth": self.max_depth},
                           resolution=self.resolution, spp=1, frames=self.frames,
-                          seeds=self.seeds, eps=self.metric_eps, reference=self.reference)
+                          seeds=self.seeds, eps=self.metric_eps, reference=self.reference,
+                          denoised=self.denoised)
 
     def versions(self) -> dict[str, object]:
         """The estimator versions of the sweep's methods and the metric version."""

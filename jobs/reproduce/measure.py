@@ -32,9 +32,11 @@ def grid_params(ctx: Context, policy: str, policy_params: dict[str, Any],
 
 
 def sweep(ctx: Context, scene: str, method: str, parameter: str, values: list[Any],
-          params: dict[str, Any], max_depth: int = -1) -> list[tuple[Any, Any]]:
+          params: dict[str, Any], max_depth: int = -1,
+          denoised: bool = False) -> list[tuple[Any, Any]]:
     """(sweep row, stored run) of ``method`` on ``scene`` at every value of ``parameter``
-    (a dotted name), at the context's budget."""
+    (a dotted name), at the context's budget; ``denoised``: each point also scored after
+    the denoiser (metrics/denoised.py)."""
     from jobs.protocol.spec import ParameterSweep, ReferenceSpec, SweepSpec
     from jobs.sweeps.sweep import run_sweep
 
@@ -42,7 +44,8 @@ def sweep(ctx: Context, scene: str, method: str, parameter: str, values: list[An
     spec = SweepSpec(scene=scene, methods=[method], resolution=b.resolution, seeds=b.seeds,
                      frames=b.frames, max_depth=max_depth,
                      reference=ReferenceSpec(spp=b.ref_spp),
-                     parameter=ParameterSweep(name=parameter, values=values), params=params)
+                     parameter=ParameterSweep(name=parameter, values=values), params=params,
+                     denoised=denoised)
     result = run_sweep(spec, ctx.store, ctx.settings, progress=ctx.progress)
     for name in ("points_rendered", "points_reused"):
         ctx.work[name] = ctx.work.get(name, 0) + result.work.get(name, 0)
