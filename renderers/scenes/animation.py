@@ -158,8 +158,8 @@ class Animation(_Strict):
     @model_validator(mode="after")
     def _consistent(self) -> Animation:
         if not (self.camera or self.shapes or self.emitters or self.disocclusions):
-            raise ValueError("an animation needs camera keys, shape motions, emitter "
-                             "changes or disocclusions")
+            raise ValueError("an animation needs camera keys, shape motions or emitter "
+                             "changes (or disocclusions)")
         names = [motion.shape for motion in self.shapes]
         if len(set(names)) != len(names):
             raise ValueError(f"a shape has two motions: {sorted(names)}")
