@@ -135,7 +135,7 @@ def _find(points: list[Point], scene: str, test: Any) -> Point | None:
     return next((p for p in points if p.scene == scene and test(p)), None)
 
 
-def _order(a: Estimate, b: Estimate) -> int:
+def interval_order(a: Estimate, b: Estimate) -> int:
     """+1 when ``a``'s 95 % interval lies below ``b``'s, -1 above, 0 overlapping/none."""
     if a.ci95 is None or b.ci95 is None:
         return 0
@@ -145,7 +145,7 @@ def _order(a: Estimate, b: Estimate) -> int:
 def lower_error(ours: Point, theirs: Point) -> tuple[int, str]:
     """+1 when ours has the lower MRSE and FLIP, both intervals apart; -1 when either
     is higher, intervals apart; 0 otherwise; and the factors as text."""
-    signs = [_order(ours.values[k], theirs.values[k]) for k in ("mrse", "flip")]
+    signs = [interval_order(ours.values[k], theirs.values[k]) for k in ("mrse", "flip")]
     mrse_o, mrse_t = ours.values["mrse"].value, theirs.values["mrse"].value
     flip_o, flip_t = ours.values["flip"].value, theirs.values["flip"].value
     if not (mrse_o and mrse_t and flip_o and flip_t):

@@ -1,0 +1,158 @@
+"""[DKHD24] Fig. 13 (Sec. 6.3): per-pixel adaptive termination swept over eps, NIRC
+against NRC: MRSE, FLIP, rBias² and rVar against the % indirect-radiance (IR) bounces.
+
+Ours: the adaptive equal-bias sweep (`nirc-bench sweep --eps`, jobs/sweeps/sweep.py):
+per method and seed a trained cache's converged cache-at-v1 image gives each pixel's
+relative bias, and at each eps the cache is used at v1 where it is below eps (the
+spread heuristic elsewhere); series NIRC (N_c 1), NRC and "NIRC equal time" (N_c at v1
+calibrated to the NRC point of the closest rBias²). The x axis is the sweep's
+``ir_bounces_pct`` (the invoking vertex's index less one, averaged, in %)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from jobs.reproduce.nirc_fig7 import flip, interval_order
+from jobs.reproduce.plot import Panel, plot_panels
+from jobs.reproduce.registry import Budget, Context, FigureSpec, register
+from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
+
+SCENES = ("white-room", "cornell-glossy")
+QUANTITIES = {"mrse": "MRSE", "flip": "FLIP", "rbias2": "rBias²", "rvar": "rVar"}
+#: N_c candidates of the equal-time series (the sweep's default goes to 32).
+NC_CANDIDATES = [1, 2, 4, 8]
+#: Two points are at "the same % IR bounces" when they differ by at most this (points).
+SAME_BOUNCES = 5.0
+#: Each cache trains this many frames per rendered frame before its snapshot.
+TRAIN_PER_FRAME = 8
+
+QUICK_WHY = ("--quick: 16x16, K = 3 seeds of F = 4 frames, caches trained 32 frames, "
+             "cache-at-v1 images of 64 spp, eps 0.05, 0.2, 1; equal-time probes timed on a "
+             "loaded machine are used (noted); the paper trains 2000 frames at 1080p")
+FULL_WHY = ("--full: 64x64, K = 4, F = 16, 128 training frames, 256-spp cache-at-v1 "
+            "images, eps 0.02-1, loaded probes taken again")
+QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=256, grid_preset="—", why=QUICK_WHY,
+               values=(0.05, 0.2, 1.0))
+FULL = Budget(resolution=64, seeds=4, frames=16, ref_spp=1024, grid_preset="—",
+              why=FULL_WHY, values=(0.02, 0.05, 0.1, 0.2, 0.5, 1.0))
+
+
+def eps_sweep(ctx: Context, scene: str) -> list[tuple[Any, Any]]:
+    """(sweep row, stored run) of the adaptive sweep of ``scene`` at the budget (stored
+    points are read back, not rendered)."""
+    from jobs.protocol.spec import ReferenceSpec, SweepSpec
+    from jobs.sweeps.sweep import run_sweep
+
+    b = ctx.budget
+    spec = SweepSpec(scene=scene, eps=list(b.values), nc=NC_CANDIDATES, methods=["nirc", "nrc"],
+                     resolution=b.resolution, seeds=b.seeds, frames=b.frames,
+                     train_frames=TRAIN_PER_FRAME * b.frames, v1_spp=b.ref_spp // 4,
+                     allow_loaded=b == QUICK, reference=ReferenceSpec(spp=b.ref_spp))
+    result = run_sweep(spec, ctx.store, ctx.settings, progress=ctx.progress)
+    for name in ("points_rendered", "points_reused"):
+        ctx.work[name] = ctx.work.get(name, 0) + result.work.get(name, 0)
+    return [(row, ctx.store.get_run(row.id)) for row in result.rows]
+
+
+def point(scene: str, row: Any, run: Any) -> Point:
+    values = {key: Estimate(value=getattr(row, key), ci95=getattr(row, f"{key}_ci95"),
+                            note=f"{key}: {getattr(row, f'{key}_ci_note')}")
+              for key in ("mrse", "rbias2", "rvar")}
+    values["flip"] = flip(run, row.flip)
+    return Point(scene=scene, series=row.series, x=row.ir_bounces_pct, run_id=row.id,
+                 values=values)
+
+
+def measure(ctx: Context) -> Reproduction:
+    b = ctx.budget
+    points, chosen = [], []
+    for scene in SCENES:
+        for row, run in eps_sweep(ctx, scene):
+            points.append(point(scene, row, run))
+            if row.series.endswith("equal time"):
+                chosen.append(f"{scene} eps {row.eps:g}: N_c {row.nc}")
+    return Reproduction(
+        paper="nirc", figure="fig13", title="[DKHD24] Fig. 13: adaptive termination over eps, "
+                                            "NIRC against NRC",
+        mode="", settings={"resolution": f"{b.resolution}x{b.resolution}", "seeds K": b.seeds,
+                           "frames F": b.frames, "eps": list(b.values),
+                           "training frames": TRAIN_PER_FRAME * b.frames,
+                           "reference spp": b.ref_spp, "why": b.why},
+        x_label="% IR bounces", quantities=QUANTITIES, points=points,
+        verdicts=verdicts(points),
+        notes=["our scenes are the project's built-ins: white-room is the paper's White Room, "
+               "cornell-glossy stands for Glossy Sponza",
+               "each row is one eps; the equal-time series' calibrated N_c at v1: "
+               + (", ".join(chosen) or "none")])
+
+
+# ---- Verdicts ----
+
+def _sign_verdict(claim: str, signs: list[int], detail: str, paper: str) -> Verdict:
+    if not signs:
+        return Verdict(claim=claim, verdict="not comparable",
+                       reason=f"no pair of points to compare; the paper: {paper}")
+    verdict = ("does not hold" if -1 in signs else "holds" if all(s == 1 for s in signs)
+               else "not comparable")
+    why = {"holds": "lower with intervals apart in every pair",
+           "does not hold": "higher with intervals apart in a pair",
+           "not comparable": "intervals overlap in a pair"}[verdict]
+    return Verdict(claim=claim, verdict=verdict, reason=f"{why}; {detail}; the paper: {paper}")
+
+
+def pairs(points: list[Point], ours: str, theirs: str,
+          together: Callable[[Point, Point], bool]) -> list[tuple[Point, Point]]:
+    """(ours, theirs) points of the same scene for which ``together`` holds."""
+    return [(a, b) for a in points if a.series.startswith(ours) for b in points
+            if b.series == theirs and a.scene == b.scene and together(a, b)]
+
+
+def _same_bounces(a: Point, b: Point) -> bool:
+    return a.x is not None and b.x is not None and abs(a.x - b.x) <= SAME_BOUNCES
+
+
+def _same_bias(a: Point, b: Point) -> bool:
+    return interval_order(a.values["rbias2"], b.values["rbias2"]) == 0
+
+
+def _compare(found: list[tuple[Point, Point]], key: str) -> tuple[list[int], str]:
+    signs = [interval_order(a.values[key], b.values[key]) for a, b in found]
+    detail = ", ".join(f"{a.scene} {a.x:.0f} %: {a.values[key].text()} vs "
+                       f"{b.values[key].text()}" for a, b in found if a.x is not None)
+    return signs, detail
+
+
+def verdicts(points: list[Point]) -> list[Verdict]:
+    bias, bias_detail = _compare(pairs(points, "NIRC", "NRC", _same_bounces), "rbias2")
+    var, var_detail = _compare(
+        [(a, b) for a, b in pairs(points, "NIRC", "NRC", _same_bias)
+         if a.series == "NIRC"], "rvar")
+    nc, nc_detail = _compare(
+        pairs(points, "NIRC equal time", "NIRC",
+              lambda a, b: a.run_id != b.run_id and _same_bounces(a, b)), "rvar")
+    return [
+        _sign_verdict(f"NIRC's rBias² below NRC's at the same % IR bounces (within "
+                      f"{SAME_BOUNCES:g} points)", bias, f"rBias² NIRC vs NRC: {bias_detail}",
+                      "lower bias for any % IR bounces"),
+        _sign_verdict("NIRC's rVar below NRC's where their rBias² intervals overlap", var,
+                      f"rVar NIRC vs NRC: {var_detail}",
+                      "lower variance wherever NRC reaches the same bias"),
+        _sign_verdict("more neural samples (NIRC equal time) lower the variance than N_c 1",
+                      nc, f"rVar: {nc_detail}",
+                      "variance 1.11-1.82x, MRSE 0.93-6.67x, FLIP 1.05-1.14x better"),
+    ]
+
+
+def draw(reproduction: Reproduction, path: Path) -> Path:
+    return plot_panels(reproduction, [Panel(key, f"{scene}: {label}", scene=scene)
+                                      for scene in SCENES
+                                      for key, label in QUANTITIES.items()
+                                      if key in ("mrse", "rbias2")], path, log_x=False)
+
+
+FIGURE = register(FigureSpec("nirc", "fig13", "Per-pixel adaptive termination swept over "
+                             "eps: MRSE, FLIP, rBias² and rVar against % IR bounces, NIRC, "
+                             "NRC and NIRC at equal time", {"quick": QUICK, "full": FULL},
+                             measure, draw))
