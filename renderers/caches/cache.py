@@ -69,25 +69,49 @@ def build_mlp(config: CacheConfig) -> nn.Sequential:
     return nn.Sequential(*layers, prefix="mlp")
 
 
-def mlp_forward_tensor(net: nn.Sequential, x: mi.TensorXf) -> mi.TensorXf:
-    """Tensor-mode forward pass of an unpacked MLP, with reproducible gradients.
+def mlp_forward_tensor(net: nn.Sequential, rows: Sequence[mi.Float]) -> mi.TensorXf:
+    """Tensor-mode forward pass of an unpacked MLP on feature ``rows`` (each of width N
+    or 1: ``to_tensor``), with reproducible gradients; (outputs, N).
 
-    Same as ``net(x)`` except for the bias: ``nn.Linear`` broadcasts it over
-    the batch, whose reverse-mode derivative is a float atomic scatter-add
-    (run-dependent summation order on a multi-core CPU). Adding it as
-    ``b @ ones(1, N)`` turns that derivative into a matrix product, which
-    sums in a fixed order.
+    Same as ``net(to_tensor(rows))`` except for the bias: ``nn.Linear`` broadcasts it
+    over the batch, whose reverse-mode derivative is a float atomic scatter-add
+    (run-dependent summation order on a multi-core CPU). Here each layer is one
+    matrix product of its weights and bias ``[W b]`` with its input and a row of ones
+    ``[x; 1]``, so the bias's derivative is a column of the weights' (a product, which
+    sums in a fixed order). Each product over the batch is 2 kernel launches per 1024
+    records on the LLVM backend (Dr.Jit's GEMM reduces K in segments of 1024), so a
+    bias of its own, ``b @ ones(1, N)`` added to ``W @ x``, doubled the launches of
+    the backward pass. The values are bitwise those of that form: the bias is the
+    last term of each output's sum, ``acc + b * 1`` (``tests/caches/test_cache.py``).
+
+    The row of ones travels through the hidden layers: each hidden layer's matrix has
+    a last row ``[0 ... 0 1]``, whose output 1 the activation keeps (ReLU and leaky
+    ReLU are the identity at 1).
     """
-    ones = dr.ones(mi.TensorXf, (1, x.shape[1]))
+    x = to_tensor([*rows, mi.Float(1.0)])
+    dr.eval(x)
+    linears = [layer for layer in net.layers if isinstance(layer, nn.Linear)]
     for layer in net.layers:
         if isinstance(layer, nn.Linear):
-            y = layer.weights @ x
-            if layer.bias is not None:
-                y = y + dr.reshape(mi.TensorXf, layer.bias, (layer.bias.shape[0], 1)) @ ones
-            x = y
-        else:
+            x = _with_bias(layer, ones_row=layer is not linears[-1]) @ x
+        elif isinstance(layer, nn.ReLU | nn.LeakyReLU):
             x = layer(x)
+        else:
+            raise TypeError(f"{type(layer).__name__} does not keep the row of ones")
     return x
+
+
+def _with_bias(layer: nn.Linear, ones_row: bool) -> mi.TensorXf:
+    """``[W b]`` of ``layer``, and below it, with ``ones_row``, the row ``[0 ... 0 1]``
+    that carries the input's row of ones to the output (:func:`mlp_forward_tensor`)."""
+    outputs, inputs = layer.weights.shape
+    bias = dr.reshape(mi.TensorXf, layer.bias, (outputs, 1))
+    matrix = dr.concat((layer.weights, bias), axis=1)
+    if not ones_row:
+        return matrix
+    last = dr.arange(mi.UInt32, inputs + 1) == inputs
+    return dr.concat((matrix, mi.TensorXf(dr.select(last, 1.0, 0.0), (1, inputs + 1))),
+                     axis=0)
 
 
 def sigmoid(x: Any) -> Any:
@@ -591,8 +615,7 @@ class NeuralCache:
         position = self.encoder.position.with_data(opt[GRID_KEY])
 
         # ---- Forward (tensor mode) and loss (Eq. 18 or L2) ----
-        x = to_tensor(self._input_rows(batch, position))
-        y = mlp_forward_tensor(self._net, x)
+        y = mlp_forward_tensor(self._net, self._input_rows(batch, position))
         if self.config.output.activation == "sigmoid":
             y = sigmoid(y)
         # clamped_linear stays linear here: a clamp would stop the gradient of

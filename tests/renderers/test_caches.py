@@ -226,6 +226,66 @@ def test_reproducible_grid_gradient_equals_drjit_gradient():
     assert np.abs(g_ref).max() > 0
 
 
+def _bias_apart(net, rows):
+    """The MLP with each bias a product of its own, ``W @ x + b @ ones(1, N)`` (the
+    form the folded ``[W b] @ [x; 1]`` replaced)."""
+    from drjit import nn
+
+    x = enc.to_tensor(rows)
+    ones = dr.ones(mi.TensorXf, (1, x.shape[1]))
+    for layer in net.layers:
+        if isinstance(layer, nn.Linear):
+            bias = dr.reshape(mi.TensorXf, layer.bias, (layer.bias.shape[0], 1)) @ ones
+            x = layer.weights @ x + bias
+        else:
+            x = layer(x)
+    return x
+
+
+@pytest.mark.parametrize("activation", ["leaky_relu", "relu"])
+def test_folded_bias_is_bitwise_the_bias_apart(activation):
+    """The training MLP's values and gradients are bit for bit those of the bias as a
+    product of its own; planted: Dr.Jit's own layers (the bias broadcast, its gradient
+    summed over the batch in another order) differ."""
+    from drjit import nn
+
+    from renderers.caches.cache import build_mlp, mlp_forward_tensor
+
+    config = small_config(mlp={"width": 16, "hidden_layers": 2, "activation": activation})
+    rng = dr.rng(6)
+    n = 1500   # two of the GEMM's 1024-record reduction segments, the second partial
+    inputs = [rng.normal(mi.Float, n) for _ in range(7)]
+    target = mi.TensorXf(rng.normal(mi.Float, 3 * n), (3, n))
+
+    def run(forward):
+        net = build_mlp(config).alloc(mi.TensorXf, 7, rng=dr.rng(5))
+        params = [p for layer in net.layers if isinstance(layer, nn.Linear)
+                  for p in (layer.weights, layer.bias)]
+        rows = [mi.Float(r) for r in inputs]
+        for value in (*params, *rows):
+            dr.enable_grad(value)
+        y = forward(net, [dr.sin(r) for r in rows])
+        dr.backward(dr.mean(dr.square(y - target), axis=None))
+        return [y.numpy(), *(dr.grad(v).numpy() for v in (*params, *rows))]
+
+    folded, apart = run(mlp_forward_tensor), run(_bias_apart)
+    for ours, theirs in zip(folded, apart, strict=True):
+        np.testing.assert_array_equal(ours, theirs)
+    planted = run(lambda net, rows: net(enc.to_tensor(rows)))
+    assert not all(np.array_equal(a, b) for a, b in zip(folded, planted, strict=True))
+
+
+def test_folded_bias_refuses_an_activation_that_drops_the_row_of_ones():
+    from drjit import nn
+
+    from renderers.caches.cache import mlp_forward_tensor
+
+    net = nn.Sequential(nn.Linear(-1, 4), nn.Tanh(), nn.Linear(-1, 1)).alloc(
+        mi.TensorXf, 2, rng=dr.rng(0))
+    with pytest.raises(TypeError, match="Tanh"):
+        mlp_forward_tensor(net, [mi.Float(0.5), mi.Float(1.0)])
+
+
 def test_zero_direction_gives_finite_features():
     d = mi.Vector3f(0.0, 0.0, 0.0)
     for encoding in (enc.SHEncoding(4), enc.SphericalOneBlobEncoding(4)):
