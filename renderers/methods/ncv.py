@@ -50,4 +50,4 @@ def ncv_model(params: NCVParams, scene: Any, seed_parts: tuple[Any, ...]) -> Any
 METHOD = control_variate_method(
     "ncv", "neural control variate of the first hits' shading integrand: a normalizing "
            "flow per channel times a learned integral (unbiased)",
-    NCVParams, ncv_model, version=1, label="NCV", unbiased=True)
+    NCVParams, ncv_model, version=2, label="NCV", unbiased=True)

@@ -11,6 +11,7 @@ tests take the paper's sizes) and trained for a few frames of 64 samples a pixel
 
 from __future__ import annotations
 
+import drjit as dr
 import numpy as np
 import pytest
 
@@ -91,6 +92,65 @@ def test_an_ncv_render_is_reproducible_and_stores_its_memory(mi, furnace):
     assert model["floats_per_pixel"]["model"] == pytest.approx(sum(per_pixel.values()) + shared)
     assert model["steps"] == 2 and model["nonfinite_samples"] == 0   # warm-up and frame
     assert set(a.timings["stages"]) == {"render", "fit"}
+
+
+def _collapsed(mi, scene, mix):
+    """A small model whose every coupling transform has collapsed as training on sky
+    collapsed them (renderers.caches.flow, "A floor under the bins"): all the mass in
+    the first bin (the heights of the other vertices exp(-200) = 0 in float), so a
+    transform maps most of the square onto its edge u = 1, where the next transform of
+    that coordinate has a last bin of width 0; G = 1 (G = 0 sends the flow no
+    gradient)."""
+    from renderers.caches.ncv import NCVConfig, NCVModel
+
+    config = NCVConfig(**{**SMALL, "flow": {**SMALL["flow"], "uniform_mix": mix}})
+    model = NCVModel(config, scene.scene, seed=1)
+    bins, last = config.flow.bins, f"layers.{2 * config.flow.hidden_layers}"
+    raw = np.zeros(config.flow.raw_outputs, dtype=np.float32)
+    raw[bins - 1] = raw[bins + 1:] = -200.0
+    for key in list(model.optimizer):
+        if key.startswith("flow.") and key.endswith(f"{last}.weights"):
+            model.optimizer[key] = dr.zeros(mi.TensorXf, model.optimizer[key].shape)
+        elif key.startswith("flow.") and key.endswith(f"{last}.bias"):
+            model.optimizer[key] = mi.TensorXf(raw)
+        elif key == f"integral.layers.{2 * config.integral_hidden_layers}.bias":
+            model.optimizer[key] = dr.ones(mi.TensorXf, model.optimizer[key].shape)
+    model._refresh()
+    return model
+
+
+def _all_finite(model) -> bool:
+    return all(np.isfinite(np.asarray(model.optimizer[key].array)).all()
+               for key in model.optimizer)
+
+
+def _g_finite(mi, model, records) -> bool:
+    """g at the records' first 1024 samples with a direction is finite."""
+    lanes = mi.UInt32(np.flatnonzero(np.asarray(records.pdf) > 0)[:1024])
+    g = model.eval(lanes // records.spp, dr.gather(mi.Vector3f, records.w, lanes),
+                   mi.Bool(True))
+    return bool(np.isfinite(np.asarray(g)).all())
+
+
+def test_collapsed_bins_keep_the_model_finite_and_training(mi, furnace):
+    """Training on sky 16x16 collapsed the bins (smallest width 1e-14 after 40 steps)
+    until g was non-finite and every step's loss too. With the flow's floor, collapsed
+    bins still give a finite g and a fit takes its steps; planted: without the floor
+    (``uniform_mix`` 0, the code before the fix) g is non-finite and every step is
+    skipped."""
+    floored = _collapsed(mi, furnace, 1e-3)
+    integrator = _integrator(mi, floored)
+    mi.render(furnace.scene, integrator=integrator, spp=SPP, seed=1000)
+    records = integrator.records
+    assert _g_finite(mi, floored, records)
+    floored.fit(records)
+    assert (floored.steps, floored.skipped_steps) == (SMALL["steps_per_frame"], 0)
+    assert _all_finite(floored) and _g_finite(mi, floored, records)
+
+    unfloored = _collapsed(mi, furnace, 0.0)
+    assert not _g_finite(mi, unfloored, records)
+    unfloored.fit(records)
+    assert (unfloored.steps, unfloored.skipped_steps) == (0, SMALL["steps_per_frame"])
 
 
 @pytest.mark.parametrize("values, fragment", [

@@ -100,8 +100,8 @@ def test_density_integrates_to_one_on_the_sphere(monkeypatch: pytest.MonkeyPatch
     # (the heights normalised with those widths): the density spills past u = 1.
     right_widths = F.bin_widths
 
-    def spilling_widths(raw, bins):
-        widths = right_widths(raw, bins)
+    def spilling_widths(raw, bins, mix):
+        widths = right_widths(raw, bins, mix)
         lanes = dr.width(widths) // bins
         last = dr.gather(mi.Float, widths, dr.arange(mi.UInt32, lanes) * bins + bins - 1)
         return widths / dr.repeat(1.0 - last, bins)
