@@ -39,9 +39,11 @@ FULL = Budget(resolution=64, seeds=4, frames=16, ref_spp=1024, grid_preset="—"
               why=FULL_WHY, values=(0.02, 0.05, 0.1, 0.2, 0.5, 1.0))
 
 
-def eps_sweep(ctx: Context, scene: str) -> list[tuple[Any, Any]]:
-    """(sweep row, stored run) of the adaptive sweep of ``scene`` at the budget (stored
-    points are read back, not rendered)."""
+def eps_sweep(ctx: Context, scene: str, equal_time: bool = True,
+              allow_loaded: bool = False) -> list[tuple[Any, Any]]:
+    """(sweep row, stored run) of the adaptive sweep of ``scene`` at the budget's eps
+    values (stored points are read back, not rendered); ``equal_time``: with the "NIRC
+    equal time" series, ``allow_loaded`` its calibration's timings on a loaded machine."""
     from jobs.protocol.spec import ReferenceSpec, SweepSpec
     from jobs.sweeps.sweep import run_sweep
 
@@ -49,7 +51,8 @@ def eps_sweep(ctx: Context, scene: str) -> list[tuple[Any, Any]]:
     spec = SweepSpec(scene=scene, eps=list(b.values), nc=NC_CANDIDATES, methods=["nirc", "nrc"],
                      resolution=b.resolution, seeds=b.seeds, frames=b.frames,
                      train_frames=TRAIN_PER_FRAME * b.frames, v1_spp=b.ref_spp // 4,
-                     allow_loaded=b == QUICK, reference=ReferenceSpec(spp=b.ref_spp))
+                     equal_time=equal_time, allow_loaded=allow_loaded,
+                     reference=ReferenceSpec(spp=b.ref_spp))
     result = run_sweep(spec, ctx.store, ctx.settings, progress=ctx.progress)
     for name in ("points_rendered", "points_reused"):
         ctx.work[name] = ctx.work.get(name, 0) + result.work.get(name, 0)
@@ -69,7 +72,7 @@ def measure(ctx: Context) -> Reproduction:
     b = ctx.budget
     points, chosen = [], []
     for scene in SCENES:
-        for row, run in eps_sweep(ctx, scene):
+        for row, run in eps_sweep(ctx, scene, allow_loaded=b == QUICK):
             points.append(point(scene, row, run))
             if row.series.endswith("equal time"):
                 chosen.append(f"{scene} eps {row.eps:g}: N_c {row.nc}")
@@ -90,7 +93,9 @@ def measure(ctx: Context) -> Reproduction:
 
 # ---- Verdicts ----
 
-def _sign_verdict(claim: str, signs: list[int], detail: str, paper: str) -> Verdict:
+def sign_verdict(claim: str, signs: list[int], detail: str, paper: str) -> Verdict:
+    """Holds when every comparison is +1 (ours lower, intervals apart), does not hold
+    when one is -1, not comparable otherwise or with none."""
     if not signs:
         return Verdict(claim=claim, verdict="not comparable",
                        reason=f"no pair of points to compare; the paper: {paper}")
@@ -133,13 +138,13 @@ def verdicts(points: list[Point]) -> list[Verdict]:
         pairs(points, "NIRC equal time", "NIRC",
               lambda a, b: a.run_id != b.run_id and _same_bounces(a, b)), "rvar")
     return [
-        _sign_verdict(f"NIRC's rBias² below NRC's at the same % IR bounces (within "
+        sign_verdict(f"NIRC's rBias² below NRC's at the same % IR bounces (within "
                       f"{SAME_BOUNCES:g} points)", bias, f"rBias² NIRC vs NRC: {bias_detail}",
                       "lower bias for any % IR bounces"),
-        _sign_verdict("NIRC's rVar below NRC's where their rBias² intervals overlap", var,
+        sign_verdict("NIRC's rVar below NRC's where their rBias² intervals overlap", var,
                       f"rVar NIRC vs NRC: {var_detail}",
                       "lower variance wherever NRC reaches the same bias"),
-        _sign_verdict("more neural samples (NIRC equal time) lower the variance than N_c 1",
+        sign_verdict("more neural samples (NIRC equal time) lower the variance than N_c 1",
                       nc, f"rVar: {nc_detail}",
                       "variance 1.11-1.82x, MRSE 0.93-6.67x, FLIP 1.05-1.14x better"),
     ]

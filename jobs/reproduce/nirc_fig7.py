@@ -27,19 +27,20 @@ SCENES = {"white-room": "White Room", "cornell-box": "Country Kitchen",
 QUANTITIES = {"mrse": "MRSE", "flip": "FLIP", "ms_per_frame": "ms per frame",
               "time_ratio": "time / PT 1 spp's"}
 #: Frames each cache trains before the rendered ones, per rendered frame.
-PRETRAIN_PER_FRAME = 8
+PRETRAIN_PER_FRAME = 2
 #: A NIRC biased row counts as equal time against NRC when its frame costs at most this
 #: factor of NRC's (the calibration's grid of N_c is coarse: 1, 2, 4, ...).
 EQUAL_TIME_TOLERANCE = 1.1
 
 QUICK_WHY = ("--quick: 16x16, K = 3 seeds (the least for MRSE's interval) of F = 4 frames "
-             "after 32 pre-training frames; per scene 6 runs, the N_c calibration and 3 x 4 "
-             "PT calibrations; timings taken on a loaded machine are used (noted)")
-FULL_WHY = ("--full: 64x64, K = 4, F = 16 after 128 pre-training frames, loaded timings "
-            "left out (a GPU worker or an idle machine: about an hour per scene on 2 cores)")
+             "after 8 pre-training frames (NRC's frame alone took 2 s at 16x16 on the loaded "
+             "machine); per scene 6 runs, the N_c calibration and 3 x 4 PT calibrations; "
+             "timings taken on a loaded machine are used (noted)")
+FULL_WHY = ("--full: 64x64, K = 4, F = 64 after 128 pre-training frames, loaded timings "
+            "left out (a GPU worker or an idle machine: hours per scene on 2 cores)")
 QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=1024, grid_preset="cpu",
                why=QUICK_WHY)
-FULL = Budget(resolution=64, seeds=4, frames=16, ref_spp=4096, grid_preset="cpu",
+FULL = Budget(resolution=64, seeds=4, frames=64, ref_spp=4096, grid_preset="cpu",
               why=FULL_WHY)
 
 FLIP_NOTE = "FLIP: the K seeds' mean; 95 % interval: Student t (K-1 degrees of freedom)"

@@ -34,7 +34,7 @@ def stub_sweep(nirc_bias: float, equal_time_rvar: float) -> Any:
                 SimpleNamespace(seed_results=[SimpleNamespace(metrics={"flip_hdr": f})
                                               for f in (0.29, 0.3, 0.31)]))
 
-    def eps_sweep(ctx: Any, scene: str) -> list[tuple[Any, Any]]:
+    def eps_sweep(ctx: Any, scene: str, **_options: Any) -> list[tuple[Any, Any]]:
         return [*(row("NIRC", i, nirc_bias * NRC["rbias2"][i], NIRC_RVAR[i], 1) for i in range(3)),
                 *(row("NRC", i, NRC["rbias2"][i], NRC["rvar"][i], None) for i in range(3)),
                 *(row("NIRC equal time", i, nirc_bias * NRC["rbias2"][i],
