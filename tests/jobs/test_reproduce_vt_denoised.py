@@ -14,9 +14,9 @@ import pytest
 
 from jobs.protocol.spec import SweepSpec
 from jobs.reproduce import vt_fig10, vt_fig11
-from jobs.reproduce.plot import Panel
 from jobs.reproduce.registry import Context
 from jobs.reproduce.run import reproduce
+from tests.jobs.reproduce_fakes import no_drawing
 
 #: A policy's stored numbers by its swept value: (denoised MRSE of 4 frames, % of paths
 #: ending at the primary hit, % at the second vertex); PT (0.9) has no cache. The other
@@ -45,17 +45,6 @@ def stub_sweep(numbers: dict[float, tuple[float, float | None, float | None]]) -
         return [(SimpleNamespace(id=int(1000 * values[0]), value=values[0]), run)]
 
     return sweep
-
-
-def no_drawing(drawn: list[str]) -> Any:
-    """plot_panels that records the panels' quantities (the PNG costs seconds and is
-    drawn by the same helper in the other figures' tests)."""
-    def plot_panels(_reproduction: object, panels: list[Panel], path: Path,
-                    **_kwargs: object) -> Path:
-        drawn.extend(panel.quantity for panel in panels)
-        return path
-
-    return plot_panels
 
 
 def test_fig10_asks_every_point_denoised_and_tables_it(monkeypatch: pytest.MonkeyPatch,

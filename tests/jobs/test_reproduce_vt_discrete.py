@@ -10,24 +10,16 @@ from pathlib import Path
 import pytest
 
 from jobs.reproduce import vt_fig4, vt_fig5
-from jobs.reproduce.plot import Panel
 from jobs.reproduce.results import Estimate
 from jobs.reproduce.run import reproduce
 from renderers.termination_model import blend, frontier_rule, optimal_frontier
+from tests.jobs.reproduce_fakes import no_drawing
 
 
 def test_fig4_writes_its_table_and_both_claims_hold(tmp_path: Path,
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
-    """Its panels are asked for, not drawn: the PNG costs seconds and is drawn by the
-    same helper in the fig5 test below."""
     drawn: list[str] = []
-
-    def plot_panels(_reproduction: object, panels: list[Panel], path: Path,
-                    **_kwargs: object) -> Path:
-        drawn.extend(panel.quantity for panel in panels)
-        return path
-
-    monkeypatch.setattr(vt_fig4, "plot_panels", plot_panels)
+    monkeypatch.setattr(vt_fig4, "plot_panels", no_drawing(drawn))
     result, paths = reproduce("vt", "fig4", "quick", tmp_path, None, None)
     assert drawn == list(vt_fig4.QUANTITIES)
     assert [v.verdict for v in result.verdicts] == ["holds", "holds"]
@@ -46,9 +38,13 @@ def test_fig4_verdicts_flip_on_planted_curves() -> None:
     assert [v.verdict for v in vt_fig4.verdicts(following)] == ["holds", "does not hold"]
 
 
-def test_fig5_writes_its_figure_and_its_claim_holds(tmp_path: Path) -> None:
+def test_fig5_writes_its_table_and_its_claim_holds(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    drawn: list[str] = []
+    monkeypatch.setattr(vt_fig5, "plot_panels", no_drawing(drawn))
     result, paths = reproduce("vt", "fig5", "quick", tmp_path, None, None)
-    assert paths["figure"].read_bytes()[:4] == b"\x89PNG"
+    assert drawn == ["mse", "variance"]
+    assert "| tree | exhaustive optimum | 100 | 0.0055 |" in paths["markdown"].read_text()
     [verdict] = result.verdicts
     assert verdict.verdict == "holds", verdict.reason
     assert "s = 100: 4.86x the optimum" in verdict.reason
