@@ -152,8 +152,14 @@ def bin_widths(raw: mi.Float, bins: int, mix: float) -> mi.Float:
     range only."""
     top = dr.repeat(dr.block_reduce(dr.ReduceOp.Max, dr.detach(raw), bins), bins)
     exp_widths = dr.exp(raw - top)
-    softmax = exp_widths / dr.repeat(dr.block_sum(exp_widths, bins), bins)
-    return dr.fma(softmax, 1.0 - mix, mix / bins)
+    return with_uniform(exp_widths / dr.repeat(dr.block_sum(exp_widths, bins), bins), mix,
+                        1.0 / bins)
+
+
+def with_uniform(value: mi.Float, mix: float, uniform: float) -> mi.Float:
+    """(1 - mix) value + mix uniform: a bin's width or height mixed with the uniform
+    transform's (``uniform``: 1/K or 1; module docstring)."""
+    return dr.fma(value, 1.0 - mix, mix * uniform)
 
 
 def bin_table(raw: mi.TensorXf, bins: int, mix: float) -> BinTable:
@@ -174,8 +180,7 @@ def bin_table(raw: mi.TensorXf, bins: int, mix: float) -> BinTable:
                                     bins), bins)
     exp_left, exp_right = dr.exp(raw_left - top), dr.exp(raw_right - top)
     area = dr.repeat(dr.block_sum(0.5 * (exp_left + exp_right) * widths, bins), bins)
-    left = dr.fma(exp_left / area, 1.0 - mix, mix)
-    right = dr.fma(exp_right / area, 1.0 - mix, mix)
+    left, right = with_uniform(exp_left / area, mix, 1.0), with_uniform(exp_right / area, mix, 1.0)
     table = BinTable(bins, widths, left, right,
                      lefts=dr.block_prefix_sum(widths, bins, exclusive=True),
                      belows=dr.block_prefix_sum(0.5 * (left + right) * widths, bins,

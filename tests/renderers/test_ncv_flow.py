@@ -26,10 +26,10 @@ pytestmark = pytest.mark.usefixtures("mi")
 CONDITION = 3
 
 
-def random_flow(channels: int = 1, sharpen: float = 40.0) -> F.SphereFlow:
+def random_flow(channels: int = 1, sharpen: float = 40.0, mix: float = 1e-3) -> F.SphereFlow:
     """A small random flow with the paper's bins, repetitions and one-blob bins, its
-    output layers scaled by ``sharpen`` (module docstring)."""
-    config = F.FlowConfig(width=16, hidden_layers=2, channels=channels)
+    output layers scaled by ``sharpen`` (module docstring), ``mix`` its uniform share."""
+    config = F.FlowConfig(width=16, hidden_layers=2, channels=channels, uniform_mix=mix)
     flow = F.SphereFlow(config, CONDITION, seed=7)
     for nets in flow.networks:
         for net in nets:
@@ -108,6 +108,25 @@ def test_density_integrates_to_one_on_the_sphere(monkeypatch: pytest.MonkeyPatch
 
     monkeypatch.setattr(F, "bin_widths", spilling_widths)
     integrals, _ = sphere_integrals(flow, conditions=1)
+    assert np.all(np.abs(integrals - 1.0) > 2e-2), integrals
+
+
+def test_a_large_uniform_share_keeps_the_density_normalised_and_floored(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """With a uniform share delta = 0.2 (the floor under the bins, 1e-3 by default, too
+    small for the quadrature to see it) the density still integrates to 1 and is at
+    least delta^4 / (4 pi) (4 layers of C' >= delta); planted: the floor added without
+    scaling the learned part by 1 - delta (integral 1 + delta per layer)."""
+    mix = 0.2
+    integrals, _ = sphere_integrals(random_flow(mix=mix), conditions=1)
+    assert np.all(np.abs(integrals - 1.0) < 5e-3), integrals
+    w = mi.Vector3f(*(mi.Float(np.random.default_rng(4).normal(size=4096)) for _ in range(3)))
+    condition = random_rows(np.random.default_rng(5), CONDITION, 4096)
+    [density] = random_flow(mix=mix).sphere_density(w, condition)
+    assert np.min(np.asarray(density)) >= mix**4 / (4.0 * math.pi) * (1.0 - 1e-5)
+
+    monkeypatch.setattr(F, "with_uniform", lambda value, mix, uniform: value + mix * uniform)
+    integrals, _ = sphere_integrals(random_flow(mix=mix), conditions=1)
     assert np.all(np.abs(integrals - 1.0) > 2e-2), integrals
 
 
