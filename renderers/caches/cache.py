@@ -69,9 +69,11 @@ def build_mlp(config: CacheConfig) -> nn.Sequential:
     return nn.Sequential(*layers, prefix="mlp")
 
 
-def mlp_forward_tensor(net: nn.Sequential, rows: Sequence[mi.Float]) -> mi.TensorXf:
+def mlp_forward_tensor(net: nn.Sequential, rows: Sequence[mi.Float],
+                       gradients: LayerGradients | None = None) -> mi.TensorXf:
     """Tensor-mode forward pass of an unpacked MLP on feature ``rows`` (each of width N
-    or 1: ``to_tensor``), with reproducible gradients; (outputs, N).
+    or 1: ``to_tensor``), with reproducible gradients; (outputs, N). ``gradients``
+    collects the layers' gradients in the backward pass (:class:`LayerGradients`).
 
     Same as ``net(to_tensor(rows))`` except for the bias: ``nn.Linear`` broadcasts it
     over the batch, whose reverse-mode derivative is a float atomic scatter-add
@@ -82,7 +84,7 @@ def mlp_forward_tensor(net: nn.Sequential, rows: Sequence[mi.Float]) -> mi.Tenso
     records on the LLVM backend (Dr.Jit's GEMM reduces K in segments of 1024), so a
     bias of its own, ``b @ ones(1, N)`` added to ``W @ x``, doubled the launches of
     the backward pass. The values are bitwise those of that form: the bias is the
-    last term of each output's sum, ``acc + b * 1`` (``tests/caches/test_cache.py``).
+    last term of each output's sum, ``acc + b * 1`` (``tests/renderers/test_caches.py``).
 
     The row of ones travels through the hidden layers: each hidden layer's matrix has
     a last row ``[0 ... 0 1]``, whose output 1 the activation keeps (ReLU and leaky
@@ -93,7 +95,9 @@ def mlp_forward_tensor(net: nn.Sequential, rows: Sequence[mi.Float]) -> mi.Tenso
     linears = [layer for layer in net.layers if isinstance(layer, nn.Linear)]
     for layer in net.layers:
         if isinstance(layer, nn.Linear):
-            x = _with_bias(layer, ones_row=layer is not linears[-1]) @ x
+            matrix = dr.custom(_WithBias, layer.weights, layer.bias,
+                               layer is not linears[-1], gradients)
+            x = matrix @ x
         elif isinstance(layer, nn.ReLU | nn.LeakyReLU):
             x = layer(x)
         else:
@@ -101,17 +105,67 @@ def mlp_forward_tensor(net: nn.Sequential, rows: Sequence[mi.Float]) -> mi.Tenso
     return x
 
 
-def _with_bias(layer: nn.Linear, ones_row: bool) -> mi.TensorXf:
-    """``[W b]`` of ``layer``, and below it, with ``ones_row``, the row ``[0 ... 0 1]``
-    that carries the input's row of ones to the output (:func:`mlp_forward_tensor`)."""
-    outputs, inputs = layer.weights.shape
-    bias = dr.reshape(mi.TensorXf, layer.bias, (outputs, 1))
-    matrix = dr.concat((layer.weights, bias), axis=1)
-    if not ones_row:
-        return matrix
-    last = dr.arange(mi.UInt32, inputs + 1) == inputs
-    return dr.concat((matrix, mi.TensorXf(dr.select(last, 1.0, 0.0), (1, inputs + 1))),
-                     axis=0)
+class LayerGradients:
+    """The gradients of a training MLP's matrices ``[W b]`` (:func:`mlp_forward_tensor`),
+    as its backward pass computes them: :meth:`finite` checks every weight and bias in one
+    kernel (a check per parameter was a kernel and a reduction each)."""
+
+    def __init__(self) -> None:
+        #: (the gradient of a layer's matrix, flat, and how many of its first entries
+        #: are those of ``[W b]``: the rest are the row of ones').
+        self.matrices: list[tuple[mi.Float, int]] = []
+
+    def finite(self) -> mi.Bool:
+        """Whether every collected gradient of a weight or a bias is finite (width 1)."""
+        lane = dr.arange(mi.UInt32, max(dr.width(grad) for grad, _ in self.matrices))
+        finite = mi.Bool(True)
+        for grad, size in self.matrices:
+            inside = lane < size
+            finite &= ~inside | dr.isfinite(dr.gather(mi.Float, grad, lane, inside))
+        return dr.all(finite)
+
+
+class _WithBias(dr.CustomOp):
+    """``[W b]`` of a layer, and below it, with ``ones_row``, the row ``[0 ... 0 1]``
+    that carries the input's row of ones to the output (:func:`mlp_forward_tensor`): one
+    kernel of gathers. Backward: W's and b's gradients are the matching entries of the
+    matrix's gradient, gathered where they are read (the optimizer's kernels)."""
+
+    def eval(self, weights: mi.TensorXf, bias: mi.TensorXf, ones_row: bool,
+             gradients: LayerGradients | None) -> mi.TensorXf:
+        self.gradients = gradients
+        self.shape = outputs, inputs = weights.shape
+        row, column = _entries(outputs + ones_row, inputs + 1)
+        weight = dr.gather(mi.Float, weights.array, row * inputs + column,
+                           (row < outputs) & (column < inputs))
+        below = dr.select(row < outputs, dr.gather(mi.Float, bias.array, row, row < outputs),
+                          1.0)
+        return mi.TensorXf(dr.select(column < inputs, weight, below),
+                           (outputs + ones_row, inputs + 1))
+
+    def forward(self) -> None:
+        raise NotImplementedError("forward-mode derivatives of the MLP are not needed")
+
+    def backward(self) -> None:
+        grad = self.grad_out().array
+        outputs, inputs = self.shape
+        if self.gradients is not None:
+            self.gradients.matrices.append((grad, outputs * (inputs + 1)))
+        row, column = _entries(outputs, inputs)
+        self.set_grad_in("weights", mi.TensorXf(
+            dr.gather(mi.Float, grad, row * (inputs + 1) + column), (outputs, inputs)))
+        self.set_grad_in("bias", mi.TensorXf(
+            dr.gather(mi.Float, grad, dr.arange(mi.UInt32, outputs) * (inputs + 1) + inputs),
+            (outputs,)))
+
+    def name(self) -> str:
+        return "WithBias"
+
+
+def _entries(rows: int, columns: int) -> tuple[mi.UInt32, mi.UInt32]:
+    """(row, column) of each entry of a row-major ``rows`` x ``columns`` matrix."""
+    at = dr.arange(mi.UInt32, rows * columns)
+    return at // columns, at % columns
 
 
 def sigmoid(x: Any) -> Any:
@@ -575,10 +629,9 @@ class NeuralCache:
             whole = dr.block_sum(mi.UInt32(dr.select(keep, 1, 0)), group) == group
             keep &= dr.gather(mi.Bool, whole, dr.arange(mi.UInt32, n) // group)
         if count:
-            counts = [dr.count(~valid), dr.count(valid & ~finite_target),
-                      dr.count(valid & finite_target & ~finite_input), dr.count(keep)]
-            dr.eval(*counts)
-            invalid, bad_target, bad_input, kept = (int(c[0]) for c in counts)
+            invalid, bad_target, bad_input, kept = _tally(
+                [~valid, valid & ~finite_target, valid & finite_target & ~finite_input, keep],
+                keep)
             self.stats["dropped_invalid"] += invalid
             self.stats["dropped_nonfinite_targets"] += bad_target
             self.stats["dropped_nonfinite_inputs"] += bad_input
@@ -615,7 +668,8 @@ class NeuralCache:
         position = self.encoder.position.with_data(opt[GRID_KEY])
 
         # ---- Forward (tensor mode) and loss (Eq. 18 or L2) ----
-        y = mlp_forward_tensor(self._net, self._input_rows(batch, position))
+        gradients = LayerGradients()
+        y = mlp_forward_tensor(self._net, self._input_rows(batch, position), gradients)
         if self.config.output.activation == "sigmoid":
             y = sigmoid(y)
         # clamped_linear stays linear here: a clamp would stop the gradient of
@@ -624,17 +678,16 @@ class NeuralCache:
         dr.backward(loss)
 
         # ---- Taken only if everything is finite ----
-        good = dr.isfinite(loss.array)
+        good = dr.isfinite(loss.array) & gradients.finite()
         lookup = position.lookup
-        for key in self._keys:
-            if key == GRID_KEY and lookup is not None and lookup.finite is not None:
-                # The fixed-point table gradient is NaN everywhere or finite
-                # everywhere (grid_grad.py) and its lookup says which: no
-                # reduction over the whole table (~1.3M entries) per step, and
-                # the gradient stays lazy, computed inside Adam's kernel.
-                good &= lookup.finite
-                continue
-            good &= dr.count(~dr.isfinite(_flat(dr.grad(opt[key])))) == 0
+        if lookup is not None and lookup.finite is not None:
+            # The fixed-point table gradient is NaN everywhere or finite
+            # everywhere (grid_grad.py) and its lookup says which: no
+            # reduction over the whole table (~1.3M entries) per step, and
+            # the gradient stays lazy, computed inside Adam's kernel.
+            good &= lookup.finite
+        else:
+            good &= dr.count(~dr.isfinite(_flat(dr.grad(opt[GRID_KEY])))) == 0
 
         # ---- Adam step (+ EMA of the weights), masked by ``good`` ----
         opt.set_learning_rate(self.config.optimizer.learning_rate_at(counters["steps"]))
@@ -646,6 +699,19 @@ class NeuralCache:
                 ema[key] = _where(good, acc, ema[key])
         counters["steps"] = counters["steps"] + dr.select(good, 1, 0)
         return loss.array, good
+
+
+def _tally(masks: Sequence[mi.Bool], *evaluated: Any) -> list[int]:
+    """How many lanes of each of ``masks`` (disjoint) are set, counted in one kernel
+    (integer atomics: exact) that also evaluates ``evaluated``, and read back at once: a
+    ``dr.count`` per mask was a kernel, a reduction and a read-back each."""
+    slot = mi.UInt32(len(masks))
+    for at, mask in reversed(list(enumerate(masks))):
+        slot = dr.select(mask, at, slot)
+    counts = dr.zeros(mi.UInt32, len(masks))
+    dr.scatter_add(counts, 1, slot, slot < len(masks))
+    dr.eval(counts, *evaluated)
+    return [int(c) for c in counts.numpy()]
 
 
 def _flat(value: Any) -> mi.Float:

@@ -275,6 +275,28 @@ def test_folded_bias_is_bitwise_the_bias_apart(activation):
     assert not all(np.array_equal(a, b) for a, b in zip(folded, planted, strict=True))
 
 
+def test_layer_gradients_check_every_weight_and_bias_but_not_the_row_of_ones():
+    from renderers.caches.cache import LayerGradients
+
+    def finite(*matrices):
+        gradients = LayerGradients()
+        gradients.matrices = [(mi.Float(values), size) for values, size in matrices]
+        return bool(gradients.finite()[0])
+
+    wide, narrow = np.arange(12, dtype=np.float32), np.arange(4, dtype=np.float32)
+    assert finite((wide, 9), (narrow, 4))
+    for at in (0, 8):   # a weight's or a bias's gradient, in the wider matrix
+        bad = wide.copy()
+        bad[at] = np.nan
+        assert not finite((bad, 9), (narrow, 4))
+    narrow_bad = narrow.copy()
+    narrow_bad[3] = np.inf   # the narrower matrix's last entry
+    assert not finite((wide, 9), (narrow_bad, 4))
+    ones_row = wide.copy()
+    ones_row[10] = np.nan    # the row of ones' gradient: no parameter's
+    assert finite((ones_row, 9), (narrow, 4))
+
+
 def test_folded_bias_refuses_an_activation_that_drops_the_row_of_ones():
     from drjit import nn
 
@@ -376,13 +398,17 @@ def test_non_finite_targets_are_dropped_and_counted():
     target[2, 100] = -np.inf      # ... and lane 100: 16 in total
     target[:, 250] = np.nan       # an invalid record: counted as invalid only
     rec.target = mi.Color3f(*target)
+    position = as_numpy(rec.position)
+    position[0, [7, 400, 401]] = np.nan   # lane 7's target is bad: counted there only
+    rec.position = mi.Point3f(*position)
     valid = np.ones(4096, dtype=bool)
     valid[200:300] = False
     rec.valid = mi.Bool(valid)
     losses = cache.train(rec, steps=4)
     assert cache.stats["dropped_nonfinite_targets"] == 16
     assert cache.stats["dropped_invalid"] == 100
-    assert cache.stats["records_seen"] == 4096 - 116
+    assert cache.stats["dropped_nonfinite_inputs"] == 2
+    assert cache.stats["records_seen"] == 4096 - 118
     assert len(losses) == 4 and np.all(np.isfinite(losses))
     for values in (*cache.parameters().values(), *cache.inference_parameters().values()):
         assert np.all(np.isfinite(values))
