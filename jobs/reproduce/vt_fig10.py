@@ -14,6 +14,8 @@ cache: the share of paths that end at the primary hit (``cache_depth`` 1, the pa
 
 from __future__ import annotations
 
+import math
+import statistics
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +51,8 @@ QUANTITIES = {"mrse_frame": "MRSE, 1 spp", "denoised_mrse_frame": "OIDN MRSE, 1 
               "primary_pct": "% paths ending at the primary hit",
               "second_pct": "% paths ending at the second vertex"}
 SEED_NOTE = ("MRSE and FLIP: the mean over the K seeds (a seed's 1-spp value: the mean over "
-             "its frames); 95 % interval: Student t (K-1 degrees of freedom) over the seeds")
+             "its frames); 95 % interval: log scale (delta method), Student t with K-1 "
+             "degrees of freedom over the seeds")
 SVGF_NOTE = ("Intel Open Image Denoise (still images, albedo and normal features) stands in "
              "for the paper's SVGF, a temporal filter that needs the renderer's own pipeline "
              "(docs/metrics.md, 'Denoised error')")
@@ -59,16 +62,21 @@ FULL = full_budget()
 
 
 def over_seeds(run: Any, value_of: Any) -> Estimate:
-    """The mean over the run's seeds of ``value_of(seed metrics)`` (None: left out), with
-    its Student-t interval over them."""
-    from metrics.bias_intervals import bias_interval
+    """The mean over the run's seeds of ``value_of(seed metrics)`` (None: left out), a
+    positive error, with its 95 % interval on the log scale over them (:data:`SEED_NOTE`)."""
+    from metrics.statistics import log_scale_interval
 
     values = [v for seed in run.seed_results
               if (v := value_of(seed.metrics or {})) is not None]
     if not values:
         return Estimate(value=None, note=SEED_NOTE)
-    interval, note = bias_interval(values, SEED_NOTE)
-    return Estimate(value=sum(values) / len(values), ci95=interval, note=note)
+    mean = sum(values) / len(values)
+    if len(values) < 2 or not mean > 0:
+        return Estimate(value=mean, note=f"{SEED_NOTE} (none: {len(values)} seeds, mean "
+                                         f"{mean:.3g})")
+    interval = log_scale_interval(mean, statistics.stdev(values) / math.sqrt(len(values)),
+                                  len(values) - 1)
+    return Estimate(value=mean, ci95=list(interval), note=SEED_NOTE)
 
 
 def _mean_frame_mrse(metrics: dict[str, Any]) -> float | None:
