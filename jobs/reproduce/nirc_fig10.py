@@ -187,6 +187,9 @@ def verdicts(crossings: dict[str, Estimate], budget: Budget) -> list[Verdict]:
         low, high = crossing.ci95 or (None, None)
         text = (f"first frame below: {crossing.text()} of F = {budget.frames} "
                 f"(F: never below)")
+        if high == 0:
+            text += ("; below from the first frame on, so the paper's cold-start span "
+                     "before the crossing is not seen here")
         if low is None:
             verdict = "not comparable"
         elif high <= CLAIM_FRAMES and high < budget.frames:
