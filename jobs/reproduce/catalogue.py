@@ -79,9 +79,7 @@ CATALOGUE: tuple[CatalogueEntry, ...] = (
     CatalogueEntry("nvc", "fig7", "ReSTIR with clustered-NVC initial candidates after a "
                    "disocclusion in every pixel (Subway, 60k lights)", ("many-lights-300",),
                    "the paper's Subway (60k lights) is not built in; many-lights-300 has the "
-                   "most lights of the built-ins",
-                   "disocclusion by invalidated motion vectors in restir-nvc, and light "
-                   "clusters (k-means) in the visibility cache"),
+                   "most lights of the built-ins", ""),
     CatalogueEntry("nvc", "fig9", "Neural light sampling against ReSTIR on Sponza (32 "
                    "lights) at equal time", ("many-lights",), _KITCHEN,
                    "the fig1 module at equal time instead of equal samples"),
