@@ -7,14 +7,17 @@ per pixel; vMF 11 lobes, 77; SS NIRC's latent table, 74), NCV and NIRC at their
 defaults (networks shared by every pixel: their floats per pixel are the parameters
 over the pixels, shown), on every scene; V_rel per seed from an untimed probe with the
 final model or cache after F frames (docs/metrics.md), its interval over the K seeds,
-and the median time per frame. The EMA curves over 4000 frames and the integrand images
-of the figure are not reproduced."""
+and the median time per frame. The EMA curves: V_rel after every training frame of NCV
+and NIRC, one seed per scene (jobs/reproduce/nirc_fig6_curves.py), over
+:data:`CURVE_FRAMES` frames (the paper's 4000 with --full), drawn as ema.png beside the
+figure."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+from jobs.reproduce import nirc_fig6_curves as curves
 from jobs.reproduce.measure import sweep
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
@@ -22,17 +25,23 @@ from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
 
 SCENES = ("cornell-box", "door", "white-room", "sky")
 #: (series, method, its parameters, a parameter at its default: the sweep's single point)
+#: The control variates pre-train 0 frames, as the caches do (a sweep's point otherwise
+#: pre-trains ``train_frames``, 100 by default: 104 frames against the caches' 4).
 SERIES = (
-    ("SH", "cv-sh", {}, "uniform_fraction", 0.25),
-    ("vMF", "cv-vmf", {}, "uniform_fraction", 0.25),
-    ("NCV", "ncv", {}, "uniform_fraction", 0.25),
+    ("SH", "cv-sh", {"pretrain_frames": 0}, "uniform_fraction", 0.25),
+    ("vMF", "cv-vmf", {"pretrain_frames": 0}, "uniform_fraction", 0.25),
+    ("NCV", "ncv", {"pretrain_frames": 0}, "uniform_fraction", 0.25),
     ("SS NIRC", "ss-nirc", {}, "pretrain_frames", 0),
     ("NIRC", "nirc", {"estimator": "unbiased", "cache": {"mlp": {"hidden_layers": 6}}},
      "pretrain_frames", 0),
 )
-X_LABEL = "series: " + ", ".join(f"{i} {s[0]}" for i, s in enumerate(SERIES))
+X_LABEL = ("series: " + ", ".join(f"{i} {s[0]}" for i, s in enumerate(SERIES))
+           + "; EMA rows: training frame")
 QUANTITIES = {"v_rel": "V_rel(<F_r>)", "ms_per_frame": "ms per frame",
-              "floats_per_pixel": "floats per pixel"}
+              "floats_per_pixel": "floats per pixel", "v_rel_ema": "EMA of V_rel"}
+#: The series with an EMA curve: (label, method, its parameters, the frame loop).
+CURVES = (("NCV", "ncv", {}, curves.ncv_frames),
+          ("NIRC", "nirc", SERIES[4][2], curves.nirc_frames))
 #: NIRC's V_rel against NCV's, as the paper states it (1.1-1.32x lower).
 PAPER_RATIO = (1.1, 1.32)
 
@@ -41,6 +50,14 @@ QUICK_WHY = ("--quick: 16x16, K = 3 seeds of F = 4 frames (the paper trains for 
 FULL_WHY = "--full: 32x32, K = 4, F = 64 frames: still far below the paper's training"
 QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=256, grid_preset="—", why=QUICK_WHY)
 FULL = Budget(resolution=32, seeds=4, frames=64, ref_spp=1024, grid_preset="—", why=FULL_WHY)
+
+#: Training frames of each EMA curve, by budget (a replaced budget: its frames).
+CURVE_FRAMES = {QUICK: 16, FULL: 4000}
+CURVE_WHY = ("EMA curves: one seed per scene and method, a residual probe after every "
+             "frame; --quick {frames} frames ({seconds:.0f} s of rendering here), --full "
+             "4000 as the paper")
+EMA_NOTE = (f"EMA (alpha {curves.ALPHA}) of V_rel after each training frame, one seed; "
+            "no interval")
 
 V_REL_NOTE = "V_rel: the K seeds' mean; 95 % interval: log-scale over the seeds (docs/metrics.md)"
 
@@ -76,6 +93,8 @@ def measure(ctx: Context) -> Reproduction:
                 "v_rel": v_rel(run),
                 "ms_per_frame": Estimate(value=None if seconds is None else 1e3 * seconds),
                 "floats_per_pixel": Estimate(value=floats_per_pixel(run, b.resolution**2))}))
+    curve_points, curve_note = ema_points(ctx)
+    points += curve_points
     return Reproduction(
         paper="nirc", figure="fig6", title="[DKHD24] Fig. 6: V_rel(<F_r>) of the control "
                                            "variates and the neural caches",
@@ -87,11 +106,55 @@ def measure(ctx: Context) -> Reproduction:
                "of the one-sample residual at the primary hit with the final model, over "
                "R² + eps (NIRC: F_r of Eq. 11; control variates: (f - g) / q of Eq. 7)",
                "ms per frame: the median frame on this shared 2-core CPU, not the paper's GPU",
-               "not reproduced: the EMA curves over 4000 frames and the integrand images"])
+               curve_note, "not reproduced: the integrand images"])
+
+
+def ema_points(ctx: Context) -> tuple[list[Point], str]:
+    """The EMA curves of NCV and NIRC on every scene, as points at the kept frames, and
+    the note stating their frames, time and frames without a V_rel."""
+    import time
+
+    from jobs.protocol.spec import RenderSpec
+    from renderers.methods import parse_params
+
+    b = ctx.budget
+    frames = CURVE_FRAMES.get(b, b.frames)
+    eps = RenderSpec.model_fields["eps"].default
+    points, missing, started = [], 0, time.perf_counter()
+    for scene_name in SCENES:
+        scene, reference = scene_and_reference(ctx, scene_name)
+        for series, method, params, train in CURVES:
+            if ctx.progress:
+                ctx.progress(f"{series} EMA on {scene_name}", 0, frames)
+            curve = curves.v_rel_curve(train, scene, parse_params(method, params),
+                                       ("fig6 curve", scene_name, method), frames,
+                                       reference.mean, eps)
+            averages, skipped = curves.moving_average(curve)
+            missing += skipped
+            points += [Point(scene=scene_name, series=f"{series} EMA", x=float(t),
+                             values={"v_rel_ema": Estimate(value=averages[t - 1],
+                                                           note=EMA_NOTE)})
+                       for t in curves.kept_frames(frames)]
+    note = CURVE_WHY.format(frames=frames, seconds=time.perf_counter() - started)
+    if missing:
+        note += f"; {missing} frames without a V_rel left out of the averages"
+    return points, note
+
+
+def scene_and_reference(ctx: Context, scene_name: str) -> tuple[Any, Any]:
+    """The scene at the budget's size and its reference (the table's, from the store)."""
+    from jobs.protocol.references import get_or_render_reference
+    from jobs.protocol.scene_store import load_spec_scene
+    from jobs.protocol.spec import ReferenceSpec
+
+    scene = load_spec_scene(scene_name, ctx.budget.resolution, ctx.settings)
+    return scene, get_or_render_reference(ctx.store, ctx.settings.references_dir, scene,
+                                          ReferenceSpec(spp=ctx.budget.ref_spp).settings(-1))
 
 
 def _get(points: list[Point], scene: str, series: str) -> Estimate | None:
-    found = [p.values["v_rel"] for p in points if (p.scene, p.series) == (scene, series)]
+    found = [p.values["v_rel"] for p in points
+             if (p.scene, p.series) == (scene, series) and "v_rel" in p.values]
     return found[0] if found and found[0].value is not None else None
 
 
@@ -142,6 +205,10 @@ def _verdict(claim: str, signs: list[int], detail: str, short: str) -> Verdict:
 
 
 def draw(reproduction: Reproduction, path: Path) -> Path:
+    """figure.png (V_rel per series) and, beside it, ema.png (the EMA curves)."""
+    plot_panels(reproduction, [Panel("v_rel_ema", f"{scene}: EMA of V_rel per frame",
+                                     scene=scene) for scene in SCENES],
+                path.with_name("ema.png"), log_x=True)
     return plot_panels(reproduction, [Panel("v_rel", f"{scene}: V_rel", log_y=True, scene=scene)
                                       for scene in SCENES], path, log_x=False)
 

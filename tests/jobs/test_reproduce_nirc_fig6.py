@@ -1,10 +1,13 @@
-"""`reproduce nirc fig6` from stubbed stored runs (V_rel itself is tested in
-tests/renderers/test_control_variates.py and test_residual_variance.py): its series,
-floats per pixel, table and PNG, and verdicts that turn with the numbers (a planted NIRC
-above NCV is 'does not hold', overlapping intervals 'not comparable')."""
+"""`reproduce nirc fig6` from stubbed stored runs and stubbed training curves (V_rel
+itself is tested in tests/renderers/test_control_variates.py and
+test_residual_variance.py): its series, floats per pixel, EMA curves, table and PNGs,
+and verdicts that turn with the numbers (a planted NIRC above NCV is 'does not hold',
+overlapping intervals 'not comparable'); the moving average leaves out frames without a
+V_rel (planted: one that averages them in)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -12,6 +15,7 @@ from typing import Any
 import pytest
 
 from jobs.reproduce import nirc_fig6
+from jobs.reproduce import nirc_fig6_curves as curves
 from jobs.reproduce.registry import Context
 from jobs.reproduce.run import reproduce
 
@@ -20,6 +24,23 @@ V_REL = {"cv-sh": 0.5, "cv-vmf": 0.6, "ncv": 0.3, "ss-nirc": 0.25}
 STATS = {"cv-sh": {"model": {"floats_per_pixel": {"model": 75, "fit": 76}}},
          "ncv": {"model": {"floats_per_pixel": {"model": 40.5}}},
          "nirc": {"caches": {"cache": {"parameters": 2560}}}}
+
+
+#: Each curve's V_rel per frame (stubbed): NCV's has a frame without one.
+CURVES = {"ncv": [2.0, None, 1.0, float("nan")] + [1.0] * 60, "nirc": [1.0] * 64}
+
+
+@pytest.fixture(autouse=True)
+def stub_curves(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No scene, reference or training for the EMA curves: their V_rel per frame."""
+    monkeypatch.setattr(nirc_fig6, "scene_and_reference",
+                        lambda ctx, name: (name, SimpleNamespace(mean=None)))
+
+    def v_rel_curve(train: Any, scene: str, params: Any, seed_parts: tuple[Any, ...],
+                    frames: int, reference: Any, eps: float) -> list[float | None]:
+        return CURVES[seed_parts[2]][:frames]
+
+    monkeypatch.setattr(curves, "v_rel_curve", v_rel_curve)
 
 
 def stub_sweep(nirc_v_rel: float) -> Any:
@@ -42,12 +63,45 @@ def test_fig6_tables_every_scene_and_series_with_its_floats(
     monkeypatch.setattr(nirc_fig6, "sweep", stub_sweep(0.1))
     result, paths = reproduce("nirc", "fig6", "quick", tmp_path, None, None)
     assert paths["figure"].read_bytes()[:4] == b"\x89PNG"
-    assert len(result.points) == len(nirc_fig6.SCENES) * len(nirc_fig6.SERIES)
-    floats = {p.series: p.values["floats_per_pixel"].value for p in result.points}
+    assert (paths["figure"].parent / "ema.png").read_bytes()[:4] == b"\x89PNG"
+    table = [p for p in result.points if "v_rel" in p.values]
+    assert len(table) == len(nirc_fig6.SCENES) * len(nirc_fig6.SERIES)
+    floats = {p.series: p.values["floats_per_pixel"].value for p in table}
     assert floats == {"SH": 75, "vMF": None, "NCV": 40.5, "SS NIRC": None,
                       "NIRC": 2560 / nirc_fig6.QUICK.resolution**2}
-    assert {p.values["ms_per_frame"].value for p in result.points} == {20.0}
+    assert {p.values["ms_per_frame"].value for p in table} == {20.0}
     assert "**holds**" in paths["markdown"].read_text()
+
+    frames = nirc_fig6.CURVE_FRAMES[nirc_fig6.QUICK]
+    for series, method in (("NCV EMA", "ncv"), ("NIRC EMA", "nirc")):
+        ema = {p.x: p.values["v_rel_ema"].value for p in result.points
+               if (p.scene, p.series) == ("sky", series)}
+        assert sorted(ema) == curves.kept_frames(frames)
+        assert ema[frames] == curves.moving_average(CURVES[method][:frames])[0][-1]
+    assert f"{2 * len(nirc_fig6.SCENES)} frames without a V_rel" in " ".join(result.notes)
+
+
+def test_the_moving_average_leaves_out_frames_without_a_v_rel() -> None:
+    """EMA_t = 0.95 EMA_{t-1} + 0.05 V_rel_t from the first finite value on; a missing or
+    non-finite V_rel keeps the average and is counted. Planted: the plain recursion,
+    which carries the NaN into every later frame."""
+    values = [None, 4.0, float("nan"), 2.0]
+    averages, missing = curves.moving_average(values)
+    assert averages[:3] == [None, 4.0, 4.0] and missing == 2
+    assert averages[3] == pytest.approx(0.95 * 4.0 + 0.05 * 2.0)
+
+    def plain(values: list[float]) -> float:
+        average = values[0]
+        for value in values[1:]:
+            average = 0.95 * average + 0.05 * value
+        return average
+
+    assert math.isnan(plain([4.0, float("nan"), 2.0]))
+
+
+def test_kept_frames_double_and_end_at_the_last() -> None:
+    assert curves.kept_frames(16) == [1, 2, 3, 4, 6, 8, 12, 16]
+    assert curves.kept_frames(4000)[-3:] == [2048, 3072, 4000]
 
 
 @pytest.mark.parametrize(("nirc_v_rel", "below_ncv"), [(0.1, "holds"), (0.5, "does not hold"),
