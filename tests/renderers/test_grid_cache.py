@@ -19,6 +19,7 @@ import pytest
 
 from renderers.methods import MethodError, parse_params
 from renderers.termination_model import (
+    EXAMPLE_BIASES,
     MSEMinimizing,
     PathState,
     binary_tree,
@@ -26,7 +27,6 @@ from renderers.termination_model import (
     variance_bound_weight,
     variance_bounding,
 )
-from tests.renderers.test_termination_model import BIASES
 
 RES = 16
 PREFILL = 24
@@ -36,7 +36,7 @@ PREFILL = 24
 
 def _states():
     """Every node of the model's trees with a spread of prefix weights and path variances."""
-    for tree in (binary_tree(3), binary_tree(3, biases={k: v for k, v in BIASES.items()
+    for tree in (binary_tree(3), binary_tree(3, biases={k: v for k, v in EXAMPLE_BIASES.items()
                                                          if len(k) < 3})):
         for node, g, s in itertools.product(tree.nodes(), (0.5, 1.0, 4.5),
                                             (0.0, 0.01, 0.3, 2.0)):
