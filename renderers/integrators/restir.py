@@ -63,8 +63,8 @@ the previous frame's camera (a perspective camera; :class:`Motion`). It is rejec
 (M_i = 0: its pair's share goes to c, no shadow ray) where x projects off the
 previous film or behind the previous camera, or where the previous first hit x_i
 found there is another surface: no hit, normals more than 25° apart, or
-distances from the previous camera differing by more than 10 % (the thresholds of
-Bitterli et al. 2020, Sec. 6, for reused reservoirs). The choice of input depends
+distances from the previous camera differing by more than 10 % (the thresholds
+[BWP*20] give for the pixels whose reservoirs are reused). The choice of input depends
 only on x and the previous G-buffer, and the pairwise weights already take x_i ≠ x
 (p̂V_{x_i} is evaluated at x_i), so the estimator stays unbiased whatever is
 reused; the projection only makes x_i ≈ x, so that the previous sample is a good
@@ -133,8 +133,7 @@ class Frame:
     si: mi.SurfaceInteraction3f
 
 
-#: A reused reservoir's first hit must face within this angle of x's (Bitterli et al. 2020,
-#: Sec. 6: 25°) ...
+#: A reused reservoir's first hit must face within this angle of x's ([BWP*20]: 25°) ...
 MAX_NORMAL_ANGLE_DEG = 25.0
 #: ... and lie at a distance from the previous camera within this fraction of x's (10 %).
 MAX_DEPTH_CHANGE = 0.1
@@ -186,9 +185,9 @@ def reproject(si: mi.SurfaceInteraction3f, previous: Frame, motion: Motion,
               lane: mi.UInt32, size: tuple[int, int]
               ) -> tuple[mi.UInt32, mi.SurfaceInteraction3f, mi.Bool]:
     """(the previous frame's lane where each lane's first hit x was seen, the first hit
-    x_i there, whether its reservoir may be reused): x projected with the previous camera, rejected
-    off the film, behind the camera or where the previous first hit found there is
-    another surface (module docstring)."""
+    x_i there, whether its reservoir may be reused): x projected with the previous
+    camera, rejected off the film, behind the camera or where the previous first hit
+    found there is another surface (module docstring)."""
     width, height = size
     pixel = lane % (width * height)
     h = motion.to_film @ mi.Vector4f(si.p.x, si.p.y, si.p.z, 1.0)
