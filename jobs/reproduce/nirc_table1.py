@@ -112,11 +112,12 @@ def draw(reproduction: Reproduction, path: Path) -> Path:
     """Per scene a stacked bar of the stages' shares: ours (kernel, wall) and the paper's."""
     keys = [k for k in QUANTITIES if k != "frame_ms"]
     bars: list[tuple[str, dict[str, Any]]] = []
-    for p in reproduction.points:
-        bars.append((f"{p.scene}: {p.series}", {k: p.values[k].value for k in keys
-                                                 if k in p.values}))
-        if p.paper:
-            bars.append((f"{p.scene}: paper", {k: p.paper.get(k) for k in keys}))
+    for scene in dict.fromkeys(p.scene for p in reproduction.points):
+        points = [p for p in reproduction.points if p.scene == scene]
+        bars += [(f"{scene}: {p.series}", {k: p.values[k].value for k in keys if k in p.values})
+                 for p in points]
+        bars += [(f"{scene}: paper", {k: p.paper.get(k) for k in keys})
+                 for p in points if p.paper]
     figure, [ax] = new_figure(1, 1, reproduction.title, figsize=(10, 1 + 0.45 * len(bars)))
     left = [0.0] * len(bars)
     for key in keys:
@@ -126,7 +127,7 @@ def draw(reproduction: Reproduction, path: Path) -> Path:
     ax.set_yticks(range(len(bars)), [label for label, _values in bars], fontsize="x-small")
     ax.invert_yaxis()
     ax.set_xlabel("% of the frame's stages")
-    ax.legend(fontsize="x-small")
+    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=len(keys))
     return save_png(figure, path)
 
 
