@@ -35,7 +35,39 @@ SERIES = (
     ("NIRC", "nirc", {"estimator": "unbiased", "cache": {"mlp": {"hidden_layers": 6}}},
      "pretrain_frames", 0),
 )
-X_LABEL = ("series: " + ", ".join(f"{i} {s[0]}" for i, s in enumerate(SERIES))
+#: Equal memory (about the paper's 75 floats per pixel) for the two neural models, by image
+#: size: their defaults hold 1.6 M (NCV) and 1.3 M (NIRC) parameters, 6,400 and 5,200
+#: floats a pixel at 16x16, and NCV's paper-sized flows alone (303 k) would need about
+#: 100x100 pixels. Small networks instead, their floats measured (docs/reproduce.md):
+#: at 16x16 NCV 74.9 (flows of 8 bins, one hidden layer of 12; hash grid 4 levels x 2^11)
+#: and NIRC 73.3 (6 hidden layers of 16; 8 levels x 2^10); at 32x32 66.0 and 66.3.
+NCV_SMALL = {"flow": {"bins": 8, "blob_bins": 8, "width": 12, "hidden_layers": 1},
+             "normal_bins": 2, "integral_width": 32, "integral_hidden_layers": 1,
+             "position": {"n_levels": 4, "log2_hashmap_size": 11, "base_resolution": 4}}
+EQUAL_MEMORY = {
+    16: (NCV_SMALL, {"mlp": {"hidden_layers": 6, "width": 16},
+                     "position": {"n_levels": 8, "log2_hashmap_size": 10}}),
+    32: ({**NCV_SMALL, "flow": {"bins": 16, "blob_bins": 8, "width": 16, "hidden_layers": 1},
+          "integral_width": 16, "integral_hidden_layers": 2,
+          "position": {"n_levels": 8, "log2_hashmap_size": 11, "base_resolution": 4}},
+         {"mlp": {"hidden_layers": 6, "width": 16},
+          "position": {"n_levels": 8, "log2_hashmap_size": 12}}),
+}
+EQUAL_LABELS = ("NCV (~75 floats)", "NIRC (~75 floats)")
+
+
+def equal_memory_series(resolution: int) -> tuple[tuple[Any, ...], ...]:
+    """The equal-memory series at an image size (none where no preset is set)."""
+    if resolution not in EQUAL_MEMORY:
+        return ()
+    ncv, nirc = EQUAL_MEMORY[resolution]
+    return ((EQUAL_LABELS[0], "ncv", {"pretrain_frames": 0, "ncv": ncv}, "uniform_fraction",
+             0.25),
+            (EQUAL_LABELS[1], "nirc", {**SERIES[4][2], "cache": {**nirc}}, "pretrain_frames", 0))
+
+
+X_LABEL = ("series: " + ", ".join(f"{i} {label}" for i, label in
+                                  enumerate([*(s[0] for s in SERIES), *EQUAL_LABELS]))
            + "; EMA rows: training frame")
 QUANTITIES = {"v_rel": "V_rel(<F_r>)", "ms_per_frame": "ms per frame",
               "floats_per_pixel": "floats per pixel", "v_rel_ema": "EMA of V_rel"}
@@ -85,7 +117,8 @@ def measure(ctx: Context) -> Reproduction:
     b = ctx.budget
     points: list[Point] = []
     for scene in SCENES:
-        for index, (series, method, params, parameter, value) in enumerate(SERIES):
+        for index, (series, method, params, parameter, value) in enumerate(
+                SERIES + equal_memory_series(b.resolution)):
             [(row, run)] = sweep(ctx, scene, method, parameter, [value], params)
             seconds = row.seconds_per_frame
             points.append(Point(scene=scene, series=series, x=float(index), run_id=row.id,
