@@ -274,7 +274,9 @@ def draw(reproduction: Reproduction, path: Path) -> Path:
             errors = [[max(0.0, (v.value or 0) - v.ci95[0]) if v.ci95 else 0 for v in values],
                       [max(0.0, v.ci95[1] - (v.value or 0)) if v.ci95 else 0 for v in values]]
             ax.barh(list(ys), widths, xerr=errors, color="tab:blue", alpha=0.7)
-            ax.set_yticks(list(ys), [p.series for p in points], fontsize="x-small")
+            # The rows' labels once, left of the MRSE panel; the FLIP panel shares them.
+            ax.set_yticks(list(ys), [p.series if key == "mrse" else "" for p in points],
+                          fontsize="x-small")
             ax.invert_yaxis()
             ax.set_title(f"{scene}: {reproduction.quantities[key]}", fontsize="medium")
     return save_png(figure, path)
