@@ -11,6 +11,7 @@ from rich.table import Table
 
 from jobs.views.animation_comparison import (
     AnimationDelta,
+    RunFlicker,
     RunRecovery,
     segment_bounds,
 )
@@ -121,4 +122,17 @@ def animation_comparison_tables(delta: AnimationDelta) -> Group | str:
     for number, segment in enumerate(delta.segments):
         segments.add_row(str(number), f"{segment.first}-{segment.last}",
                          _number(segment.baseline), _number(segment.run))
-    return Group(changes, segments, f"note: {delta.note}")
+    parts: list[Any] = [changes, segments]
+    if delta.flicker is not None:
+        found = delta.flicker
+        differs = "-" if found.differs is None else "yes" if found.differs else "no"
+        parts.append(f"flicker: {runs[0]} {_flicker_text(found.baseline)}, "
+                     f"{runs[1]} {_flicker_text(found.run)}; differs: {differs}")
+    return Group(*parts, f"note: {delta.note}")
+
+
+def _flicker_text(found: RunFlicker) -> str:
+    if found.mean is None:
+        return found.note or "-"
+    interval = "" if found.low is None else f" [{found.low:.3g}, {found.high:.3g}]"
+    return f"{found.mean:.3g}{interval}"

@@ -1,9 +1,11 @@
 """Two animated runs side by side (docs/animation.md, "Comparing runs"): per change both
 runs' frames to recover with their bootstrap intervals, and whether they differ (the
 intervals are disjoint); per segment both runs' steady error, the mean of the seed-mean
-error over the segment's last ``steady_frames`` frames (all of them in a shorter one).
-Runs of different animations, or an animated run beside a static one, are not
-comparable frame by frame: the comparison says so and lists nothing."""
+error over the segment's last ``steady_frames`` frames (all of them in a shorter one);
+both runs' flicker with its interval and whether they differ (e.g. a cache against PT
+at the same spp: jobs.protocol.flicker). Runs of different animations, or an animated
+run beside a static one, are not comparable frame by frame: the comparison says so and
+lists nothing."""
 
 from __future__ import annotations
 
@@ -42,6 +44,21 @@ class SegmentSteady(BaseModel):
     run: float
 
 
+class RunFlicker(BaseModel):
+    """One run's flicker: the seed mean with its interval, or why none."""
+
+    mean: float | None
+    low: float | None
+    high: float | None
+    note: str | None = None
+
+
+class FlickerComparison(BaseModel):
+    baseline: RunFlicker
+    run: RunFlicker
+    differs: bool | None     # the intervals are disjoint; None where one has none
+
+
 class AnimationDelta(BaseModel):
     """An animated run against the baseline (or why the two are not comparable)."""
 
@@ -51,6 +68,8 @@ class AnimationDelta(BaseModel):
     note: str
     changes: list[ChangeComparison] = []
     segments: list[SegmentSteady] = []
+    #: None where a run was stored before flicker was measured
+    flicker: FlickerComparison | None = None
 
 
 def segment_bounds(changes: list[int], frames: int) -> list[tuple[int, int]]:
@@ -67,7 +86,12 @@ def _recovery(found: Mapping[str, Any] | None) -> RunRecovery:
                        steady_error=found["steady_error"])
 
 
-def disjoint(a: RunRecovery, b: RunRecovery) -> bool | None:
+def _flicker(found: Mapping[str, Any]) -> RunFlicker:
+    return RunFlicker(mean=found.get("mean"), low=found.get("low"), high=found.get("high"),
+                      note=found.get("note"))
+
+
+def disjoint(a: RunRecovery | RunFlicker, b: RunRecovery | RunFlicker) -> bool | None:
     if None in (a.low, a.high, b.low, b.high):
         return None
     return bool(a.high < b.low or b.high < a.low)
@@ -115,8 +139,13 @@ def compare_animations(baseline_id: int, baseline_metrics: Mapping[str, Any], ru
                               run=steady_error(curves[1]["mean"], first, last, steady_frames))
                 for first, last in segment_bounds(base["change_frames"],
                                                   len(curves[0]["mean"]))]
+    flicker = None
+    if "flicker" in base and "flicker" in other:
+        a, b = _flicker(base["flicker"]), _flicker(other["flicker"])
+        flicker = FlickerComparison(baseline=a, run=b, differs=disjoint(a, b))
     return AnimationDelta(run=run_id, baseline=baseline_id, comparable=True,
-                          note="recovery intervals: percentile bootstrap over seeds; they "
-                               "differ where they are disjoint",
+                          note="recovery intervals: percentile bootstrap over seeds; flicker "
+                               "intervals: Student t over seeds; they differ where they are "
+                               "disjoint",
                           changes=sorted(changes, key=lambda c: c.change_frame),
-                          segments=segments)
+                          segments=segments, flicker=flicker)
