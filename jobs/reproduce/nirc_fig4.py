@@ -31,10 +31,9 @@ QUANTITIES = {"flip": "FLIP (F-frame image)"}
 
 QUICK_WHY = ("--quick: 16x16, K = 3, F = 2 frames, epochs 0/1/3/6/10 before them (x = 2, 3, 5, "
              "8, 12: log-spaced, ratios 1.5-1.7): 2 scenes x 6 series x 5 points x 3 seeds = "
-             "180 renders, each training from scratch (30 frames per series and seed against "
-             "14 for the former 2 points: about 27 min wall on the loaded 2-core machine, "
-             "estimated); FLIP at 16x16 is coarse (its filters span several pixels), so "
-             "compare series, not the paper's numbers")
+             "180 renders, each training from scratch (26 min wall on the shared 2-core "
+             "machine at load average 14-27); FLIP at 16x16 is coarse (its filters span "
+             "several pixels), so compare series, not the paper's numbers")
 FULL_WHY = ("--full: 32x32, K = 6, F = 4 frames, epochs 0-120: the paper trains for "
             "hundreds of epochs at 1080p on a GPU, out of reach here")
 QUICK = Budget(resolution=16, seeds=3, frames=2, ref_spp=512, grid_preset="—",
@@ -155,7 +154,7 @@ def _verdict(claim: str, agree: list[str], disagree: list[str], cases: int,
 
 def draw(reproduction: Reproduction, path: Path) -> Path:
     return plot_panels(reproduction, [Panel("flip", f"{scene}: FLIP", log_y=False, scene=scene)
-                                      for scene in SCENES], path, log_x=True)
+                                      for scene in SCENES], path, log_x=False)
 
 
 FIGURE = register(FigureSpec("nirc", "fig4", "FLIP per training epoch of the biased and "
