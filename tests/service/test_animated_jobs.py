@@ -62,6 +62,18 @@ def test_an_animation_of_an_animated_scene_is_422(api):
     assert "animated already" in response.text
 
 
+def test_a_method_whose_state_an_update_leaves_stale_is_422_with_the_reason(api):
+    """door-sudden moves the door: the grid cache, whose cell edge is sized once from the
+    scene's extent, is refused; cornell-box-sudden (a light change) it takes."""
+    client = api[0]
+    response = client.post("/api/v1/jobs", json={**ANIMATED, "scene": "door-sudden",
+                                                 "method": "grid-cache"})
+    assert response.status_code == 422, response.text
+    assert "cell edge is sized from the scene's extent" in response.text
+    taken = client.post("/api/v1/jobs", json={**ANIMATED, "method": "grid-cache"})
+    assert taken.status_code == 202, taken.text
+
+
 def test_a_job_names_an_animated_scene_and_is_queued(api):
     client = api[0]
     response = client.post("/api/v1/jobs", json=ANIMATED)
