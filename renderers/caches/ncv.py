@@ -25,6 +25,14 @@ the estimator's variance plus the integral's squared error, estimated by the bat
 mean of r_j^2 / (sg(G_c)^2 + eps) (sg: no gradient; each pixel's weight makes the
 loss scale-invariant, as NIRC's Eq. 18). Its gradient trains the shape and the
 integral at once through the product g = G q.
+
+A step whose loss or any gradient is not finite is skipped (Adam's weights and moments
+left as they were): a finite loss can still have a non-finite gradient, and one such
+step writes NaN into the weights, after which g and every later loss are NaN (on sky
+16x16, version 1: the 76th step, its loss 21.8, left NaN in a coupling MLP once the
+flow's bins were ~1e-27 wide). Skipping a step changes only which g the next frames
+use, so the estimate stays unbiased; the flow's floor (renderers.caches.flow,
+``uniform_mix``) keeps the bins from collapsing in the first place.
 """
 
 from __future__ import annotations
@@ -222,15 +230,25 @@ class NCVModel:
             loss += dr.mean(dr.square(residual)
                             / (dr.square(dr.detach(integral[c])) + self.config.epsilon))
         dr.backward(loss)
+        finite = self._finite(loss)
+        self.optimizer.step(active=finite)   # a masked step leaves weights and moments
         value = float(loss[0])
-        finite = bool(np.isfinite(value))
-        self.optimizer.step(active=mi.Bool(finite))   # a masked step leaves the weights
-        if not finite:
+        if not bool(finite[0]):
             self.skipped_steps += 1
             return
         self.steps += 1
         self.samples_trained += dr.width(lanes)
         self.loss_history.append(value)
+
+    def _finite(self, loss: mi.Float) -> mi.Bool:
+        """One flag: the loss and every parameter's gradient are finite (any non-finite
+        entry scatters False into it)."""
+        finite = dr.opaque(mi.Bool, True, 1)
+        for value in [loss, *(dr.grad(self.optimizer[key]).array for key in self.optimizer)]:
+            dr.scatter(finite, False, 0, active=~dr.isfinite(value),
+                       mode=dr.ReduceMode.NoConflicts)
+        dr.eval(finite)
+        return finite
 
     def stats(self) -> dict[str, Any]:
         """What a run stores of the model: config, parameters, floats per pixel (the

@@ -153,6 +153,50 @@ def test_collapsed_bins_keep_the_model_finite_and_training(mi, furnace):
     assert (unfloored.steps, unfloored.skipped_steps) == (0, SMALL["steps_per_frame"])
 
 
+def _nan_gradient_backward(model):
+    """``dr`` for renderers.caches.ncv whose backward leaves a NaN in one gradient entry
+    of the hash grid after the true backward pass: a finite loss with a non-finite
+    gradient, as one step on sky had once its bins were ~1e-27 wide (every weight was
+    NaN after it)."""
+    from types import SimpleNamespace
+
+    import mitsuba as mi
+
+    from renderers.caches.ncv import GRID_KEY
+
+    def backward(loss):
+        dr.backward(loss)
+        grid = model.optimizer[GRID_KEY]
+        first = dr.arange(mi.UInt32, dr.width(grid)) == 0
+        dr.accum_grad(grid, dr.select(first, float("nan"), 0.0))
+
+    return SimpleNamespace(**{**vars(dr), "backward": backward})
+
+
+def test_a_step_with_a_non_finite_gradient_is_skipped(mi, furnace, monkeypatch):
+    """A finite loss whose gradient holds a NaN: the fit skips its steps and the weights
+    stay finite; planted: with only the loss checked (the code before the fix) the
+    weights are NaN after the fit."""
+    from renderers.caches import ncv
+    from renderers.caches.ncv import NCVModel
+
+    model = _collapsed(mi, furnace, 1e-3)
+    integrator = _integrator(mi, model)
+    mi.render(furnace.scene, integrator=integrator, spp=SPP, seed=1000)
+    records = integrator.records
+    monkeypatch.setattr(ncv, "dr", _nan_gradient_backward(model))
+    model.fit(records)
+    assert (model.steps, model.skipped_steps) == (0, SMALL["steps_per_frame"])
+    assert model.loss_history == [] and _all_finite(model)
+
+    monkeypatch.setattr(NCVModel, "_finite",
+                        lambda self, loss: mi.Bool(bool(dr.isfinite(loss)[0])))
+    unguarded = _collapsed(mi, furnace, 1e-3)
+    monkeypatch.setattr(ncv, "dr", _nan_gradient_backward(unguarded))
+    unguarded.fit(records)
+    assert unguarded.steps == SMALL["steps_per_frame"] and not _all_finite(unguarded)
+
+
 @pytest.mark.parametrize("values, fragment", [
     ({"ncv": {"flow": {"bins": 1}}}, "ncv: flow.bins"),
     ({"ncv": {"batch_size": 0}}, "ncv: batch_size"),
