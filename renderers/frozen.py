@@ -269,6 +269,8 @@ _VALUES = (int, float, complex, str, bytes, type(None), enum.Enum)
 _GEOMETRY: dict[int, int] = {}
 #: The emitters' and shapes' state of scenes by ``id``: set by :func:`lights_changed`.
 _LIGHTS: dict[int, str] = {}
+#: Camera generations of scenes by ``id``: bumped by :func:`camera_changed`.
+_CAMERA: dict[int, int] = {}
 
 
 def geometry_changed(scene: Any) -> None:
@@ -287,6 +289,18 @@ def lights_changed(scene: Any, state: str) -> None:
     would be stale), and frozen calls replay a recording of this state, or record one
     (a recording holds some of those tables as constants)."""
     _LIGHTS[id(scene)] = state
+
+
+def camera_changed(scene: Any) -> None:
+    """Say that ``scene``'s sensor parameters changed (``params.update()``): what was
+    derived from the camera for another generation (ReSTIR's projection of the previous
+    frame's points) is derived again."""
+    _CAMERA[id(scene)] = _CAMERA.get(id(scene), 0) + 1
+
+
+def camera_generation(scene: Any) -> int:
+    """How many times ``scene``'s camera changed (:func:`camera_changed`)."""
+    return _CAMERA.get(id(scene), 0)
 
 
 def scene_generation(scene: Any) -> tuple[int, str]:

@@ -308,6 +308,7 @@ class AnimationPlayer:
         self._current: tuple[str, int] | None = None
         self._rest: dict[str, Any] = {}
         self._moved: dict[str, np.ndarray] = {}   # the last matrix applied to each shape
+        self._camera_state: Any = None   # the last camera applied (FrameState.camera)
         if animation.camera:
             sensor = scene.sensors()[0].id()
             self._camera = (f"{sensor}.to_world", f"{sensor}.x_fov")
@@ -356,7 +357,7 @@ class AnimationPlayer:
         import drjit as dr
         import mitsuba as mi
 
-        from renderers.frozen import geometry_changed, lights_changed
+        from renderers.frozen import camera_changed, geometry_changed, lights_changed
 
         # A disocclusion changes no parameter, but is a scene update of its own.
         state_key = (self.animation.state_key(frame), self.animation.disocclusions_until(frame))
@@ -364,6 +365,7 @@ class AnimationPlayer:
             return
         start = time.perf_counter()
         state = self.animation.state(frame)
+        camera_moved = state.camera != self._camera_state
         if state.camera is not None:
             position, target, up, fov = state.camera
             self.params[self._camera[0]] = mi.AffineTransform4f(
@@ -384,6 +386,9 @@ class AnimationPlayer:
         self.params.update()
         if meshes_moved:
             geometry_changed(self.scene)
+        if camera_moved:   # what was derived from the camera is derived again
+            camera_changed(self.scene)
+            self._camera_state = state.camera
         # Light selection tables (emitter powers, positions) follow shapes and emitters;
         # a state named anew after each disocclusion makes ReSTIR drop its history
         # (renderers.integrators.restir).

@@ -138,3 +138,41 @@ def test_disocclusion_frames_are_validated(frames, message):
 
     with pytest.raises(ValidationError, match=message):
         Animation(disocclusions=frames)
+
+
+@pytest.mark.parametrize("planted", [False, True])
+def test_the_projection_follows_the_animations_camera_only(mi, monkeypatch, planted):
+    """The projection is computed once per camera the animation applies: each frame of
+    the pan (at 4 x 4) hands its frame the previous camera (reuse along motion vectors),
+    and a frame that holds the camera computes nothing again. Planted: the animation
+    player does not say that the camera changed (a stale generation): one projection,
+    no motion."""
+    from renderers import frozen
+    from renderers.integrators import restir
+    from renderers.scenes import load_scene
+    from renderers.scenes.animation import Animation, CameraKey
+    from renderers.scenes.loader import animated
+
+    counts = {"projections": 0, "motions": 0}
+    project, motion = restir.CameraProjection.of, restir.CameraProjection.motion
+
+    def counted_projection(sensor):
+        counts["projections"] += 1
+        return project(sensor)
+
+    def counted_motion(self):
+        counts["motions"] += 1
+        return motion(self)
+
+    monkeypatch.setattr(restir.CameraProjection, "of", counted_projection)
+    monkeypatch.setattr(restir.CameraProjection, "motion", counted_motion)
+    if planted:
+        monkeypatch.setattr(frozen, "camera_changed", lambda scene: None)
+    pan = animated(load_scene("many-lights", 4), Animation(camera=[
+        CameraKey(frame=0, position=(3.7, 2.7, 3.7), target=(-1.0, 0.2, -1.0)),
+        CameraKey(frame=2, position=(3.2, 2.7, 3.9), target=(-1.6, 0.2, 0.2))]))
+    renderer = restir.ReSTIRDI(pan.scene, _params(temporal=True), replicas=1)
+    for frame in range(4):   # the camera moves until frame 2, then holds
+        pan.player.apply(frame)
+        renderer.render(frame)
+    assert (counts == {"projections": 3, "motions": 2}) != planted, counts
