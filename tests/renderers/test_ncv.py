@@ -124,6 +124,14 @@ def _all_finite(model) -> bool:
                for key in model.optimizer)
 
 
+@pytest.fixture(scope="module")
+def records(mi, furnace):
+    """One frame's samples (64 a pixel) of the furnace, rendered with collapsed bins."""
+    integrator = _integrator(mi, _collapsed(mi, furnace, 1e-3))
+    mi.render(furnace.scene, integrator=integrator, spp=SPP, seed=1000)
+    return integrator.records
+
+
 def _g_finite(mi, model, records) -> bool:
     """g at the records' first 1024 samples with a direction is finite."""
     lanes = mi.UInt32(np.flatnonzero(np.asarray(records.pdf) > 0)[:1024])
@@ -132,16 +140,13 @@ def _g_finite(mi, model, records) -> bool:
     return bool(np.isfinite(np.asarray(g)).all())
 
 
-def test_collapsed_bins_keep_the_model_finite_and_training(mi, furnace):
+def test_collapsed_bins_keep_the_model_finite_and_training(mi, furnace, records):
     """Training on sky 16x16 collapsed the bins (smallest width 1e-14 after 40 steps)
     until g was non-finite and every step's loss too. With the flow's floor, collapsed
     bins still give a finite g and a fit takes its steps; planted: without the floor
     (``uniform_mix`` 0, the code before the fix) g is non-finite and every step is
     skipped."""
     floored = _collapsed(mi, furnace, 1e-3)
-    integrator = _integrator(mi, floored)
-    mi.render(furnace.scene, integrator=integrator, spp=SPP, seed=1000)
-    records = integrator.records
     assert _g_finite(mi, floored, records)
     floored.fit(records)
     assert (floored.steps, floored.skipped_steps) == (SMALL["steps_per_frame"], 0)
@@ -173,7 +178,7 @@ def _nan_gradient_backward(model):
     return SimpleNamespace(**{**vars(dr), "backward": backward})
 
 
-def test_a_step_with_a_non_finite_gradient_is_skipped(mi, furnace, monkeypatch):
+def test_a_step_with_a_non_finite_gradient_is_skipped(mi, furnace, records, monkeypatch):
     """A finite loss whose gradient holds a NaN: the fit skips its steps and the weights
     stay finite; planted: with only the loss checked (the code before the fix) the
     weights are NaN after the fit."""
@@ -181,9 +186,6 @@ def test_a_step_with_a_non_finite_gradient_is_skipped(mi, furnace, monkeypatch):
     from renderers.caches.ncv import NCVModel
 
     model = _collapsed(mi, furnace, 1e-3)
-    integrator = _integrator(mi, model)
-    mi.render(furnace.scene, integrator=integrator, spp=SPP, seed=1000)
-    records = integrator.records
     monkeypatch.setattr(ncv, "dr", _nan_gradient_backward(model))
     model.fit(records)
     assert (model.steps, model.skipped_steps) == (0, SMALL["steps_per_frame"])
