@@ -145,7 +145,7 @@ def measure_comparison(ctx: Context, figure: str, equal_time: bool) -> Reproduct
         paper="nvc", figure=figure, title=title, mode="",
         settings=budget_settings(ctx, **{"pretrain frames": pretrain,
                                          "equal": "time" if equal_time else "samples (1 spp)"}),
-        x_label="series", quantities=QUANTITIES, points=points, notes=notes,
+        x_label="row", quantities=QUANTITIES, points=points, notes=notes,
         verdicts=verdicts(points, figure))
 
 
