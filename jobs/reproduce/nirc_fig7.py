@@ -34,8 +34,9 @@ EQUAL_TIME_TOLERANCE = 1.1
 
 QUICK_WHY = ("--quick: 16x16, K = 3 seeds (the least for MRSE's interval) of F = 4 frames "
              "after 8 pre-training frames (NRC's frame alone took 2 s at 16x16 on the loaded "
-             "machine); per scene 6 runs, the N_c calibration and 3 x 4 PT calibrations; "
-             "timings taken on a loaded machine are used (noted)")
+             "machine); per scene 6 runs, the N_c calibration and 3 x 4 PT calibrations "
+             "(not minutes: one PT calibration to NRC's frame took 7 min at load 17-20, "
+             "docs/reproduce.md); timings taken on a loaded machine are used (noted)")
 FULL_WHY = ("--full: 64x64, K = 4, F = 64 after 128 pre-training frames, loaded timings "
             "left out (a GPU worker or an idle machine: hours per scene on 2 cores)")
 QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=1024, grid_preset="cpu",
