@@ -41,8 +41,8 @@ FULL = Budget(resolution=64, seeds=8, frames=64, ref_spp=4096, grid_preset="—"
 
 def measure(ctx: Context) -> Reproduction:
     points: list[Point] = []
-    for row, run in sweep(ctx, SCENE, "nvc-lights", "clamp", list(ctx.budget.values),
-                          {"max_depth": 2}):
+    for row, run in sweep(ctx, SCENE, "nvc-lights", "clamp", list(ctx.budget.values), {},
+                          max_depth=2):
         points.append(Point(scene=SCENE, series=SERIES, x=float(row.value), run_id=row.id,
                             values={"rbias2": metric(row, "rbias2"), "rvar": metric(row, "rvar"),
                                     "flip": flip(run)}))

@@ -1,5 +1,6 @@
 """`reproduce nvc fig5` from a stubbed clamp sweep (the sweep's rows are tested in
-tests/jobs, nvc-lights' unbiasedness at the floor in tests/renderers): both floors
+tests/jobs, clamp 0 biased and 0.001 not in
+tests/renderers/test_nvc_lights.py): both floors
 asked of nvc-lights at primary hits, rBias² and rVar with their intervals, and
 verdicts that turn with the numbers (a planted biased clamped point 'does not hold',
 an unclamped point no more biased than the clamped one 'does not hold')."""
@@ -23,8 +24,8 @@ def stub_sweep(bias: dict[float, float], rvar: dict[float, float],
     asked: list[Any] = []
 
     def sweep(ctx: Any, scene: str, method: str, parameter: str, values: list[float],
-              params: dict[str, Any]) -> list[tuple[Any, Any]]:
-        asked.append((scene, method, parameter, values, params))
+              params: dict[str, Any], max_depth: int) -> list[tuple[Any, Any]]:
+        asked.append((scene, method, parameter, values, params, max_depth))
         rows = []
         for index, clamp in enumerate(values):
             b, v = bias[clamp], rvar[clamp]
@@ -49,7 +50,7 @@ def test_fig5_sweeps_the_floor_and_tables_bias_and_variance(
     drawn: list[str] = []
     monkeypatch.setattr(nvc_fig5, "plot_panels", no_drawing(drawn))
     result, _ = reproduce("nvc", "fig5", "quick", tmp_path, None, None)
-    assert asked == [("many-lights", "nvc-lights", "clamp", [OFF, ON], {"max_depth": 2})]
+    assert asked == [("many-lights", "nvc-lights", "clamp", [OFF, ON], {}, 2)]
     assert drawn == list(nvc_fig5.QUANTITIES)
     clamped = next(p for p in result.points if p.x == ON)
     assert clamped.values["rbias2"].ci95 == pytest.approx([-0.004, 0.006])
