@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from jobs.reproduce.animated import curve_point, flicker_estimate, ms_per_frame, stored_run
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
 from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
@@ -54,7 +55,6 @@ FIRST_BELOW_NOTE = ("first frame below PT: the first frame f from which the cach
                     "MRSE is below its PT's at every frame up to the last; 95 % interval: "
                     "percentile bootstrap over both runs' seeds, a draw never below counted "
                     "as F")
-CURVE_NOTE = "MRSE, FLIP: 95 % Student-t interval over the K seeds, frame by frame"
 
 
 def motion(frames: int) -> Animation:
@@ -70,25 +70,13 @@ def render_series(ctx: Context, method: str, params: dict[str, Any], spp: int) -
     """The stored run of ``method`` on the moving scene at the budget: one stored under
     the same key (the spec under today's versions, on this CPU) is read back, not
     rendered again."""
-    from jobs.protocol.executor import execute
-    from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import ReferenceSpec, RenderSpec
-    from renderers.backend import cpu_device_key
-    from renderers.seeding import digest
 
     b = ctx.budget
     spec = RenderSpec(scene=SCENE, method=method, params=params, resolution=b.resolution,
                       spp=spp, frames=b.frames, seeds=b.seeds, denoised=False,
                       reference=ReferenceSpec(spp=b.ref_spp), animation=motion(b.frames))
-    key = digest("reproduce-nirc-fig10", spec.key(), cpu_device_key(), length=32)
-    run = ctx.store.find_run_by_idempotency_key(key)
-    if run is not None:
-        ctx.work["points_reused"] = ctx.work.get("points_reused", 0) + 1
-        return run
-    summary = execute(RenderJob.parse(spec), ctx.store, ctx.settings, progress=ctx.progress,
-                      idempotency_key=key)
-    ctx.work["points_rendered"] = ctx.work.get("points_rendered", 0) + 1
-    return ctx.store.get_run(summary.run_id)
+    return stored_run(ctx, spec, figure="nirc-fig10")
 
 
 def seed_errors(run: Any) -> np.ndarray:
@@ -123,25 +111,6 @@ def first_below_estimate(cache: np.ndarray, pt: np.ndarray, seed: int = 0) -> Es
                     note=FIRST_BELOW_NOTE)
 
 
-def _curve_point(series: str, frame: int, animation: dict[str, Any]) -> Point:
-    values = {}
-    for key, stored in (("mrse", "frame_mrse"), ("flip", "frame_flip")):
-        curve = animation.get(stored)
-        if curve is None:
-            values[key] = Estimate(value=None, note=animation.get("note"))
-            continue
-        interval = None if curve["low"] is None else [curve["low"][frame], curve["high"][frame]]
-        values[key] = Estimate(value=curve["mean"][frame], ci95=interval, note=CURVE_NOTE)
-    return Point(scene=SCENE, series=series, x=float(frame), values=values)
-
-
-def _flicker(animation: dict[str, Any]) -> Estimate:
-    found = animation.get("flicker") or {}
-    interval = None if found.get("low") is None else [found["low"], found["high"]]
-    return Estimate(value=found.get("mean"), ci95=interval,
-                    note=found.get("note") or "flicker: seed mean, 95 % Student-t interval")
-
-
 def measure(ctx: Context) -> Reproduction:
     runs = {series: render_series(ctx, method, params, spp)
             for series, method, params, spp in SERIES}
@@ -149,10 +118,10 @@ def measure(ctx: Context) -> Reproduction:
     crossings: dict[str, Estimate] = {}
     for series, run in runs.items():
         animation = run.metrics["animation"]
-        points += [_curve_point(series, frame, animation) for frame in range(ctx.budget.frames)]
-        seconds = run.timings.get("seconds_per_frame")
-        summary = {"ms_per_frame": Estimate(value=None if seconds is None else 1e3 * seconds),
-                   "flicker": _flicker(animation)}
+        points += [curve_point(SCENE, series, frame, animation)
+                   for frame in range(ctx.budget.frames)]
+        summary = {"ms_per_frame": Estimate(value=ms_per_frame(run)),
+                   "flicker": flicker_estimate(animation)}
         if series in PAIRED_PT:
             crossings[series] = first_below_estimate(seed_errors(run),
                                                      seed_errors(runs[PAIRED_PT[series]]))

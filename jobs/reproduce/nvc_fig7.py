@@ -20,6 +20,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from jobs.reproduce.animated import curve_point, ms_per_frame, recovery_estimate, stored_run
 from jobs.reproduce.papers import paper_data
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
@@ -42,10 +43,6 @@ FULL_WHY = ("--full: 32x32, K = 8 seeds of F = 24 frames, the disocclusion at fr
 QUICK = Budget(resolution=16, seeds=4, frames=12, ref_spp=256, grid_preset="—", why=QUICK_WHY)
 FULL = Budget(resolution=32, seeds=8, frames=24, ref_spp=1024, grid_preset="—", why=FULL_WHY)
 
-CURVE_NOTE = "MRSE, FLIP: 95 % Student-t interval over the K seeds, frame by frame"
-RECOVERY_NOTE = ("frames until the seed-mean MRSE stays within 10 % of the segment's steady "
-                 "error; 95 % interval: percentile bootstrap over the seeds")
-
 
 def disocclusion_frame(frames: int) -> int:
     """The event halfway through the run: as many frames of history before it as after."""
@@ -59,43 +56,13 @@ def disocclusion(frames: int) -> Animation:
 def render_series(ctx: Context, method: str) -> Any:
     """The stored run of ``method`` with the disocclusion at the budget (one stored with
     the same spec is read back, not rendered again)."""
-    from jobs.protocol.executor import execute
-    from jobs.protocol.job import RenderJob
     from jobs.protocol.spec import ReferenceSpec, RenderSpec
 
     b = ctx.budget
     spec = RenderSpec(scene=SCENE, method=method, resolution=b.resolution, frames=b.frames,
                       seeds=b.seeds, reference=ReferenceSpec(spp=b.ref_spp),
                       animation=disocclusion(b.frames))
-    summary = execute(RenderJob.parse(spec), ctx.store, ctx.settings, progress=ctx.progress,
-                      reuse=True)
-    name = "points_reused" if summary.reused else "points_rendered"
-    ctx.work[name] = ctx.work.get(name, 0) + 1
-    return ctx.store.get_run(summary.run_id)
-
-
-def curve_point(series: str, frame: int, animation: dict[str, Any]) -> Point:
-    """One frame's seed-mean MRSE and FLIP with their intervals."""
-    values = {}
-    for key, stored in (("mrse", "frame_mrse"), ("flip", "frame_flip")):
-        curve = animation.get(stored)
-        if curve is None:
-            values[key] = Estimate(value=None, note=animation.get("note"))
-            continue
-        interval = None if curve["low"] is None else [curve["low"][frame], curve["high"][frame]]
-        values[key] = Estimate(value=curve["mean"][frame], ci95=interval, note=CURVE_NOTE)
-    return Point(scene=SCENE, series=series, x=float(frame), values=values)
-
-
-def recovery_estimate(animation: dict[str, Any], change: int) -> Estimate:
-    """The frames to recover after the change at ``change`` with their interval."""
-    for found in animation.get("recovery") or []:
-        if found["change_frame"] == change:
-            if "frames" not in found:
-                return Estimate(value=None, note=found.get("note"))
-            interval = None if found["low"] is None else [found["low"], found["high"]]
-            return Estimate(value=float(found["frames"]), ci95=interval, note=RECOVERY_NOTE)
-    return Estimate(value=None, note="no recovery measured (a frame's error is not finite)")
+    return stored_run(ctx, spec)
 
 
 def measure(ctx: Context) -> Reproduction:
@@ -107,11 +74,10 @@ def measure(ctx: Context) -> Reproduction:
     for series, method in SERIES:
         run = render_series(ctx, method)
         animation = run.metrics["animation"]
-        curve = [curve_point(series, frame, animation) for frame in range(b.frames)]
+        curve = [curve_point(SCENE, series, frame, animation) for frame in range(b.frames)]
         at_change[series] = curve[change].values["flip"]
         points += curve
-        seconds = run.timings.get("seconds_per_frame")
-        ms[series] = None if seconds is None else 1e3 * seconds
+        ms[series] = ms_per_frame(run)
         points.append(Point(scene=SCENE, series=series, run_id=run.id,
                             values={"recovery": recovery_estimate(animation, change),
                                     "ms_per_frame": Estimate(value=ms[series])}))
