@@ -43,7 +43,7 @@ POLICIES: tuple[tuple[str, str, str, float, tuple[str, dict[str, Any]] | None], 
     ("mse-min s = 100", "grid-cache", "termination_params.samples", 100.0, ("mse-min", {})),
     (AREA_SPREAD, "grid-cache", "termination_params.c", 0.01, ("area-spread", {})),
 )
-X_LABEL = "policy: " + ", ".join(f"{i} {p[0]}" for i, p in enumerate(POLICIES))
+X_LABEL = "policy, in the legend's order"
 QUANTITIES = {"mrse_frame": "MRSE, 1 spp", "denoised_mrse_frame": "OIDN MRSE, 1 frame",
               "denoised_mrse_accum": "OIDN MRSE, 4 frames",
               "denoised_flip_accum": "OIDN FLIP, 4 frames",
