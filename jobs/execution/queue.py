@@ -47,7 +47,7 @@ from sqlalchemy import and_, func, or_, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, aliased
 
-from jobs.protocol.spec import RenderSpec, SweepSpec, keyed_budget
+from jobs.protocol.spec import keyed_budget
 from jobs.record.models import DEDUPE_JOB_STATES, FINAL_JOB_STATES, ApiKey, Job, JobStatus
 from jobs.record.storage import describe, storage_failure
 from jobs.record.store import Store
@@ -57,9 +57,10 @@ from renderers.seeding import digest
 _DEDUPE_STATES = [state.value for state in DEDUPE_JOB_STATES]
 
 
-def spec_key(kind: str, spec: RenderSpec | SweepSpec, device_class: str) -> str:
-    """The dedupe key of a submitted render or sweep: its spec, the worker class and
-    today's estimator and metric versions (after a version bump nothing old matches)."""
+def spec_key(kind: str, spec: Any, device_class: str) -> str:
+    """The dedupe key of a submitted render, sweep or reproduction: its spec, the worker
+    class and the versions it depends on (``spec.versions()``: today's estimator and
+    metric versions, a reproduction's commit; after a bump nothing old matches)."""
     return digest(kind, keyed_budget(spec.model_dump(mode="json")), device_class,
                   spec.versions())
 

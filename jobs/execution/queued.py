@@ -10,7 +10,9 @@ the CLI build it from the request or the options, a runner from the row it claim
   spec with the method's typed parameters);
 * :class:`QueuedSweep`: a sweep (its :class:`~jobs.protocol.spec.SweepSpec`), run as
   its stages (jobs/execution/graph.py) and its own last step;
-* :class:`QueuedStage`: one stage of a sweep (the sweep's spec and the stage's task).
+* :class:`QueuedStage`: one stage of a sweep (the sweep's spec and the stage's task);
+* :class:`QueuedReproduce`: one registered figure of a paper at a budget
+  (jobs/reproduce), its Reproduction written under the data folder with provenance.
 
 Each variant owns what differs between the kinds: its dedupe key, the methods and
 scene its time is estimated from, its work (jobs/execution/work.py), its stages and
@@ -25,11 +27,19 @@ from pydantic import BaseModel, ConfigDict, Field, InstanceOf, TypeAdapter, mode
 
 from jobs.execution.graph import Stage, sweep_stages
 from jobs.execution.queue import JobQueue, spec_key
+from jobs.execution.timecost import TimeEstimate, estimate_seconds
 from jobs.execution.work import WorkEstimate, reference_stored, render_work, stage_work, sweep_work
 from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import SweepSpec
 from jobs.record.config import Settings
 from jobs.record.store import Store
+from jobs.reproduce.job import (
+    MODE_BOUND_S,
+    REPRODUCTION_BYTES,
+    ReproduceSpec,
+    budget_samples,
+    run_reproduce,
+)
 
 #: report(stage, done, total): a running job's progress.
 Progress = Any
@@ -37,6 +47,11 @@ Progress = Any
 
 class _Queued(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
+
+    def time(self, work: WorkEstimate, store: Store, device_class: str) -> TimeEstimate:
+        """The estimated seconds of ``work`` (this job's) on ``device_class``: from the
+        measured costs of its methods on its scene (jobs/execution/timecost.py)."""
+        return estimate_seconds(work, self.methods, self.scene, store, device_class)
 
 
 class QueuedRender(_Queued):
@@ -187,11 +202,65 @@ class QueuedStage(_Queued):
         return {"work": run_stage(self.sweep, self.task, store, settings, progress=progress)}
 
 
+class QueuedReproduce(_Queued):
+    """A registered figure of a paper at the budget of ``mode`` (jobs/reproduce/job.py)."""
+
+    kind: Literal["reproduce"] = "reproduce"
+    spec: ReproduceSpec
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_row(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "stored" in data:
+            return {"kind": data["kind"], "spec": data["stored"]}
+        return data
+
+    def stored(self) -> dict[str, Any]:
+        return self.spec.model_dump(mode="json")
+
+    def key(self, device_class: str) -> str:
+        return spec_key(self.kind, self.spec, device_class)
+
+    @property
+    def scene(self) -> str:
+        return ""
+
+    @property
+    def methods(self) -> list[str]:
+        return []
+
+    def stages(self) -> list[Stage]:
+        return []
+
+    def work(self, store: Store | None = None) -> WorkEstimate:
+        """At least the path samples of its budget (jobs.reproduce.job.budget_samples)."""
+        estimate = WorkEstimate()
+        estimate.add("figure", budget_samples(self.spec.budget()), REPRODUCTION_BYTES)
+        return estimate
+
+    def attempt_work(self) -> WorkEstimate:
+        return self.work()
+
+    def time(self, work: WorkEstimate, store: Store, device_class: str) -> TimeEstimate:
+        """The mode's declared bound (a figure's budget does not name what it renders)."""
+        bound = MODE_BOUND_S[self.spec.mode]
+        return TimeEstimate(seconds=bound, parts={f"{self.spec.mode} mode": bound},
+                            sources={f"{self.spec.mode} mode": "the mode's declared bound"})
+
+    def run(self, store: Store, settings: Settings, progress: Progress, *, job_id: int,
+            reuse: bool = False) -> dict[str, Any]:
+        """Measure and draw the figure into its job's folder, with provenance."""
+        run_reproduce(self.spec, store, settings, progress, job_id=job_id)
+        return {}
+
+
 #: What the queue runs, discriminated by the row's ``kind``.
-QueuedJob = Annotated[QueuedRender | QueuedSweep | QueuedStage, Field(discriminator="kind")]
-_QUEUED_JOB: TypeAdapter[QueuedRender | QueuedSweep | QueuedStage] = TypeAdapter(QueuedJob)
+QueuedJob = Annotated[QueuedRender | QueuedSweep | QueuedStage | QueuedReproduce,
+                      Field(discriminator="kind")]
+_QUEUED_JOB: TypeAdapter[QueuedRender | QueuedSweep | QueuedStage | QueuedReproduce] = \
+    TypeAdapter(QueuedJob)
 
 
-def job_of(row: Any) -> QueuedRender | QueuedSweep | QueuedStage:
+def job_of(row: Any) -> QueuedRender | QueuedSweep | QueuedStage | QueuedReproduce:
     """The typed job of a queue row (its ``kind`` and stored spec), parsed once."""
     return _QUEUED_JOB.validate_python({"kind": row.kind, "stored": row.spec})

@@ -247,7 +247,7 @@ def _timeout_of(job: Any, settings: Settings, timeout_s: float | None, store: An
     if timeout_s is not None:
         return timeout_s
     from jobs.execution.queued import job_of
-    from jobs.execution.timecost import TIMEOUT_OVER_ESTIMATE, estimate_seconds
+    from jobs.execution.timecost import TIMEOUT_OVER_ESTIMATE
     from jobs.execution.work import default_timeout_s
 
     try:
@@ -255,7 +255,7 @@ def _timeout_of(job: Any, settings: Settings, timeout_s: float | None, store: An
     except ValueError:  # a spec the child will refuse at once
         return settings.job_timeout_min_s
     work = queued.attempt_work()
-    estimate = estimate_seconds(work, queued.methods, queued.scene, store, job.device_class)
+    estimate = queued.time(work, store, job.device_class)
     return max(default_timeout_s(work, settings),
                settings.job_timeout_min_s + TIMEOUT_OVER_ESTIMATE * estimate.seconds)
 

@@ -392,7 +392,7 @@ class Job(Base):
         CheckConstraint(
             "status IN ('queued', 'running', 'succeeded', 'failed', 'canceled')", name="status"
         ),
-        CheckConstraint("kind IN ('render', 'sweep', 'stage')", name="kind"),
+        CheckConstraint("kind IN ('render', 'sweep', 'stage', 'reproduce')", name="kind"),
         Index("ix_jobs_status_created_at", "status", "created_at"),
         # Exactly once: one live or succeeded job per spec (jobs.execution.queue.JobQueue.submit).
         Index("uq_jobs_live_spec_key", "spec_key", unique=True,

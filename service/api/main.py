@@ -50,7 +50,17 @@ from service.api.headers import SecurityHeaders, viewer_policy
 from service.api.limits import BodySizeLimit, bounded_json_body
 from service.api.nesting import JsonDepthLimit
 from service.api.quota import add_no_room_handler
-from service.api.routes import auth, charts, ci, images, jobs, pixels, results, scenes
+from service.api.routes import (
+    auth,
+    charts,
+    ci,
+    images,
+    jobs,
+    pixels,
+    reproductions,
+    results,
+    scenes,
+)
 from service.api.unprocessable import validation_failed
 from service.config import ServiceSettings, host_patterns
 from service.retention import start_retention
@@ -144,6 +154,7 @@ def create_app(settings: Settings | None = None, dispatcher: Any = None) -> Fast
     if settings.public_read is False:
         guards.append(ReadAccess)
     app.include_router(jobs.router, dependencies=guards)
+    app.include_router(reproductions.router, dependencies=guards)
     app.include_router(results.router, dependencies=guards)
     app.include_router(ci.router, dependencies=guards)
     app.include_router(charts.router, dependencies=guards)

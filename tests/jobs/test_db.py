@@ -80,7 +80,7 @@ def test_migrating_twice_is_a_no_op(store: Store) -> None:
     migrate(store.engine)
     with store.engine.connect() as conn:
         after = conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all()
-    assert before == after == ["0011"]
+    assert before == after == ["0012"]
 
 
 def test_migrations_match_models(store: Store) -> None:

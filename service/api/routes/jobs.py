@@ -24,7 +24,6 @@ from starlette.concurrency import run_in_threadpool
 
 from jobs.execution.queue import IdempotencyKeyReused, TooManyJobs
 from jobs.execution.queued import QueuedRender, QueuedSweep
-from jobs.execution.timecost import estimate_seconds
 from jobs.execution.work import WorkEstimate, data_bytes
 from jobs.protocol.job import RenderJob
 from jobs.protocol.scene_store import builtin_features, named_scenes, rest_scene
@@ -134,7 +133,7 @@ def _check_work(job: QueuedRender | QueuedSweep, store, settings,
             f"({parts}); this service allows {settings.max_job_work:.3g} per job "
             "(max_job_work): lower the resolution, spp, frames or seeds")
     if settings.max_job_seconds is not None:
-        time = estimate_seconds(estimate, job.methods, job.scene, store, device_class)
+        time = job.time(estimate, store, device_class)
         if time.seconds > settings.max_job_seconds:
             raise unprocessable(
                 f"this {kind} job is estimated to take {time.seconds:.0f} s on this "

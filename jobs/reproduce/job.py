@@ -1,0 +1,107 @@
+"""A reproduction run as a service job: its spec (paper, figure, mode), what bounds it,
+its run into a folder of the data folder, and the stored reproductions read back.
+
+A figure's budget names its image size, seeds and frames but not what it renders (its
+methods, its sweeps), so a job's time is not estimated from measured costs: each mode
+declares a bound, :data:`MODE_BOUND_S` (``quick``: minutes on 2 cores, within half an
+hour; ``full``: the figure's full budget, hours). The service refuses a job whose bound
+exceeds its ``max_job_seconds``, so that by default ``--quick`` is accepted and
+``--full`` is refused until an administrator raises that limit.
+
+A job writes ``<data>/reproduce/<paper>-<figure>/job-<id>/``: ``table.json`` (the
+:class:`~jobs.reproduce.results.Reproduction`), ``table.md``, ``figure.png`` and
+``provenance.json`` (the job, the commit, the libraries, when it finished).
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict
+
+from jobs.protocol.provenance import git_commit, library_versions
+from jobs.reproduce.registry import PAPERS, Budget, get_figure
+from jobs.reproduce.results import Reproduction
+from jobs.reproduce.run import default_out_dir, reproduce
+
+#: The seconds each mode is bounded by (declared, see the module doc).
+MODE_BOUND_S = {"quick": 1800.0, "full": 12 * 3600.0}
+#: Bytes a reproduction's own files may take (PNG, tables, provenance); its points are
+#: runs of sweeps, stored and counted as theirs.
+REPRODUCTION_BYTES = 4 << 20
+
+
+class ReproduceSpec(BaseModel):
+    """What ``POST /api/v1/reproductions`` submits: a registered figure and a mode."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    paper: str
+    figure: str
+    mode: Literal["quick", "full"] = "quick"
+
+    def versions(self) -> dict[str, str]:
+        """What a stored reproduction depends on beyond its spec: the code's commit (a
+        figure's measure may change with any commit)."""
+        return {"commit": git_commit()}
+
+    def budget(self) -> Budget:
+        """The figure's budget at this mode; ReproduceError naming the choices if the
+        paper or figure is not registered."""
+        return get_figure(self.paper, self.figure).budgets[self.mode]
+
+
+def budget_samples(budget: Budget) -> int:
+    """Path samples a figure renders at least: one series of its points (its swept
+    values, one point without) and one reference (a lower bound: a figure renders
+    every series on every scene)."""
+    pixels = budget.resolution ** 2
+    points = max(1, len(budget.values))
+    return pixels * (points * budget.seeds * budget.frames + budget.ref_spp)
+
+
+def job_dir(settings: Any, spec: ReproduceSpec, job_id: int) -> Path:
+    """The folder a job writes: ``<data>/reproduce/<paper>-<figure>/job-<id>``."""
+    return default_out_dir(settings, spec.paper, spec.figure) / f"job-{job_id}"
+
+
+def run_reproduce(spec: ReproduceSpec, store: Any, settings: Any, progress: Any, *,
+                  job_id: int) -> Path:
+    """Reproduce the figure into its job's folder, with provenance; returns the folder."""
+    folder = job_dir(settings, spec, job_id)
+    reproduce(spec.paper, spec.figure, spec.mode, folder, store, settings, progress=progress)
+    provenance = {"job_id": job_id, "git_commit": git_commit(),
+                  "libraries": library_versions(),
+                  "finished_at": datetime.now(UTC).isoformat()}
+    (folder / "provenance.json").write_text(json.dumps(provenance, indent=1) + "\n")
+    return folder
+
+
+class StoredReproduction(BaseModel):
+    """A reproduction a job stored: its table and verdicts, and its provenance."""
+
+    job_id: int
+    reproduction: Reproduction
+    provenance: dict[str, Any]
+    figure_png: str      # the PNG's path, relative to the data folder
+
+
+def stored_reproductions(settings: Any, paper: str | None = None) -> list[StoredReproduction]:
+    """Every stored reproduction (of ``paper``, if given), newest job first; a folder
+    without its provenance (a job that did not finish) is skipped."""
+    root = Path(settings.data_dir) / "reproduce"
+    found = []
+    keys = [paper] if paper is not None else list(PAPERS)
+    for key in keys:
+        for provenance in root.glob(f"{key}-*/job-*/provenance.json"):
+            folder = provenance.parent
+            found.append(StoredReproduction(
+                job_id=int(folder.name.removeprefix("job-")),
+                reproduction=Reproduction.model_validate_json(
+                    (folder / "table.json").read_text()),
+                provenance=json.loads(provenance.read_text()),
+                figure_png=str((folder / "figure.png").relative_to(settings.data_dir))))
+    return sorted(found, key=lambda stored: -stored.job_id)

@@ -1,0 +1,120 @@
+"""Reproducing a figure as a service job: POST /api/v1/reproductions refuses what is not
+registered (naming the choices) and a mode whose bound exceeds max_job_seconds (--full by
+default), queues --quick as a ``reproduce`` job, and the job run by a runner stores the
+reproduction with provenance, listed by GET /api/v1/reproductions. The figure is a fake
+registered here: its measure returns synthetic points, nothing renders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from jobs.execution.apikeys import create_api_key
+from jobs.execution.queue import JobQueue
+from jobs.execution.runner import run_one
+from jobs.record.config import Settings
+from jobs.record.db import open_store
+from jobs.reproduce import registry
+from jobs.reproduce.registry import Budget, Context, FigureSpec
+from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
+from service.api.main import create_app
+
+FAKE_BUDGET = Budget(resolution=4, seeds=2, frames=1, ref_spp=4, grid_preset="small",
+                     why="synthetic points: nothing renders")
+
+
+def _measure(ctx: Context) -> Reproduction:
+    return Reproduction(
+        paper="vt", figure="fig99", title="a synthetic figure", mode="",
+        settings={"resolution": ctx.budget.resolution}, x_label="x",
+        quantities={"mrse": "MRSE"},
+        points=[Point(scene="cornell-box", series="pt", x=float(x),
+                      values={"mrse": Estimate(value=0.1 * x, ci95=[0.09 * x, 0.11 * x])})
+                for x in (1, 2)],
+        verdicts=[Verdict(claim="MRSE grows with x", verdict="holds", reason="0.1 < 0.2")])
+
+
+def _draw(reproduction: Reproduction, path: Path) -> Path:
+    path.write_bytes(b"\x89PNG\r\n\x1a\n")
+    return path
+
+
+@pytest.fixture
+def fake_figure(monkeypatch):
+    spec = FigureSpec(paper="vt", key="fig99", title="a synthetic figure",
+                      budgets={"quick": FAKE_BUDGET, "full": FAKE_BUDGET},
+                      measure=_measure, draw=_draw)
+    monkeypatch.setitem(registry._FIGURES, ("vt", "fig99"), spec)
+    return spec
+
+
+def _api(tmp_path: Path, monkeypatch, **limits):
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    settings = Settings(data_dir=tmp_path / "data", **limits)
+    store = open_store(settings)
+    _, key = create_api_key(store, "tests")
+    client = TestClient(create_app(settings, None))
+    client.headers["X-API-Key"] = key
+    return client, store, settings
+
+
+@pytest.fixture
+def api(tmp_path, monkeypatch, fake_figure):
+    client, store, settings = _api(tmp_path, monkeypatch)
+    yield client, store, settings
+    store.close()
+
+
+@pytest.mark.parametrize(("body", "field", "choices"), [
+    ({"paper": "xyz", "figure": "fig1"}, "paper", "['nirc', 'nvc', 'vt']"),
+    ({"paper": "vt", "figure": "fig0"}, "figure", "fig99"),
+])
+def test_an_unknown_paper_or_figure_is_a_422_naming_the_choices(api, body, field, choices):
+    client, store, _ = api
+    response = client.post("/api/v1/reproductions", json=body)
+    assert response.status_code == 422, response.text
+    assert field in response.text and choices in response.text
+    assert JobQueue(store).list() == []
+
+
+def test_quick_is_queued_and_full_is_refused_by_the_default_limit(api):
+    client, store, settings = api
+    quick = client.post("/api/v1/reproductions", json={"paper": "vt", "figure": "fig99"})
+    assert quick.status_code == 202, quick.text
+    assert quick.json()["kind"] == "reproduce" and quick.json()["spec"]["mode"] == "quick"
+    full = client.post("/api/v1/reproductions",
+                       json={"paper": "vt", "figure": "fig99", "mode": "full"})
+    assert full.status_code == 422, full.text
+    assert "max_job_seconds" in full.text and f"{settings.max_job_seconds:.0f} s" in full.text
+    assert [job.spec["mode"] for job in JobQueue(store).list()] == ["quick"]
+
+
+def test_full_is_queued_once_the_limit_is_raised(tmp_path, monkeypatch, fake_figure):
+    """The refusal above is the limit's: the same request under a raised limit is queued."""
+    client, store, _ = _api(tmp_path, monkeypatch, max_job_seconds=24 * 3600.0)
+    full = client.post("/api/v1/reproductions",
+                       json={"paper": "vt", "figure": "fig99", "mode": "full"})
+    store.close()
+    assert full.status_code == 202, full.text
+
+
+def test_a_run_job_stores_the_reproduction_with_provenance(api):
+    client, store, settings = api
+    job_id = client.post("/api/v1/reproductions",
+                         json={"paper": "vt", "figure": "fig99"}).json()["id"]
+    queue = JobQueue(store)
+    assert queue.claim(job_id, "tests") is not None
+    assert run_one(job_id, store, settings) == "0"
+    assert queue.get(job_id).status == "succeeded"
+    listed = client.get("/api/v1/reproductions", params={"paper": "vt"})
+    assert listed.status_code == 200, listed.text
+    [stored] = listed.json()
+    assert stored["job_id"] == job_id and stored["provenance"]["job_id"] == job_id
+    assert stored["provenance"]["git_commit"] and stored["provenance"]["libraries"]
+    assert stored["reproduction"]["verdicts"][0]["verdict"] == "holds"
+    assert [p["x"] for p in stored["reproduction"]["points"]] == [1.0, 2.0]
+    assert (settings.data_dir / stored["figure_png"]).is_file()
+    assert client.get("/api/v1/reproductions", params={"paper": "nvc"}).json() == []
+    assert client.get("/api/v1/reproductions", params={"paper": "xyz"}).status_code == 422
