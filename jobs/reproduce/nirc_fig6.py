@@ -78,7 +78,7 @@ CURVES = (("NCV", "ncv", {}, curves.ncv_frames),
 PAPER_RATIO = (1.1, 1.32)
 
 QUICK_WHY = ("--quick: 16x16, K = 3 seeds of F = 4 frames (the paper trains for thousands "
-             "of frames at 1080p on a GPU): 4 scenes x 5 methods x 3 seeds = 60 renders")
+             "of frames at 1080p on a GPU): 4 scenes x 7 series x 3 seeds = 84 renders")
 FULL_WHY = "--full: 32x32, K = 4, F = 64 frames: still far below the paper's training"
 QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=256, grid_preset="—", why=QUICK_WHY)
 FULL = Budget(resolution=32, seeds=4, frames=64, ref_spp=1024, grid_preset="—", why=FULL_WHY)
@@ -239,11 +239,13 @@ def _verdict(claim: str, signs: list[int], detail: str, short: str) -> Verdict:
 
 def draw(reproduction: Reproduction, path: Path) -> Path:
     """figure.png (V_rel per series) and, beside it, ema.png (the EMA curves)."""
-    plot_panels(reproduction, [Panel("v_rel_ema", f"{scene}: EMA of V_rel per frame",
-                                     scene=scene) for scene in SCENES],
-                path.with_name("ema.png"), log_x=True)
-    return plot_panels(reproduction, [Panel("v_rel", f"{scene}: V_rel", log_y=True, scene=scene)
-                                      for scene in SCENES], path, log_x=False)
+    plot_panels(reproduction.model_copy(update={"x_label": "training frame"}),
+                [Panel("v_rel_ema", f"{scene}: EMA of V_rel per frame", scene=scene)
+                 for scene in SCENES], path.with_name("ema.png"), log_x=True)
+    return plot_panels(reproduction.model_copy(update={"x_label": "series (the table's "
+                                                                  "third column)"}),
+                       [Panel("v_rel", f"{scene}: V_rel", log_y=True, scene=scene)
+                        for scene in SCENES], path, log_x=False)
 
 
 FIGURE = register(FigureSpec("nirc", "fig6", "V_rel of the residual estimator: SH, vMF and "
