@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 CLI    := $(VENV)/bin/nirc-bench
 DEMO_DIR ?= data/demo
 
-.PHONY: bootstrap demo test test-fast bench lint docker clean
+.PHONY: bootstrap demo test test-fast bench reproduce lint docker clean
 
 bootstrap:
 	@bash scripts/bootstrap.sh
@@ -47,6 +47,12 @@ bench: bootstrap
 	$(PY) -m benchmarks.bench_sweep
 	$(PY) -m benchmarks.bench_pareto
 	$(PY) -m benchmarks.bench_service
+
+# Every registered figure of the papers at its --quick budget, one after another, then
+# one summary of the verdicts; fails if any figure failed (docs/reproduce.md). Hours on
+# 2 cores in all: not part of `make test` or CI.
+reproduce: bootstrap
+	$(CLI) reproduce --all --quick
 
 # Every image of docker/Dockerfile (needs a Docker engine; BASE_IMAGE=... to override).
 DOCKER_TARGETS := cli service scheduler worker worker-gpu

@@ -31,9 +31,11 @@ from typer._click import exceptions as click_errors  # Typer's own copy of Click
 from renderers.methods import BASELINE, METHODS, sweep_methods
 from service.cli_common import (
     REF_SPP,
+    ApiKeyOpt,
     DataDir,
     JsonOut,
     RefSpp,
+    Server,
     console,
     err_console,
     number_in,
@@ -69,11 +71,6 @@ MethodMaxDepth = Annotated[int | None, typer.Option(
     help="longest path in segments for the render, its cache-training paths and the "
          "reference alike (-1 = unbounded: Russian roulette ends paths); default: the "
          "method's own (-1; 2 for the direct-light methods)")]
-Server = Annotated[str | None, typer.Option(
-    "--server", envvar="NIRC_BENCH_SERVER",
-    help="submit to a running service (e.g. http://host:8000) instead of running here")]
-ApiKeyOpt = Annotated[str | None, typer.Option(
-    "--api-key", envvar="NIRC_BENCH_API_KEY", help="API key for --server")]
 
 
 @dataclass(frozen=True)

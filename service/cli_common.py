@@ -82,3 +82,10 @@ def open_store(settings: Any) -> Any:
 def print_json(value: Any) -> None:
     """``value`` as indented JSON on standard output (dates and paths as text)."""
     console.print_json(json.dumps(value, default=str))
+
+
+Server = Annotated[str | None, typer.Option(
+    "--server", envvar="NIRC_BENCH_SERVER",
+    help="submit to a running service (e.g. http://host:8000) instead of running here")]
+ApiKeyOpt = Annotated[str | None, typer.Option(
+    "--api-key", envvar="NIRC_BENCH_API_KEY", help="API key for --server")]

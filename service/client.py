@@ -17,6 +17,10 @@ from jobs.record.models import FINAL_JOB_STATES
 FINAL = tuple(state.value for state in FINAL_JOB_STATES)
 
 
+#: Where a job of each kind is submitted, beside ``/api/v1/jobs`` (renders).
+SUBMIT_PATHS = {"sweep": "sweeps", "reproduce": "reproductions"}
+
+
 class RemoteError(RuntimeError):
     """The service refused a request or could not be reached (message says why)."""
 
@@ -45,8 +49,7 @@ class ServiceClient:
         return response.json()
 
     def submit(self, kind: str, spec: dict[str, Any]) -> dict[str, Any]:
-        return self._request("POST", f"/api/v1/{'sweeps' if kind == 'sweep' else 'jobs'}",
-                             json=spec)
+        return self._request("POST", f"/api/v1/{SUBMIT_PATHS.get(kind, 'jobs')}", json=spec)
 
     def upload_scene(self, path: str) -> str:
         """Upload the local Mitsuba XML scene at ``path`` with every file it reads and

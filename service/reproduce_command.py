@@ -1,5 +1,6 @@
-"""``nirc-bench reproduce``: list the papers' figures this project reproduces, and
-reproduce one (jobs/reproduce; docs/reproduce.md)."""
+"""``nirc-bench reproduce``: list the papers' figures this project reproduces, reproduce
+one (here, or as a job of a service with ``--server``), or every registered one in turn
+(``--all``) (jobs/reproduce; docs/reproduce.md)."""
 
 from __future__ import annotations
 
@@ -8,12 +9,72 @@ from typing import Annotated
 
 import typer
 
-from service.cli_common import DataDir, JsonOut, console, open_settings, open_store, print_json
+from service.cli_common import (
+    ApiKeyOpt,
+    DataDir,
+    JsonOut,
+    Server,
+    console,
+    open_settings,
+    open_store,
+    print_json,
+)
 from service.errors import UsageError
 
 reproduce_app = typer.Typer(
     help="Reproduce papers' figures and tables: our numbers with 95 % intervals beside "
          "the paper's (see 'reproduce list').", no_args_is_help=True, rich_markup_mode=None)
+
+Quick = Annotated[bool, typer.Option(
+    "--quick/--full", help="--quick: minutes on 2 cores (small images, K = 4); "
+                           "--full: the figure's full budget")]
+
+
+@reproduce_app.callback(invoke_without_command=True)
+def reproduce_all(
+    ctx: typer.Context,
+    every: Annotated[bool, typer.Option(
+        "--all", help="reproduce every registered figure in turn (each into its default "
+                      "folder), going on past a failing one; one summary of verdicts at "
+                      "the end; exit 1 if any failed")] = False,
+    quick: Quick = True,
+    data_dir: DataDir = None,
+) -> None:
+    """Reproduce papers' figures and tables."""
+    if ctx.invoked_subcommand is not None:
+        if every:
+            raise UsageError("--all reproduces every figure: give no command with it")
+        return
+    if not every:
+        raise UsageError("give a command ('reproduce list', 'reproduce <paper> <figure>') "
+                         "or --all")
+    from jobs.reproduce.registry import figures
+    from jobs.reproduce.run import default_out_dir, reproduce
+    from service.progress import progress_reporter
+
+    settings = open_settings(data_dir)
+    store = open_store(settings)
+    mode = "quick" if quick else "full"
+    summary: list[str] = []
+    failed = 0
+    for spec in figures():
+        name = f"{spec.paper} {spec.key}"
+        console.print(f"reproducing {name} ({mode})", markup=False, highlight=False)
+        try:
+            with progress_reporter(console) as report:
+                result, _paths = reproduce(spec.paper, spec.key, mode,
+                                           default_out_dir(settings, spec.paper, spec.key),
+                                           store, settings, progress=report)
+        except Exception as err:  # noqa: BLE001 - one figure's failure ends only it
+            failed += 1
+            summary.append(f"{name}: FAILED ({type(err).__name__}: {' '.join(str(err).split())})")
+            continue
+        verdicts = "; ".join(f"{v.claim}: {v.verdict}" for v in result.verdicts)
+        summary.append(f"{name}: {verdicts or 'no verdicts'}")
+    console.print("\n".join(["", f"{len(summary) - failed} of {len(summary)} figures "
+                              "reproduced:", *summary]), markup=False, highlight=False)
+    if failed:
+        raise typer.Exit(1)
 
 
 @reproduce_app.command("list")
@@ -54,14 +115,14 @@ def _paper_command(paper: str) -> None:
 
     def command(
         figure: Annotated[str, typer.Argument(help="the figure's key (see 'reproduce list')")],
-        quick: Annotated[bool, typer.Option(
-            "--quick/--full", help="--quick: minutes on 2 cores (small images, K = 4); "
-                                   "--full: the figure's full budget")] = True,
+        quick: Quick = True,
         out: Annotated[Path | None, typer.Option(
             "--out", help="folder for figure.png, table.md and table.json (default: "
                           "<data>/reproduce/<paper>-<figure>)")] = None,
         data_dir: DataDir = None,
         as_json: JsonOut = False,
+        server: Server = None,
+        api_key: ApiKeyOpt = None,
     ) -> None:
         from jobs.reproduce.catalogue import catalogue_entry
         from jobs.reproduce.registry import ReproduceError, get_figure
@@ -76,11 +137,19 @@ def _paper_command(paper: str) -> None:
                 raise UsageError(f"{paper} {figure} is not reproduced yet: it needs "
                                  f"{entry.needs}") from None
             raise UsageError(str(err)) from None
+        mode = "quick" if quick else "full"
+        if server:
+            if out is not None:
+                raise UsageError("--out writes local files: it cannot be used with --server "
+                                 "(the service writes the reproduction in its data folder)")
+            _run_remote(server, api_key, {"paper": paper, "figure": figure, "mode": mode},
+                        as_json)
+            return
         settings = open_settings(data_dir)
         store = open_store(settings)
         folder = out or default_out_dir(settings, paper, figure)
         with progress_reporter(console, quiet=as_json) as report:
-            result, paths = reproduce(paper, figure, "quick" if quick else "full", folder,
+            result, paths = reproduce(paper, figure, mode, folder,
                                       store, settings, progress=report)
         if as_json:
             print_json({"files": {k: str(v) for k, v in paths.items()},
@@ -93,6 +162,33 @@ def _paper_command(paper: str) -> None:
     command.__doc__ = (f"Reproduce a figure or table of {PAPERS[paper].title} "
                        f"[{PAPERS[paper].reference}].")
     reproduce_app.command(paper)(command)
+
+
+def _run_remote(server: str, api_key: str | None, spec: dict[str, str],
+                as_json: bool) -> None:
+    """Submit the reproduction to the service at ``server`` as a job, follow its
+    progress, print the stored reproduction (its table, verdicts and provenance)."""
+    from jobs.reproduce.results import Reproduction
+    from service.client import RemoteError, ServiceClient
+    from service.progress import progress_reporter
+
+    client = ServiceClient(server, api_key)
+    job = client.submit("reproduce", spec)
+    if not as_json:
+        console.print(f"job {job['id']} submitted to {server} ({job['status']})")
+    with progress_reporter(console, quiet=as_json) as report:
+        job = client.wait(job["id"], progress=report)
+    if job["status"] != "succeeded":
+        raise RemoteError(f"job {job['id']} {job['status']}: {job['error']}")
+    stored = client.get(f"/api/v1/reproductions/{job['id']}")
+    if as_json:
+        print_json(stored)
+        return
+    console.print(Reproduction.model_validate(stored["reproduction"]).markdown(),
+                  markup=False, highlight=False)
+    console.print(f"stored on the service as {stored['figure_png']} (job {job['id']}, "
+                  f"commit {stored['provenance']['git_commit']})",
+                  markup=False, highlight=False)
 
 
 def _register_papers() -> None:

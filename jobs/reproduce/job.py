@@ -89,19 +89,28 @@ class StoredReproduction(BaseModel):
     figure_png: str      # the PNG's path, relative to the data folder
 
 
+def _stored(settings: Any, provenance: Path) -> StoredReproduction:
+    folder = provenance.parent
+    return StoredReproduction(
+        job_id=int(folder.name.removeprefix("job-")),
+        reproduction=Reproduction.model_validate_json((folder / "table.json").read_text()),
+        provenance=json.loads(provenance.read_text()),
+        figure_png=str((folder / "figure.png").relative_to(settings.data_dir)))
+
+
 def stored_reproductions(settings: Any, paper: str | None = None) -> list[StoredReproduction]:
     """Every stored reproduction (of ``paper``, if given), newest job first; a folder
     without its provenance (a job that did not finish) is skipped."""
     root = Path(settings.data_dir) / "reproduce"
-    found = []
     keys = [paper] if paper is not None else list(PAPERS)
-    for key in keys:
-        for provenance in root.glob(f"{key}-*/job-*/provenance.json"):
-            folder = provenance.parent
-            found.append(StoredReproduction(
-                job_id=int(folder.name.removeprefix("job-")),
-                reproduction=Reproduction.model_validate_json(
-                    (folder / "table.json").read_text()),
-                provenance=json.loads(provenance.read_text()),
-                figure_png=str((folder / "figure.png").relative_to(settings.data_dir))))
+    found = [_stored(settings, provenance) for key in keys
+             for provenance in root.glob(f"{key}-*/job-*/provenance.json")]
     return sorted(found, key=lambda stored: -stored.job_id)
+
+
+def stored_reproduction(settings: Any, job_id: int) -> StoredReproduction | None:
+    """The reproduction job ``job_id`` stored, None if it stored none."""
+    root = Path(settings.data_dir) / "reproduce"
+    found = [_stored(settings, provenance)
+             for provenance in root.glob(f"*-*/job-{job_id}/provenance.json")]
+    return found[0] if found else None

@@ -1,12 +1,16 @@
 """Reproducing a figure as a service job: POST /api/v1/reproductions refuses what is not
 registered (naming the choices) and a mode whose bound exceeds max_job_seconds (--full by
 default), queues --quick as a ``reproduce`` job, and the job run by a runner stores the
-reproduction with provenance, listed by GET /api/v1/reproductions. The figure is a fake
-registered here: its measure returns synthetic points, nothing renders."""
+reproduction with provenance, listed by GET /api/v1/reproductions; ``reproduce ...
+--server`` submits it and prints it; ``reproduce --all`` goes on past a failing figure
+and exits 1. The figures are fakes registered here: their measure returns synthetic
+points, nothing renders."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
+from unittest import mock
 
 import pytest
 from fastapi.testclient import TestClient
@@ -20,6 +24,8 @@ from jobs.reproduce import registry
 from jobs.reproduce.registry import Budget, Context, FigureSpec
 from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
 from service.api.main import create_app
+from service.cli import main
+from service.client import ServiceClient
 
 FAKE_BUDGET = Budget(resolution=4, seeds=2, frames=1, ref_spp=4, grid_preset="small",
                      why="synthetic points: nothing renders")
@@ -118,3 +124,52 @@ def test_a_run_job_stores_the_reproduction_with_provenance(api):
     assert (settings.data_dir / stored["figure_png"]).is_file()
     assert client.get("/api/v1/reproductions", params={"paper": "nvc"}).json() == []
     assert client.get("/api/v1/reproductions", params={"paper": "xyz"}).status_code == 422
+
+
+def test_the_cli_submits_to_a_server_and_prints_the_stored_reproduction(
+        api, monkeypatch, capsys):
+    """``--server``: the job is submitted over REST, run (here by a runner in the test,
+    as the service's dispatcher would) and the stored reproduction printed."""
+    client, store, settings = api
+
+    def connect(self: ServiceClient, server: str, api_key: str | None) -> None:
+        self.http = client
+
+    def run_then_read(self: ServiceClient, job_id: int, progress=None) -> dict:
+        assert JobQueue(store).claim(job_id, "tests") is not None
+        assert run_one(job_id, store, settings) == "0"
+        return self.get(f"/api/v1/jobs/{job_id}")
+
+    monkeypatch.setattr(ServiceClient, "__init__", connect)
+    monkeypatch.setattr(ServiceClient, "wait", run_then_read)
+    argv = ["nirc-bench", "reproduce", "vt", "fig99", "--server", "http://service"]
+    with mock.patch.object(sys, "argv", argv), pytest.raises(SystemExit) as exit_info:
+        main()
+    text = capsys.readouterr().out
+    assert exit_info.value.code == 0, text
+    assert "MRSE grows with x: **holds**" in text and "job 1" in text
+    assert [job.kind for job in JobQueue(store).list()] == ["reproduce"]
+
+
+def _failing(ctx: Context) -> Reproduction:
+    raise RuntimeError("a planted failure")
+
+
+def test_reproduce_all_goes_on_past_a_failing_figure_and_exits_1(
+        tmp_path, monkeypatch, capsys, fake_figure):
+    failing = FigureSpec(paper="vt", key="fig01", title="a failing figure",
+                         budgets={"quick": FAKE_BUDGET, "full": FAKE_BUDGET},
+                         measure=_failing, draw=_draw)
+    monkeypatch.setattr(registry, "_FIGURES", {("vt", "fig01"): failing,
+                                               ("vt", "fig99"): fake_figure})
+    monkeypatch.setattr(registry, "figure_modules", lambda: [])
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    argv = ["nirc-bench", "reproduce", "--all", "--quick", "--data-dir", str(tmp_path)]
+    with mock.patch.object(sys, "argv", argv), pytest.raises(SystemExit) as exit_info:
+        main()
+    text = capsys.readouterr().out
+    assert exit_info.value.code == 1, text
+    assert "1 of 2 figures reproduced" in text
+    assert "vt fig01: FAILED (RuntimeError: a planted failure)" in text
+    assert "vt fig99: MRSE grows with x: holds" in text   # run after the failing one
+    assert (tmp_path / "reproduce" / "vt-fig99" / "table.json").is_file()

@@ -5,20 +5,26 @@
 the service's limits: a mode's declared time bound (jobs/reproduce/job.py) above
 ``max_job_seconds`` is refused with 422, so ``full`` is refused by default until an
 administrator raises that limit. ``GET /api/v1/reproductions`` lists the stored ones
-(table, verdicts, provenance), newest first.
+(table, verdicts, provenance), newest first, and
+``GET /api/v1/reproductions/{job_id}`` the one a job stored.
 """
 
 from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import JSONResponse
 
 from jobs.execution.queued import QueuedReproduce
-from jobs.reproduce.job import ReproduceSpec, StoredReproduction, stored_reproductions
+from jobs.reproduce.job import (
+    ReproduceSpec,
+    StoredReproduction,
+    stored_reproduction,
+    stored_reproductions,
+)
 from jobs.reproduce.registry import PAPERS, ReproduceError
-from service.api.deps import CallerDep, DispatcherDep, QueueDep, SettingsDep
+from service.api.deps import CallerDep, DispatcherDep, QueueDep, RowId, SettingsDep
 from service.api.routes.jobs import (
     SUBMISSION_ANSWERS,
     DeviceClass,
@@ -55,3 +61,13 @@ def list_reproductions(settings: SettingsDep,
         raise _unprocessable("paper", f"unknown paper '{paper}'; choose one of "
                                       f"{sorted(PAPERS)}")
     return stored_reproductions(settings, paper)
+
+
+@router.get("/reproductions/{job_id}", response_model=StoredReproduction)
+def get_reproduction(job_id: RowId, settings: SettingsDep) -> StoredReproduction:
+    stored = stored_reproduction(settings, job_id)
+    if stored is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"job {job_id} stored no reproduction (not a reproduce job, "
+                            "or not finished)")
+    return stored
