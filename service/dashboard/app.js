@@ -1,5 +1,5 @@
 // The nirc-bench dashboard: results overview, per-scene charts, a run's page with its image
-// comparison, history over commits, jobs. Plain JavaScript modules against the REST API
+// comparison, history over commits, jobs, the papers' reproduction reports. Plain JavaScript modules against the REST API
 // (/api/v1); charts are Vega-Lite specs the service builds (charts.js), images float pixels
 // (compare.js). Every number links to the run it came from (#/run/ID).
 import { chart, note } from "./charts.js";
@@ -291,7 +291,8 @@ async function jobsPage() {
     const spec = j.spec || {};
     const p = j.progress && j.progress.total ? `${esc(j.progress.stage)} ${j.progress.done}/${j.progress.total}` : "";
     const result = j.run_id ? runLink(j.run_id, `run ${j.run_id}`)
-      : j.sweep_id ? `<a href="#/scene/${enc(spec.scene ?? "")}">sweep ${j.sweep_id}</a>` : "";
+      : j.sweep_id ? `<a href="#/scene/${enc(spec.scene ?? "")}">sweep ${j.sweep_id}</a>`
+      : j.kind === "reproduce" && j.status === "succeeded" ? `<a href="#/paper/${enc(spec.paper)}">${esc(spec.paper)} ${esc(spec.figure)}</a>` : "";
     const kind = j.kind === "stage" ? `stage of ${j.parent_id}: ${esc(spec.name)}` : esc(j.kind);
     const scene = spec.scene ? `<a href="#/scene/${enc(spec.scene)}">${esc(spec.scene)}</a>` : "–";
     return `<tr><td>${j.id}</td><td class="text">${kind}</td><td class="text">${scene}</td><td class="text">${esc(spec.method ?? (spec.methods || []).join(", "))}</td>
@@ -304,6 +305,46 @@ async function jobsPage() {
     <th class="text">spec</th><th class="text">submitted (UTC)</th><th class="text">started</th><th class="text">ended</th><th>duration</th>
     <th class="text">state</th><th class="text">progress</th><th>attempts</th><th class="text">worker</th><th class="text">error</th><th>result</th></tr>${rows}</table>
     <p class='muted'>refreshes every 2 s</p>`;
+}
+
+async function papersPage() {
+  const papers = await api("/reports");
+  view().innerHTML = `<h2>Papers</h2><p class="muted">Each paper's figures and tables as reproduced on this service
+    (<code>nirc-bench reproduce … --server</code>, POST /api/v1/reproductions), beside its claims.</p>
+    <ul class="papers">${papers.map((p) => `<li><a href="#/paper/${enc(p.paper)}">${esc(p.title)}</a> [${esc(p.reference)}]</li>`).join("")}</ul>`;
+}
+
+// One figure of a report: its claims with the catalogue's verdicts, and where it was reproduced here
+// its verdicts, table, charts and provenance.
+function figureSection(f) {
+  const claims = (f.claims || []).map((c) => `<li>${esc(c.where)}: “${esc(c.quote)}” → <b>${esc(c.verdict)}</b></li>`).join("");
+  let html = `<h3>${esc(f.figure)}: ${esc(f.title)}</h3>`;
+  html += claims ? `<p>The paper's claims (catalogue verdicts):</p><ul class="claims">${claims}</ul>` : "";
+  const s = f.stored;
+  if (!s) return `${html}<p class="muted">Not reproduced on this service yet${f.command ? `: <code>${esc(f.command)} --server URL</code>` : f.needs ? ` (needs ${esc(f.needs)})` : ""}.</p>`;
+  const r = s.reproduction;
+  const verdicts = r.verdicts.map((v) => `<li>${esc(v.claim)}: <b class="verdict-${esc(v.verdict.replace(/ /g, "-"))}">${esc(v.verdict)}</b> (${esc(v.reason)})</li>`).join("");
+  const keys = Object.keys(r.quantities);
+  const rows = r.points.map((p) => `<tr><td class="text">${esc(p.scene)}</td><td class="text">${esc(p.series)}</td><td>${p.x === null ? "–" : num(p.x)}</td>${keys.map((k) => {
+    const e = p.values[k];
+    return `<td>${e && e.value !== null ? `${num(e.value)}${e.ci95 ? ` ${interval(e.ci95)}` : ""}` : "–"}</td><td>${k in p.paper ? num(p.paper[k]) : "–"}</td>`;
+  }).join("")}</tr>`).join("");
+  const prov = s.provenance;
+  html += `<p>Reproduced by job ${s.job_id}, mode <code>${esc(r.mode)}</code> (${esc(Object.entries(r.settings).map(([k, v]) => `${k} ${v}`).join(", "))}).</p>`;
+  html += verdicts ? `<p>Our verdicts:</p><ul class="verdicts">${verdicts}</ul>` : "";
+  html += `<div class="plots"></div><table class="results reproduction"><tr><th class="text">scene</th><th class="text">series</th><th>${esc(r.x_label)}</th>${keys.map((k) => `<th>${esc(r.quantities[k])} [95% CI]</th><th>paper</th>`).join("")}</tr>${rows}</table>`;
+  html += `<p class="muted">Provenance: commit ${esc(prov.git_commit)}, finished ${esc(prov.finished_at)}; ${esc(Object.entries(prov.libraries || {}).map(([k, v]) => `${k} ${v}`).join(", "))}.</p>`;
+  return html;
+}
+
+async function paperPage(paper) {
+  const report = await api(`/reports/${enc(paper)}`);
+  view().innerHTML = `<h2>${esc(report.title)} [${esc(report.reference)}]</h2><p><a href="#/papers">all papers</a></p>
+    ${report.figures.map((f) => `<section class="figure" data-figure="${esc(f.figure)}">${figureSection(f)}</section>`).join("")}`;
+  for (const f of report.figures) {
+    const plots = document.querySelector(`section.figure[data-figure="${CSS.escape(f.figure)}"] .plots`);
+    for (const spec of f.charts) await chart(plots, spec);
+  }
 }
 
 // The key goes to the service once; it answers with an HttpOnly cookie (unreadable here)
@@ -334,6 +375,8 @@ async function route() {
     else if (parts[0] === "scene" && parts[1]) await (parts[2] ? runPage(parts[2]) : scenePage(parts[1]));
     else if (parts[0] === "run" && parts[1]) await runPage(parts[1], parts[2]);
     else if (parts[0] === "history") await historyPage(parts[1], parts[2]);
+    else if (parts[0] === "papers") await papersPage();
+    else if (parts[0] === "paper" && parts[1]) await paperPage(parts[1]);
     else await overview();
   } catch (err) {
     if (err instanceof NeedsKey) loginForm(err.message);

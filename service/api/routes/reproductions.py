@@ -6,12 +6,15 @@ the service's limits: a mode's declared time bound (jobs/reproduce/job.py) above
 ``max_job_seconds`` is refused with 422, so ``full`` is refused by default until an
 administrator raises that limit. ``GET /api/v1/reproductions`` lists the stored ones
 (table, verdicts, provenance), newest first, and
-``GET /api/v1/reproductions/{job_id}`` the one a job stored.
+``GET /api/v1/reproductions/{job_id}`` the one a job stored. ``GET
+/api/v1/reports/{paper}`` is a paper's report page's data: per catalogued figure its
+claims and verdicts, and its latest stored reproduction with its charts
+(jobs/views/reproduction_charts.py).
 """
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import JSONResponse
@@ -24,6 +27,7 @@ from jobs.reproduce.job import (
     stored_reproductions,
 )
 from jobs.reproduce.registry import PAPERS, ReproduceError
+from jobs.views.reproduction_charts import reproduction_charts
 from service.api.deps import CallerDep, DispatcherDep, QueueDep, RowId, SettingsDep
 from service.api.routes.jobs import (
     SUBMISSION_ANSWERS,
@@ -71,3 +75,46 @@ def get_reproduction(job_id: RowId, settings: SettingsDep) -> StoredReproduction
                             f"job {job_id} stored no reproduction (not a reproduce job, "
                             "or not finished)")
     return stored
+
+
+@router.get("/reports")
+def paper_reports() -> list[dict[str, str]]:
+    """The papers with a report page: key, title, reference."""
+    return [{"paper": key, "title": paper.title, "reference": paper.reference}
+            for key, paper in PAPERS.items()]
+
+
+def _figure(row: dict[str, Any], stored: StoredReproduction | None) -> dict[str, Any]:
+    """A figure of a report: its catalogue row, its latest stored reproduction and charts."""
+    if stored is None:
+        return {**row, "stored": None, "charts": []}
+    reproduction = stored.reproduction.model_dump(mode="json")
+    return {**row, "stored": stored.model_dump(mode="json"),
+            "charts": reproduction_charts(reproduction)}
+
+
+@router.get("/reports/{paper}")
+def paper_report(paper: str, settings: SettingsDep) -> dict[str, Any]:
+    """A paper's figures in the catalogue's order: title, status, the claims with the
+    catalogue's verdicts, and the latest stored reproduction (table, verdicts,
+    provenance, charts) or None where none was run on this service."""
+    from jobs.reproduce.catalogue import listing
+
+    if paper not in PAPERS:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"unknown paper '{paper}'; choose one of {sorted(PAPERS)}")
+    latest: dict[str, StoredReproduction] = {}
+    for stored in stored_reproductions(settings, paper):   # newest first
+        latest.setdefault(stored.reproduction.figure, stored)
+    figures = []
+    for row in listing():
+        if row["paper"] != paper:
+            continue
+        stored = latest.get(row["figure"])
+        figures.append(_figure(row, stored))
+    listed = {row["figure"] for row in figures}
+    figures += [_figure({"paper": paper, "figure": figure, "title": stored.reproduction.title,
+                         "status": "runs", "claims": []}, stored)
+                for figure, stored in latest.items() if figure not in listed]
+    return {"paper": paper, "title": PAPERS[paper].title,
+            "reference": PAPERS[paper].reference, "figures": figures}
