@@ -120,10 +120,12 @@ def test_list_prints_every_figure_with_its_status_and_claims() -> None:
 
 
 def test_a_not_yet_figure_exits_2_saying_what_it_needs(capsys, data_folder: Path) -> None:
-    entry = next(e for e in CATALOGUE if e.paper == "nvc")
-    argv = ["nirc-bench", "reproduce", "nvc", entry.figure, "--data-dir", str(data_folder)]
+    registered = {(spec.paper, spec.key) for spec in figures()}
+    entry = next(e for e in CATALOGUE if (e.paper, e.figure) not in registered)
+    argv = ["nirc-bench", "reproduce", entry.paper, entry.figure, "--data-dir",
+            str(data_folder)]
     with mock.patch.object(sys, "argv", argv), pytest.raises(SystemExit) as exit_info:
         main()
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
-    assert f"nvc {entry.figure} is not reproduced yet: it needs {entry.needs}" in err
+    assert f"{entry.paper} {entry.figure} is not reproduced yet: it needs {entry.needs}" in err
