@@ -124,6 +124,12 @@ def test_a_run_job_stores_the_reproduction_with_provenance(api):
     assert (settings.data_dir / stored["figure_png"]).is_file()
     assert client.get("/api/v1/reproductions", params={"paper": "nvc"}).json() == []
     assert client.get("/api/v1/reproductions", params={"paper": "xyz"}).status_code == 422
+    report = client.get("/api/v1/reports/vt").json()
+    figures = {figure["figure"]: figure for figure in report["figures"]}
+    assert figures["fig99"]["stored"]["job_id"] == job_id
+    assert len(figures["fig99"]["charts"]) == 1                  # MRSE, its only quantity
+    assert figures["fig7"]["stored"] is None and figures["fig7"]["claims"]
+    assert client.get("/api/v1/reports/xyz").status_code == 404
 
 
 def test_the_cli_submits_to_a_server_and_prints_the_stored_reproduction(
