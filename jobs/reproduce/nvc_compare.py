@@ -16,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from jobs.reproduce.measure import budget_settings, quick_budget
+from jobs.reproduce.measure import budget_settings
 from jobs.reproduce.papers import paper_data
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context
@@ -37,7 +37,9 @@ FLIP_NOTE = "FLIP: 95 % Student-t interval over the K seeds' HDR-FLIP"
 #: ReSTIR's spp candidates at equal time.
 RESTIR_SPP = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64]
 
-QUICK = quick_budget()
+QUICK = Budget(resolution=32, seeds=4, frames=4, ref_spp=1024, grid_preset="—",
+               why="--quick: 32x32, K = 4 seeds of F = 4 one-spp frames after 64 training "
+                   "frames, reference 1024 spp: minutes on 2 cores")
 FULL = Budget(resolution=128, seeds=8, frames=8, ref_spp=4096, grid_preset="—",
               why="--full: 128x128 (the training batch is a smaller share of a frame's "
                   "work), K = 8, F = 8; about an hour on one GPU worker")
