@@ -19,6 +19,11 @@ largest spp that fits it, and the strongest PT there: each of its candidates
 same way, the one of lowest MRSE shown (the lower envelope at that time, on the spp
 grid; docs/pareto.md). Each calibration is stored with its run.
 
+Bounding the PT calibrations (a quick run): ``max_pt_spp`` keeps the PT candidates at
+most that spp (a matched time PT would spend on more is reported ``capped``: its PT
+rows then have less than equal time), ``strongest`` names the strongest PT's candidates
+calibrated (default: all); the report states both in ``bounds``.
+
 Loaded timings (renderers.load): a calibration leaves out probes taken on a loaded
 machine (jobs.protocol.calibration), and a matched method whose own run was timed on a
 loaded machine gives no budget: its equal-time rows are left out, listed with the reason
@@ -64,6 +69,10 @@ class Report(BaseModel):
     left_out: list[Skipped] = Field(
         default_factory=list, description="equal-time rows left out for a loaded machine, "
                                           "with the reason")
+    bounds: dict[str, Any] = Field(
+        default_factory=dict, description="the PT calibrations' bounds: max_pt_spp (None: "
+                                          "the knob's candidates) and the strongest PT's "
+                                          "candidates calibrated")
 
 
 def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
@@ -75,9 +84,17 @@ def comparison_report(
     scene: str, store: Store, settings: Settings, *, resolution: int = 64, frames: int = 16,
     seeds: int = 2, pretrain_frames: int = 100, max_depth: int = -1, ref_spp: int = 4096,
     progress: Callable[[str, int, int], None] | None = None, allow_loaded: bool = False,
+    max_pt_spp: int | None = None, strongest: tuple[str, ...] | None = None,
 ) -> Report:
     """Run the Fig. 7 comparison on ``scene`` (see the module docstring); ``allow_loaded``:
-    use timings taken on a loaded machine for the equal-time budgets."""
+    use timings taken on a loaded machine for the equal-time budgets; ``max_pt_spp`` and
+    ``strongest``: the PT calibrations' bounds (module docstring)."""
+    core = pt_core_methods()
+    chosen = list(core if strongest is None else strongest)
+    if not chosen or set(chosen) - set(core):
+        raise ValueError(f"strongest: give one or more of {', '.join(core)}")
+    if max_pt_spp is not None and max_pt_spp < 1:
+        raise ValueError("max_pt_spp must be at least 1")
     base = RenderSpec(scene=scene, resolution=resolution, frames=frames, seeds=seeds,
                       reference=ReferenceSpec(spp=ref_spp))
 
@@ -101,7 +118,8 @@ def comparison_report(
 
     entries = sorted(((name, entry) for name, method in METHODS.items()
                       for entry in method.comparison), key=lambda item: item[1].rank)
-    report = Report(scene=scene, device="")
+    report = Report(scene=scene, device="", bounds={"max_pt_spp": max_pt_spp,
+                                                    "strongest": chosen})
     summaries: dict[str, RunSummary] = {}
     for name, entry in entries:
         if entry.role != "knob":
@@ -141,7 +159,15 @@ def comparison_report(
                                       "; ".join(notes)))
 
     # ---- Equal time: the paper's and the strongest PT at each matched method's time ----
-    strongest = BASELINE_LABELS[STRONGEST_PT]
+    strongest_label = BASELINE_LABELS[STRONGEST_PT]
+
+    def pt_budget(name: str, ms: float) -> TimeBudget:
+        """Equal time for a PT method: its spp candidates at most ``max_pt_spp``."""
+        knob = METHODS[name].knob
+        spp = None if max_pt_spp is None or knob is None else \
+            [c for c in knob.candidates if c <= max_pt_spp]
+        return TimeBudget(ms=ms, allow_loaded=allow_loaded, candidates=spp)
+
     for _name, entry in entries:
         if entry.role != "matched" or entry.label not in summaries:
             continue
@@ -153,14 +179,15 @@ def comparison_report(
                        "is no budget (--allow-loaded uses it): "
                        + "; ".join(summary.result.timing_flags)))
             continue
-        budget_ms = TimeBudget(ms=1e3 * summary.timings["seconds_per_frame"],
-                               allow_loaded=allow_loaded)
+        ms = 1e3 * summary.timings["seconds_per_frame"]
         pt_eq = run(f"{paper} (= {entry.label} time)", BASELINE, {"max_depth": max_depth},
-                    budget=budget_ms)
+                    budget=pt_budget(BASELINE, ms))
         candidates: dict[str, RunSummary] = {}
-        for name in pt_core_methods():
-            found = run(f"{strongest}: {METHODS[name].label or name} (= {entry.label} time)",
-                        name, {"max_depth": max_depth, **STRONGEST_PT_PARAMS}, budget=budget_ms)
+        for name in chosen:
+            found = run(f"{strongest_label}: {METHODS[name].label or name} "
+                        f"(= {entry.label} time)", name,
+                        {"max_depth": max_depth, **STRONGEST_PT_PARAMS},
+                        budget=pt_budget(name, ms))
             if found is not None:       # the PT core renders every scene: left out, loaded
                 candidates[name] = found
         if pt_eq is None or not candidates:
@@ -173,7 +200,7 @@ def comparison_report(
             _row(entry.label, summary),
             _row(f"{paper} {pt_eq.spec.spp} spp (= {entry.label} time)", pt_eq,
                  "; ".join(caveats(pt_eq.metrics["calibration"]))),
-            _row(f"{strongest}: {METHODS[best].label or best} {best_run.spec.spp} spp "
+            _row(f"{strongest_label}: {METHODS[best].label or best} {best_run.spec.spp} spp "
                  f"(= {entry.label} time)", best_run,
                  "; ".join([lowest, *caveats(best_run.metrics["calibration"])]))]
     return report

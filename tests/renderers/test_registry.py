@@ -201,8 +201,10 @@ def test_the_integrator_takes_its_parameters_only_from_the_methods_model(mi):
     assert any("configure" in message for message in chain), chain
 
 
-def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
-    """The report reads its runs from the registry; runs, labels and rows are today's."""
+def fake_report_execute(monkeypatch) -> list:
+    """Replace the report's executor by one answering at once (the strongest PT at equal
+    time is pt-power; a calibrated PT takes 3 spp); the jobs' (method, params, spp, time
+    budget) are appended to the list returned."""
     import jobs.pareto.report as report_module
     from jobs.protocol.results import RunResultDetail
 
@@ -230,6 +232,14 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
                                device={"device_key": "dev"}, result=result)
 
     monkeypatch.setattr(report_module, "execute", fake_execute)
+    return calls
+
+
+def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
+    """The report reads its runs from the registry; runs, labels and rows are today's."""
+    import jobs.pareto.report as report_module
+
+    calls = fake_report_execute(monkeypatch)
     report = report_module.comparison_report("s", None, None, max_depth=8, pretrain_frames=7)
     cache = {"max_depth": 8, "pretrain_frames": 7}
     at_time = [("pt", {"max_depth": 8}, 1, {"ms": 10.0}),
@@ -254,6 +264,36 @@ def test_comparison_report_runs_todays_fig7_protocol(monkeypatch):
                       f"strongest PT: pt-power 1 spp (= {method} time)"))]
     assert report.device == "dev" and report.skipped == []
     assert [row.id for row in report.equal_spp] == [1, 2, 3, 4, 5, 6]   # the runs' own results
+    assert report.bounds == {"max_pt_spp": None, "strongest": ["pt", "pt-power", "pt-spatial"]}
+
+
+@pytest.mark.parametrize("honoured", [True, False])
+def test_comparison_report_bounds_its_pt_calibrations(monkeypatch, honoured):
+    """max_pt_spp and strongest bound the PT calibrations: each equal-time PT job tries
+    no spp above the ceiling, and only the named strongest-PT candidates are calibrated.
+    Planted defect (honoured=False): a report passing the bounds to nothing calibrates
+    more, which the same check rejects."""
+    import jobs.pareto.report as report_module
+
+    calls = fake_report_execute(monkeypatch)
+    if not honoured:
+        real = report_module.comparison_report
+        monkeypatch.setattr(report_module, "comparison_report",
+                            lambda *args, max_pt_spp=None, strongest=None, **kwargs:
+                            real(*args, **kwargs))
+    report = report_module.comparison_report("s", None, None, max_pt_spp=6,
+                                             strongest=("pt-power",))
+    at_time = [(method, params, budget) for method, params, _spp, budget in calls
+               if budget is not None and "ms" in budget]
+    within = (len(at_time) == 3 * 2       # per matched method: the paper's PT, pt-power
+              and [method for method, params, _ in at_time] == ["pt", "pt-power"] * 3
+              and all(budget["candidates"] == [1, 2, 3, 4, 6] for *_, budget in at_time))
+    assert within == honoured, at_time
+    if honoured:
+        assert report.bounds == {"max_pt_spp": 6, "strongest": ["pt-power"]}
+        assert "strongest PT: pt-power 1 spp (= NRC time)" in [r.label for r in report.equal_time]
+        with pytest.raises(ValueError, match="strongest: give one or more of pt, pt-power"):
+            report_module.comparison_report("s", None, None, strongest=("nrc",))
 
 
 def test_every_cache_override_field_is_checked_at_parse_time():
