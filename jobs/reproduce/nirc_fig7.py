@@ -32,11 +32,20 @@ PRETRAIN_PER_FRAME = 2
 #: factor of NRC's (the calibration's grid of N_c is coarse: 1, 2, 4, ...).
 EQUAL_TIME_TOLERANCE = 1.1
 
+#: --quick's bounds on the report's PT calibrations (jobs/pareto/report.py): spp
+#: candidates up to this many (a PT row at a matched time that would spend more is
+#: flagged capped: less than equal time), and one strongest-PT candidate, as its rows
+#: serve no verdict here.
+QUICK_MAX_PT_SPP = 32
+QUICK_STRONGEST = ("pt",)
 QUICK_WHY = ("--quick: 16x16, K = 3 seeds (the least for MRSE's interval) of F = 4 frames "
              "after 8 pre-training frames (NRC's frame alone took 2 s at 16x16 on the loaded "
-             "machine); per scene 6 runs, the N_c calibration and 3 x 4 PT calibrations "
-             "(not minutes: one PT calibration to NRC's frame took 7 min at load 17-20, "
-             "docs/reproduce.md); timings taken on a loaded machine are used (noted)")
+             "machine); per scene 6 runs, the N_c calibration and 3 x 2 PT calibrations with "
+             f"spp candidates up to {QUICK_MAX_PT_SPP} and the strongest PT's candidate "
+             f"{', '.join(QUICK_STRONGEST)} alone (unbounded, one PT calibration to NRC's "
+             "frame took 7 min at load 17-20 over 18 spp candidates); a capped PT row has "
+             "less than equal time (its note says so); timings taken on a loaded machine "
+             "are used (noted)")
 FULL_WHY = ("--full: 64x64, K = 4, F = 64 after 128 pre-training frames, loaded timings "
             "left out (a GPU worker or an idle machine: hours per scene on 2 cores)")
 QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=1024, grid_preset="cpu",
@@ -101,6 +110,20 @@ def report_rows(report: Any) -> list[tuple[str, Any]]:
     return rows
 
 
+def pt_bounds(budget: Budget) -> dict[str, Any]:
+    """The report's PT calibration bounds at ``budget``: --quick's, none otherwise."""
+    return {"max_pt_spp": QUICK_MAX_PT_SPP, "strongest": QUICK_STRONGEST} \
+        if budget == QUICK else {}
+
+
+def pt_bounds_text(bounds: dict[str, Any]) -> str:
+    """:func:`pt_bounds` as the figure's settings state them."""
+    if not bounds:
+        return "unbounded"
+    return (f"spp candidates up to {bounds['max_pt_spp']}, strongest PT's candidates: "
+            f"{', '.join(bounds['strongest'])}")
+
+
 def scene_points(ctx: Context, scene: str, paper_scene: str | None,
                  notes: list[str]) -> list[Point]:
     """The report of ``scene`` at the context's budget as points (x: the row's place)."""
@@ -108,7 +131,7 @@ def scene_points(ctx: Context, scene: str, paper_scene: str | None,
     report = comparison_report(
         scene, ctx.store, ctx.settings, resolution=b.resolution, frames=b.frames,
         seeds=b.seeds, pretrain_frames=PRETRAIN_PER_FRAME * b.frames, ref_spp=b.ref_spp,
-        progress=ctx.progress, allow_loaded=b == QUICK)
+        progress=ctx.progress, allow_loaded=b == QUICK, **pt_bounds(b))
     rows = report_rows(report)
     pt1 = next((row.seconds_per_frame for _label, row in rows
                 if paper_series(row) == "pt 1spp"), None)
@@ -251,7 +274,8 @@ def equal_time_figure(ctx: Context, scenes: dict[str, str | None], figure: str,
         paper="nirc", figure=figure, title=title, mode="",
         settings={"resolution": f"{b.resolution}x{b.resolution}", "seeds K": b.seeds,
                   "frames F": b.frames, "pre-training frames": PRETRAIN_PER_FRAME * b.frames,
-                  "reference spp": b.ref_spp, "why": b.why},
+                  "reference spp": b.ref_spp,
+                  "PT calibrations": pt_bounds_text(pt_bounds(b)), "why": b.why},
         x_label="row", quantities=QUANTITIES, points=points,
         verdicts=verdicts(points, list(scenes)), notes=[
             "our scenes are the project's built-ins, not the paper's",

@@ -67,6 +67,14 @@ def test_fig7_keeps_each_run_once_with_the_papers_numbers_and_time_ratios(
     assert [scene for scene, _ in store.calls] == list(nirc_fig7.SCENES)
     quick = nirc_fig7.QUICK
     assert store.calls[0][1]["allow_loaded"] and store.calls[0][1]["frames"] == quick.frames
+    # --quick bounds the report's PT calibrations and says so; --full does not bound them.
+    assert (store.calls[0][1]["max_pt_spp"], store.calls[0][1]["strongest"]) == \
+        (nirc_fig7.QUICK_MAX_PT_SPP, nirc_fig7.QUICK_STRONGEST)
+    assert result.settings["PT calibrations"] == \
+        "spp candidates up to 32, strongest PT's candidates: pt"
+    full = nirc_fig7.measure(Context(nirc_fig7.FULL, store, None))
+    assert "max_pt_spp" not in store.calls[-1][1]
+    assert full.settings["PT calibrations"] == "unbounded"
     points = [p for p in result.points if p.scene == "white-room"]
     assert [p.run_id for p in points] == [1, 2, 3, 4, 5, 6, 7, 8, 9]
     assert points[6].series == "NIRC biased (N_c 2) (= paper's PT 2 spp time)"
