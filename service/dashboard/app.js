@@ -196,7 +196,32 @@ function comparisonTables(cmp) {
         <td>${num(m.delta)}</td><td>${num(m.ratio)}</td><td>${interval(m.delta_ci95)}</td>
         <td>${m.differs === null ? "–" : m.differs ? "yes" : "no"}</td><td class="text muted">${esc(m.interval_note)}</td></tr>`;
     }).join("")}</table>`).join("");
-  return `${head}${deltas}<p class="muted" id="comparison-note">note: ${esc(cmp.note)}</p>`;
+  return `${head}${deltas}${cmp.animation.map(animationComparison).join("")}<p class="muted" id="comparison-note">note: ${esc(cmp.note)}</p>`;
+}
+
+// Two animated runs (the compare answer's `animation`, jobs/views/animation_comparison.py):
+// per change both runs' frames to recover with their bootstrap intervals and whether they
+// differ (disjoint intervals), per segment both steady errors, both flickers; the error per
+// frame of both is drawn below (#compare-animation). Else why they are not comparable.
+function animationComparison(d) {
+  if (!d.comparable) return `<p class="status-failed animation-comparison">${esc(d.note)}</p>`;
+  const heads = `<th>run ${d.baseline}</th><th>run ${d.run}</th>`;
+  const differs = (x) => (x === null ? "–" : x ? "<b>differ</b>" : "no");
+  const spread = (r) => (r.low === null ? "" : ` ${interval([r.low, r.high])}`);
+  const recovery = (r) => (r.frames === null ? `<span class="muted">${esc(r.note)}</span>` : `${r.frames}${spread(r)}`);
+  const flicker = (f) => (f.mean === null ? `<span class="muted">${esc(f.note)}</span>` : `${num(f.mean)}${spread(f)}`);
+  return `<section class="animation-comparison"><h4>Animated: run ${d.run} against run ${d.baseline}</h4>
+    <table class="comparison recovery-comparison"><caption>frames to recover after each change (95 % bootstrap interval over seeds)</caption>
+    <tr><th>change at frame</th><th class="text">what changed</th>${heads}<th>differ</th></tr>
+    ${d.changes.map((c) => `<tr><td>${c.change_frame}</td><td class="text">${esc(c.label)}</td>
+      <td>${recovery(c.baseline)}</td><td>${recovery(c.run)}</td><td>${differs(c.differs)}</td></tr>`).join("")}</table>
+    <table class="comparison steady-comparison"><caption>steady MRSE per segment</caption>
+    <tr><th>frames</th>${heads}</tr>
+    ${d.segments.map((s) => `<tr><td>${s.first}–${s.last}</td><td>${num(s.baseline)}</td><td>${num(s.run)}</td></tr>`).join("")}</table>
+    ${d.flicker ? `<table class="comparison flicker-comparison"><caption>flicker (seed mean, 95 % Student t interval)</caption>
+    <tr>${heads}<th>differ</th></tr><tr><td>${flicker(d.flicker.baseline)}</td><td>${flicker(d.flicker.run)}</td><td>${differs(d.flicker.differs)}</td></tr></table>`
+      : "<p class='muted'>no flicker stored with these runs</p>"}
+    <p class="muted">${esc(d.note)}</p><div class="plots animation" id="compare-animation"></div></section>`;
 }
 
 async function runPage(runId, otherId) {
@@ -231,6 +256,12 @@ async function runPage(runId, otherId) {
   if (charts.convergence) await chart(conv, charts.convergence);
   else note(conv, charts.note);
   if (charts.animation) await animatedView(document.getElementById("animation"), charts.animation);
+  const compareAnimation = document.getElementById("compare-animation");
+  if (compareAnimation) {
+    const both = await api(`/charts/compare/${run.id}/${other.id}`);
+    if (both.animation) await chart(compareAnimation, both.animation);
+    else note(compareAnimation, both.note);
+  }
   await comparisonView(document.getElementById("compare"), run, other);
 }
 

@@ -10,7 +10,8 @@ from fastapi import APIRouter, HTTPException, Query, status
 from jobs.ci.history import MAX_HISTORY_RUNS, build_history
 from jobs.protocol.results import RunResult, RunResultDetail
 from jobs.protocol.versions import current_estimator_versions
-from jobs.views.animation_chart import animated_view
+from jobs.views.animation_chart import animated_view, frame_error_chart
+from jobs.views.animation_comparison import compare_animations
 from jobs.views.chart_groups import Setting, config_label, history_series_label, split_groups
 from jobs.views.charts import convergence_chart, error_time_chart, history_chart, sweep_chart
 from metrics import METRIC_VERSION
@@ -111,6 +112,26 @@ def run_charts(run_id: RowId, store: StoreDep) -> dict[str, Any]:
             "note": None if chart else "no convergence curve: the run has one frame "
                                        "(or stored none)",
             "animation": animated_view([_animated(detail, detail["metrics"])])}
+
+
+@router.get("/compare/{baseline_id}/{run_id}")
+def comparison_charts(baseline_id: RowId, run_id: RowId, store: StoreDep) -> dict[str, Any]:
+    """Two animated runs' error per frame on one chart, the baseline's changes as rules
+    (GET /api/v1/compare lists their recovery, steady errors and flicker); null, with
+    why, unless both are animated and comparable frame by frame
+    (jobs/views/animation_comparison.py)."""
+    runs = []
+    for found_id in (baseline_id, run_id):
+        run = store.get_run(found_id)
+        if run is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"no run {found_id}")
+        runs.append(RunResultDetail.of(run).model_dump(mode="json"))
+    delta = compare_animations(baseline_id, runs[0]["metrics"], run_id, runs[1]["metrics"])
+    comparable = delta is not None and delta.comparable
+    return {"runs": [baseline_id, run_id],
+            "animation": frame_error_chart([_animated(run, run["metrics"]) for run in runs])
+            if comparable else None,
+            "note": None if comparable else delta.note if delta else "neither run is animated"}
 
 
 @router.get("/sweeps/{sweep_id}")
