@@ -1,6 +1,10 @@
 """[DKHD24] Fig. 6 (Sec. 6.1): the relative variance of the residual estimator,
 V_rel(<F_r>), of the control variates the paper compares (per-pixel SH and vMF, NCV)
-and of the neural caches (SS NIRC, unbiased NIRC with 6 hidden layers).
+and of the neural caches (SS NIRC, unbiased NIRC with 6 hidden layers), and
+the fitted integrands: at the first hits of three pixels of cornell-box, the reference
+integrand f = L_ind f_s cos over the sphere of directions and SH's, vMF's, NCV's and
+NIRC's fit of it after the F frames, drawn as integrands.png beside the figure
+(jobs/reproduce/nirc_fig6_integrands.py).
 
 Ours: each method at its equal-memory preset where it has one (SH 5 bands, 75 floats
 per pixel; vMF 11 lobes, 77; SS NIRC's latent table, 74), NCV and NIRC at their
@@ -18,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from jobs.reproduce import nirc_fig6_curves as curves
+from jobs.reproduce import nirc_fig6_integrands as integrands
 from jobs.reproduce.measure import sweep
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
@@ -91,6 +96,11 @@ CURVE_WHY = ("EMA curves: one seed per scene and method, a residual probe after 
 EMA_NOTE = (f"EMA (alpha {curves.ALPHA}) of V_rel after each training frame, one seed; "
             "no interval")
 
+INTEGRANDS_NOTE = ("integrands.png: f = L_ind f_s cos at the first hits of three cornell-box "
+                   "pixels on a 64x32 lat-long grid of directions in the shading frame "
+                   "(reference: {spp} paths a direction), beside SH's, vMF's and NCV's g and "
+                   "NIRC's n f_s cos after {frames} training frames; symmetric log colour "
+                   "scale per row")
 V_REL_NOTE = "V_rel: the K seeds' mean; 95 % interval: log-scale over the seeds (docs/metrics.md)"
 
 
@@ -128,6 +138,9 @@ def measure(ctx: Context) -> Reproduction:
                 "floats_per_pixel": Estimate(value=floats_per_pixel(run, b.resolution**2))}))
     curve_points, curve_note = ema_points(ctx)
     points += curve_points
+    if ctx.progress:
+        ctx.progress("integrand images", 0, 1)
+    images = integrands.measure_integrands(ctx, {s[0]: s[2] for s in SERIES})
     return Reproduction(
         paper="nirc", figure="fig6", title="[DKHD24] Fig. 6: V_rel(<F_r>) of the control "
                                            "variates and the neural caches",
@@ -139,7 +152,8 @@ def measure(ctx: Context) -> Reproduction:
                "of the one-sample residual at the primary hit with the final model, over "
                "R² + eps (NIRC: F_r of Eq. 11; control variates: (f - g) / q of Eq. 7)",
                "ms per frame: the median frame on this shared 2-core CPU, not the paper's GPU",
-               curve_note, "not reproduced: the integrand images"])
+               curve_note, INTEGRANDS_NOTE.format(spp=images.spp, frames=images.frames)],
+        images={"integrands": images})
 
 
 def ema_points(ctx: Context) -> tuple[list[Point], str]:
@@ -238,7 +252,11 @@ def _verdict(claim: str, signs: list[int], detail: str, short: str) -> Verdict:
 
 
 def draw(reproduction: Reproduction, path: Path) -> Path:
-    """figure.png (V_rel per series) and, beside it, ema.png (the EMA curves)."""
+    """figure.png (V_rel per series) and, beside it, ema.png (the EMA curves) and, when
+    measured now (they are not kept in the table), integrands.png."""
+    if "integrands" in reproduction.images:
+        integrands.draw_integrands(reproduction.images["integrands"],
+                                   path.with_name("integrands.png"))
     plot_panels(reproduction.model_copy(update={"x_label": "training frame"}),
                 [Panel("v_rel_ema", f"{scene}: EMA of V_rel per frame", scene=scene)
                  for scene in SCENES], path.with_name("ema.png"), log_x=True)

@@ -54,14 +54,23 @@ def kept_frames(frames: int) -> list[int]:
 
 
 def ncv_frames(scene: Any, params: Any, seed_parts: tuple[Any, ...], frames: int,
-               after_frame: Callable[[Any], None]) -> None:
-    """`ncv` trained ``frames`` frames as its method trains it (renderers.methods.cv_frames:
-    render, then fit), the residual probe after each."""
+               after_frame: Callable[[Any], None] | None) -> Any:
+    """`ncv` trained ``frames`` frames as its method trains it: :func:`model_frames`."""
+    from renderers.methods.ncv import ncv_model
+
+    return model_frames(ncv_model, scene, params, seed_parts, frames, after_frame)
+
+
+def model_frames(make_model: Callable[..., Any], scene: Any, params: Any,
+                 seed_parts: tuple[Any, ...], frames: int,
+                 after_frame: Callable[[Any], None] | None) -> Any:
+    """The control-variate model ``make_model`` builds (renderers.methods.cv_frames'
+    factories) trained ``frames`` frames as its method trains it (render, then fit), the
+    residual probe after each (none without ``after_frame``); returns the model."""
     import mitsuba as mi
 
     from renderers.integrators import control_variate, register_plugins
     from renderers.methods.cv_frames import ModelFrames, probe_residuals
-    from renderers.methods.ncv import ncv_model
     from renderers.seeding import derive_seed
     from renderers.timing import StageTimer
 
@@ -69,21 +78,24 @@ def ncv_frames(scene: Any, params: Any, seed_parts: tuple[Any, ...], frames: int
     integrator = mi.load_dict({"type": control_variate.PLUGIN_NAME,
                                "max_depth": params.max_depth,
                                "uniform_fraction": params.uniform_fraction})
-    model = ncv_model(params, scene, seed_parts)
+    model = make_model(params, scene, seed_parts)
     frame = ModelFrames(scene, integrator.with_model(model), model, 1)
     for index in range(frames):
         frame(index, derive_seed(*seed_parts, index), StageTimer())
+        if after_frame is None:
+            continue
         probe = SimpleNamespace(method_stats={}, residual_variance=None)
         probe_residuals(scene, integrator, model, probe, spp=PROBE_SPP,
                         seed=derive_seed(*seed_parts, "residual probe", index))
         after_frame(probe.residual_variance)
+    return model
 
 
 def nirc_frames(scene: Any, params: Any, seed_parts: tuple[Any, ...], frames: int,
-                after_frame: Callable[[Any], None]) -> None:
+                after_frame: Callable[[Any], None] | None) -> tuple[Any, Any]:
     """Unbiased `nirc` trained ``frames`` frames as its method trains it
     (renderers.methods.cached: a training step before each frame), the residual probe
-    after each."""
+    after each (none without ``after_frame``); returns its integrator and cache."""
     from renderers.methods import get_method
     from renderers.methods.base import FrameHooks
     from renderers.methods.cached import probe_residuals, render_with_cache
@@ -93,6 +105,8 @@ def nirc_frames(scene: Any, params: Any, seed_parts: tuple[Any, ...], frames: in
                                                           derive_seed(*seed_parts, "cache"))
 
     def probe(index: int, _rgb: Any, _accumulated: Any) -> None:
+        if after_frame is None:
+            return
         result = SimpleNamespace(method_stats={}, residual_variance=None)
         probe_residuals(scene, params, cache, result, spp=PROBE_SPP,
                         seed=derive_seed(*seed_parts, "residual probe", index))
@@ -100,6 +114,7 @@ def nirc_frames(scene: Any, params: Any, seed_parts: tuple[Any, ...], frames: in
 
     render_with_cache(scene, params, integrator, trainer, cache, seed_parts=seed_parts,
                       spp=1, frames=frames, hooks=FrameHooks(on_frame=probe, warmup=False))
+    return integrator, cache
 
 
 def v_rel_curve(train: Callable[..., None], scene: Any, params: Any,

@@ -71,6 +71,9 @@ class Reproduction(BaseModel):
                                  description="points rendered now and read from the store")
     verdicts: list[Verdict] = Field(default_factory=list,
                                     description="per claim: does it hold here, and why")
+    images: dict[str, Any] = Field(default_factory=dict, exclude=True,
+                                   description="data a figure draws beside its plot (e.g. "
+                                               "integrand images), not written to its table")
 
     def markdown(self) -> str:
         settings = ", ".join(f"{k} {v}" for k, v in self.settings.items())

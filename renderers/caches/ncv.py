@@ -88,17 +88,23 @@ def ncv_config(**overrides: Any) -> NCVConfig:
     return NCVConfig(**overrides)
 
 
-def pixel_surfaces(scene: mi.Scene) -> tuple[mi.Point3f, mi.Vector3f, mi.Bool]:
-    """Position, shading normal and hit of the ray through each pixel's centre, in the
-    order of the render's pixel index (row-major over the film's crop window)."""
+def centre_rays(scene: mi.Scene, index: mi.UInt32) -> mi.Ray3f:
+    """The camera rays through the centres of the pixels ``index`` (the render's pixel
+    index: row-major over the film's crop window)."""
     sensor = scene.sensors()[0]
     film = sensor.film()
-    width, height = (int(v) for v in film.crop_size())
-    index = dr.arange(mi.UInt32, width * height)
+    width = int(film.crop_size()[0])
     centre = (mi.Vector2f(mi.Float(index % width), mi.Float(index // width)) + 0.5
               + mi.Vector2f(film.crop_offset())) / mi.Vector2f(film.size())
     ray, _ = sensor.sample_ray(0.0, 0.5, centre, mi.Point2f(0.5))
-    si = scene.ray_intersect(ray)
+    return ray
+
+
+def pixel_surfaces(scene: mi.Scene) -> tuple[mi.Point3f, mi.Vector3f, mi.Bool]:
+    """Position, shading normal and hit of the ray through each pixel's centre, in the
+    order of the render's pixel index (row-major over the film's crop window)."""
+    width, height = (int(v) for v in scene.sensors()[0].film().crop_size())
+    si = scene.ray_intersect(centre_rays(scene, dr.arange(mi.UInt32, width * height)))
     hit = si.is_valid()
     normal = dr.select(hit, si.sh_frame.n, mi.Vector3f(0, 0, 1))
     return dr.select(hit, si.p, 0.0), normal, hit

@@ -131,6 +131,16 @@ class ControlVariateIntegrator(mi.SamplingIntegrator):
         f_cos = bsdf.eval(smooth_context(), si, si.to_local(ds.d), seen)
         return dr.select(seen, f_cos * emitted, 0.0)
 
+    def indirect(self, scene: mi.Scene, sampler: mi.Sampler, si: mi.SurfaceInteraction3f,
+                 w: mi.Vector3f, active: mi.Bool) -> mi.Spectrum:
+        """<L_ind(x, w)>: one path traced from x along the world direction w, without the
+        emission of the point y it hits (module docstring)."""
+        # L_ind = L_i - L_e(y): NEE at x counts the emission the direction reaches.
+        toward = si.spawn_ray(w)
+        y = scene.ray_intersect(toward, active)
+        L_i, _, _ = self.incident.sample(scene, sampler, toward, None, active)
+        return L_i - y.emitter(scene, active).eval(y, active)
+
     def sample(self, scene: mi.Scene, sampler: mi.Sampler, ray: mi.RayDifferential3f,
                medium: mi.Medium = None,
                active: mi.Bool = True) -> tuple[mi.Spectrum, mi.Bool, list[mi.Float]]:
@@ -147,11 +157,7 @@ class ControlVariateIntegrator(mi.SamplingIntegrator):
         w_local, f_cos, q, produced = self.sample_direction(si, bsdf, sampler, hit)
         w = si.to_world(w_local)
         lit = produced & (dr.max(mi.unpolarized_spectrum(f_cos)) > 0)
-        # L_ind = L_i - L_e(y): NEE at x counts the emission the direction reaches.
-        toward = si.spawn_ray(w)
-        y = scene.ray_intersect(toward, lit)
-        L_i, _, _ = self.incident.sample(scene, sampler, toward, None, lit)
-        f = dr.select(lit, f_cos * (L_i - y.emitter(scene, lit).eval(y, lit)), 0.0)
+        f = dr.select(lit, f_cos * self.indirect(scene, sampler, si, w, lit), 0.0)
         g = self.model.eval(pixel, w, produced)
         # Eq. 7: G + (f - g) / q; a direction not produced adds no residual.
         residual = dr.select(produced, (f - g) / q, 0.0)

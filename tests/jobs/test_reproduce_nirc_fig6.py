@@ -1,6 +1,7 @@
 """`reproduce nirc fig6` from stubbed stored runs and stubbed training curves (V_rel
 itself is tested in tests/renderers/test_control_variates.py and
-test_residual_variance.py): its series, floats per pixel, EMA curves, table and PNGs,
+test_residual_variance.py): its series, floats per pixel, EMA curves, table and PNGs
+(the integrand images' data stubbed: tests/jobs/test_reproduce_nirc_fig6_integrands.py),
 and verdicts that turn with the numbers (a planted NIRC above NCV is 'does not hold',
 overlapping intervals 'not comparable'); the moving average leaves out frames without a
 V_rel (planted: one that averages them in)."""
@@ -41,6 +42,18 @@ def stub_curves(monkeypatch: pytest.MonkeyPatch) -> None:
         return CURVES[seed_parts[2]][:frames]
 
     monkeypatch.setattr(curves, "v_rel_curve", v_rel_curve)
+    monkeypatch.setattr(nirc_fig6.integrands, "measure_integrands", stub_integrands)
+
+
+def stub_integrands(ctx: Any, series: dict[str, dict[str, Any]]) -> Any:
+    """No training or reference paths for the integrand images: constant images, one
+    pixel, the series' labels the figure passes."""
+    import numpy as np
+
+    columns = [nirc_fig6.integrands.REFERENCE, *series]
+    return nirc_fig6.integrands.Integrands("cornell-box", [(3, 8)], columns,
+                                           np.full((1, len(columns), 4, 8), 0.1), 8,
+                                           ctx.budget.frames)
 
 
 def stub_sweep(nirc_v_rel: float) -> Any:
@@ -64,6 +77,8 @@ def test_fig6_tables_every_scene_and_series_with_its_floats(
     result, paths = reproduce("nirc", "fig6", "quick", tmp_path, None, None)
     assert paths["figure"].read_bytes()[:4] == b"\x89PNG"
     assert (paths["figure"].parent / "ema.png").read_bytes()[:4] == b"\x89PNG"
+    assert (paths["figure"].parent / "integrands.png").read_bytes()[:4] == b"\x89PNG"
+    assert "\"images\"" not in paths["json"].read_text()   # the data is not in the table
     table = [p for p in result.points if "v_rel" in p.values]
     assert len(table) == len(nirc_fig6.SCENES) * (len(nirc_fig6.SERIES) + 2)   # equal memory
     floats = {p.series: p.values["floats_per_pixel"].value for p in table}
