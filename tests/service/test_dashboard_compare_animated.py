@@ -7,6 +7,7 @@ rendered; the screenshot is kept in test-artifacts/."""
 
 from __future__ import annotations
 
+import httpx
 import numpy as np
 import pytest
 
@@ -105,3 +106,11 @@ def test_an_animated_and_a_static_run_are_not_comparable(chromium, site):
         ".animation-comparison").inner_text()
     assert page.locator("table.recovery-comparison, #compare-animation").count() == 0
     assert errors == [NOT_FOUND] * len(missing), (errors, missing)
+
+
+def test_the_chart_of_two_runs_answers_a_missing_run_with_404_and_a_bad_id_with_422(site):
+    missing = httpx.get(f"{site}/api/v1/charts/compare/1/99")
+    assert (missing.status_code, missing.json()["detail"]) == (404, "no run 99")
+    assert httpx.get(f"{site}/api/v1/charts/compare/0/1").status_code == 422
+    static = httpx.get(f"{site}/api/v1/charts/compare/4/1").json()
+    assert static["animation"] is None and "run 1 is animated, run 4 static" in static["note"]
