@@ -163,7 +163,7 @@ def draw(reproduction: Reproduction, path: Path) -> Path:
     return plot_panels(reproduction, [Panel("ms_per_frame", "biased NIRC: ms per frame",
                                             log_y=False),
                                       Panel("render_ms", "render + inference stages",
-                                            log_y=False)], path, log_x=True)
+                                            log_y=False)], path, log_x=False)
 
 
 FIGURE = register(FigureSpec("nirc", "fig5", "Time per additional neural sample: biased "
