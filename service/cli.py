@@ -42,6 +42,7 @@ from service.cli_common import (
     open_settings,
     open_store,
     print_json,
+    submit_and_wait,
 )
 from service.errors import UsageError, describe_user_error, is_user_error
 from service.progress import progress_reporter
@@ -103,15 +104,7 @@ def _run_remote(server: str, api_key: str | None, queued: Any, as_json: bool,
                           "same content fingerprint as a local run of the file)",
                           markup=False, highlight=False)
         spec = {**spec, "scene": uploaded}
-    job = client.submit(queued.kind, spec)
-    if not as_json:
-        console.print(f"job {job['id']} submitted to {server} ({job['status']})")
-    with progress_reporter(console, quiet=as_json) as report:
-        job = client.wait(job["id"], progress=report)
-    if job["status"] != "succeeded":
-        from service.client import RemoteError
-
-        raise RemoteError(f"job {job['id']} {job['status']}: {job['error']}")
+    job = submit_and_wait(client, queued.kind, spec, server, as_json)
     result = client.get(remote.result_path(job))
     if as_json:
         print_json(result)

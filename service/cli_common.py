@@ -89,3 +89,20 @@ Server = Annotated[str | None, typer.Option(
     help="submit to a running service (e.g. http://host:8000) instead of running here")]
 ApiKeyOpt = Annotated[str | None, typer.Option(
     "--api-key", envvar="NIRC_BENCH_API_KEY", help="API key for --server")]
+
+
+def submit_and_wait(client: Any, kind: str, spec: dict[str, Any], server: str,
+                    as_json: bool) -> dict[str, Any]:
+    """Submit a ``kind`` job of ``spec`` through ``client`` (service.client.ServiceClient),
+    follow its progress and return the finished job; RemoteError unless it succeeded."""
+    from service.client import RemoteError
+    from service.progress import progress_reporter
+
+    job = client.submit(kind, spec)
+    if not as_json:
+        console.print(f"job {job['id']} submitted to {server} ({job['status']})")
+    with progress_reporter(console, quiet=as_json) as report:
+        job = client.wait(job["id"], progress=report)
+    if job["status"] != "succeeded":
+        raise RemoteError(f"job {job['id']} {job['status']}: {job['error']}")
+    return job

@@ -18,6 +18,7 @@ from service.cli_common import (
     open_settings,
     open_store,
     print_json,
+    submit_and_wait,
 )
 from service.errors import UsageError
 
@@ -169,17 +170,10 @@ def _run_remote(server: str, api_key: str | None, spec: dict[str, str],
     """Submit the reproduction to the service at ``server`` as a job, follow its
     progress, print the stored reproduction (its table, verdicts and provenance)."""
     from jobs.reproduce.results import Reproduction
-    from service.client import RemoteError, ServiceClient
-    from service.progress import progress_reporter
+    from service.client import ServiceClient
 
     client = ServiceClient(server, api_key)
-    job = client.submit("reproduce", spec)
-    if not as_json:
-        console.print(f"job {job['id']} submitted to {server} ({job['status']})")
-    with progress_reporter(console, quiet=as_json) as report:
-        job = client.wait(job["id"], progress=report)
-    if job["status"] != "succeeded":
-        raise RemoteError(f"job {job['id']} {job['status']}: {job['error']}")
+    job = submit_and_wait(client, "reproduce", spec, server, as_json)
     stored = client.get(f"/api/v1/reproductions/{job['id']}")
     if as_json:
         print_json(stored)

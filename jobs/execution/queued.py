@@ -114,11 +114,9 @@ class QueuedRender(_Queued):
                          "run_reused": int(summary.reused)}}
 
 
-class QueuedSweep(_Queued):
-    """A sweep job: its stages run as jobs of their own, then its last step here."""
-
-    kind: Literal["sweep"] = "sweep"
-    spec: SweepSpec
+class _SpecQueued(_Queued):
+    """A job whose stored row is its ``spec`` (a sweep, a reproduction): parsed back from
+    the row, stored and keyed by it."""
 
     @model_validator(mode="before")
     @classmethod
@@ -132,6 +130,13 @@ class QueuedSweep(_Queued):
 
     def key(self, device_class: str) -> str:
         return spec_key(self.kind, self.spec, device_class)
+
+
+class QueuedSweep(_SpecQueued):
+    """A sweep job: its stages run as jobs of their own, then its last step here."""
+
+    kind: Literal["sweep"] = "sweep"
+    spec: SweepSpec
 
     @property
     def scene(self) -> str:
@@ -202,24 +207,11 @@ class QueuedStage(_Queued):
         return {"work": run_stage(self.sweep, self.task, store, settings, progress=progress)}
 
 
-class QueuedReproduce(_Queued):
+class QueuedReproduce(_SpecQueued):
     """A registered figure of a paper at the budget of ``mode`` (jobs/reproduce/job.py)."""
 
     kind: Literal["reproduce"] = "reproduce"
     spec: ReproduceSpec
-
-    @model_validator(mode="before")
-    @classmethod
-    def _from_row(cls, data: Any) -> Any:
-        if isinstance(data, dict) and "stored" in data:
-            return {"kind": data["kind"], "spec": data["stored"]}
-        return data
-
-    def stored(self) -> dict[str, Any]:
-        return self.spec.model_dump(mode="json")
-
-    def key(self, device_class: str) -> str:
-        return spec_key(self.kind, self.spec, device_class)
 
     @property
     def scene(self) -> str:
