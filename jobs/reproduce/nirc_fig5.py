@@ -58,12 +58,6 @@ def render_ms(row: Any) -> float | None:
     return parts["render"] + parts.get("inference", 0.0)
 
 
-def t_quantile(dof: int) -> float:
-    from scipy.stats import t
-
-    return float(t.ppf(0.975, dof))
-
-
 def slope(pairs: list[tuple[float, float]]) -> Estimate:
     """The least-squares slope of y on x with its t interval (:data:`SLOPE_NOTE`)."""
     n = len(pairs)
@@ -74,7 +68,9 @@ def slope(pairs: list[tuple[float, float]]) -> Estimate:
     sxx = sum((x - mean_x) ** 2 for x, _ in pairs)
     b = sum((x - mean_x) * (y - mean_y) for x, y in pairs) / sxx
     residual = sum((y - mean_y - b * (x - mean_x)) ** 2 for x, y in pairs)
-    half = t_quantile(n - 2) * math.sqrt(residual / (n - 2) / sxx)
+    from metrics.statistics import t_quantile
+
+    half = t_quantile(0.975, n - 2) * math.sqrt(residual / (n - 2) / sxx)
     return Estimate(value=b, ci95=[b - half, b + half], note=SLOPE_NOTE)
 
 
