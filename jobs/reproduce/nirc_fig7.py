@@ -110,6 +110,10 @@ def report_rows(report: Any) -> list[tuple[str, Any]]:
     return rows
 
 
+#: The mark of a row whose PT calibration reached the spp cap (less than equal time).
+CAPPED = "[capped]"
+
+
 def pt_bounds(budget: Budget) -> dict[str, Any]:
     """The report's PT calibration bounds at ``budget``: --quick's, none otherwise."""
     return {"max_pt_spp": QUICK_MAX_PT_SPP, "strongest": QUICK_STRONGEST} \
@@ -132,7 +136,8 @@ def scene_points(ctx: Context, scene: str, paper_scene: str | None,
         scene, ctx.store, ctx.settings, resolution=b.resolution, frames=b.frames,
         seeds=b.seeds, pretrain_frames=PRETRAIN_PER_FRAME * b.frames, ref_spp=b.ref_spp,
         progress=ctx.progress, allow_loaded=b == QUICK, **pt_bounds(b))
-    rows = report_rows(report)
+    rows = [(f"{label} {CAPPED}" if "calibration capped" in row.note else label, row)
+            for label, row in report_rows(report)]
     pt1 = next((row.seconds_per_frame for _label, row in rows
                 if paper_series(row) == "pt 1spp"), None)
     points = []
@@ -203,10 +208,18 @@ def judge(claim: str, found: dict[str, tuple[int, str] | str], paper: str) -> Ve
 
 def against(points: list[Point], scenes: list[str], ours: Any, theirs: Any
             ) -> dict[str, tuple[int, str] | str]:
+    """Per scene ours against theirs (:func:`lower_error`); a win against a PT row whose
+    calibration was capped (less than equal time) decides nothing."""
     found: dict[str, tuple[int, str] | str] = {}
     for scene in scenes:
         a, b = _find(points, scene, ours), _find(points, scene, theirs)
-        found[scene] = "rows missing" if a is None or b is None else lower_error(a, b)
+        if a is None or b is None:
+            found[scene] = "rows missing"
+            continue
+        sign, text = lower_error(a, b)
+        if sign == 1 and b.series.endswith(CAPPED):
+            sign, text = 0, f"{text}, but PT's spp was capped below equal time"
+        found[scene] = (sign, text)
     return found
 
 

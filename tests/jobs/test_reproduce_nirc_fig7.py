@@ -21,17 +21,18 @@ MRSE, FLIP = 1.0, 0.5
 
 
 def row(row_id: int, label: str, method: str, ms: float, error: float, spp: int = 1,
-        estimator: str | None = None) -> SimpleNamespace:
+        estimator: str | None = None, note: str = "") -> SimpleNamespace:
     return SimpleNamespace(id=row_id, label=label, method=method, spp=spp,
                            params={"estimator": estimator} if estimator else {},
                            seconds_per_frame=ms / 1e3, mrse=MRSE * error,
                            mrse_ci95=[0.9 * MRSE * error, 1.1 * MRSE * error],
-                           flip=FLIP * error, timing_flags=[], error=error)
+                           flip=FLIP * error, timing_flags=[], error=error, note=note)
 
 
-def stub(nirc_error: float, nirc_ms: float) -> tuple[Any, Any]:
+def stub(nirc_error: float, nirc_ms: float, capped: bool = False) -> tuple[Any, Any]:
     """A report whose NIRC rows have ``nirc_error`` times PT's errors, NIRC biased at
-    ``nirc_ms`` (NRC: 20 ms), and a store of the rows' seeds."""
+    ``nirc_ms`` (NRC: 20 ms), and a store of the rows' seeds; ``capped``: the PT row at
+    unbiased NIRC's time reached the calibration's spp cap."""
     rows: dict[int, SimpleNamespace] = {}
     calls = []
 
@@ -46,7 +47,9 @@ def stub(nirc_error: float, nirc_ms: float) -> tuple[Any, Any]:
         time = [spp[1], row(7, "NIRC biased (N_c 2)", "nirc", nirc_ms, nirc_error,
                             estimator="biased"),
                 spp[2], row(8, "paper's PT 2 spp (= NRC time)", "pt", 20, 1.0, spp=2),
-                spp[4], row(9, "paper's PT 4 spp (= NIRC unbiased time)", "pt", 40, 1.0, spp=4)]
+                spp[4], row(9, "paper's PT 4 spp (= NIRC unbiased time)", "pt", 40, 1.0, spp=4,
+                            note="calibration capped: spp 4 is the largest candidate"
+                            if capped else "")]
         time[0] = SimpleNamespace(**{**vars(spp[1]), "label": "paper's PT 2 spp (budget)"})
         rows.update({r.id: r for r in [*spp, *time]})
         return SimpleNamespace(equal_spp=spp, equal_time=time, left_out=[], skipped=[])
@@ -103,6 +106,19 @@ def test_fig7_verdicts_follow_the_numbers(nirc_error: float, nirc_ms: float,
     assert [v.verdict for v in verdicts] == expected
     if nirc_ms == 30:
         assert "fastest 1.50x" in verdicts[2].reason
+
+
+def test_a_win_against_a_capped_pt_row_decides_nothing(monkeypatch: pytest.MonkeyPatch
+                                                       ) -> None:
+    """PT capped below equal time favours NIRC: its win there is 'not comparable' (the
+    same numbers against an uncapped row hold, above); a loss still does not hold."""
+    for nirc_error, expected in ((0.2, "not comparable"), (2.0, "does not hold")):
+        report, store = stub(nirc_error, 20, capped=True)
+        monkeypatch.setattr(nirc_fig7, "comparison_report", report)
+        result = nirc_fig7.measure(Context(nirc_fig7.QUICK, store, None))
+        assert result.verdicts[0].verdict == expected
+        assert any(p.series.endswith(nirc_fig7.CAPPED) for p in result.points)
+        assert ("capped below equal time" in result.verdicts[0].reason) == (nirc_error < 1)
 
 
 def test_fig8_is_the_comparison_on_door_without_the_papers_numbers_drawn(
