@@ -455,18 +455,30 @@ def report(
     allow_loaded: Annotated[bool, typer.Option(
         "--allow-loaded", help="use timings taken on a loaded machine for the equal-time "
                                "rows (default: left out and listed)")] = False,
+    max_pt_spp: Annotated[int | None, typer.Option(
+        "--max-pt-spp", min=1, max=1_000_000,
+        help="largest spp a PT calibration tries (a PT row that would need more is "
+             "flagged capped: less than equal time; default: the knob's candidates)")] = None,
+    strongest: Annotated[str | None, typer.Option(
+        "--strongest", help="comma list of the strongest PT's candidates to calibrate "
+                            "(default: all of pt, pt-power, pt-spatial)")] = None,
     as_json: JsonOut = False,
     data_dir: DataDir = None,
 ) -> None:
     """Compare PT, NRC and NIRC on a scene (NIRC paper Fig. 7): equal spp and equal time."""
     from jobs.pareto.report import comparison_report
+    from jobs.views.baselines import pt_core_methods
     from service.tables import comparison_tables
 
+    candidates = None if strongest is None else \
+        tuple(dict.fromkeys(m.strip() for m in strongest.split(",") if m.strip()))
+    if candidates is not None and (not candidates or set(candidates) - set(pt_core_methods())):
+        raise UsageError(f"--strongest: give one or more of {', '.join(pt_core_methods())}")
     _run_embedded(
         lambda store, settings, report: comparison_report(
             scene, store, settings, resolution=res, frames=frames, seeds=seeds,
             pretrain_frames=pretrain, max_depth=max_depth, ref_spp=ref_spp, progress=report,
-            allow_loaded=allow_loaded),
+            allow_loaded=allow_loaded, max_pt_spp=max_pt_spp, strongest=candidates),
         data_dir, as_json, lambda r: r.model_dump(mode="json"), comparison_tables)
 
 

@@ -95,6 +95,17 @@ BAD_SWEEP = [
 ]
 
 
+#: The report's PT calibration bounds (a typo names the candidates instead of rendering).
+BAD_REPORT = [
+    (("--strongest", "pt,pt-powr"), "pt-power"),
+    (("--max-pt-spp", "0"), "--max-pt-spp"),
+]
+
+
+def _report_call(args: tuple[str, ...]) -> tuple[str, ...]:
+    return ("report", "--scene", "cornell-box", *args)
+
+
 def _render_call(args: tuple[str, ...]) -> tuple[str, ...]:
     return ("render", "--scene", "cornell-box", *args)
 
@@ -105,7 +116,8 @@ def _sweep_call(args: tuple[str, ...]) -> tuple[str, ...]:
 
 @pytest.fixture(scope="module")
 def error_calls(tmp_path_factory) -> Iterator[dict[tuple[str, ...], Future]]:
-    calls = [_render_call(a) for a, _ in OUT_OF_RANGE] + [_sweep_call(a) for a, _ in BAD_SWEEP]
+    calls = ([_render_call(a) for a, _ in OUT_OF_RANGE] + [_sweep_call(a) for a, _ in BAD_SWEEP]
+             + [_report_call(a) for a, _ in BAD_REPORT])
     yield from started_together(calls, tmp_path_factory.mktemp("errors"))
 
 
@@ -113,6 +125,11 @@ def error_calls(tmp_path_factory) -> Iterator[dict[tuple[str, ...], Future]]:
 def test_out_of_range_numbers_are_clear_errors(error_calls, args, fragment):
     proc = error_calls[_render_call(args)].result()
     assert_clean_error(proc, fragment)
+
+
+@pytest.mark.parametrize("args, fragment", BAD_REPORT)
+def test_bad_report_bounds_are_clear_errors(error_calls, args, fragment):
+    assert_clean_error(error_calls[_report_call(args)].result(), fragment)
 
 
 def test_missing_libllvm_is_a_clear_error(tmp_path):
