@@ -5,7 +5,8 @@ idempotency keys, references, the method parameters that go into sweep-point and
 snapshot keys) are those computed by the code before jobs were parsed once: the
 values below were computed with it, so stored results stay comparable. A
 method's estimator version is part of its render keys, so a bump gives new ones:
-the restir values are those of `restir-di` version 3 (pairwise MIS). The metric
+the restir values are those of `restir-di` version 4 (temporal reuse along motion
+vectors). The metric
 version is part of every key but the parameters' (references included): GOLDEN holds
 those of metric version 3 (a cache method's rBias² the mean over its caches), and at
 version 2 the code still gives the values from before.
@@ -69,9 +70,9 @@ GOLDEN_METRIC_VERSION_2 = {
     "reference nrc_budget":
         "3052614eb2624108d207454ec5c419a5",
     "render-spec restir":
-        "f0e588ac9d510e368946362ba8a60d260561c59054bc1f965d88fe537919e9ee",
+        "2d741ba0c5990a5857005ea3881a7c4030de7ccebfaf7a187e030e138bf22546",
     "idempotency render restir":
-        "b40e80f4ca65f654a39ee4b6d088304a538460ce6eda5d8e19d35782ec4ecf04",
+        "020b7e47c0f2060d5b8afb71eb4e042c025d72e57ac57cce328afa85e055171b",
     "reference restir":
         "614aaaa5d49d8d801ac6691d429eb33b",
     "sweep-spec eps":
@@ -115,9 +116,9 @@ GOLDEN = GOLDEN_METRIC_VERSION_2 | {
     "reference nrc_budget":
         "8a051e1238ea066ca5ae9b46f38c38fd",
     "render-spec restir":
-        "f4b1de15769da83d4bbc5e7dc9324fba9360059d952e9427973263ad2310ee4d",
+        "ca1999f96ac7818015bd8b4d0430e8f865811aeaec17691082e93fbb35967e0b",
     "idempotency render restir":
-        "02a1362294ba34bd31c552d4683b0ebc5dfe41d402817b9a5843b2d71a2e1856",
+        "4a3cf138d2e8b228a6cdcb374e8b5635546eb63143c77edb5b26fb20d5080063",
     "reference restir":
         "e43fd70126694313b3d2c3e797dc254d",
     "sweep-spec eps":

@@ -59,7 +59,7 @@ def _trained(scene, frames=TRAIN_FRAMES, seed=0, **params):
 # ---------------------------------------------------------------------------
 
 def _features(emitters, shapes=4):
-    return SimpleNamespace(emitter_count=emitters, shape_count=shapes)
+    return SimpleNamespace(emitter_count=emitters, shape_count=shapes, animation_changes=())
 
 
 def test_registered_with_pt_parameters_and_the_papers_defaults():

@@ -99,7 +99,7 @@ def test_sweep_roles_keep_todays_series_and_labels():
 def _features(**values):
     base = dict(shape_count=3, emitter_count=2, area_emitter_count=2, has_envmap=True,
                 has_many_lights=False, has_glossy=False, has_delta=False,
-                polygon_emitter_count=2)
+                polygon_emitter_count=2, animation_changes=())
     return SimpleNamespace(**{**base, **values})
 
 
