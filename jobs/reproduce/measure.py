@@ -60,6 +60,12 @@ def metric(row: Any, field: str, scale: float = 1.0) -> Estimate:
                     note=f"{field}: {getattr(row, f'{field}_ci_note')}")
 
 
+def frame_ms(row: Any) -> Estimate:
+    """A row's median frame in milliseconds (no interval: one median)."""
+    seconds = row.seconds_per_frame
+    return Estimate(value=None if seconds is None else 1e3 * seconds)
+
+
 def sample_variance(run: Any, scale: float = 1.0) -> Estimate:
     """rVar₁ (:data:`SAMPLE_VARIANCE_NOTE`) times ``scale``: what averaging N frames with
     one cache divides by N, unlike the seeds' spread of the render (``rvar``), which

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jobs.reproduce.measure import metric, sweep
+from jobs.reproduce.measure import frame_ms, metric, sweep
 from jobs.reproduce.nirc_fig7 import interval_order
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
-from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
+from jobs.reproduce.results import Point, Reproduction, Verdict
 
 SCENES = ("cornell-box", "white-room")
 PARAMS = {"estimator": "biased", "termination": "adaptive"}
@@ -39,12 +39,10 @@ def measure(ctx: Context) -> Reproduction:
         for row, _run in sweep(ctx, scene, "nirc", "cache.mlp.hidden_layers",
                                [int(d) for d in b.values],
                                {**PARAMS, "pretrain_frames": PRETRAIN_PER_FRAME * b.frames}):
-            seconds = row.seconds_per_frame
             points.append(Point(scene=scene, series=scene, x=float(row.value), run_id=row.id,
                                 values={"rbias2": metric(row, "rbias2"),
                                         "mrse": metric(row, "mrse"),
-                                        "ms_per_frame": Estimate(
-                                            value=None if seconds is None else 1e3 * seconds)}))
+                                        "ms_per_frame": frame_ms(row)}))
     return Reproduction(
         paper="nirc", figure="fig15", title="[DKHD24] Fig. 15: hidden layers D against the "
                                             "cache's error",

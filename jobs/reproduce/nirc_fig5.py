@@ -16,7 +16,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from jobs.reproduce.measure import sweep
+from jobs.reproduce.measure import frame_ms, sweep
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
 from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
@@ -42,12 +42,6 @@ QUICK = Budget(resolution=32, seeds=4, frames=8, ref_spp=256, grid_preset="—",
                values=(1.0, 2.0, 4.0, 8.0))
 FULL = Budget(resolution=128, seeds=8, frames=32, ref_spp=1024, grid_preset="—",
               why=FULL_WHY, values=(1.0, 2.0, 4.0, 8.0, 16.0))
-
-
-def frame_ms(row: Any) -> Estimate:
-    """The median frame's milliseconds (no interval: one median)."""
-    seconds = row.seconds_per_frame
-    return Estimate(value=None if seconds is None else 1e3 * seconds)
 
 
 def render_ms(row: Any) -> float | None:

@@ -23,7 +23,7 @@ from typing import Any
 
 from jobs.reproduce import nirc_fig6_curves as curves
 from jobs.reproduce import nirc_fig6_integrands as integrands
-from jobs.reproduce.measure import sweep
+from jobs.reproduce.measure import frame_ms, sweep
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
 from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
@@ -130,11 +130,10 @@ def measure(ctx: Context) -> Reproduction:
         for index, (series, method, params, parameter, value) in enumerate(
                 SERIES + equal_memory_series(b.resolution)):
             [(row, run)] = sweep(ctx, scene, method, parameter, [value], params)
-            seconds = row.seconds_per_frame
             points.append(Point(scene=scene, series=series, x=float(index), run_id=row.id,
                                 values={
                 "v_rel": v_rel(run),
-                "ms_per_frame": Estimate(value=None if seconds is None else 1e3 * seconds),
+                "ms_per_frame": frame_ms(row),
                 "floats_per_pixel": Estimate(value=floats_per_pixel(run, b.resolution**2))}))
     curve_points, curve_note = ema_points(ctx)
     points += curve_points

@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from jobs.reproduce.measure import frame_ms
 from jobs.reproduce.papers import paper_data
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
 from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
@@ -148,7 +149,7 @@ def scene_points(ctx: Context, scene: str, paper_scene: str | None,
             scene=scene, series=label, x=float(index), run_id=row.id, values={
                 "mrse": Estimate(value=row.mrse, ci95=row.mrse_ci95, note=MRSE_NOTE),
                 "flip": flip(ctx.store.get_run(row.id), row.flip),
-                "ms_per_frame": Estimate(value=None if seconds is None else 1e3 * seconds),
+                "ms_per_frame": frame_ms(row),
                 "time_ratio": Estimate(value=ratio)},
             paper={} if paper_scene is None else _paper(paper_scene, paper_series(row))))
         if row.timing_flags:

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jobs.reproduce.measure import metric, sweep
+from jobs.reproduce.measure import frame_ms, metric, sweep
 from jobs.reproduce.nirc_fig7 import flip, interval_order
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
-from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
+from jobs.reproduce.results import Point, Reproduction, Verdict
 
 SCENES = ("cornell-box", "white-room")
 TOTAL = 8
@@ -41,12 +41,10 @@ def measure(ctx: Context) -> Reproduction:
                       "rr_survival": 1.0}
             [(row, run)] = sweep(ctx, scene, "nirc", "pretrain_frames",
                                  [PRETRAIN_PER_FRAME * b.frames], params, max_depth=MAX_DEPTH)
-            seconds = row.seconds_per_frame
             points.append(Point(scene=scene, series=scene, x=float(first), run_id=row.id,
                                 values={"mrse": metric(row, "mrse"), "flip": flip(run, row.flip),
                                         "rvar": metric(row, "rvar"),
-                                        "ms_per_frame": Estimate(
-                                            value=None if seconds is None else 1e3 * seconds)}))
+                                        "ms_per_frame": frame_ms(row)}))
     return Reproduction(
         paper="nirc", figure="fig9", title="[DKHD24] Fig. 9: N_c split between the first and "
                                            "second vertex",
