@@ -5,7 +5,7 @@ one (here, or as a job of a service with ``--server``), or every registered one 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -22,9 +22,16 @@ from service.cli_common import (
 )
 from service.errors import UsageError
 
+if TYPE_CHECKING:
+    from jobs.reproduce.results import FigureTime, Provenance
+
 reproduce_app = typer.Typer(
     help="Reproduce papers' figures and tables: our numbers with 95 % intervals beside "
          "the paper's (see 'reproduce list').", no_args_is_help=True, rich_markup_mode=None)
+
+#: ``make reproduce``'s goal: every figure at --quick within an hour on 2 cores (``--all``
+#: says when its total is over it; its exit status reports failures only).
+GOAL_S = 3600.0
 
 Quick = Annotated[bool, typer.Option(
     "--quick/--full", help="--quick: minutes on 2 cores (small images, K = 4); "
@@ -36,8 +43,8 @@ def reproduce_all(
     ctx: typer.Context,
     every: Annotated[bool, typer.Option(
         "--all", help="reproduce every registered figure in turn (each into its default "
-                      "folder), going on past a failing one; one summary of verdicts at "
-                      "the end; exit 1 if any failed")] = False,
+                      "folder), going on past a failing one; one summary of verdicts and "
+                      "of wall and CPU times at the end; exit 1 if any failed")] = False,
     quick: Quick = True,
     data_dir: DataDir = None,
 ) -> None:
@@ -50,48 +57,82 @@ def reproduce_all(
         raise UsageError("give a command ('reproduce list', 'reproduce <paper> <figure>') "
                          "or --all")
     from jobs.reproduce.registry import figures
-    from jobs.reproduce.run import default_out_dir, reproduce
+    from jobs.reproduce.run import Clock, default_out_dir, latest_times, reproduce
     from service.progress import progress_reporter
 
     settings = open_settings(data_dir)
     store = open_store(settings)
     mode = "quick" if quick else "full"
+    last = latest_times(settings)
     summary: list[str] = []
+    times: list[tuple[str, FigureTime]] = []
     failed = 0
     for spec in figures():
         name = f"{spec.paper} {spec.key}"
-        console.print(f"reproducing {name} ({mode})", markup=False, highlight=False)
+        before = last.get((spec.paper, spec.key))
+        console.print(f"reproducing {name} ({mode}"
+                      f"{f'; last here: {_last_time(before)}' if before else ''})",
+                      markup=False, highlight=False)
+        clock = Clock()
         try:
             with progress_reporter(console) as report:
                 result, _paths = reproduce(spec.paper, spec.key, mode,
                                            default_out_dir(settings, spec.paper, spec.key),
                                            store, settings, progress=report)
+            verdicts = "; ".join(f"{v.claim}: {v.verdict}" for v in result.verdicts)
+            summary.append(f"{name}: {verdicts or 'no verdicts'}")
         except Exception as err:  # noqa: BLE001 - one figure's failure ends only it
             failed += 1
             summary.append(f"{name}: FAILED ({type(err).__name__}: {' '.join(str(err).split())})")
-            continue
-        verdicts = "; ".join(f"{v.claim}: {v.verdict}" for v in result.verdicts)
-        summary.append(f"{name}: {verdicts or 'no verdicts'}")
+            name += " (failed)"
+        times.append((name, clock.read()))
     console.print("\n".join(["", f"{len(summary) - failed} of {len(summary)} figures "
-                              "reproduced:", *summary]), markup=False, highlight=False)
+                              "reproduced:", *summary, "", *time_summary(times)]),
+                  markup=False, highlight=False)
     if failed:
         raise typer.Exit(1)
 
 
+def time_summary(times: list[tuple[str, FigureTime]]) -> list[str]:
+    """A line per figure with its wall and CPU seconds, then the total, and whether it is
+    over ``make reproduce``'s goal (:data:`GOAL_S`; a statement, not a failure)."""
+    wall_s = sum(time.wall_s for _, time in times)
+    cpu_s = sum(time.cpu_s for _, time in times)
+    lines = [f"{name}: {time.text()}" for name, time in times]
+    lines.append(f"total: wall {wall_s:.0f} s ({wall_s / 60:.1f} min), CPU {cpu_s:.0f} s")
+    if wall_s > GOAL_S:
+        lines.append(f"over the {GOAL_S / 60:.0f}-minute goal by {(wall_s - GOAL_S) / 60:.1f} "
+                     "min")
+    return lines
+
+
+def _last_time(provenance: Provenance) -> str:
+    """What a stored reproduction took (one :func:`latest_times` found: it has a time)."""
+    return (f"{provenance.time.text()}, {provenance.mode}, "
+            f"{provenance.finished_at:%Y-%m-%d %H:%M} UTC")
+
+
 @reproduce_app.command("list")
-def list_figures(as_json: JsonOut = False) -> None:
+def list_figures(as_json: JsonOut = False, data_dir: DataDir = None) -> None:
     """Every figure and table of the three papers: the scenes standing in for the
-    paper's, whether a command runs it (with its --quick budget) or what it needs, and
-    the claims it checks with today's verdict."""
+    paper's, whether a command runs it (with its --quick budget) or what it needs, the
+    claims it checks with today's verdict, and what its latest reproduction stored in
+    the data folder took."""
     from jobs.reproduce.catalogue import listing
     from jobs.reproduce.registry import figures
+    from jobs.reproduce.run import latest_times
 
     quick = {(f.paper, f.key): f.budgets["quick"] for f in figures()}
+    last = latest_times(open_settings(data_dir))
     rows = listing()
     for row in rows:
         budget = quick.get((row["paper"], row["figure"]))
         row["quick"] = budget and {"resolution": budget.resolution, "seeds": budget.seeds,
                                    "grid_preset": budget.grid_preset}
+        before = last.get((row["paper"], row["figure"]))
+        row["last_time"] = before and {"mode": before.mode,
+                                       "finished_at": before.finished_at.isoformat(),
+                                       **before.time.model_dump()}
     if as_json:
         print_json(rows)
         return
@@ -105,6 +146,8 @@ def list_figures(as_json: JsonOut = False) -> None:
         lines = [f"[{row['reference']}] {row['figure']}: {row['title']}",
                  f"  scenes: {', '.join(row['scenes']) or 'none'} ({row['stand_in']})",
                  f"  status: {status}"]
+        before = last.get((row["paper"], row["figure"]))
+        lines += [f"  last here: {_last_time(before)}"] if before else []
         lines += [f"  claim ({c['where']}): \"{c['quote']}\" -> {c['verdict']}"
                   for c in row["claims"]]
         console.print("\n".join(lines) + "\n", markup=False, highlight=False)

@@ -145,6 +145,12 @@ class Settings(BaseSettings):
         """Folder for converged reference images and their variance images."""
         return self.data_dir / "references"
 
+    @property
+    def reproductions_dir(self) -> Path:
+        """Folder of the reproduced papers' figures, one folder per figure
+        (``<paper>-<figure>``, a service job's in its ``job-<id>``; jobs/reproduce)."""
+        return self.data_dir / "reproduce"
+
 
 def get_settings() -> Settings:
     """Fresh settings from the current environment.

@@ -10,22 +10,23 @@ exceeds its ``max_job_seconds``, so that by default ``--quick`` is accepted and
 
 A job writes ``<data>/reproduce/<paper>-<figure>/job-<id>/``: ``table.json`` (the
 :class:`~jobs.reproduce.results.Reproduction`), ``table.md``, ``figure.png`` and
-``provenance.json`` (the job, the commit, the libraries, when it finished).
+``provenance.json`` (the job, the mode, the commit, the libraries, when it finished,
+its wall and CPU seconds and the machine's load: jobs/reproduce/run.py).
 """
 
 from __future__ import annotations
 
-import json
-from datetime import UTC, datetime
+import os
+import stat
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict
 
-from jobs.protocol.provenance import git_commit, library_versions
+from jobs.protocol.provenance import git_commit
 from jobs.reproduce.registry import PAPERS, Budget, get_figure
-from jobs.reproduce.results import Reproduction
-from jobs.reproduce.run import default_out_dir, reproduce
+from jobs.reproduce.results import Provenance, Reproduction
+from jobs.reproduce.run import PROVENANCE, default_out_dir, reproduce
 
 #: The seconds each mode is bounded by (declared, see the module doc).
 MODE_BOUND_S = {"quick": 1800.0, "full": 12 * 3600.0}
@@ -72,12 +73,14 @@ def run_reproduce(spec: ReproduceSpec, store: Any, settings: Any, progress: Any,
                   job_id: int) -> Path:
     """Reproduce the figure into its job's folder, with provenance; returns the folder."""
     folder = job_dir(settings, spec, job_id)
-    reproduce(spec.paper, spec.figure, spec.mode, folder, store, settings, progress=progress)
-    provenance = {"job_id": job_id, "git_commit": git_commit(),
-                  "libraries": library_versions(),
-                  "finished_at": datetime.now(UTC).isoformat()}
-    (folder / "provenance.json").write_text(json.dumps(provenance, indent=1) + "\n")
+    reproduce(spec.paper, spec.figure, spec.mode, folder, store, settings, progress=progress,
+              job_id=job_id)
     return folder
+
+
+def figure_url(job_id: int) -> str:
+    """Where the service serves the PNG job ``job_id`` stored."""
+    return f"/api/v1/reproductions/{job_id}/figure.png"
 
 
 class StoredReproduction(BaseModel):
@@ -85,32 +88,66 @@ class StoredReproduction(BaseModel):
 
     job_id: int
     reproduction: Reproduction
-    provenance: dict[str, Any]
+    provenance: Provenance
     figure_png: str      # the PNG's path, relative to the data folder
+    figure_url: str      # the PNG over REST (GET /api/v1/reproductions/{job_id}/figure.png)
 
 
 def _stored(settings: Any, provenance: Path) -> StoredReproduction:
     folder = provenance.parent
+    job_id = int(folder.name.removeprefix("job-"))
     return StoredReproduction(
-        job_id=int(folder.name.removeprefix("job-")),
+        job_id=job_id,
         reproduction=Reproduction.model_validate_json((folder / "table.json").read_text()),
-        provenance=json.loads(provenance.read_text()),
-        figure_png=str((folder / "figure.png").relative_to(settings.data_dir)))
+        provenance=Provenance.model_validate_json(provenance.read_bytes()),
+        figure_png=str((folder / "figure.png").relative_to(settings.data_dir)),
+        figure_url=figure_url(job_id))
+
+
+class FigureUnavailable(Exception):
+    """A stored reproduction's PNG that is not served: gone, not a plain file (a link is
+    not followed), not a PNG, or larger than :data:`REPRODUCTION_BYTES`."""
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def stored_figure(settings: Any, stored: StoredReproduction) -> bytes:
+    """The bytes of the PNG ``stored`` names (its job's own file); FigureUnavailable
+    saying why if it cannot be served."""
+    path = Path(settings.data_dir) / stored.figure_png
+    name = f"the figure of job {stored.job_id}"
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    except FileNotFoundError:
+        raise FigureUnavailable(f"{name} is gone (removed, or never drawn)") from None
+    except OSError as err:
+        raise FigureUnavailable(f"{name} cannot be read ({err.strerror})") from None
+    with os.fdopen(fd, "rb") as file:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise FigureUnavailable(f"{name} is not a file")
+        png = file.read(REPRODUCTION_BYTES + 1)
+    if len(png) > REPRODUCTION_BYTES:
+        raise FigureUnavailable(f"{name} is larger than the {REPRODUCTION_BYTES >> 20} MiB "
+                                "a reproduction's files may take: not served")
+    if not png.startswith(PNG_SIGNATURE):
+        raise FigureUnavailable(f"{name} is not a PNG")
+    return png
 
 
 def stored_reproductions(settings: Any, paper: str | None = None) -> list[StoredReproduction]:
     """Every stored reproduction (of ``paper``, if given), newest job first; a folder
     without its provenance (a job that did not finish) is skipped."""
-    root = Path(settings.data_dir) / "reproduce"
+    root = settings.reproductions_dir
     keys = [paper] if paper is not None else list(PAPERS)
     found = [_stored(settings, provenance) for key in keys
-             for provenance in root.glob(f"{key}-*/job-*/provenance.json")]
+             for provenance in root.glob(f"{key}-*/job-*/{PROVENANCE}")]
     return sorted(found, key=lambda stored: -stored.job_id)
 
 
 def stored_reproduction(settings: Any, job_id: int) -> StoredReproduction | None:
     """The reproduction job ``job_id`` stored, None if it stored none."""
-    root = Path(settings.data_dir) / "reproduce"
+    root = settings.reproductions_dir
     found = [_stored(settings, provenance)
-             for provenance in root.glob(f"*-*/job-{job_id}/provenance.json")]
+             for provenance in root.glob(f"*-*/job-{job_id}/{PROVENANCE}")]
     return found[0] if found else None

@@ -1,10 +1,12 @@
 """What a reproduced figure reports: our numbers with 95 % intervals, point by point,
-beside the paper's; written as Markdown and JSON next to the figure's PNG."""
+beside the paper's; written as Markdown and JSON next to the figure's PNG, with its
+provenance (commit, libraries, what it took)."""
 
 from __future__ import annotations
 
 import json
 import math
+from datetime import datetime
 from pathlib import Path
 from typing import Any, Literal
 
@@ -50,6 +52,36 @@ class Verdict(BaseModel):
     claim: str                      # the claim, short
     verdict: Literal["holds", "does not hold", "not comparable"]
     reason: str
+
+
+class FigureTime(BaseModel):
+    """What reproducing a figure took, measure and drawing included: wall seconds, CPU
+    seconds (this process's user + system time, its threads' (Dr.Jit's) included, and
+    that of the child processes it waited for) and the machine's 1-, 5- and 15-minute
+    load averages at its start and its end (on a shared machine its seconds are read
+    beside them)."""
+
+    wall_s: float
+    cpu_s: float
+    load_start: list[float]
+    load_end: list[float]
+
+    def text(self) -> str:
+        return (f"wall {self.wall_s:.1f} s, CPU {self.cpu_s:.1f} s (load "
+                f"{self.load_start[0]:.2f} -> {self.load_end[0]:.2f})")
+
+
+class Provenance(BaseModel):
+    """Where a stored reproduction comes from (its ``provenance.json``): the service's job
+    that ran it (None: the CLI), the mode, the code's commit, the libraries, when it
+    finished and what it took (None: stored before times were recorded)."""
+
+    job_id: int | None = None
+    mode: str | None = None
+    git_commit: str
+    libraries: dict[str, str]
+    finished_at: datetime
+    time: FigureTime | None = None
 
 
 class Reproduction(BaseModel):

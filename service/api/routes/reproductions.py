@@ -6,7 +6,9 @@ the service's limits: a mode's declared time bound (jobs/reproduce/job.py) above
 ``max_job_seconds`` is refused with 422, so ``full`` is refused by default until an
 administrator raises that limit. ``GET /api/v1/reproductions`` lists the stored ones
 (table, verdicts, provenance), newest first, and
-``GET /api/v1/reproductions/{job_id}`` the one a job stored. ``GET
+``GET /api/v1/reproductions/{job_id}`` the one a job stored, with a link to its PNG,
+``GET /api/v1/reproductions/{job_id}/figure.png`` (that job's own file only, at most
+:data:`~jobs.reproduce.job.REPRODUCTION_BYTES`, 404 saying why when there is none). ``GET
 /api/v1/reports/{paper}`` is a paper's report page's data: per catalogued figure its
 claims and verdicts, and its latest stored reproduction with its charts
 (jobs/views/reproduction_charts.py).
@@ -21,8 +23,10 @@ from fastapi.responses import JSONResponse
 
 from jobs.execution.queued import QueuedReproduce
 from jobs.reproduce.job import (
+    FigureUnavailable,
     ReproduceSpec,
     StoredReproduction,
+    stored_figure,
     stored_reproduction,
     stored_reproductions,
 )
@@ -75,6 +79,24 @@ def get_reproduction(job_id: RowId, settings: SettingsDep) -> StoredReproduction
                             f"job {job_id} stored no reproduction (not a reproduce job, "
                             "or not finished)")
     return stored
+
+
+@router.get("/reproductions/{job_id}/figure.png", response_class=Response,
+            responses={200: {"content": {"image/png": {}}},
+                       404: {"description": "job stored no figure"}})
+def get_reproduction_figure(job_id: RowId, settings: SettingsDep) -> Response:
+    """The PNG job ``job_id`` stored: its own file (no path a client names), at most
+    4 MiB (``REPRODUCTION_BYTES``); 404 saying why when there is none to serve."""
+    stored = stored_reproduction(settings, job_id)
+    if stored is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"job {job_id} stored no reproduction (not a reproduce job, "
+                            "or not finished)")
+    try:
+        png = stored_figure(settings, stored)
+    except FigureUnavailable as err:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, str(err)) from None
+    return Response(png, media_type="image/png")
 
 
 @router.get("/reports")
