@@ -19,7 +19,11 @@ retention policy, the **artifacts of runs and sweeps** (images, error maps,
 previews, plots: their rows and files; the results stay): those of runs and sweeps
 created more than ``artifact_keep_days`` ago, and, while the artifact store holds
 more than ``artifact_max_bytes``, those of the oldest runs and sweeps first; a run the
-user named or tagged (``nirc-bench runs tag``) keeps its artifacts.
+user named or tagged (``nirc-bench runs tag``) keeps its artifacts. The **reproduced
+figures** (``data/reproduce``: tables, PNGs, provenance; jobs/record/reproduction_folders.py)
+go by the same policy, each dated by when it finished and counted in the same size
+beside the artifact store; one that never finished goes once its files are older than
+``gc_keep_days``; the folder of a reproduce job queued or running is never removed.
 Artifacts of references and cache snapshots are kept: later jobs reuse them. An
 uploaded image goes with its run's artifacts (those this plan removes, or none left)
 whatever its age: nothing is left to compare it with; the run's and key's folders go
@@ -42,7 +46,8 @@ from pathlib import Path
 from sqlalchemy import delete, func, select
 
 from jobs.record.config import Settings
-from jobs.record.models import Artifact, CacheSnapshot, Job, Reference, Run, Sweep
+from jobs.record.models import Artifact, CacheSnapshot, Job, JobStatus, Reference, Run, Sweep
+from jobs.record.reproduction_folders import JOB_PREFIX, PROVENANCE, reproduction_folders
 from jobs.record.store import Store
 from jobs.record.usage import forget_scene
 
@@ -128,9 +133,39 @@ def _uploaded_images(store: Store, settings: Settings, old_mtime: float,
             or path.parent.name.isdigit() and int(path.parent.name) in gone]
 
 
-def _expired_artifacts(store: Store, settings: Settings) -> list[Removal]:
-    """The artifacts of runs and sweeps past the retention policy (by age, then by the
-    store's size, oldest first)."""
+def active_reproductions(store: Store) -> set[int]:
+    """The ids of the reproduce jobs queued or running: their folders are never removed."""
+    with store.session() as session:
+        return set(session.scalars(select(Job.id).where(
+            Job.kind == "reproduce",
+            Job.status.in_((JobStatus.QUEUED.value, JobStatus.RUNNING.value)))))
+
+
+def _reproductions(store: Store, settings: Settings, old_mtime: float
+                   ) -> tuple[list[Removal], list[tuple[datetime, Removal]]]:
+    """The stored reproductions but those of queued or running jobs: the unfinished ones
+    whose files are all older than ``old_mtime`` (to remove), and the finished ones with
+    when they finished (for the retention policy)."""
+    active = active_reproductions(store)
+    unfinished: list[Removal] = []
+    finished: list[tuple[datetime, Removal]] = []
+    for found in reproduction_folders(settings):
+        if found.job_id in active:
+            continue
+        if found.finished is not None:
+            finished.append((found.finished, Removal(
+                "reproduction", found.folder, found.bytes, files=found.files)))
+        elif found.newest_mtime < old_mtime:
+            unfinished.append(Removal("unfinished reproduction", found.folder, found.bytes,
+                                      files=found.files))
+    return unfinished, finished
+
+
+def _expired_artifacts(store: Store, settings: Settings,
+                       reproductions: list[tuple[datetime, Removal]]) -> list[Removal]:
+    """The artifacts of runs and sweeps, and the stored reproductions (``reproductions``:
+    when each finished), past the retention policy: by age, then, oldest first, while
+    the artifact store and the reproductions together are over its size."""
     keep_days, max_bytes = settings.artifact_keep_days, settings.artifact_max_bytes
     if keep_days is None and max_bytes is None:
         return []
@@ -154,14 +189,19 @@ def _expired_artifacts(store: Store, settings: Settings) -> list[Removal]:
         removal.artifact_ids.append(artifact_id)
         removal.bytes += size
         ages[owner] = created
+    candidates = [(ages[owner], f"{owner[0]} {owner[1]:012d}", owners[owner])
+                  for owner in owners]
+    candidates += [(finished, str(removal.path), removal)
+                   for finished, removal in reproductions]
+    total += sum(removal.bytes for _, removal in reproductions)
     cutoff = datetime.now(UTC) - timedelta(days=keep_days) if keep_days is not None else None
     chosen: list[Removal] = []
-    for owner in sorted(owners, key=lambda key: (ages[key], key)):
-        expired = cutoff is not None and ages[owner] < cutoff
+    for created, _order, removal in sorted(candidates, key=lambda c: c[:2]):
+        expired = cutoff is not None and created < cutoff
         over = max_bytes is not None and total > max_bytes
         if expired or over:
-            chosen.append(owners[owner])
-            total -= owners[owner].bytes
+            chosen.append(removal)
+            total -= removal.bytes
     return chosen
 
 
@@ -203,7 +243,9 @@ def plan(store: Store, settings: Settings, keep_days: float | None = None) -> Pl
         if path.stat().st_mtime < old_mtime:
             removals.append(Removal("scratch file", path, _size(path)))
     removals += _scenes(store, settings, old_mtime)
-    expired = _expired_artifacts(store, settings)
+    unfinished, reproductions = _reproductions(store, settings, old_mtime)
+    removals += unfinished
+    expired = _expired_artifacts(store, settings, reproductions)
     removals += expired
     removals += _uploaded_images(store, settings, old_mtime, {
         removal.owner_id for removal in expired
@@ -238,10 +280,15 @@ def apply(store: Store, settings: Settings, gc_plan: Plan) -> int:
         kept = set()
     freed += _remove_artifact_rows(store, settings, [
         artifact_id for removal in gc_plan.removals for artifact_id in removal.artifact_ids])
-    # A scene named since the plan (a job submitted meanwhile) stays.
+    # A scene named since the plan (a job submitted meanwhile) stays, and so does the
+    # folder of a reproduce job queued again meanwhile.
     named = {name.split(":", 1)[1] for name in named_scenes(store)}
+    active = active_reproductions(store)
     for removal in gc_plan.removals:
         if removal.reference_id in kept:
+            continue
+        if removal.what.endswith("reproduction"):
+            freed += _remove_reproduction(removal, settings, active)
             continue
         if removal.what == "scene":
             if removal.path.name not in named:
@@ -257,9 +304,25 @@ def apply(store: Store, settings: Settings, gc_plan: Plan) -> int:
     return freed
 
 
+def _remove_reproduction(removal: Removal, settings: Settings, active: set[int]) -> int:
+    """Remove a reproduction's files (its provenance first: readers pass over it from
+    then on) and the folders left empty, unless its job (``removal.path`` is its
+    folder) is queued or running; bytes freed."""
+    if removal.path.name.startswith(JOB_PREFIX) and \
+            int(removal.path.name.removeprefix(JOB_PREFIX)) in active:
+        return 0
+    freed = 0
+    for path in sorted(removal.files, key=lambda path: path.name != PROVENANCE):
+        freed += _size(path)
+        path.unlink(missing_ok=True)
+    for folder in sorted({path.parent for path in removal.files}, key=lambda f: -len(f.parts)):
+        _remove_empty(folder, settings.reproductions_dir)
+    return freed
+
+
 def _remove_empty(folder: Path, root: Path) -> None:
     """Remove ``folder`` and its parents up to ``root`` (kept) while they are empty: the
-    run and key folders of uploaded images that are gone."""
+    run and key folders of uploaded images that are gone, a reproduction's folders."""
     while folder != root and root in folder.parents:
         try:
             folder.rmdir()

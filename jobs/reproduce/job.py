@@ -24,9 +24,10 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict
 
 from jobs.protocol.provenance import git_commit
+from jobs.record.reproduction_folders import JOB_PREFIX, PROVENANCE
 from jobs.reproduce.registry import PAPERS, Budget, get_figure
 from jobs.reproduce.results import Provenance, Reproduction
-from jobs.reproduce.run import PROVENANCE, default_out_dir, reproduce
+from jobs.reproduce.run import default_out_dir, reproduce
 
 #: The seconds each mode is bounded by (declared, see the module doc).
 MODE_BOUND_S = {"quick": 1800.0, "full": 12 * 3600.0}
@@ -66,7 +67,7 @@ def budget_samples(budget: Budget) -> int:
 
 def job_dir(settings: Any, spec: ReproduceSpec, job_id: int) -> Path:
     """The folder a job writes: ``<data>/reproduce/<paper>-<figure>/job-<id>``."""
-    return default_out_dir(settings, spec.paper, spec.figure) / f"job-{job_id}"
+    return default_out_dir(settings, spec.paper, spec.figure) / f"{JOB_PREFIX}{job_id}"
 
 
 def run_reproduce(spec: ReproduceSpec, store: Any, settings: Any, progress: Any, *,
@@ -95,7 +96,7 @@ class StoredReproduction(BaseModel):
 
 def _stored(settings: Any, provenance: Path) -> StoredReproduction:
     folder = provenance.parent
-    job_id = int(folder.name.removeprefix("job-"))
+    job_id = int(folder.name.removeprefix(JOB_PREFIX))
     return StoredReproduction(
         job_id=job_id,
         reproduction=Reproduction.model_validate_json((folder / "table.json").read_text()),
@@ -141,7 +142,7 @@ def stored_reproductions(settings: Any, paper: str | None = None) -> list[Stored
     root = settings.reproductions_dir
     keys = [paper] if paper is not None else list(PAPERS)
     found = [_stored(settings, provenance) for key in keys
-             for provenance in root.glob(f"{key}-*/job-*/{PROVENANCE}")]
+             for provenance in root.glob(f"{key}-*/{JOB_PREFIX}*/{PROVENANCE}")]
     return sorted(found, key=lambda stored: -stored.job_id)
 
 
@@ -149,5 +150,5 @@ def stored_reproduction(settings: Any, job_id: int) -> StoredReproduction | None
     """The reproduction job ``job_id`` stored, None if it stored none."""
     root = settings.reproductions_dir
     found = [_stored(settings, provenance)
-             for provenance in root.glob(f"*-*/job-{job_id}/{PROVENANCE}")]
+             for provenance in root.glob(f"*-*/{JOB_PREFIX}{job_id}/{PROVENANCE}")]
     return found[0] if found else None

@@ -13,6 +13,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from jobs.protocol.provenance import git_commit, library_versions
+from jobs.record.reproduction_folders import JOB_PREFIX, PROVENANCE
 from jobs.reproduce.papers import paper_data
 from jobs.reproduce.registry import (
     MODES,
@@ -23,8 +24,6 @@ from jobs.reproduce.registry import (
     get_figure,
 )
 from jobs.reproduce.results import FigureTime, Provenance, Reproduction
-
-PROVENANCE = "provenance.json"
 
 
 def reproduce(paper: str, key: str, mode: str, out_dir: Path, store: Any, settings: Any,
@@ -86,7 +85,7 @@ def latest_times(settings: Any) -> dict[tuple[str, str], Provenance]:
     latest: dict[tuple[str, str], Provenance] = {}
     for spec in figures():
         folder = default_out_dir(settings, spec.paper, spec.key)
-        for path in [folder / PROVENANCE, *folder.glob(f"job-*/{PROVENANCE}")]:
+        for path in [folder / PROVENANCE, *folder.glob(f"{JOB_PREFIX}*/{PROVENANCE}")]:
             try:
                 provenance = Provenance.model_validate_json(path.read_bytes())
             except (OSError, ValidationError):
