@@ -10,7 +10,9 @@ the core asking the policy at every vertex (``render``; renderers/integrators/
 grid_cache.py). Static scenes are pre-filled to equilibrium first (the paper fills
 and propagates "until it reaches an equilibrium state", Sec. 6; :func:`prefill`): with
 a short history, until the grid's mean stops changing, then the long history restarts
-from there.
+from there. The pre-fill does not depend on the policy (its seeds leave the policy's
+parameters out), so renders that differ only in their policy reuse one pre-fill per
+seed within a process (:func:`prefilled`).
 
 The policies (``termination``, with their own ``termination_params``): `var-bound`
 (threshold t, absolute or relative), `mse-min` (sample target s, margin, clamp) and
@@ -28,6 +30,7 @@ as in the paper (Sec. 6), so scenes with glossy or delta BSDFs are refused.
 from __future__ import annotations
 
 import time
+from collections import OrderedDict
 from typing import Any, Literal
 
 from pydantic import Field
@@ -46,7 +49,7 @@ from renderers.methods.base import (
 )
 from renderers.methods.cached import TerminationChoice, termination_params_field
 from renderers.methods.pt import PTParams
-from renderers.seeding import derive_seed
+from renderers.seeding import derive_seed, digest
 
 #: The policies that serve the moment grid (the registry's).
 GridTermination = Literal[policy_names("grid")]  # type: ignore[valid-type]
@@ -350,10 +353,57 @@ def prefill(propagation: Propagation, params: GridCacheParams,
     return len(means), means
 
 
+#: The policy's parameters: the only ones the propagation pass never reads (the update
+#: integrator samples as the path tracer does; the policy sits in the render integrator).
+POLICY_FIELDS = frozenset({"termination", "termination_params"})
+#: Pre-filled grids this process keeps for reuse (:func:`prefilled`), oldest first: K
+#: seeds of a few scenes (a figure sweeps policies over one scene's K seeds).
+PREFILLS_KEPT = 16
+_PREFILLS: OrderedDict[str, tuple[dict[str, Any], int]] = OrderedDict()
+
+
+def prefill_seed_parts(params: GridCacheParams, seed_parts: tuple[Any, ...]
+                       ) -> tuple[Any, ...]:
+    """The pre-fill's seed parts: the render's, with its parameters (as the executors
+    put them in, ``model_dump(mode="json")``) less the policy's (:data:`POLICY_FIELDS`),
+    so that renders differing only in their policy pre-fill alike."""
+    full = params.model_dump(mode="json")
+    shared = {name: value for name, value in full.items() if name not in POLICY_FIELDS}
+    return tuple(shared if part == full else part for part in seed_parts)
+
+
+def prefilled(scene: Any, propagation: Propagation, params: GridCacheParams,
+              seed_parts: tuple[Any, ...]) -> tuple[int, bool]:
+    """Pre-fill ``propagation``'s grid (:func:`prefill`, with
+    :func:`prefill_seed_parts`), or give it a copy of the grid an earlier render in this
+    process pre-filled from the same scene content, resolution, parameters but the
+    policy's, and seeds: the pre-fill's records do not depend on the policy, and a pass
+    gives the same bits per seed (version 4). Returns (passes, whether reused). An
+    animated scene, or one without a fingerprint, is pre-filled anew (an animated
+    scene's state when a render starts is not keyed)."""
+    parts = prefill_seed_parts(params, seed_parts)
+    grid = propagation.grid
+    fingerprint = getattr(scene, "fingerprint", None)
+    key = (None if fingerprint is None or getattr(scene, "animation", None) is not None else
+           digest("grid-prefill", fingerprint, list(scene.resolution), parts))
+    if key is not None and key in _PREFILLS:
+        arrays, passes = _PREFILLS[key]
+        _PREFILLS.move_to_end(key)
+        grid.bind(arrays)
+        grid.bind(grid.copied_arrays())   # a replay writes into the arrays it is handed
+        return passes, True
+    passes, _means = prefill(propagation, params, parts)
+    if key is not None:
+        _PREFILLS[key] = (grid.copied_arrays(), passes)
+        while len(_PREFILLS) > PREFILLS_KEPT:
+            _PREFILLS.popitem(last=False)
+    return passes, False
+
+
 def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], spp: int,
            frames: int, hooks: FrameHooks = FrameHooks()) -> RenderOutput:
-    """Pre-fill, then per frame: a propagation pass, then the render pass (frozen where
-    freezing is on)."""
+    """Pre-fill (or reuse a pre-fill, :func:`prefilled`), then per frame: a propagation
+    pass, then the render pass (frozen where freezing is on)."""
     from renderers.timing import kernel_history, synchronize
 
     integrator, updater, grid = build(scene, params, derive_seed(*seed_parts, "cache"))
@@ -362,7 +412,7 @@ def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], 
     # Read by no timer: the history off, as in the wall frames (a frozen pass records
     # anew under the other flag; the frames' warm-up settles both).
     with kernel_history(False):
-        prefill_passes, _means = prefill(propagate, params, seed_parts)
+        prefill_passes, prefill_reused = prefilled(scene, propagate, params, seed_parts)
     prefill_s = time.perf_counter() - start
     prefill_recordings = propagate.recordings()
     updated: list[int] = []
@@ -384,7 +434,7 @@ def render(scene: Any, params: GridCacheParams, *, seed_parts: tuple[Any, ...], 
                              rr_mode=params.rr_mode)
     output.method_stats = {
         "prefill_frames": params.prefill_frames, "prefill_passes": prefill_passes,
-        "prefill_s": prefill_s,
+        "prefill_s": prefill_s, "prefill_reused": prefill_reused,
         "rr_survival": params.rr_survival,
         "grid_records": grid.records(),
         "updated_vertices_per_frame": sum(updated) / max(len(updated), 1),
@@ -421,7 +471,7 @@ def diffuse_only(features: Any) -> tuple[bool, str]:
 
 METHOD = register(Method(
     "grid-cache", "hashed-grid radiance cache with three moments, variance-trading "
-    "termination", GridCacheParams, render, version=4, requires=diffuse_only, build=build,
+    "termination", GridCacheParams, render, version=5, requires=diffuse_only, build=build,
     label="Grid cache", unbiased=False,
     # In the method comparison and the Pareto plot: its default policy (var-bound,
     # absolute t = 0.1), with PT matched to its frame time.
