@@ -299,3 +299,30 @@ def test_temporal_reuse_is_unbiased_when_lights_switch_on(mi, monkeypatch, plant
     mean, variance, _ = _after_switch_on(mi, frames_off=3, seed=5)
     result = agreement_test(mean, variance, *reference, alpha=0.01)
     assert result.passed != planted, result.summary()
+
+
+@pytest.mark.parametrize("planted", [False, True])
+def test_a_frozen_frame_writes_no_constant_of_the_history_again(mi, many_lights, monkeypatch,
+                                                                planted):
+    """A steady frozen frame's only launch before its replay is its seed: the first hits it
+    hands to the next frame carry no constant (literal) field, which the next call would
+    write into memory again (a memset per field and frame). Planted: the whole surface
+    interaction carried (11 memsets per frame on many-lights)."""
+    import drjit as dr
+
+    from renderers.frozen import frozen_frames
+    from renderers.integrators import restir as module
+
+    if planted:
+        monkeypatch.setattr(module.FirstHits, "DRJIT_STRUCT",
+                            dict(mi.SurfaceInteraction3f.DRJIT_STRUCT))
+    with frozen_frames(True), dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        restir = _restir(many_lights, replicas=1, temporal=True, spatial=True)
+        for frame in range(4):
+            dr.kernel_history()
+            dr.eval(restir.render(frame))
+            dr.sync_thread()
+        outside = [entry for entry in dr.kernel_history()
+                   if entry["recording_mode"] == dr.KernelRecordingMode.Inactive]
+    assert restir.recordings() is not None
+    assert (len(outside) > 1) == planted, [(e["type"], e["size"]) for e in outside]

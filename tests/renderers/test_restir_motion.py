@@ -68,7 +68,7 @@ def _x_i_from_the_same_pixel(monkeypatch):
 
     def planted(si, previous, motion, lane, size):
         source, _, kept = reproject(si, previous, motion, lane, size)
-        return source, previous.si, kept
+        return source, previous.si.interaction(), kept
 
     monkeypatch.setattr(restir, "reproject", planted)
 
