@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 from jobs.record.config import Settings
 from jobs.reproduce import measure, vt_fig7, vt_fig9, vt_table1
 from jobs.reproduce.papers import PaperValue, paper_data
-from jobs.reproduce.registry import Budget, figures
+from jobs.reproduce.registry import MODES, Budget, Context, figures
 from jobs.reproduce.results import Estimate, Point, Reproduction
 from jobs.reproduce.run import reproduce
 from jobs.views import plots
@@ -86,6 +86,46 @@ def test_fig7_runs_end_to_end_and_reuses_its_points(sqlite_store, data_folder: P
                               settings, budget=TINY)
     assert again.work == {"points_rendered": 0, "points_reused": 1}
     assert [p.run_id for p in again.points] == [p.run_id for p in result.points]
+
+
+def _sweep_calls(module: Any, mode: str, monkeypatch: pytest.MonkeyPatch
+                 ) -> list[dict[str, Any]]:
+    """What ``module``'s figure asks the sweep for at ``mode``'s budget (stubbed)."""
+    calls: list[dict[str, Any]] = []
+
+    def sweep(ctx: Any, scene: str, method: str, parameter: str, values: list[Any],
+              params: dict[str, Any], max_depth: int = -1) -> list[tuple[Any, Any]]:
+        calls.append({"scene": scene, "method": method, "parameter": parameter,
+                      "values": list(values), "params": params, "max_depth": max_depth,
+                      "budget": replace(ctx.budget, values=())})
+        return [_stored(float(v), ctx.budget.grid_preset) for v in values]
+
+    monkeypatch.setattr(module, "sweep", sweep)
+    module.FIGURE.measure(Context(module.FIGURE.budgets[mode], None, None))
+    return calls
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_table1s_var_bound_rows_on_door_are_fig7s_points(
+        mode: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Table 1's absolute var-bound rows on door ask the sweep for Fig. 7's points (the
+    same parameters, depth limit and budget), so that ``--all`` renders them once.
+    Planted: Table 1 at another survival (90 %, its own before) shares none."""
+    fig7 = _sweep_calls(vt_fig7, mode, monkeypatch)
+
+    def shared() -> tuple[int, int]:
+        rows = [c for c in _sweep_calls(vt_table1, mode, monkeypatch)
+                if c["scene"] == "door" and c["params"].get("termination") == "var-bound"
+                and not c["params"]["termination_params"]["relative"]]
+        alike = [v for c in rows for v in c["values"] if any(
+            {**f, "values": None} == {**c, "values": None} and v in f["values"]
+            for f in fig7)]
+        return sum(len(c["values"]) for c in rows), len(alike)
+
+    rows, alike = shared()
+    assert rows == 3 and alike == 3
+    monkeypatch.setattr(vt_table1, "RR_SURVIVAL", 0.9)
+    assert shared() == (3, 0)
 
 
 def test_a_bad_figure_name_exits_2_naming_the_choices(capsys, data_folder: Path) -> None:
