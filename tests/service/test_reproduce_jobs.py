@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from unittest import mock
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
@@ -20,9 +21,11 @@ from jobs.execution.queue import JobQueue
 from jobs.execution.runner import run_one
 from jobs.record.config import Settings
 from jobs.record.db import open_store
+from jobs.reproduce import job as reproduce_job
 from jobs.reproduce import registry
 from jobs.reproduce.registry import Budget, Context, FigureSpec
 from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
+from metrics.imageio import png_bytes
 from service.api.main import create_app
 from service.cli import main
 from service.client import ServiceClient
@@ -43,7 +46,7 @@ def _measure(ctx: Context) -> Reproduction:
 
 
 def _draw(reproduction: Reproduction, path: Path) -> Path:
-    path.write_bytes(b"\x89PNG\r\n\x1a\n")
+    path.write_bytes(png_bytes(np.full((2, 3, 3), 200, np.uint8)))
     return path
 
 
@@ -108,12 +111,8 @@ def test_full_is_queued_once_the_limit_is_raised(tmp_path, monkeypatch, fake_fig
 
 def test_a_run_job_stores_the_reproduction_with_provenance(api):
     client, store, settings = api
-    job_id = client.post("/api/v1/reproductions",
-                         json={"paper": "vt", "figure": "fig99"}).json()["id"]
-    queue = JobQueue(store)
-    assert queue.claim(job_id, "tests") is not None
-    assert run_one(job_id, store, settings) == "0"
-    assert queue.get(job_id).status == "succeeded"
+    job_id = _run_job(client, store, settings)
+    assert JobQueue(store).get(job_id).status == "succeeded"
     listed = client.get("/api/v1/reproductions", params={"paper": "vt"})
     assert listed.status_code == 200, listed.text
     [stored] = listed.json()
@@ -130,6 +129,44 @@ def test_a_run_job_stores_the_reproduction_with_provenance(api):
     assert len(figures["fig99"]["charts"]) == 1                  # MRSE, its only quantity
     assert figures["fig7"]["stored"] is None and figures["fig7"]["claims"]
     assert client.get("/api/v1/reports/xyz").status_code == 404
+
+
+def _run_job(client: TestClient, store, settings) -> int:
+    job_id = client.post("/api/v1/reproductions",
+                         json={"paper": "vt", "figure": "fig99"}).json()["id"]
+    assert JobQueue(store).claim(job_id, "tests") is not None
+    assert run_one(job_id, store, settings) == "0"
+    return job_id
+
+
+def test_the_figure_png_is_the_job_s_own_file_bounded_or_a_404_saying_why(api, monkeypatch):
+    client, store, settings = api
+    job_id = _run_job(client, store, settings)
+    stored = client.get(f"/api/v1/reproductions/{job_id}").json()
+    png = settings.data_dir / stored["figure_png"]
+    served = client.get(stored["figure_url"])
+    assert stored["figure_url"] == f"/api/v1/reproductions/{job_id}/figure.png"
+    assert served.status_code == 200 and served.headers["content-type"] == "image/png"
+    assert served.content == png.read_bytes()
+    # A job that stored none; what is not a job id reaches no file.
+    missing = client.get(f"/api/v1/reproductions/{job_id + 1}/figure.png")
+    assert missing.status_code == 404 and f"job {job_id + 1} stored no reproduction" in \
+        missing.json()["detail"]
+    assert client.get("/api/v1/reproductions/figure/figure.png").status_code == 422
+    assert client.get("/api/v1/reproductions/..%2F..%2Fdata/figure.png").status_code == 404
+    # Larger than the bound: not served (the bound planted at the file's size less one).
+    monkeypatch.setattr(reproduce_job, "REPRODUCTION_BYTES", png.stat().st_size - 1)
+    too_large = client.get(stored["figure_url"])
+    assert too_large.status_code == 404 and "larger than" in too_large.json()["detail"]
+    monkeypatch.undo()
+    # A link in its place is not followed, even to a PNG.
+    other = png.with_name("other.png")
+    png.rename(other)
+    png.symlink_to(other)
+    assert client.get(stored["figure_url"]).status_code == 404
+    png.unlink()
+    gone = client.get(stored["figure_url"])
+    assert gone.status_code == 404 and "gone" in gone.json()["detail"]
 
 
 def test_the_cli_submits_to_a_server_and_prints_the_stored_reproduction(
