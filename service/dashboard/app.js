@@ -346,7 +346,7 @@ async function papersPage() {
 }
 
 // One figure of a report: its claims with the catalogue's verdicts, and where it was reproduced here
-// its verdicts, table, charts and provenance.
+// its verdicts, table, its PNG beside the charts, and provenance (with what it took).
 function figureSection(f) {
   const claims = (f.claims || []).map((c) => `<li>${esc(c.where)}: “${esc(c.quote)}” → <b>${esc(c.verdict)}</b></li>`).join("");
   let html = `<h3>${esc(f.figure)}: ${esc(f.title)}</h3>`;
@@ -363,8 +363,9 @@ function figureSection(f) {
   const prov = s.provenance;
   html += `<p>Reproduced by job ${s.job_id}, mode <code>${esc(r.mode)}</code> (${esc(Object.entries(r.settings).map(([k, v]) => `${k} ${v}`).join(", "))}).</p>`;
   html += verdicts ? `<p>Our verdicts:</p><ul class="verdicts">${verdicts}</ul>` : "";
-  html += `<div class="plots"></div><table class="results reproduction"><tr><th class="text">scene</th><th class="text">series</th><th>${esc(r.x_label)}</th>${keys.map((k) => `<th>${esc(r.quantities[k])} [95% CI]</th><th>paper</th>`).join("")}</tr>${rows}</table>`;
-  html += `<p class="muted">Provenance: commit ${esc(prov.git_commit)}, finished ${esc(prov.finished_at)}; ${esc(Object.entries(prov.libraries || {}).map(([k, v]) => `${k} ${v}`).join(", "))}.</p>`;
+  html += `<div class="plots"><img class="figure-png" src="${esc(s.figure_url)}" alt="${esc(f.figure)} as drawn by nirc-bench reproduce"></div><table class="results reproduction"><tr><th class="text">scene</th><th class="text">series</th><th>${esc(r.x_label)}</th>${keys.map((k) => `<th>${esc(r.quantities[k])} [95% CI]</th><th>paper</th>`).join("")}</tr>${rows}</table>`;
+  const took = prov.time ? `, took wall ${prov.time.wall_s.toFixed(1)} s, CPU ${prov.time.cpu_s.toFixed(1)} s (load ${prov.time.load_start[0].toFixed(2)} → ${prov.time.load_end[0].toFixed(2)})` : "";
+  html += `<p class="muted">Provenance: commit ${esc(prov.git_commit)}, finished ${esc(prov.finished_at)}${took}; ${esc(Object.entries(prov.libraries || {}).map(([k, v]) => `${k} ${v}`).join(", "))}.</p>`;
   return html;
 }
 

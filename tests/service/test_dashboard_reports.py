@@ -1,8 +1,9 @@
 """A paper's report page in a real headless Chromium: linked from the dashboard's
 navigation, it shows per figure the catalogue's claims and, where the service stored a
-reproduction, our verdicts, table, a Vega-Lite chart per quantity and the provenance;
-a figure not reproduced here says so. The screenshot is kept in test-artifacts/. The
-stored reproduction is a fake figure's (synthetic points, nothing renders)."""
+reproduction, our verdicts, table, its PNG beside a Vega-Lite chart per quantity and
+the provenance with what it took; a figure not reproduced here says so. The screenshot
+is kept in test-artifacts/. The stored reproduction is a fake figure's (synthetic
+points, nothing renders)."""
 
 from __future__ import annotations
 
@@ -42,7 +43,11 @@ def test_a_papers_report_page_shows_its_stored_reproduction_and_its_claims(chrom
     assert stored.locator("table.reproduction tr").count() == 3   # the head and two points
     text = stored.inner_text()
     assert "MRSE grows with x: holds" in text and f"job {JOB_ID}" in text
-    assert "Provenance: commit" in text
+    assert "Provenance: commit" in text and "took wall " in text
+    # The job's PNG beside the charts, loaded from the service.
+    png = stored.locator(".plots img.figure-png")
+    wait_until(page, "document.querySelector('img.figure-png').complete")
+    assert png.evaluate("img => img.naturalWidth") == 3
     # A catalogued figure of the paper that was not run here: its claims, no table.
     catalogued = page.locator("section.figure[data-figure='fig7']")
     assert "Not reproduced on this service yet" in catalogued.inner_text()
