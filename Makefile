@@ -49,8 +49,9 @@ bench: bootstrap
 	$(PY) -m benchmarks.bench_service
 
 # Every registered figure of the papers at its --quick budget, one after another, then
-# one summary of the verdicts; fails if any figure failed (docs/reproduce.md). Hours on
-# 2 cores in all: not part of `make test` or CI.
+# one summary of the verdicts and of each figure's wall and CPU time; fails if any
+# figure failed (docs/reproduce.md). Its goal is an hour on 2 cores in all (a total
+# over it is printed, not a failure): not part of `make test` or CI.
 reproduce: bootstrap
 	$(CLI) reproduce --all --quick
 
