@@ -970,9 +970,9 @@ def gc(
     data_dir: DataDir = None,
 ) -> None:
     """Free disk: remove references no run uses, stored scenes and files no stored row
-    names (older than --keep-days), and results' artifacts past the retention policy
-    (artifact_keep_days, artifact_max_bytes). Lists them with sizes; removes them only
-    with --apply."""
+    names (older than --keep-days), and results' artifacts and reproduced figures past
+    the retention policy (artifact_keep_days, artifact_max_bytes). Lists them with sizes;
+    removes them only with --apply."""
     from jobs.record import gc as retention
 
     settings = open_settings(data_dir)
