@@ -3,9 +3,9 @@
 Every ``retention_interval_h`` hours (the first round one interval after the service
 starts; None or 0: never) a thread plans and applies the retention of
 jobs/record/gc.py with the service's settings — unreferenced files, scenes and
-references older than ``gc_keep_days``, the artifacts of runs and sweeps past
-``artifact_keep_days`` or ``artifact_max_bytes``, runs the user named or tagged
-kept — and logs each thing it removed and what the round freed, on the server's
+references older than ``gc_keep_days``, the artifacts of runs and sweeps and the
+reproduced figures past ``artifact_keep_days`` or ``artifact_max_bytes``, runs the
+user named or tagged and the reproductions of queued or running jobs kept — and logs each thing it removed and what the round freed, on the server's
 log (uvicorn's). A round that fails is logged; the next one tries again.
 """
 
