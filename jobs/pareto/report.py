@@ -24,6 +24,11 @@ most that spp (a matched time PT would spend on more is reported ``capped``: its
 rows then have less than equal time), ``strongest`` names the strongest PT's candidates
 calibrated (default: all); the report states both in ``bounds``.
 
+Leaving rows out (a quick run whose claims need fewer): ``runs`` names the comparison
+runs rendered by their registry labels (default: all; the budget run, PT 2 spp, is always
+needed), ``pt_at`` the matched runs at whose frame time the PT rows are calibrated
+(default: every matched run rendered); both are stated in ``bounds`` too.
+
 Loaded timings (renderers.load): a calibration leaves out probes taken on a loaded
 machine (jobs.protocol.calibration), and a matched method whose own run was timed on a
 loaded machine gives no budget: its equal-time rows are left out, listed with the reason
@@ -71,8 +76,10 @@ class Report(BaseModel):
                                           "with the reason")
     bounds: dict[str, Any] = Field(
         default_factory=dict, description="the PT calibrations' bounds: max_pt_spp (None: "
-                                          "the knob's candidates) and the strongest PT's "
-                                          "candidates calibrated")
+                                          "the knob's candidates), the strongest PT's "
+                                          "candidates calibrated; the comparison runs "
+                                          "rendered (runs) and the matched ones with PT "
+                                          "rows at their time (pt_at)")
 
 
 def _row(label: str, summary: RunSummary, note: str = "") -> ReportRow:
@@ -85,16 +92,31 @@ def comparison_report(
     seeds: int = 2, pretrain_frames: int = 100, max_depth: int = -1, ref_spp: int = 4096,
     progress: Callable[[str, int, int], None] | None = None, allow_loaded: bool = False,
     max_pt_spp: int | None = None, strongest: tuple[str, ...] | None = None,
+    runs: tuple[str, ...] | None = None, pt_at: tuple[str, ...] | None = None,
 ) -> Report:
     """Run the Fig. 7 comparison on ``scene`` (see the module docstring); ``allow_loaded``:
     use timings taken on a loaded machine for the equal-time budgets; ``max_pt_spp`` and
-    ``strongest``: the PT calibrations' bounds (module docstring)."""
+    ``strongest``: the PT calibrations' bounds; ``runs`` and ``pt_at``: the rows left
+    out (module docstring)."""
     core = pt_core_methods()
     chosen = list(core if strongest is None else strongest)
     if not chosen or set(chosen) - set(core):
         raise ValueError(f"strongest: give one or more of {', '.join(core)}")
     if max_pt_spp is not None and max_pt_spp < 1:
         raise ValueError("max_pt_spp must be at least 1")
+    entries = sorted(((name, entry) for name, method in METHODS.items()
+                      for entry in method.comparison), key=lambda item: item[1].rank)
+    labels = [entry.label for _name, entry in entries]
+    budget_name, budget = next(item for item in entries if item[1].role == "budget")
+    rendered = labels if runs is None else [label for label in labels if label in runs]
+    if runs is not None and (set(runs) - set(labels) or budget.label not in runs):
+        raise ValueError(f"runs: give labels of {', '.join(labels)}, {budget.label} among "
+                         "them (the equal-time budget)")
+    matched = [entry.label for _name, entry in entries
+               if entry.role == "matched" and entry.label in rendered]
+    if pt_at is not None and set(pt_at) - set(matched):
+        raise ValueError(f"pt_at: give matched runs rendered: {', '.join(matched)}")
+    entries = [(name, entry) for name, entry in entries if entry.label in rendered]
     base = RenderSpec(scene=scene, resolution=resolution, frames=frames, seeds=seeds,
                       reference=ReferenceSpec(spp=ref_spp))
 
@@ -116,10 +138,9 @@ def comparison_report(
     def shared(method: str) -> dict[str, Any]:
         return METHODS[method].shared_params(max_depth, pretrain_frames)
 
-    entries = sorted(((name, entry) for name, method in METHODS.items()
-                      for entry in method.comparison), key=lambda item: item[1].rank)
-    report = Report(scene=scene, device="", bounds={"max_pt_spp": max_pt_spp,
-                                                    "strongest": chosen})
+    report = Report(scene=scene, device="", bounds={
+        "max_pt_spp": max_pt_spp, "strongest": chosen, "runs": rendered,
+        "pt_at": matched if pt_at is None else [m for m in matched if m in pt_at]})
     summaries: dict[str, RunSummary] = {}
     for name, entry in entries:
         if entry.role != "knob":
@@ -139,7 +160,6 @@ def comparison_report(
                         for name, entry in entries if entry.label in summaries]
 
     # ---- Equal time: a method's knob calibrated to the budget run's frame time ----
-    budget_name, budget = next(item for item in entries if item[1].role == "budget")
     for name, entry in entries:
         if entry.role != "knob":
             continue
@@ -169,7 +189,8 @@ def comparison_report(
         return TimeBudget(ms=ms, allow_loaded=allow_loaded, candidates=spp)
 
     for _name, entry in entries:
-        if entry.role != "matched" or entry.label not in summaries:
+        if entry.role != "matched" or entry.label not in summaries \
+                or entry.label not in report.bounds["pt_at"]:
             continue
         summary = summaries[entry.label]
         if summary.result.timing_flags and not allow_loaded:
