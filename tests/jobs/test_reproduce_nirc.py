@@ -44,7 +44,8 @@ def test_fig4_draws_its_series_with_intervals_and_its_verdicts(
     result, paths = reproduce("nirc", "fig4", "quick", tmp_path, None, None)
     assert paths["figure"].read_bytes()[:4] == b"\x89PNG"
     assert {p.series for p in result.points} == {
-        nirc_fig4.series_name(e, loss) for e in nirc_fig4.ESTIMATORS for loss in nirc_fig4.LOSSES}
+        nirc_fig4.series_name(e, loss) for e in nirc_fig4.ESTIMATORS
+        for loss in nirc_fig4.losses(nirc_fig4.QUICK)}
     assert all(p.values["flip"].ci95 is not None for p in result.points)
     table = paths["markdown"].read_text()
     assert "**holds**" in table and len(result.claims) == len(paper_data("nirc").of("fig4")[1])
