@@ -224,7 +224,8 @@ def _run_remote(server: str, api_key: str | None, spec: dict[str, str],
     console.print(Reproduction.model_validate(stored["reproduction"]).markdown(),
                   markup=False, highlight=False)
     console.print(f"stored on the service as {stored['figure_png']} (job {job['id']}, "
-                  f"commit {stored['provenance']['git_commit']})",
+                  f"commit {stored['provenance']['git_commit']}); its PNG: "
+                  f"{server.rstrip('/')}{stored['figure_url']}",
                   markup=False, highlight=False)
 
 

@@ -191,6 +191,7 @@ def test_the_cli_submits_to_a_server_and_prints_the_stored_reproduction(
     text = capsys.readouterr().out
     assert exit_info.value.code == 0, text
     assert "MRSE grows with x: **holds**" in text and "job 1" in text
+    assert "its PNG: http://service/api/v1/reproductions/1/figure.png" in text
     assert [job.kind for job in JobQueue(store).list()] == ["reproduce"]
 
 
