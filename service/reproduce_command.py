@@ -85,7 +85,9 @@ def reproduce_all(
             failed += 1
             summary.append(f"{name}: FAILED ({type(err).__name__}: {' '.join(str(err).split())})")
             name += " (failed)"
-        times.append((name, clock.read()))
+        took = clock.read()
+        times.append((name, took))
+        console.print(f"{name}: took {took.text()}", markup=False, highlight=False)
     console.print("\n".join(["", f"{len(summary) - failed} of {len(summary)} figures "
                               "reproduced:", *summary, "", *time_summary(times)]),
                   markup=False, highlight=False)

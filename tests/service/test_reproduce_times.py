@@ -91,7 +91,8 @@ def test_all_prints_each_figure_s_time_and_the_total_and_the_goal_keeps_the_exit
     code, text = _cli(argv, capsys)
     assert code == 0, text
     assert "reproducing vt fig99 (quick)" in text                 # none stored before
-    assert "vt fig99: wall " in text and "total: wall " in text
+    assert "vt fig99: took wall " in text                         # as it ends
+    assert "\nvt fig99: wall " in text and "total: wall " in text  # in the summary
     assert "over the" not in text
     # Again, under a goal it cannot meet: it says so, and still exits 0; the plan shows
     # the time stored by the first run.
