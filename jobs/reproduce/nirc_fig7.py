@@ -39,11 +39,19 @@ EQUAL_TIME_TOLERANCE = 1.1
 #: serve no verdict here.
 QUICK_MAX_PT_SPP = 32
 QUICK_STRONGEST = ("pt",)
+#: --quick's rows (the report's ``runs`` and ``pt_at``): the comparison runs the verdicts
+#: read, without the grid cache (not in the paper's Fig. 7; its run and its two PT
+#: calibrations were a third of the figure's time), and PT calibrated at unbiased NIRC's
+#: frame time alone, the time its claim compares at.
+QUICK_RUNS = ("PT 1 spp", "PT 2 spp", "NRC", "NIRC biased", "NIRC unbiased",
+              "NIRC biased (equal time)")
+QUICK_PT_AT = ("NIRC unbiased",)
 QUICK_WHY = ("--quick: 16x16, K = 3 seeds (the least for MRSE's interval) of F = 4 frames "
              "after 8 pre-training frames (NRC's frame alone took 2 s at 16x16 on the loaded "
-             "machine); per scene 6 runs, the N_c calibration and 3 x 2 PT calibrations with "
-             f"spp candidates up to {QUICK_MAX_PT_SPP} and the strongest PT's candidate "
-             f"{', '.join(QUICK_STRONGEST)} alone (unbounded, one PT calibration to NRC's "
+             "machine); per scene the 5 runs the verdicts read (no grid cache), the N_c "
+             "calibration and 2 PT calibrations at unbiased NIRC's time (the paper's PT and "
+             f"the strongest PT's candidate {', '.join(QUICK_STRONGEST)} alone) with spp "
+             f"candidates up to {QUICK_MAX_PT_SPP} (unbounded, one PT calibration to NRC's "
              "frame took 7 min at load 17-20 over 18 spp candidates); a capped PT row has "
              "less than equal time (its note says so); timings taken on a loaded machine "
              "are used (noted)")
@@ -115,28 +123,38 @@ def report_rows(report: Any) -> list[tuple[str, Any]]:
 CAPPED = "[capped]"
 
 
-def pt_bounds(budget: Budget) -> dict[str, Any]:
-    """The report's PT calibration bounds at ``budget``: --quick's, none otherwise."""
-    return {"max_pt_spp": QUICK_MAX_PT_SPP, "strongest": QUICK_STRONGEST} \
-        if budget == QUICK else {}
+#: A figure's --quick rows: (the comparison runs rendered, the matched runs with PT rows).
+QuickRows = tuple[tuple[str, ...], tuple[str, ...]]
+
+
+def pt_bounds(rows: QuickRows = (QUICK_RUNS, QUICK_PT_AT)) -> dict[str, Any]:
+    """The report's --quick PT calibration bounds and ``rows`` (--full has none: every
+    run, PT rows at every matched time, unbounded)."""
+    runs, pt_at = rows
+    return {"max_pt_spp": QUICK_MAX_PT_SPP, "strongest": QUICK_STRONGEST, "runs": runs,
+            "pt_at": pt_at}
 
 
 def pt_bounds_text(bounds: dict[str, Any]) -> str:
     """:func:`pt_bounds` as the figure's settings state them."""
     if not bounds:
-        return "unbounded"
-    return (f"spp candidates up to {bounds['max_pt_spp']}, strongest PT's candidates: "
+        return "unbounded, at every matched run's time"
+    if not bounds["pt_at"]:
+        return "none (no equal-time PT rows)"
+    return (f"at {', '.join(bounds['pt_at'])}'s time, spp candidates up to "
+            f"{bounds['max_pt_spp']}, strongest PT's candidates: "
             f"{', '.join(bounds['strongest'])}")
 
 
-def scene_points(ctx: Context, scene: str, paper_scene: str | None,
-                 notes: list[str]) -> list[Point]:
-    """The report of ``scene`` at the context's budget as points (x: the row's place)."""
+def scene_points(ctx: Context, scene: str, paper_scene: str | None, notes: list[str],
+                 bounds: dict[str, Any]) -> list[Point]:
+    """The report of ``scene`` at the context's budget and ``bounds`` (:func:`pt_bounds`,
+    given at --quick, whose loaded timings are used) as points (x: the row's place)."""
     b = ctx.budget
     report = comparison_report(
         scene, ctx.store, ctx.settings, resolution=b.resolution, frames=b.frames,
         seeds=b.seeds, pretrain_frames=PRETRAIN_PER_FRAME * b.frames, ref_spp=b.ref_spp,
-        progress=ctx.progress, allow_loaded=b == QUICK, **pt_bounds(b))
+        progress=ctx.progress, allow_loaded=bool(bounds), **bounds)
     rows = [(f"{label} {CAPPED}" if "calibration capped" in row.note else label, row)
             for label, row in report_rows(report)]
     pt1 = next((row.seconds_per_frame for _label, row in rows
@@ -277,19 +295,24 @@ def fig7_verdicts(points: list[Point], scenes: list[str]) -> list[Verdict]:
 
 
 def equal_time_figure(ctx: Context, scenes: dict[str, str | None], figure: str,
-                      title: str, verdicts: Any, notes: list[str]) -> Reproduction:
+                      title: str, verdicts: Any, notes: list[str], quick: Budget = QUICK,
+                      rows: QuickRows = (QUICK_RUNS, QUICK_PT_AT)) -> Reproduction:
     """The comparison on ``scenes`` (ours -> the paper's scene of Fig. 7's numbers, or
-    None) as figure ``figure`` of the NIRC paper, with ``verdicts(points, scenes)``."""
+    None) as figure ``figure`` of the NIRC paper, with ``verdicts(points, scenes)``;
+    at the figure's ``quick`` budget with the runs and PT rows ``rows``
+    (:func:`pt_bounds`)."""
     b = ctx.budget
     notes = list(notes)
+    bounds = pt_bounds(rows) if b == quick else {}
     points = [p for scene, theirs in scenes.items()
-              for p in scene_points(ctx, scene, theirs, notes)]
+              for p in scene_points(ctx, scene, theirs, notes, bounds)]
     return Reproduction(
         paper="nirc", figure=figure, title=title, mode="",
         settings={"resolution": f"{b.resolution}x{b.resolution}", "seeds K": b.seeds,
                   "frames F": b.frames, "pre-training frames": PRETRAIN_PER_FRAME * b.frames,
                   "reference spp": b.ref_spp,
-                  "PT calibrations": pt_bounds_text(pt_bounds(b)), "why": b.why},
+                  "runs": ", ".join(bounds.get("runs", ("every comparison run",))),
+                  "PT calibrations": pt_bounds_text(bounds), "why": b.why},
         x_label="row", quantities=QUANTITIES, points=points,
         verdicts=verdicts(points, list(scenes)), notes=[
             "our scenes are the project's built-ins, not the paper's",

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from jobs.reproduce import nirc_fig7
+from jobs.reproduce import nirc_fig7, nirc_fig8
 from jobs.reproduce.registry import Context
 from jobs.reproduce.run import reproduce
 
@@ -71,13 +71,17 @@ def test_fig7_keeps_each_run_once_with_the_papers_numbers_and_time_ratios(
     quick = nirc_fig7.QUICK
     assert store.calls[0][1]["allow_loaded"] and store.calls[0][1]["frames"] == quick.frames
     # --quick bounds the report's PT calibrations and says so; --full does not bound them.
-    assert (store.calls[0][1]["max_pt_spp"], store.calls[0][1]["strongest"]) == \
-        (nirc_fig7.QUICK_MAX_PT_SPP, nirc_fig7.QUICK_STRONGEST)
+    # --quick bounds the report's PT calibrations and renders the verdicts' rows alone
+    # (no grid cache, PT at unbiased NIRC's time); --full bounds nothing.
+    assert {k: store.calls[0][1][k] for k in ("max_pt_spp", "strongest", "runs", "pt_at")} == \
+        {"max_pt_spp": nirc_fig7.QUICK_MAX_PT_SPP, "strongest": nirc_fig7.QUICK_STRONGEST,
+         "runs": nirc_fig7.QUICK_RUNS, "pt_at": ("NIRC unbiased",)}
+    assert "Grid cache" not in nirc_fig7.QUICK_RUNS
     assert result.settings["PT calibrations"] == \
-        "spp candidates up to 32, strongest PT's candidates: pt"
+        "at NIRC unbiased's time, spp candidates up to 32, strongest PT's candidates: pt"
     full = nirc_fig7.measure(Context(nirc_fig7.FULL, store, None))
-    assert "max_pt_spp" not in store.calls[-1][1]
-    assert full.settings["PT calibrations"] == "unbounded"
+    assert not {"max_pt_spp", "runs", "pt_at"} & set(store.calls[-1][1])
+    assert full.settings["PT calibrations"] == "unbounded, at every matched run's time"
     points = [p for p in result.points if p.scene == "white-room"]
     assert [p.run_id for p in points] == [1, 2, 3, 4, 5, 6, 7, 8, 9]
     assert points[6].series == "NIRC biased (N_c 2) (= paper's PT 2 spp time)"
@@ -130,3 +134,7 @@ def test_fig8_is_the_comparison_on_door_without_the_papers_numbers_drawn(
     assert {p.scene for p in result.points} == {"door"}
     assert all(p.paper == {} for p in result.points)
     assert [v.verdict for v in result.verdicts] == ["does not hold"]
+    # --quick: the verdict's runs, no PT calibrated at a matched time.
+    assert (store.calls[0][1]["runs"], store.calls[0][1]["pt_at"]) == (nirc_fig8.QUICK_RUNS, ())
+    assert store.calls[0][1]["allow_loaded"]
+    assert result.settings["PT calibrations"] == "none (no equal-time PT rows)"
