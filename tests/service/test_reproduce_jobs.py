@@ -165,6 +165,9 @@ def test_the_figure_png_is_the_job_s_own_file_bounded_or_a_404_saying_why(api, m
     png.symlink_to(other)
     assert client.get(stored["figure_url"]).status_code == 404
     png.unlink()
+    png.write_bytes(b"<svg/>")
+    assert "not a PNG" in client.get(stored["figure_url"]).json()["detail"]
+    png.unlink()
     gone = client.get(stored["figure_url"])
     assert gone.status_code == 404 and "gone" in gone.json()["detail"]
 
