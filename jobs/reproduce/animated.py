@@ -16,8 +16,9 @@ RECOVERY_NOTE = ("frames until the seed-mean MRSE stays within 10 % of the segme
 
 def stored_run(ctx: Context, spec: Any, figure: str | None = None) -> Any:
     """The run of ``spec`` (a ``RenderSpec`` with its animation), rendered unless one is
-    stored: with ``figure``, the run stored under the figure's name, the spec's key (the
-    spec under today's versions) and this CPU, whatever commit made it; without, one of
+    stored: with ``figure``, the run stored under that name (a figure's, or one shared by
+    figures rendering the same runs), the spec's key (the spec under today's versions)
+    and this CPU, whatever commit made it; without, one of
     exactly this spec by this commit (jobs.protocol.executor.find_same_run). Counted in
     ``ctx.work`` as a point reused or rendered."""
     from jobs.protocol.executor import execute
