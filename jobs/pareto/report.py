@@ -22,7 +22,8 @@ grid; docs/pareto.md). Each calibration is stored with its run.
 Bounding the PT calibrations (a quick run): ``max_pt_spp`` keeps the PT candidates at
 most that spp (a matched time PT would spend on more is reported ``capped``: its PT
 rows then have less than equal time), ``strongest`` names the strongest PT's candidates
-calibrated (default: all); the report states both in ``bounds``.
+calibrated (default: all; none: no strongest-PT rows); the report states both in
+``bounds``.
 
 Leaving rows out (a quick run whose claims need fewer): ``runs`` names the comparison
 runs rendered by their registry labels (default: all; the budget run, PT 2 spp, is always
@@ -100,8 +101,9 @@ def comparison_report(
     out (module docstring)."""
     core = pt_core_methods()
     chosen = list(core if strongest is None else strongest)
-    if not chosen or set(chosen) - set(core):
-        raise ValueError(f"strongest: give one or more of {', '.join(core)}")
+    if set(chosen) - set(core):
+        raise ValueError(f"strongest: give any of {', '.join(core)} (none: no strongest-PT "
+                         "rows)")
     if max_pt_spp is not None and max_pt_spp < 1:
         raise ValueError("max_pt_spp must be at least 1")
     entries = sorted(((name, entry) for name, method in METHODS.items()
@@ -211,19 +213,22 @@ def comparison_report(
                         budget=pt_budget(name, ms))
             if found is not None:       # the PT core renders every scene: left out, loaded
                 candidates[name] = found
-        if pt_eq is None or not candidates:
+        if pt_eq is None or (chosen and not candidates):
+            continue
+        report.equal_time += [
+            _row(entry.label, summary),
+            _row(f"{paper} {pt_eq.spec.spp} spp (= {entry.label} time)", pt_eq,
+                 "; ".join(caveats(pt_eq.metrics["calibration"])))]
+        if not candidates:
             continue
         best = min(candidates, key=lambda name: _mrse(candidates[name]))
         best_run = candidates[best]
         lowest = (f"lowest MRSE at this time of {', '.join(candidates)} with throughput "
                   "roulette")
-        report.equal_time += [
-            _row(entry.label, summary),
-            _row(f"{paper} {pt_eq.spec.spp} spp (= {entry.label} time)", pt_eq,
-                 "; ".join(caveats(pt_eq.metrics["calibration"]))),
+        report.equal_time.append(
             _row(f"{strongest_label}: {METHODS[best].label or best} {best_run.spec.spp} spp "
                  f"(= {entry.label} time)", best_run,
-                 "; ".join([lowest, *caveats(best_run.metrics["calibration"])]))]
+                 "; ".join([lowest, *caveats(best_run.metrics["calibration"])])))
     return report
 
 

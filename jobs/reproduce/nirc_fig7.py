@@ -35,24 +35,24 @@ EQUAL_TIME_TOLERANCE = 1.1
 
 #: --quick's bounds on the report's PT calibrations (jobs/pareto/report.py): spp
 #: candidates up to this many (a PT row at a matched time that would spend more is
-#: flagged capped: less than equal time), and one strongest-PT candidate, as its rows
+#: flagged capped: less than equal time), and no strongest-PT candidate, as its rows
 #: serve no verdict here.
 QUICK_MAX_PT_SPP = 32
-QUICK_STRONGEST = ("pt",)
+QUICK_STRONGEST: tuple[str, ...] = ()
 #: --quick's rows (the report's ``runs`` and ``pt_at``): the comparison runs the verdicts
 #: read, without the grid cache (not in the paper's Fig. 7; its run and its two PT
-#: calibrations were a third of the figure's time), and PT calibrated at unbiased NIRC's
-#: frame time alone, the time its claim compares at.
+#: calibrations were a quarter of a scene's time), and the paper's PT calibrated at
+#: unbiased NIRC's frame time alone, the time its claim compares at.
 QUICK_RUNS = ("PT 1 spp", "PT 2 spp", "NRC", "NIRC biased", "NIRC unbiased",
               "NIRC biased (equal time)")
 QUICK_PT_AT = ("NIRC unbiased",)
 QUICK_WHY = ("--quick: 16x16, K = 3 seeds (the least for MRSE's interval) of F = 4 frames "
              "after 8 pre-training frames (NRC's frame alone took 2 s at 16x16 on the loaded "
              "machine); per scene the 5 runs the verdicts read (no grid cache), the N_c "
-             "calibration and 2 PT calibrations at unbiased NIRC's time (the paper's PT and "
-             f"the strongest PT's candidate {', '.join(QUICK_STRONGEST)} alone) with spp "
-             f"candidates up to {QUICK_MAX_PT_SPP} (unbounded, one PT calibration to NRC's "
-             "frame took 7 min at load 17-20 over 18 spp candidates); a capped PT row has "
+             "calibration and one PT calibration, the paper's PT at unbiased NIRC's time "
+             f"with spp candidates up to {QUICK_MAX_PT_SPP}, no strongest PT (unbounded, one "
+             "PT calibration to NRC's frame took 7 min at load 17-20 over 18 spp candidates; "
+             "the 6 PT rows took 30 % of a scene's time at load 15-19); a capped PT row has "
              "less than equal time (its note says so); timings taken on a loaded machine "
              "are used (noted)")
 FULL_WHY = ("--full: 64x64, K = 4, F = 64 after 128 pre-training frames, loaded timings "
@@ -141,9 +141,9 @@ def pt_bounds_text(bounds: dict[str, Any]) -> str:
         return "unbounded, at every matched run's time"
     if not bounds["pt_at"]:
         return "none (no equal-time PT rows)"
+    strongest = ", ".join(bounds["strongest"]) or "none"
     return (f"at {', '.join(bounds['pt_at'])}'s time, spp candidates up to "
-            f"{bounds['max_pt_spp']}, strongest PT's candidates: "
-            f"{', '.join(bounds['strongest'])}")
+            f"{bounds['max_pt_spp']}, strongest PT's candidates: {strongest}")
 
 
 def scene_points(ctx: Context, scene: str, paper_scene: str | None, notes: list[str],

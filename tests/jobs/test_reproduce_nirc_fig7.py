@@ -78,7 +78,7 @@ def test_fig7_keeps_each_run_once_with_the_papers_numbers_and_time_ratios(
          "runs": nirc_fig7.QUICK_RUNS, "pt_at": ("NIRC unbiased",)}
     assert "Grid cache" not in nirc_fig7.QUICK_RUNS
     assert result.settings["PT calibrations"] == \
-        "at NIRC unbiased's time, spp candidates up to 32, strongest PT's candidates: pt"
+        "at NIRC unbiased's time, spp candidates up to 32, strongest PT's candidates: none"
     full = nirc_fig7.measure(Context(nirc_fig7.FULL, store, None))
     assert not {"max_pt_spp", "runs", "pt_at"} & set(store.calls[-1][1])
     assert full.settings["PT calibrations"] == "unbounded, at every matched run's time"
