@@ -32,6 +32,7 @@ USER_ERROR_CLASSES = frozenset({
     "jobs.views.run_query.RunQueryError",
     "jobs.views.comparison.ComparisonError",
     "jobs.protocol.calibration.LoadedMachineError",
+    "jobs.record.reproduction_marker.FolderBusy",
 })
 
 

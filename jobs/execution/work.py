@@ -32,6 +32,7 @@ from jobs.protocol.spec import ReferenceSpec, RenderSpec, SweepSpec
 from jobs.protocol.versions import reference_estimator_version
 from jobs.record.config import DATABASE_FILENAME, Settings
 from jobs.record.models import Artifact, Reference
+from jobs.record.reproduction_folders import reproduction_bytes
 from jobs.record.store import Store
 from jobs.record.usage import distinct_file_bytes
 from jobs.sweeps.snapshots import V1_PASSES
@@ -198,8 +199,9 @@ def reference_stored(store: Store, scene: str, resolution: int, reference: Refer
 
 def data_bytes(store: Store, settings: Settings) -> int:
     """Bytes the data folder holds: the stored artifacts (each file once), the
-    reference files, the stored scenes, the uploaded images and the SQLite database
-    file (if the database is one)."""
+    reference files, the stored scenes, the uploaded images, the stored reproductions
+    (the command line's and the jobs') and the SQLite database file (if the database is
+    one)."""
     with store.session() as session:
         distinct = select(Artifact.path, func.max(Artifact.bytes).label("bytes")) \
             .group_by(Artifact.path).subquery()
@@ -210,6 +212,7 @@ def data_bytes(store: Store, settings: Settings) -> int:
     for folder in (settings.scenes_dir, settings.uploaded_images_dir):
         if folder.is_dir():
             total += distinct_file_bytes(folder.rglob("*"))
+    total += reproduction_bytes(settings)
     database = settings.data_dir / DATABASE_FILENAME
     for path in (database, database.with_name(database.name + "-wal")):
         if str(settings.database_url).startswith("sqlite") and path.is_file():

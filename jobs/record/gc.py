@@ -23,7 +23,10 @@ user named or tagged (``nirc-bench runs tag``) keeps its artifacts. The **reprod
 figures** (``data/reproduce``: tables, PNGs, provenance; jobs/record/reproduction_folders.py)
 go by the same policy, each dated by when it finished and counted in the same size
 beside the artifact store; one that never finished goes once its files are older than
-``gc_keep_days``; the folder of a reproduce job queued or running is never removed.
+``gc_keep_days``; the folder of a reproduce job queued or running is never removed, nor
+one whose run (a job's, or the command line's ``nirc-bench reproduce``) holds its marker
+while its process lives (jobs/record/reproduction_marker.py; a marker left by a process
+that is gone makes its folder an unfinished reproduction).
 Artifacts of references and cache snapshots are kept: later jobs reuse them. An
 uploaded image goes with its run's artifacts (those this plan removes, or none left)
 whatever its age: nothing is left to compare it with; the run's and key's folders go
@@ -48,6 +51,7 @@ from sqlalchemy import delete, func, select
 from jobs.record.config import Settings
 from jobs.record.models import Artifact, CacheSnapshot, Job, JobStatus, Reference, Run, Sweep
 from jobs.record.reproduction_folders import JOB_PREFIX, PROVENANCE, reproduction_folders
+from jobs.record.reproduction_marker import is_running
 from jobs.record.store import Store
 from jobs.record.usage import forget_scene
 
@@ -143,14 +147,14 @@ def active_reproductions(store: Store) -> set[int]:
 
 def _reproductions(store: Store, settings: Settings, old_mtime: float
                    ) -> tuple[list[Removal], list[tuple[datetime, Removal]]]:
-    """The stored reproductions but those of queued or running jobs: the unfinished ones
-    whose files are all older than ``old_mtime`` (to remove), and the finished ones with
-    when they finished (for the retention policy)."""
+    """The stored reproductions but those of queued or running jobs and those a live run
+    holds: the unfinished ones whose files are all older than ``old_mtime`` (to remove),
+    and the finished ones with when they finished (for the retention policy)."""
     active = active_reproductions(store)
     unfinished: list[Removal] = []
     finished: list[tuple[datetime, Removal]] = []
     for found in reproduction_folders(settings):
-        if found.job_id in active:
+        if found.job_id in active or found.running:
             continue
         if found.finished is not None:
             finished.append((found.finished, Removal(
@@ -281,7 +285,7 @@ def apply(store: Store, settings: Settings, gc_plan: Plan) -> int:
     freed += _remove_artifact_rows(store, settings, [
         artifact_id for removal in gc_plan.removals for artifact_id in removal.artifact_ids])
     # A scene named since the plan (a job submitted meanwhile) stays, and so does the
-    # folder of a reproduce job queued again meanwhile.
+    # folder of a reproduce job queued again, or of a reproduction started, meanwhile.
     named = {name.split(":", 1)[1] for name in named_scenes(store)}
     active = active_reproductions(store)
     for removal in gc_plan.removals:
@@ -307,9 +311,11 @@ def apply(store: Store, settings: Settings, gc_plan: Plan) -> int:
 def _remove_reproduction(removal: Removal, settings: Settings, active: set[int]) -> int:
     """Remove a reproduction's files (its provenance first: readers pass over it from
     then on) and the folders left empty, unless its job (``removal.path`` is its
-    folder) is queued or running; bytes freed."""
+    folder) is queued or running or a live run holds its marker; bytes freed."""
     if removal.path.name.startswith(JOB_PREFIX) and \
             int(removal.path.name.removeprefix(JOB_PREFIX)) in active:
+        return 0
+    if is_running(removal.path):
         return 0
     freed = 0
     for path in sorted(removal.files, key=lambda path: path.name != PROVENANCE):

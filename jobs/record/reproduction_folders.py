@@ -7,18 +7,24 @@ files: ``table.json``, ``table.md``, ``figure.png`` and what the figure draws be
 reproduction finished when its ``provenance.json`` says (``finished_at``); one without
 (stored before provenance was recorded, or whose drawing failed) is dated by its
 ``table.json``; one without a table never finished (it is written after the figure's
-measure).
+measure). A folder whose run is under way holds its marker (jobs/record/reproduction_marker.py):
+while its process lives the reproduction is ``running``; a marker left by a process that
+is gone says the run never finished, whatever older files the folder holds.
+
+Their bytes count in the data folder's size (``max_data_bytes``) and a job's in its
+key's quota (jobs/record/usage.py): :func:`reproduction_bytes`.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 from jobs.record.config import Settings
+from jobs.record.reproduction_marker import MARKER, is_running
 
 PROVENANCE = "provenance.json"
 TABLE = "table.json"
@@ -32,8 +38,9 @@ class ReproductionFolder:
     folder: Path
     files: list[Path]
     job_id: int | None              # the service's job that wrote it; None: the CLI
-    finished: datetime | None       # None: it never finished
+    finished: datetime | None       # None: it never finished (or is running)
     newest_mtime: float             # of its files
+    running: bool                   # a live process holds its marker
 
     @property
     def bytes(self) -> int:
@@ -58,10 +65,18 @@ def reproduction_folders(settings: Settings) -> list[ReproductionFolder]:
     return [folder for folder in found if folder.files]
 
 
+def reproduction_bytes(settings: Settings, job_ids: Collection[int] | None = None) -> int:
+    """Bytes the stored reproductions take: all of them, or those of the jobs ``job_ids``
+    (the CLI's count in no key's)."""
+    return sum(found.bytes for found in reproduction_folders(settings)
+               if job_ids is None or found.job_id in job_ids)
+
+
 def _found(folder: Path, files: list[Path], job_id: int | None) -> ReproductionFolder:
-    mtimes = [path.lstat().st_mtime for path in files]
-    return ReproductionFolder(folder, files, job_id, _finished(folder),
-                              max(mtimes, default=0.0))
+    mtimes = [_mtime(path) for path in files]
+    marked = folder / MARKER in files
+    return ReproductionFolder(folder, files, job_id, None if marked else _finished(folder),
+                              max(mtimes, default=0.0), marked and is_running(folder))
 
 
 def _finished(folder: Path) -> datetime | None:
@@ -93,3 +108,10 @@ def _size(path: Path) -> int:
         return path.lstat().st_size
     except OSError:
         return 0
+
+
+def _mtime(path: Path) -> float:
+    try:
+        return path.lstat().st_mtime
+    except OSError:
+        return 0.0          # gone since the folder was listed (a run's draft marker)

@@ -8,10 +8,13 @@ A key holds:
   handful of files: a walk of that folder alone);
 * the scenes it uploaded: each upload leaves an owner mark
   ``scenes/.owners/<key id>/<digest>`` holding the scene's bytes, counted while the
-  scene is stored (gc removes the marks with their scene).
+  scene is stored (gc removes the marks with their scene);
+* the reproductions its reproduce jobs stored (``reproduce/<paper>-<figure>/job-<id>/``,
+  jobs/record/reproduction_folders.py), running or done.
 
 References and cache snapshots are shared: any key's later job reuses them, so they
 count in the data folder's size (``max_data_bytes``) and in no key's quota; so do
+the reproductions of the command line (``nirc-bench reproduce`` without a service) and
 the runs a sweep's stages store (their keys are content keys, shared by every
 sweep that needs them). The estimated files of a key's unfinished jobs are added by
 the service, which knows how to estimate a job (service/api/quota.py).
@@ -28,6 +31,7 @@ from sqlalchemy import func, or_, select
 from jobs.record.artifacts import PRIVATE_FILE_MODE, make_private_dir
 from jobs.record.config import Settings
 from jobs.record.models import Artifact, Job, JobStatus
+from jobs.record.reproduction_folders import reproduction_bytes
 from jobs.record.store import Store
 
 #: The folder of the scenes' owner marks, inside the scenes folder (gc and the scene
@@ -90,15 +94,18 @@ def _image_bytes(settings: Settings, key_id: int) -> int:
 
 def stored_bytes(store: Store, settings: Settings, key_id: int) -> int:
     """Bytes key ``key_id`` holds on disk: its jobs' runs' and sweeps' artifacts (each
-    file once) and its uploaded images and scenes."""
+    file once), its uploaded images and scenes, and its jobs' reproductions."""
     owned = Job.owner_key_id == key_id
     with store.session() as session:
+        reproduce_jobs = set(session.scalars(select(Job.id).where(
+            owned, Job.kind == "reproduce")))
         files = select(Artifact.path, func.max(Artifact.bytes).label("bytes")).where(or_(
             Artifact.run_id.in_(select(Job.run_id).where(owned, Job.run_id.is_not(None))),
             Artifact.sweep_id.in_(select(Job.sweep_id).where(owned, Job.sweep_id.is_not(None)))
         )).group_by(Artifact.path).subquery()
         artifacts = int(session.scalar(select(func.coalesce(func.sum(files.c.bytes), 0))) or 0)
-    return artifacts + _image_bytes(settings, key_id) + _scene_bytes(settings, key_id)
+    return (artifacts + _image_bytes(settings, key_id) + _scene_bytes(settings, key_id)
+            + (reproduction_bytes(settings, reproduce_jobs) if reproduce_jobs else 0))
 
 
 def unfinished_spec_keys(store: Store, key_id: int) -> list[str]:

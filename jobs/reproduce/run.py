@@ -1,6 +1,8 @@
 """Run one registered figure: measure it at a budget, then write its table (Markdown,
 JSON), draw its PNG and record its provenance (with what it took: wall and CPU seconds,
-the machine's load) into one folder."""
+the machine's load) into one folder. The folder holds a marker while the run lasts
+(jobs/record/reproduction_marker.py): retention leaves it alone, and a second run into it
+is refused."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from pydantic import ValidationError
 
 from jobs.protocol.provenance import git_commit, library_versions
 from jobs.record.reproduction_folders import JOB_PREFIX, PROVENANCE
+from jobs.record.reproduction_marker import running_marker
 from jobs.reproduce.papers import paper_data
 from jobs.reproduce.registry import (
     MODES,
@@ -35,21 +38,22 @@ def reproduce(paper: str, key: str, mode: str, out_dir: Path, store: Any, settin
     spec = get_figure(paper, key)
     if mode not in MODES:
         raise ReproduceError(f"unknown mode '{mode}'; choose one of {list(MODES)}")
-    ctx = Context(budget or spec.budgets[mode], store, settings, progress)
-    _values, claims = paper_data(paper).of(key)
-    clock = Clock()
-    measured = spec.measure(ctx)
-    stated_mode = mode if budget is None else f"{mode} (budget replaced)"
-    reproduction = measured.model_copy(update={
-        "mode": stated_mode, "work": ctx.work, "claims": [c.model_dump() for c in claims]})
-    paths = reproduction.write(out_dir)
-    paths["figure"] = spec.draw(reproduction, out_dir / "figure.png")
-    provenance = Provenance(job_id=job_id, mode=stated_mode, git_commit=git_commit(),
-                            libraries=library_versions(), finished_at=datetime.now(UTC),
-                            time=clock.read())
-    paths["provenance"] = out_dir / PROVENANCE
-    paths["provenance"].write_text(provenance.model_dump_json(indent=1) + "\n")
-    return reproduction, paths
+    with running_marker(out_dir):
+        ctx = Context(budget or spec.budgets[mode], store, settings, progress)
+        _values, claims = paper_data(paper).of(key)
+        clock = Clock()
+        measured = spec.measure(ctx)
+        stated_mode = mode if budget is None else f"{mode} (budget replaced)"
+        reproduction = measured.model_copy(update={
+            "mode": stated_mode, "work": ctx.work, "claims": [c.model_dump() for c in claims]})
+        paths = reproduction.write(out_dir)
+        paths["figure"] = spec.draw(reproduction, out_dir / "figure.png")
+        provenance = Provenance(job_id=job_id, mode=stated_mode, git_commit=git_commit(),
+                                libraries=library_versions(), finished_at=datetime.now(UTC),
+                                time=clock.read())
+        paths["provenance"] = out_dir / PROVENANCE
+        paths["provenance"].write_text(provenance.model_dump_json(indent=1) + "\n")
+        return reproduction, paths
 
 
 class Clock:
