@@ -41,19 +41,15 @@ SERIES = (
      "pretrain_frames", 0),
 )
 #: Equal memory (about the paper's 75 floats per pixel) for the two neural models, by image
-#: size: their defaults hold 1.6 M (NCV) and 1.3 M (NIRC) parameters, 6,400 and 5,200
-#: floats a pixel at 16x16, and NCV's paper-sized flows alone (303 k) would need about
+#: size: their defaults hold 1.6 M (NCV) and 1.3 M (NIRC) parameters, about 1,560 and 1,270
+#: floats a pixel at 32x32, and NCV's paper-sized flows alone (303 k) would need about
 #: 100x100 pixels. Small networks instead, their floats measured (docs/reproduce.md):
-#: at 16x16 NCV 74.9 (flows of 8 bins, one hidden layer of 12; hash grid 4 levels x 2^11)
-#: and NIRC 73.3 (6 hidden layers of 16; 8 levels x 2^10); at 32x32 66.0 and 66.3.
-NCV_SMALL = {"flow": {"bins": 8, "blob_bins": 8, "width": 12, "hidden_layers": 1},
-             "normal_bins": 2, "integral_width": 32, "integral_hidden_layers": 1,
-             "position": {"n_levels": 4, "log2_hashmap_size": 11, "base_resolution": 4}}
+#: at 32x32 (--full) NCV 66.0 (flows of 16 bins, one hidden layer of 16; hash grid 8
+#: levels x 2^11) and NIRC 66.3 (6 hidden layers of 16; 8 levels x 2^12). --quick (16x16)
+#: has none: they judge no claim and were a quarter of its time (docs/reproduce.md).
 EQUAL_MEMORY = {
-    16: (NCV_SMALL, {"mlp": {"hidden_layers": 6, "width": 16},
-                     "position": {"n_levels": 8, "log2_hashmap_size": 10}}),
-    32: ({**NCV_SMALL, "flow": {"bins": 16, "blob_bins": 8, "width": 16, "hidden_layers": 1},
-          "integral_width": 16, "integral_hidden_layers": 2,
+    32: ({"flow": {"bins": 16, "blob_bins": 8, "width": 16, "hidden_layers": 1},
+          "normal_bins": 2, "integral_width": 16, "integral_hidden_layers": 2,
           "position": {"n_levels": 8, "log2_hashmap_size": 11, "base_resolution": 4}},
          {"mlp": {"hidden_layers": 6, "width": 16},
           "position": {"n_levels": 8, "log2_hashmap_size": 12}}),
@@ -83,13 +79,14 @@ CURVES = (("NCV", "ncv", {}, curves.ncv_frames),
 PAPER_RATIO = (1.1, 1.32)
 
 QUICK_WHY = ("--quick: 16x16, K = 3 seeds of F = 4 frames (the paper trains for thousands "
-             "of frames at 1080p on a GPU): 4 scenes x 7 series x 3 seeds = 84 renders")
+             "of frames at 1080p on a GPU): 4 scenes x 5 series x 3 seeds = 60 renders, no "
+             "equal-memory series (--full's), EMA curves of 8 frames")
 FULL_WHY = "--full: 32x32, K = 4, F = 64 frames: still far below the paper's training"
 QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=256, grid_preset="—", why=QUICK_WHY)
 FULL = Budget(resolution=32, seeds=4, frames=64, ref_spp=1024, grid_preset="—", why=FULL_WHY)
 
 #: Training frames of each EMA curve, by budget (a replaced budget: its frames).
-CURVE_FRAMES = {QUICK: 16, FULL: 4000}
+CURVE_FRAMES = {QUICK: 8, FULL: 4000}
 CURVE_WHY = ("EMA curves: one seed per scene and method, a residual probe after every "
              "frame; --quick {frames} frames ({seconds:.0f} s of rendering here), --full "
              "4000 as the paper")
