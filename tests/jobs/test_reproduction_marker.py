@@ -13,6 +13,7 @@ import json
 import os
 import socket
 import subprocess
+import sys
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -172,3 +173,27 @@ def test_a_second_run_into_a_live_marked_folder_is_refused(tmp_path):
     with pytest.raises(FolderBusy, match="another-host"):
         with running_marker(folder):
             pass
+
+
+def test_the_command_refuses_a_folder_a_live_run_marks_in_one_line(
+        tmp_path, monkeypatch, capsys):
+    """``nirc-bench reproduce vt fig99`` while another live process writes its folder:
+    exit 2, one line naming that process, no traceback, nothing measured; the control,
+    the same command once the marker is gone, runs the figure."""
+    from service.cli import main
+
+    measured: list[str] = []
+    _figure(monkeypatch, lambda ctx: measured.append("ran") or _measured(ctx))
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    monkeypatch.setattr(sys, "argv", ["nirc-bench", "reproduce", "vt", "fig99",
+                                      "--data-dir", str(tmp_path)])
+    folder = tmp_path / "reproduce" / "vt-fig99"
+    with running_marker(folder), pytest.raises(SystemExit) as refused:
+        main()
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and measured == [], err
+    assert "nirc-bench: error:" in err and f"process {os.getpid()}" in err
+    assert "Traceback" not in err
+    with pytest.raises(SystemExit) as ran:
+        main()
+    assert ran.value.code in (0, None) and measured == ["ran"], capsys.readouterr()
