@@ -81,7 +81,8 @@ def running_marker(folder: Path) -> Iterator[None]:
     """Hold ``folder``'s marker (the folder is made if missing) for the ``with`` body;
     FolderBusy if a live process holds it, or one on another host (it cannot be checked
     from here). The marker goes at the end, whatever the end, and so does the folder if
-    nothing else was written in it."""
+    it was made here and nothing else was written in it."""
+    made = not folder.exists()
     folder.mkdir(parents=True, exist_ok=True)
     marker = folder / MARKER
     # Written whole beside it, then linked in: a reader never sees a partial marker, and
@@ -97,10 +98,11 @@ def running_marker(folder: Path) -> Iterator[None]:
         yield
     finally:
         marker.unlink(missing_ok=True)
-        try:
-            folder.rmdir()
-        except OSError:
-            pass        # files of this run or of others: kept
+        if made:
+            try:
+                folder.rmdir()
+            except OSError:
+                pass        # files of this run or of others: kept
 
 
 def _take(marker: Path, draft: Path) -> None:

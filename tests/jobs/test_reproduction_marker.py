@@ -108,6 +108,10 @@ def test_the_marker_goes_when_the_figure_fails(store, settings, monkeypatch):
     with pytest.raises(RuntimeError, match="planted"):
         reproduce("vt", "fig99", "quick", folder, store, settings)
     assert not folder.exists()              # made for the run, left empty: removed
+    folder.mkdir(parents=True)
+    with pytest.raises(RuntimeError, match="planted"):
+        reproduce("vt", "fig99", "quick", folder, store, settings)
+    assert folder.is_dir() and not any(folder.iterdir())   # the caller's (--out) stays
 
 
 def _mark(folder: Path, pid: int, started_at: datetime, host: str | None = None) -> None:
