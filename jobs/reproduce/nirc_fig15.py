@@ -24,10 +24,11 @@ PRETRAIN_PER_FRAME = 8
 QUANTITIES = {"rbias2": "rBias² (cache at v1)", "mrse": "MRSE", "ms_per_frame": "ms per frame"}
 
 QUICK_WHY = ("--quick: 16x16, K = 3 seeds of F = 4 frames after 32 pre-training frames, "
-             "D 1, 2, 4, 6 (the paper trains thousands of frames at 1080p)")
+             "D 1, 3, 6: the shallowest and deepest the verdict compares and one between "
+             "(the paper trains thousands of frames at 1080p)")
 FULL_WHY = "--full: 64x64, K = 4, F = 16 after 512 pre-training frames, D 1-8"
 QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=256, grid_preset="—", why=QUICK_WHY,
-               values=(1.0, 2.0, 4.0, 6.0))
+               values=(1.0, 3.0, 6.0))
 FULL = Budget(resolution=64, seeds=4, frames=16, ref_spp=1024, grid_preset="—",
               why=FULL_WHY, values=(1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0))
 
