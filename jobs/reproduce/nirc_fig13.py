@@ -25,10 +25,12 @@ QUANTITIES = {"mrse": "MRSE", "flip": "FLIP", "rbias2": "rBias²", "rvar": "rVar
 NC_CANDIDATES = [1, 2, 4, 8]
 #: Two points are at "the same % IR bounces" when they differ by at most this (points).
 SAME_BOUNCES = 5.0
-#: Each cache trains this many frames per rendered frame before its snapshot.
+#: Each cache trains this many frames per rendered frame before its snapshot: fewer at
+#: the --quick size (:func:`train_frames`).
 TRAIN_PER_FRAME = 8
+QUICK_TRAIN_PER_FRAME = 4
 
-QUICK_WHY = ("--quick: 16x16, K = 3 seeds of F = 4 frames, caches trained 32 frames, "
+QUICK_WHY = ("--quick: 16x16, K = 3 seeds of F = 4 frames, caches trained 16 frames, "
              "cache-at-v1 images of 64 spp, eps 0.05, 0.2, 1; equal-time probes timed on a "
              "loaded machine are used (noted); the paper trains 2000 frames at 1080p")
 FULL_WHY = ("--full: 64x64, K = 4, F = 16, 128 training frames, 256-spp cache-at-v1 "
@@ -37,6 +39,14 @@ QUICK = Budget(resolution=16, seeds=3, frames=4, ref_spp=256, grid_preset="—",
                values=(0.05, 0.2, 1.0))
 FULL = Budget(resolution=64, seeds=4, frames=16, ref_spp=1024, grid_preset="—",
               why=FULL_WHY, values=(0.02, 0.05, 0.1, 0.2, 0.5, 1.0))
+
+
+def train_frames(budget: Budget) -> int:
+    """Frames each cache trains before its snapshot: :data:`QUICK_TRAIN_PER_FRAME` per
+    rendered frame at the --quick size or below (Fig. 12's adaptive series shares
+    these caches), :data:`TRAIN_PER_FRAME` above."""
+    per_frame = QUICK_TRAIN_PER_FRAME if budget.resolution <= QUICK.resolution else TRAIN_PER_FRAME
+    return per_frame * budget.frames
 
 
 def eps_sweep(ctx: Context, scene: str, equal_time: bool = True,
@@ -50,7 +60,7 @@ def eps_sweep(ctx: Context, scene: str, equal_time: bool = True,
     b = ctx.budget
     spec = SweepSpec(scene=scene, eps=list(b.values), nc=NC_CANDIDATES, methods=["nirc", "nrc"],
                      resolution=b.resolution, seeds=b.seeds, frames=b.frames,
-                     train_frames=TRAIN_PER_FRAME * b.frames, v1_spp=b.ref_spp // 4,
+                     train_frames=train_frames(b), v1_spp=b.ref_spp // 4,
                      equal_time=equal_time, allow_loaded=allow_loaded,
                      reference=ReferenceSpec(spp=b.ref_spp))
     result = run_sweep(spec, ctx.store, ctx.settings, progress=ctx.progress)
@@ -85,7 +95,7 @@ def measure(ctx: Context) -> Reproduction:
                                             "NIRC against NRC",
         mode="", settings={"resolution": f"{b.resolution}x{b.resolution}", "seeds K": b.seeds,
                            "frames F": b.frames, "eps": list(b.values),
-                           "training frames": TRAIN_PER_FRAME * b.frames,
+                           "training frames": train_frames(b),
                            "reference spp": b.ref_spp, "why": b.why},
         x_label="% IR bounces", quantities=QUANTITIES, points=points,
         verdicts=verdicts(points, same_as_nirc),
