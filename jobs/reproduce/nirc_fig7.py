@@ -41,7 +41,7 @@ QUICK_MAX_PT_SPP = 32
 QUICK_STRONGEST: tuple[str, ...] = ()
 #: --quick's rows (the report's ``runs`` and ``pt_at``): the comparison runs the verdicts
 #: read, without the grid cache (not in the paper's Fig. 7; its run and its two PT
-#: calibrations were a quarter of a scene's time), and the paper's PT calibrated at
+#: calibrations were a third of a scene's time), and the paper's PT calibrated at
 #: unbiased NIRC's frame time alone, the time its claim compares at.
 QUICK_RUNS = ("PT 1 spp", "PT 2 spp", "NRC", "NIRC biased", "NIRC unbiased",
               "NIRC biased (equal time)")
@@ -52,7 +52,7 @@ QUICK_WHY = ("--quick: 16x16, K = 3 seeds (the least for MRSE's interval) of F =
              "calibration and one PT calibration, the paper's PT at unbiased NIRC's time "
              f"with spp candidates up to {QUICK_MAX_PT_SPP}, no strongest PT (unbounded, one "
              "PT calibration to NRC's frame took 7 min at load 17-20 over 18 spp candidates; "
-             "the 6 PT rows took 30 % of a scene's time at load 15-19); a capped PT row has "
+             "the 6 PT rows took 37 % of a scene's time at load 15-19); a capped PT row has "
              "less than equal time (its note says so); timings taken on a loaded machine "
              "are used (noted)")
 FULL_WHY = ("--full: 64x64, K = 4, F = 64 after 128 pre-training frames, loaded timings "
