@@ -161,6 +161,42 @@ def test_a_frozen_call_replays_only_the_widths_and_values_it_was_recorded_with(m
     assert _widths(planted, counts[:3], shapes) == [25, 25, 25]   # wrong: 40
 
 
+def test_a_call_key_lists_widths_and_values_in_traversal_order(mi, monkeypatch):
+    """The key of a call (renderers.frozen.CallKey): a sequence's length, then its items;
+    a dict's names, each before its value; a struct's or a dataclass's fields in their
+    declared order; an array's width, a tensor's shape, a value itself. How a type is
+    entered is found once per type and kept: two struct types with the same field names
+    in other orders keep their own orders. Planted: one type entered the other's way
+    (a kept answer of the wrong type) gives another key."""
+    import dataclasses
+
+    import drjit as dr
+
+    import renderers.frozen as frozen
+
+    class XY:
+        DRJIT_STRUCT = {"x": mi.Float, "y": int}
+
+        def __init__(self, x, y):
+            self.x, self.y = x, y
+
+    class YX(XY):
+        DRJIT_STRUCT = {"y": int, "x": mi.Float}
+
+    @dataclasses.dataclass
+    class Pair:
+        first: object
+        second: object
+
+    tree = ([XY(mi.Float(1, 2, 3), 7), YX(mi.Float(1, 2), 8)],
+            {"k": Pair(dr.zeros(mi.TensorXf, (2, 3)), "s")}, None)
+    expected = (3, 2, 3, 7, 8, 2, "k", (2, 3), "s", None)
+    assert frozen.CallKey.of(tree).parts == expected
+    assert frozen.CallKey.of(tree).parts == expected   # the kept answers, the same key
+    monkeypatch.setitem(frozen._KINDS, YX, frozen._KINDS[XY])
+    assert frozen.CallKey.of(tree).parts != expected
+
+
 def test_a_capacity_only_grows_with_headroom_within_its_bound():
     from renderers.frozen import Capacity
 
