@@ -37,7 +37,8 @@ def stub(sph_bias: float, bth_rvar: float) -> tuple[Any, Any]:
 
     def sweep(ctx: Any, scene: str, method: str, parameter: str, values: list[Any],
               params: dict[str, Any], max_depth: int = -1) -> list[tuple[Any, Any]]:
-        assert parameter == "termination" and params["pretrain_frames"] == 8
+        assert parameter == "termination"
+        assert params["pretrain_frames"] == nirc_fig12.PRETRAIN_PER_FRAME * ctx.budget.frames
         return [point(f"{method.upper()} {values[0].upper()}")]
 
     def eps_sweep(ctx: Any, scene: str, equal_time: bool = True, **_: Any) -> Any:
@@ -52,13 +53,22 @@ def test_fig12_a_point_per_heuristic_and_scene_and_the_png(monkeypatch: pytest.M
     sweep, eps_sweep = stub(0.5, 0.5)
     monkeypatch.setattr(nirc_fig12, "sweep", sweep)
     monkeypatch.setattr(nirc_fig12, "eps_sweep", eps_sweep)
-    result, paths = reproduce("nirc", "fig12", "quick", tmp_path, None, None)
+    result, paths = reproduce("nirc", "fig12", "full", tmp_path, None, None)
     assert paths["figure"].read_bytes()[:4] == b"\x89PNG"
     series = [p.series for p in result.points if p.scene == "door"]
     assert series == ["NRC SPH", "NIRC SPH", "NIRC BTH", "NIRC adaptive", "NRC adaptive"]
     assert [p.x for p in result.points if p.scene == "door"] == [0, 1, 2, 3, 4]
     assert [v.verdict for v in result.verdicts] == ["holds", "holds"]
     assert "NRC / NIRC 2.00x" in result.verdicts[0].reason
+
+
+def test_fig12_quick_leaves_out_the_adaptive_series(monkeypatch: pytest.MonkeyPatch) -> None:
+    sweep, eps_sweep = stub(0.5, 0.5)
+    monkeypatch.setattr(nirc_fig12, "sweep", sweep)
+    monkeypatch.setattr(nirc_fig12, "eps_sweep", eps_sweep)
+    result = nirc_fig12.measure(Context(nirc_fig12.QUICK, None, None))
+    assert {p.series for p in result.points} == {"NRC SPH", "NIRC SPH", "NIRC BTH"}
+    assert [v.verdict for v in result.verdicts] == ["holds", "holds"]
 
 
 @pytest.mark.parametrize(("sph_bias", "bth_rvar", "expected"), [
