@@ -67,9 +67,6 @@ def equal_memory_series(resolution: int) -> tuple[tuple[Any, ...], ...]:
             (EQUAL_LABELS[1], "nirc", {**SERIES[4][2], "cache": {**nirc}}, "pretrain_frames", 0))
 
 
-X_LABEL = ("series: " + ", ".join(f"{i} {label}" for i, label in
-                                  enumerate([*(s[0] for s in SERIES), *EQUAL_LABELS]))
-           + "; EMA rows: training frame")
 QUANTITIES = {"v_rel": "V_rel(<F_r>)", "ms_per_frame": "ms per frame",
               "floats_per_pixel": "floats per pixel", "v_rel_ema": "EMA of V_rel"}
 #: The series with an EMA curve: (label, method, its parameters, the frame loop).
@@ -123,9 +120,9 @@ def floats_per_pixel(run: Any, pixels: int) -> float | None:
 def measure(ctx: Context) -> Reproduction:
     b = ctx.budget
     points: list[Point] = []
+    all_series = SERIES + equal_memory_series(b.resolution)
     for scene in SCENES:
-        for index, (series, method, params, parameter, value) in enumerate(
-                SERIES + equal_memory_series(b.resolution)):
+        for index, (series, method, params, parameter, value) in enumerate(all_series):
             [(row, run)] = sweep(ctx, scene, method, parameter, [value], params)
             points.append(Point(scene=scene, series=series, x=float(index), run_id=row.id,
                                 values={
@@ -142,7 +139,9 @@ def measure(ctx: Context) -> Reproduction:
                                            "variates and the neural caches",
         mode="", settings={"resolution": f"{b.resolution}x{b.resolution}", "seeds K": b.seeds,
                            "frames F": b.frames, "reference spp": b.ref_spp, "why": b.why},
-        x_label=X_LABEL, quantities=QUANTITIES, points=points, verdicts=verdicts(points, b),
+        x_label="series: " + ", ".join(f"{i} {s[0]}" for i, s in enumerate(all_series))
+        + "; EMA rows: training frame",
+        quantities=QUANTITIES, points=points, verdicts=verdicts(points, b),
         notes=["our scenes are the project's built-ins, not the paper's",
                "V_rel is the same quantity for every method: the per-pixel sample variance "
                "of the one-sample residual at the primary hit with the final model, over "

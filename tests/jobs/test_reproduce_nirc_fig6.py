@@ -82,6 +82,7 @@ def test_fig6_tables_every_scene_and_series_with_its_floats(
     table = [p for p in result.points if "v_rel" in p.values]
     # --quick has no equal-memory series (--full's 32x32 has both).
     assert len(table) == len(nirc_fig6.SCENES) * len(nirc_fig6.SERIES)
+    assert "floats" not in result.x_label      # the axis names the series measured alone
     assert [s[0] for s in nirc_fig6.equal_memory_series(nirc_fig6.FULL.resolution)] == \
         list(nirc_fig6.EQUAL_LABELS)
     floats = {p.series: p.values["floats_per_pixel"].value for p in table}
