@@ -52,6 +52,14 @@ def reproduce_all(
     if ctx.invoked_subcommand is not None:
         if every:
             raise UsageError("--all reproduces every figure: give no command with it")
+        # Given here, they would be dropped: the command has its own (its data folder
+        # would be the default one, its mode --quick).
+        given = [flag for name, flag in (("quick", "--quick/--full"), ("data_dir", "--data-dir"))
+                 if getattr(ctx.get_parameter_source(name), "name", "") == "COMMANDLINE"]
+        if given:
+            raise UsageError(f"{' and '.join(given)} before the command apply to --all alone: "
+                             "give them after the figure, e.g. 'reproduce nirc fig7 --full "
+                             "--data-dir D'")
         return
     if not every:
         raise UsageError("give a command ('reproduce list', 'reproduce <paper> <figure>') "

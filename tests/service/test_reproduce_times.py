@@ -103,6 +103,28 @@ def test_all_prints_each_figure_s_time_and_the_total_and_the_goal_keeps_the_exit
     assert "over the 0-minute goal" in text
 
 
+def test_options_before_a_figure_are_refused_not_dropped(
+        tmp_path, monkeypatch, capsys, fake_figure):  # noqa: F811 - the imported fixture
+    """--data-dir and --quick/--full before the figure belong to --all: with a figure they
+    are refused (dropped, the figure would render quick into the default data folder);
+    after it they apply. A regression writes into the default folder set here."""
+    monkeypatch.setattr(registry, "_FIGURES", {("vt", "fig99"): fake_figure})
+    monkeypatch.setattr(registry, "figure_modules", lambda: [])
+    monkeypatch.delenv("NIRC_BENCH_DATABASE_URL", raising=False)
+    default, chosen = tmp_path / "default", tmp_path / "chosen"
+    monkeypatch.setenv("NIRC_BENCH_DATA_DIR", str(default))
+    for before in (["--data-dir", str(chosen)], ["--full"]):
+        with mock.patch.object(sys, "argv", ["nirc-bench", "reproduce", *before, "vt", "fig99"]), \
+                pytest.raises(SystemExit) as exit_info:
+            main()
+        assert exit_info.value.code != 0
+        assert "give them after the figure" in capsys.readouterr().err
+    assert not (default / "reproduce").exists() and not (chosen / "reproduce").exists()
+    code, text = _cli(["reproduce", "vt", "fig99", "--data-dir", str(chosen)], capsys)
+    assert code == 0, text
+    assert (chosen / "reproduce" / "vt-fig99").is_dir() and not (default / "reproduce").exists()
+
+
 def _time(wall_s: float) -> FigureTime:
     return FigureTime(wall_s=wall_s, cpu_s=wall_s / 2, load_start=[1.0, 1.0, 1.0],
                       load_end=[2.0, 2.0, 2.0])
