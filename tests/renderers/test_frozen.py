@@ -375,3 +375,38 @@ def test_a_frozen_training_step_trains_exactly_like_the_traced_one(scenes, name)
     # 9e-8 relative on nrc's first step); the weights above are equal bitwise.
     assert frozen.loss_history == pytest.approx(traced.loss_history, rel=1e-6)
     assert frozen.stats == traced.stats
+
+
+def test_a_frozen_training_step_clears_no_gradient_outside_its_replay(scenes, monkeypatch):
+    """The optimizer's weights enter the frozen training step without their gradients
+    (renderers.caches.cache._detach_weights): Dr.Jit clears a gradient-enabled input's
+    gradient with a fill of its own on every call, outside the replay (the hash grid's
+    2.4 MB at full size). Planted: the weights handed over gradient-enabled, and the
+    grid's fill is there."""
+    import drjit as dr
+
+    import renderers.caches.cache as cache_module
+    from renderers.methods import nrc_di, nvc_lights
+    from renderers.timing import StageTimer
+
+    scene = scenes["many-lights"]
+    params = parse_params("nrc-di", {})
+
+    def grid_fills() -> int:
+        with frozen_frames(True):
+            _, cache = nrc_di.build(scene, params, 5)
+        for frame in range(3):
+            nvc_lights.train_frame(scene, cache, params, frame, StageTimer())
+        records = cache.training_records(scene.scene, 3)
+        grid_bytes = 4 * cache.parameters()[cache_module.GRID_KEY].size
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history_clear()
+            cache.train(records)
+            history = dr.kernel_history()
+        return sum(1 for kernel in history if str(kernel["type"]).endswith("Memset")
+                   and str(kernel["recording_mode"]).endswith("Inactive")
+                   and kernel["size"] == grid_bytes)
+
+    assert grid_fills() == 0
+    monkeypatch.setattr(cache_module, "_detach_weights", lambda _opt: None)
+    assert grid_fills() == 1
