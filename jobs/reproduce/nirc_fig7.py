@@ -7,7 +7,9 @@ with N_c calibrated to the paper's PT 2 spp frame time, and at each matched meth
 frame time the paper's PT with the most spp that fits and the strongest PT there. MRSE
 with the report's 95 % interval, FLIP with a Student-t interval over the K seeds, and
 times as ratios to PT 1 spp's frame on this CPU beside the paper's (its ms on an RTX 3080
-at 1080p, papers/nirc.toml). :func:`equal_time_figure` is also Fig. 8 (nirc_fig8.py)."""
+at 1080p, papers/nirc.toml). --quick renders only the rows its verdicts read
+(:data:`QUICK_RUNS`, PT at :data:`QUICK_PT_AT`'s time). :func:`equal_time_figure` is also
+Fig. 8 (nirc_fig8.py)."""
 
 from __future__ import annotations
 
