@@ -42,7 +42,12 @@ def reproduce(paper: str, key: str, mode: str, out_dir: Path, store: Any, settin
         ctx = Context(budget or spec.budgets[mode], store, settings, progress)
         _values, claims = paper_data(paper).of(key)
         clock = Clock()
-        measured = spec.measure(ctx)
+        # A figure renders scenes as loaded, often one under several grid-cache policies:
+        # those share their pre-fills (one per scene and seed).
+        from renderers.methods.grid_cache import prefills_shared
+
+        with prefills_shared():
+            measured = spec.measure(ctx)
         stated_mode = mode if budget is None else f"{mode} (budget replaced)"
         reproduction = measured.model_copy(update={
             "mode": stated_mode, "work": ctx.work, "claims": [c.model_dump() for c in claims]})

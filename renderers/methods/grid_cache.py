@@ -12,7 +12,7 @@ and propagates "until it reaches an equilibrium state", Sec. 6; :func:`prefill`)
 a short history, until the grid's mean stops changing, then the long history restarts
 from there. The pre-fill does not depend on the policy (its seeds leave the policy's
 parameters out), so renders that differ only in their policy reuse one pre-fill per
-seed within a process (:func:`prefilled`).
+seed within :func:`prefills_shared` (:func:`prefilled`).
 
 The policies (``termination``, with their own ``termination_params``): `var-bound`
 (threshold t, absolute or relative), `mse-min` (sample target s, margin, clamp) and
@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any, Literal
 
 from pydantic import Field
@@ -356,10 +358,26 @@ def prefill(propagation: Propagation, params: GridCacheParams,
 #: The policy's parameters: the only ones the propagation pass never reads (the update
 #: integrator samples as the path tracer does; the policy sits in the render integrator).
 POLICY_FIELDS = frozenset({"termination", "termination_params"})
-#: Pre-filled grids this process keeps for reuse (:func:`prefilled`), oldest first: K
-#: seeds of a few scenes (a figure sweeps policies over one scene's K seeds).
+#: Pre-filled grids kept for reuse within :func:`prefills_shared` (:func:`prefilled`):
+#: K seeds of a few scenes (a figure sweeps policies over one scene's K seeds).
 PREFILLS_KEPT = 16
-_PREFILLS: OrderedDict[str, tuple[dict[str, Any], int]] = OrderedDict()
+#: The kept grids, oldest first; None outside :func:`prefills_shared`.
+_PREFILLS: OrderedDict[str, tuple[dict[str, Any], int]] | None = None
+
+
+@contextmanager
+def prefills_shared() -> Iterator[None]:
+    """Within: renders keep their pre-filled grids and reuse them (:func:`prefilled`);
+    on leaving, the grids are dropped. For a caller that renders scenes as loaded under
+    several policies (a reproduced figure): a scene changed in place after loading keeps
+    its fingerprint, so outside such a caller nothing is kept."""
+    global _PREFILLS
+    outer = _PREFILLS
+    _PREFILLS = OrderedDict() if outer is None else outer
+    try:
+        yield
+    finally:
+        _PREFILLS = outer
 
 
 def prefill_seed_parts(params: GridCacheParams, seed_parts: tuple[Any, ...]
@@ -375,28 +393,29 @@ def prefill_seed_parts(params: GridCacheParams, seed_parts: tuple[Any, ...]
 def prefilled(scene: Any, propagation: Propagation, params: GridCacheParams,
               seed_parts: tuple[Any, ...]) -> tuple[int, bool]:
     """Pre-fill ``propagation``'s grid (:func:`prefill`, with
-    :func:`prefill_seed_parts`), or give it a copy of the grid an earlier render in this
-    process pre-filled from the same scene content, resolution, parameters but the
-    policy's, and seeds: the pre-fill's records do not depend on the policy, and a pass
-    gives the same bits per seed (version 4). Returns (passes, whether reused). An
-    animated scene, or one without a fingerprint, is pre-filled anew (an animated
-    scene's state when a render starts is not keyed)."""
+    :func:`prefill_seed_parts`), or, within :func:`prefills_shared`, give it a copy of
+    the grid an earlier render there pre-filled from the same scene content, resolution,
+    parameters but the policy's, and seeds: the pre-fill's records do not depend on the
+    policy, and a pass gives the same bits per seed (version 4). Returns (passes,
+    whether reused). An animated scene, or one without a fingerprint, is pre-filled anew
+    (an animated scene's state when a render starts is not keyed)."""
     parts = prefill_seed_parts(params, seed_parts)
-    grid = propagation.grid
+    grid, kept = propagation.grid, _PREFILLS
     fingerprint = getattr(scene, "fingerprint", None)
-    key = (None if fingerprint is None or getattr(scene, "animation", None) is not None else
+    key = (None if kept is None or fingerprint is None
+           or getattr(scene, "animation", None) is not None else
            digest("grid-prefill", fingerprint, list(scene.resolution), parts))
-    if key is not None and key in _PREFILLS:
-        arrays, passes = _PREFILLS[key]
-        _PREFILLS.move_to_end(key)
+    if kept is not None and key in kept:
+        arrays, passes = kept[key]
+        kept.move_to_end(key)
         grid.bind(arrays)
         grid.bind(grid.copied_arrays())   # a replay writes into the arrays it is handed
         return passes, True
     passes, _means = prefill(propagation, params, parts)
-    if key is not None:
-        _PREFILLS[key] = (grid.copied_arrays(), passes)
-        while len(_PREFILLS) > PREFILLS_KEPT:
-            _PREFILLS.popitem(last=False)
+    if kept is not None and key is not None:
+        kept[key] = (grid.copied_arrays(), passes)
+        while len(kept) > PREFILLS_KEPT:
+            kept.popitem(last=False)
     return passes, False
 
 

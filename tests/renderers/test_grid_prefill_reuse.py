@@ -1,10 +1,11 @@
-"""Renders that differ only in their policy share one pre-fill per seed in a process
-(renderers/methods/grid_cache.py, ``prefilled``): a render that reuses the pre-fill gives
-the image it gives with a pre-fill of its own, and a render whose pre-fill would differ
-(another roulette survival) pre-fills anew. Planted: a key that leaves the survival out
-reuses the other survival's grid, and the image shows it.
+"""Renders that differ only in their policy share one pre-fill per seed within
+``prefills_shared`` (renderers/methods/grid_cache.py, ``prefilled``; a reproduced
+figure measures within it): a render that reuses the pre-fill gives the image it gives
+with a pre-fill of its own, a render whose pre-fill would differ (another roulette
+survival) pre-fills anew, and outside the scope nothing is kept. Planted: a key that
+leaves the survival out reuses the other survival's grid, and the image shows it.
 
-Six tiny renders (8x8, a pre-fill of at most 12 passes, one frame, no warm-up)."""
+Seven tiny renders (8x8, a pre-fill of at most 12 passes, one frame, no warm-up)."""
 
 from __future__ import annotations
 
@@ -37,31 +38,26 @@ def _render(scene, policy: str, **changes) -> tuple[np.ndarray, bool]:
     return np.asarray(output.accumulated), output.method_stats["prefill_reused"]
 
 
-@pytest.fixture()
-def empty(monkeypatch):
-    """No pre-fill kept from other tests."""
-    from renderers.methods import grid_cache
-
-    monkeypatch.setattr(grid_cache, "_PREFILLS", type(grid_cache._PREFILLS)())
-
-
 def test_a_reused_prefill_renders_as_its_own_and_another_survival_prefills_anew(
-        scene, empty, monkeypatch):
+        scene, monkeypatch):
     from renderers.methods import grid_cache
 
-    own, reused = _render(scene, "area-spread")
-    assert not reused
-    grid_cache._PREFILLS.clear()
-    _render(scene, "var-bound")
-    shared, reused = _render(scene, "area-spread")
-    assert reused
-    np.testing.assert_array_equal(shared, own)
-    own_half, reused = _render(scene, "area-spread", rr_survival=0.5)
-    assert not reused
-    # Planted: the survival counted as the policy's, so left out of the pre-fill's key.
-    grid_cache._PREFILLS.clear()
-    monkeypatch.setattr(grid_cache, "POLICY_FIELDS",
-                        grid_cache.POLICY_FIELDS | {"rr_survival"})
-    _render(scene, "var-bound")
-    wrong, reused = _render(scene, "area-spread", rr_survival=0.5)
-    assert reused and not np.array_equal(wrong, own_half)
+    with grid_cache.prefills_shared():
+        own, reused = _render(scene, "area-spread")
+        assert not reused
+        grid_cache._PREFILLS.clear()
+        _render(scene, "var-bound")
+        shared, reused = _render(scene, "area-spread")
+        assert reused
+        np.testing.assert_array_equal(shared, own)
+        own_half, reused = _render(scene, "area-spread", rr_survival=0.5)
+        assert not reused
+        # Planted: the survival counted as the policy's, so left out of the key.
+        grid_cache._PREFILLS.clear()
+        with monkeypatch.context() as planted:
+            planted.setattr(grid_cache, "POLICY_FIELDS",
+                            grid_cache.POLICY_FIELDS | {"rr_survival"})
+            _render(scene, "var-bound")
+            wrong, reused = _render(scene, "area-spread", rr_survival=0.5)
+        assert reused and not np.array_equal(wrong, own_half)
+    assert not _render(scene, "area-spread")[1]   # nothing is kept outside the scope
