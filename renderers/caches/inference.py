@@ -87,13 +87,18 @@ class PackedMLP:
         self.plan = plan
 
     def arrays(self) -> Any:
-        """The packed weights (a PyTree of matrix views): what evaluation reads."""
-        return self.views if self.split else self.full
+        """What evaluation reads of the weights (a frozen frame's argument): split, the
+        one buffer that ``nn.pack`` packed every matrix into (the views' offsets and
+        shapes are the architecture's, the same for any weights); else the packed
+        network. Handed the views instead, Dr.Jit walked their fields on every call:
+        a frozen call taking `nrc-di`'s views cost 0.12 ms more than one taking a
+        Float."""
+        return self.views[0].buffer if self.split else self.full
 
     def bind(self, arrays: Any) -> None:
         """Evaluate with ``arrays`` (from :meth:`arrays`; a frozen frame's argument)."""
         if self.split:
-            self.views = arrays
+            self.views = tuple(_reading(view, arrays) for view in self.views)
         else:
             self.full = arrays
 
@@ -126,6 +131,14 @@ class PackedMLP:
     def _out(h: nn.CoopVec) -> list[mi.Float]:
         """The rows of ``h`` as float32 arrays."""
         return [mi.Float(r) for r in h]
+
+
+def _reading(view: nn.MatrixView, buffer: Any) -> nn.MatrixView:
+    """``view`` (its layout, offset, shape, ...) into ``buffer``."""
+    other = nn.MatrixView()
+    for name in nn.MatrixView.DRJIT_STRUCT:
+        setattr(other, name, buffer if name == "buffer" else getattr(view, name))
+    return other
 
 
 def _cast_weights(weights: Any, half: bool) -> Any:

@@ -389,6 +389,38 @@ def test_half_precision_inference_is_float32_inference_rounded(trained, split):
         np.testing.assert_allclose(outputs(True, planted), full, atol=5e-3 * scale)
 
 
+@pytest.mark.parametrize("split", [True, False])
+def test_a_packed_network_bound_to_other_weights_evaluates_those(trained, split):
+    """PackedMLP.arrays() is what a frozen frame takes of the weights (split: the one
+    buffer every matrix view reads) and bind() makes a network evaluate another
+    network's: bound to a perturbed copy's arrays, the outputs are the copy's, bitwise.
+    Planted: a bind that keeps the views (the weights it was packed with)."""
+    from renderers.caches.inference import PackedMLP
+
+    cache, records, _ = trained
+    rows = cache.encoder.surface(records.position, records.normal, records.roughness,
+                                 records.albedo, position_encoding=cache._infer_position)
+    direction = cache.encoder.direction(records.direction)
+    n_surface = cache.config.n_surface_features
+    perturbed = copy.deepcopy(cache.tensor_network)
+    perturbed.layers[0].weights = perturbed.layers[0].weights * 1.02
+    mine = PackedMLP(cache.tensor_network, n_surface, split_first_layer=split)
+    theirs = PackedMLP(perturbed, n_surface, split_first_layer=split)
+
+    def outputs(mlp):
+        return as_numpy(mlp.finish(mlp.surface(rows), direction))
+
+    own, expected = outputs(mine), outputs(theirs)
+    assert not np.array_equal(own, expected)
+    mine.bind(theirs.arrays())
+    np.testing.assert_array_equal(outputs(mine), expected)
+    if split:   # planted
+        kept = PackedMLP(cache.tensor_network, n_surface)
+        kept.bind = lambda _arrays: None
+        kept.bind(theirs.arrays())
+        np.testing.assert_array_equal(outputs(kept), own)
+
+
 def test_non_finite_targets_are_dropped_and_counted():
     cache = caches.NeuralCache(small_config(), [0, 0, 0], [1, 1, 1], seed=2)
     rec = synthetic_records(4096, seed=4)
