@@ -232,44 +232,42 @@ class CallKey:
         return f"CallKey{self.parts}"
 
 
-def _collect(tree: Any, parts: list[Any]) -> None:
-    """Append ``tree``'s widths and leaf values to ``parts`` (:class:`CallKey`), walked
-    depth first with a stack of the nodes still to visit (a call per node cost more than
-    the key's own work: most nodes are leaves)."""
-    stack = [tree]
-    while stack:
-        node = stack.pop()
-        kind = _KINDS.get(type(node))
-        if kind is None:
-            kind = _KINDS[type(node)] = _kind(type(node))
-        if kind is _Kind.VALUE:
-            parts.append(node)
-        elif kind is _Kind.ARRAY:
-            parts.append(dr.width(node))
-        elif kind is _Kind.TENSOR:
-            parts.append(tuple(node.shape))
-        elif kind is _Kind.SEQUENCE:
-            parts.append(len(node))
-            stack.extend(reversed(node))
-        elif kind is _Kind.DICT:   # each name, then its value
-            for name, value in reversed(node.items()):
-                stack += (value, name)
-        elif kind is _Kind.OWN_ARRAYS:   # Dr.Jit compares their count, and so does the key
-            parts.append(len(node.indices))
-        elif kind is _Kind.OBJECT:
-            if is_scene(node):
-                raise TypeError("a frozen call's inputs hold a scene inside another value: "
-                                "hand the scene over as an argument of its own (it enters "
-                                "as its arrays, SceneArrays)")
-            # Compared by identity, as Dr.Jit compares it; not kept alive.
-            parts.append((type(node).__qualname__, id(node)))
-        else:   # a DRJIT_STRUCT's or a dataclass's fields, last first
-            stack.extend(kind(node))
+def _collect(node: Any, parts: list[Any]) -> None:
+    """Append ``node``'s widths and leaf values to ``parts`` (:class:`CallKey`)."""
+    kind = _KINDS.get(type(node))
+    if kind is None:
+        kind = _KINDS[type(node)] = _kind(type(node))
+    if kind is _Kind.VALUE:
+        parts.append(node)
+    elif kind is _Kind.ARRAY:
+        parts.append(dr.width(node))
+    elif kind is _Kind.TENSOR:
+        parts.append(tuple(node.shape))
+    elif kind is _Kind.SEQUENCE:
+        parts.append(len(node))
+        for item in node:
+            _collect(item, parts)
+    elif kind is _Kind.DICT:
+        for name, value in node.items():
+            parts.append(name)
+            _collect(value, parts)
+    elif kind is _Kind.OWN_ARRAYS:   # Dr.Jit compares their count, and so does the key
+        parts.append(len(node.indices))
+    elif kind is _Kind.OBJECT:
+        if is_scene(node):
+            raise TypeError("a frozen call's inputs hold a scene inside another value: "
+                            "hand the scene over as an argument of its own (it enters "
+                            "as its arrays, SceneArrays)")
+        # Compared by identity, as Dr.Jit compares it; not kept alive.
+        parts.append((type(node).__qualname__, id(node)))
+    else:   # a DRJIT_STRUCT's or a dataclass's fields
+        for value in kind(node):
+            _collect(value, parts)
 
 
 class _Kind(enum.Enum):
     """How :func:`_collect` enters a value, by its type (a struct or a dataclass by the
-    getter of its fields' values, last first)."""
+    getter of its fields' values)."""
 
     ARRAY = enum.auto()
     TENSOR = enum.auto()
@@ -290,9 +288,9 @@ def _kind(cls: type) -> _Kind | Callable[[Any], tuple[Any, ...]]:
     if issubclass(cls, dict):
         return _Kind.DICT
     if (fields := getattr(cls, "DRJIT_STRUCT", None)) is not None:
-        return _fields_last_first(tuple(fields))
+        return _fields(tuple(fields))
     if dataclasses.is_dataclass(cls) and not issubclass(cls, type):
-        return _fields_last_first(tuple(field.name for field in dataclasses.fields(cls)))
+        return _fields(tuple(field.name for field in dataclasses.fields(cls)))
     if issubclass(cls, _VALUES):
         return _Kind.VALUE
     return _Kind.OWN_ARRAYS if issubclass(cls, OwnArrays) else _Kind.OBJECT
@@ -304,10 +302,10 @@ _VALUES = (int, float, complex, str, bytes, type(None), enum.Enum)
 _KINDS: dict[type, _Kind | Callable[[Any], tuple[Any, ...]]] = {}
 
 
-def _fields_last_first(names: tuple[str, ...]) -> Callable[[Any], tuple[Any, ...]]:
-    """The values of an object's fields ``names``, as a tuple in reverse order."""
+def _fields(names: tuple[str, ...]) -> Callable[[Any], tuple[Any, ...]]:
+    """The values of an object's fields ``names``, as a tuple."""
     if len(names) > 1:
-        return operator.attrgetter(*reversed(names))
+        return operator.attrgetter(*names)
     return lambda node: tuple(getattr(node, name) for name in names)
 
 
