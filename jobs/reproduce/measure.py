@@ -46,7 +46,8 @@ def sweep(ctx: Context, scene: str, method: str, parameter: str, values: list[An
                      reference=ReferenceSpec(spp=b.ref_spp),
                      parameter=ParameterSweep(name=parameter, values=values), params=params,
                      denoised=denoised)
-    result = run_sweep(spec, ctx.store, ctx.settings, progress=ctx.progress)
+    # The figure draws its own plot from the rows: none of the sweep's.
+    result = run_sweep(spec, ctx.store, ctx.settings, progress=ctx.progress, plots=False)
     for name in ("points_rendered", "points_reused"):
         ctx.work[name] = ctx.work.get(name, 0) + result.work.get(name, 0)
     return [(row, ctx.store.get_run(row.id)) for row in result.rows]

@@ -602,14 +602,11 @@ def _convergence_curves(sweep: _Sweep) -> dict[str, dict[str, Any]]:
     return curves
 
 
-def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[dict[str, Any]]:
-    """Plots + result.json into ``out_dir``; returns the plots' artifact records. The
-    folders it creates are owner-only, as the rest of the data folder (a CLI sweep
-    runs under the user's umask, the service under 077)."""
-    # Matplotlib takes ~1 s to import: a render process that runs no sweep does not.
+def _draw_plots(sweep: _Sweep, result: SweepResult, out_dir: Path) -> dict[str, Path]:
+    """The sweep's own figures (PNG) in ``out_dir``, by artifact kind."""
+    # Matplotlib takes ~1 s to import: a process that draws no sweep plot does not.
     from jobs.views.plots import plot_convergence, plot_sweep
 
-    make_private_dir(out_dir)
     title = f"{sweep.prepared.scene.name} ({sweep.device_key})"
     files: dict[str, Path] = {}
     rows = result.to_json()["rows"]
@@ -624,6 +621,16 @@ def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[di
         files["parameter"] = plot_sweep(rows, out_dir / "sweep_parameter.png",
                                         f"Sweep over {result.parameter}: {title}",
                                         x_key="value", x_label=str(result.parameter))
+    return files
+
+
+def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path,
+                   plots: bool) -> list[dict[str, Any]]:
+    """result.json, and with ``plots`` the sweep's figures, into ``out_dir``; returns the
+    figures' artifact records. The folders it creates are owner-only, as the rest of the
+    data folder (a CLI sweep runs under the user's umask, the service under 077)."""
+    make_private_dir(out_dir)
+    files = _draw_plots(sweep, result, out_dir) if plots else {}
     artifacts = ArtifactStore(sweep.settings.artifacts_dir)
     records = []
     for kind, path in files.items():
@@ -638,9 +645,13 @@ def _write_outputs(sweep: _Sweep, result: SweepResult, out_dir: Path) -> list[di
 
 def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
               progress: Progress | None = None, out_dir: Path | None = None,
-              stage_work: dict[str, int] | None = None) -> SweepResult:
+              stage_work: dict[str, int] | None = None, plots: bool = True) -> SweepResult:
     """Run (or resume, or re-assemble) a sweep; see the module docstring.
-    ``stage_work``: the summed work of the stage jobs that ran before (service)."""
+    ``stage_work``: the summed work of the stage jobs that ran before (service);
+    ``plots``: draw the sweep's own figures (PNG files, stored as the sweep's artifacts;
+    about 0.4 s of CPU a sweep, and matplotlib's import the first time in a process).
+    A caller that draws its own figure from the rows (``nirc-bench reproduce``) passes
+    False: result.json is written either way."""
     for method in spec.methods:
         get_method(method)
     sweep = _Sweep(spec, store, settings, progress)
@@ -661,13 +672,13 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
                                      v1_render_s=snap.stats["v1_render_s"])
                        for (m, s), snap in sorted(sweep.snapshots.items())])
         target = out_dir or settings.data_dir / "sweeps" / f"sweep-{row.id}"
-        plots = _write_outputs(sweep, result, target)
+        artifacts = _write_outputs(sweep, result, target, plots)
     except BaseException as err:
         store.finish_sweep(row.id, status="failed", result={"error": str(err)},
                            finished_at=datetime.now(UTC))
         raise
     store.finish_sweep(row.id, status="succeeded", result=result.to_json(),
-                       finished_at=datetime.now(UTC), artifacts=plots)
+                       finished_at=datetime.now(UTC), artifacts=artifacts)
     return result
 
 

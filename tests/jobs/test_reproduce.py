@@ -22,6 +22,7 @@ from jobs.reproduce.papers import PaperValue, paper_data
 from jobs.reproduce.registry import MODES, Budget, Context, figures
 from jobs.reproduce.results import Estimate, Point, Reproduction
 from jobs.reproduce.run import reproduce
+from jobs.sweeps import sweep as sweep_module
 from jobs.views import plots
 from service.cli import app, main
 
@@ -51,11 +52,15 @@ def assert_intervals(reproduction: Reproduction) -> None:
             assert low <= estimate.value <= high, (point, key)
 
 
-def _no_sweep_plot(_rows: object, path: Path, *_args: object, **_kwargs: object) -> Path:
-    """The sweep's own plot (not this command's figure) costs seconds and is tested with
-    the sweep: an empty file stands for it."""
-    path.write_bytes(b"")
-    return path
+def _recorded_sweep_plot(drawn: list[Path]) -> Any:
+    """A stand-in for the sweep's own plot (not this command's figure; tested with the
+    sweep) that records the files it is asked for and writes them empty."""
+    def plot_sweep(_rows: object, path: Path, *_args: object, **_kwargs: object) -> Path:
+        drawn.append(path)
+        path.write_bytes(b"")
+        return path
+
+    return plot_sweep
 
 
 def test_fig7_runs_end_to_end_and_reuses_its_points(sqlite_store, data_folder: Path,
@@ -63,11 +68,15 @@ def test_fig7_runs_end_to_end_and_reuses_its_points(sqlite_store, data_folder: P
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(vt_fig7, "SURVIVALS", (0.6,))
     monkeypatch.setattr(measure, "PREFILL_FRAMES", 1)
-    monkeypatch.setattr(plots, "plot_sweep", _no_sweep_plot)
+    drawn: list[Path] = []
+    monkeypatch.setattr(plots, "plot_sweep", _recorded_sweep_plot(drawn))
     settings = Settings(data_dir=data_folder)
     result, paths = reproduce("vt", "fig7", "quick", tmp_path / "out", sqlite_store, settings,
                               budget=TINY)
     assert paths["figure"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # The figure draws its own plot: the sweep it measures through draws none.
+    assert drawn == []
+    assert {path.suffix for path in (data_folder / "sweeps").rglob("*.*")} == {".json"}
     stored = Reproduction.model_validate_json(paths["json"].read_text())
     assert [p.x for p in stored.points] == [10.0]
     assert_intervals(stored)
@@ -82,8 +91,13 @@ def test_fig7_runs_end_to_end_and_reuses_its_points(sqlite_store, data_folder: P
         for p in result.points]})
     with pytest.raises(AssertionError):
         assert_intervals(stripped)
+    # Planted: a sweep that drops the caller's plots=False (its default: its own plot).
+    run_sweep = sweep_module.run_sweep
+    monkeypatch.setattr(sweep_module, "run_sweep",
+                        lambda *args, plots=False, **kwargs: run_sweep(*args, **kwargs))
     again, _paths = reproduce("vt", "fig7", "quick", tmp_path / "again", sqlite_store,
                               settings, budget=TINY)
+    assert [path.name for path in drawn] == ["sweep_parameter.png"]
     assert again.work == {"points_rendered": 0, "points_reused": 1}
     assert [p.run_id for p in again.points] == [p.run_id for p in result.points]
 
