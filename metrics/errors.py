@@ -44,6 +44,7 @@ from metrics.checks import (
     finite_pixel_mask,
 )
 from metrics.statistics import MeanEstimate, interval_or_reason
+from metrics.tonemap import to_display_srgb
 
 __all__ = [
     "DEFAULT_EPS",
@@ -472,8 +473,6 @@ def psnr_tonemapped(test: np.ndarray, ref: np.ndarray) -> float | None:
     Identical displays (MSE = 0) and anything above give PSNR_MAX_DB; None when
     no pixel is finite in both.
     """
-    from metrics.tonemap import to_display_srgb  # loads colour-science on first use
-
     test, ref = check_same_shape(test, ref)
     valid = finite_pixel_mask(test) & finite_pixel_mask(ref)
     if not valid.any():

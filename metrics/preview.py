@@ -2,7 +2,7 @@
 
 - :func:`tonemap_preview`: an HDR image through the project's tone mapper
   "clamp + sRGB" (:func:`metrics.tonemap.to_display_srgb`: 2^exposure, clamp
-  to [0, 1], sRGB encoding with colour-science), quantised to uint8.
+  to [0, 1], sRGB encoding), quantised to uint8.
 - :func:`error_map_preview`: a scalar error map (relative squared error,
   FLIP, ...) through the perceptually uniform *magma* colormap, without
   Matplotlib.

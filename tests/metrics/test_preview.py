@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 
 from metrics.checks import MetricError
 from metrics.preview import error_map_preview, tonemap_preview
-from metrics.tonemap import to_display_srgb
+from metrics.tonemap import SRGB_LINEAR_LIMIT, srgb_encode, to_display_srgb
 
 
 def test_tonemap_preview_dtype_shape_and_values():
@@ -37,6 +38,25 @@ def test_tonemap_is_monotone_and_handles_grey_and_alpha():
     assert tonemap_preview(rgba).shape == (2, 2, 3)
     with pytest.raises(MetricError):
         tonemap_preview(np.ones((2, 2, 2), np.float32))
+
+
+def test_the_srgb_encoding_is_colour_sciences_bitwise():
+    """The encoder the project took from colour-science before: bitwise the same on every
+    1009th float32 in [0, 1] (all exponents) and around the linear segment's end; the
+    formula evaluated in float32 (planted) is told apart."""
+    with warnings.catch_warnings():   # its optional features' warnings
+        warnings.simplefilter("ignore")
+        import colour
+    one = int(np.float32(1.0).view(np.uint32))
+    limit = int(np.float32(SRGB_LINEAR_LIMIT).view(np.uint32))
+    bits = np.concatenate([np.arange(0, one, 1009), np.arange(limit - 64, limit + 64), [one]])
+    linear = bits.astype(np.uint32).view(np.float32)
+    expected = colour.cctf_encoding(linear, function="sRGB").view(np.uint64)
+    assert np.array_equal(srgb_encode(linear).view(np.uint64), expected)
+    single = np.float32
+    planted = np.where(linear <= single(SRGB_LINEAR_LIMIT), linear * single(12.92),
+                       single(1.055) * linear ** single(1 / 2.4) - single(0.055))
+    assert not np.array_equal(planted.astype(np.float64).view(np.uint64), expected)
 
 
 def test_display_transform_is_in_unit_range():
@@ -69,15 +89,19 @@ def test_error_map_preview_scale_and_shapes():
         error_map_preview(np.zeros((3, 4)), vmax=0.0)
 
 
-def test_metrics_imports_no_renderer_or_service_code():
+def test_metrics_imports_no_renderer_or_service_code_nor_plotting():
+    """Scoring a render (its preview, its tone-mapped PSNR) loads neither the project's
+    other layers nor Matplotlib or SciPy (seconds in every render process)."""
     code = (
         "import sys\n"
         "import metrics.errors, metrics.flip, metrics.imageio, metrics.preview, "
         "metrics.statistics\n"
         "import numpy as np\n"
-        "metrics.preview.tonemap_preview(np.ones((2, 2, 3), np.float32))\n"
+        "image = np.ones((2, 2, 3), np.float32)\n"
+        "metrics.preview.tonemap_preview(image)\n"
+        "metrics.errors.psnr_tonemapped(image, 0.5 * image)\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in "
-        "('jobs', 'service', 'renderers', 'mitsuba', 'drjit')]\n"
+        "('jobs', 'service', 'renderers', 'mitsuba', 'drjit', 'matplotlib', 'scipy')]\n"
         "print(','.join(bad))\n"
     )
     root = Path(__file__).resolve().parents[2]
