@@ -649,7 +649,7 @@ def run_sweep(spec: SweepSpec, store: Store, settings: Settings,
     """Run (or resume, or re-assemble) a sweep; see the module docstring.
     ``stage_work``: the summed work of the stage jobs that ran before (service);
     ``plots``: draw the sweep's own figures (PNG files, stored as the sweep's artifacts;
-    about 0.4 s of CPU a sweep, and matplotlib's import the first time in a process).
+    0.4-0.6 s of CPU a plot, and matplotlib's import the first time in a process).
     A caller that draws its own figure from the rows (``nirc-bench reproduce``) passes
     False: result.json is written either way."""
     for method in spec.methods:
