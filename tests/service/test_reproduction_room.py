@@ -14,7 +14,6 @@ from fastapi.testclient import TestClient
 from sqlalchemy import update
 
 from jobs.execution import work
-from jobs.execution.apikeys import create_api_key
 from jobs.execution.work import data_bytes
 from jobs.record import usage
 from jobs.record.config import Settings
@@ -24,7 +23,7 @@ from jobs.reproduce import registry
 from jobs.reproduce.job import REPRODUCTION_BYTES, ReproduceSpec, job_dir
 from jobs.reproduce.registry import Budget, FigureSpec
 from jobs.reproduce.run import default_out_dir
-from service.api.main import create_app
+from tests.support.two_keys import two_key_clients
 
 BUDGET = Budget(resolution=4, seeds=2, frames=1, ref_spp=4, grid_preset="small",
                 why="synthetic: never run here")
@@ -51,13 +50,7 @@ def service(data_folder, monkeypatch, figures):
         settings = Settings(data_dir=data_folder, max_job_seconds=24 * 3600.0, **limits)
         store = open_store(settings)
         opened.append(store)
-        app = create_app(settings, None)
-        clients = []
-        for name in ("a", "b"):
-            client = TestClient(app)
-            client.headers["X-API-Key"] = create_api_key(store, name)[1]
-            clients.append(client)
-        return *clients, store, settings
+        return *two_key_clients(settings, store), store, settings
 
     yield make
     for store in opened:

@@ -14,11 +14,9 @@ from datetime import UTC, datetime, timedelta
 from types import SimpleNamespace
 
 import pytest
-from fastapi.testclient import TestClient
 from sqlalchemy import update
 
 from jobs.execution import queue as queue_module
-from jobs.execution.apikeys import create_api_key
 from jobs.execution.queued import QueuedRender
 from jobs.protocol.job import RenderJob
 from jobs.protocol.spec import RenderSpec
@@ -26,8 +24,8 @@ from jobs.record.config import Settings
 from jobs.record.db import open_store
 from jobs.record.models import Job
 from service.api import quota
-from service.api.main import create_app
 from tests.jobs.factories import artifact_fields, run_fields
+from tests.support.two_keys import two_key_clients
 
 SPEC = {"scene": "cornell-box", "method": "pt", "resolution": 16, "spp": 1, "frames": 2,
         "seeds": 2, "reference": {"spp": 64, "spp_per_pass": 8}}
@@ -50,13 +48,7 @@ def api(tmp_path, monkeypatch, database_url):
         settings = Settings(data_dir=tmp_path / "data", database_url=database_url, **overrides)
         store = open_store(settings)
         opened.append(store)
-        app = create_app(settings, None)
-        clients = []
-        for name in ("a", "b"):
-            client = TestClient(app)
-            client.headers["X-API-Key"] = create_api_key(store, name)[1]
-            clients.append(client)
-        return *clients, store
+        return *two_key_clients(settings, store), store
 
     yield make
     for store in opened:
