@@ -31,7 +31,14 @@ SERIES = (("NRC SPH", "nrc", "sph", {}),
           ("NIRC BTH", "nirc", "bth", {"estimator": "biased"}))
 ADAPTIVE = {"NIRC": "NIRC adaptive", "NRC": "NRC adaptive"}
 ORDER = [s[0] for s in SERIES] + list(ADAPTIVE.values())
-X_LABEL = "series: " + ", ".join(f"{i} {name}" for i, name in enumerate(ORDER))
+
+
+def x_label(adaptive: bool) -> str:
+    """The x axis: each drawn series' position (the adaptive ones only where drawn)."""
+    return "series: " + ", ".join(f"{i} {name}" for i, name in enumerate(ORDER)
+                                  if adaptive or name not in ADAPTIVE.values())
+
+
 QUANTITIES = {"rbias2": "rBias²", "rvar": "rVar", "mrse": "MRSE", "flip": "FLIP",
               "ir_bounces_pct": "% IR bounces", "path_vertices": "path vertices"}
 PRETRAIN_PER_FRAME = 2
@@ -88,7 +95,7 @@ def measure(ctx: Context) -> Reproduction:
                            "pre-training frames": PRETRAIN_PER_FRAME * b.frames,
                            "adaptive eps": list(b.values) if with_adaptive(b) else "—", "reference spp": b.ref_spp,
                            "why": b.why},
-        x_label=X_LABEL, quantities=QUANTITIES, points=points, verdicts=verdicts(points),
+        x_label=x_label(with_adaptive(b)), quantities=QUANTITIES, points=points, verdicts=verdicts(points),
         notes=["our scenes are the project's built-ins: white-room is the paper's White "
                "Room, cornell-glossy stands for Glossy Sponza, door for the indirectly lit "
                "Bistro Exterior",

@@ -63,7 +63,7 @@ def eps_sweep(ctx: Context, scene: str, equal_time: bool = True,
                      train_frames=train_frames(b), v1_spp=b.ref_spp // 4,
                      equal_time=equal_time, allow_loaded=allow_loaded,
                      reference=ReferenceSpec(spp=b.ref_spp))
-    result = run_sweep(spec, ctx.store, ctx.settings, progress=ctx.progress)
+    result = run_sweep(spec, ctx.store, ctx.settings, progress=ctx.progress, plots=False)
     for name in ("points_rendered", "points_reused"):
         ctx.work[name] = ctx.work.get(name, 0) + result.work.get(name, 0)
     return [(row, ctx.store.get_run(row.id)) for row in result.rows]

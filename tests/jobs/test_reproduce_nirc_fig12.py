@@ -58,6 +58,7 @@ def test_fig12_a_point_per_heuristic_and_scene_and_the_png(monkeypatch: pytest.M
     series = [p.series for p in result.points if p.scene == "door"]
     assert series == ["NRC SPH", "NIRC SPH", "NIRC BTH", "NIRC adaptive", "NRC adaptive"]
     assert [p.x for p in result.points if p.scene == "door"] == [0, 1, 2, 3, 4]
+    assert "3 NIRC adaptive" in result.x_label and "4 NRC adaptive" in result.x_label
     assert [v.verdict for v in result.verdicts] == ["holds", "holds"]
     assert "NRC / NIRC 2.00x" in result.verdicts[0].reason
 
@@ -68,6 +69,7 @@ def test_fig12_quick_leaves_out_the_adaptive_series(monkeypatch: pytest.MonkeyPa
     monkeypatch.setattr(nirc_fig12, "eps_sweep", eps_sweep)
     result = nirc_fig12.measure(Context(nirc_fig12.QUICK, None, None))
     assert {p.series for p in result.points} == {"NRC SPH", "NIRC SPH", "NIRC BTH"}
+    assert "adaptive" not in result.x_label   # the axis names only the drawn series
     assert [v.verdict for v in result.verdicts] == ["holds", "holds"]
 
 
