@@ -35,7 +35,7 @@ from jobs.protocol.spec import RenderSpec
 from jobs.record.artifacts import ArtifactStore
 from jobs.record.config import Settings
 from jobs.record.db import open_store
-from jobs.record.models import Job
+from jobs.record.models import Job, Run
 from jobs.record.store import Store
 from tests.jobs.factories import artifact_fields, run_fields
 from tests.pg import postgres_database
@@ -158,16 +158,22 @@ def test_a_key_past_its_quota_is_507_but_gets_its_existing_jobs(bounded):
 
 def _old_runs(store: Store, settings: Settings) -> dict[str, tuple[int, Path]]:
     """Runs of 60 days (unnamed, named, tagged) and of 1 day, each with an image of
-    its own: name -> (run id, the image's file)."""
+    its own: name -> (run id, the image's file). Each is stored at 1 day old and aged
+    only once labelled: the service's retention rounds run meanwhile, and a named run
+    stored old would be an unnamed old run until its label arrives."""
     artifacts = ArtifactStore(settings.artifacts_dir)
     runs = {}
-    for name, days in (("old", 60), ("named", 60), ("tagged", 60), ("young", 1)):
+    for name in ("old", "named", "tagged", "young"):
         blob = artifacts.put_bytes(f"retention {name}".encode() * 50, ".exr")
-        run = store.add_run(run_fields(created_at=datetime.now(UTC) - timedelta(days=days)),
+        run = store.add_run(run_fields(created_at=datetime.now(UTC) - timedelta(days=1)),
                             [], [{**artifact_fields("image", blob.sha256), "path": blob.relpath}])
         runs[name] = run.id, artifacts.root / blob.relpath
     store.label_run(runs["named"][0], name="paper figure 3")
     store.label_run(runs["tagged"][0], set_tags={"keep": "yes"})
+    with store.session(write=True) as session:
+        session.execute(update(Run).where(Run.id.in_([runs[name][0] for name in
+                                                      ("old", "named", "tagged")]))
+                        .values(created_at=datetime.now(UTC) - timedelta(days=60)))
     return runs
 
 
