@@ -20,7 +20,7 @@ from typing import Any
 from jobs.reproduce.measure import sweep
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Budget, Context, FigureSpec, register
-from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict
+from jobs.reproduce.results import Estimate, Point, Reproduction, Verdict, apart
 
 SCENES = ("cornell-box", "door")
 ESTIMATORS = ("biased", "unbiased")
@@ -111,14 +111,6 @@ def _last(points: list[Point], scene: str, series: str) -> Estimate | None:
     return max(members, key=lambda p: p.x or 0.0).values["flip"] if members else None
 
 
-def _apart(a: Estimate, b: Estimate) -> int:
-    """+1 when ``a``'s 95 % interval lies above ``b``'s, -1 below, 0 overlapping or
-    without intervals."""
-    if a.ci95 is None or b.ci95 is None:
-        return 0
-    return 1 if a.ci95[0] > b.ci95[1] else -1 if a.ci95[1] < b.ci95[0] else 0
-
-
 def verdicts(points: list[Point]) -> list[Verdict]:
     """The two claims of Fig. 4's caption, at the last epoch of each scene."""
     harm, diverge = [], []
@@ -126,14 +118,14 @@ def verdicts(points: list[Point]) -> list[Verdict]:
         lv = _last(points, scene, series_name("biased", "variance"))
         l2 = _last(points, scene, series_name("biased", "l2"))
         if lv is not None and l2 is not None:
-            harm.append((scene, _apart(lv, l2), lv.text(), l2.text()))
+            harm.append((scene, apart(lv, l2), lv.text(), l2.text()))
         for estimator in ESTIMATORS:
             name = series_name(estimator, "variance")
             members = sorted((p for p in points if p.scene == scene and p.series == name),
                              key=lambda p: p.x or 0.0)
             if len(members) >= 2:
                 best = min(members[:-1], key=lambda p: p.values["flip"].value or 1e9)
-                diverge.append((scene, estimator, _apart(members[-1].values["flip"],
+                diverge.append((scene, estimator, apart(members[-1].values["flip"],
                                                          best.values["flip"])))
     return [_verdict("L_V hurts the biased estimator (last epoch, biased L_V against biased L2)",
                      [s for s, sign, *_ in harm if sign > 0],

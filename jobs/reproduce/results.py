@@ -34,6 +34,14 @@ class Estimate(BaseModel):
         return f"{self.value:.3g} [{lo:.3g}, {hi:.3g}]"
 
 
+def apart(a: Estimate, b: Estimate) -> int:
+    """+1 when ``a``'s 95 % interval lies above ``b``'s, -1 below, 0 overlapping or
+    without intervals."""
+    if a.ci95 is None or b.ci95 is None:
+        return 0
+    return 1 if a.ci95[0] > b.ci95[1] else -1 if a.ci95[1] < b.ci95[0] else 0
+
+
 class Point(BaseModel):
     """One point (a row of the table): a scene, a series and the swept value ``x``."""
 

@@ -12,6 +12,7 @@ image of :data:`MSE_SAMPLES` samples is rBias² + rVar₁ / N (jobs/reproduce/me
 
 from __future__ import annotations
 
+from itertools import pairwise
 from pathlib import Path
 
 from jobs.reproduce.measure import (
@@ -28,7 +29,7 @@ from jobs.reproduce.measure import (
 )
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Context, FigureSpec, register
-from jobs.reproduce.results import Point, Reproduction
+from jobs.reproduce.results import Point, Reproduction, Verdict, apart
 
 SCENE = "door"
 #: The paper's roulette survival probabilities.
@@ -44,6 +45,74 @@ QUANTITIES = {"rvar": "rVar₁ (one sample)", "rbias2": "rBias²",
 
 QUICK = quick_budget((0.01, 0.1, 1.0, 10.0))
 FULL = full_budget((0.001, 0.01, 0.1, 1.0, 10.0, 100.0))
+
+
+def _series(points: list[Point], series: str) -> list[Point]:
+    return sorted((p for p in points if p.series == series), key=lambda p: p.x or 0.0)
+
+
+def _steps(line: list[Point], key: str) -> list[int]:
+    """Each step to the next threshold: +1 the interval rises, -1 falls, 0 overlaps."""
+    return [apart(b.values[key], a.values[key]) for a, b in pairwise(line)]
+
+
+def _kind(resolved: list[bool], contrary: list[bool]) -> str:
+    return ("does not hold" if any(contrary) else "holds" if all(resolved)
+            else "not comparable")
+
+
+def follows_bound(points: list[Point]) -> Verdict:
+    """Claim 1 compares the variance with the absolute threshold t; ours is relative."""
+    first = [_series(points, f"survival {s:.0%}")[0] for s in SURVIVALS]
+    values = ", ".join(f"{p.values['rvar'].text()} at {p.series}" for p in first)
+    return Verdict(claim="the variance follows the bound t, then detaches",
+                   verdict="not comparable",
+                   reason=f"our rVar₁ is relative to the reference, t absolute: at t = "
+                          f"{first[0].x:g} rVar₁ {values}")
+
+
+def length_and_bias(points: list[Point]) -> Verdict:
+    """Claim 2, per survival: every step in t lengthens paths (intervals apart) and the
+    smallest t's rBias² lies above the largest's."""
+    resolved, contrary, parts = [], [], []
+    for survival in SURVIVALS:
+        line = _series(points, f"survival {survival:.0%}")
+        steps = _steps(line, "path_length")
+        bias = apart(line[0].values["rbias2"], line[-1].values["rbias2"])
+        resolved += [all(s == 1 for s in steps), bias == 1]
+        contrary += [any(s == -1 for s in steps), bias == -1]
+        parts.append(f"{survival:.0%}: path length "
+                     + " -> ".join(f"{p.values['path_length'].value:.3g}" for p in line)
+                     + f" ({steps.count(1)} of {len(steps)} steps apart), rBias² "
+                     f"{line[0].values['rbias2'].text()} at t = {line[0].x:g} against "
+                     f"{line[-1].values['rbias2'].text()} at t = {line[-1].x:g}"
+                     + ("" if bias == 1 else " (not apart)" if bias == 0 else " (rises)"))
+    return Verdict(claim="path length increases and bias decreases with t",
+                   verdict=_kind(resolved, contrary), reason="; ".join(parts))
+
+
+def survival_order(points: list[Point]) -> Verdict:
+    """Claim 3, at every t: lower survival gives shorter paths and more rVar₁ (each
+    survival against the next lower one, intervals apart)."""
+    lines = [_series(points, f"survival {s:.0%}") for s in SURVIVALS]
+    resolved, contrary, parts = [], [], []
+    for at_t in zip(*lines, strict=True):
+        for key, sign in (("path_length", 1), ("rvar", -1)):
+            order = [sign * apart(a.values[key], b.values[key])
+                     for a, b in pairwise(at_t)]
+            resolved.append(all(o == 1 for o in order))
+            contrary.append(any(o == -1 for o in order))
+        parts.append(f"t = {at_t[0].x:g}: path length "
+                     + ", ".join(p.values["path_length"].text() for p in at_t)
+                     + "; rVar₁ " + ", ".join(p.values["rvar"].text() for p in at_t))
+    survivals = ", ".join(f"{s:.0%}" for s in SURVIVALS)
+    return Verdict(claim="lower survival ends paths earlier and increases variance",
+                   verdict=_kind(resolved, contrary),
+                   reason=f"at survival {survivals}: " + "; ".join(parts))
+
+
+def verdicts(points: list[Point]) -> list[Verdict]:
+    return [follows_bound(points), length_and_bias(points), survival_order(points)]
 
 
 def measure(ctx: Context) -> Reproduction:
@@ -67,6 +136,7 @@ def measure(ctx: Context) -> Reproduction:
         mode="", settings=budget_settings(ctx, **{"max depth": MAX_DEPTH,
                                                   "runs' grid presets": sorted(presets)}),
         x_label="variance threshold t (absolute)", quantities=QUANTITIES, points=points,
+        verdicts=verdicts(points),
         notes=["our door is the project's built-in scene, not the paper's model",
                "relative figures (divided by the reference's squared value + 0.01); the "
                "paper plots absolute ones, so our y values are on another scale: compare "

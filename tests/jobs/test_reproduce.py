@@ -233,3 +233,32 @@ def test_every_figure_measures_writes_and_draws_from_stored_points(
     if module is vt_table1:   # the paper's path length beside ours
         door = next(p for p in result.points if (p.series, p.x) == ("var-bound (t)", 1.0))
         assert door.paper["path_length"] == 7.41 and "| 7.41 |" in table
+
+
+def _fig7_points(length: dict[float, tuple[float, float]], rvar: dict[float, tuple[float, float]],
+                 bias: tuple[float, float]) -> list[Point]:
+    """Two thresholds per survival; ``length``/``rvar``: survival -> value at each t (a
+    narrow interval), ``bias``: rBias² at each t (every survival alike)."""
+    def near(value: float) -> Estimate:
+        return Estimate(value=value, ci95=[0.95 * value - 0.01, 1.05 * value + 0.01])
+    return [Point(scene="door", series=f"survival {s:.0%}", x=t,
+                  values={"path_length": near(length[s][i]), "rvar": near(rvar[s][i]),
+                          "rbias2": near(bias[i]), "mse": near(bias[i])})
+            for s in vt_fig7.SURVIVALS for i, t in enumerate((0.01, 10.0))]
+
+
+def test_fig7_verdicts_follow_the_intervals() -> None:
+    length = {1.0: (4.0, 15.0), 0.6: (3.0, 6.0), 0.2: (2.0, 5.0)}
+    rvar = {1.0: (1.0, 2.0), 0.6: (5.0, 10.0), 0.2: (50.0, 100.0)}
+    first, second, third = vt_fig7.verdicts(_fig7_points(length, rvar, (1.0, 0.1)))
+    assert first.verdict == "not comparable" and "relative" in first.reason
+    assert (second.verdict, third.verdict) == ("holds", "holds")
+    # planted: bias rising with t, paths longer at low survival, variance intervals overlapping
+    assert vt_fig7.length_and_bias(_fig7_points(length, rvar, (0.1, 1.0))).verdict \
+        == "does not hold"
+    reversed_ = {1.0: length[0.2], 0.6: length[0.6], 0.2: length[1.0]}
+    assert vt_fig7.survival_order(_fig7_points(reversed_, rvar, (1.0, 0.1))).verdict \
+        == "does not hold"
+    level = {s: (5.0, 5.0) for s in rvar}
+    assert vt_fig7.survival_order(_fig7_points(length, level, (1.0, 0.1))).verdict \
+        == "not comparable"
