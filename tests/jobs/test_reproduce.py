@@ -262,3 +262,27 @@ def test_fig7_verdicts_follow_the_intervals() -> None:
     level = {s: (5.0, 5.0) for s in rvar}
     assert vt_fig7.survival_order(_fig7_points(length, level, (1.0, 0.1))).verdict \
         == "not comparable"
+
+
+def _fig9_points(mse: dict[str, float]) -> list[Point]:
+    """Lines with the same MSE at every N (a ±10 % interval), on one scene; ``mse`` by
+    series."""
+    return [Point(scene="white-room", series=series, x=n,
+                  values={"mse": Estimate(value=value, ci95=[0.9 * value, 1.1 * value])})
+            for series, value in mse.items() for n in vt_fig9.SAMPLE_COUNTS]
+
+
+def test_fig9_verdicts_follow_the_intervals() -> None:
+    lines = {"mse-min s = 1": 1.0, "mse-min s = 10": 2.0, vt_fig9.PT: 5.0}
+    first, second = vt_fig9.verdicts(_fig9_points(lines))
+    assert (first.verdict, second.verdict) == ("holds", "holds")    # s = 1 lowest at N = 1
+    assert "1 of 2 lowest" in first.reason
+    # planted: s = 1's line level with s = 10's; then beaten at both targets; PT lowest
+    assert vt_fig9.lowest_at_target(_fig9_points({**lines, "mse-min s = 1": 2.05})).verdict \
+        == "not comparable"
+    beaten = {**lines, "area-spread c = 0.01": 0.5}
+    assert vt_fig9.lowest_at_target(_fig9_points(beaten)).verdict == "does not hold"
+    assert vt_fig9.favourable_below_100(_fig9_points({**lines, vt_fig9.PT: 0.5})).verdict \
+        == "does not hold"
+    assert vt_fig9.favourable_below_100(_fig9_points({**lines, vt_fig9.PT: 2.1})).verdict \
+        == "not comparable"
