@@ -12,6 +12,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
+#: A verdict's kind.
+Kind = Literal["holds", "does not hold", "not comparable"]
+
 
 def where(claim: dict[str, Any]) -> str:
     """A claim's place in the paper: its page, else its section or caption as given."""
@@ -42,6 +45,13 @@ def apart(a: Estimate, b: Estimate) -> int:
     return 1 if a.ci95[0] > b.ci95[1] else -1 if a.ci95[1] < b.ci95[0] else 0
 
 
+def kind_of(resolved: list[bool], contrary: list[bool]) -> Kind:
+    """A claim made of checks: "does not hold" when an interval contradicts one, "holds"
+    when intervals settle every one, "not comparable" when some are left unsettled."""
+    return ("does not hold" if any(contrary) else "holds" if all(resolved)
+            else "not comparable")
+
+
 class Point(BaseModel):
     """One point (a row of the table): a scene, a series and the swept value ``x``."""
 
@@ -58,7 +68,7 @@ class Verdict(BaseModel):
     """Whether one of the paper's claims holds in our numbers."""
 
     claim: str                      # the claim, short
-    verdict: Literal["holds", "does not hold", "not comparable"]
+    verdict: Kind
     reason: str
 
 

@@ -29,7 +29,7 @@ from jobs.reproduce.measure import (
 )
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Context, FigureSpec, register
-from jobs.reproduce.results import Point, Reproduction, Verdict, apart
+from jobs.reproduce.results import Point, Reproduction, Verdict, apart, kind_of
 
 SCENE = "door"
 #: The paper's roulette survival probabilities.
@@ -54,11 +54,6 @@ def _series(points: list[Point], series: str) -> list[Point]:
 def _steps(line: list[Point], key: str) -> list[int]:
     """Each step to the next threshold: +1 the interval rises, -1 falls, 0 overlaps."""
     return [apart(b.values[key], a.values[key]) for a, b in pairwise(line)]
-
-
-def _kind(resolved: list[bool], contrary: list[bool]) -> str:
-    return ("does not hold" if any(contrary) else "holds" if all(resolved)
-            else "not comparable")
 
 
 def follows_bound(points: list[Point]) -> Verdict:
@@ -88,7 +83,7 @@ def length_and_bias(points: list[Point]) -> Verdict:
                      f"{line[-1].values['rbias2'].text()} at t = {line[-1].x:g}"
                      + ("" if bias == 1 else " (not apart)" if bias == 0 else " (rises)"))
     return Verdict(claim="path length increases and bias decreases with t",
-                   verdict=_kind(resolved, contrary), reason="; ".join(parts))
+                   verdict=kind_of(resolved, contrary), reason="; ".join(parts))
 
 
 def survival_order(points: list[Point]) -> Verdict:
@@ -107,7 +102,7 @@ def survival_order(points: list[Point]) -> Verdict:
                      + "; rVar₁ " + ", ".join(p.values["rvar"].text() for p in at_t))
     survivals = ", ".join(f"{s:.0%}" for s in SURVIVALS)
     return Verdict(claim="lower survival ends paths earlier and increases variance",
-                   verdict=_kind(resolved, contrary),
+                   verdict=kind_of(resolved, contrary),
                    reason=f"at survival {survivals}: " + "; ".join(parts))
 
 

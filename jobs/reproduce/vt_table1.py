@@ -15,7 +15,8 @@ paper's GPU at 1080p."""
 
 from __future__ import annotations
 
-from itertools import combinations
+import math
+from itertools import combinations, pairwise
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,7 @@ from jobs.reproduce.measure import (
 from jobs.reproduce.papers import paper_data
 from jobs.reproduce.plot import Panel, plot_panels
 from jobs.reproduce.registry import Context, FigureSpec, register
-from jobs.reproduce.results import Point, Reproduction
+from jobs.reproduce.results import Point, Reproduction, Verdict, apart, kind_of
 from jobs.reproduce.vt_fig7 import MAX_DEPTH, SURVIVALS
 
 #: Our scenes, by the paper's names.
@@ -50,6 +51,9 @@ RR_SURVIVAL = SURVIVALS[1]
 QUANTITIES = {"mrse": "MRSE", "rvar": "rVar", "rbias2": "rBias²",
               "path_length": "path length (paper's)", "tracer_ms": "tracer ms (kernels)",
               "propagation_ms": "propagation ms (kernels)"}
+
+#: "an average path length of almost 2": our reading, within 10 % of 2 vertices.
+ALMOST_TWO = (1.8, 2.2)
 
 QUICK = quick_budget()
 FULL = full_budget((0.01, 0.1, 1.0, 10.0))
@@ -85,6 +89,50 @@ def policy_order(points: list[Point], scene: str, key: str) -> tuple[list[str], 
     return [p.series if p.x is None else f"{p.series} {p.x:g}" for p in rows], agree, total
 
 
+def area_spread_near_two(points: list[Point]) -> Verdict:
+    """Claim 1: area-spread (c = 0.01)'s path length in every scene, its interval inside
+    :data:`ALMOST_TWO` (holds), outside it (does not hold) or across an end."""
+    rows = [p for p in points if p.series == "area-spread (c)" and p.x == 0.01]
+    inside, outside = [], []
+    for p in rows:
+        low, high = p.values["path_length"].ci95 or (-math.inf, math.inf)
+        inside.append(ALMOST_TWO[0] <= low and high <= ALMOST_TWO[1])
+        outside.append(high < ALMOST_TWO[0] or low > ALMOST_TWO[1])
+    lengths = ", ".join(f"{p.scene} {p.values['path_length'].text()} (the paper's "
+                        f"{p.paper.get('path_length', math.nan):g})" for p in rows)
+    return Verdict(claim="area-spread c = 0.01 paths average almost 2 vertices",
+                   verdict=kind_of(inside, outside) if rows else "not comparable",
+                   reason=f"path length {lengths}; 'almost 2' read as {ALMOST_TWO[0]:g}"
+                          f"-{ALMOST_TWO[1]:g}")
+
+
+def longer_with_threshold(points: list[Point]) -> Verdict:
+    """Claim 2, per scene: each larger var-bound t gives longer paths and a longer tracer
+    time (intervals apart; a time is one median frame without an interval, so it settles
+    nothing)."""
+    resolved, contrary, parts = [], [], []
+    for scene in SCENES:
+        rows = sorted((p for p in points if p.scene == scene and p.series == "var-bound (t)"),
+                      key=lambda p: p.x or 0.0)
+        for key in ("path_length", "tracer_ms"):
+            steps = [apart(b.values[key], a.values[key]) for a, b in pairwise(rows)]
+            resolved.append(all(step == 1 for step in steps))
+            contrary.append(any(step == -1 for step in steps))
+            parts.append(f"{scene} {QUANTITIES[key]} " + " -> ".join(
+                p.values[key].text() for p in rows) + f" ({steps.count(1)} of {len(steps)} "
+                "steps apart" + ("; medians without intervals" if any(
+                    p.values[key].ci95 is None for p in rows) else "") + ")")
+    ts = ", ".join(f"{p.x:g}" for p in points if p.scene == "door"
+                   and p.series == "var-bound (t)")
+    return Verdict(claim="larger thresholds give longer paths and longer times",
+                   verdict=kind_of(resolved, contrary),
+                   reason=f"at t = {ts}: " + "; ".join(parts))
+
+
+def verdicts(points: list[Point]) -> list[Verdict]:
+    return [area_spread_near_two(points), longer_with_threshold(points)]
+
+
 def measure(ctx: Context) -> Reproduction:
     points: list[Point] = []
     presets: set[str] = set()
@@ -118,7 +166,8 @@ def measure(ctx: Context) -> Reproduction:
     return Reproduction(
         paper="vt", figure="table1", title="[VTT24] Table 1: path length and time per policy",
         mode="", settings=budget_settings(ctx, **{"runs' grid presets": sorted(presets)}),
-        x_label="parameter", quantities=QUANTITIES, points=points, notes=notes)
+        x_label="parameter", quantities=QUANTITIES, points=points, notes=notes,
+        verdicts=verdicts(points))
 
 
 def draw(reproduction: Reproduction, path: Path) -> Path:

@@ -286,3 +286,37 @@ def test_fig9_verdicts_follow_the_intervals() -> None:
         == "does not hold"
     assert vt_fig9.favourable_below_100(_fig9_points({**lines, vt_fig9.PT: 2.1})).verdict \
         == "not comparable"
+
+
+def _table1_points(area_spread: float, lengths: tuple[float, ...],
+                   times: tuple[float, ...]) -> list[Point]:
+    """Both scenes alike: area-spread c = 0.01's path length and var-bound's at each t
+    (±0.1 intervals, times ±5 %)."""
+    def near(value: float, half: float) -> Estimate:
+        return Estimate(value=value, ci95=[value - half, value + half])
+    rows = [("area-spread (c)", 0.01, area_spread, 1.0)]
+    rows += [("var-bound (t)", t, length, time)
+             for t, length, time in zip((0.01, 0.1, 1.0), lengths, times, strict=True)]
+    return [Point(scene=scene, series=series, x=x, values={
+        "path_length": near(length, 0.1), "tracer_ms": near(time, 0.05 * time)})
+        for scene in vt_table1.SCENES for series, x, length, time in rows]
+
+
+def test_table1_verdicts_follow_the_intervals() -> None:
+    first, second = vt_table1.verdicts(_table1_points(1.95, (2.0, 4.0, 6.0), (1.0, 2.0, 3.0)))
+    assert (first.verdict, second.verdict) == ("holds", "holds")
+    # planted: paths of 3 vertices; an interval across 2.2; a shorter path at a larger t
+    assert vt_table1.area_spread_near_two(_table1_points(3.0, (2.0, 4.0, 6.0),
+                                                         (1.0, 2.0, 3.0))).verdict \
+        == "does not hold"
+    assert vt_table1.area_spread_near_two(_table1_points(2.2, (2.0, 4.0, 6.0),
+                                                         (1.0, 2.0, 3.0))).verdict \
+        == "not comparable"
+    assert vt_table1.longer_with_threshold(_table1_points(2.0, (2.0, 6.0, 4.0),
+                                                          (1.0, 2.0, 3.0))).verdict \
+        == "does not hold"
+    no_interval = _table1_points(2.0, (2.0, 4.0, 6.0), (1.0, 2.0, 3.0))
+    for p in no_interval:
+        p.values["tracer_ms"] = Estimate(value=p.values["tracer_ms"].value)
+    verdict = vt_table1.longer_with_threshold(no_interval)
+    assert verdict.verdict == "not comparable" and "without intervals" in verdict.reason
