@@ -50,8 +50,8 @@ bench: bootstrap
 
 # Every registered figure of the papers at its --quick budget, one after another, then
 # one summary of the verdicts and of each figure's wall and CPU time; fails if any
-# figure failed (docs/reproduce.md). Its goal is an hour on 2 cores in all (a total
-# over it is printed, not a failure): not part of `make test` or CI.
+# figure failed (docs/reproduce.md). Its goal is an hour on 2 cores in all (measured: 17 min
+# quiet; a total over it is printed, not a failure): not part of `make test` or CI.
 reproduce: bootstrap
 	$(CLI) reproduce --all --quick
 
